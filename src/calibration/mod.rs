@@ -1,0 +1,567 @@
+//! Offline calibration from bi-directional square tests: pure functions, no I/O.
+//!
+//! The input is one [`SquareTest`]: the square's side, the wheelbase the controller used, and per
+//! run the final-minus-start heading error (and optionally the final position) of each clockwise
+//! and counter-clockwise run. Five estimators turn it into `E_b`, `E_d` and a [`Correction`] for
+//! the controller's parameters:
+//!
+//! | [`Method`] | uses | source |
+//! |---|---|---|
+//! | `umbmark` | final positions | Borenstein & Feng 1996, the paper's eqs. 1–3 |
+//! | `lee` | final positions | Lee, Jung & Chung 2011, reconstructed (see [`lee`]) |
+//! | `heading-only` | final headings | the paper's eqs. 6–7, 10 without `α_εd`, 11 with `b_nom` |
+//! | `jung-chung` | final headings | the paper's eqs. 6–11 as printed |
+//! | `exact` | final headings | our closed-form inversion of the exact square model |
+//!
+//! Methods see the *means* of the runs in each direction (the paper's "c.g."). Standard errors
+//! come from the run-to-run scatter propagated through each estimator's own Jacobian; the
+//! Cramér–Rao bound for a given heading noise is in [`uncertainty`].
+//!
+//! Heading errors follow the crate's convention (see [`crate::kinematics`]): radians,
+//! counter-clockwise positive, final minus start, wrapped. A compass azimuth is clockwise
+//! positive and must be negated before it gets here.
+
+pub mod exact;
+pub mod heading_only;
+pub mod jung_chung;
+pub mod lee;
+pub mod umbmark;
+pub mod uncertainty;
+
+use crate::kinematics::{Correction, Direction, KinematicsError, SplitConvention};
+use nalgebra::{SMatrix, SVector};
+use serde::{Deserialize, Serialize};
+use std::f64::consts::FRAC_PI_2;
+use std::fmt;
+use std::str::FromStr;
+
+/// Errors of the calibration layer: input no real test can produce, or an estimate that is not a
+/// robot.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum CalibrationError {
+    /// A direction has no runs.
+    #[error("no {0:?} runs: a square test needs at least one run in each direction")]
+    NoRuns(Direction),
+    /// A number is NaN or infinite.
+    #[error("{what} of {direction:?} run {index} is not finite")]
+    NonFinite {
+        /// Which quantity.
+        what: &'static str,
+        /// Direction of the run.
+        direction: Direction,
+        /// 0-based run index.
+        index: usize,
+    },
+    /// A heading error of 90° or more cannot come from a square of 90° turns.
+    #[error("{direction:?} run {index}: |heading error| = {degrees:.2}° is >= 90°; check the sign convention and units (degrees vs radians)")]
+    HeadingTooLarge {
+        /// Direction of the run.
+        direction: Direction,
+        /// 0-based run index.
+        index: usize,
+        /// The error in degrees.
+        degrees: f64,
+    },
+    /// Some runs have a final position and others do not.
+    #[error(
+        "final positions must be given for every run or for none ({with} of {total} have one)"
+    )]
+    InconsistentPositions {
+        /// Runs that have a position.
+        with: usize,
+        /// All runs.
+        total: usize,
+    },
+    /// The side or wheelbase is not a positive length.
+    #[error("{name} must be finite and > 0, got {value}")]
+    BadGeometry {
+        /// Which length.
+        name: &'static str,
+        /// Its value.
+        value: f64,
+    },
+    /// A position-based method was asked for without final positions.
+    #[error("method {0} needs the final positions of every run")]
+    MissingPositions(Method),
+    /// The measurements imply an impossible robot (e.g. a non-positive wheel diameter).
+    #[error("method {method}: {reason}")]
+    NotPhysical {
+        /// The method.
+        method: Method,
+        /// What went wrong.
+        reason: String,
+    },
+    /// The estimate could not be turned into parameters.
+    #[error(transparent)]
+    Kinematics(#[from] KinematicsError),
+    /// The request is valid but not supported by this computation.
+    #[error("unsupported: {0}")]
+    Unsupported(String),
+}
+
+/// One square run's measurements.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct RunMeasurement {
+    /// Final-minus-start heading error (rad, CCW positive, wrapped to (-π, π]).
+    pub heading_error_rad: f64,
+    /// Final position in the start frame (m): x along the first leg, y to its left.
+    pub final_xy_m: Option<[f64; 2]>,
+}
+
+/// A bi-directional square test: everything the estimators need.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SquareTest {
+    /// Side of the square (m).
+    pub side_m: f64,
+    /// Wheelbase configured on the controller while the test ran (m): the paper's `b_nominal`.
+    pub wheelbase_m: f64,
+    /// Clockwise runs.
+    pub cw: Vec<RunMeasurement>,
+    /// Counter-clockwise runs.
+    pub ccw: Vec<RunMeasurement>,
+}
+
+impl SquareTest {
+    /// The same test without final positions (heading-only data, as from a compass).
+    pub fn without_positions(mut self) -> Self {
+        for r in self.cw.iter_mut().chain(self.ccw.iter_mut()) {
+            r.final_xy_m = None;
+        }
+        self
+    }
+
+    /// Rejects input no real square test can produce.
+    pub fn validate(&self) -> Result<(), CalibrationError> {
+        for (name, value) in [("side_m", self.side_m), ("wheelbase_m", self.wheelbase_m)] {
+            if !(value.is_finite() && value > 0.0) {
+                return Err(CalibrationError::BadGeometry { name, value });
+            }
+        }
+        let mut with = 0;
+        for (direction, runs) in [(Direction::Cw, &self.cw), (Direction::Ccw, &self.ccw)] {
+            if runs.is_empty() {
+                return Err(CalibrationError::NoRuns(direction));
+            }
+            for (index, r) in runs.iter().enumerate() {
+                if !r.heading_error_rad.is_finite() {
+                    return Err(CalibrationError::NonFinite {
+                        what: "heading error",
+                        direction,
+                        index,
+                    });
+                }
+                if r.heading_error_rad.abs() >= FRAC_PI_2 {
+                    return Err(CalibrationError::HeadingTooLarge {
+                        direction,
+                        index,
+                        degrees: r.heading_error_rad.to_degrees(),
+                    });
+                }
+                if let Some(xy) = r.final_xy_m {
+                    if !(xy[0].is_finite() && xy[1].is_finite()) {
+                        return Err(CalibrationError::NonFinite {
+                            what: "final position",
+                            direction,
+                            index,
+                        });
+                    }
+                    with += 1;
+                }
+            }
+        }
+        let total = self.cw.len() + self.ccw.len();
+        if with != 0 && with != total {
+            return Err(CalibrationError::InconsistentPositions { with, total });
+        }
+        Ok(())
+    }
+
+    /// Whether every run has a final position.
+    pub fn has_positions(&self) -> bool {
+        self.cw
+            .iter()
+            .chain(self.ccw.iter())
+            .all(|r| r.final_xy_m.is_some())
+    }
+}
+
+/// An estimator of `E_b`, `E_d` from a square test.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Method {
+    /// Borenstein & Feng's UMBmark (final positions).
+    Umbmark,
+    /// Lee, Jung & Chung's method, reconstructed (final positions).
+    Lee,
+    /// The paper's heading-error equations without the coupled terms.
+    HeadingOnly,
+    /// The paper's proposed method, eqs. 6–11 as printed.
+    JungChung,
+    /// Our exact closed-form inversion (heading errors).
+    Exact,
+}
+
+impl Method {
+    /// Every method, in the order reports list them.
+    pub const ALL: [Method; 5] = [
+        Method::Umbmark,
+        Method::Lee,
+        Method::HeadingOnly,
+        Method::JungChung,
+        Method::Exact,
+    ];
+
+    /// The method's stable name (CLI and JSON).
+    pub fn name(self) -> &'static str {
+        match self {
+            Method::Umbmark => "umbmark",
+            Method::Lee => "lee",
+            Method::HeadingOnly => "heading-only",
+            Method::JungChung => "jung-chung",
+            Method::Exact => "exact",
+        }
+    }
+
+    /// Whether the method needs final positions (otherwise it uses final headings only).
+    pub fn needs_positions(self) -> bool {
+        matches!(self, Method::Umbmark | Method::Lee)
+    }
+}
+
+impl fmt::Display for Method {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl FromStr for Method {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        Method::ALL
+            .into_iter()
+            .find(|m| m.name() == s)
+            .ok_or_else(|| {
+                format!("unknown method {s:?}; expected one of umbmark, lee, heading-only, jung-chung, exact")
+            })
+    }
+}
+
+/// The means of a test's runs: `[θ_cw, x_cw, y_cw, θ_ccw, x_ccw, y_ccw]` (positions 0 if absent).
+///
+/// Estimators are functions of this vector alone, which is what lets one numerical Jacobian
+/// give every method its standard error.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MeanObservation {
+    v: SVector<f64, 6>,
+    has_positions: bool,
+}
+
+impl MeanObservation {
+    /// The means of a (validated) test.
+    pub fn of(test: &SquareTest) -> Self {
+        let mut v = SVector::<f64, 6>::zeros();
+        for (offset, runs) in [(0, &test.cw), (3, &test.ccw)] {
+            let n = runs.len() as f64;
+            for r in runs {
+                v[offset] += r.heading_error_rad / n;
+                if let Some(xy) = r.final_xy_m {
+                    v[offset + 1] += xy[0] / n;
+                    v[offset + 2] += xy[1] / n;
+                }
+            }
+        }
+        MeanObservation {
+            v,
+            has_positions: test.has_positions(),
+        }
+    }
+
+    /// Mean clockwise heading error (rad).
+    pub fn heading_cw(&self) -> f64 {
+        self.v[0]
+    }
+    /// Mean counter-clockwise heading error (rad).
+    pub fn heading_ccw(&self) -> f64 {
+        self.v[3]
+    }
+    /// Mean clockwise final position (m), if measured.
+    pub fn xy_cw(&self) -> Option<[f64; 2]> {
+        self.has_positions.then(|| [self.v[1], self.v[2]])
+    }
+    /// Mean counter-clockwise final position (m), if measured.
+    pub fn xy_ccw(&self) -> Option<[f64; 2]> {
+        self.has_positions.then(|| [self.v[4], self.v[5]])
+    }
+}
+
+/// Geometry and convention every estimator needs besides the means.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Context {
+    /// Square side (m).
+    pub side_m: f64,
+    /// Wheelbase configured during the test (m).
+    pub wheelbase_m: f64,
+    /// How the ratio estimate becomes wheel diameters (also fixes `E_b` for `exact`).
+    pub convention: SplitConvention,
+}
+
+/// One method's result.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Estimate {
+    /// Which estimator.
+    pub method: Method,
+    /// `E_b = b_actual / b_configured`.
+    pub e_b: f64,
+    /// `E_d = D_R / D_L`, relative to the configured ratio.
+    pub e_d: f64,
+    /// Standard error of `e_b` from run-to-run scatter (needs ≥ 2 runs per direction).
+    pub e_b_std_err: Option<f64>,
+    /// Standard error of `e_d` from run-to-run scatter.
+    pub e_d_std_err: Option<f64>,
+    /// Factors to apply to the configured parameters.
+    pub correction: Correction,
+    /// The split convention used.
+    pub convention: String,
+}
+
+/// The estimator's point value as a correction.
+fn point(
+    method: Method,
+    obs: &MeanObservation,
+    ctx: &Context,
+) -> Result<Correction, CalibrationError> {
+    let (e_b, e_d) = match method {
+        Method::Umbmark => umbmark::ratios(obs, ctx)?,
+        Method::Lee => lee::ratios(obs, ctx)?,
+        Method::HeadingOnly => heading_only::ratios(obs, ctx)?,
+        Method::JungChung => jung_chung::ratios(obs, ctx)?,
+        Method::Exact => exact::ratios(obs, ctx)?,
+    };
+    if !(e_b.is_finite() && e_b > 0.0 && e_d.is_finite() && e_d > 0.0) {
+        return Err(CalibrationError::NotPhysical {
+            method,
+            reason: format!("estimate E_b = {e_b}, E_d = {e_d} is not a robot"),
+        });
+    }
+    Ok(ctx.convention.split(e_b, e_d, ctx.wheelbase_m)?)
+}
+
+/// Estimates `E_b`, `E_d` with one method, with standard errors when each direction has ≥ 2 runs.
+pub fn estimate(
+    method: Method,
+    test: &SquareTest,
+    convention: SplitConvention,
+) -> Result<Estimate, CalibrationError> {
+    test.validate()?;
+    if method.needs_positions() && !test.has_positions() {
+        return Err(CalibrationError::MissingPositions(method));
+    }
+    let ctx = Context {
+        side_m: test.side_m,
+        wheelbase_m: test.wheelbase_m,
+        convention,
+    };
+    let obs = MeanObservation::of(test);
+    let correction = point(method, &obs, &ctx)?;
+    let std_err = standard_errors(method, test, &obs, &ctx);
+    Ok(Estimate {
+        method,
+        e_b: correction.e_b(),
+        e_d: correction.e_d(),
+        e_b_std_err: std_err.map(|s| s.0),
+        e_d_std_err: std_err.map(|s| s.1),
+        correction,
+        convention: convention.name().to_string(),
+    })
+}
+
+/// Every method the data supports (position methods only with positions), in [`Method::ALL`]
+/// order; a method that fails is returned as its error beside the others.
+pub fn estimate_all(
+    test: &SquareTest,
+    convention: SplitConvention,
+) -> Result<Vec<(Method, Result<Estimate, CalibrationError>)>, CalibrationError> {
+    test.validate()?;
+    Ok(Method::ALL
+        .into_iter()
+        .filter(|m| !m.needs_positions() || test.has_positions())
+        .map(|m| (m, estimate(m, test, convention)))
+        .collect())
+}
+
+/// Standard errors of `(E_b, E_d)` by the delta method: the sample covariance of each
+/// direction's runs, divided by the run count, pushed through the estimator's numerical
+/// Jacobian with respect to the means.
+fn standard_errors(
+    method: Method,
+    test: &SquareTest,
+    obs: &MeanObservation,
+    ctx: &Context,
+) -> Option<(f64, f64)> {
+    if test.cw.len() < 2 || test.ccw.len() < 2 {
+        return None;
+    }
+    let mut cov = SMatrix::<f64, 6, 6>::zeros();
+    for (offset, runs) in [(0, &test.cw), (3, &test.ccw)] {
+        let n = runs.len() as f64;
+        let rows: Vec<[f64; 3]> = runs
+            .iter()
+            .map(|r| {
+                let xy = r.final_xy_m.unwrap_or([0.0, 0.0]);
+                [r.heading_error_rad, xy[0], xy[1]]
+            })
+            .collect();
+        let mean = [0, 1, 2].map(|k| rows.iter().map(|r| r[k]).sum::<f64>() / n);
+        for i in 0..3 {
+            for j in 0..3 {
+                let s: f64 = rows
+                    .iter()
+                    .map(|r| (r[i] - mean[i]) * (r[j] - mean[j]))
+                    .sum();
+                // Covariance of the mean: sample covariance / n.
+                cov[(offset + i, offset + j)] = s / (n - 1.0) / n;
+            }
+        }
+    }
+    let mut jac = SMatrix::<f64, 2, 6>::zeros();
+    for k in 0..6 {
+        let h = 1e-7 * obs.v[k].abs().max(1.0);
+        let mut plus = *obs;
+        let mut minus = *obs;
+        plus.v[k] += h;
+        minus.v[k] -= h;
+        let (Ok(p), Ok(m)) = (point(method, &plus, ctx), point(method, &minus, ctx)) else {
+            return None;
+        };
+        jac[(0, k)] = (p.e_b() - m.e_b()) / (2.0 * h);
+        jac[(1, k)] = (p.e_d() - m.e_d()) / (2.0 * h);
+    }
+    let out = jac * cov * jac.transpose();
+    Some((out[(0, 0)].max(0.0).sqrt(), out[(1, 1)].max(0.0).sqrt()))
+}
+
+/// `E_d` from a per-leg heading drift `β` (rad) on a straight leg of `side_m` (paper eq. 11 and
+/// Borenstein's form): the leg is an arc of radius `R = (L/2)/sin(β/2)` and
+/// `E_d = (R + b/2)/(R − b/2)`, written with `1/R` so that `β = 0` gives exactly 1.
+pub(crate) fn e_d_from_leg_drift(beta_rad: f64, side_m: f64, wheelbase_m: f64) -> f64 {
+    let half_b_over_r = 0.5 * wheelbase_m * (0.5 * beta_rad).sin() / (0.5 * side_m);
+    (1.0 + half_b_over_r) / (1.0 - half_b_over_r)
+}
+
+/// `E_b` from a per-corner turn error `α` (rad) of a nominal 90° turn (paper eq. 10, whose "90"
+/// is in degrees: `E_b = 90°/(90° − α)`).
+pub(crate) fn e_b_from_corner_error(alpha_rad: f64) -> f64 {
+    let ninety = 90.0;
+    ninety / (ninety - alpha_rad.to_degrees())
+}
+
+/// Borenstein's eq. 3: the per-corner (`α`) and per-leg (`β`) errors from the mean final
+/// positions, each the average of an x-based and a y-based estimate. The CCW square lies to the
+/// left of the first leg and the CW square is its mirror, both in the start frame.
+pub(crate) fn alpha_beta_from_positions(
+    xy_cw: [f64; 2],
+    xy_ccw: [f64; 2],
+    side_m: f64,
+) -> (f64, f64) {
+    let [x_cw, y_cw] = xy_cw;
+    let [x_ccw, y_ccw] = xy_ccw;
+    let k = -4.0 * side_m;
+    let alpha = 0.5 * ((x_cw + x_ccw) / k + (y_cw - y_ccw) / k);
+    let beta = 0.5 * ((x_cw - x_ccw) / k + (y_cw + y_ccw) / k);
+    (alpha, beta)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn test_with(cw: &[f64], ccw: &[f64]) -> SquareTest {
+        let runs = |v: &[f64]| {
+            v.iter()
+                .map(|&h| RunMeasurement {
+                    heading_error_rad: h,
+                    final_xy_m: None,
+                })
+                .collect()
+        };
+        SquareTest {
+            side_m: 4.0,
+            wheelbase_m: 0.39,
+            cw: runs(cw),
+            ccw: runs(ccw),
+        }
+    }
+
+    #[test]
+    fn impossible_input_is_rejected_with_a_reason() {
+        assert_eq!(
+            test_with(&[], &[0.01]).validate(),
+            Err(CalibrationError::NoRuns(Direction::Cw))
+        );
+        assert!(matches!(
+            test_with(&[0.01, f64::NAN], &[0.01]).validate(),
+            Err(CalibrationError::NonFinite { index: 1, .. })
+        ));
+        assert!(matches!(
+            test_with(&[0.01], &[-1.6]).validate(),
+            Err(CalibrationError::HeadingTooLarge {
+                direction: Direction::Ccw,
+                ..
+            })
+        ));
+        let mut t = test_with(&[0.01, 0.02], &[0.01]);
+        t.cw[0].final_xy_m = Some([0.1, 0.2]);
+        assert_eq!(
+            t.validate(),
+            Err(CalibrationError::InconsistentPositions { with: 1, total: 3 })
+        );
+        let mut t = test_with(&[0.01], &[0.01]);
+        t.side_m = 0.0;
+        assert!(matches!(
+            t.validate(),
+            Err(CalibrationError::BadGeometry { .. })
+        ));
+        assert_eq!(
+            estimate(
+                Method::Umbmark,
+                &test_with(&[0.01], &[0.01]),
+                SplitConvention::LeftNominal
+            ),
+            Err(CalibrationError::MissingPositions(Method::Umbmark))
+        );
+    }
+
+    #[test]
+    fn method_names_round_trip() {
+        for m in Method::ALL {
+            assert_eq!(m.name().parse::<Method>(), Ok(m));
+        }
+        assert!("borenstein".parse::<Method>().is_err());
+    }
+
+    #[test]
+    fn standard_error_needs_two_runs_and_scales_with_scatter() {
+        let one = estimate(
+            Method::Exact,
+            &test_with(&[-0.1], &[0.05]),
+            SplitConvention::LeftNominal,
+        )
+        .unwrap();
+        assert!(one.e_b_std_err.is_none());
+        let tight = estimate(
+            Method::Exact,
+            &test_with(&[-0.099, -0.101], &[0.049, 0.051]),
+            SplitConvention::LeftNominal,
+        )
+        .unwrap();
+        let wide = estimate(
+            Method::Exact,
+            &test_with(&[-0.09, -0.11], &[0.04, 0.06]),
+            SplitConvention::LeftNominal,
+        )
+        .unwrap();
+        let (t, w) = (tight.e_b_std_err.unwrap(), wide.e_b_std_err.unwrap());
+        // Same means, ten times the spread: ten times the standard error.
+        assert!((w / t - 10.0).abs() < 1e-6, "ratio {}", w / t);
+    }
+}

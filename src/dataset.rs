@@ -1,0 +1,481 @@
+//! Recorded runs with ground truth: the OptiOdom data set's reader, its conversion to a
+//! calibration input, and replay evaluation of parameter sets against the ground truth.
+//!
+//! Format (see the data set's README): `<id>_metadata.csv` holds `key,values…` rows (`ngear`,
+//! `encRes`, `Li` wheelbase, `Di` wheel diameters, `L` square side); each `<id>_run-NN.csv` has
+//! no header and one row per 0.05 s: `time_s, x_m, y_m, theta_rad, ticks_right, ticks_left`,
+//! the pose relative to the run's start and the ticks as per-cycle increments.
+//!
+//! A recorded square becomes calibration input like this: the ground-truth heading plays the
+//! compass, and a run's heading error is `wrap(Δθ_truth − Δθ_odometry)`, the odometry being the
+//! recorded encoder increments integrated with the set's configured parameters. For a perfect
+//! open-loop controller `Δθ_odometry` is exactly ±2π and this is the plain final heading error;
+//! a real controller misses its wheel targets slightly, and subtracting what the wheels really
+//! did removes that execution error from the calibration. Final positions likewise are ground
+//! truth minus odometry, in the start frame.
+
+use crate::calibration::{self, Estimate, Method, RunMeasurement, SquareTest};
+use crate::kinematics::{wrap_angle, Direction, Pose, SplitConvention, WheelParams};
+use serde::Serialize;
+use std::f64::consts::PI;
+use std::path::{Path, PathBuf};
+
+/// Errors reading or using a recorded data set.
+#[derive(Debug, thiserror::Error)]
+pub enum DatasetError {
+    /// A file or directory could not be read.
+    #[error("cannot read {path}: {source}")]
+    Io {
+        /// The path.
+        path: PathBuf,
+        /// The OS error.
+        source: std::io::Error,
+    },
+    /// A CSV row is malformed.
+    #[error("{path}, line {line}: {reason}")]
+    Malformed {
+        /// The file.
+        path: PathBuf,
+        /// 1-based line number.
+        line: u64,
+        /// What is wrong.
+        reason: String,
+    },
+    /// The metadata lacks a key or has an unusable value for it.
+    #[error("{path}: metadata key {key}: {reason}")]
+    Metadata {
+        /// The metadata file.
+        path: PathBuf,
+        /// The key.
+        key: &'static str,
+        /// What is wrong.
+        reason: String,
+    },
+    /// The directory holds no metadata file or no runs.
+    #[error("{0}: not an OptiOdom set (needs one *_metadata.csv and *_run-NN.csv files)")]
+    NotASet(PathBuf),
+    /// Square calibration was asked of a set without a side length.
+    #[error("{0}: no square side `L` in the metadata; not a square set")]
+    NotASquareSet(String),
+    /// A run's direction cannot be told from its ground truth.
+    #[error(
+        "{set} run {run}: ground truth turns {turn_deg:.1}°, not about ±360°; not a square run"
+    )]
+    NotASquareRun {
+        /// The set id.
+        set: String,
+        /// The run's file name.
+        run: String,
+        /// Total ground-truth turn.
+        turn_deg: f64,
+    },
+    /// The runs cannot be calibrated.
+    #[error(transparent)]
+    Calibration(#[from] calibration::CalibrationError),
+    /// Parameters written back would be impossible.
+    #[error(transparent)]
+    Kinematics(#[from] crate::kinematics::KinematicsError),
+}
+
+/// One recorded sample.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Sample {
+    /// Time since the run started (s).
+    pub time_s: f64,
+    /// Ground-truth pose relative to the run's start.
+    pub truth: Pose,
+    /// Right encoder counts during this cycle.
+    pub right_counts: f64,
+    /// Left encoder counts during this cycle.
+    pub left_counts: f64,
+}
+
+/// One recorded run.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RecordedRun {
+    /// File name, e.g. `231220200040_run-01.csv`.
+    pub name: String,
+    /// Samples in time order.
+    pub samples: Vec<Sample>,
+}
+
+/// Where a run ended by ground truth and by odometry, both relative to its start.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RunEnd {
+    /// Ground-truth final pose.
+    pub truth: Pose,
+    /// Unwrapped ground-truth total turn (rad).
+    pub truth_turn_rad: f64,
+    /// Odometry final pose.
+    pub odometry: Pose,
+    /// Unwrapped odometry total turn (rad).
+    pub odometry_turn_rad: f64,
+}
+
+impl RecordedRun {
+    /// Integrates the run's encoder increments with `params` and reports both final poses.
+    pub fn replay(&self, params: &WheelParams) -> RunEnd {
+        let mut odo = Pose::default();
+        let mut odo_turn = 0.0;
+        let mut truth_turn = 0.0;
+        let mut prev_heading = self.samples.first().map_or(0.0, |s| s.truth.heading_rad);
+        for s in self.samples.iter().skip(1) {
+            let next = params.odometry_step(&odo, s.left_counts, s.right_counts);
+            odo_turn += wrap_angle(next.heading_rad - odo.heading_rad);
+            odo = next;
+            truth_turn += wrap_angle(s.truth.heading_rad - prev_heading);
+            prev_heading = s.truth.heading_rad;
+        }
+        let start = self.samples.first().map_or(Pose::default(), |s| s.truth);
+        let truth = self
+            .samples
+            .last()
+            .map_or(Pose::default(), |s| s.truth.relative_to(&start));
+        RunEnd {
+            truth,
+            truth_turn_rad: truth_turn,
+            odometry: odo,
+            odometry_turn_rad: odo_turn,
+        }
+    }
+}
+
+/// One OptiOdom set: configured parameters, optional square side, runs.
+#[derive(Debug, Clone, PartialEq)]
+pub struct OptiOdomSet {
+    /// The set's id (its directory name).
+    pub id: String,
+    /// Parameters the robot's controller used (the metadata's nominal values).
+    pub configured: WheelParams,
+    /// Square side (m) for square sets.
+    pub side_m: Option<f64>,
+    /// The runs, in file-name order.
+    pub runs: Vec<RecordedRun>,
+}
+
+fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> DatasetError + '_ {
+    move |source| DatasetError::Io {
+        path: path.to_path_buf(),
+        source,
+    }
+}
+
+fn reader(path: &Path) -> Result<csv::Reader<std::fs::File>, DatasetError> {
+    let file = std::fs::File::open(path).map_err(io_err(path))?;
+    Ok(csv::ReaderBuilder::new()
+        .has_headers(false)
+        .flexible(true)
+        .from_reader(file))
+}
+
+fn malformed(path: &Path, line: u64, reason: impl Into<String>) -> DatasetError {
+    DatasetError::Malformed {
+        path: path.to_path_buf(),
+        line,
+        reason: reason.into(),
+    }
+}
+
+/// The metadata rows as `key -> non-empty values`.
+fn read_metadata(path: &Path) -> Result<Vec<(String, Vec<String>)>, DatasetError> {
+    let mut rows = Vec::new();
+    for (i, rec) in reader(path)?.records().enumerate() {
+        let rec = rec.map_err(|e| malformed(path, i as u64 + 1, e.to_string()))?;
+        let mut fields = rec.iter();
+        let Some(key) = fields.next() else { continue };
+        let values = fields
+            .filter(|v| !v.trim().is_empty())
+            .map(|v| v.trim().to_string())
+            .collect();
+        rows.push((key.trim().to_string(), values));
+    }
+    Ok(rows)
+}
+
+fn meta_values(
+    meta: &[(String, Vec<String>)],
+    path: &Path,
+    key: &'static str,
+) -> Result<Vec<f64>, DatasetError> {
+    let values = meta
+        .iter()
+        .find(|(k, _)| k == key)
+        .map(|(_, v)| v)
+        .ok_or_else(|| DatasetError::Metadata {
+            path: path.to_path_buf(),
+            key,
+            reason: "missing".into(),
+        })?;
+    values
+        .iter()
+        .map(|v| {
+            v.parse::<f64>()
+                .ok()
+                .filter(|x| x.is_finite() && *x > 0.0)
+                .ok_or_else(|| DatasetError::Metadata {
+                    path: path.to_path_buf(),
+                    key,
+                    reason: format!("{v:?} is not a positive number"),
+                })
+        })
+        .collect()
+}
+
+fn meta_one(
+    meta: &[(String, Vec<String>)],
+    path: &Path,
+    key: &'static str,
+) -> Result<f64, DatasetError> {
+    meta_values(meta, path, key)?
+        .first()
+        .copied()
+        .ok_or_else(|| DatasetError::Metadata {
+            path: path.to_path_buf(),
+            key,
+            reason: "has no value".into(),
+        })
+}
+
+fn read_run(path: &Path) -> Result<RecordedRun, DatasetError> {
+    let mut samples = Vec::new();
+    for (i, rec) in reader(path)?.records().enumerate() {
+        let line = i as u64 + 1;
+        let rec = rec.map_err(|e| malformed(path, line, e.to_string()))?;
+        if rec.len() != 6 {
+            return Err(malformed(
+                path,
+                line,
+                format!("expected 6 columns, found {}", rec.len()),
+            ));
+        }
+        let mut v = [0.0; 6];
+        for (k, field) in rec.iter().enumerate() {
+            v[k] = field
+                .trim()
+                .parse::<f64>()
+                .ok()
+                .filter(|x| x.is_finite())
+                .ok_or_else(|| {
+                    malformed(
+                        path,
+                        line,
+                        format!("column {}: {field:?} is not a number", k + 1),
+                    )
+                })?;
+        }
+        samples.push(Sample {
+            time_s: v[0],
+            truth: Pose::new(v[1], v[2], v[3]),
+            right_counts: v[4],
+            left_counts: v[5],
+        });
+    }
+    if samples.len() < 2 {
+        return Err(malformed(
+            path,
+            samples.len() as u64,
+            "a run needs at least two samples",
+        ));
+    }
+    Ok(RecordedRun {
+        name: path
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default(),
+        samples,
+    })
+}
+
+impl OptiOdomSet {
+    /// Reads a set from its directory.
+    pub fn load(dir: impl AsRef<Path>) -> Result<Self, DatasetError> {
+        let dir = dir.as_ref();
+        let mut meta_path = None;
+        let mut run_paths = Vec::new();
+        for entry in std::fs::read_dir(dir).map_err(io_err(dir))? {
+            let path = entry.map_err(io_err(dir))?.path();
+            let name = path
+                .file_name()
+                .map(|n| n.to_string_lossy().into_owned())
+                .unwrap_or_default();
+            if name.ends_with("_metadata.csv") {
+                meta_path = Some(path);
+            } else if name.contains("_run-") && name.ends_with(".csv") {
+                run_paths.push(path);
+            }
+        }
+        let (Some(meta_path), false) = (meta_path, run_paths.is_empty()) else {
+            return Err(DatasetError::NotASet(dir.to_path_buf()));
+        };
+        run_paths.sort();
+        let meta = read_metadata(&meta_path)?;
+        let counts_per_wheel_rev =
+            meta_one(&meta, &meta_path, "ngear")? * meta_one(&meta, &meta_path, "encRes")?;
+        let wheelbase_m = meta_one(&meta, &meta_path, "Li")?;
+        let diameters = meta_values(&meta, &meta_path, "Di")?;
+        let (left, right) = match diameters.as_slice() {
+            [d] => (*d, *d),
+            [l, r, ..] => (*l, *r),
+            [] => {
+                return Err(DatasetError::Metadata {
+                    path: meta_path,
+                    key: "Di",
+                    reason: "has no value".into(),
+                })
+            }
+        };
+        let side_m = meta_values(&meta, &meta_path, "L")
+            .ok()
+            .and_then(|v| v.first().copied());
+        let runs = run_paths
+            .iter()
+            .map(|p| read_run(p))
+            .collect::<Result<Vec<_>, _>>()?;
+        Ok(OptiOdomSet {
+            id: dir
+                .file_name()
+                .map(|n| n.to_string_lossy().into_owned())
+                .unwrap_or_default(),
+            configured: WheelParams {
+                left_wheel_diameter_m: left,
+                right_wheel_diameter_m: right,
+                wheelbase_m,
+                counts_per_wheel_rev,
+            },
+            side_m,
+            runs,
+        })
+    }
+
+    /// The set as a bi-directional square test (direction told from the ground-truth turn).
+    pub fn square_test(&self) -> Result<SquareTest, DatasetError> {
+        let side_m = self
+            .side_m
+            .ok_or_else(|| DatasetError::NotASquareSet(self.id.clone()))?;
+        let mut test = SquareTest {
+            side_m,
+            wheelbase_m: self.configured.wheelbase_m,
+            cw: Vec::new(),
+            ccw: Vec::new(),
+        };
+        for run in &self.runs {
+            let end = run.replay(&self.configured);
+            let direction = if (end.truth_turn_rad + 2.0 * PI).abs() < 0.5 * PI {
+                Direction::Cw
+            } else if (end.truth_turn_rad - 2.0 * PI).abs() < 0.5 * PI {
+                Direction::Ccw
+            } else {
+                return Err(DatasetError::NotASquareRun {
+                    set: self.id.clone(),
+                    run: run.name.clone(),
+                    turn_deg: end.truth_turn_rad.to_degrees(),
+                });
+            };
+            let m = RunMeasurement {
+                heading_error_rad: wrap_angle(end.truth_turn_rad - end.odometry_turn_rad),
+                final_xy_m: Some([
+                    end.truth.x_m - end.odometry.x_m,
+                    end.truth.y_m - end.odometry.y_m,
+                ]),
+            };
+            match direction {
+                Direction::Cw => test.cw.push(m),
+                Direction::Ccw => test.ccw.push(m),
+            }
+        }
+        Ok(test)
+    }
+
+    /// Replays every run with `params`: mean |final heading error| (rad) and mean final
+    /// position error (m) of the odometry against the ground truth.
+    pub fn evaluate(&self, params: &WheelParams) -> (f64, f64) {
+        let n = self.runs.len().max(1) as f64;
+        let (mut heading, mut position) = (0.0, 0.0);
+        for run in &self.runs {
+            let end = run.replay(params);
+            heading += wrap_angle(end.odometry_turn_rad - end.truth_turn_rad).abs() / n;
+            position +=
+                (end.odometry.x_m - end.truth.x_m).hypot(end.odometry.y_m - end.truth.y_m) / n;
+        }
+        (heading, position)
+    }
+}
+
+/// One row of a replay evaluation.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct EvaluationRow {
+    /// Evaluated set id.
+    pub dataset: String,
+    /// Method name, or "uncalibrated" for the set's own configured parameters.
+    pub method: String,
+    /// Mean absolute final heading error of the odometry (deg).
+    pub heading_error_deg: f64,
+    /// Mean final position error of the odometry (m).
+    pub position_error_m: f64,
+}
+
+/// A replay: estimates from one square set and their evaluation on other sets.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Replay {
+    /// Set calibrated on.
+    pub dataset: String,
+    /// Every estimate that succeeded.
+    pub estimates: Vec<Estimate>,
+    /// Methods that failed, with the reason.
+    pub failures: Vec<(Method, String)>,
+    /// Uncalibrated and calibrated odometry errors on each evaluated set.
+    pub evaluations: Vec<EvaluationRow>,
+}
+
+/// Calibrates from `calibrate_on` with every method and evaluates the results on `evaluate_on`.
+///
+/// Calibrated parameters are the estimate's correction applied to the calibration set's
+/// configured parameters; "uncalibrated" is each evaluated set's own configured parameters.
+pub fn replay(
+    calibrate_on: &OptiOdomSet,
+    evaluate_on: &[OptiOdomSet],
+    convention: SplitConvention,
+) -> Result<Replay, DatasetError> {
+    let test = calibrate_on.square_test()?;
+    let mut estimates = Vec::new();
+    let mut failures = Vec::new();
+    for (method, result) in calibration::estimate_all(&test, convention)? {
+        match result {
+            Ok(e) => estimates.push(e),
+            Err(e) => failures.push((method, e.to_string())),
+        }
+    }
+    let mut evaluations = Vec::new();
+    for set in evaluate_on {
+        let mut row = |method: String, params: &WheelParams| {
+            let (h, p) = set.evaluate(params);
+            evaluations.push(EvaluationRow {
+                dataset: set.id.clone(),
+                method,
+                heading_error_deg: h.to_degrees(),
+                position_error_m: p,
+            });
+        };
+        row("uncalibrated".into(), &set.configured);
+        for e in &estimates {
+            let params = e.correction.apply(&calibrate_on.configured)?;
+            row(e.method.name().into(), &params);
+        }
+    }
+    Ok(Replay {
+        dataset: calibrate_on.id.clone(),
+        estimates,
+        failures,
+        evaluations,
+    })
+}
+
+/// Where the OptiOdom data set lives: `$ODOCAL_OPTIODOM`, else `../shared/datasets/optiodom`
+/// beside this crate.
+pub fn default_optiodom_root() -> PathBuf {
+    std::env::var_os("ODOCAL_OPTIODOM")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| {
+            Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/datasets/optiodom")
+        })
+}

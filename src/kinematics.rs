@@ -1,0 +1,477 @@
+//! Differential-drive kinematics: wheel parameters, the exact pose update, angle wrapping, the
+//! calibration ratios `E_d`/`E_b`, and how a ratio estimate becomes new controller parameters.
+//!
+//! # Sign conventions (defined here, once, for the whole crate)
+//! - The robot frame has `x` forward and `y` to the left. Headings are counter-clockwise
+//!   positive (seen from above), in radians, wrapped to `(-π, π]` by [`wrap_angle`].
+//! - A positive wheel arc drives that wheel forward. Right wheel faster than left turns the robot
+//!   counter-clockwise (positive heading change).
+//! - `E_d = D_R / D_L` (right over left actual diameter) and `E_b = b_actual / b_configured`,
+//!   both *relative to the parameters the controller used while the test ran* (the paper's
+//!   nominal parameters on a first calibration). This is what makes repeated calibrations
+//!   compound: each round multiplies the configured parameters by a [`Correction`].
+
+use serde::{Deserialize, Serialize};
+use std::f64::consts::PI;
+
+/// Errors of the kinematics layer: parameters no robot can have.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum KinematicsError {
+    /// A length or count that must be finite and strictly positive was not.
+    #[error("{name} must be finite and > 0, got {value}")]
+    NotPositive {
+        /// Which parameter.
+        name: &'static str,
+        /// The offending value.
+        value: f64,
+    },
+    /// A straight-line distance check cannot fix the wheel scale (e.g. zero distance measured).
+    #[error("straight-line scale check is unusable: {0}")]
+    BadScaleCheck(String),
+}
+
+/// Wraps an angle to `(-π, π]`.
+pub fn wrap_angle(angle_rad: f64) -> f64 {
+    if !angle_rad.is_finite() {
+        return angle_rad;
+    }
+    let mut a = (angle_rad + PI).rem_euclid(2.0 * PI) - PI;
+    // rem_euclid maps to [-π, π); the half-open interval we want is (-π, π].
+    if a <= -PI {
+        a += 2.0 * PI;
+    }
+    a
+}
+
+/// `sin(x)/x`, accurate near zero (used by the exact arc update and the scale check).
+pub fn sinc(x: f64) -> f64 {
+    if x.abs() < 1e-4 {
+        let x2 = x * x;
+        1.0 - x2 / 6.0 + x2 * x2 / 120.0
+    } else {
+        x.sin() / x
+    }
+}
+
+fn check_positive(name: &'static str, value: f64) -> Result<(), KinematicsError> {
+    if value.is_finite() && value > 0.0 {
+        Ok(())
+    } else {
+        Err(KinematicsError::NotPositive { name, value })
+    }
+}
+
+/// Kinematic parameters of a differential-drive base (true or as configured on a controller).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct WheelParams {
+    /// Left wheel diameter (m).
+    pub left_wheel_diameter_m: f64,
+    /// Right wheel diameter (m).
+    pub right_wheel_diameter_m: f64,
+    /// Distance between the wheels' contact points (m).
+    pub wheelbase_m: f64,
+    /// Encoder counts per wheel revolution (after any gearbox); fractional values are allowed.
+    pub counts_per_wheel_rev: f64,
+}
+
+impl WheelParams {
+    /// Equal wheels of `wheel_diameter_m` on a `wheelbase_m` base.
+    pub fn nominal(wheel_diameter_m: f64, wheelbase_m: f64, counts_per_wheel_rev: f64) -> Self {
+        Self {
+            left_wheel_diameter_m: wheel_diameter_m,
+            right_wheel_diameter_m: wheel_diameter_m,
+            wheelbase_m,
+            counts_per_wheel_rev,
+        }
+    }
+
+    /// The parameters of a robot whose ratios to `nominal` are `e_b`, `e_d`, split by `split`
+    /// (how the paper defines a mis-calibrated robot for simulation).
+    pub fn from_ratios(
+        nominal: &WheelParams,
+        e_b: f64,
+        e_d: f64,
+        split: &SplitConvention,
+    ) -> Result<Self, KinematicsError> {
+        split.split(e_b, e_d, nominal.wheelbase_m)?.apply(nominal)
+    }
+
+    /// Checks every field is finite and strictly positive.
+    pub fn validate(&self) -> Result<(), KinematicsError> {
+        check_positive("left_wheel_diameter_m", self.left_wheel_diameter_m)?;
+        check_positive("right_wheel_diameter_m", self.right_wheel_diameter_m)?;
+        check_positive("wheelbase_m", self.wheelbase_m)?;
+        check_positive("counts_per_wheel_rev", self.counts_per_wheel_rev)
+    }
+
+    /// `E_d = D_R / D_L` of these parameters.
+    pub fn e_d(&self) -> f64 {
+        self.right_wheel_diameter_m / self.left_wheel_diameter_m
+    }
+
+    /// `E_b` of these parameters relative to a reference wheelbase.
+    pub fn e_b_relative_to(&self, reference_wheelbase_m: f64) -> f64 {
+        self.wheelbase_m / reference_wheelbase_m
+    }
+
+    /// Left wheel travel per encoder count (m).
+    pub fn left_m_per_count(&self) -> f64 {
+        PI * self.left_wheel_diameter_m / self.counts_per_wheel_rev
+    }
+
+    /// Right wheel travel per encoder count (m).
+    pub fn right_m_per_count(&self) -> f64 {
+        PI * self.right_wheel_diameter_m / self.counts_per_wheel_rev
+    }
+
+    /// Pose change for encoder count increments interpreted with these parameters.
+    pub fn odometry_step(&self, pose: &Pose, left_counts: f64, right_counts: f64) -> Pose {
+        pose.advance(
+            left_counts * self.left_m_per_count(),
+            right_counts * self.right_m_per_count(),
+            self.wheelbase_m,
+        )
+    }
+}
+
+/// Which way a square is driven: clockwise turns right at each corner.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Direction {
+    /// Clockwise: four right (negative) 90° turns; the square lies to the right of the first leg.
+    Cw,
+    /// Counter-clockwise: four left (positive) 90° turns; the square lies to the left.
+    Ccw,
+}
+
+impl Direction {
+    /// `+1` for counter-clockwise, `-1` for clockwise (the sign of each corner turn).
+    pub fn turn_sign(self) -> f64 {
+        match self {
+            Direction::Cw => -1.0,
+            Direction::Ccw => 1.0,
+        }
+    }
+}
+
+/// A planar pose: position (m) and counter-clockwise heading (rad, wrapped to `(-π, π]`).
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+pub struct Pose {
+    /// x position (m).
+    pub x_m: f64,
+    /// y position (m).
+    pub y_m: f64,
+    /// Heading (rad), counter-clockwise positive, wrapped to `(-π, π]`.
+    pub heading_rad: f64,
+}
+
+impl Pose {
+    /// A pose at `(x_m, y_m)` facing `heading_rad` (wrapped).
+    pub fn new(x_m: f64, y_m: f64, heading_rad: f64) -> Self {
+        Self {
+            x_m,
+            y_m,
+            heading_rad: wrap_angle(heading_rad),
+        }
+    }
+
+    /// Exact pose after the wheels travel `left_arc_m`, `right_arc_m` at constant ratio.
+    ///
+    /// Constant wheel-speed ratio means a circular arc (a straight line or an in-place turn are
+    /// its limits). The chord of an arc of length `s` turning `Δθ` is `s·sinc(Δθ/2)` in the
+    /// direction `θ + Δθ/2`; written this way one formula is exact and well-conditioned for every
+    /// `Δθ`, including the straight-line limit.
+    pub fn advance(&self, left_arc_m: f64, right_arc_m: f64, wheelbase_m: f64) -> Pose {
+        let dtheta = (right_arc_m - left_arc_m) / wheelbase_m;
+        let ds = 0.5 * (right_arc_m + left_arc_m);
+        let chord = ds * sinc(0.5 * dtheta);
+        let mid = self.heading_rad + 0.5 * dtheta;
+        Pose {
+            x_m: self.x_m + chord * mid.cos(),
+            y_m: self.y_m + chord * mid.sin(),
+            heading_rad: wrap_angle(self.heading_rad + dtheta),
+        }
+    }
+
+    /// This pose expressed in the frame of `origin` (position rotated into it, heading relative).
+    pub fn relative_to(&self, origin: &Pose) -> Pose {
+        let (s, c) = origin.heading_rad.sin_cos();
+        let dx = self.x_m - origin.x_m;
+        let dy = self.y_m - origin.y_m;
+        Pose {
+            x_m: c * dx + s * dy,
+            y_m: -s * dx + c * dy,
+            heading_rad: wrap_angle(self.heading_rad - origin.heading_rad),
+        }
+    }
+
+    /// Distance from the origin (m).
+    pub fn distance_m(&self) -> f64 {
+        self.x_m.hypot(self.y_m)
+    }
+}
+
+/// Multiplicative corrections to the parameters a controller had configured during a test.
+///
+/// New parameters are the configured ones times these factors, so successive calibrations
+/// compound. `E_d = right/left` and `E_b = wheelbase_scale`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Correction {
+    /// Factor on the configured left wheel diameter.
+    pub left_diameter_scale: f64,
+    /// Factor on the configured right wheel diameter.
+    pub right_diameter_scale: f64,
+    /// Factor on the configured wheelbase (`E_b`).
+    pub wheelbase_scale: f64,
+}
+
+impl Correction {
+    /// The correction that changes nothing.
+    pub const IDENTITY: Correction = Correction {
+        left_diameter_scale: 1.0,
+        right_diameter_scale: 1.0,
+        wheelbase_scale: 1.0,
+    };
+
+    /// `E_d` this correction encodes (right factor over left factor).
+    pub fn e_d(&self) -> f64 {
+        self.right_diameter_scale / self.left_diameter_scale
+    }
+
+    /// `E_b` this correction encodes.
+    pub fn e_b(&self) -> f64 {
+        self.wheelbase_scale
+    }
+
+    /// Applies the correction to the parameters currently on the controller.
+    pub fn apply(&self, configured: &WheelParams) -> Result<WheelParams, KinematicsError> {
+        let out = WheelParams {
+            left_wheel_diameter_m: configured.left_wheel_diameter_m * self.left_diameter_scale,
+            right_wheel_diameter_m: configured.right_wheel_diameter_m * self.right_diameter_scale,
+            wheelbase_m: configured.wheelbase_m * self.wheelbase_scale,
+            counts_per_wheel_rev: configured.counts_per_wheel_rev,
+        };
+        out.validate()?;
+        Ok(out)
+    }
+
+    /// The correction that turns `configured` into `target` (same encoder resolution assumed).
+    pub fn between(configured: &WheelParams, target: &WheelParams) -> Correction {
+        Correction {
+            left_diameter_scale: target.left_wheel_diameter_m / configured.left_wheel_diameter_m,
+            right_diameter_scale: target.right_wheel_diameter_m / configured.right_wheel_diameter_m,
+            wheelbase_scale: target.wheelbase_m / configured.wheelbase_m,
+        }
+    }
+}
+
+/// How a wheel-*ratio* estimate is split into two absolute wheel diameters.
+///
+/// Heading errors only observe `D_R/(D·E_b)` and `D_L/(D·E_b)`; the absolute wheel scale is
+/// invisible to them. A convention supplies the missing constraint. Estimation and write-back
+/// must use the same one: mixed, a 4 m square is left several centimetres open.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case", tag = "convention")]
+pub enum SplitConvention {
+    /// The mean of the two diameter factors stays 1 (Borenstein's UMBmark split:
+    /// `D_L = 2D/(E_d+1)`, `D_R = 2D/(1/E_d+1)` for equal configured wheels).
+    MeanPreserving,
+    /// The left wheel keeps its configured diameter; the right becomes `E_d` times it
+    /// (the split implied by the paper's coupled term, eq. 9).
+    LeftNominal,
+    /// The absolute scale comes from a straight-line run: commanded `commanded_m`, measured
+    /// (tape measure, start to end) `measured_m`. Diameters and wheelbase are scaled together,
+    /// which leaves every heading prediction unchanged and makes the straight distance match.
+    MeasuredScale {
+        /// Straight distance commanded with the configured parameters (m).
+        commanded_m: f64,
+        /// Straight-line distance actually travelled, measured start to end (m).
+        measured_m: f64,
+    },
+}
+
+impl SplitConvention {
+    /// Short name used on the command line and in reports.
+    pub fn name(&self) -> &'static str {
+        match self {
+            SplitConvention::MeanPreserving => "mean-preserving",
+            SplitConvention::LeftNominal => "left-nominal",
+            SplitConvention::MeasuredScale { .. } => "measured-scale",
+        }
+    }
+
+    /// Splits ratio estimates into per-parameter factors on the configured parameters.
+    ///
+    /// `configured_wheelbase_m` is the wheelbase the controller used during the test; only the
+    /// measured-scale convention needs it (for the slight curvature of the straight run).
+    pub fn split(
+        &self,
+        e_b: f64,
+        e_d: f64,
+        configured_wheelbase_m: f64,
+    ) -> Result<Correction, KinematicsError> {
+        check_positive("E_b", e_b)?;
+        check_positive("E_d", e_d)?;
+        match *self {
+            SplitConvention::LeftNominal => Ok(Correction {
+                left_diameter_scale: 1.0,
+                right_diameter_scale: e_d,
+                wheelbase_scale: e_b,
+            }),
+            SplitConvention::MeanPreserving => Ok(Correction {
+                left_diameter_scale: 2.0 / (e_d + 1.0),
+                right_diameter_scale: 2.0 * e_d / (e_d + 1.0),
+                wheelbase_scale: e_b,
+            }),
+            SplitConvention::MeasuredScale {
+                commanded_m,
+                measured_m,
+            } => {
+                let base = SplitConvention::LeftNominal.split(e_b, e_d, configured_wheelbase_m)?;
+                base.rescaled_to_distance(commanded_m, measured_m, configured_wheelbase_m)
+            }
+        }
+    }
+}
+
+impl Correction {
+    /// Scales all three factors by one number so that a straight run of `commanded_m` with the
+    /// configured parameters ends `measured_m` from its start.
+    ///
+    /// A uniform scale leaves `D/b` and so every heading unchanged; the straight run's turn
+    /// `Δθ = L·(r_R − r_L)/(b·ρ)` is scale-invariant, so one division is exact.
+    pub fn rescaled_to_distance(
+        &self,
+        commanded_m: f64,
+        measured_m: f64,
+        configured_wheelbase_m: f64,
+    ) -> Result<Correction, KinematicsError> {
+        check_positive("commanded straight distance", commanded_m)?;
+        check_positive("measured straight distance", measured_m)?;
+        check_positive("configured wheelbase", configured_wheelbase_m)?;
+        let mean = 0.5 * (self.left_diameter_scale + self.right_diameter_scale);
+        let dtheta = commanded_m * (self.right_diameter_scale - self.left_diameter_scale)
+            / (configured_wheelbase_m * self.wheelbase_scale);
+        let predicted = commanded_m * mean * sinc(0.5 * dtheta);
+        if !(predicted.is_finite() && predicted > 0.0) {
+            return Err(KinematicsError::BadScaleCheck(format!(
+                "predicted straight distance {predicted} m is not positive"
+            )));
+        }
+        let s = measured_m / predicted;
+        Ok(Correction {
+            left_diameter_scale: self.left_diameter_scale * s,
+            right_diameter_scale: self.right_diameter_scale * s,
+            wheelbase_scale: self.wheelbase_scale * s,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use approx::assert_relative_eq;
+
+    #[test]
+    fn wrap_is_half_open_at_minus_pi() {
+        assert_relative_eq!(wrap_angle(PI), PI);
+        assert_relative_eq!(wrap_angle(-PI), PI);
+        assert_relative_eq!(wrap_angle(3.0 * PI), PI);
+        assert_relative_eq!(wrap_angle(0.1 - 2.0 * PI), 0.1, epsilon = 1e-12);
+        assert_relative_eq!(
+            wrap_angle((-179.9f64).to_radians() - 0.2f64.to_radians()),
+            179.9f64.to_radians(),
+            epsilon = 1e-12
+        );
+    }
+
+    #[test]
+    fn straight_and_in_place_limits() {
+        let p = Pose::new(1.0, 2.0, PI / 2.0).advance(0.5, 0.5, 0.4);
+        assert_relative_eq!(p.x_m, 1.0, epsilon = 1e-15);
+        assert_relative_eq!(p.y_m, 2.5, epsilon = 1e-15);
+        let q = Pose::default().advance(-0.1 * PI, 0.1 * PI, 0.4);
+        assert_relative_eq!(q.heading_rad, PI / 2.0, epsilon = 1e-15);
+        assert_relative_eq!(q.distance_m(), 0.0, epsilon = 1e-15);
+    }
+
+    #[test]
+    fn arc_matches_circle_geometry() {
+        // Quarter circle of radius 1 m to the left: ends at (1, 1) facing +y.
+        let b = 0.5;
+        let theta = PI / 2.0;
+        let p = Pose::default().advance(theta * (1.0 - b / 2.0), theta * (1.0 + b / 2.0), b);
+        assert_relative_eq!(p.x_m, 1.0, epsilon = 1e-14);
+        assert_relative_eq!(p.y_m, 1.0, epsilon = 1e-14);
+        assert_relative_eq!(p.heading_rad, PI / 2.0, epsilon = 1e-14);
+    }
+
+    #[test]
+    fn arc_is_continuous_through_the_straight_limit() {
+        let b = 0.39;
+        let a = Pose::default().advance(1.0, 1.0 + 1e-9, b);
+        let c = Pose::default().advance(1.0, 1.0 + 2e-9, b);
+        assert!((a.y_m - c.y_m).abs() < 1e-8 && a.y_m > 0.0);
+    }
+
+    #[test]
+    fn splits_encode_the_ratio_and_compound() {
+        for conv in [
+            SplitConvention::LeftNominal,
+            SplitConvention::MeanPreserving,
+        ] {
+            let c = conv.split(0.976, 0.992, 0.39).unwrap();
+            assert_relative_eq!(c.e_d(), 0.992, epsilon = 1e-15);
+            assert_relative_eq!(c.e_b(), 0.976, epsilon = 1e-15);
+        }
+        let m = SplitConvention::MeanPreserving
+            .split(1.0, 0.99, 0.39)
+            .unwrap();
+        assert_relative_eq!(
+            0.5 * (m.left_diameter_scale + m.right_diameter_scale),
+            1.0,
+            epsilon = 1e-15
+        );
+        let nominal = WheelParams::nominal(0.15, 0.39, 4096.0);
+        let once = m.apply(&nominal).unwrap();
+        let twice = m.apply(&once).unwrap();
+        assert_relative_eq!(twice.e_d(), 0.99 * 0.99, epsilon = 1e-14);
+    }
+
+    #[test]
+    fn measured_scale_reproduces_the_measured_distance() {
+        let nominal = WheelParams::nominal(0.15, 0.39, 4096.0);
+        let conv = SplitConvention::MeasuredScale {
+            commanded_m: 4.0,
+            measured_m: 3.97,
+        };
+        let corr = conv.split(0.98, 0.99, nominal.wheelbase_m).unwrap();
+        let truth = corr.apply(&nominal).unwrap();
+        // Controller drives 4 m by wheel rotation computed with the nominal parameters.
+        let rot_l = 4.0 / (0.5 * nominal.left_wheel_diameter_m);
+        let rot_r = 4.0 / (0.5 * nominal.right_wheel_diameter_m);
+        let end = Pose::default().advance(
+            rot_l * 0.5 * truth.left_wheel_diameter_m,
+            rot_r * 0.5 * truth.right_wheel_diameter_m,
+            truth.wheelbase_m,
+        );
+        assert_relative_eq!(end.distance_m(), 3.97, epsilon = 1e-12);
+        assert_relative_eq!(corr.e_d(), 0.99, epsilon = 1e-14);
+    }
+
+    #[test]
+    fn bad_parameters_are_refused() {
+        let bad = WheelParams::nominal(f64::NAN, 0.39, 100.0);
+        assert!(matches!(
+            bad.validate(),
+            Err(KinematicsError::NotPositive { name, .. }) if name == "left_wheel_diameter_m"
+        ));
+        assert!(SplitConvention::LeftNominal.split(-1.0, 1.0, 0.39).is_err());
+        assert!(SplitConvention::MeasuredScale {
+            commanded_m: 1.0,
+            measured_m: 0.0
+        }
+        .split(1.0, 1.0, 0.39)
+        .is_err());
+    }
+}

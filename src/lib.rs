@@ -1,0 +1,32 @@
+//! odocal: odometry calibration for two-wheel differential-drive robots.
+//!
+//! Layers, data flowing one way:
+//! - [`kinematics`]: parameters, the exact pose update, sign conventions, split conventions.
+//! - [`sim`]: a true robot driven open-loop by a controller with its own configured parameters.
+//! - [`calibration`]: pure estimators from square tests (UMBmark, Lee, heading-only,
+//!   Jung & Chung, exact) with standard errors and the Cramér–Rao bound.
+//! - [`study`]: simulated calibrate → write back → verify experiments (the paper's Sec. 3).
+//! - [`dataset`]: readers for recorded runs (OptiOdom) and replay evaluation.
+//!
+//! ```
+//! use odocal::calibration::{estimate, Method, RunMeasurement, SquareTest};
+//! use odocal::kinematics::SplitConvention;
+//!
+//! let run = |deg: f64| RunMeasurement { heading_error_rad: deg.to_radians(), final_xy_m: None };
+//! let test = SquareTest {
+//!     side_m: 4.0,
+//!     wheelbase_m: 0.39,
+//!     cw: vec![run(-6.75), run(-6.70)],
+//!     ccw: vec![run(6.08), run(6.10)],
+//! };
+//! let est = estimate(Method::Exact, &test, SplitConvention::LeftNominal).unwrap();
+//! assert!((est.e_b - 0.976).abs() < 0.002);
+//! ```
+
+#![warn(missing_docs)]
+
+pub mod calibration;
+pub mod dataset;
+pub mod kinematics;
+pub mod sim;
+pub mod study;

@@ -1,0 +1,297 @@
+//! Simulated calibration experiments: drive the square test on a mis-calibrated simulated robot,
+//! estimate with every method, write each estimate back, drive the squares again and measure
+//! what is left (`E_max,sys`). This is the paper's Sec. 3, and what `odocal simulate` prints.
+
+use crate::calibration::{self, CalibrationError, Estimate, Method, RunMeasurement, SquareTest};
+use crate::kinematics::{KinematicsError, SplitConvention, WheelParams};
+use crate::sim::{NoiseModel, SimError, Simulator, SquareRun};
+use serde::Serialize;
+
+/// Errors of a simulated study.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum StudyError {
+    /// The simulator refused its configuration.
+    #[error(transparent)]
+    Sim(#[from] SimError),
+    /// The truth or a written-back parameter set is impossible.
+    #[error(transparent)]
+    Kinematics(#[from] KinematicsError),
+    /// The measurements could not be calibrated at all.
+    #[error(transparent)]
+    Calibration(#[from] CalibrationError),
+    /// Zero runs or trials were asked for.
+    #[error("{0} must be at least 1")]
+    Count(&'static str),
+}
+
+/// What to simulate.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct StudyConfig {
+    /// Parameters configured on the controller before calibration (the paper's nominal ones).
+    pub nominal: WheelParams,
+    /// True `E_b` of the robot relative to `nominal`.
+    pub true_e_b: f64,
+    /// True `E_d` of the robot relative to `nominal`.
+    pub true_e_d: f64,
+    /// How the true `E_d` is split into two true diameters.
+    pub truth_split: SplitConvention,
+    /// Square side for every method but Lee's (m).
+    pub side_m: f64,
+    /// Square side of Lee's own track (m); the paper uses 2 m.
+    pub lee_side_m: f64,
+    /// Runs per direction, for calibration and for verification.
+    pub runs: usize,
+    /// Convention for estimation and write-back.
+    pub convention: SplitConvention,
+    /// Sensor and wheel noise.
+    pub noise: NoiseModel,
+}
+
+impl StudyConfig {
+    /// The paper's Sec. 3 setup: `D = 0.150 m`, `b = 0.390 m`, 4 m square (Lee 2 m), truth split
+    /// left-nominal, write-back left-nominal, one noise-free run each way.
+    pub fn paper(true_e_b: f64, true_e_d: f64) -> Self {
+        StudyConfig {
+            nominal: WheelParams::nominal(0.150, 0.390, 10_000.0),
+            true_e_b,
+            true_e_d,
+            truth_split: SplitConvention::LeftNominal,
+            side_m: 4.0,
+            lee_side_m: 2.0,
+            runs: 1,
+            convention: SplitConvention::LeftNominal,
+            noise: NoiseModel::default(),
+        }
+    }
+
+    /// The true robot's parameters.
+    pub fn truth(&self) -> Result<WheelParams, KinematicsError> {
+        WheelParams::from_ratios(
+            &self.nominal,
+            self.true_e_b,
+            self.true_e_d,
+            &self.truth_split,
+        )
+    }
+}
+
+/// A square test built from simulated runs: measured headings, true final positions.
+pub fn square_test(
+    side_m: f64,
+    wheelbase_m: f64,
+    cw: &[SquareRun],
+    ccw: &[SquareRun],
+) -> SquareTest {
+    let measure = |runs: &[SquareRun]| {
+        runs.iter()
+            .map(|r| RunMeasurement {
+                heading_error_rad: r.measured_heading_error_rad,
+                final_xy_m: Some([r.final_pose.x_m, r.final_pose.y_m]),
+            })
+            .collect()
+    };
+    SquareTest {
+        side_m,
+        wheelbase_m,
+        cw: measure(cw),
+        ccw: measure(ccw),
+    }
+}
+
+/// `E_max,sys`: the larger distance of the CW and CCW runs' mean final position from the start.
+pub fn e_max_sys(cw: &[SquareRun], ccw: &[SquareRun]) -> f64 {
+    let cg = |runs: &[SquareRun]| {
+        let n = runs.len().max(1) as f64;
+        let x: f64 = runs.iter().map(|r| r.final_pose.x_m).sum::<f64>() / n;
+        let y: f64 = runs.iter().map(|r| r.final_pose.y_m).sum::<f64>() / n;
+        x.hypot(y)
+    };
+    cg(cw).max(cg(ccw))
+}
+
+/// The calibration tests of one trial: the main track and Lee's track.
+#[derive(Debug, Clone)]
+pub struct SimulatedTests {
+    /// The simulator after the tests (its RNG has moved on).
+    pub sim: Simulator,
+    /// Test on the main track.
+    pub main: SquareTest,
+    /// Test on Lee's track.
+    pub lee: SquareTest,
+    /// `E_max,sys` of the main-track runs before calibration (m).
+    pub e_max_sys_before_m: f64,
+}
+
+/// Drives the calibration squares of one trial.
+pub fn simulate_tests(cfg: &StudyConfig, seed: u64) -> Result<SimulatedTests, StudyError> {
+    if cfg.runs == 0 {
+        return Err(StudyError::Count("runs"));
+    }
+    let mut sim = Simulator::new(cfg.truth()?, cfg.nominal, cfg.noise, seed)?;
+    let b = cfg.nominal.wheelbase_m;
+    let (cw, ccw) = sim.run_square_test(cfg.side_m, cfg.runs)?;
+    let (lee_cw, lee_ccw) = sim.run_square_test(cfg.lee_side_m, cfg.runs)?;
+    Ok(SimulatedTests {
+        e_max_sys_before_m: e_max_sys(&cw, &ccw),
+        main: square_test(cfg.side_m, b, &cw, &ccw),
+        lee: square_test(cfg.lee_side_m, b, &lee_cw, &lee_ccw),
+        sim,
+    })
+}
+
+/// Estimates with one method on the test that method runs on (Lee's own track for Lee).
+pub fn estimate_method(
+    method: Method,
+    tests: &SimulatedTests,
+    convention: SplitConvention,
+) -> Result<Estimate, CalibrationError> {
+    let test = if method == Method::Lee {
+        &tests.lee
+    } else {
+        &tests.main
+    };
+    calibration::estimate(method, test, convention)
+}
+
+/// One method's result in a study.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct MethodOutcome {
+    /// The estimate.
+    pub estimate: Estimate,
+    /// `|E_b,est − E_b,true|·100` (percentage points, as the paper's "Error (%)").
+    pub e_b_error_pp: f64,
+    /// `|E_d,est − E_d,true|·100` (percentage points).
+    pub e_d_error_pp: f64,
+    /// Parameters written back to the controller.
+    pub written: WheelParams,
+    /// `E_max,sys` of the verification squares after write-back (m).
+    pub e_max_sys_m: f64,
+    /// Mean |final heading error| of the verification squares (rad).
+    pub mean_abs_heading_error_after_rad: f64,
+}
+
+/// A whole study: every method calibrated, written back and verified.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct StudyOutcome {
+    /// True parameters of the simulated robot.
+    pub truth: WheelParams,
+    /// `E_max,sys` before calibration (m).
+    pub e_max_sys_before_m: f64,
+    /// One entry per method that produced an estimate.
+    pub outcomes: Vec<MethodOutcome>,
+    /// Methods that failed, with the reason.
+    pub failures: Vec<(Method, String)>,
+}
+
+/// Runs one trial: calibrate, write back with `cfg.convention`, verify on the main track.
+///
+/// Every method's verification starts from the same simulator state, so all see the same noise.
+pub fn run_study(cfg: &StudyConfig, seed: u64) -> Result<StudyOutcome, StudyError> {
+    let tests = simulate_tests(cfg, seed)?;
+    let truth = *tests.sim.truth();
+    let true_e_b = truth.e_b_relative_to(cfg.nominal.wheelbase_m);
+    let true_e_d = truth.e_d() / cfg.nominal.e_d();
+    let mut outcomes = Vec::new();
+    let mut failures = Vec::new();
+    for method in Method::ALL {
+        let estimate = match estimate_method(method, &tests, cfg.convention) {
+            Ok(e) => e,
+            Err(e) => {
+                failures.push((method, e.to_string()));
+                continue;
+            }
+        };
+        let written = estimate.correction.apply(&cfg.nominal)?;
+        let mut verify = tests.sim.clone();
+        verify.set_configured(written)?;
+        let (cw, ccw) = verify.run_square_test(cfg.side_m, cfg.runs)?;
+        let all = cw.iter().chain(ccw.iter());
+        let mean_abs_heading =
+            all.map(|r| r.true_heading_error_rad.abs()).sum::<f64>() / (2 * cfg.runs) as f64;
+        outcomes.push(MethodOutcome {
+            e_b_error_pp: (estimate.e_b - true_e_b).abs() * 100.0,
+            e_d_error_pp: (estimate.e_d - true_e_d).abs() * 100.0,
+            written,
+            e_max_sys_m: e_max_sys(&cw, &ccw),
+            mean_abs_heading_error_after_rad: mean_abs_heading,
+            estimate,
+        });
+    }
+    Ok(StudyOutcome {
+        truth,
+        e_max_sys_before_m: tests.e_max_sys_before_m,
+        outcomes,
+        failures,
+    })
+}
+
+/// One method's results averaged over trials.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct MethodSummary {
+    /// Method name (stable JSON key).
+    pub method: Method,
+    /// Trials that produced an estimate.
+    pub trials: usize,
+    /// Mean `E_b` estimate.
+    pub e_b: f64,
+    /// Mean `E_d` estimate.
+    pub e_d: f64,
+    /// Mean standard error of `E_b` from run scatter, when available.
+    pub e_b_std_err: Option<f64>,
+    /// Mean standard error of `E_d` from run scatter, when available.
+    pub e_d_std_err: Option<f64>,
+    /// Mean `|E_b error|` (percentage points).
+    pub e_b_error_pp: f64,
+    /// Mean `|E_d error|` (percentage points).
+    pub e_d_error_pp: f64,
+    /// Mean `E_max,sys` after write-back (m).
+    pub e_max_sys_m: f64,
+}
+
+/// Runs `trials` studies with seeds `seed, seed+1, …` and averages each method's results.
+pub fn run_trials(
+    cfg: &StudyConfig,
+    seed: u64,
+    trials: usize,
+) -> Result<(Vec<StudyOutcome>, Vec<MethodSummary>), StudyError> {
+    if trials == 0 {
+        return Err(StudyError::Count("trials"));
+    }
+    let studies = (0..trials as u64)
+        .map(|k| run_study(cfg, seed.wrapping_add(k)))
+        .collect::<Result<Vec<_>, _>>()?;
+    let summaries = Method::ALL
+        .into_iter()
+        .filter_map(|method| {
+            let outs: Vec<&MethodOutcome> = studies
+                .iter()
+                .flat_map(|s| s.outcomes.iter())
+                .filter(|o| o.estimate.method == method)
+                .collect();
+            if outs.is_empty() {
+                return None;
+            }
+            let n = outs.len() as f64;
+            let mean =
+                |f: &dyn Fn(&MethodOutcome) -> f64| outs.iter().map(|o| f(o)).sum::<f64>() / n;
+            let mean_opt = |f: &dyn Fn(&MethodOutcome) -> Option<f64>| {
+                outs.iter()
+                    .map(|o| f(o))
+                    .sum::<Option<f64>>()
+                    .map(|s| s / n)
+            };
+            Some(MethodSummary {
+                method,
+                trials: outs.len(),
+                e_b: mean(&|o| o.estimate.e_b),
+                e_d: mean(&|o| o.estimate.e_d),
+                e_b_std_err: mean_opt(&|o| o.estimate.e_b_std_err),
+                e_d_std_err: mean_opt(&|o| o.estimate.e_d_std_err),
+                e_b_error_pp: mean(&|o| o.e_b_error_pp),
+                e_d_error_pp: mean(&|o| o.e_d_error_pp),
+                e_max_sys_m: mean(&|o| o.e_max_sys_m),
+            })
+        })
+        .collect();
+    Ok((studies, summaries))
+}
