@@ -295,3 +295,88 @@ pub fn run_trials(
         .collect();
     Ok((studies, summaries))
 }
+
+/// One method's spread over many seeded trials, beside the Cramér–Rao bound.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct AccuracyRow {
+    /// Method.
+    pub method: Method,
+    /// Runs per direction in each trial.
+    pub runs: usize,
+    /// Trials that produced an estimate.
+    pub trials: usize,
+    /// Mean `E_b` estimate minus the truth.
+    pub e_b_bias: f64,
+    /// Standard deviation of the `E_b` estimates.
+    pub e_b_std: f64,
+    /// Mean `E_d` estimate minus the truth.
+    pub e_d_bias: f64,
+    /// Standard deviation of the `E_d` estimates.
+    pub e_d_std: f64,
+    /// Cramér–Rao bound on the standard deviation of `E_b` (heading noise only).
+    pub e_b_crb_std: f64,
+    /// Cramér–Rao bound on the standard deviation of `E_d`.
+    pub e_d_crb_std: f64,
+}
+
+/// Monte-Carlo accuracy of every method: `trials` seeded calibrations of `cfg`, each method's
+/// bias and standard deviation, and the Cramér–Rao bound for the configured compass noise (one
+/// reading at rest before and after each run).
+pub fn accuracy_study(
+    cfg: &StudyConfig,
+    trials: usize,
+    seed: u64,
+) -> Result<Vec<AccuracyRow>, StudyError> {
+    use crate::calibration::uncertainty::{cramer_rao_bound, heading_error_sigma, TestDesign};
+    if trials < 2 {
+        return Err(StudyError::Count("trials (at least 2 for a spread)"));
+    }
+    let truth = cfg.truth()?;
+    let true_e_b = truth.e_b_relative_to(cfg.nominal.wheelbase_m);
+    let true_e_d = truth.e_d() / cfg.nominal.e_d();
+    let mut samples: Vec<Vec<(f64, f64)>> = vec![Vec::new(); Method::ALL.len()];
+    for k in 0..trials as u64 {
+        let tests = simulate_tests(cfg, seed.wrapping_add(k))?;
+        for (i, method) in Method::ALL.into_iter().enumerate() {
+            if let Ok(e) = estimate_method(method, &tests, cfg.convention) {
+                samples[i].push((e.e_b, e.e_d));
+            }
+        }
+    }
+    let design = TestDesign {
+        side_m: cfg.side_m,
+        wheelbase_m: cfg.nominal.wheelbase_m,
+        runs_cw: cfg.runs,
+        runs_ccw: cfg.runs,
+        heading_error_sigma_rad: heading_error_sigma(cfg.noise.compass_sigma_rad, 1),
+    };
+    let crb = cramer_rao_bound(true_e_b, true_e_d, cfg.convention, &design)?;
+    let stats = |v: &[f64], truth: f64| {
+        let n = v.len() as f64;
+        let mean = v.iter().sum::<f64>() / n;
+        let var = v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0);
+        (mean - truth, var.sqrt())
+    };
+    Ok(Method::ALL
+        .into_iter()
+        .zip(samples)
+        .filter(|(_, s)| s.len() >= 2)
+        .map(|(method, s)| {
+            let e_b: Vec<f64> = s.iter().map(|p| p.0).collect();
+            let e_d: Vec<f64> = s.iter().map(|p| p.1).collect();
+            let (e_b_bias, e_b_std) = stats(&e_b, true_e_b);
+            let (e_d_bias, e_d_std) = stats(&e_d, true_e_d);
+            AccuracyRow {
+                method,
+                runs: cfg.runs,
+                trials: s.len(),
+                e_b_bias,
+                e_b_std,
+                e_d_bias,
+                e_d_std,
+                e_b_crb_std: crb[(0, 0)].sqrt(),
+                e_d_crb_std: crb[(1, 1)].sqrt(),
+            }
+        })
+        .collect())
+}
