@@ -144,6 +144,15 @@ pub enum Direction {
     Ccw,
 }
 
+impl std::fmt::Display for Direction {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Direction::Cw => "clockwise",
+            Direction::Ccw => "counter-clockwise",
+        })
+    }
+}
+
 impl Direction {
     /// `+1` for counter-clockwise, `-1` for clockwise (the sign of each corner turn).
     pub fn turn_sign(self) -> f64 {

@@ -16,8 +16,8 @@
 //! let test = SquareTest {
 //!     side_m: 4.0,
 //!     wheelbase_m: 0.39,
-//!     cw: vec![run(-6.75), run(-6.70)],
-//!     ccw: vec![run(6.08), run(6.10)],
+//!     cw: vec![run(-26.31), run(-26.92)],
+//!     ccw: vec![run(-11.62), run(-12.15)],
 //! };
 //! let est = estimate(Method::Exact, &test, SplitConvention::LeftNominal).unwrap();
 //! assert!((est.e_b - 0.976).abs() < 0.002);

@@ -50,6 +50,10 @@ pub struct NoiseModel {
     pub quantise_encoders: bool,
     /// Relative standard deviation of each wheel's travel per motion (wheel slip).
     pub wheel_slip_sigma: f64,
+    /// Standard deviation of each axis of a measured final position (m), e.g. a tape measure
+    /// or an external tracker; it only affects the position-based methods.
+    #[serde(default)]
+    pub position_sigma_m: f64,
 }
 
 impl NoiseModel {
@@ -58,6 +62,7 @@ impl NoiseModel {
             ("compass_sigma_rad", self.compass_sigma_rad),
             ("compass_bias_rad", self.compass_bias_rad.abs()),
             ("wheel_slip_sigma", self.wheel_slip_sigma),
+            ("position_sigma_m", self.position_sigma_m),
         ] {
             if !(value.is_finite() && value >= 0.0) {
                 return Err(SimError::Noise { name, value });
@@ -104,6 +109,8 @@ pub struct SquareRun {
     pub true_heading_error_rad: f64,
     /// True final pose in the start frame (x along the first leg, y to its left).
     pub final_pose: Pose,
+    /// Final position in the start frame as measured (true position plus measurement noise).
+    pub measured_final_xy_m: [f64; 2],
     /// True pose after each motion, in the start frame, starting with the origin.
     pub path: Vec<Pose>,
 }
@@ -281,11 +288,17 @@ impl Simulator {
         }
         let heading_after = self.read_heading();
         let final_pose = self.pose.relative_to(&start);
+        let sigma = self.noise.position_sigma_m;
+        let measured_final_xy_m = [
+            final_pose.x_m + gaussian(&mut self.rng, sigma),
+            final_pose.y_m + gaussian(&mut self.rng, sigma),
+        ];
         Ok(SquareRun {
             direction,
             measured_heading_error_rad: wrap_angle(heading_after - heading_before),
             true_heading_error_rad: final_pose.heading_rad,
             final_pose,
+            measured_final_xy_m,
             path,
         })
     }

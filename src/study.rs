@@ -75,7 +75,7 @@ impl StudyConfig {
     }
 }
 
-/// A square test built from simulated runs: measured headings, true final positions.
+/// A square test built from simulated runs: measured headings and measured final positions.
 pub fn square_test(
     side_m: f64,
     wheelbase_m: f64,
@@ -86,7 +86,7 @@ pub fn square_test(
         runs.iter()
             .map(|r| RunMeasurement {
                 heading_error_rad: r.measured_heading_error_rad,
-                final_xy_m: Some([r.final_pose.x_m, r.final_pose.y_m]),
+                final_xy_m: Some(r.measured_final_xy_m),
             })
             .collect()
     };

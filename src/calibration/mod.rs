@@ -40,10 +40,10 @@ use std::str::FromStr;
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum CalibrationError {
     /// A direction has no runs.
-    #[error("no {0:?} runs: a square test needs at least one run in each direction")]
+    #[error("no {0} runs: a square test needs at least one run in each direction")]
     NoRuns(Direction),
     /// A number is NaN or infinite.
-    #[error("{what} of {direction:?} run {index} is not finite")]
+    #[error("{what} of {direction} run {} is not finite", index + 1)]
     NonFinite {
         /// Which quantity.
         what: &'static str,
@@ -53,7 +53,7 @@ pub enum CalibrationError {
         index: usize,
     },
     /// A heading error of 90° or more cannot come from a square of 90° turns.
-    #[error("{direction:?} run {index}: |heading error| = {degrees:.2}° is >= 90°; check the sign convention and units (degrees vs radians)")]
+    #[error("{direction} run {}: heading error {degrees:.2}° is 90° or more in size; check the sign convention and the units (degrees vs radians)", index + 1)]
     HeadingTooLarge {
         /// Direction of the run.
         direction: Direction,
@@ -375,12 +375,15 @@ pub fn estimate(
     })
 }
 
+/// One method's estimate or the reason it has none.
+pub type MethodResult = (Method, Result<Estimate, CalibrationError>);
+
 /// Every method the data supports (position methods only with positions), in [`Method::ALL`]
 /// order; a method that fails is returned as its error beside the others.
 pub fn estimate_all(
     test: &SquareTest,
     convention: SplitConvention,
-) -> Result<Vec<(Method, Result<Estimate, CalibrationError>)>, CalibrationError> {
+) -> Result<Vec<MethodResult>, CalibrationError> {
     test.validate()?;
     Ok(Method::ALL
         .into_iter()

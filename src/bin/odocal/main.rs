@@ -1,1 +1,94 @@
-fn main() {}
+//! The `odocal` command line: parses arguments, calls the library, prints tables or JSON.
+
+mod estimate;
+mod replay;
+mod simulate;
+
+use clap::{Parser, Subcommand, ValueEnum};
+use odocal::kinematics::SplitConvention;
+use std::process::ExitCode;
+
+/// Odometry calibration for two-wheel differential-drive robots.
+#[derive(Debug, Parser)]
+#[command(name = "odocal", version, about, long_about = None)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// Estimate E_b, E_d from square-test measurements taken by hand.
+    Estimate(estimate::Args),
+    /// Simulate the square test on a mis-calibrated robot, calibrate, write back and verify.
+    Simulate(simulate::Args),
+    /// Calibrate from a recorded OptiOdom square set and evaluate on recorded runs.
+    Replay(replay::Args),
+}
+
+/// Which diameter split to use for estimation and write-back.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum ConventionArg {
+    /// Mean of the two wheel diameters stays as configured (Borenstein).
+    MeanPreserving,
+    /// Left wheel stays as configured (the paper's coupled term).
+    LeftNominal,
+}
+
+/// Convention flags shared by the subcommands that estimate.
+#[derive(Debug, Clone, clap::Args)]
+pub struct ConventionArgs {
+    /// Diameter split for estimation and write-back.
+    #[arg(long, value_enum, default_value = "left-nominal")]
+    convention: ConventionArg,
+    /// Straight-line scale check: distance commanded (m). With --straight-measured-m, fixes
+    /// the absolute wheel scale (overrides --convention).
+    #[arg(long, requires = "straight_measured_m")]
+    straight_commanded_m: Option<f64>,
+    /// Straight-line scale check: distance measured start to end with a tape (m).
+    #[arg(long, requires = "straight_commanded_m")]
+    straight_measured_m: Option<f64>,
+}
+
+impl ConventionArgs {
+    /// The library convention these flags select.
+    pub fn convention(&self) -> SplitConvention {
+        match (self.straight_commanded_m, self.straight_measured_m) {
+            (Some(commanded_m), Some(measured_m)) => SplitConvention::MeasuredScale {
+                commanded_m,
+                measured_m,
+            },
+            _ => match self.convention {
+                ConventionArg::MeanPreserving => SplitConvention::MeanPreserving,
+                ConventionArg::LeftNominal => SplitConvention::LeftNominal,
+            },
+        }
+    }
+}
+
+/// Prints `value` as pretty JSON on stdout.
+pub fn print_json(value: &serde_json::Value) -> Result<(), Box<dyn std::error::Error>> {
+    println!("{}", serde_json::to_string_pretty(value)?);
+    Ok(())
+}
+
+/// Formats an optional standard error as `± x` or blank.
+pub fn pm(std_err: Option<f64>) -> String {
+    std_err.map_or_else(String::new, |s| format!("± {s:.5}"))
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Estimate(args) => estimate::run(args),
+        Command::Simulate(args) => simulate::run(args),
+        Command::Replay(args) => replay::run(args),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e}");
+            ExitCode::FAILURE
+        }
+    }
+}

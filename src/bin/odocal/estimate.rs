@@ -1,0 +1,216 @@
+//! `odocal estimate`: calibrate from measurements typed in by hand.
+
+use crate::{pm, print_json, ConventionArgs};
+use odocal::calibration::uncertainty::{cramer_rao_bound, heading_error_sigma, TestDesign};
+use odocal::calibration::{self, Estimate, Method, RunMeasurement, SquareTest};
+use odocal::kinematics::WheelParams;
+use serde_json::json;
+
+/// Arguments of `odocal estimate`.
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// Square side (m).
+    #[arg(long)]
+    side_m: f64,
+    /// Wheelbase configured on the controller during the test (m).
+    #[arg(long)]
+    wheelbase_m: f64,
+    /// Final-minus-start heading error of each clockwise run (deg, counter-clockwise positive;
+    /// negate a compass azimuth), comma-separated.
+    #[arg(
+        long,
+        value_delimiter = ',',
+        allow_hyphen_values = true,
+        required = true
+    )]
+    cw_heading_deg: Vec<f64>,
+    /// Same for each counter-clockwise run.
+    #[arg(
+        long,
+        value_delimiter = ',',
+        allow_hyphen_values = true,
+        required = true
+    )]
+    ccw_heading_deg: Vec<f64>,
+    /// Final position of each clockwise run in the start frame (x along the first leg, y to its
+    /// left), as "x,y;x,y" (m). Enables UMBmark and Lee.
+    #[arg(long, allow_hyphen_values = true, value_parser = parse_xy_list)]
+    cw_xy_m: Option<XyList>,
+    /// Same for each counter-clockwise run.
+    #[arg(long, allow_hyphen_values = true, value_parser = parse_xy_list)]
+    ccw_xy_m: Option<XyList>,
+    /// Method to run: all, umbmark, lee, heading-only, jung-chung or exact.
+    #[arg(long, default_value = "all")]
+    method: String,
+    #[command(flatten)]
+    convention: ConventionArgs,
+    /// Wheel diameter configured during the test (m); prints the corrected parameters.
+    #[arg(long)]
+    wheel_diameter_m: Option<f64>,
+    /// Compass noise per reading (deg); prints the Cramér–Rao bound for this test.
+    #[arg(long)]
+    compass_sigma_deg: Option<f64>,
+    /// Print one JSON object instead of a table.
+    #[arg(long)]
+    json: bool,
+}
+
+/// A list of (x, y) positions.
+#[derive(Debug, Clone)]
+pub struct XyList(Vec<[f64; 2]>);
+
+fn parse_xy_list(s: &str) -> Result<XyList, String> {
+    s.split(';')
+        .filter(|p| !p.trim().is_empty())
+        .map(|pair| {
+            let v: Vec<&str> = pair.split(',').map(str::trim).collect();
+            match v.as_slice() {
+                [x, y] => Ok([
+                    x.parse::<f64>().map_err(|e| format!("{x:?}: {e}"))?,
+                    y.parse::<f64>().map_err(|e| format!("{y:?}: {e}"))?,
+                ]),
+                _ => Err(format!("{pair:?} is not \"x,y\"")),
+            }
+        })
+        .collect::<Result<Vec<_>, _>>()
+        .map(XyList)
+}
+
+fn runs(headings_deg: &[f64], xy: Option<&XyList>) -> Result<Vec<RunMeasurement>, String> {
+    if let Some(xy) = xy {
+        if xy.0.len() != headings_deg.len() {
+            return Err(format!(
+                "{} headings but {} positions: give one position per run",
+                headings_deg.len(),
+                xy.0.len()
+            ));
+        }
+    }
+    Ok(headings_deg
+        .iter()
+        .enumerate()
+        .map(|(i, h)| RunMeasurement {
+            heading_error_rad: h.to_radians(),
+            final_xy_m: xy.map(|l| l.0[i]),
+        })
+        .collect())
+}
+
+/// Runs `odocal estimate`.
+pub fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
+    let test = SquareTest {
+        side_m: args.side_m,
+        wheelbase_m: args.wheelbase_m,
+        cw: runs(&args.cw_heading_deg, args.cw_xy_m.as_ref())?,
+        ccw: runs(&args.ccw_heading_deg, args.ccw_xy_m.as_ref())?,
+    };
+    let convention = args.convention.convention();
+    let results: Vec<(Method, Result<Estimate, _>)> = if args.method == "all" {
+        calibration::estimate_all(&test, convention)?
+    } else {
+        let m: Method = args.method.parse()?;
+        vec![(m, calibration::estimate(m, &test, convention))]
+    };
+    let configured = args
+        .wheel_diameter_m
+        .map(|d| WheelParams::nominal(d, args.wheelbase_m, 1.0));
+    let crb = args
+        .compass_sigma_deg
+        .map(|s| {
+            let exact = calibration::estimate(Method::Exact, &test, convention)?;
+            let design = TestDesign {
+                side_m: test.side_m,
+                wheelbase_m: test.wheelbase_m,
+                runs_cw: test.cw.len(),
+                runs_ccw: test.ccw.len(),
+                heading_error_sigma_rad: heading_error_sigma(s.to_radians(), 1),
+            };
+            cramer_rao_bound(exact.e_b, exact.e_d, convention, &design)
+        })
+        .transpose()?;
+
+    let mut rows = Vec::new();
+    let mut failures = Vec::new();
+    for (method, r) in &results {
+        match r {
+            Ok(e) => {
+                let params = configured.map(|c| e.correction.apply(&c)).transpose()?;
+                rows.push((e.clone(), params));
+            }
+            Err(err) => failures.push((*method, err.to_string())),
+        }
+    }
+    if args.json {
+        let estimates: Vec<_> = rows
+            .iter()
+            .map(|(e, p)| {
+                let mut v = serde_json::to_value(e).unwrap_or_default();
+                if let (Some(p), Some(obj)) = (p, v.as_object_mut()) {
+                    obj.insert(
+                        "left_wheel_diameter_m".into(),
+                        json!(p.left_wheel_diameter_m),
+                    );
+                    obj.insert(
+                        "right_wheel_diameter_m".into(),
+                        json!(p.right_wheel_diameter_m),
+                    );
+                    obj.insert("wheelbase_m".into(), json!(p.wheelbase_m));
+                }
+                v
+            })
+            .collect();
+        return print_json(&json!({
+            "convention": convention.name(),
+            "estimates": estimates,
+            "failures": failures.iter().map(|(m, e)| json!({"method": m.name(), "error": e})).collect::<Vec<_>>(),
+            "cramer_rao_std": crb.map(|c| json!({"e_b": c[(0, 0)].sqrt(), "e_d": c[(1, 1)].sqrt()})),
+        }));
+    }
+    println!(
+        "square {} m, wheelbase {} m, {} CW + {} CCW runs, convention {}",
+        test.side_m,
+        test.wheelbase_m,
+        test.cw.len(),
+        test.ccw.len(),
+        convention.name()
+    );
+    println!(
+        "{:<13} {:>9} {:>10} {:>9} {:>10}",
+        "method", "E_b", "", "E_d", ""
+    );
+    for (e, _) in &rows {
+        println!(
+            "{:<13} {:>9.6} {:>10} {:>9.6} {:>10}",
+            e.method.name(),
+            e.e_b,
+            pm(e.e_b_std_err),
+            e.e_d,
+            pm(e.e_d_std_err)
+        );
+    }
+    if let Some(c) = crb {
+        println!(
+            "Cramér–Rao bound (std): E_b {:.5}, E_d {:.5}",
+            c[(0, 0)].sqrt(),
+            c[(1, 1)].sqrt()
+        );
+    }
+    if configured.is_some() {
+        println!("\ncorrected parameters (left D, right D, wheelbase, m):");
+        for (e, p) in &rows {
+            if let Some(p) = p {
+                println!(
+                    "{:<13} {:.6} {:.6} {:.6}",
+                    e.method.name(),
+                    p.left_wheel_diameter_m,
+                    p.right_wheel_diameter_m,
+                    p.wheelbase_m
+                );
+            }
+        }
+    }
+    for (m, e) in failures {
+        println!("{m}: not estimated: {e}");
+    }
+    Ok(())
+}

@@ -1,0 +1,165 @@
+//! The `odocal` binary end to end: JSON shapes other tools rely on, and clear failures.
+
+use serde_json::Value;
+use std::process::Command;
+
+fn odocal(args: &[&str]) -> (bool, String, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_odocal"))
+        .args(args)
+        .output()
+        .expect("binary runs");
+    (
+        out.status.success(),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+fn json(args: &[&str]) -> Value {
+    let (ok, stdout, stderr) = odocal(args);
+    assert!(ok, "odocal {args:?} failed: {stderr}");
+    serde_json::from_str(&stdout).expect("stdout is one JSON object")
+}
+
+fn method<'a>(v: &'a Value, name: &str) -> &'a Value {
+    v["estimates"]
+        .as_array()
+        .expect("estimates array")
+        .iter()
+        .find(|e| e["method"] == name)
+        .unwrap_or_else(|| panic!("no {name} estimate"))
+}
+
+#[test]
+fn simulate_json_reproduces_the_paper() {
+    let v = json(&[
+        "simulate",
+        "--true-eb",
+        "0.976",
+        "--true-ed",
+        "0.992",
+        "--json",
+    ]);
+    let umb = method(&v, "umbmark");
+    assert!((umb["e_b_error_pp"].as_f64().unwrap() - 0.7253).abs() < 5e-5);
+    assert!((umb["e_max_sys_m"].as_f64().unwrap() - 0.1639).abs() < 5e-5);
+    let exact = method(&v, "exact");
+    assert!((exact["e_b"].as_f64().unwrap() - 0.976).abs() < 1e-12);
+    assert!((exact["e_d"].as_f64().unwrap() - 0.992).abs() < 1e-12);
+    assert!(exact["e_max_sys_m"].as_f64().unwrap() < 1e-9);
+    assert_eq!(v["estimates"].as_array().unwrap().len(), 5);
+}
+
+#[test]
+fn estimate_json_and_corrected_parameters() {
+    let v = json(&[
+        "estimate",
+        "--side-m",
+        "4",
+        "--wheelbase-m",
+        "0.39",
+        "--cw-heading-deg",
+        "-26.31,-26.92,-26.55",
+        "--ccw-heading-deg",
+        "-11.62,-12.15,-11.84",
+        "--wheel-diameter-m",
+        "0.15",
+        "--json",
+    ]);
+    // Without positions only the heading methods run.
+    assert_eq!(v["estimates"].as_array().unwrap().len(), 3);
+    let exact = method(&v, "exact");
+    let e_b = exact["e_b"].as_f64().unwrap();
+    assert!((e_b - 0.976).abs() < 0.001, "{e_b}");
+    assert!(exact["e_b_std_err"].as_f64().unwrap() > 0.0);
+    let b = exact["wheelbase_m"].as_f64().unwrap();
+    assert!((b - 0.39 * e_b).abs() < 1e-12);
+    assert_eq!(exact["left_wheel_diameter_m"].as_f64().unwrap(), 0.15);
+}
+
+#[test]
+fn estimate_with_positions_runs_every_method() {
+    let v = json(&[
+        "estimate",
+        "--side-m",
+        "4",
+        "--wheelbase-m",
+        "0.39",
+        "--cw-heading-deg=-26.64",
+        "--ccw-heading-deg=-11.89",
+        "--cw-xy-m=1.0354,0.6618",
+        "--ccw-xy-m=-0.3698,0.4712",
+        "--convention",
+        "mean-preserving",
+        "--json",
+    ]);
+    assert_eq!(v["estimates"].as_array().unwrap().len(), 5);
+    assert_eq!(v["convention"], "mean-preserving");
+}
+
+#[test]
+fn bad_input_fails_with_a_clear_message() {
+    let (ok, _, err) = odocal(&[
+        "estimate",
+        "--side-m",
+        "4",
+        "--wheelbase-m",
+        "0.39",
+        "--cw-heading-deg=-96",
+        "--ccw-heading-deg=-11.6",
+    ]);
+    assert!(!ok);
+    assert!(
+        err.contains("clockwise run 1") && err.contains("90°"),
+        "{err}"
+    );
+    let (ok, _, err) = odocal(&[
+        "estimate",
+        "--side-m",
+        "4",
+        "--wheelbase-m",
+        "0.39",
+        "--cw-heading-deg=-26",
+        "--ccw-heading-deg=-11.6",
+        "--cw-xy-m=1,2;3,4",
+    ]);
+    assert!(!ok);
+    assert!(err.contains("1 headings but 2 positions"), "{err}");
+    let (ok, _, err) = odocal(&["replay", "--dataset", "/nonexistent/set"]);
+    assert!(!ok);
+    assert!(err.contains("cannot read /nonexistent/set"), "{err}");
+}
+
+#[test]
+fn replay_json_has_evaluations() {
+    let root = odocal::dataset::default_optiodom_root();
+    let set = root.join("square/231220200040");
+    if !set.is_dir() {
+        assert!(
+            std::env::var_os("CI").is_none(),
+            "OptiOdom data missing in CI"
+        );
+        eprintln!("NOTICE: skipping, no OptiOdom data at {}", root.display());
+        return;
+    }
+    let other = root.join("square/231220200029");
+    let v = json(&[
+        "replay",
+        "--dataset",
+        set.to_str().unwrap(),
+        "--evaluate",
+        other.to_str().unwrap(),
+        "--json",
+    ]);
+    let evals = v["evaluations"].as_array().unwrap();
+    let get = |m: &str| {
+        evals
+            .iter()
+            .find(|r| r["method"] == m && r["dataset"] == "231220200029")
+            .unwrap()["heading_error_deg"]
+            .as_f64()
+            .unwrap()
+    };
+    assert!(get("exact") < get("uncalibrated"));
+    assert!(evals.iter().all(|r| r["position_error_m"].is_number()));
+}
