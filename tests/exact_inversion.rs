@@ -97,3 +97,39 @@ fn exact_method_attains_the_cramer_rao_bound() {
         .unwrap();
     assert!(ho.e_b_bias.abs() > 3.0 * ho.e_b_std);
 }
+
+#[test]
+fn a_straight_line_check_recovers_the_absolute_scale() {
+    use odocal::kinematics::Correction;
+    use odocal::sim::Motion;
+    // A robot whose wheels are both off (neither left-nominal nor mean-preserving holds).
+    let nominal = WheelParams::nominal(0.15, 0.39, 4096.0);
+    let truth_corr = Correction {
+        left_diameter_scale: 0.993,
+        right_diameter_scale: 0.985,
+        wheelbase_scale: 0.97,
+    };
+    let truth = truth_corr.apply(&nominal).unwrap();
+    let mut sim = Simulator::new(truth, nominal, NoiseModel::default(), 0).unwrap();
+    let (cw, ccw) = sim.run_square_test(4.0, 2).unwrap();
+    let test = square_test(4.0, 0.39, &cw, &ccw).without_positions();
+    // The tape-measure run: command 5 m straight, measure start to end.
+    sim.place(Pose::default());
+    let end = sim
+        .execute(&Motion::Straight { distance_m: 5.0 })
+        .unwrap()
+        .pose;
+    let conv = SplitConvention::MeasuredScale {
+        commanded_m: 5.0,
+        measured_m: end.distance_m(),
+    };
+    let est = estimate(Method::Exact, &test, conv).unwrap();
+    let c = est.correction;
+    assert!((c.left_diameter_scale - 0.993).abs() < 1e-12, "{c:?}");
+    assert!((c.right_diameter_scale - 0.985).abs() < 1e-12, "{c:?}");
+    assert!((c.wheelbase_scale - 0.97).abs() < 1e-12, "{c:?}");
+    // Left-nominal on the same data gets E_d right but E_b off by the unseen scale.
+    let left = estimate(Method::Exact, &test, SplitConvention::LeftNominal).unwrap();
+    assert!((left.e_d - 0.985 / 0.993).abs() < 1e-12);
+    assert!((left.e_b - 0.97 / 0.993).abs() < 1e-12);
+}

@@ -535,6 +535,21 @@ mod tests {
     }
 
     #[test]
+    fn an_impossible_robot_is_not_estimated() {
+        // A 1 cm "square" on a 0.39 m base with 40° of leg drift each way implies a negative
+        // left wheel factor: no robot does that.
+        let mut t = test_with(&[0.7], &[0.7]);
+        t.side_m = 0.01;
+        assert!(matches!(
+            estimate(Method::Exact, &t, SplitConvention::LeftNominal),
+            Err(CalibrationError::NotPhysical {
+                method: Method::Exact,
+                ..
+            })
+        ));
+    }
+
+    #[test]
     fn method_names_round_trip() {
         for m in Method::ALL {
             assert_eq!(m.name().parse::<Method>(), Ok(m));
