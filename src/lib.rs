@@ -7,6 +7,7 @@
 //!   Jung & Chung, exact) with standard errors and the Cramér–Rao bound.
 //! - [`study`]: simulated calibrate → write back → verify experiments (the paper's Sec. 3).
 //! - [`dataset`]: readers for recorded runs (OptiOdom) and replay evaluation.
+//! - [`protocol`]: the serial wire protocol of `protocol/SPEC.md` (frame layer so far).
 //!
 //! ```
 //! use odocal::calibration::{estimate, Method, RunMeasurement, SquareTest};
@@ -28,5 +29,6 @@
 pub mod calibration;
 pub mod dataset;
 pub mod kinematics;
+pub mod protocol;
 pub mod sim;
 pub mod study;
