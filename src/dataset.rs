@@ -445,6 +445,15 @@ pub fn replay(
             Err(e) => failures.push((method, e.to_string())),
         }
     }
+    let calibrated = estimates
+        .iter()
+        .map(|e| {
+            Ok((
+                e.method.name(),
+                e.correction.apply(&calibrate_on.configured)?,
+            ))
+        })
+        .collect::<Result<Vec<_>, DatasetError>>()?;
     let mut evaluations = Vec::new();
     for set in evaluate_on {
         let mut row = |method: String, params: &WheelParams| {
@@ -457,9 +466,8 @@ pub fn replay(
             });
         };
         row("uncalibrated".into(), &set.configured);
-        for e in &estimates {
-            let params = e.correction.apply(&calibrate_on.configured)?;
-            row(e.method.name().into(), &params);
+        for (method, params) in &calibrated {
+            row((*method).into(), params);
         }
     }
     Ok(Replay {

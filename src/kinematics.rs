@@ -235,13 +235,6 @@ pub struct Correction {
 }
 
 impl Correction {
-    /// The correction that changes nothing.
-    pub const IDENTITY: Correction = Correction {
-        left_diameter_scale: 1.0,
-        right_diameter_scale: 1.0,
-        wheelbase_scale: 1.0,
-    };
-
     /// `E_d` this correction encodes (right factor over left factor).
     pub fn e_d(&self) -> f64 {
         self.right_diameter_scale / self.left_diameter_scale
@@ -262,15 +255,6 @@ impl Correction {
         };
         out.validate()?;
         Ok(out)
-    }
-
-    /// The correction that turns `configured` into `target` (same encoder resolution assumed).
-    pub fn between(configured: &WheelParams, target: &WheelParams) -> Correction {
-        Correction {
-            left_diameter_scale: target.left_wheel_diameter_m / configured.left_wheel_diameter_m,
-            right_diameter_scale: target.right_wheel_diameter_m / configured.right_wheel_diameter_m,
-            wheelbase_scale: target.wheelbase_m / configured.wheelbase_m,
-        }
     }
 }
 

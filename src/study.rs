@@ -380,3 +380,26 @@ pub fn accuracy_study(
         })
         .collect())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn zero_runs_or_trials_are_refused() {
+        let mut cfg = StudyConfig::paper(0.976, 0.992);
+        assert!(matches!(
+            run_trials(&cfg, 0, 0),
+            Err(StudyError::Count("trials"))
+        ));
+        assert!(matches!(
+            accuracy_study(&cfg, 1, 0),
+            Err(StudyError::Count(_))
+        ));
+        cfg.runs = 0;
+        assert!(matches!(run_study(&cfg, 0), Err(StudyError::Count("runs"))));
+        cfg.runs = 1;
+        cfg.true_e_b = -1.0;
+        assert!(matches!(run_study(&cfg, 0), Err(StudyError::Kinematics(_))));
+    }
+}

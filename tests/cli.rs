@@ -21,6 +21,13 @@ fn json(args: &[&str]) -> Value {
     serde_json::from_str(&stdout).expect("stdout is one JSON object")
 }
 
+/// `odocal estimate` on the README's 4 m square, followed by `extra`.
+fn estimate_args<'a>(extra: &[&'a str]) -> Vec<&'a str> {
+    let mut v = vec!["estimate", "--side-m", "4", "--wheelbase-m", "0.39"];
+    v.extend_from_slice(extra);
+    v
+}
+
 fn method<'a>(v: &'a Value, name: &str) -> &'a Value {
     v["estimates"]
         .as_array()
@@ -52,12 +59,7 @@ fn simulate_json_reproduces_the_paper() {
 
 #[test]
 fn estimate_json_and_corrected_parameters() {
-    let v = json(&[
-        "estimate",
-        "--side-m",
-        "4",
-        "--wheelbase-m",
-        "0.39",
+    let v = json(&estimate_args(&[
         "--cw-heading-deg",
         "-26.31,-26.92,-26.55",
         "--ccw-heading-deg",
@@ -65,7 +67,7 @@ fn estimate_json_and_corrected_parameters() {
         "--wheel-diameter-m",
         "0.15",
         "--json",
-    ]);
+    ]));
     // Without positions only the heading methods run.
     assert_eq!(v["estimates"].as_array().unwrap().len(), 3);
     let exact = method(&v, "exact");
@@ -79,12 +81,7 @@ fn estimate_json_and_corrected_parameters() {
 
 #[test]
 fn estimate_with_positions_runs_every_method() {
-    let v = json(&[
-        "estimate",
-        "--side-m",
-        "4",
-        "--wheelbase-m",
-        "0.39",
+    let v = json(&estimate_args(&[
         "--cw-heading-deg=-26.64",
         "--ccw-heading-deg=-11.89",
         "--cw-xy-m=1.0354,0.6618",
@@ -92,37 +89,27 @@ fn estimate_with_positions_runs_every_method() {
         "--convention",
         "mean-preserving",
         "--json",
-    ]);
+    ]));
     assert_eq!(v["estimates"].as_array().unwrap().len(), 5);
     assert_eq!(v["convention"], "mean-preserving");
 }
 
 #[test]
 fn bad_input_fails_with_a_clear_message() {
-    let (ok, _, err) = odocal(&[
-        "estimate",
-        "--side-m",
-        "4",
-        "--wheelbase-m",
-        "0.39",
+    let (ok, _, err) = odocal(&estimate_args(&[
         "--cw-heading-deg=-96",
         "--ccw-heading-deg=-11.6",
-    ]);
+    ]));
     assert!(!ok);
     assert!(
         err.contains("clockwise run 1") && err.contains("90°"),
         "{err}"
     );
-    let (ok, _, err) = odocal(&[
-        "estimate",
-        "--side-m",
-        "4",
-        "--wheelbase-m",
-        "0.39",
+    let (ok, _, err) = odocal(&estimate_args(&[
         "--cw-heading-deg=-26",
         "--ccw-heading-deg=-11.6",
         "--cw-xy-m=1,2;3,4",
-    ]);
+    ]));
     assert!(!ok);
     assert!(err.contains("1 headings but 2 positions"), "{err}");
     let (ok, _, err) = odocal(&["replay", "--dataset", "/nonexistent/set"]);

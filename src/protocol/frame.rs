@@ -149,6 +149,19 @@ impl FrameCodec {
         self.stats
     }
 
+    /// Appends `bytes` (one read from the link) to `buf` and returns every frame now complete.
+    ///
+    /// Bad bytes are skipped and counted, never reported, so this cannot fail.
+    pub fn feed(&mut self, buf: &mut BytesMut, bytes: &[u8]) -> Vec<Frame> {
+        buf.extend_from_slice(bytes);
+        let mut frames = Vec::new();
+        // decode() only ever returns Ok: it has no I/O of its own.
+        while let Ok(Some(f)) = self.decode(buf) {
+            frames.push(f);
+        }
+        frames
+    }
+
     fn drop_bytes(&mut self, src: &mut BytesMut, n: usize) {
         src.advance(n);
         self.stats.bytes_dropped += n as u64;
@@ -231,12 +244,7 @@ mod tests {
     }
 
     fn decode_all(codec: &mut FrameCodec, bytes: &[u8]) -> Vec<Frame> {
-        let mut buf = BytesMut::from(bytes);
-        let mut out = Vec::new();
-        while let Some(f) = codec.decode(&mut buf).unwrap() {
-            out.push(f);
-        }
-        out
+        codec.feed(&mut BytesMut::new(), bytes)
     }
 
     #[test]
@@ -281,13 +289,8 @@ mod tests {
         for split in 0..=stream.len() {
             let mut codec = FrameCodec::new();
             let mut buf = BytesMut::new();
-            let mut got = Vec::new();
-            for part in [&stream[..split], &stream[split..]] {
-                buf.extend_from_slice(part);
-                while let Some(f) = codec.decode(&mut buf).unwrap() {
-                    got.push(f);
-                }
-            }
+            let mut got = codec.feed(&mut buf, &stream[..split]);
+            got.extend(codec.feed(&mut buf, &stream[split..]));
             assert_eq!(got, vec![a.clone(), b.clone()], "split at {split}");
             let s = codec.stats();
             assert_eq!(s.frames, 2);

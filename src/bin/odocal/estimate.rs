@@ -117,7 +117,11 @@ pub fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
     let crb = args
         .compass_sigma_deg
         .map(|s| {
-            let exact = calibration::estimate(Method::Exact, &test, convention)?;
+            // The bound is evaluated at the exact estimate; reuse it when it was computed.
+            let exact = match results.iter().find(|(m, _)| *m == Method::Exact) {
+                Some((_, r)) => r.clone()?,
+                None => calibration::estimate(Method::Exact, &test, convention)?,
+            };
             let design = TestDesign {
                 side_m: test.side_m,
                 wheelbase_m: test.wheelbase_m,
