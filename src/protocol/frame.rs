@@ -1,8 +1,10 @@
 //! Frames: `AA 55 | LEN | VER | KIND | SEQ | MSG | payload | CRC16-LE` (SPEC.md §2).
 //!
-//! The decoder implements the resynchronisation rule of SPEC.md §2.1: on a bad header (length,
+//! The decoder implements the resynchronisation rules of SPEC.md §2.1: on a bad header (length,
 //! major version, kind) or a bad CRC it drops *one* byte and rescans, so a valid frame hidden in
-//! garbage or in a corrupted frame is still found. It never returns an error for bad bytes —
+//! garbage or in a corrupted frame is still found; and an incomplete candidate is abandoned as
+//! soon as a complete valid frame follows it, so garbage that looks like a long header never
+//! holds a real frame back. It never returns an error for bad bytes —
 //! `tokio_util`'s `Framed` ends the stream after the first `Err` — and counts what it dropped in
 //! [`DecoderStats`].
 
@@ -130,6 +132,8 @@ pub struct DecoderStats {
     pub bad_headers: u64,
     /// Candidate frames rejected for a CRC mismatch.
     pub bad_crcs: u64,
+    /// Incomplete candidates abandoned because a complete valid frame followed them.
+    pub false_starts: u64,
 }
 
 /// The frame codec: a resynchronising decoder and an encoder.
@@ -168,6 +172,47 @@ impl FrameCodec {
     }
 }
 
+/// What the bytes at the start of a buffer (beginning with the sync bytes) are.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Candidate {
+    /// Not enough bytes yet to decide.
+    Incomplete,
+    /// The header is impossible (length, major version or kind).
+    BadHeader,
+    /// The header is plausible but the CRC does not match.
+    BadCrc,
+    /// A valid frame with this payload length and kind.
+    Valid(usize, FrameKind),
+}
+
+fn candidate(buf: &[u8]) -> Candidate {
+    if buf.len() < HEADER_LEN {
+        return Candidate::Incomplete;
+    }
+    let len = usize::from(buf[2]);
+    let kind = FrameKind::from_byte(buf[4]);
+    let Some(kind) = kind.filter(|_| len <= MAX_PAYLOAD && buf[3] >> 4 == MAJOR) else {
+        return Candidate::BadHeader;
+    };
+    if buf.len() < OVERHEAD + len {
+        return Candidate::Incomplete;
+    }
+    let expected = CRC16.checksum(&buf[2..HEADER_LEN + len]);
+    let got = u16::from_le_bytes([buf[HEADER_LEN + len], buf[HEADER_LEN + len + 1]]);
+    if expected == got {
+        Candidate::Valid(len, kind)
+    } else {
+        Candidate::BadCrc
+    }
+}
+
+/// Whether a complete, valid frame starts at a sync after the first byte (SPEC.md §2.1 rule 4).
+fn valid_frame_follows(buf: &[u8]) -> bool {
+    (1..buf.len().saturating_sub(1))
+        .filter(|&i| buf[i..i + 2] == SYNC)
+        .any(|i| matches!(candidate(&buf[i..]), Candidate::Valid(..)))
+}
+
 impl Decoder for FrameCodec {
     type Item = Frame;
     type Error = ProtocolError;
@@ -185,42 +230,39 @@ impl Decoder for FrameCodec {
                     return Ok(None);
                 }
             }
-            if src.len() < HEADER_LEN {
-                return Ok(None);
+            match candidate(src) {
+                Candidate::BadHeader => {
+                    self.stats.bad_headers += 1;
+                    self.drop_bytes(src, 1);
+                }
+                Candidate::BadCrc => {
+                    self.stats.bad_crcs += 1;
+                    self.drop_bytes(src, 1);
+                }
+                Candidate::Incomplete if valid_frame_follows(src) => {
+                    // Garbage that looks like the header of a long frame would otherwise hold
+                    // back the complete frame behind it until LEN more bytes arrive.
+                    self.stats.false_starts += 1;
+                    self.drop_bytes(src, 1);
+                }
+                Candidate::Incomplete => {
+                    return Ok(None);
+                }
+                Candidate::Valid(len, kind) => {
+                    let mut bytes = src.split_to(OVERHEAD + len);
+                    let (version, seq, msg) = (bytes[3], bytes[5], bytes[6]);
+                    bytes.advance(HEADER_LEN);
+                    bytes.truncate(len);
+                    self.stats.frames += 1;
+                    return Ok(Some(Frame {
+                        version,
+                        kind,
+                        seq,
+                        msg,
+                        payload: bytes.freeze(),
+                    }));
+                }
             }
-            let len = usize::from(src[2]);
-            let version = src[3];
-            let kind = FrameKind::from_byte(src[4]);
-            let Some(kind) = kind.filter(|_| len <= MAX_PAYLOAD && version >> 4 == MAJOR) else {
-                self.stats.bad_headers += 1;
-                self.drop_bytes(src, 1);
-                continue;
-            };
-            let total = OVERHEAD + len;
-            if src.len() < total {
-                src.reserve(total - src.len());
-                return Ok(None);
-            }
-            let expected = CRC16.checksum(&src[2..HEADER_LEN + len]);
-            let got = u16::from_le_bytes([src[HEADER_LEN + len], src[HEADER_LEN + len + 1]]);
-            if expected != got {
-                self.stats.bad_crcs += 1;
-                self.drop_bytes(src, 1);
-                continue;
-            }
-            let mut bytes = src.split_to(total);
-            let seq = bytes[5];
-            let msg = bytes[6];
-            bytes.advance(HEADER_LEN);
-            bytes.truncate(len);
-            self.stats.frames += 1;
-            return Ok(Some(Frame {
-                version,
-                kind,
-                seq,
-                msg,
-                payload: bytes.freeze(),
-            }));
         }
     }
 }
@@ -316,6 +358,17 @@ mod tests {
         assert_eq!(frames.len(), 1);
         assert_eq!(frames[0].msg, 0x40);
         assert_eq!(codec.stats().bad_headers, 3);
+    }
+
+    #[test]
+    fn a_false_long_header_does_not_hold_back_the_next_frame() {
+        let good = Frame::new(FrameKind::Response, 3, 0x39, vec![7u8; 12]);
+        // Plausible header claiming 180 payload bytes, then a complete valid frame.
+        let mut stream = hex("AA 55 B4 10 02 0E EC");
+        stream.extend_from_slice(&good.to_bytes().unwrap());
+        let mut codec = FrameCodec::new();
+        assert_eq!(decode_all(&mut codec, &stream), vec![good]);
+        assert_eq!(codec.stats().false_starts, 1);
     }
 
     #[test]
