@@ -2,8 +2,10 @@
 //!
 //! [`frame`] owns the frame layer: sync bytes, header, CRC-16/IBM-3740, and a
 //! `tokio_util::codec` decoder that resynchronises on any garbage instead of failing the stream.
-//! Typed messages on top of it are still to come (issue 3).
+//! [`message`] owns the typed messages of SPEC.md §5 and their payload layouts.
 
 pub mod frame;
+pub mod message;
 
 pub use frame::{DecoderStats, Frame, FrameCodec, FrameKind, ProtocolError};
+pub use message::{Body, Event, MessageError, Nack, NackCode, Packet, Request, Response};
