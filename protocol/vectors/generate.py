@@ -1,0 +1,194 @@
+#!/usr/bin/env python3
+"""Writes vectors.json: golden frames for every message of SPEC.md, and invalid inputs.
+
+This generator is a second, independent implementation of SPEC.md (Python's struct module and
+a bit-by-bit CRC), so the Rust codec is checked against the spec rather than against itself.
+Run it from anywhere: `python3 protocol/vectors/generate.py`. The output is committed.
+"""
+import json
+import os
+import struct
+
+SYNC = b"\xaa\x55"
+VER = 0x10
+KIND = {"request": 0, "response": 1, "nack": 2, "event": 3}
+
+
+def crc16(data):
+    """CRC-16/IBM-3740: poly 0x1021, init 0xFFFF, no reflection, xorout 0."""
+    crc = 0xFFFF
+    for byte in data:
+        crc ^= byte << 8
+        for _ in range(8):
+            crc = ((crc << 1) ^ 0x1021) & 0xFFFF if crc & 0x8000 else (crc << 1) & 0xFFFF
+    return crc
+
+
+assert crc16(b"123456789") == 0x29B1
+
+
+def frame(kind, seq, msg, payload, ver=VER):
+    body = bytes([len(payload), ver, KIND[kind], seq, msg]) + payload
+    return SYNC + body + struct.pack("<H", crc16(body))
+
+
+def hexs(b):
+    return " ".join("%02X" % x for x in b)
+
+
+PARAMS = {  # 0.150 m / 0.149 m wheels, 0.390 m base, 2796.8 counts per wheel revolution
+    "left_wheel_diameter_nm": 150_000_000,
+    "right_wheel_diameter_nm": 149_000_000,
+    "wheelbase_nm": 390_000_000,
+    "counts_per_wheel_rev_micro": 2_796_800_000,
+}
+
+
+def params_bytes(p):
+    return struct.pack("<IIIQ", p["left_wheel_diameter_nm"], p["right_wheel_diameter_nm"],
+                       p["wheelbase_nm"], p["counts_per_wheel_rev_micro"])
+
+
+vectors = []
+
+
+def add(name, kind, seq, msg, payload, body):
+    packet = {"seq": seq, "kind": kind}
+    packet.update(body)
+    vectors.append({"name": name, "hex": hexs(frame(kind, seq, msg, payload)), "packet": packet})
+
+
+def req(name, seq, msg, payload, message, **fields):
+    add(name, "request", seq, msg, payload, {"request": dict(message=message, **fields)})
+
+
+def resp(name, seq, msg, payload, message, **fields):
+    add(name, "response", seq, msg, payload, {"response": dict(message=message, **fields)})
+
+
+# Requests.
+req("HELLO request", 1, 0x01, bytes([1, 0]), "HELLO", host_major=1, host_min_minor=0)
+req("GET_PARAMS stored", 2, 0x10, bytes([1]), "GET_PARAMS", source="stored")
+req("SET_PARAMS", 3, 0x11, params_bytes(PARAMS), "SET_PARAMS", **PARAMS)
+req("SAVE_PARAMS", 4, 0x12, b"", "SAVE_PARAMS")
+req("RESTORE_DEFAULTS active and stored", 5, 0x13, bytes([1]), "RESTORE_DEFAULTS",
+    target="active_and_stored")
+req("LOAD_PARAMS", 6, 0x14, b"", "LOAD_PARAMS")
+req("RESET_ODOMETRY", 7, 0x20, b"", "RESET_ODOMETRY")
+req("MOVE_STRAIGHT 4 m at 0.2 m/s, queued", 8, 0x30, struct.pack("<iHB", 4_000_000, 200, 1),
+    "MOVE_STRAIGHT", distance_um=4_000_000, max_speed_mm_s=200, mode="queue")
+req("TURN_IN_PLACE -90 deg at 0.5 rad/s, replace", 9, 0x31,
+    struct.pack("<iHB", -1_570_796, 500, 0), "TURN_IN_PLACE", angle_urad=-1_570_796,
+    max_rate_mrad_s=500, mode="replace")
+req("WHEEL_SPEED", 10, 0x32, struct.pack("<hhH", -100, 120, 1500), "WHEEL_SPEED",
+    left_mm_s=-100, right_mm_s=120, duration_ms=1500)
+req("STOP", 11, 0x33, b"", "STOP")
+req("GET_STATUS", 12, 0x40, b"", "GET_STATUS")
+req("READ_ENCODERS", 13, 0x41, b"", "READ_ENCODERS")
+req("READ_HEADING", 14, 0x42, b"", "READ_HEADING")
+req("CONFIGURE_TELEMETRY 5 ms", 15, 0x50, struct.pack("<H", 5), "CONFIGURE_TELEMETRY",
+    period_ms=5)
+req("CONFIGURE_WATCHDOG 500 ms", 16, 0x60, struct.pack("<H", 500), "CONFIGURE_WATCHDOG",
+    timeout_ms=500)
+req("HEARTBEAT", 255, 0x61, b"", "HEARTBEAT")
+
+# Responses.
+fw = b"odocal-mock".ljust(16, b"\0")
+resp("HELLO response", 1, 0x01,
+     bytes([1, 0]) + fw + struct.pack("<IIQHH", 0x000102, 0x3F, 0x0123456789ABCDEF, 1000, 4000),
+     "HELLO", major=1, minor=0, firmware_id="odocal-mock", firmware_version=0x000102,
+     capabilities=0x3F, serial_number=0x0123456789ABCDEF, max_speed_mm_s=1000,
+     max_rate_mrad_s=4000)
+resp("GET_PARAMS stored response", 2, 0x10,
+     bytes([1]) + params_bytes(PARAMS) + struct.pack("<H", crc16(params_bytes(PARAMS))),
+     "GET_PARAMS", source="stored", params=PARAMS, stored_crc=crc16(params_bytes(PARAMS)))
+resp("SET_PARAMS response", 3, 0x11, params_bytes(PARAMS), "SET_PARAMS", **PARAMS)
+resp("SAVE_PARAMS response", 4, 0x12, struct.pack("<H", crc16(params_bytes(PARAMS))),
+     "SAVE_PARAMS", stored_crc=crc16(params_bytes(PARAMS)))
+resp("RESTORE_DEFAULTS response", 5, 0x13, params_bytes(PARAMS), "RESTORE_DEFAULTS", **PARAMS)
+resp("LOAD_PARAMS response", 6, 0x14, params_bytes(PARAMS), "LOAD_PARAMS", **PARAMS)
+resp("RESET_ODOMETRY response", 7, 0x20, b"", "RESET_ODOMETRY")
+resp("MOVE_STRAIGHT response", 8, 0x30, struct.pack("<BH", 2, 41), "MOVE_STRAIGHT",
+     queue_depth=2, motion_id=41)
+resp("TURN_IN_PLACE response", 9, 0x31, struct.pack("<BH", 1, 42), "TURN_IN_PLACE",
+     queue_depth=1, motion_id=42)
+resp("WHEEL_SPEED response", 10, 0x32, b"", "WHEEL_SPEED")
+resp("STOP response", 11, 0x33, b"", "STOP")
+resp("GET_STATUS response", 12, 0x40, struct.pack("<BBHIHBI", 1, 3, 42, 40, 0x0008, 1, 123456),
+     "GET_STATUS", motion_state="moving", queue_depth=3, current_motion_id=42,
+     completed_motions=40, fault_flags=8, watchdog_state="armed", uptime_ms=123456)
+resp("READ_ENCODERS response (left counter wrapped negative)", 13, 0x41,
+     struct.pack("<Iii", 4_000_000_000, -2_147_483_000, 123_456), "READ_ENCODERS",
+     timestamp_us=4_000_000_000, left_counts=-2_147_483_000, right_counts=123_456)
+resp("READ_HEADING response", 14, 0x42, struct.pack("<IiBB", 1000, -3_139_847, 1, 1),
+     "READ_HEADING", timestamp_us=1000, heading_urad=-3_139_847, valid=True, sensor_status=1)
+resp("CONFIGURE_TELEMETRY response", 15, 0x50, struct.pack("<H", 5), "CONFIGURE_TELEMETRY",
+     period_ms=5)
+resp("CONFIGURE_WATCHDOG response", 16, 0x60, struct.pack("<H", 500), "CONFIGURE_WATCHDOG",
+     timeout_ms=500)
+resp("HEARTBEAT response", 255, 0x61, b"", "HEARTBEAT")
+
+# NACKs and events.
+add("NACK out of range on field 1 of MOVE_STRAIGHT", "nack", 8, 0x30, bytes([0x03, 0x01]),
+    {"msg": 0x30, "nack": {"code": "OUT_OF_RANGE", "detail": 1}})
+add("NACK invalid state on SAVE_PARAMS", "nack", 4, 0x12, bytes([0x04, 0xFF]),
+    {"msg": 0x12, "nack": {"code": "INVALID_STATE", "detail": 255}})
+add("TELEMETRY event", "event", 200, 0x51,
+    struct.pack("<IIiiiBBB", 70_000, 350_000_000, 10_240, -512, 1_570_796, 1, 1, 2),
+    {"event": {"message": "TELEMETRY", "sample_index": 70_000, "timestamp_us": 350_000_000,
+               "left_counts": 10_240, "right_counts": -512, "heading_urad": 1_570_796,
+               "heading_valid": True, "motion_state": "moving", "queue_depth": 2}})
+add("MOTION_DONE event", "event", 201, 0x52, struct.pack("<HI", 42, 41),
+    {"event": {"message": "MOTION_DONE", "motion_id": 42, "completed_motions": 41}})
+
+# Streams: byte chunks as read from the link, and what the decoder must produce.
+stop = frame("request", 7, 0x33, b"")
+status = frame("request", 12, 0x40, b"")
+bad_crc = bytearray(stop)
+bad_crc[-1] ^= 0x01
+streams = [
+    {"name": "bad CRC", "chunks": [hexs(bad_crc)], "frames": [], "bad_crcs": 1},
+    {"name": "truncated frame", "chunks": [hexs(stop[:-1])], "frames": []},
+    {"name": "oversize length", "chunks": ["AA 55 F1 10 00 00 00 00 00"], "frames": [],
+     "bad_headers": 1},
+    {"name": "unknown major version", "chunks": [hexs(frame("request", 1, 0x33, b"", ver=0x20))],
+     "frames": [], "bad_headers": 1},
+    {"name": "garbage before a valid frame", "chunks": ["00 FF AA 13 AA " + hexs(stop)],
+     "frames": [hexs(stop)]},
+    {"name": "two frames back to back", "chunks": [hexs(stop + status)],
+     "frames": [hexs(stop), hexs(status)]},
+    {"name": "frame split across three reads",
+     "chunks": [hexs(status[:1]), hexs(status[1:5]), hexs(status[5:])], "frames": [hexs(status)]},
+    {"name": "corrupted frame then the same frame intact", "chunks": [hexs(bad_crc + stop)],
+     "frames": [hexs(stop)], "bad_crcs": 1},
+    {"name": "false long header before a valid frame",
+     "chunks": ["AA 55 B4 10 02 0E EC " + hexs(stop)], "frames": [hexs(stop)]},
+]
+
+# Frames that are valid but whose payload a receiver must refuse (the NACK a device sends).
+payload_errors = [
+    {"name": "MOVE_STRAIGHT payload one byte short",
+     "hex": hexs(frame("request", 1, 0x30, struct.pack("<iH", 1000, 100))),
+     "nack": {"code": "BAD_LENGTH", "detail": 255}},
+    {"name": "unknown request id 0x7F", "hex": hexs(frame("request", 1, 0x7F, b"")),
+     "nack": {"code": "UNKNOWN_MESSAGE", "detail": 255}},
+    {"name": "MOVE_STRAIGHT with undefined mode 2",
+     "hex": hexs(frame("request", 1, 0x30, struct.pack("<iHB", 1000, 100, 2))),
+     "nack": {"code": "OUT_OF_RANGE", "detail": 2}},
+    {"name": "GET_PARAMS with undefined source 3", "hex": hexs(frame("request", 1, 0x10, b"\x03")),
+     "nack": {"code": "OUT_OF_RANGE", "detail": 0}},
+]
+
+out = {
+    "spec": "odocal serial protocol 1.0",
+    "crc": {"name": "CRC-16/IBM-3740", "poly": "0x1021", "init": "0xFFFF", "refin": False,
+            "refout": False, "xorout": "0x0000", "check": "0x29B1"},
+    "frames": vectors,
+    "streams": streams,
+    "payload_errors": payload_errors,
+}
+path = os.path.join(os.path.dirname(os.path.abspath(__file__)), "vectors.json")
+with open(path, "w") as f:
+    json.dump(out, f, indent=1)
+    f.write("\n")
+print("wrote", path, len(vectors), "frames,", len(streams), "streams")
