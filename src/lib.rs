@@ -7,7 +7,7 @@
 //!   Jung & Chung, exact) with standard errors and the Cramér–Rao bound.
 //! - [`study`]: simulated calibrate → write back → verify experiments (the paper's Sec. 3).
 //! - [`dataset`]: readers for recorded runs (OptiOdom) and replay evaluation.
-//! - [`protocol`]: the serial wire protocol of `protocol/SPEC.md` (frame layer so far).
+//! - [`protocol`]: the serial wire protocol of `protocol/SPEC.md`: frames and typed messages.
 //!
 //! ```
 //! use odocal::calibration::{estimate, Method, RunMeasurement, SquareTest};
