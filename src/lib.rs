@@ -8,6 +8,8 @@
 //! - [`study`]: simulated calibrate → write back → verify experiments (the paper's Sec. 3).
 //! - [`dataset`]: readers for recorded runs (OptiOdom) and replay evaluation.
 //! - [`protocol`]: the serial wire protocol of `protocol/SPEC.md`: frames and typed messages.
+//! - [`hal`]: the async client over any byte stream (serial port, PTY, in-memory).
+//! - [`mock`]: a simulated base that speaks the protocol, over a duplex or a pseudo-terminal.
 //!
 //! ```
 //! use odocal::calibration::{estimate, Method, RunMeasurement, SquareTest};
@@ -28,7 +30,9 @@
 
 pub mod calibration;
 pub mod dataset;
+pub mod hal;
 pub mod kinematics;
+pub mod mock;
 pub mod protocol;
 pub mod sim;
 pub mod study;

@@ -87,6 +87,19 @@ pub enum Motion {
     },
 }
 
+/// One motion as planned: the controller's wheel targets and the true wheel travel.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MotionPlan {
+    /// Left wheel target (encoder counts).
+    pub left_counts: f64,
+    /// Right wheel target (encoder counts).
+    pub right_counts: f64,
+    /// True left wheel travel (m), slip included.
+    pub left_arc_m: f64,
+    /// True right wheel travel (m), slip included.
+    pub right_arc_m: f64,
+}
+
 /// What one executed motion did.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct MotionOutcome {
@@ -205,6 +218,12 @@ impl Simulator {
         (self.left_counts_total, self.right_counts_total)
     }
 
+    /// Zeroes the cumulative encoder counts (the controller's odometry reset).
+    pub fn reset_encoders(&mut self) {
+        self.left_counts_total = 0.0;
+        self.right_counts_total = 0.0;
+    }
+
     /// A compass reading of the current heading: CCW positive, with bias and noise, wrapped.
     pub fn read_heading(&mut self) -> f64 {
         let noise = gaussian(&mut self.rng, self.noise.compass_sigma_rad);
@@ -230,8 +249,8 @@ impl Simulator {
         (left, right)
     }
 
-    /// Executes one motion open-loop and moves the true robot.
-    pub fn execute(&mut self, motion: &Motion) -> Result<MotionOutcome, SimError> {
+    /// Plans one motion open-loop: the wheel targets and the true wheel travel (slip drawn now).
+    pub fn plan(&mut self, motion: &Motion) -> Result<MotionPlan, SimError> {
         let size = match *motion {
             Motion::Straight { distance_m } => distance_m,
             Motion::TurnInPlace { angle_rad } => angle_rad,
@@ -241,19 +260,42 @@ impl Simulator {
         }
         let (left_counts, right_counts) = self.wheel_targets(motion);
         let slip = self.noise.wheel_slip_sigma;
-        let left_arc =
+        let left_arc_m =
             left_counts * self.truth.left_m_per_count() * (1.0 + gaussian(&mut self.rng, slip));
-        let right_arc =
+        let right_arc_m =
             right_counts * self.truth.right_m_per_count() * (1.0 + gaussian(&mut self.rng, slip));
-        self.pose = self
-            .pose
-            .advance(left_arc, right_arc, self.truth.wheelbase_m);
-        self.left_counts_total += left_counts;
-        self.right_counts_total += right_counts;
-        Ok(MotionOutcome {
+        Ok(MotionPlan {
             left_counts,
             right_counts,
-            pose: self.pose,
+            left_arc_m,
+            right_arc_m,
+        })
+    }
+
+    /// Moves the robot through the part `from..to` (fractions in [0, 1]) of a planned motion.
+    ///
+    /// Wheel speeds keep a constant ratio within a motion, so its path is one circular arc and
+    /// any split into parts lands exactly where the whole motion does.
+    pub fn advance_plan(&mut self, plan: &MotionPlan, from: f64, to: f64) -> Pose {
+        let f = (to.clamp(0.0, 1.0) - from.clamp(0.0, 1.0)).max(0.0);
+        self.pose = self.pose.advance(
+            f * plan.left_arc_m,
+            f * plan.right_arc_m,
+            self.truth.wheelbase_m,
+        );
+        self.left_counts_total += f * plan.left_counts;
+        self.right_counts_total += f * plan.right_counts;
+        self.pose
+    }
+
+    /// Executes one motion open-loop and moves the true robot.
+    pub fn execute(&mut self, motion: &Motion) -> Result<MotionOutcome, SimError> {
+        let plan = self.plan(motion)?;
+        let pose = self.advance_plan(&plan, 0.0, 1.0);
+        Ok(MotionOutcome {
+            left_counts: plan.left_counts,
+            right_counts: plan.right_counts,
+            pose,
         })
     }
 
@@ -409,6 +451,25 @@ mod tests {
             a.run_square(1.0, Direction::Cw).unwrap(),
             b.run_square(1.0, Direction::Cw).unwrap()
         );
+    }
+
+    #[test]
+    fn a_motion_split_into_parts_ends_where_the_whole_does() {
+        let truth = WheelParams {
+            right_wheel_diameter_m: 0.149,
+            ..nominal()
+        };
+        let mut whole = Simulator::new(truth, nominal(), NoiseModel::default(), 3).unwrap();
+        let mut parts = whole.clone();
+        let m = Motion::Straight { distance_m: 2.0 };
+        let end = whole.execute(&m).unwrap().pose;
+        let plan = parts.plan(&m).unwrap();
+        for k in 0..7 {
+            parts.advance_plan(&plan, k as f64 / 7.0, (k + 1) as f64 / 7.0);
+        }
+        assert!((parts.pose().x_m - end.x_m).abs() < 1e-12);
+        assert!((parts.pose().y_m - end.y_m).abs() < 1e-12);
+        assert!((parts.encoder_counts().1 - whole.encoder_counts().1).abs() < 1e-9);
     }
 
     #[test]

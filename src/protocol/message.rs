@@ -286,10 +286,11 @@ impl ParamsBlock {
     /// The parameters in SI units.
     pub fn to_params(&self) -> WheelParams {
         WheelParams {
-            left_wheel_diameter_m: f64::from(self.left_wheel_diameter_nm) * 1e-9,
-            right_wheel_diameter_m: f64::from(self.right_wheel_diameter_nm) * 1e-9,
-            wheelbase_m: f64::from(self.wheelbase_nm) * 1e-9,
-            counts_per_wheel_rev: self.counts_per_wheel_rev_micro as f64 * 1e-6,
+            // Dividing (not multiplying by 1e-9) is correctly rounded: 150 000 000 nm is 0.15.
+            left_wheel_diameter_m: f64::from(self.left_wheel_diameter_nm) / 1e9,
+            right_wheel_diameter_m: f64::from(self.right_wheel_diameter_nm) / 1e9,
+            wheelbase_m: f64::from(self.wheelbase_nm) / 1e9,
+            counts_per_wheel_rev: self.counts_per_wheel_rev_micro as f64 / 1e6,
         }
     }
 

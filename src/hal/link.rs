@@ -1,0 +1,366 @@
+//! The task that owns the link: one request in flight, retries with the same sequence number,
+//! responses matched by sequence number, events fanned out to subscribers.
+
+use super::{HalError, LinkError, LinkStats, TelemetrySample};
+use crate::kinematics::wrap_angle;
+use crate::protocol::message::{id, payload_len, Event, NackCode};
+use crate::protocol::{Body, FrameCodec, FrameKind, Packet, Request, Response};
+use bytes::BytesMut;
+use std::collections::VecDeque;
+use std::sync::atomic::Ordering;
+use std::sync::Arc;
+use std::time::Duration;
+use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
+use tokio::sync::{broadcast, mpsc, oneshot};
+use tokio::time::Instant;
+
+/// Link timing and retry policy.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LinkConfig {
+    /// Baud rate, for deadlines (10 bits per byte on an 8N1 line).
+    pub baud: u32,
+    /// Retries of a request that got no answer (same sequence number).
+    pub retries: u32,
+    /// Added to each deadline beyond transmission time and device latency.
+    pub margin: Duration,
+    /// Retries (with a new sequence number) of a request answered NACK BUSY.
+    pub busy_retries: u32,
+    /// Wait before retrying after BUSY.
+    pub busy_backoff: Duration,
+    /// The device's answer time for ordinary requests (SPEC.md §3: 50 ms).
+    pub response_time: Duration,
+    /// The device's answer time for requests that write storage (SPEC.md §3: 500 ms).
+    pub storage_time: Duration,
+}
+
+impl Default for LinkConfig {
+    fn default() -> Self {
+        LinkConfig {
+            baud: 115_200,
+            retries: 5,
+            margin: Duration::from_millis(30),
+            busy_retries: 5,
+            busy_backoff: Duration::from_millis(5),
+            response_time: Duration::from_millis(50),
+            storage_time: Duration::from_millis(500),
+        }
+    }
+}
+
+impl LinkConfig {
+    /// How long to wait for the answer to `request`: both frames' transmission time at the
+    /// baud rate, plus the device's response time from SPEC.md §3, plus the margin.
+    pub fn deadline(&self, request: &Request) -> Duration {
+        let msg = request.msg();
+        let req = payload_len(FrameKind::Request, msg).unwrap_or(0) + 9;
+        let resp = payload_len(FrameKind::Response, msg).unwrap_or(0) + 9;
+        let bits = 10.0 * (req + resp) as f64;
+        let wire = Duration::from_secs_f64(bits / f64::from(self.baud.max(1)));
+        let device = match msg {
+            id::SAVE_PARAMS | id::RESTORE_DEFAULTS => self.storage_time,
+            _ => self.response_time,
+        };
+        wire + device + self.margin
+    }
+}
+
+/// What the client asks of the link task.
+pub(super) enum Command {
+    /// Send a request and report its answer.
+    Request {
+        request: Request,
+        reply: oneshot::Sender<Result<Response, HalError>>,
+    },
+    /// Abandon everything pending and send STOP at once (guards, Ctrl-C).
+    EmergencyStop,
+}
+
+struct Pending {
+    request: Request,
+    seq: u8,
+    bytes: Vec<u8>,
+    deadline: Instant,
+    attempts: u32,
+    busy_left: u32,
+    /// Set after BUSY: at the deadline, resend with a new sequence number.
+    resend_new_seq: bool,
+    reply: Option<oneshot::Sender<Result<Response, HalError>>>,
+}
+
+/// Host-side unwrapping of the device's wrapping counters and clock.
+#[derive(Default)]
+struct Unwrap {
+    last: Option<(u32, i32, i32, u32)>,
+    left: i64,
+    right: i64,
+    time_us: u64,
+}
+
+pub(super) struct Link {
+    pub(super) config: LinkConfig,
+    pub(super) stats: Arc<LinkStats>,
+    pub(super) events: broadcast::Sender<TelemetrySample>,
+}
+
+impl Link {
+    pub(super) async fn run<S>(self, stream: S, mut commands: mpsc::UnboundedReceiver<Command>)
+    where
+        S: AsyncRead + AsyncWrite + Unpin,
+    {
+        let (mut rd, mut wr) = tokio::io::split(stream);
+        let mut codec = FrameCodec::new();
+        let mut buf = BytesMut::new();
+        let mut chunk = [0u8; 1024];
+        let mut seq: u8 = 0;
+        let mut queue: VecDeque<(Request, oneshot::Sender<Result<Response, HalError>>)> =
+            VecDeque::new();
+        let mut pending: Option<Pending> = None;
+        let mut unwrap = Unwrap::default();
+        let mut closed: Option<LinkError> = None;
+        loop {
+            if pending.is_none() && closed.is_none() {
+                if let Some((request, reply)) = queue.pop_front() {
+                    seq = seq.wrapping_add(1);
+                    let busy_left = self.config.busy_retries;
+                    match self
+                        .start(&mut wr, request, seq, busy_left, Some(reply))
+                        .await
+                    {
+                        Ok(p) => pending = Some(p),
+                        Err(e) => closed = Some(e),
+                    }
+                }
+            }
+            if let Some(err) = &closed {
+                // The link is gone: fail everything now and anything asked later.
+                if let Some(p) = pending.take() {
+                    fail(p.reply, err.clone());
+                }
+                for (_, reply) in queue.drain(..) {
+                    let _ = reply.send(Err(HalError::Link(err.clone())));
+                }
+                match commands.recv().await {
+                    Some(Command::Request { reply, .. }) => {
+                        let _ = reply.send(Err(HalError::Link(err.clone())));
+                        continue;
+                    }
+                    Some(Command::EmergencyStop) => continue,
+                    None => return,
+                }
+            }
+            let deadline = pending.as_ref().map(|p| p.deadline);
+            tokio::select! {
+                cmd = commands.recv() => match cmd {
+                    None => {
+                        // Every client handle is gone: stop the base before letting go.
+                        let _ = self.start(&mut wr, Request::Stop, seq.wrapping_add(1), 0, None).await;
+                        return;
+                    }
+                    Some(Command::Request { request, reply }) => queue.push_back((request, reply)),
+                    Some(Command::EmergencyStop) => {
+                        if let Some(p) = pending.take() {
+                            fail(p.reply, LinkError::Cancelled);
+                        }
+                        for (_, reply) in queue.drain(..) {
+                            let _ = reply.send(Err(HalError::Link(LinkError::Cancelled)));
+                        }
+                        seq = seq.wrapping_add(1);
+                        match self.start(&mut wr, Request::Stop, seq, 0, None).await {
+                            Ok(p) => pending = Some(p),
+                            Err(e) => closed = Some(e),
+                        }
+                    }
+                },
+                read = rd.read(&mut chunk) => match read {
+                    Ok(0) => closed = Some(LinkError::Closed),
+                    Err(e) => closed = Some(LinkError::Io(e.to_string())),
+                    Ok(n) => {
+                        for frame in codec.feed(&mut buf, &chunk[..n]) {
+                            self.dispatch(&frame, &mut pending, &mut unwrap);
+                        }
+                        self.stats.decoder_dropped_bytes.store(codec.stats().bytes_dropped, Ordering::Relaxed);
+                    }
+                },
+                () = sleep_until_opt(deadline) => {
+                    if let Some(mut p) = pending.take() {
+                        if p.resend_new_seq {
+                            seq = seq.wrapping_add(1);
+                            let reply = p.reply.take();
+                            match self.start(&mut wr, p.request.clone(), seq, p.busy_left, reply).await {
+                                Ok(np) => pending = Some(np),
+                                Err(e) => closed = Some(e),
+                            }
+                        } else if p.attempts <= self.config.retries {
+                            self.stats.retries.fetch_add(1, Ordering::Relaxed);
+                            p.attempts += 1;
+                            p.deadline = Instant::now() + self.config.deadline(&p.request);
+                            if let Err(e) = write(&mut wr, &p.bytes).await {
+                                closed = Some(e);
+                            }
+                            pending = Some(p);
+                        } else {
+                            self.stats.timeouts.fetch_add(1, Ordering::Relaxed);
+                            let after = self.config.deadline(&p.request) * p.attempts;
+                            fail(p.reply, LinkError::Timeout {
+                                msg: p.request.msg(),
+                                attempts: p.attempts,
+                                after,
+                            });
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    async fn start<W: AsyncWrite + Unpin>(
+        &self,
+        wr: &mut W,
+        request: Request,
+        seq: u8,
+        busy_left: u32,
+        reply: Option<oneshot::Sender<Result<Response, HalError>>>,
+    ) -> Result<Pending, LinkError> {
+        let bytes = Packet::request(seq, request.clone())
+            .to_frame()
+            .map_err(LinkError::Decode)?
+            .to_bytes()
+            .map_err(|e| LinkError::Io(e.to_string()))?
+            .to_vec();
+        write(wr, &bytes).await?;
+        self.stats.requests.fetch_add(1, Ordering::Relaxed);
+        Ok(Pending {
+            deadline: Instant::now() + self.config.deadline(&request),
+            request,
+            seq,
+            bytes,
+            attempts: 1,
+            busy_left,
+            resend_new_seq: false,
+            reply,
+        })
+    }
+
+    fn dispatch(
+        &self,
+        frame: &crate::protocol::Frame,
+        pending: &mut Option<Pending>,
+        unwrap: &mut Unwrap,
+    ) {
+        let packet = match Packet::from_frame(frame) {
+            Ok(p) => p,
+            Err(e) => {
+                self.stats.undecodable.fetch_add(1, Ordering::Relaxed);
+                if let Some(p) =
+                    pending.take_if(|p| p.seq == frame.seq && p.request.msg() == frame.msg)
+                {
+                    fail(p.reply, LinkError::Decode(e));
+                }
+                return;
+            }
+        };
+        match packet.body {
+            Body::Event { event } => self.event(event, unwrap),
+            Body::Response { response } => {
+                match pending.take_if(|p| p.seq == packet.seq && p.request.msg() == response.msg())
+                {
+                    Some(p) => {
+                        if let Some(r) = p.reply {
+                            let _ = r.send(Ok(response));
+                        }
+                    }
+                    None => {
+                        self.stats.stale_answers.fetch_add(1, Ordering::Relaxed);
+                    }
+                }
+            }
+            Body::Nack { msg, nack } => {
+                let Some(p) = pending
+                    .as_mut()
+                    .filter(|p| p.seq == packet.seq && p.request.msg() == msg)
+                else {
+                    self.stats.stale_answers.fetch_add(1, Ordering::Relaxed);
+                    return;
+                };
+                if nack.code == NackCode::Busy && p.busy_left > 0 {
+                    self.stats.busy.fetch_add(1, Ordering::Relaxed);
+                    p.busy_left -= 1;
+                    p.resend_new_seq = true;
+                    p.deadline = Instant::now() + self.config.busy_backoff;
+                    return;
+                }
+                if let Some(p) = pending.take() {
+                    if let Some(r) = p.reply {
+                        let _ = r.send(Err(HalError::Nack { msg, nack }));
+                    }
+                }
+            }
+            Body::Request { .. } => {
+                self.stats.stale_answers.fetch_add(1, Ordering::Relaxed);
+            }
+        }
+    }
+
+    fn event(&self, event: Event, u: &mut Unwrap) {
+        let Event::Telemetry(t) = event else {
+            return;
+        };
+        let dropped = match u.last {
+            Some((idx, l, r, ts)) => {
+                u.left += i64::from(t.left_counts.wrapping_sub(l));
+                u.right += i64::from(t.right_counts.wrapping_sub(r));
+                u.time_us += u64::from(t.timestamp_us.wrapping_sub(ts));
+                t.sample_index.wrapping_sub(idx).wrapping_sub(1)
+            }
+            None => {
+                u.left = i64::from(t.left_counts);
+                u.right = i64::from(t.right_counts);
+                u.time_us = u64::from(t.timestamp_us);
+                0
+            }
+        };
+        u.last = Some((
+            t.sample_index,
+            t.left_counts,
+            t.right_counts,
+            t.timestamp_us,
+        ));
+        self.stats
+            .telemetry_dropped
+            .fetch_add(u64::from(dropped), Ordering::Relaxed);
+        self.stats
+            .telemetry_received
+            .fetch_add(1, Ordering::Relaxed);
+        let _ = self.events.send(TelemetrySample {
+            sample_index: t.sample_index,
+            device_time_s: u.time_us as f64 * 1e-6,
+            left_counts: u.left,
+            right_counts: u.right,
+            heading_rad: wrap_angle(f64::from(t.heading_urad) * 1e-6),
+            heading_valid: t.heading_valid,
+            motion_state: t.motion_state,
+            queue_depth: t.queue_depth,
+            dropped_before: dropped,
+        });
+    }
+}
+
+fn fail(reply: Option<oneshot::Sender<Result<Response, HalError>>>, err: LinkError) {
+    if let Some(r) = reply {
+        let _ = r.send(Err(HalError::Link(err)));
+    }
+}
+
+async fn write<W: AsyncWrite + Unpin>(wr: &mut W, bytes: &[u8]) -> Result<(), LinkError> {
+    wr.write_all(bytes)
+        .await
+        .map_err(|e| LinkError::Io(e.to_string()))?;
+    wr.flush().await.map_err(|e| LinkError::Io(e.to_string()))
+}
+
+async fn sleep_until_opt(deadline: Option<Instant>) {
+    match deadline {
+        Some(d) => tokio::time::sleep_until(d).await,
+        None => std::future::pending().await,
+    }
+}

@@ -1,0 +1,484 @@
+//! The hardware-abstraction layer: an async client for `protocol/SPEC.md` over any byte stream.
+//!
+//! [`Client::connect`] takes any `AsyncRead + AsyncWrite` (a serial port from [`open_port`], a
+//! pseudo-terminal, an in-memory duplex), spawns the task that owns the link ([`link`]) and
+//! performs the HELLO handshake. Calls are typed, carry deadlines computed from frame sizes and
+//! the baud rate, and are retried with the same sequence number so the device never executes
+//! one twice. Errors come in two layers: [`LinkError`] (the link or the protocol failed) and
+//! [`HalError::Nack`] (the device understood and said no). Telemetry arrives on a broadcast
+//! channel with encoder counts and device time unwrapped on the host ([`Client::subscribe`]).
+//! [`motion`] has the helpers the calibration routine drives the base with.
+
+pub mod link;
+pub mod motion;
+
+use crate::kinematics::{wrap_angle, WheelParams};
+use crate::protocol::frame::{MAJOR, VERSION};
+use crate::protocol::message::{
+    DeviceInfo, Encoders, MotionAccepted, MotionMode, MotionState, Nack, NackCode, ParamSource,
+    ParamsBlock, RestoreTarget, Status,
+};
+use crate::protocol::{MessageError, Request, Response};
+use link::{Command, Link, LinkConfig};
+use serde::Serialize;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Arc;
+use std::time::Duration;
+use tokio::io::{AsyncRead, AsyncWrite};
+use tokio::sync::{broadcast, mpsc, oneshot};
+
+/// The link or the protocol failed (as opposed to the device refusing).
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum LinkError {
+    /// Reading or writing the stream failed.
+    #[error("link I/O error: {0}")]
+    Io(String),
+    /// The stream ended (device unplugged, port closed).
+    #[error("the link closed")]
+    Closed,
+    /// No answer after every retry.
+    #[error("no answer to message 0x{msg:02X} after {attempts} attempts ({after:?})")]
+    Timeout {
+        /// The request's message id.
+        msg: u8,
+        /// Attempts made.
+        attempts: u32,
+        /// Total time waited.
+        after: Duration,
+    },
+    /// A motion did not finish in the time it should take.
+    #[error("motion {motion_id} did not finish within {after:?}")]
+    MotionTimeout {
+        /// The motion.
+        motion_id: u16,
+        /// Time waited.
+        after: Duration,
+    },
+    /// An answer could not be decoded.
+    #[error("undecodable answer: {0}")]
+    Decode(MessageError),
+    /// The device answered with something that does not fit the request.
+    #[error("protocol violation: {0}")]
+    Protocol(String),
+    /// The device speaks another major protocol version.
+    #[error("device speaks protocol {major}.{minor}, this host speaks {host}.x")]
+    VersionMismatch {
+        /// Device's major.
+        major: u8,
+        /// Device's minor.
+        minor: u8,
+        /// Host's major.
+        host: u8,
+    },
+    /// An emergency stop abandoned the request.
+    #[error("cancelled by an emergency stop")]
+    Cancelled,
+    /// The port could not be opened.
+    #[error("cannot open {path}: {reason}")]
+    Open {
+        /// The port path.
+        path: String,
+        /// Why.
+        reason: String,
+    },
+    /// A caller-supplied value cannot be sent (e.g. outside the wire's range).
+    #[error("invalid argument: {0}")]
+    InvalidArgument(String),
+}
+
+/// Errors of HAL calls: the link failed, or the device refused.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum HalError {
+    /// Transport or protocol failure.
+    #[error(transparent)]
+    Link(#[from] LinkError),
+    /// The device answered NACK.
+    #[error("device refused message 0x{msg:02X}: {:?} (field {})", nack.code, nack.detail)]
+    Nack {
+        /// The refused message id.
+        msg: u8,
+        /// Code and detail.
+        nack: Nack,
+    },
+}
+
+impl HalError {
+    /// The NACK code, if the device refused.
+    pub fn nack_code(&self) -> Option<NackCode> {
+        match self {
+            HalError::Nack { nack, .. } => Some(nack.code),
+            HalError::Link(_) => None,
+        }
+    }
+}
+
+/// Counters of the link's health.
+#[derive(Debug, Default)]
+pub struct LinkStats {
+    /// Requests sent (first attempts, including BUSY resends).
+    pub requests: AtomicU64,
+    /// Resends with the same sequence number after a missing answer.
+    pub retries: AtomicU64,
+    /// Requests that failed for lack of an answer.
+    pub timeouts: AtomicU64,
+    /// BUSY answers retried.
+    pub busy: AtomicU64,
+    /// Answers that matched no pending request (late duplicates).
+    pub stale_answers: AtomicU64,
+    /// Frames that passed the CRC but not the message layer.
+    pub undecodable: AtomicU64,
+    /// Bytes the decoder skipped.
+    pub decoder_dropped_bytes: AtomicU64,
+    /// Telemetry samples received.
+    pub telemetry_received: AtomicU64,
+    /// Telemetry samples lost (gaps in the sample index).
+    pub telemetry_dropped: AtomicU64,
+}
+
+/// A snapshot of [`LinkStats`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+pub struct LinkStatsSnapshot {
+    /// See [`LinkStats::requests`].
+    pub requests: u64,
+    /// See [`LinkStats::retries`].
+    pub retries: u64,
+    /// See [`LinkStats::timeouts`].
+    pub timeouts: u64,
+    /// See [`LinkStats::busy`].
+    pub busy: u64,
+    /// See [`LinkStats::stale_answers`].
+    pub stale_answers: u64,
+    /// See [`LinkStats::undecodable`].
+    pub undecodable: u64,
+    /// See [`LinkStats::decoder_dropped_bytes`].
+    pub decoder_dropped_bytes: u64,
+    /// See [`LinkStats::telemetry_received`].
+    pub telemetry_received: u64,
+    /// See [`LinkStats::telemetry_dropped`].
+    pub telemetry_dropped: u64,
+}
+
+impl LinkStats {
+    fn snapshot(&self) -> LinkStatsSnapshot {
+        let g = |a: &AtomicU64| a.load(Ordering::Relaxed);
+        LinkStatsSnapshot {
+            requests: g(&self.requests),
+            retries: g(&self.retries),
+            timeouts: g(&self.timeouts),
+            busy: g(&self.busy),
+            stale_answers: g(&self.stale_answers),
+            undecodable: g(&self.undecodable),
+            decoder_dropped_bytes: g(&self.decoder_dropped_bytes),
+            telemetry_received: g(&self.telemetry_received),
+            telemetry_dropped: g(&self.telemetry_dropped),
+        }
+    }
+}
+
+/// One telemetry sample with host-side unwrapping.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct TelemetrySample {
+    /// Device sample index.
+    pub sample_index: u32,
+    /// Device time since the first sample seen (s), unwrapped.
+    pub device_time_s: f64,
+    /// Left encoder counts, unwrapped.
+    pub left_counts: i64,
+    /// Right encoder counts, unwrapped.
+    pub right_counts: i64,
+    /// Heading (rad), counter-clockwise positive.
+    pub heading_rad: f64,
+    /// Whether the heading may be used.
+    pub heading_valid: bool,
+    /// Motion state.
+    pub motion_state: MotionState,
+    /// Motions queued.
+    pub queue_depth: u8,
+    /// Samples lost just before this one.
+    pub dropped_before: u32,
+}
+
+/// A heading reading in SI units.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct HeadingReading {
+    /// Heading (rad), counter-clockwise positive, wrapped.
+    pub heading_rad: f64,
+    /// Whether the reading may be used.
+    pub valid: bool,
+    /// Sensor status bits.
+    pub sensor_status: u8,
+    /// Device clock (µs, wrapping).
+    pub timestamp_us: u32,
+}
+
+/// A handle to a connected device; cheap to clone, all clones share one link.
+#[derive(Clone)]
+pub struct Client {
+    commands: mpsc::UnboundedSender<Command>,
+    events: broadcast::Sender<TelemetrySample>,
+    stats: Arc<LinkStats>,
+    config: LinkConfig,
+    info: DeviceInfo,
+}
+
+/// Opens a serial port by path (the only place that names `tokio_serial`) and connects.
+pub async fn open_port(path: &str, baud: u32) -> Result<(Client, DeviceInfo), HalError> {
+    use tokio_serial::SerialPortBuilderExt;
+    let port = tokio_serial::new(path, baud)
+        .open_native_async()
+        .map_err(|e| LinkError::Open {
+            path: path.to_string(),
+            reason: e.to_string(),
+        })?;
+    Client::connect(
+        port,
+        LinkConfig {
+            baud,
+            ..LinkConfig::default()
+        },
+    )
+    .await
+}
+
+macro_rules! expect {
+    ($resp:expr, $pat:pat => $out:expr) => {
+        match $resp {
+            $pat => Ok($out),
+            other => Err(HalError::Link(LinkError::Protocol(format!(
+                "unexpected answer {other:?}"
+            )))),
+        }
+    };
+}
+
+impl Client {
+    /// Starts the link task on `stream` and performs the HELLO handshake.
+    pub async fn connect<S>(stream: S, config: LinkConfig) -> Result<(Client, DeviceInfo), HalError>
+    where
+        S: AsyncRead + AsyncWrite + Unpin + Send + 'static,
+    {
+        let (tx, rx) = mpsc::unbounded_channel();
+        let (events, _) = broadcast::channel(1 << 16);
+        let stats = Arc::new(LinkStats::default());
+        let link = Link {
+            config,
+            stats: stats.clone(),
+            events: events.clone(),
+        };
+        tokio::spawn(link.run(stream, rx));
+        let placeholder = DeviceInfo {
+            major: 0,
+            minor: 0,
+            firmware_id: String::new(),
+            firmware_version: 0,
+            capabilities: 0,
+            serial_number: 0,
+            max_speed_mm_s: 0,
+            max_rate_mrad_s: 0,
+        };
+        let mut client = Client {
+            commands: tx,
+            events,
+            stats,
+            config,
+            info: placeholder,
+        };
+        let hello = client
+            .request(Request::Hello {
+                host_major: MAJOR,
+                host_min_minor: 0,
+            })
+            .await;
+        let info = match hello {
+            Ok(Response::Hello(info)) => info,
+            Ok(other) => {
+                return Err(LinkError::Protocol(format!("HELLO answered with {other:?}")).into())
+            }
+            Err(HalError::Nack { nack, .. }) if nack.code == NackCode::VersionMismatch => {
+                return Err(LinkError::VersionMismatch {
+                    major: 0,
+                    minor: 0,
+                    host: MAJOR,
+                }
+                .into())
+            }
+            Err(e) => return Err(e),
+        };
+        if info.major != MAJOR {
+            return Err(LinkError::VersionMismatch {
+                major: info.major,
+                minor: info.minor,
+                host: VERSION >> 4,
+            }
+            .into());
+        }
+        client.info = info.clone();
+        Ok((client, info))
+    }
+
+    /// What the device said about itself at the handshake.
+    pub fn device_info(&self) -> &DeviceInfo {
+        &self.info
+    }
+
+    /// The link's timing policy.
+    pub fn link_config(&self) -> LinkConfig {
+        self.config
+    }
+
+    /// Link health counters.
+    pub fn stats(&self) -> LinkStatsSnapshot {
+        self.stats.snapshot()
+    }
+
+    /// A receiver of every telemetry sample from now on.
+    pub fn subscribe(&self) -> broadcast::Receiver<TelemetrySample> {
+        self.events.subscribe()
+    }
+
+    /// Sends any request and waits for its answer (with retries and deadlines).
+    pub async fn request(&self, request: Request) -> Result<Response, HalError> {
+        let (reply, rx) = oneshot::channel();
+        self.commands
+            .send(Command::Request { request, reply })
+            .map_err(|_| LinkError::Closed)?;
+        rx.await.map_err(|_| LinkError::Closed)?
+    }
+
+    /// Abandons pending requests and sends STOP at once, without waiting. Safe from `Drop`.
+    pub fn emergency_stop(&self) {
+        let _ = self.commands.send(Command::EmergencyStop);
+    }
+
+    /// Reads a parameter copy.
+    pub async fn get_params(&self, source: ParamSource) -> Result<WheelParams, HalError> {
+        expect!(self.request(Request::GetParams { source }).await?,
+            Response::GetParams { params, .. } => params.to_params())
+    }
+
+    /// Writes the active (RAM) parameters; returns them as the device applied them.
+    pub async fn set_params(&self, params: &WheelParams) -> Result<WheelParams, HalError> {
+        let block = ParamsBlock::from_params(params).ok_or_else(|| {
+            LinkError::InvalidArgument(format!("{params:?} does not fit the wire format"))
+        })?;
+        expect!(self.request(Request::SetParams(block)).await?,
+            Response::SetParams(b) => b.to_params())
+    }
+
+    /// Commits the active parameters to non-volatile storage; returns the stored copy's CRC.
+    pub async fn save_params(&self) -> Result<u16, HalError> {
+        expect!(self.request(Request::SaveParams).await?,
+            Response::SaveParams { stored_crc } => stored_crc)
+    }
+
+    /// Restores factory defaults (RAM, or RAM and storage).
+    pub async fn restore_defaults(&self, target: RestoreTarget) -> Result<WheelParams, HalError> {
+        expect!(self.request(Request::RestoreDefaults { target }).await?,
+            Response::RestoreDefaults(b) => b.to_params())
+    }
+
+    /// Reloads the stored parameters into RAM.
+    pub async fn load_params(&self) -> Result<WheelParams, HalError> {
+        expect!(self.request(Request::LoadParams).await?, Response::LoadParams(b) => b.to_params())
+    }
+
+    /// Zeroes the encoders.
+    pub async fn reset_odometry(&self) -> Result<(), HalError> {
+        expect!(self.request(Request::ResetOdometry).await?, Response::ResetOdometry => ())
+    }
+
+    /// **Moves the robot**: drive straight `distance_m` at most `max_speed_m_s`.
+    pub async fn move_straight(
+        &self,
+        distance_m: f64,
+        max_speed_m_s: f64,
+        mode: MotionMode,
+    ) -> Result<MotionAccepted, HalError> {
+        let distance_um = to_wire_i32(distance_m * 1e6, "distance")?;
+        let max_speed_mm_s = to_wire_u16(max_speed_m_s * 1e3, "speed")?;
+        expect!(self.request(Request::MoveStraight { distance_um, max_speed_mm_s, mode }).await?,
+            Response::MoveStraight(a) => a)
+    }
+
+    /// **Moves the robot**: turn in place by `angle_rad` (counter-clockwise positive) at most
+    /// `max_rate_rad_s`.
+    pub async fn turn_in_place(
+        &self,
+        angle_rad: f64,
+        max_rate_rad_s: f64,
+        mode: MotionMode,
+    ) -> Result<MotionAccepted, HalError> {
+        let angle_urad = to_wire_i32(angle_rad * 1e6, "angle")?;
+        let max_rate_mrad_s = to_wire_u16(max_rate_rad_s * 1e3, "turn rate")?;
+        expect!(self.request(Request::TurnInPlace { angle_urad, max_rate_mrad_s, mode }).await?,
+            Response::TurnInPlace(a) => a)
+    }
+
+    /// Stops the base and clears its queue.
+    pub async fn stop(&self) -> Result<(), HalError> {
+        expect!(self.request(Request::Stop).await?, Response::Stop => ())
+    }
+
+    /// Reads the status.
+    pub async fn status(&self) -> Result<Status, HalError> {
+        expect!(self.request(Request::GetStatus).await?, Response::GetStatus(s) => s)
+    }
+
+    /// Reads the encoders (raw, wrapping counters).
+    pub async fn read_encoders(&self) -> Result<Encoders, HalError> {
+        expect!(self.request(Request::ReadEncoders).await?, Response::ReadEncoders(e) => e)
+    }
+
+    /// Reads the heading.
+    pub async fn read_heading(&self) -> Result<HeadingReading, HalError> {
+        expect!(self.request(Request::ReadHeading).await?, Response::ReadHeading(h) => HeadingReading {
+            heading_rad: wrap_angle(f64::from(h.heading_urad) * 1e-6),
+            valid: h.valid,
+            sensor_status: h.sensor_status,
+            timestamp_us: h.timestamp_us,
+        })
+    }
+
+    /// Sets the telemetry period (`None` turns telemetry off); returns the period applied.
+    pub async fn configure_telemetry(
+        &self,
+        period: Option<Duration>,
+    ) -> Result<Duration, HalError> {
+        let period_ms = to_wire_u16(period.map_or(0.0, |p| p.as_secs_f64() * 1e3), "period")?;
+        expect!(self.request(Request::ConfigureTelemetry { period_ms }).await?,
+            Response::ConfigureTelemetry { period_ms } => Duration::from_millis(u64::from(period_ms)))
+    }
+
+    /// Arms the device watchdog (`None` disarms it); returns the timeout applied.
+    pub async fn configure_watchdog(
+        &self,
+        timeout: Option<Duration>,
+    ) -> Result<Duration, HalError> {
+        let timeout_ms = to_wire_u16(timeout.map_or(0.0, |p| p.as_secs_f64() * 1e3), "timeout")?;
+        expect!(self.request(Request::ConfigureWatchdog { timeout_ms }).await?,
+            Response::ConfigureWatchdog { timeout_ms } => Duration::from_millis(u64::from(timeout_ms)))
+    }
+
+    /// Feeds the watchdog (and acknowledges a trip).
+    pub async fn heartbeat(&self) -> Result<(), HalError> {
+        expect!(self.request(Request::Heartbeat).await?, Response::Heartbeat => ())
+    }
+}
+
+fn to_wire_i32(v: f64, what: &str) -> Result<i32, HalError> {
+    let r = v.round();
+    if r.is_finite() && r >= f64::from(i32::MIN) && r <= f64::from(i32::MAX) {
+        Ok(r as i32)
+    } else {
+        Err(LinkError::InvalidArgument(format!("{what} {v} does not fit the wire format")).into())
+    }
+}
+
+fn to_wire_u16(v: f64, what: &str) -> Result<u16, HalError> {
+    let r = v.round();
+    if r.is_finite() && (0.0..=f64::from(u16::MAX)).contains(&r) {
+        Ok(r as u16)
+    } else {
+        Err(LinkError::InvalidArgument(format!("{what} {v} does not fit the wire format")).into())
+    }
+}

@@ -1,0 +1,699 @@
+//! The mock device's firmware: protocol semantics (SPEC.md §3) on top of the simulator.
+//!
+//! [`MockDevice::handle`] takes one decoded frame and returns the frames the device sends back;
+//! [`MockDevice::advance`] moves device time forward, executing queued motions and emitting
+//! telemetry and motion-done events. Both are synchronous and deterministic, so tests can drive
+//! the device directly; [`super::serve`] puts them behind a byte stream.
+
+use crate::kinematics::{wrap_angle, WheelParams};
+use crate::protocol::frame::{Frame, FrameKind, CRC16, MAJOR, VERSION};
+use crate::protocol::message::{
+    capability, fault, DeviceInfo, Encoders, Event, Heading, MotionAccepted, MotionMode,
+    MotionState, Nack, NackCode, Packet, ParamSource, ParamsBlock, Request, Response,
+    RestoreTarget, Status, Telemetry, WatchdogState,
+};
+use crate::sim::{Motion, MotionPlan, NoiseModel, SimError, Simulator};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, Normal};
+use serde::{Deserialize, Serialize};
+use std::collections::VecDeque;
+use std::path::PathBuf;
+
+/// Deepest motion queue the mock accepts (SPEC.md requires at least 4).
+pub const QUEUE_DEPTH: usize = 8;
+
+/// How the mock's heading sensor reports.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum CompassConvention {
+    /// As SPEC.md requires: counter-clockwise positive.
+    #[default]
+    CounterClockwise,
+    /// A misconfigured firmware that forwards a compass azimuth (clockwise positive).
+    Clockwise,
+}
+
+/// Everything that defines a mock device.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct MockConfig {
+    /// The simulated robot's true parameters.
+    pub truth: WheelParams,
+    /// Factory-default controller parameters (active at first power-up).
+    pub factory: WheelParams,
+    /// Sensor and wheel noise of the simulator.
+    pub noise: NoiseModel,
+    /// Seed of every random draw of the device (faults use their own).
+    pub seed: u64,
+    /// Heading sign convention of the reports.
+    pub compass: CompassConvention,
+    /// Absolute speed limit (m/s).
+    pub max_speed_m_s: f64,
+    /// Absolute turn-rate limit (rad/s).
+    pub max_rate_rad_s: f64,
+    /// File that holds the non-volatile parameter copy across processes, if any.
+    pub storage_path: Option<PathBuf>,
+    /// Serial number reported by HELLO.
+    pub serial_number: u64,
+}
+
+impl MockConfig {
+    /// A robot with true ratios `e_b`, `e_d` (left wheel nominal) to `nominal`, which is also the
+    /// factory configuration.
+    pub fn with_ratios(nominal: WheelParams, e_b: f64, e_d: f64) -> Result<Self, SimError> {
+        let truth = WheelParams::from_ratios(
+            &nominal,
+            e_b,
+            e_d,
+            &crate::kinematics::SplitConvention::LeftNominal,
+        )
+        .map_err(|source| SimError::Params {
+            which: "true",
+            source,
+        })?;
+        Ok(MockConfig {
+            truth,
+            factory: nominal,
+            noise: NoiseModel::default(),
+            seed: 1,
+            compass: CompassConvention::CounterClockwise,
+            max_speed_m_s: 1.0,
+            max_rate_rad_s: 4.0,
+            storage_path: None,
+            serial_number: 0x0DC0_0001,
+        })
+    }
+}
+
+/// One queued or executing motion.
+#[derive(Debug, Clone, Copy)]
+struct ActiveMotion {
+    id: u16,
+    plan: MotionPlan,
+    duration_s: f64,
+    elapsed_s: f64,
+}
+
+/// The remembered last request and its answer (SPEC.md §3, safe retries).
+#[derive(Debug, Clone)]
+struct LastRequest {
+    seq: u8,
+    msg: u8,
+    crc: u16,
+    answer: Frame,
+}
+
+/// Counters a test can read to check the device's behaviour.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize)]
+pub struct DeviceCounters {
+    /// Requests executed (retries answered from the cache are not counted).
+    pub executed_requests: u64,
+    /// Requests answered from the retry cache.
+    pub replayed_answers: u64,
+    /// Motions accepted.
+    pub motions_accepted: u64,
+    /// Motions completed.
+    pub motions_completed: u64,
+    /// Times the watchdog stopped the base.
+    pub watchdog_trips: u64,
+    /// STOP requests executed.
+    pub stops: u64,
+    /// Telemetry samples taken.
+    pub telemetry_samples: u64,
+}
+
+/// The mock device's state.
+#[derive(Debug)]
+pub struct MockDevice {
+    config: MockConfig,
+    sim: Simulator,
+    rng: ChaCha8Rng,
+    stored: Option<ParamsBlock>,
+    queue: VecDeque<ActiveMotion>,
+    next_motion_id: u16,
+    completed_motions: u32,
+    now_us: u64,
+    telemetry_period_us: u64,
+    next_telemetry_us: u64,
+    sample_index: u32,
+    event_seq: u8,
+    watchdog_timeout_us: u64,
+    watchdog_state: WatchdogState,
+    last_request_us: u64,
+    fault_flags: u16,
+    last: Option<LastRequest>,
+    counters: DeviceCounters,
+}
+
+fn block(p: &WheelParams) -> ParamsBlock {
+    // Parameters inside the mock were validated on the way in, so they always fit the wire.
+    ParamsBlock::from_params(p).unwrap_or(ParamsBlock {
+        left_wheel_diameter_nm: 0,
+        right_wheel_diameter_nm: 0,
+        wheelbase_nm: 0,
+        counts_per_wheel_rev_micro: 0,
+    })
+}
+
+fn block_crc(b: &ParamsBlock) -> u16 {
+    let mut bytes = Vec::with_capacity(20);
+    bytes.extend_from_slice(&b.left_wheel_diameter_nm.to_le_bytes());
+    bytes.extend_from_slice(&b.right_wheel_diameter_nm.to_le_bytes());
+    bytes.extend_from_slice(&b.wheelbase_nm.to_le_bytes());
+    bytes.extend_from_slice(&b.counts_per_wheel_rev_micro.to_le_bytes());
+    CRC16.checksum(&bytes)
+}
+
+fn nack<T>(code: NackCode, detail: u8) -> Result<T, Nack> {
+    Err(Nack { code, detail })
+}
+
+impl MockDevice {
+    /// Powers the device up: loads the stored copy (from `storage_path` if given) or the
+    /// factory defaults.
+    pub fn new(config: MockConfig) -> Result<Self, SimError> {
+        let stored = config
+            .storage_path
+            .as_ref()
+            .and_then(|p| std::fs::read_to_string(p).ok())
+            .and_then(|s| serde_json::from_str::<ParamsBlock>(&s).ok())
+            .filter(|b| b.validate().is_ok());
+        let active = stored.map_or(config.factory, |b| b.to_params());
+        let sim = Simulator::new(config.truth, active, config.noise, config.seed)?;
+        Ok(MockDevice {
+            rng: ChaCha8Rng::seed_from_u64(config.seed ^ 0x7E1E_3E7F),
+            sim,
+            stored,
+            queue: VecDeque::new(),
+            next_motion_id: 1,
+            completed_motions: 0,
+            now_us: 0,
+            telemetry_period_us: 0,
+            next_telemetry_us: 0,
+            sample_index: 0,
+            event_seq: 0,
+            watchdog_timeout_us: 0,
+            watchdog_state: WatchdogState::Disabled,
+            last_request_us: 0,
+            fault_flags: 0,
+            last: None,
+            counters: DeviceCounters::default(),
+            config,
+        })
+    }
+
+    /// Simulates a power cycle: RAM parameters are lost, the stored copy (or factory) is loaded,
+    /// motion, telemetry and watchdog settings reset. The robot stays where it is.
+    pub fn power_cycle(&mut self) -> Result<(), SimError> {
+        let active = self.stored.map_or(self.config.factory, |b| b.to_params());
+        self.sim.set_configured(active)?;
+        self.queue.clear();
+        self.telemetry_period_us = 0;
+        self.watchdog_timeout_us = 0;
+        self.watchdog_state = WatchdogState::Disabled;
+        self.fault_flags = 0;
+        self.last = None;
+        Ok(())
+    }
+
+    /// The parameters motions use now.
+    pub fn active_params(&self) -> WheelParams {
+        *self.sim.configured()
+    }
+
+    /// The non-volatile copy, if one was saved.
+    pub fn stored_params(&self) -> Option<WheelParams> {
+        self.stored.map(|b| b.to_params())
+    }
+
+    /// The simulator (true pose, true parameters).
+    pub fn sim(&self) -> &Simulator {
+        &self.sim
+    }
+
+    /// Mutable simulator access (tests place the robot).
+    pub fn sim_mut(&mut self) -> &mut Simulator {
+        &mut self.sim
+    }
+
+    /// What the device has done.
+    pub fn counters(&self) -> DeviceCounters {
+        self.counters
+    }
+
+    /// The device clock (µs since power-up).
+    pub fn now_us(&self) -> u64 {
+        self.now_us
+    }
+
+    /// Whether a motion is executing or queued.
+    pub fn is_moving(&self) -> bool {
+        !self.queue.is_empty()
+    }
+
+    /// Status as GET_STATUS reports it.
+    pub fn status(&self) -> Status {
+        Status {
+            motion_state: if self.queue.is_empty() {
+                MotionState::Idle
+            } else {
+                MotionState::Moving
+            },
+            queue_depth: self.queue.len().min(255) as u8,
+            current_motion_id: self.queue.front().map_or(0, |m| m.id),
+            completed_motions: self.completed_motions,
+            fault_flags: self.fault_flags,
+            watchdog_state: self.watchdog_state,
+            uptime_ms: (self.now_us / 1000) as u32,
+        }
+    }
+
+    fn heading_urad(&mut self) -> i32 {
+        let noise = self.config.noise;
+        let n = if noise.compass_sigma_rad > 0.0 {
+            Normal::new(0.0, noise.compass_sigma_rad).map_or(0.0, |d| d.sample(&mut self.rng))
+        } else {
+            0.0
+        };
+        let mut h = wrap_angle(self.sim.pose().heading_rad + noise.compass_bias_rad + n);
+        if self.config.compass == CompassConvention::Clockwise {
+            h = wrap_angle(-h);
+        }
+        (h * 1e6).round() as i32
+    }
+
+    fn encoders(&self) -> (i32, i32) {
+        let (l, r) = self.sim.encoder_counts();
+        // Cumulative counters wrap modulo 2^32 on the wire (SPEC.md §4).
+        (l.round() as i64 as i32, r.round() as i64 as i32)
+    }
+
+    fn next_event_seq(&mut self) -> u8 {
+        let s = self.event_seq;
+        self.event_seq = self.event_seq.wrapping_add(1);
+        s
+    }
+
+    /// Handles one received frame; returns the frames to send (the answer, if any).
+    pub fn handle(&mut self, frame: &Frame) -> Vec<Frame> {
+        if frame.kind != FrameKind::Request {
+            return Vec::new();
+        }
+        // Any accepted request feeds the watchdog.
+        self.last_request_us = self.now_us;
+        let crc = CRC16.checksum(&frame.payload);
+        if let Some(last) = &self.last {
+            if last.seq == frame.seq && last.msg == frame.msg && last.crc == crc {
+                self.counters.replayed_answers += 1;
+                return vec![last.answer.clone()];
+            }
+        }
+        self.counters.executed_requests += 1;
+        let answer = match Packet::from_frame(frame) {
+            Ok(Packet {
+                body: crate::protocol::Body::Request { request },
+                ..
+            }) => match self.execute(&request) {
+                Ok(response) => Packet::response(frame.seq, response),
+                Err(n) => Packet::nack(frame.seq, frame.msg, n),
+            },
+            Ok(_) => return Vec::new(),
+            Err(e) => Packet::nack(frame.seq, frame.msg, e.nack()),
+        };
+        let Ok(answer) = answer.to_frame() else {
+            return Vec::new();
+        };
+        if frame.msg == crate::protocol::message::id::HELLO {
+            self.last = None;
+        } else {
+            self.last = Some(LastRequest {
+                seq: frame.seq,
+                msg: frame.msg,
+                crc,
+                answer: answer.clone(),
+            });
+        }
+        vec![answer]
+    }
+
+    /// Answers a NACK BUSY to `frame` without executing it (fault injection), remembering
+    /// nothing, so a retry with a new sequence number executes normally.
+    pub fn busy(frame: &Frame) -> Option<Frame> {
+        Packet::nack(
+            frame.seq,
+            frame.msg,
+            Nack {
+                code: NackCode::Busy,
+                detail: 0xFF,
+            },
+        )
+        .to_frame()
+        .ok()
+    }
+
+    fn execute(&mut self, request: &Request) -> Result<Response, Nack> {
+        match *request {
+            Request::Hello {
+                host_major,
+                host_min_minor,
+            } => {
+                if host_major != MAJOR || (VERSION & 0x0F) < host_min_minor {
+                    return nack(NackCode::VersionMismatch, 0xFF);
+                }
+                Ok(Response::Hello(DeviceInfo {
+                    major: MAJOR,
+                    minor: VERSION & 0x0F,
+                    firmware_id: "odocal-mock".into(),
+                    firmware_version: (env!("CARGO_PKG_VERSION_MAJOR").parse::<u32>().unwrap_or(0)
+                        << 16)
+                        | (env!("CARGO_PKG_VERSION_MINOR").parse::<u32>().unwrap_or(0) << 8),
+                    capabilities: capability::HEADING
+                        | capability::TELEMETRY
+                        | capability::WATCHDOG
+                        | capability::STORAGE
+                        | capability::MOTION_QUEUE,
+                    serial_number: self.config.serial_number,
+                    max_speed_mm_s: (self.config.max_speed_m_s * 1000.0).round() as u16,
+                    max_rate_mrad_s: (self.config.max_rate_rad_s * 1000.0).round() as u16,
+                }))
+            }
+            Request::GetParams { source } => {
+                let (params, stored_crc) = match source {
+                    ParamSource::Active => (block(&self.active_params()), 0),
+                    ParamSource::Stored => match self.stored {
+                        Some(b) => (b, block_crc(&b)),
+                        None => return nack(NackCode::StorageFailure, 0),
+                    },
+                    ParamSource::Factory => (block(&self.config.factory), 0),
+                };
+                Ok(Response::GetParams {
+                    source,
+                    params,
+                    stored_crc,
+                })
+            }
+            Request::SetParams(b) => {
+                if let Err(field) = b.validate() {
+                    return nack(NackCode::OutOfRange, field);
+                }
+                if self.is_moving() {
+                    return nack(NackCode::InvalidState, 0xFF);
+                }
+                self.set_active(b)?;
+                Ok(Response::SetParams(block(&self.active_params())))
+            }
+            Request::SaveParams => {
+                if self.is_moving() {
+                    return nack(NackCode::InvalidState, 0xFF);
+                }
+                let b = block(&self.active_params());
+                self.store(b)?;
+                Ok(Response::SaveParams {
+                    stored_crc: block_crc(&b),
+                })
+            }
+            Request::RestoreDefaults { target } => {
+                if self.is_moving() {
+                    return nack(NackCode::InvalidState, 0xFF);
+                }
+                let b = block(&self.config.factory);
+                self.set_active(b)?;
+                if target == RestoreTarget::ActiveAndStored {
+                    self.store(b)?;
+                }
+                Ok(Response::RestoreDefaults(b))
+            }
+            Request::LoadParams => {
+                if self.is_moving() {
+                    return nack(NackCode::InvalidState, 0xFF);
+                }
+                let b = self.stored.unwrap_or(block(&self.config.factory));
+                self.set_active(b)?;
+                Ok(Response::LoadParams(b))
+            }
+            Request::ResetOdometry => {
+                if self.is_moving() {
+                    return nack(NackCode::InvalidState, 0xFF);
+                }
+                self.sim.reset_encoders();
+                Ok(Response::ResetOdometry)
+            }
+            Request::MoveStraight {
+                distance_um,
+                max_speed_mm_s,
+                mode,
+            } => {
+                let distance_m = f64::from(distance_um) * 1e-6;
+                if distance_um == 0 || distance_um.unsigned_abs() > 100_000_000 {
+                    return nack(NackCode::OutOfRange, 0);
+                }
+                let speed = f64::from(max_speed_mm_s) * 1e-3;
+                if max_speed_mm_s == 0 || speed > self.config.max_speed_m_s + 1e-9 {
+                    return nack(NackCode::OutOfRange, 1);
+                }
+                self.accept_motion(
+                    Motion::Straight { distance_m },
+                    distance_m.abs() / speed,
+                    mode,
+                )
+                .map(Response::MoveStraight)
+            }
+            Request::TurnInPlace {
+                angle_urad,
+                max_rate_mrad_s,
+                mode,
+            } => {
+                let angle_rad = f64::from(angle_urad) * 1e-6;
+                if angle_urad == 0 || angle_rad.abs() > 4.0 * std::f64::consts::PI {
+                    return nack(NackCode::OutOfRange, 0);
+                }
+                let rate = f64::from(max_rate_mrad_s) * 1e-3;
+                if max_rate_mrad_s == 0 || rate > self.config.max_rate_rad_s + 1e-9 {
+                    return nack(NackCode::OutOfRange, 1);
+                }
+                self.accept_motion(
+                    Motion::TurnInPlace { angle_rad },
+                    angle_rad.abs() / rate,
+                    mode,
+                )
+                .map(Response::TurnInPlace)
+            }
+            // The mock has no direct wheel-speed mode (its capability bit is clear).
+            Request::WheelSpeed { .. } => nack(NackCode::UnknownMessage, 0xFF),
+            Request::Stop => {
+                self.counters.stops += 1;
+                self.stop();
+                Ok(Response::Stop)
+            }
+            Request::GetStatus => Ok(Response::GetStatus(self.status())),
+            Request::ReadEncoders => {
+                let (left_counts, right_counts) = self.encoders();
+                Ok(Response::ReadEncoders(Encoders {
+                    timestamp_us: self.now_us as u32,
+                    left_counts,
+                    right_counts,
+                }))
+            }
+            Request::ReadHeading => Ok(Response::ReadHeading(Heading {
+                timestamp_us: self.now_us as u32,
+                heading_urad: self.heading_urad(),
+                valid: true,
+                sensor_status: 1,
+            })),
+            Request::ConfigureTelemetry { period_ms } => {
+                if period_ms != 0 && !(5..=1000).contains(&period_ms) {
+                    return nack(NackCode::OutOfRange, 0);
+                }
+                self.telemetry_period_us = u64::from(period_ms) * 1000;
+                self.next_telemetry_us = self.now_us;
+                Ok(Response::ConfigureTelemetry { period_ms })
+            }
+            Request::ConfigureWatchdog { timeout_ms } => {
+                if timeout_ms != 0 && !(50..=10_000).contains(&timeout_ms) {
+                    return nack(NackCode::OutOfRange, 0);
+                }
+                self.watchdog_timeout_us = u64::from(timeout_ms) * 1000;
+                self.watchdog_state = if timeout_ms == 0 {
+                    WatchdogState::Disabled
+                } else {
+                    WatchdogState::Armed
+                };
+                self.fault_flags &= !fault::WATCHDOG_TRIPPED;
+                Ok(Response::ConfigureWatchdog { timeout_ms })
+            }
+            Request::Heartbeat => {
+                if self.watchdog_state == WatchdogState::Tripped {
+                    self.watchdog_state = WatchdogState::Armed;
+                    self.fault_flags &= !fault::WATCHDOG_TRIPPED;
+                }
+                Ok(Response::Heartbeat)
+            }
+        }
+    }
+
+    fn set_active(&mut self, b: ParamsBlock) -> Result<(), Nack> {
+        self.sim.set_configured(b.to_params()).map_err(|_| Nack {
+            code: NackCode::OutOfRange,
+            detail: 0xFF,
+        })
+    }
+
+    /// Writes the non-volatile copy atomically: the file is written beside its final name and
+    /// renamed over it, so a crash leaves either the old or the new copy.
+    fn store(&mut self, b: ParamsBlock) -> Result<(), Nack> {
+        if let Some(path) = &self.config.storage_path {
+            let tmp = path.with_extension("tmp");
+            let text = serde_json::to_string_pretty(&b).map_err(|_| Nack {
+                code: NackCode::StorageFailure,
+                detail: 0xFF,
+            })?;
+            std::fs::write(&tmp, text)
+                .and_then(|()| std::fs::rename(&tmp, path))
+                .map_err(|_| Nack {
+                    code: NackCode::StorageFailure,
+                    detail: 0xFF,
+                })?;
+        }
+        self.stored = Some(b);
+        Ok(())
+    }
+
+    fn accept_motion(
+        &mut self,
+        motion: Motion,
+        duration_s: f64,
+        mode: MotionMode,
+    ) -> Result<MotionAccepted, Nack> {
+        if self.watchdog_state == WatchdogState::Tripped {
+            return nack(NackCode::InvalidState, 0xFF);
+        }
+        if mode == MotionMode::Replace {
+            self.queue.clear();
+        }
+        if self.queue.len() >= QUEUE_DEPTH {
+            return nack(NackCode::Busy, 0xFF);
+        }
+        let plan = self.sim.plan(&motion).map_err(|_| Nack {
+            code: NackCode::OutOfRange,
+            detail: 0,
+        })?;
+        let id = self.next_motion_id;
+        self.next_motion_id = self.next_motion_id.wrapping_add(1).max(1);
+        self.queue.push_back(ActiveMotion {
+            id,
+            plan,
+            duration_s,
+            elapsed_s: 0.0,
+        });
+        self.counters.motions_accepted += 1;
+        Ok(MotionAccepted {
+            queue_depth: self.queue.len() as u8,
+            motion_id: id,
+        })
+    }
+
+    /// Stops at once: the executing motion ends where the robot is, the queue is cleared.
+    pub fn stop(&mut self) {
+        self.queue.clear();
+    }
+
+    /// Time until the queue is empty (s).
+    pub fn remaining_motion_s(&self) -> f64 {
+        self.queue
+            .iter()
+            .map(|m| (m.duration_s - m.elapsed_s).max(0.0))
+            .sum()
+    }
+
+    /// Moves device time forward by `dt_s`: executes motions, checks the watchdog, and returns
+    /// the events to send (telemetry at its period, motion-done).
+    pub fn advance(&mut self, dt_s: f64) -> Vec<Frame> {
+        let mut events = Vec::new();
+        let end_us = self.now_us + (dt_s.max(0.0) * 1e6).round() as u64;
+        while self.now_us < end_us {
+            // Step to the next thing that happens: a telemetry sample, the end of a motion,
+            // the watchdog deadline, or the end of this advance.
+            let mut step_end = end_us;
+            if self.telemetry_period_us > 0 {
+                step_end = step_end.min(self.next_telemetry_us.max(self.now_us + 1));
+            }
+            if let Some(m) = self.queue.front() {
+                let left_us = ((m.duration_s - m.elapsed_s).max(0.0) * 1e6).ceil() as u64;
+                step_end = step_end.min(self.now_us + left_us.max(1));
+            }
+            if self.watchdog_state == WatchdogState::Armed && !self.queue.is_empty() {
+                let deadline = self.last_request_us + self.watchdog_timeout_us;
+                step_end = step_end.min(deadline.max(self.now_us + 1));
+            }
+            let dt = (step_end - self.now_us) as f64 * 1e-6;
+            self.now_us = step_end;
+            if let Some(m) = self.queue.front_mut() {
+                let from = m.elapsed_s / m.duration_s;
+                m.elapsed_s = (m.elapsed_s + dt).min(m.duration_s);
+                let to = m.elapsed_s / m.duration_s;
+                let (plan, done, id) = (m.plan, m.elapsed_s >= m.duration_s - 1e-9, m.id);
+                self.sim.advance_plan(&plan, from, to);
+                if done {
+                    self.queue.pop_front();
+                    self.completed_motions = self.completed_motions.wrapping_add(1);
+                    self.counters.motions_completed += 1;
+                    let seq = self.next_event_seq();
+                    if let Ok(f) = Packet::event(
+                        seq,
+                        Event::MotionDone {
+                            motion_id: id,
+                            completed_motions: self.completed_motions,
+                        },
+                    )
+                    .to_frame()
+                    {
+                        events.push(f);
+                    }
+                }
+            }
+            if self.watchdog_state == WatchdogState::Armed
+                && !self.queue.is_empty()
+                && self.now_us >= self.last_request_us + self.watchdog_timeout_us
+            {
+                self.stop();
+                self.watchdog_state = WatchdogState::Tripped;
+                self.fault_flags |= fault::WATCHDOG_TRIPPED;
+                self.counters.watchdog_trips += 1;
+            }
+            if self.telemetry_period_us > 0 && self.now_us >= self.next_telemetry_us {
+                self.next_telemetry_us += self.telemetry_period_us;
+                events.extend(self.telemetry_frame());
+            }
+        }
+        events
+    }
+
+    /// Runs every queued motion to completion (virtual time) and returns the events.
+    pub fn run_until_idle(&mut self) -> Vec<Frame> {
+        let mut events = Vec::new();
+        while self.is_moving() {
+            let dt = self.remaining_motion_s().max(1e-6);
+            events.extend(self.advance(dt));
+        }
+        events
+    }
+
+    fn telemetry_frame(&mut self) -> Option<Frame> {
+        self.counters.telemetry_samples += 1;
+        let (left_counts, right_counts) = self.encoders();
+        let status = self.status();
+        let t = Telemetry {
+            sample_index: self.sample_index,
+            timestamp_us: self.now_us as u32,
+            left_counts,
+            right_counts,
+            heading_urad: self.heading_urad(),
+            heading_valid: true,
+            motion_state: status.motion_state,
+            queue_depth: status.queue_depth,
+        };
+        self.sample_index = self.sample_index.wrapping_add(1);
+        let seq = self.next_event_seq();
+        Packet::event(seq, Event::Telemetry(t)).to_frame().ok()
+    }
+}

@@ -1,0 +1,260 @@
+//! Serving a [`MockDevice`] over a byte stream: an in-memory duplex or a real pseudo-terminal,
+//! in virtual or scaled real time, with seeded fault injection.
+
+use super::device::MockDevice;
+use crate::protocol::{Frame, FrameCodec, FrameKind};
+use bytes::BytesMut;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::time::Duration;
+use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
+
+/// A device shared between its server task and observers (tests, the CLI).
+pub type SharedDevice = Arc<Mutex<MockDevice>>;
+
+/// Locks a shared device; a panic elsewhere while holding the lock does not make the device's
+/// state unusable for observers, so poisoning is ignored.
+pub fn lock(device: &SharedDevice) -> MutexGuard<'_, MockDevice> {
+    device.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+/// How device time passes.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub enum TimeMode {
+    /// A motion completes the moment it is accepted (telemetry is generated in device time).
+    Virtual,
+    /// Device time follows the wall clock, multiplied by `scale` (1 = real time).
+    RealTime {
+        /// Device seconds per wall-clock second.
+        scale: f64,
+    },
+}
+
+/// Seeded misbehaviour of the link and the device.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+pub struct FaultConfig {
+    /// Probability that any byte, in either direction, has one bit flipped.
+    pub corrupt_byte_rate: f64,
+    /// Probability that a whole frame, in either direction, is lost.
+    pub drop_frame_rate: f64,
+    /// Delay before each answer.
+    pub latency: Duration,
+    /// The device vanishes (stops reading and writing) after receiving this many frames.
+    pub disconnect_after_frames: Option<u64>,
+    /// Every n-th request is answered NACK BUSY without being executed.
+    pub busy_every: Option<u64>,
+    /// Seed of the fault draws (independent of the simulator's).
+    pub seed: u64,
+}
+
+/// Why a server stopped.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ServeEnd {
+    /// The host closed the stream.
+    HostClosed,
+    /// The device vanished as `disconnect_after_frames` asked.
+    Disconnected,
+}
+
+struct Faults {
+    cfg: FaultConfig,
+    rng: ChaCha8Rng,
+    frames_in: u64,
+    requests: u64,
+}
+
+impl Faults {
+    fn corrupt(&mut self, bytes: &mut [u8]) {
+        if self.cfg.corrupt_byte_rate <= 0.0 {
+            return;
+        }
+        for b in bytes {
+            if self.rng.gen_bool(self.cfg.corrupt_byte_rate.min(1.0)) {
+                *b ^= 1 << self.rng.gen_range(0..8);
+            }
+        }
+    }
+
+    fn lose(&mut self) -> bool {
+        self.cfg.drop_frame_rate > 0.0 && self.rng.gen_bool(self.cfg.drop_frame_rate.min(1.0))
+    }
+}
+
+async fn send<W: AsyncWrite + Unpin>(
+    w: &mut W,
+    frames: Vec<Frame>,
+    faults: &mut Faults,
+) -> std::io::Result<()> {
+    for f in frames {
+        if faults.lose() {
+            continue;
+        }
+        let Ok(bytes) = f.to_bytes() else { continue };
+        let mut bytes = bytes.to_vec();
+        faults.corrupt(&mut bytes);
+        w.write_all(&bytes).await?;
+    }
+    w.flush().await
+}
+
+/// Serves `device` over `stream` until the host closes it or a fault makes the device vanish.
+pub async fn serve<S>(
+    device: SharedDevice,
+    stream: S,
+    time: TimeMode,
+    faults: FaultConfig,
+) -> std::io::Result<ServeEnd>
+where
+    S: AsyncRead + AsyncWrite + Unpin,
+{
+    let (mut rd, mut wr) = tokio::io::split(stream);
+    let mut faults = Faults {
+        cfg: faults,
+        rng: ChaCha8Rng::seed_from_u64(faults.seed),
+        frames_in: 0,
+        requests: 0,
+    };
+    let mut codec = FrameCodec::new();
+    let mut buf = BytesMut::new();
+    let mut chunk = [0u8; 1024];
+    let tick = Duration::from_millis(2);
+    let mut last = tokio::time::Instant::now();
+    loop {
+        let n = match time {
+            TimeMode::Virtual => rd.read(&mut chunk).await?,
+            TimeMode::RealTime { scale } => {
+                tokio::select! {
+                    r = rd.read(&mut chunk) => r?,
+                    () = tokio::time::sleep(tick) => {
+                        let now = tokio::time::Instant::now();
+                        let dt = (now - last).as_secs_f64() * scale;
+                        last = now;
+                        let events = lock(&device).advance(dt);
+                        send(&mut wr, events, &mut faults).await?;
+                        continue;
+                    }
+                }
+            }
+        };
+        if n == 0 {
+            return Ok(ServeEnd::HostClosed);
+        }
+        let bytes = &mut chunk[..n];
+        faults.corrupt(bytes);
+        for frame in codec.feed(&mut buf, bytes) {
+            faults.frames_in += 1;
+            if faults
+                .cfg
+                .disconnect_after_frames
+                .is_some_and(|n| faults.frames_in > n)
+            {
+                // The link is gone but the firmware lives on: in real time it keeps executing
+                // (and its watchdog keeps watching) until the base is idle.
+                if let TimeMode::RealTime { scale } = time {
+                    while lock(&device).is_moving() {
+                        tokio::time::sleep(tick).await;
+                        let now = tokio::time::Instant::now();
+                        lock(&device).advance((now - last).as_secs_f64() * scale);
+                        last = now;
+                    }
+                }
+                return Ok(ServeEnd::Disconnected);
+            }
+            if faults.lose() {
+                continue;
+            }
+            let mut out = Vec::new();
+            if frame.kind == FrameKind::Request {
+                faults.requests += 1;
+            }
+            let busy = frame.kind == FrameKind::Request
+                && faults
+                    .cfg
+                    .busy_every
+                    .is_some_and(|k| k > 0 && faults.requests % k == 0);
+            if busy {
+                out.extend(MockDevice::busy(&frame));
+            } else {
+                let mut d = lock(&device);
+                if let TimeMode::RealTime { scale } = time {
+                    // Bring device time up to now before the request is executed.
+                    let now = tokio::time::Instant::now();
+                    out.extend(d.advance((now - last).as_secs_f64() * scale));
+                    last = now;
+                }
+                out.extend(d.handle(&frame));
+                if time == TimeMode::Virtual {
+                    out.extend(d.run_until_idle());
+                }
+            }
+            if !faults.cfg.latency.is_zero() {
+                tokio::time::sleep(faults.cfg.latency).await;
+            }
+            send(&mut wr, out, &mut faults).await?;
+        }
+    }
+}
+
+/// An in-process link: the host's end of a `tokio::io::duplex` whose other end is served.
+pub fn spawn_duplex(
+    device: SharedDevice,
+    time: TimeMode,
+    faults: FaultConfig,
+) -> (
+    tokio::io::DuplexStream,
+    tokio::task::JoinHandle<std::io::Result<ServeEnd>>,
+) {
+    let (host, dev) = tokio::io::duplex(64 * 1024);
+    let task = tokio::spawn(serve(device, dev, time, faults));
+    (host, task)
+}
+
+/// A pseudo-terminal served by the device: open its path like a USB serial adapter.
+pub struct PtyServer {
+    /// Path of the terminal's slave side (e.g. `/dev/pts/5`).
+    pub path: String,
+    /// The server task; it ends when the device vanishes (faults) or is aborted.
+    pub task: tokio::task::JoinHandle<std::io::Result<ServeEnd>>,
+    // Held open so the terminal survives hosts opening and closing it.
+    _slave: tokio_serial::SerialStream,
+}
+
+impl Drop for PtyServer {
+    fn drop(&mut self) {
+        self.task.abort();
+    }
+}
+
+/// Creates a pseudo-terminal and serves `device` on it.
+pub fn spawn_pty(
+    device: SharedDevice,
+    time: TimeMode,
+    faults: FaultConfig,
+) -> std::io::Result<PtyServer> {
+    use tokio_serial::SerialPort;
+    let (master, slave) = tokio_serial::SerialStream::pair().map_err(std::io::Error::other)?;
+    let path = slave
+        .name()
+        .ok_or_else(|| std::io::Error::other("pseudo-terminal has no path"))?;
+    let task = tokio::spawn(async move {
+        // A host that closes the terminal makes the master side fail with EIO until another
+        // opens it; the device keeps serving through that.
+        let mut master = master;
+        loop {
+            match serve(device.clone(), &mut master, time, faults).await {
+                Ok(end) => return Ok(end),
+                Err(e) if e.raw_os_error() == Some(5) => {
+                    tokio::time::sleep(Duration::from_millis(5)).await;
+                }
+                Err(e) => return Err(e),
+            }
+        }
+    });
+    Ok(PtyServer {
+        path,
+        task,
+        _slave: slave,
+    })
+}

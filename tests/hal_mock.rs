@@ -1,0 +1,417 @@
+//! The HAL client against the mock device: over a real pseudo-terminal opened by path (as a user
+//! opens a USB adapter) and over an in-memory duplex, clean and with injected faults.
+
+use odocal::calibration::{estimate, Method, RunMeasurement, SquareTest};
+use odocal::hal::link::LinkConfig;
+use odocal::hal::motion::{run_square, SquareCommand};
+use odocal::hal::{open_port, Client, HalError, LinkError};
+use odocal::kinematics::{wrap_angle, Direction, SplitConvention, WheelParams};
+use odocal::mock::{
+    lock, spawn_duplex, spawn_pty, FaultConfig, MockConfig, MockDevice, ServeEnd, SharedDevice,
+    TimeMode,
+};
+use odocal::protocol::message::{MotionMode, NackCode, ParamSource, ParamsBlock, WatchdogState};
+use odocal::protocol::Request;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+fn nominal() -> WheelParams {
+    WheelParams::nominal(0.15, 0.39, 4096.0)
+}
+
+fn device(compass_sigma_deg: f64, seed: u64) -> SharedDevice {
+    let mut cfg = MockConfig::with_ratios(nominal(), 0.976, 0.992).unwrap();
+    cfg.noise.compass_sigma_rad = compass_sigma_deg.to_radians();
+    cfg.seed = seed;
+    Arc::new(Mutex::new(MockDevice::new(cfg).unwrap()))
+}
+
+fn fast_link() -> LinkConfig {
+    LinkConfig {
+        response_time: Duration::from_millis(10),
+        margin: Duration::from_millis(5),
+        retries: 12,
+        ..LinkConfig::default()
+    }
+}
+
+fn square(side_m: f64, direction: Direction) -> SquareCommand {
+    SquareCommand {
+        side_m,
+        direction,
+        max_speed_m_s: 0.5,
+        max_rate_rad_s: 2.0,
+        heading_samples: 3,
+        settle: Duration::ZERO,
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn pty_handshake_parameters_and_power_cycle() {
+    let dev = device(0.0, 1);
+    let server = spawn_pty(dev.clone(), TimeMode::Virtual, FaultConfig::default()).unwrap();
+    let (client, info) = open_port(&server.path, 115_200).await.unwrap();
+    assert_eq!((info.major, info.firmware_id.as_str()), (1, "odocal-mock"));
+    assert_eq!(
+        client.get_params(ParamSource::Active).await.unwrap(),
+        nominal()
+    );
+    // Nothing saved yet: the stored copy is missing.
+    assert_eq!(
+        client
+            .get_params(ParamSource::Stored)
+            .await
+            .unwrap_err()
+            .nack_code(),
+        Some(NackCode::StorageFailure)
+    );
+
+    let saved = WheelParams {
+        right_wheel_diameter_m: 0.1488,
+        wheelbase_m: 0.3806,
+        ..nominal()
+    };
+    let applied = client.set_params(&saved).await.unwrap();
+    assert!((applied.wheelbase_m - 0.3806).abs() < 1e-9);
+    client.save_params().await.unwrap();
+    let unsaved = WheelParams {
+        wheelbase_m: 0.4,
+        ..nominal()
+    };
+    client.set_params(&unsaved).await.unwrap();
+    assert!(
+        (client
+            .get_params(ParamSource::Active)
+            .await
+            .unwrap()
+            .wheelbase_m
+            - 0.4)
+            .abs()
+            < 1e-9
+    );
+
+    lock(&dev).power_cycle().unwrap();
+    let after = client.get_params(ParamSource::Active).await.unwrap();
+    assert!(
+        (after.wheelbase_m - 0.3806).abs() < 1e-9,
+        "unsaved change survived: {after:?}"
+    );
+    assert!((after.right_wheel_diameter_m - 0.1488).abs() < 1e-9);
+    assert_eq!(after, client.get_params(ParamSource::Stored).await.unwrap());
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn pty_square_heading_errors_match_the_simulated_truth() {
+    let sigma_deg = 0.37;
+    let dev = device(sigma_deg, 7);
+    let server = spawn_pty(dev.clone(), TimeMode::Virtual, FaultConfig::default()).unwrap();
+    let (client, _) = open_port(&server.path, 115_200).await.unwrap();
+    for direction in [Direction::Cw, Direction::Ccw] {
+        let start = lock(&dev).sim().pose().heading_rad;
+        let cmd = SquareCommand {
+            heading_samples: 5,
+            ..square(4.0, direction)
+        };
+        let rec = run_square(&client, &cmd).await.unwrap();
+        let truth = wrap_angle(lock(&dev).sim().pose().heading_rad - start);
+        // Each end averages 5 readings: the error's σ is σ·√(2/5); allow 4 of those.
+        let tol = 4.0 * sigma_deg.to_radians() * (2.0f64 / 5.0).sqrt();
+        assert!(
+            (rec.heading_error_rad - truth).abs() < tol,
+            "{direction:?}: measured {} vs true {truth}",
+            rec.heading_error_rad
+        );
+        // The robot really is mis-calibrated: the error is far above the noise.
+        assert!(truth.abs() > 10.0 * tol);
+    }
+}
+
+/// Drives `n` squares each way over a link with `faults` and returns the test and the device.
+async fn ten_squares(faults: FaultConfig) -> (SquareTest, SharedDevice, Client) {
+    let dev = device(0.37, 99);
+    let (stream, _task) = spawn_duplex(dev.clone(), TimeMode::Virtual, faults);
+    let (client, _) = Client::connect(stream, fast_link()).await.unwrap();
+    let mut test = SquareTest {
+        side_m: 4.0,
+        wheelbase_m: 0.39,
+        cw: Vec::new(),
+        ccw: Vec::new(),
+    };
+    for direction in [Direction::Cw, Direction::Ccw] {
+        for _ in 0..5 {
+            let rec = run_square(&client, &square(4.0, direction)).await.unwrap();
+            let m = RunMeasurement {
+                heading_error_rad: rec.heading_error_rad,
+                final_xy_m: None,
+            };
+            match direction {
+                Direction::Cw => test.cw.push(m),
+                Direction::Ccw => test.ccw.push(m),
+            }
+        }
+    }
+    (test, dev, client)
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_noisy_link_gives_the_same_estimates_and_executes_nothing_twice() {
+    let (clean, clean_dev, _) = ten_squares(FaultConfig::default()).await;
+    let faults = FaultConfig {
+        corrupt_byte_rate: 0.01,
+        drop_frame_rate: 0.05,
+        seed: 5,
+        ..FaultConfig::default()
+    };
+    let (noisy, noisy_dev, client) = ten_squares(faults).await;
+    let stats = client.stats();
+    assert!(
+        stats.retries > 10,
+        "the faults must actually bite: {stats:?}"
+    );
+    assert!(stats.decoder_dropped_bytes > 0);
+    assert_eq!(noisy, clean, "same seed, same measurements");
+    let a = estimate(Method::Exact, &clean, SplitConvention::LeftNominal).unwrap();
+    let b = estimate(Method::Exact, &noisy, SplitConvention::LeftNominal).unwrap();
+    assert_eq!(a, b);
+    assert!(
+        (a.e_b - 0.976).abs() < 0.002 && (a.e_d - 0.992).abs() < 0.0005,
+        "{a:?}"
+    );
+    for dev in [&clean_dev, &noisy_dev] {
+        let c = lock(dev).counters();
+        assert_eq!(c.motions_accepted, 80, "{c:?}");
+        assert_eq!(c.motions_completed, 80);
+    }
+    assert!(lock(&noisy_dev).counters().replayed_answers > 0);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn busy_answers_are_retried_without_double_execution() {
+    let faults = FaultConfig {
+        busy_every: Some(3),
+        ..FaultConfig::default()
+    };
+    let dev = device(0.0, 3);
+    let (stream, _task) = spawn_duplex(dev.clone(), TimeMode::Virtual, faults);
+    let (client, _) = Client::connect(stream, fast_link()).await.unwrap();
+    run_square(&client, &square(1.0, Direction::Ccw))
+        .await
+        .unwrap();
+    assert!(client.stats().busy > 0);
+    assert_eq!(lock(&dev).counters().motions_accepted, 8);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_device_that_vanishes_mid_move_gives_a_typed_error_and_stops() {
+    let dev = device(0.0, 4);
+    let faults = FaultConfig {
+        // HELLO, watchdog, move, then two status polls: the device vanishes mid-move.
+        disconnect_after_frames: Some(5),
+        ..FaultConfig::default()
+    };
+    let (stream, task) = spawn_duplex(dev.clone(), TimeMode::RealTime { scale: 1.0 }, faults);
+    let config = LinkConfig {
+        retries: 2,
+        ..fast_link()
+    };
+    let (client, _) = Client::connect(stream, config).await.unwrap();
+    client
+        .configure_watchdog(Some(Duration::from_millis(150)))
+        .await
+        .unwrap();
+    let accepted = client
+        .move_straight(2.0, 0.2, MotionMode::Replace)
+        .await
+        .unwrap();
+    let started = Instant::now();
+    let err = odocal::hal::motion::wait_until_done(
+        &client,
+        accepted.motion_id,
+        1,
+        Duration::from_secs(20),
+    )
+    .await
+    .unwrap_err();
+    let took = started.elapsed();
+    assert!(
+        matches!(
+            err,
+            HalError::Link(LinkError::Timeout { .. } | LinkError::Closed)
+        ),
+        "{err:?}"
+    );
+    // Two polls answered (~10 ms), then one request's three attempts at ~15 ms each.
+    assert!(took < Duration::from_millis(500), "error took {took:?}");
+    assert_eq!(task.await.unwrap().unwrap(), ServeEnd::Disconnected);
+    let d = lock(&dev);
+    assert!(!d.is_moving(), "the base must be stopped");
+    assert_eq!(d.status().watchdog_state, WatchdogState::Tripped);
+    assert_eq!(d.counters().watchdog_trips, 1);
+    assert!(
+        d.sim().pose().x_m < 0.2,
+        "stopped early, at {} m",
+        d.sim().pose().x_m
+    );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_silent_host_trips_the_watchdog() {
+    let dev = device(0.0, 5);
+    let (stream, _task) = spawn_duplex(
+        dev.clone(),
+        TimeMode::RealTime { scale: 1.0 },
+        FaultConfig::default(),
+    );
+    let (client, _) = Client::connect(stream, fast_link()).await.unwrap();
+    client
+        .configure_watchdog(Some(Duration::from_millis(100)))
+        .await
+        .unwrap();
+    client
+        .move_straight(1.0, 0.2, MotionMode::Replace)
+        .await
+        .unwrap();
+    tokio::time::sleep(Duration::from_millis(400)).await;
+    {
+        let d = lock(&dev);
+        assert!(!d.is_moving());
+        assert_eq!(d.counters().watchdog_trips, 1);
+        let x = d.sim().pose().x_m;
+        assert!(x > 0.005 && x < 0.06, "moved {x} m in ~0.1 s at 0.2 m/s");
+    }
+    // While tripped, motions are refused until the host acknowledges with a heartbeat.
+    let refused = client
+        .move_straight(0.1, 0.2, MotionMode::Replace)
+        .await
+        .unwrap_err();
+    assert_eq!(refused.nack_code(), Some(NackCode::InvalidState));
+    client.heartbeat().await.unwrap();
+    client
+        .move_straight(0.01, 0.2, MotionMode::Replace)
+        .await
+        .unwrap();
+    client.stop().await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn bad_parameter_writes_are_refused_and_change_nothing() {
+    let dev = device(0.0, 6);
+    let (stream, _task) = spawn_duplex(
+        dev.clone(),
+        TimeMode::RealTime { scale: 1.0 },
+        FaultConfig::default(),
+    );
+    let (client, _) = Client::connect(stream, fast_link()).await.unwrap();
+    let before = client.get_params(ParamSource::Active).await.unwrap();
+    let good = ParamsBlock::from_params(&before).unwrap();
+    for (block, field) in [
+        (
+            ParamsBlock {
+                left_wheel_diameter_nm: 0,
+                ..good
+            },
+            0,
+        ),
+        (
+            ParamsBlock {
+                right_wheel_diameter_nm: 100_000_000,
+                ..good
+            },
+            1,
+        ),
+        (
+            ParamsBlock {
+                wheelbase_nm: 5,
+                ..good
+            },
+            2,
+        ),
+        (
+            ParamsBlock {
+                counts_per_wheel_rev_micro: 0,
+                ..good
+            },
+            3,
+        ),
+    ] {
+        let err = client.request(Request::SetParams(block)).await.unwrap_err();
+        match err {
+            HalError::Nack { nack, .. } => {
+                assert_eq!((nack.code, nack.detail), (NackCode::OutOfRange, field))
+            }
+            other => panic!("expected OUT_OF_RANGE, got {other:?}"),
+        }
+    }
+    // NaN never leaves the host.
+    let nan = WheelParams {
+        wheelbase_m: f64::NAN,
+        ..before
+    };
+    assert!(matches!(
+        client.set_params(&nan).await,
+        Err(HalError::Link(LinkError::InvalidArgument(_)))
+    ));
+    // Saving or writing while moving is refused too.
+    client
+        .move_straight(1.0, 0.2, MotionMode::Replace)
+        .await
+        .unwrap();
+    assert_eq!(
+        client.save_params().await.unwrap_err().nack_code(),
+        Some(NackCode::InvalidState)
+    );
+    assert_eq!(
+        client.set_params(&before).await.unwrap_err().nack_code(),
+        Some(NackCode::InvalidState)
+    );
+    client.stop().await.unwrap();
+    assert_eq!(
+        client.get_params(ParamSource::Active).await.unwrap(),
+        before
+    );
+    assert!(lock(&dev).stored_params().is_none());
+    // Over-limit speeds are refused with the field named.
+    let fast = client
+        .move_straight(1.0, 5.0, MotionMode::Replace)
+        .await
+        .unwrap_err();
+    assert!(matches!(fast, HalError::Nack { nack, .. } if nack.detail == 1));
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_incompatible_host_version_is_refused() {
+    let dev = device(0.0, 8);
+    let (stream, _task) = spawn_duplex(dev, TimeMode::Virtual, FaultConfig::default());
+    let (client, _) = Client::connect(stream, fast_link()).await.unwrap();
+    let err = client
+        .request(Request::Hello {
+            host_major: 2,
+            host_min_minor: 0,
+        })
+        .await
+        .unwrap_err();
+    assert_eq!(err.nack_code(), Some(NackCode::VersionMismatch));
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn dropping_a_motion_guard_stops_the_base() {
+    let dev = device(0.0, 9);
+    let (stream, _task) = spawn_duplex(
+        dev.clone(),
+        TimeMode::RealTime { scale: 1.0 },
+        FaultConfig::default(),
+    );
+    let (client, _) = Client::connect(stream, fast_link()).await.unwrap();
+    {
+        let _guard = odocal::hal::motion::MotionGuard::new(&client);
+        client
+            .move_straight(1.0, 0.2, MotionMode::Replace)
+            .await
+            .unwrap();
+        // An error or a cancelled future here drops the guard.
+    }
+    tokio::time::sleep(Duration::from_millis(50)).await;
+    let d = lock(&dev);
+    assert!(!d.is_moving());
+    assert_eq!(d.counters().stops, 1);
+}
