@@ -415,3 +415,45 @@ async fn dropping_a_motion_guard_stops_the_base() {
     assert!(!d.is_moving());
     assert_eq!(d.counters().stops, 1);
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn telemetry_at_200_hz_for_10_s_arrives_complete_and_unwrapped() {
+    let dev = device(0.0, 10);
+    let server = spawn_pty(dev.clone(), TimeMode::Virtual, FaultConfig::default()).unwrap();
+    let (client, _) = open_port(&server.path, 115_200).await.unwrap();
+    let mut rx = client.subscribe();
+    client
+        .configure_telemetry(Some(Duration::from_millis(5)))
+        .await
+        .unwrap();
+    // 2 m at 0.2 m/s: 10 s of device time, 2000 samples at 200 Hz.
+    client
+        .move_straight(2.0, 0.2, MotionMode::Replace)
+        .await
+        .unwrap();
+    let mut samples = Vec::new();
+    while samples.len() < 2000 {
+        match tokio::time::timeout(Duration::from_secs(5), rx.recv()).await {
+            Ok(Ok(s)) => samples.push(s),
+            other => panic!(
+                "telemetry stopped after {} samples: {other:?}",
+                samples.len()
+            ),
+        }
+    }
+    let stats = client.stats();
+    assert_eq!(stats.telemetry_dropped, 0);
+    assert!(samples
+        .windows(2)
+        .all(|w| w[1].sample_index == w[0].sample_index + 1));
+    let span = samples[1999].device_time_s - samples[0].device_time_s;
+    assert!((span - 1999.0 * 0.005).abs() < 1e-6, "span {span}");
+    // Counts only grow while driving forward, and end at the 2 m target.
+    assert!(samples
+        .windows(2)
+        .all(|w| w[1].left_counts >= w[0].left_counts));
+    let (l, r) = lock(&dev).sim().encoder_counts();
+    let target = 2.0 / (std::f64::consts::PI * 0.15) * 4096.0;
+    assert!((l - target).abs() < 1.0 && (r - target).abs() < 1.0);
+    assert!((samples[1999].left_counts as f64 - target).abs() < target * 0.001);
+}

@@ -611,11 +611,16 @@ impl MockDevice {
         let mut events = Vec::new();
         let end_us = self.now_us + (dt_s.max(0.0) * 1e6).round() as u64;
         while self.now_us < end_us {
+            if self.telemetry_period_us > 0 && self.now_us >= self.next_telemetry_us {
+                self.next_telemetry_us += self.telemetry_period_us;
+                events.extend(self.telemetry_frame());
+                continue;
+            }
             // Step to the next thing that happens: a telemetry sample, the end of a motion,
             // the watchdog deadline, or the end of this advance.
             let mut step_end = end_us;
             if self.telemetry_period_us > 0 {
-                step_end = step_end.min(self.next_telemetry_us.max(self.now_us + 1));
+                step_end = step_end.min(self.next_telemetry_us);
             }
             if let Some(m) = self.queue.front() {
                 let left_us = ((m.duration_s - m.elapsed_s).max(0.0) * 1e6).ceil() as u64;
