@@ -150,3 +150,39 @@ fn replay_json_has_evaluations() {
     assert!(get("exact") < get("uncalibrated"));
     assert!(evals.iter().all(|r| r["position_error_m"].is_number()));
 }
+
+#[test]
+fn mock_device_serves_a_pty_that_params_get_can_open() {
+    use std::io::{BufRead, BufReader};
+    use std::process::Stdio;
+    let mut mock = Command::new(env!("CARGO_BIN_EXE_odocal"))
+        .args(["mock-device", "--wheelbase-m", "0.41", "--seed", "3"])
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("mock-device starts");
+    let mut line = String::new();
+    BufReader::new(mock.stdout.take().unwrap())
+        .read_line(&mut line)
+        .unwrap();
+    let path = line.trim().to_string();
+    assert!(
+        path.starts_with("/dev/"),
+        "first line is the terminal path: {path:?}"
+    );
+    let v = json(&["params", "get", "--port", &path, "--json"]);
+    assert_eq!(v["wheelbase_m"], 0.41);
+    assert_eq!(v["source"], "active");
+    let v = json(&["status", "--port", &path, "--json"]);
+    assert_eq!(v["status"]["motion_state"], "idle");
+    // Closing stdin stops the device.
+    drop(mock.stdin.take());
+    let status = mock.wait().unwrap();
+    assert!(status.success());
+    let (ok, _, err) = odocal(&["params", "get", "--port", "/dev/does-not-exist"]);
+    assert!(
+        !ok && err.contains("cannot open /dev/does-not-exist"),
+        "{err}"
+    );
+}

@@ -117,9 +117,11 @@ impl Link {
         let mut pending: Option<Pending> = None;
         let mut unwrap = Unwrap::default();
         let mut closed: Option<LinkError> = None;
+        let mut moved = false;
         loop {
             if pending.is_none() && closed.is_none() {
                 if let Some((request, reply)) = queue.pop_front() {
+                    moved |= request.moves_robot();
                     seq = seq.wrapping_add(1);
                     let busy_left = self.config.busy_retries;
                     match self
@@ -152,8 +154,11 @@ impl Link {
             tokio::select! {
                 cmd = commands.recv() => match cmd {
                     None => {
-                        // Every client handle is gone: stop the base before letting go.
-                        let _ = self.start(&mut wr, Request::Stop, seq.wrapping_add(1), 0, None).await;
+                        // Every client handle is gone: if this host moved the base, stop it
+                        // before letting go (read-only sessions leave the base alone).
+                        if moved {
+                            let _ = self.start(&mut wr, Request::Stop, seq.wrapping_add(1), 0, None).await;
+                        }
                         return;
                     }
                     Some(Command::Request { request, reply }) => queue.push_back((request, reply)),

@@ -1,5 +1,6 @@
 //! The `odocal` command line: parses arguments, calls the library, prints tables or JSON.
 
+mod device;
 mod estimate;
 mod replay;
 mod simulate;
@@ -24,6 +25,17 @@ enum Command {
     Simulate(simulate::Args),
     /// Calibrate from a recorded OptiOdom square set and evaluate on recorded runs.
     Replay(replay::Args),
+    /// Serve a simulated robot base on a new pseudo-terminal (prints its path first).
+    MockDevice(device::MockArgs),
+    /// Read, write, save or restore the controller's kinematic parameters.
+    Params {
+        #[command(subcommand)]
+        command: device::ParamsCommand,
+    },
+    /// Show the device's status.
+    Status(device::PortArgs),
+    /// Read the heading (counter-clockwise positive).
+    Heading(device::HeadingArgs),
 }
 
 /// Which diameter split to use for estimation and write-back.
@@ -77,12 +89,23 @@ pub fn pm(std_err: Option<f64>) -> String {
     std_err.map_or_else(String::new, |s| format!("± {s:.5}"))
 }
 
+/// Runs an async command on a fresh runtime.
+fn block_on(
+    fut: impl std::future::Future<Output = Result<(), Box<dyn std::error::Error>>>,
+) -> Result<(), Box<dyn std::error::Error>> {
+    tokio::runtime::Runtime::new()?.block_on(fut)
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Estimate(args) => estimate::run(args),
         Command::Simulate(args) => simulate::run(args),
         Command::Replay(args) => replay::run(args),
+        Command::MockDevice(args) => block_on(device::mock_device(args)),
+        Command::Params { command } => block_on(device::params(command)),
+        Command::Status(port) => block_on(device::status(port)),
+        Command::Heading(args) => block_on(device::heading(args)),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -1,0 +1,374 @@
+//! `odocal mock-device`, `params`, `status` and `heading`: the device-facing commands.
+
+use crate::print_json;
+use clap::Subcommand;
+use odocal::hal::{open_port, Client};
+use odocal::kinematics::WheelParams;
+use odocal::mock::{
+    lock, spawn_pty, CompassConvention, FaultConfig, MockConfig, MockDevice, TimeMode,
+};
+use odocal::protocol::message::{ParamSource, RestoreTarget};
+use serde_json::json;
+use std::path::PathBuf;
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+type CliResult = Result<(), Box<dyn std::error::Error>>;
+
+/// Arguments of `odocal mock-device`.
+#[derive(Debug, clap::Args)]
+pub struct MockArgs {
+    /// True E_b of the simulated robot (relative to the factory parameters).
+    #[arg(long, default_value_t = 0.976)]
+    true_eb: f64,
+    /// True E_d of the simulated robot (left wheel nominal).
+    #[arg(long, default_value_t = 0.992)]
+    true_ed: f64,
+    /// Factory wheel diameter (m).
+    #[arg(long, default_value_t = 0.15)]
+    wheel_diameter_m: f64,
+    /// Factory wheelbase (m).
+    #[arg(long, default_value_t = 0.39)]
+    wheelbase_m: f64,
+    /// Encoder counts per wheel revolution.
+    #[arg(long, default_value_t = 4096.0)]
+    counts_per_rev: f64,
+    /// Compass noise per reading (deg).
+    #[arg(long, default_value_t = 0.37)]
+    compass_sigma_deg: f64,
+    /// Constant compass bias (deg).
+    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+    compass_bias_deg: f64,
+    /// Report headings clockwise-positive (a misconfigured firmware) instead of as the spec says.
+    #[arg(long)]
+    clockwise_compass: bool,
+    /// Seed of the device's random draws.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Run motions in scaled real time (device seconds per second) instead of virtual time.
+    #[arg(long)]
+    real_time: Option<f64>,
+    /// Keep the non-volatile parameter copy in this file (survives restarts).
+    #[arg(long)]
+    storage: Option<PathBuf>,
+    /// Also write the terminal's path to this file.
+    #[arg(long)]
+    link: Option<PathBuf>,
+    /// Faults, e.g. "corrupt=0.01,drop=0.05,latency-ms=5,disconnect-after=200,busy-every=7".
+    #[arg(long, value_parser = parse_faults)]
+    faults: Option<FaultConfig>,
+    /// Serve until Ctrl-C only (by default closing stdin also stops the device).
+    #[arg(long)]
+    ignore_stdin: bool,
+}
+
+fn parse_faults(s: &str) -> Result<FaultConfig, String> {
+    let mut f = FaultConfig::default();
+    for item in s.split(',').filter(|i| !i.trim().is_empty()) {
+        let (k, v) = item
+            .split_once('=')
+            .ok_or_else(|| format!("{item:?} is not key=value"))?;
+        let num = |v: &str| v.trim().parse::<f64>().map_err(|e| format!("{k}: {e}"));
+        let int = |v: &str| v.trim().parse::<u64>().map_err(|e| format!("{k}: {e}"));
+        match k.trim() {
+            "corrupt" => f.corrupt_byte_rate = num(v)?,
+            "drop" => f.drop_frame_rate = num(v)?,
+            "latency-ms" => f.latency = Duration::from_secs_f64(num(v)? / 1e3),
+            "disconnect-after" => f.disconnect_after_frames = Some(int(v)?),
+            "busy-every" => f.busy_every = Some(int(v)?),
+            "seed" => f.seed = int(v)?,
+            other => return Err(format!("unknown fault {other:?}")),
+        }
+    }
+    for (name, p) in [
+        ("corrupt", f.corrupt_byte_rate),
+        ("drop", f.drop_frame_rate),
+    ] {
+        if !(0.0..=1.0).contains(&p) {
+            return Err(format!("{name} must be a probability in [0, 1], got {p}"));
+        }
+    }
+    Ok(f)
+}
+
+/// Runs `odocal mock-device`.
+pub async fn mock_device(args: MockArgs) -> CliResult {
+    let nominal =
+        WheelParams::nominal(args.wheel_diameter_m, args.wheelbase_m, args.counts_per_rev);
+    let mut cfg = MockConfig::with_ratios(nominal, args.true_eb, args.true_ed)?;
+    cfg.noise.compass_sigma_rad = args.compass_sigma_deg.to_radians();
+    cfg.noise.compass_bias_rad = args.compass_bias_deg.to_radians();
+    cfg.seed = args.seed;
+    cfg.storage_path = args.storage;
+    if args.clockwise_compass {
+        cfg.compass = CompassConvention::Clockwise;
+    }
+    let time = match args.real_time {
+        Some(scale) if scale.is_finite() && scale > 0.0 => TimeMode::RealTime { scale },
+        Some(scale) => return Err(format!("--real-time must be > 0, got {scale}").into()),
+        None => TimeMode::Virtual,
+    };
+    let device = Arc::new(Mutex::new(MockDevice::new(cfg)?));
+    let server = spawn_pty(device.clone(), time, args.faults.unwrap_or_default())?;
+    println!("{}", server.path);
+    if let Some(link) = &args.link {
+        std::fs::write(link, format!("{}\n", server.path))?;
+    }
+    eprintln!(
+        "mock device on {} ({}); Ctrl-C{} to stop",
+        server.path,
+        match time {
+            TimeMode::Virtual => "virtual time".to_string(),
+            TimeMode::RealTime { scale } => format!("real time ×{scale}"),
+        },
+        if args.ignore_stdin {
+            ""
+        } else {
+            " or closing stdin"
+        }
+    );
+    let stdin_closed = async {
+        if args.ignore_stdin {
+            std::future::pending::<()>().await;
+        }
+        let mut sink = Vec::new();
+        let _ = tokio::io::AsyncReadExt::read_to_end(&mut tokio::io::stdin(), &mut sink).await;
+    };
+    tokio::select! {
+        _ = tokio::signal::ctrl_c() => {}
+        () = stdin_closed => {}
+    }
+    let counters = lock(&device).counters();
+    eprintln!("mock device stopped: {counters:?}");
+    if let Some(link) = &args.link {
+        let _ = std::fs::remove_file(link);
+    }
+    Ok(())
+}
+
+/// Port flags shared by the device commands.
+#[derive(Debug, Clone, clap::Args)]
+pub struct PortArgs {
+    /// Serial port path (e.g. /dev/ttyUSB0, or the path `odocal mock-device` printed).
+    #[arg(long)]
+    port: String,
+    /// Baud rate.
+    #[arg(long, default_value_t = 115_200)]
+    baud: u32,
+    /// Print JSON instead of text.
+    #[arg(long)]
+    json: bool,
+}
+
+impl PortArgs {
+    async fn connect(&self) -> Result<Client, Box<dyn std::error::Error>> {
+        Ok(open_port(&self.port, self.baud).await?.0)
+    }
+}
+
+/// `odocal params` subcommands.
+#[derive(Debug, Subcommand)]
+pub enum ParamsCommand {
+    /// Read parameters.
+    Get {
+        #[command(flatten)]
+        port: PortArgs,
+        /// Which copy: active (RAM), stored (non-volatile) or factory.
+        #[arg(long, default_value = "active", value_parser = ["active", "stored", "factory"])]
+        source: String,
+    },
+    /// Write the active (RAM) parameters; unspecified fields keep their value. Backs up first.
+    Set {
+        #[command(flatten)]
+        port: PortArgs,
+        /// Left wheel diameter (m).
+        #[arg(long)]
+        left_wheel_diameter_m: Option<f64>,
+        /// Right wheel diameter (m).
+        #[arg(long)]
+        right_wheel_diameter_m: Option<f64>,
+        /// Wheelbase (m).
+        #[arg(long)]
+        wheelbase_m: Option<f64>,
+        /// Encoder counts per wheel revolution.
+        #[arg(long)]
+        counts_per_rev: Option<f64>,
+        /// Backup file (default: odocal-params-backup-<unix time>.json here).
+        #[arg(long)]
+        backup: Option<PathBuf>,
+    },
+    /// Commit the active parameters to non-volatile storage.
+    Save {
+        #[command(flatten)]
+        port: PortArgs,
+    },
+    /// Restore factory defaults (RAM only, or also storage with --stored). Backs up first.
+    Restore {
+        #[command(flatten)]
+        port: PortArgs,
+        /// Also overwrite the stored copy.
+        #[arg(long)]
+        stored: bool,
+        /// Backup file (default: odocal-params-backup-<unix time>.json here).
+        #[arg(long)]
+        backup: Option<PathBuf>,
+    },
+}
+
+fn print_params(p: &WheelParams, json_out: bool, extra: serde_json::Value) -> CliResult {
+    if json_out {
+        let mut v = serde_json::to_value(p)?;
+        if let (Some(obj), Some(extra)) = (v.as_object_mut(), extra.as_object()) {
+            obj.extend(extra.clone());
+        }
+        return print_json(&v);
+    }
+    println!("left_wheel_diameter_m  {:.9}", p.left_wheel_diameter_m);
+    println!("right_wheel_diameter_m {:.9}", p.right_wheel_diameter_m);
+    println!("wheelbase_m            {:.9}", p.wheelbase_m);
+    println!("counts_per_wheel_rev   {:.6}", p.counts_per_wheel_rev);
+    Ok(())
+}
+
+/// Saves the active parameters to `path` (or a timestamped file) before a write.
+async fn backup(
+    client: &Client,
+    path: Option<PathBuf>,
+) -> Result<PathBuf, Box<dyn std::error::Error>> {
+    let current = client.get_params(ParamSource::Active).await?;
+    let path = path.unwrap_or_else(|| {
+        let t = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.as_secs());
+        PathBuf::from(format!("odocal-params-backup-{t}.json"))
+    });
+    let text = serde_json::to_string_pretty(&json!({
+        "device": client.device_info(),
+        "active": current,
+    }))?;
+    std::fs::write(&path, text).map_err(|e| {
+        format!(
+            "cannot write backup {}: {e}; nothing was changed",
+            path.display()
+        )
+    })?;
+    Ok(path)
+}
+
+/// Runs `odocal params ...`.
+pub async fn params(cmd: ParamsCommand) -> CliResult {
+    match cmd {
+        ParamsCommand::Get { port, source } => {
+            let client = port.connect().await?;
+            let source = match source.as_str() {
+                "stored" => ParamSource::Stored,
+                "factory" => ParamSource::Factory,
+                _ => ParamSource::Active,
+            };
+            let p = client.get_params(source).await?;
+            print_params(&p, port.json, json!({ "source": source }))
+        }
+        ParamsCommand::Set {
+            port,
+            left_wheel_diameter_m,
+            right_wheel_diameter_m,
+            wheelbase_m,
+            counts_per_rev,
+            backup: backup_path,
+        } => {
+            let client = port.connect().await?;
+            let current = client.get_params(ParamSource::Active).await?;
+            let wanted = WheelParams {
+                left_wheel_diameter_m: left_wheel_diameter_m
+                    .unwrap_or(current.left_wheel_diameter_m),
+                right_wheel_diameter_m: right_wheel_diameter_m
+                    .unwrap_or(current.right_wheel_diameter_m),
+                wheelbase_m: wheelbase_m.unwrap_or(current.wheelbase_m),
+                counts_per_wheel_rev: counts_per_rev.unwrap_or(current.counts_per_wheel_rev),
+            };
+            wanted.validate()?;
+            let saved_to = backup(&client, backup_path).await?;
+            eprintln!("backed up the current parameters to {}", saved_to.display());
+            let applied = client.set_params(&wanted).await?;
+            eprintln!("written to RAM; run `odocal params save` to keep them across power cycles");
+            print_params(&applied, port.json, json!({ "backup": saved_to }))
+        }
+        ParamsCommand::Save { port } => {
+            let client = port.connect().await?;
+            let crc = client.save_params().await?;
+            if port.json {
+                print_json(&json!({ "stored_crc": crc }))
+            } else {
+                println!("saved (stored copy CRC 0x{crc:04X})");
+                Ok(())
+            }
+        }
+        ParamsCommand::Restore {
+            port,
+            stored,
+            backup: backup_path,
+        } => {
+            let client = port.connect().await?;
+            let saved_to = backup(&client, backup_path).await?;
+            eprintln!("backed up the current parameters to {}", saved_to.display());
+            let target = if stored {
+                RestoreTarget::ActiveAndStored
+            } else {
+                RestoreTarget::Active
+            };
+            let p = client.restore_defaults(target).await?;
+            print_params(&p, port.json, json!({ "backup": saved_to }))
+        }
+    }
+}
+
+/// Runs `odocal status`.
+pub async fn status(port: PortArgs) -> CliResult {
+    let client = port.connect().await?;
+    let s = client.status().await?;
+    if port.json {
+        return print_json(&json!({ "device": client.device_info(), "status": s }));
+    }
+    let info = client.device_info();
+    println!(
+        "{} (protocol {}.{}, serial {:#x})",
+        info.firmware_id, info.major, info.minor, info.serial_number
+    );
+    println!("motion state       {:?}", s.motion_state);
+    println!("queue depth        {}", s.queue_depth);
+    println!("completed motions  {}", s.completed_motions);
+    println!("fault flags        {:#06x}", s.fault_flags);
+    println!("watchdog           {:?}", s.watchdog_state);
+    println!("uptime             {:.1} s", f64::from(s.uptime_ms) / 1e3);
+    Ok(())
+}
+
+/// Arguments of `odocal heading`.
+#[derive(Debug, clap::Args)]
+pub struct HeadingArgs {
+    #[command(flatten)]
+    port: PortArgs,
+    /// Readings to average (circular mean).
+    #[arg(long, default_value_t = 1)]
+    samples: usize,
+}
+
+/// Runs `odocal heading`.
+pub async fn heading(args: HeadingArgs) -> CliResult {
+    let client = args.port.connect().await?;
+    let mean = odocal::hal::motion::mean_heading(&client, args.samples).await?;
+    if args.port.json {
+        return print_json(&json!({
+            "heading_rad": mean,
+            "heading_deg": mean.to_degrees(),
+            "samples": args.samples.max(1),
+        }));
+    }
+    println!(
+        "heading {:.3}° ({:.6} rad, counter-clockwise positive, mean of {})",
+        mean.to_degrees(),
+        mean,
+        args.samples.max(1)
+    );
+    Ok(())
+}
