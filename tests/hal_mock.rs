@@ -370,6 +370,19 @@ async fn bad_parameter_writes_are_refused_and_change_nothing() {
         before
     );
     assert!(lock(&dev).stored_params().is_none());
+    // The mock has no wheel-speed mode and says so; an unsendable speed never leaves the host.
+    assert_eq!(
+        client
+            .wheel_speed(0.1, 0.1, None)
+            .await
+            .unwrap_err()
+            .nack_code(),
+        Some(NackCode::UnknownMessage)
+    );
+    assert!(matches!(
+        client.wheel_speed(f64::NAN, 0.1, None).await,
+        Err(HalError::Link(LinkError::InvalidArgument(_)))
+    ));
     // Over-limit speeds are refused with the field named.
     let fast = client
         .move_straight(1.0, 5.0, MotionMode::Replace)

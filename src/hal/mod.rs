@@ -414,6 +414,31 @@ impl Client {
             Response::TurnInPlace(a) => a)
     }
 
+    /// **Moves the robot**: drive the wheels at these speeds (m/s) for `duration` (`None`: until
+    /// the next motion command, STOP or a watchdog trip). Speeds must be within the device's
+    /// limit; devices without the wheel-speed capability answer UNKNOWN_MESSAGE.
+    pub async fn wheel_speed(
+        &self,
+        left_m_s: f64,
+        right_m_s: f64,
+        duration: Option<Duration>,
+    ) -> Result<(), HalError> {
+        let to_i16 = |v: f64, what: &str| -> Result<i16, HalError> {
+            let r = (v * 1e3).round();
+            if r.is_finite() && (f64::from(i16::MIN)..=f64::from(i16::MAX)).contains(&r) {
+                Ok(r as i16)
+            } else {
+                Err(LinkError::InvalidArgument(format!("{what} speed {v} m/s does not fit")).into())
+            }
+        };
+        let request = Request::WheelSpeed {
+            left_mm_s: to_i16(left_m_s, "left")?,
+            right_mm_s: to_i16(right_m_s, "right")?,
+            duration_ms: to_wire_u16(duration.map_or(0.0, |d| d.as_secs_f64() * 1e3), "duration")?,
+        };
+        expect!(self.request(request).await?, Response::WheelSpeed => ())
+    }
+
     /// Stops the base and clears its queue.
     pub async fn stop(&self) -> Result<(), HalError> {
         expect!(self.request(Request::Stop).await?, Response::Stop => ())
