@@ -34,5 +34,6 @@ pub mod hal;
 pub mod kinematics;
 pub mod mock;
 pub mod protocol;
+pub mod routine;
 pub mod sim;
 pub mod study;

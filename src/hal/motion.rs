@@ -118,6 +118,15 @@ pub async fn wait_until_done(
 /// **Moves the robot**: drives one open-loop square (four legs and four ±90° turns, one motion
 /// at a time) and measures its final heading error at rest.
 pub async fn run_square(client: &Client, cmd: &SquareCommand) -> Result<SquareRecord, HalError> {
+    run_square_with_progress(client, cmd, |_| {}).await
+}
+
+/// [`run_square`], calling `on_motion(k)` after motion `k` of 8 (1-based) has finished.
+pub async fn run_square_with_progress(
+    client: &Client,
+    cmd: &SquareCommand,
+    mut on_motion: impl FnMut(usize),
+) -> Result<SquareRecord, HalError> {
     let mut events = client.subscribe();
     if cmd.settle > Duration::ZERO {
         tokio::time::sleep(cmd.settle).await;
@@ -126,6 +135,7 @@ pub async fn run_square(client: &Client, cmd: &SquareCommand) -> Result<SquareRe
     let guard = MotionGuard::new(client);
     let mut completed = client.status().await?.completed_motions;
     let turn = cmd.direction.turn_sign() * FRAC_PI_2;
+    let mut done = 0;
     for _ in 0..4 {
         for leg in [true, false] {
             let (accepted, expected_s) = if leg {
@@ -147,6 +157,8 @@ pub async fn run_square(client: &Client, cmd: &SquareCommand) -> Result<SquareRe
             // Real hardware ramps and the mock may run slower than real time: allow 3× + 2 s.
             let limit = Duration::from_secs_f64(3.0 * expected_s + 2.0);
             wait_until_done(client, accepted.motion_id, completed, limit).await?;
+            done += 1;
+            on_motion(done);
         }
     }
     guard.disarm();

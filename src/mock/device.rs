@@ -55,6 +55,9 @@ pub struct MockConfig {
     pub storage_path: Option<PathBuf>,
     /// Serial number reported by HELLO.
     pub serial_number: u64,
+    /// Simulate broken storage: every write of the stored copy fails (NACK STORAGE_FAILURE).
+    #[serde(default)]
+    pub storage_fails: bool,
 }
 
 impl MockConfig {
@@ -81,6 +84,7 @@ impl MockConfig {
             max_rate_rad_s: 4.0,
             storage_path: None,
             serial_number: 0x0DC0_0001,
+            storage_fails: false,
         })
     }
 }
@@ -541,6 +545,9 @@ impl MockDevice {
     /// Writes the non-volatile copy atomically: the file is written beside its final name and
     /// renamed over it, so a crash leaves either the old or the new copy.
     fn store(&mut self, b: ParamsBlock) -> Result<(), Nack> {
+        if self.config.storage_fails {
+            return nack(NackCode::StorageFailure, 0xFF);
+        }
         if let Some(path) = &self.config.storage_path {
             let tmp = path.with_extension("tmp");
             let text = serde_json::to_string_pretty(&b).map_err(|_| Nack {
@@ -674,11 +681,20 @@ impl MockDevice {
     }
 
     /// Runs every queued motion to completion (virtual time) and returns the events.
+    ///
+    /// Virtual time passes only while the host waits for it, so the host counts as present
+    /// throughout: the watchdog cannot trip here (it guards real-time operation).
     pub fn run_until_idle(&mut self) -> Vec<Frame> {
         let mut events = Vec::new();
         while self.is_moving() {
             let dt = self.remaining_motion_s().max(1e-6);
+            let armed = self.watchdog_state;
+            if armed == WatchdogState::Armed {
+                self.watchdog_state = WatchdogState::Disabled;
+            }
             events.extend(self.advance(dt));
+            self.watchdog_state = armed;
+            self.last_request_us = self.now_us;
         }
         events
     }

@@ -1,0 +1,310 @@
+//! The routine's settings: defaults, validation, and the TOML routine file.
+
+use crate::calibration::Method;
+use crate::kinematics::SplitConvention;
+use serde::{Deserialize, Serialize};
+use std::path::PathBuf;
+
+/// Fastest straight-leg speed any routine may command (m/s), whatever its file says.
+pub const HARD_SPEED_LIMIT_M_S: f64 = 1.0;
+/// Fastest turn rate any routine may command (rad/s).
+pub const HARD_RATE_LIMIT_RAD_S: f64 = 3.0;
+
+/// What to do with the estimated parameters.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum WritePolicy {
+    /// Estimate and report; write nothing.
+    DryRun,
+    /// Show old → new and ask before writing.
+    Ask,
+    /// Write without asking.
+    Yes,
+}
+
+/// Which diameter split the routine estimates and writes with.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum ConventionName {
+    /// Left wheel keeps its diameter.
+    LeftNominal,
+    /// Mean diameter is kept.
+    MeanPreserving,
+}
+
+/// A straight-line tape-measure check that fixes the absolute wheel scale.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StraightCheck {
+    /// Distance commanded (m).
+    pub commanded_m: f64,
+    /// Distance measured start to end (m).
+    pub measured_m: f64,
+}
+
+/// Everything the recalibration routine needs to know.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RoutineConfig {
+    /// Serial port (`/dev/ttyUSB0`), or `mock` for the built-in simulated robot.
+    pub port: Option<String>,
+    /// Baud rate.
+    pub baud: u32,
+    /// Square side (m).
+    pub side_m: f64,
+    /// Squares per direction in each calibration round.
+    pub runs_per_direction: usize,
+    /// Straight-leg speed limit (m/s).
+    pub max_speed_m_s: f64,
+    /// Turn-rate limit (rad/s).
+    pub max_rate_rad_s: f64,
+    /// Heading readings averaged at rest before and after each square.
+    pub heading_samples: usize,
+    /// Pause for the base to settle before heading readings (s).
+    pub settle_s: f64,
+    /// Estimator whose result is written.
+    pub method: Method,
+    /// Diameter split for estimation and write-back.
+    pub convention: ConventionName,
+    /// Optional straight-line check (overrides `convention` for the wheel scale).
+    pub straight_check: Option<StraightCheck>,
+    /// Write-back policy.
+    pub write_back: WritePolicy,
+    /// Squares per direction in the verification after writing.
+    pub verification_runs: usize,
+    /// Converged when |E_b − 1| and |E_d − 1| are both below this.
+    pub tolerance: f64,
+    /// Most calibration rounds.
+    pub max_rounds: usize,
+    /// Refuse to write any parameter changed by more than this fraction from the backup.
+    pub max_change: f64,
+    /// Device watchdog timeout (ms).
+    pub watchdog_ms: u64,
+    /// Telemetry period (ms), 0 for none (no odometry traces, no compass-sign check).
+    pub telemetry_ms: u64,
+    /// Where the parameter backup is written.
+    pub backup_dir: PathBuf,
+    /// Where reports and plots are written, if anywhere.
+    pub report_dir: Option<PathBuf>,
+}
+
+impl Default for RoutineConfig {
+    fn default() -> Self {
+        RoutineConfig {
+            port: None,
+            baud: 115_200,
+            side_m: 4.0,
+            runs_per_direction: 5,
+            max_speed_m_s: 0.2,
+            max_rate_rad_s: 0.5,
+            heading_samples: 5,
+            settle_s: 0.5,
+            method: Method::Exact,
+            convention: ConventionName::LeftNominal,
+            straight_check: None,
+            write_back: WritePolicy::Ask,
+            verification_runs: 3,
+            tolerance: 0.001,
+            max_rounds: 3,
+            max_change: 0.1,
+            watchdog_ms: 500,
+            telemetry_ms: 20,
+            backup_dir: PathBuf::from("."),
+            report_dir: None,
+        }
+    }
+}
+
+/// A routine file or setting that cannot be used.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("{}{message}", line.map(|l| format!("line {l}: ")).unwrap_or_default())]
+pub struct ConfigError {
+    /// 1-based line of the routine file, when the problem has one.
+    pub line: Option<usize>,
+    /// What is wrong.
+    pub message: String,
+}
+
+impl RoutineConfig {
+    /// The split convention these settings select.
+    pub fn split_convention(&self) -> SplitConvention {
+        match (self.straight_check, self.convention) {
+            (Some(s), _) => SplitConvention::MeasuredScale {
+                commanded_m: s.commanded_m,
+                measured_m: s.measured_m,
+            },
+            (None, ConventionName::LeftNominal) => SplitConvention::LeftNominal,
+            (None, ConventionName::MeanPreserving) => SplitConvention::MeanPreserving,
+        }
+    }
+
+    /// Parses a routine file; errors name the line.
+    pub fn from_toml(text: &str) -> Result<Self, ConfigError> {
+        let cfg: RoutineConfig = toml::from_str(text).map_err(|e| ConfigError {
+            line: e.span().map(|s| line_of(text, s.start)),
+            message: e.message().to_string(),
+        })?;
+        cfg.validate().map_err(|mut e| {
+            e.line = e.line.or_else(|| key_line(text, &e.message));
+            e
+        })?;
+        Ok(cfg)
+    }
+
+    /// Checks every setting; the error's message starts with the key's name.
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        let bad = |key: &str, why: String| {
+            Err(ConfigError {
+                line: None,
+                message: format!("{key}: {why}"),
+            })
+        };
+        let positive = |v: f64| v.is_finite() && v > 0.0;
+        if !positive(self.side_m) || self.side_m > 20.0 {
+            return bad(
+                "side_m",
+                format!("must be in (0, 20] m, got {}", self.side_m),
+            );
+        }
+        if !(1..=50).contains(&self.runs_per_direction) {
+            return bad(
+                "runs_per_direction",
+                format!("must be 1..=50, got {}", self.runs_per_direction),
+            );
+        }
+        if !positive(self.max_speed_m_s) || self.max_speed_m_s > HARD_SPEED_LIMIT_M_S {
+            return bad(
+                "max_speed_m_s",
+                format!(
+                    "must be in (0, {HARD_SPEED_LIMIT_M_S}] m/s, got {}",
+                    self.max_speed_m_s
+                ),
+            );
+        }
+        if !positive(self.max_rate_rad_s) || self.max_rate_rad_s > HARD_RATE_LIMIT_RAD_S {
+            return bad(
+                "max_rate_rad_s",
+                format!(
+                    "must be in (0, {HARD_RATE_LIMIT_RAD_S}] rad/s, got {}",
+                    self.max_rate_rad_s
+                ),
+            );
+        }
+        if !(1..=100).contains(&self.heading_samples) {
+            return bad(
+                "heading_samples",
+                format!("must be 1..=100, got {}", self.heading_samples),
+            );
+        }
+        if !(self.settle_s.is_finite() && (0.0..=10.0).contains(&self.settle_s)) {
+            return bad(
+                "settle_s",
+                format!("must be in [0, 10] s, got {}", self.settle_s),
+            );
+        }
+        if let Some(s) = self.straight_check {
+            if !positive(s.commanded_m) || !positive(s.measured_m) {
+                return bad("straight_check", "distances must be > 0".into());
+            }
+            if (s.measured_m / s.commanded_m - 1.0).abs() > 0.2 {
+                return bad(
+                    "straight_check",
+                    format!(
+                        "measured {} m for {} m commanded is more than 20 % off; check the units",
+                        s.measured_m, s.commanded_m
+                    ),
+                );
+            }
+        }
+        if self.verification_runs > 50 {
+            return bad(
+                "verification_runs",
+                format!("at most 50, got {}", self.verification_runs),
+            );
+        }
+        if !(positive(self.tolerance) && self.tolerance < 0.1) {
+            return bad(
+                "tolerance",
+                format!("must be in (0, 0.1), got {}", self.tolerance),
+            );
+        }
+        if !(1..=10).contains(&self.max_rounds) {
+            return bad(
+                "max_rounds",
+                format!("must be 1..=10, got {}", self.max_rounds),
+            );
+        }
+        if !(positive(self.max_change) && self.max_change <= 0.25) {
+            return bad(
+                "max_change",
+                format!("must be in (0, 0.25], got {}", self.max_change),
+            );
+        }
+        if !(50..=10_000).contains(&self.watchdog_ms) {
+            return bad(
+                "watchdog_ms",
+                format!("must be 50..=10000, got {}", self.watchdog_ms),
+            );
+        }
+        if self.telemetry_ms != 0 && !(5..=1000).contains(&self.telemetry_ms) {
+            return bad(
+                "telemetry_ms",
+                format!("must be 0 or 5..=1000, got {}", self.telemetry_ms),
+            );
+        }
+        Ok(())
+    }
+}
+
+fn line_of(text: &str, offset: usize) -> usize {
+    text[..offset.min(text.len())].matches('\n').count() + 1
+}
+
+/// The line that sets the key a validation message starts with (`key: ...`).
+fn key_line(text: &str, message: &str) -> Option<usize> {
+    let key = message.split(':').next()?.trim();
+    text.lines()
+        .position(|l| {
+            let l = l.trim_start();
+            l.strip_prefix(key)
+                .is_some_and(|rest| rest.trim_start().starts_with('=') || rest.starts_with(']'))
+                || l.trim_start_matches('[').starts_with(key) && l.starts_with('[')
+        })
+        .map(|i| i + 1)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_full_file_parses() {
+        let cfg = RoutineConfig::from_toml(
+            "port = \"mock\"\nside_m = 2.0\nruns_per_direction = 3\nmethod = \"jung-chung\"\n\
+             convention = \"mean-preserving\"\nwrite_back = \"dry-run\"\n\
+             [straight_check]\ncommanded_m = 2.0\nmeasured_m = 1.98\n",
+        )
+        .unwrap();
+        assert_eq!(cfg.method, Method::JungChung);
+        assert_eq!(cfg.write_back, WritePolicy::DryRun);
+        assert!(matches!(
+            cfg.split_convention(),
+            SplitConvention::MeasuredScale { .. }
+        ));
+    }
+
+    #[test]
+    fn errors_name_the_line() {
+        let e =
+            RoutineConfig::from_toml("side_m = 2.0\nruns_per_direction = \"five\"\n").unwrap_err();
+        assert_eq!(e.line, Some(2), "{e}");
+        let e = RoutineConfig::from_toml("side_m = 2.0\n\nspeed = 3\n").unwrap_err();
+        assert_eq!(e.line, Some(3), "{e}");
+        assert!(e.message.contains("speed"), "{e}");
+        let e = RoutineConfig::from_toml("# c\nside_m = 2.0\nmax_speed_m_s = 5.0\n").unwrap_err();
+        assert_eq!(e.line, Some(3), "{e}");
+        assert!(e.to_string().starts_with("line 3: max_speed_m_s"), "{e}");
+        let e = RoutineConfig::from_toml("side_m = [\n").unwrap_err();
+        assert!(e.line.is_some(), "{e}");
+    }
+}

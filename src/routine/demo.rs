@@ -1,0 +1,92 @@
+//! The demo: the full routine against the built-in simulated robot on a pseudo-terminal.
+
+use super::config::{RoutineConfig, WritePolicy};
+use super::{run, GroundTruth, Report, RoutineError, RoutineUi};
+use crate::hal::open_port;
+use crate::kinematics::{Pose, WheelParams};
+use crate::mock::{lock, spawn_pty, FaultConfig, MockConfig, MockDevice, SharedDevice, TimeMode};
+use std::path::PathBuf;
+use std::sync::{Arc, Mutex};
+use tokio_util::sync::CancellationToken;
+
+/// The demo robot and routine.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DemoOptions {
+    /// True `E_b` of the simulated robot.
+    pub true_e_b: f64,
+    /// True `E_d` (left wheel nominal).
+    pub true_e_d: f64,
+    /// Nominal parameters (the controller's factory configuration).
+    pub nominal: WheelParams,
+    /// Compass noise per reading (deg).
+    pub compass_sigma_deg: f64,
+    /// Seed of the simulated robot.
+    pub seed: u64,
+    /// Link faults.
+    pub faults: FaultConfig,
+    /// The routine's settings.
+    pub routine: RoutineConfig,
+}
+
+impl Default for DemoOptions {
+    fn default() -> Self {
+        DemoOptions {
+            true_e_b: 0.976,
+            true_e_d: 0.992,
+            nominal: WheelParams::nominal(0.15, 0.39, 4096.0),
+            compass_sigma_deg: 0.37,
+            seed: 1,
+            faults: FaultConfig::default(),
+            routine: RoutineConfig {
+                port: Some("mock".into()),
+                write_back: WritePolicy::Yes,
+                settle_s: 0.0,
+                backup_dir: std::env::temp_dir().join("odocal-demo"),
+                ..RoutineConfig::default()
+            },
+        }
+    }
+}
+
+/// The mock device's simulator as ground truth.
+pub struct MockTruth(pub SharedDevice);
+
+impl GroundTruth for MockTruth {
+    fn pose(&self) -> Pose {
+        lock(&self.0).sim().pose()
+    }
+    fn true_params(&self) -> WheelParams {
+        *lock(&self.0).sim().truth()
+    }
+}
+
+/// Builds the demo's simulated robot.
+pub fn demo_device(opts: &DemoOptions) -> Result<SharedDevice, RoutineError> {
+    let mut cfg = MockConfig::with_ratios(opts.nominal, opts.true_e_b, opts.true_e_d)
+        .map_err(|e| RoutineError::Preflight(e.to_string()))?;
+    cfg.noise.compass_sigma_rad = opts.compass_sigma_deg.to_radians();
+    cfg.seed = opts.seed;
+    let device = MockDevice::new(cfg).map_err(|e| RoutineError::Preflight(e.to_string()))?;
+    Ok(Arc::new(Mutex::new(device)))
+}
+
+/// Runs the full routine against a fresh simulated robot served on a pseudo-terminal, opened
+/// by its path like a USB adapter, in virtual time.
+pub async fn run_demo(
+    opts: &DemoOptions,
+    ui: &mut dyn RoutineUi,
+    cancel: &CancellationToken,
+) -> Result<(Report, SharedDevice), RoutineError> {
+    let device = demo_device(opts)?;
+    let server = spawn_pty(device.clone(), TimeMode::Virtual, opts.faults)
+        .map_err(|e| RoutineError::Preflight(format!("cannot create a pseudo-terminal: {e}")))?;
+    let (client, _) = open_port(&server.path, opts.routine.baud).await?;
+    let truth = MockTruth(device.clone());
+    let report = run(&client, &opts.routine, Some(&truth), ui, cancel).await?;
+    Ok((report, device))
+}
+
+/// Where the demo writes its report when asked for none: a fresh temporary directory.
+pub fn default_report_dir() -> PathBuf {
+    std::env::temp_dir().join("odocal-demo")
+}

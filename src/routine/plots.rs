@@ -1,0 +1,253 @@
+//! SVG plots of a report (plotters): paths, heading errors per run, end points before/after.
+
+use super::report::{Report, RunReport};
+use crate::kinematics::Direction;
+use plotters::prelude::*;
+use std::path::{Path, PathBuf};
+
+type PlotResult<T> = Result<T, Box<dyn std::error::Error>>;
+
+fn io(e: Box<dyn std::error::Error>) -> std::io::Error {
+    std::io::Error::other(e.to_string())
+}
+
+/// Writes every plot the report has data for; returns the files written.
+pub fn write_all(report: &Report, dir: &Path) -> std::io::Result<Vec<PathBuf>> {
+    let mut out = Vec::new();
+    let paths = dir.join("paths.svg");
+    if paths_plot(report, &paths).map_err(io)? {
+        out.push(paths);
+    }
+    let headings = dir.join("heading_errors.svg");
+    heading_plot(report, &headings).map_err(io)?;
+    out.push(headings);
+    let ends = dir.join("end_points.svg");
+    if end_points_plot(report, &ends).map_err(io)? {
+        out.push(ends);
+    }
+    Ok(out)
+}
+
+fn bounds<'a>(paths: impl Iterator<Item = &'a [f64; 2]>) -> (f64, f64, f64, f64) {
+    let (mut x0, mut x1, mut y0, mut y1) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
+    for p in paths {
+        x0 = x0.min(p[0]);
+        x1 = x1.max(p[0]);
+        y0 = y0.min(p[1]);
+        y1 = y1.max(p[1]);
+    }
+    let pad = 0.05 * (x1 - x0).max(y1 - y0).max(0.1);
+    (x0 - pad, x1 + pad, y0 - pad, y1 + pad)
+}
+
+/// The first CW and CCW run of round 1 and of the verification: odometry and, in simulation,
+/// the true path.
+fn paths_plot(report: &Report, file: &Path) -> PlotResult<bool> {
+    let first = |runs: &[RunReport], d: Direction| runs.iter().find(|r| r.direction == d).cloned();
+    let mut series: Vec<(String, Vec<[f64; 2]>, RGBColor)> = Vec::new();
+    let round1 = report
+        .rounds
+        .first()
+        .map(|r| r.runs.as_slice())
+        .unwrap_or(&[]);
+    for (label, runs, odo_colour, true_colour) in [
+        ("before", round1, RGBColor(150, 150, 150), RED),
+        (
+            "after",
+            report.verification.as_slice(),
+            RGBColor(120, 160, 220),
+            BLUE,
+        ),
+    ] {
+        for d in [Direction::Cw, Direction::Ccw] {
+            if let Some(r) = first(runs, d) {
+                if r.odometry_path.len() > 1 {
+                    series.push((
+                        format!("{label} {d}: odometry"),
+                        r.odometry_path.clone(),
+                        odo_colour,
+                    ));
+                }
+                if let Some(t) = r.true_path.clone().filter(|t| t.len() > 1) {
+                    series.push((format!("{label} {d}: true path"), t, true_colour));
+                }
+            }
+        }
+    }
+    if series.is_empty() {
+        return Ok(false);
+    }
+    let (x0, x1, y0, y1) = bounds(series.iter().flat_map(|s| s.1.iter()));
+    let root = SVGBackend::new(file, (900, 800)).into_drawing_area();
+    root.fill(&WHITE)?;
+    let mut chart = ChartBuilder::on(&root)
+        .caption("Square runs: odometry vs true path", ("sans-serif", 22))
+        .margin(15)
+        .x_label_area_size(40)
+        .y_label_area_size(55)
+        .build_cartesian_2d(x0..x1, y0..y1)?;
+    chart
+        .configure_mesh()
+        .x_desc("x (m), first leg")
+        .y_desc("y (m), left")
+        .draw()?;
+    for (label, pts, colour) in series {
+        chart
+            .draw_series(LineSeries::new(
+                pts.iter().map(|p| (p[0], p[1])),
+                colour.stroke_width(2),
+            ))?
+            .label(label)
+            .legend(move |(x, y)| {
+                PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(2))
+            });
+    }
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .draw()?;
+    root.present()?;
+    Ok(true)
+}
+
+/// Every run's final heading error, calibration rounds then verification.
+fn heading_plot(report: &Report, file: &Path) -> PlotResult<()> {
+    let mut points: Vec<(String, Direction, f64)> = Vec::new();
+    for r in &report.rounds {
+        for run in &r.runs {
+            points.push((
+                format!("round {}", r.round),
+                run.direction,
+                run.heading_error_deg,
+            ));
+        }
+    }
+    for run in &report.verification {
+        points.push(("verification".into(), run.direction, run.heading_error_deg));
+    }
+    let ymax = points.iter().map(|p| p.2.abs()).fold(0.5f64, f64::max) * 1.15;
+    let n = points.len().max(1) as f64;
+    let root = SVGBackend::new(file, (900, 500)).into_drawing_area();
+    root.fill(&WHITE)?;
+    let mut chart = ChartBuilder::on(&root)
+        .caption("Final heading error per run", ("sans-serif", 22))
+        .margin(15)
+        .x_label_area_size(40)
+        .y_label_area_size(55)
+        .build_cartesian_2d(0.0..n + 1.0, -ymax..ymax)?;
+    chart
+        .configure_mesh()
+        .x_desc("run (calibration rounds, then verification)")
+        .y_desc("heading error (deg, CCW positive)")
+        .draw()?;
+    let colours = [RED, MAGENTA, CYAN, GREEN, BLUE];
+    let mut phases: Vec<String> = points.iter().map(|p| p.0.clone()).collect();
+    phases.dedup();
+    for (k, phase) in phases.iter().enumerate() {
+        let colour = if phase == "verification" {
+            BLUE
+        } else {
+            colours[k % 4]
+        };
+        for (d, label) in [(Direction::Cw, "CW"), (Direction::Ccw, "CCW")] {
+            let pts: Vec<(f64, f64)> = points
+                .iter()
+                .enumerate()
+                .filter(|(_, p)| &p.0 == phase && p.1 == d)
+                .map(|(i, p)| (i as f64 + 1.0, p.2))
+                .collect();
+            if pts.is_empty() {
+                continue;
+            }
+            let name = format!("{phase} {label}");
+            if d == Direction::Cw {
+                chart
+                    .draw_series(pts.iter().map(|&p| Circle::new(p, 5, colour.filled())))?
+                    .label(name)
+                    .legend(move |(x, y)| Circle::new((x + 10, y), 5, colour.filled()));
+            } else {
+                chart
+                    .draw_series(
+                        pts.iter()
+                            .map(|&p| TriangleMarker::new(p, 6, colour.filled())),
+                    )?
+                    .label(name)
+                    .legend(move |(x, y)| TriangleMarker::new((x + 10, y), 6, colour.filled()));
+            }
+        }
+    }
+    chart.draw_series(LineSeries::new(
+        [(0.0, 0.0), (n + 1.0, 0.0)],
+        BLACK.mix(0.4),
+    ))?;
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .draw()?;
+    root.present()?;
+    Ok(())
+}
+
+/// True end points of round 1 and of the verification (simulation only).
+fn end_points_plot(report: &Report, file: &Path) -> PlotResult<bool> {
+    let round1 = report
+        .rounds
+        .first()
+        .map(|r| r.runs.as_slice())
+        .unwrap_or(&[]);
+    let ends = |runs: &[RunReport], d: Direction| -> Vec<[f64; 2]> {
+        runs.iter()
+            .filter(|r| r.direction == d)
+            .filter_map(|r| r.true_final_xy_m)
+            .collect()
+    };
+    let sets = [
+        ("before CW", ends(round1, Direction::Cw), RED),
+        ("before CCW", ends(round1, Direction::Ccw), MAGENTA),
+        ("after CW", ends(&report.verification, Direction::Cw), BLUE),
+        (
+            "after CCW",
+            ends(&report.verification, Direction::Ccw),
+            CYAN,
+        ),
+    ];
+    if sets.iter().all(|s| s.1.is_empty()) {
+        return Ok(false);
+    }
+    let (x0, x1, y0, y1) = bounds(sets.iter().flat_map(|s| s.1.iter()));
+    let root = SVGBackend::new(file, (800, 700)).into_drawing_area();
+    root.fill(&WHITE)?;
+    let mut chart = ChartBuilder::on(&root)
+        .caption("True end points (start at the origin)", ("sans-serif", 22))
+        .margin(15)
+        .x_label_area_size(40)
+        .y_label_area_size(55)
+        .build_cartesian_2d(x0..x1, y0..y1)?;
+    chart
+        .configure_mesh()
+        .x_desc("x (m)")
+        .y_desc("y (m)")
+        .draw()?;
+    chart.draw_series([Cross::new((0.0, 0.0), 8, BLACK.stroke_width(2))])?;
+    for (label, pts, colour) in sets {
+        if pts.is_empty() {
+            continue;
+        }
+        chart
+            .draw_series(
+                pts.iter()
+                    .map(|p| Circle::new((p[0], p[1]), 5, colour.filled())),
+            )?
+            .label(label)
+            .legend(move |(x, y)| Circle::new((x + 10, y), 5, colour.filled()));
+    }
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .draw()?;
+    root.present()?;
+    Ok(true)
+}

@@ -1,0 +1,331 @@
+//! The recalibration routine end to end against the mock device: the demo calibrates and
+//! verifies, and every failure path stops the base and leaves the parameters as they were.
+
+use odocal::hal::link::LinkConfig;
+use odocal::hal::Client;
+use odocal::kinematics::WheelParams;
+use odocal::mock::{lock, spawn_duplex, FaultConfig, MockConfig, MockDevice, TimeMode};
+use odocal::routine::config::{RoutineConfig, WritePolicy};
+use odocal::routine::demo::{run_demo, DemoOptions, MockTruth};
+use odocal::routine::{run, RoutineError, RoutineEvent, RoutineUi, Unattended};
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+use tokio_util::sync::CancellationToken;
+
+fn temp_dir(name: &str) -> std::path::PathBuf {
+    let d = std::env::temp_dir().join(format!("odocal-test-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    d
+}
+
+fn demo_options(name: &str) -> DemoOptions {
+    let mut opts = DemoOptions::default();
+    opts.routine.backup_dir = temp_dir(name);
+    opts
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_demo_calibrates_verifies_and_writes_its_report() {
+    let mut opts = demo_options("demo");
+    let report_dir = opts.routine.backup_dir.join("report");
+    opts.routine.report_dir = Some(report_dir.clone());
+    let (report, device) = run_demo(&opts, &mut Unattended, &CancellationToken::new())
+        .await
+        .unwrap();
+    let before = report.e_max_sys_before_m.unwrap();
+    let after = report.e_max_sys_after_m.unwrap();
+    assert!(
+        before > 1.0,
+        "the mis-calibrated robot misses by {before} m"
+    );
+    assert!(
+        after * 10.0 < before,
+        "E_max,sys {before} → {after}: not a tenfold reduction"
+    );
+    assert!(
+        report.converged && report.rounds.len() <= 3,
+        "{} rounds",
+        report.rounds.len()
+    );
+    assert!(report.written);
+    assert!(
+        report.mean_abs_heading_error_after_deg.unwrap() * 10.0
+            < report.mean_abs_heading_error_before_deg
+    );
+    // What was reported is what the controller has, in RAM and in storage.
+    let d = lock(&device);
+    assert_eq!(d.active_params(), report.final_params);
+    let stored = d.stored_params().unwrap();
+    assert!((stored.wheelbase_m - report.final_params.wheelbase_m).abs() < 1e-9);
+    // And it is close to the truth (left wheel nominal, as the demo robot is built).
+    let truth = *d.sim().truth();
+    assert!((report.final_params.wheelbase_m / truth.wheelbase_m - 1.0).abs() < 1e-3);
+    assert!((report.final_params.e_d() / truth.e_d() - 1.0).abs() < 2e-4);
+    drop(d);
+    // The backup holds the original parameters.
+    let backup: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&report.backup_path).unwrap()).unwrap();
+    assert_eq!(backup["active"]["wheelbase_m"], 0.39);
+    // The report directory.
+    let files = report.write_dir(&report_dir).unwrap();
+    for name in [
+        "report.json",
+        "report.md",
+        "paths.svg",
+        "heading_errors.svg",
+        "end_points.svg",
+    ] {
+        let f = report_dir.join(name);
+        assert!(files.contains(&f), "{name} missing");
+        assert!(
+            std::fs::metadata(&f).unwrap().len() > 200,
+            "{name} is empty"
+        );
+    }
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(report_dir.join("report.json")).unwrap())
+            .unwrap();
+    assert!(json["e_max_sys_before_m"].as_f64().unwrap() > 1.0);
+    assert!(json["estimates"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .any(|e| e["method"] == "exact"));
+    let svg = std::fs::read_to_string(report_dir.join("paths.svg")).unwrap();
+    assert!(
+        svg.contains("<polyline") || svg.contains("<path"),
+        "no lines drawn"
+    );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_dry_run_writes_nothing() {
+    let mut opts = demo_options("dry");
+    opts.routine.write_back = WritePolicy::DryRun;
+    let (report, device) = run_demo(&opts, &mut Unattended, &CancellationToken::new())
+        .await
+        .unwrap();
+    assert!(!report.written);
+    assert_eq!(report.rounds.len(), 1);
+    assert!(
+        report.rounds[0].params_after.is_some(),
+        "a proposal is still reported"
+    );
+    assert!(report.verification.is_empty());
+    let d = lock(&device);
+    assert_eq!(d.active_params(), opts.nominal);
+    assert!(d.stored_params().is_none());
+}
+
+/// A UI that answers with a script and records what it saw.
+struct Scripted {
+    answers: Vec<bool>,
+    questions: Vec<String>,
+    cancel_on: Option<(String, CancellationToken)>,
+}
+
+impl RoutineUi for Scripted {
+    fn confirm(&mut self, question: &str) -> bool {
+        self.questions.push(question.to_string());
+        if self.answers.is_empty() {
+            false
+        } else {
+            self.answers.remove(0)
+        }
+    }
+    fn event(&mut self, event: &RoutineEvent) {
+        if let Some((trigger, token)) = &self.cancel_on {
+            if format!("{event:?}").contains(trigger.as_str()) {
+                token.cancel();
+            }
+        }
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn declining_to_move_or_to_write_changes_nothing() {
+    let mut opts = demo_options("decline");
+    opts.routine.write_back = WritePolicy::Ask;
+    let mut ui = Scripted {
+        answers: vec![false],
+        questions: Vec::new(),
+        cancel_on: None,
+    };
+    let err = run_demo(&opts, &mut ui, &CancellationToken::new())
+        .await
+        .unwrap_err();
+    assert!(matches!(err, RoutineError::Declined(_)), "{err}");
+    assert!(ui.questions[0].contains("may it move"));
+    // Allowed to move, not to write.
+    let mut ui = Scripted {
+        answers: vec![true, false],
+        questions: Vec::new(),
+        cancel_on: None,
+    };
+    let (report, device) = run_demo(&opts, &mut ui, &CancellationToken::new())
+        .await
+        .unwrap();
+    assert!(
+        ui.questions[1].contains("wheelbase (m)"),
+        "old → new is shown: {}",
+        ui.questions[1]
+    );
+    assert!(!report.written);
+    assert_eq!(lock(&device).active_params(), opts.nominal);
+}
+
+fn real_time_device(storage_fails: bool) -> Arc<Mutex<MockDevice>> {
+    let mut cfg =
+        MockConfig::with_ratios(WheelParams::nominal(0.15, 0.39, 4096.0), 0.976, 0.992).unwrap();
+    cfg.noise.compass_sigma_rad = 0.2f64.to_radians();
+    cfg.storage_fails = storage_fails;
+    Arc::new(Mutex::new(MockDevice::new(cfg).unwrap()))
+}
+
+fn quick_routine(name: &str) -> RoutineConfig {
+    RoutineConfig {
+        side_m: 1.0,
+        runs_per_direction: 2,
+        max_speed_m_s: 1.0,
+        max_rate_rad_s: 3.0,
+        settle_s: 0.0,
+        write_back: WritePolicy::Yes,
+        verification_runs: 1,
+        backup_dir: temp_dir(name),
+        ..RoutineConfig::default()
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_nack_on_save_restores_the_backup() {
+    let device = real_time_device(true);
+    let (stream, _task) = spawn_duplex(device.clone(), TimeMode::Virtual, FaultConfig::default());
+    let (client, _) = Client::connect(stream, LinkConfig::default())
+        .await
+        .unwrap();
+    let truth = MockTruth(device.clone());
+    let err = run(
+        &client,
+        &quick_routine("save-nack"),
+        Some(&truth),
+        &mut Unattended,
+        &CancellationToken::new(),
+    )
+    .await
+    .unwrap_err();
+    match &err {
+        RoutineError::Restored { source, saved } => {
+            assert!(!saved, "a refused save leaves the stored copy alone");
+            assert!(source.to_string().contains("StorageFailure"), "{source}");
+        }
+        other => panic!("expected a restored write, got {other}"),
+    }
+    let d = lock(&device);
+    assert_eq!(d.active_params(), WheelParams::nominal(0.15, 0.39, 4096.0));
+    assert!(d.stored_params().is_none());
+    assert!(!d.is_moving());
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn cancelling_mid_square_stops_the_base_and_leaves_parameters_alone() {
+    let device = real_time_device(false);
+    let (stream, _task) = spawn_duplex(
+        device.clone(),
+        TimeMode::RealTime { scale: 20.0 },
+        FaultConfig::default(),
+    );
+    let (client, _) = Client::connect(stream, LinkConfig::default())
+        .await
+        .unwrap();
+    let token = CancellationToken::new();
+    let mut ui = Scripted {
+        answers: vec![true; 8],
+        questions: Vec::new(),
+        // Cancel after the third motion of the second square of round 1: mid-square.
+        cancel_on: Some((
+            "run: 2, of: 4, direction: Cw, motion: 3".into(),
+            token.clone(),
+        )),
+    };
+    let err = run(&client, &quick_routine("cancel"), None, &mut ui, &token)
+        .await
+        .unwrap_err();
+    assert!(matches!(err, RoutineError::Cancelled), "{err}");
+    tokio::time::sleep(Duration::from_millis(30)).await;
+    let d = lock(&device);
+    assert!(!d.is_moving(), "the base must be stopped");
+    assert!(d.counters().stops >= 1);
+    assert_eq!(d.active_params(), WheelParams::nominal(0.15, 0.39, 4096.0));
+    assert!(d.stored_params().is_none());
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn cancelling_after_a_write_restores_ram_and_storage() {
+    let device = real_time_device(false);
+    let (stream, _task) = spawn_duplex(
+        device.clone(),
+        TimeMode::RealTime { scale: 20.0 },
+        FaultConfig::default(),
+    );
+    let (client, _) = Client::connect(stream, LinkConfig::default())
+        .await
+        .unwrap();
+    let token = CancellationToken::new();
+    let mut ui = Scripted {
+        answers: vec![true; 8],
+        questions: Vec::new(),
+        cancel_on: Some(("round 2".into(), token.clone())),
+    };
+    let err = run(
+        &client,
+        &quick_routine("cancel-after"),
+        None,
+        &mut ui,
+        &token,
+    )
+    .await
+    .unwrap_err();
+    match err {
+        RoutineError::Restored { source, saved } => {
+            assert!(matches!(*source, RoutineError::Cancelled));
+            assert!(saved);
+        }
+        other => panic!("expected a restored cancellation, got {other}"),
+    }
+    let d = lock(&device);
+    let nominal = WheelParams::nominal(0.15, 0.39, 4096.0);
+    assert_eq!(d.active_params(), nominal);
+    assert_eq!(
+        d.stored_params(),
+        Some(nominal),
+        "the stored copy is the backup again"
+    );
+    assert!(!d.is_moving());
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_clockwise_compass_is_caught_before_anything_is_written() {
+    let mut cfg =
+        MockConfig::with_ratios(WheelParams::nominal(0.15, 0.39, 4096.0), 0.976, 0.992).unwrap();
+    cfg.compass = odocal::mock::CompassConvention::Clockwise;
+    let device = Arc::new(Mutex::new(MockDevice::new(cfg).unwrap()));
+    let (stream, _task) = spawn_duplex(device.clone(), TimeMode::Virtual, FaultConfig::default());
+    let (client, _) = Client::connect(stream, LinkConfig::default())
+        .await
+        .unwrap();
+    let err = run(
+        &client,
+        &quick_routine("cw-compass"),
+        None,
+        &mut Unattended,
+        &CancellationToken::new(),
+    )
+    .await
+    .unwrap_err();
+    assert!(err.to_string().contains("clockwise-positive"), "{err}");
+    assert!(lock(&device).stored_params().is_none());
+    assert_eq!(
+        lock(&device).active_params(),
+        WheelParams::nominal(0.15, 0.39, 4096.0)
+    );
+}
