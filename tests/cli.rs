@@ -186,3 +186,96 @@ fn mock_device_serves_a_pty_that_params_get_can_open() {
         "{err}"
     );
 }
+
+fn scratch(name: &str) -> std::path::PathBuf {
+    let d = std::env::temp_dir().join(format!("odocal-cli-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    d
+}
+
+#[test]
+fn demo_json_reports_a_tenfold_improvement_and_writes_files() {
+    let dir = scratch("demo");
+    let v = json(&["demo", "--json", "--report-dir", dir.to_str().unwrap()]);
+    let before = v["e_max_sys_before_m"].as_f64().unwrap();
+    let after = v["e_max_sys_after_m"].as_f64().unwrap();
+    assert!(after * 10.0 < before, "{before} → {after}");
+    assert!(v["estimates"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .any(|e| e["method"] == "exact"));
+    for f in [
+        "report.json",
+        "report.md",
+        "paths.svg",
+        "heading_errors.svg",
+        "end_points.svg",
+    ] {
+        assert!(dir.join(f).is_file(), "{f} not written");
+    }
+    // The report exports for ros2_control.
+    let yaml = dir.join("diff_drive.yaml");
+    let (ok, _, err) = odocal(&[
+        "export",
+        "--report",
+        dir.join("report.json").to_str().unwrap(),
+        "--ros2",
+        yaml.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    let text = std::fs::read_to_string(&yaml).unwrap();
+    assert!(text.contains("wheel_separation_multiplier: 0.97"), "{text}");
+    let (ok, _, err) = odocal(&[
+        "export",
+        "--report",
+        "/nonexistent.json",
+        "--ros2",
+        "x.yaml",
+    ]);
+    assert!(
+        !ok && err.contains("cannot read /nonexistent.json"),
+        "{err}"
+    );
+}
+
+#[test]
+fn routine_files_run_and_malformed_ones_name_the_line() {
+    let dir = scratch("run");
+    std::fs::create_dir_all(&dir).unwrap();
+    let good = dir.join("routine.toml");
+    std::fs::write(
+        &good,
+        format!(
+            "port = \"mock\"\nside_m = 2.0\nruns_per_direction = 3\nwrite_back = \"dry-run\"\n\
+             settle_s = 0.0\nbackup_dir = \"{0}\"\nreport_dir = \"{0}\"\n",
+            dir.display()
+        ),
+    )
+    .unwrap();
+    let v = json(&["run", good.to_str().unwrap(), "--json"]);
+    assert_eq!(v["written"], false, "dry run");
+    assert_eq!(v["final_params"], v["original_params"]);
+    assert!(dir.join("report.md").is_file());
+    let bad = dir.join("bad.toml");
+    std::fs::write(
+        &bad,
+        "port = \"mock\"\nside_m = 2.0\n\nmax_speed_m_s = 3.0\n",
+    )
+    .unwrap();
+    let (ok, _, err) = odocal(&["run", bad.to_str().unwrap()]);
+    assert!(!ok);
+    assert!(
+        err.contains("line 4") && err.contains("max_speed_m_s"),
+        "{err}"
+    );
+    std::fs::write(&bad, "port = \"mock\"\nsid_m = 2.0\n").unwrap();
+    let (ok, _, err) = odocal(&["run", bad.to_str().unwrap()]);
+    assert!(!ok && err.contains("line 2"), "{err}");
+    // The shipped example files parse.
+    for f in ["examples/routine-mock.toml", "examples/routine-robot.toml"] {
+        let text = std::fs::read_to_string(f).unwrap();
+        odocal::routine::config::RoutineConfig::from_toml(&text)
+            .unwrap_or_else(|e| panic!("{f}: {e}"));
+    }
+}

@@ -146,6 +146,7 @@ impl RoutineUi for Scripted {
 async fn declining_to_move_or_to_write_changes_nothing() {
     let mut opts = demo_options("decline");
     opts.routine.write_back = WritePolicy::Ask;
+    opts.routine.confirm_motion = true;
     let mut ui = Scripted {
         answers: vec![false],
         questions: Vec::new(),

@@ -70,6 +70,8 @@ pub struct RoutineConfig {
     pub straight_check: Option<StraightCheck>,
     /// Write-back policy.
     pub write_back: WritePolicy,
+    /// Ask before the robot first moves (off only for the simulated robot).
+    pub confirm_motion: bool,
     /// Squares per direction in the verification after writing.
     pub verification_runs: usize,
     /// Converged when |E_b − 1| and |E_d − 1| are both below this.
@@ -103,6 +105,7 @@ impl Default for RoutineConfig {
             convention: ConventionName::LeftNominal,
             straight_check: None,
             write_back: WritePolicy::Ask,
+            confirm_motion: true,
             verification_runs: 3,
             tolerance: 0.001,
             max_rounds: 3,

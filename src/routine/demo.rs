@@ -40,6 +40,7 @@ impl Default for DemoOptions {
             routine: RoutineConfig {
                 port: Some("mock".into()),
                 write_back: WritePolicy::Yes,
+                confirm_motion: false,
                 settle_s: 0.0,
                 backup_dir: std::env::temp_dir().join("odocal-demo"),
                 ..RoutineConfig::default()

@@ -274,7 +274,8 @@ async fn body(
 ) -> Result<Report, RoutineError> {
     let heading_noise_rad = preflight(client, cfg, ui, cancel).await?;
     let total_runs = cfg.runs_per_direction * 2;
-    if !ui.confirm(&format!(
+    if cfg.confirm_motion
+        && !ui.confirm(&format!(
         "The robot will drive {total_runs} open-loop squares of {} m at up to {} m/s and {} rad/s. \
          Is the area clear and may it move?",
         cfg.side_m, cfg.max_speed_m_s, cfg.max_rate_rad_s

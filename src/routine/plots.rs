@@ -50,16 +50,24 @@ fn paths_plot(report: &Report, file: &Path) -> PlotResult<bool> {
         .first()
         .map(|r| r.runs.as_slice())
         .unwrap_or(&[]);
-    for (label, runs, odo_colour, true_colour) in [
-        ("before", round1, RGBColor(150, 150, 150), RED),
+    for (label, runs, odo_colour, true_colours) in [
+        (
+            "before",
+            round1,
+            RGBColor(150, 150, 150),
+            [RED, RGBColor(230, 120, 0)],
+        ),
         (
             "after",
             report.verification.as_slice(),
-            RGBColor(120, 160, 220),
-            BLUE,
+            RGBColor(40, 40, 40),
+            [BLUE, RGBColor(0, 150, 150)],
         ),
     ] {
-        for d in [Direction::Cw, Direction::Ccw] {
+        for (d, true_colour) in [Direction::Cw, Direction::Ccw]
+            .into_iter()
+            .zip(true_colours)
+        {
             if let Some(r) = first(runs, d) {
                 if r.odometry_path.len() > 1 {
                     series.push((
@@ -78,7 +86,11 @@ fn paths_plot(report: &Report, file: &Path) -> PlotResult<bool> {
         return Ok(false);
     }
     let (x0, x1, y0, y1) = bounds(series.iter().flat_map(|s| s.1.iter()));
-    let root = SVGBackend::new(file, (900, 800)).into_drawing_area();
+    // Room on the right for the legend, so it never hides data.
+    let x1 = x1 + 0.5 * (x1 - x0);
+    // True paths first (thick), odometry on top (thin), so both stay visible where they agree.
+    series.sort_by_key(|s| !s.0.contains("true"));
+    let root = SVGBackend::new(file, (1100, 800)).into_drawing_area();
     root.fill(&WHITE)?;
     let mut chart = ChartBuilder::on(&root)
         .caption("Square runs: odometry vs true path", ("sans-serif", 22))
@@ -104,6 +116,7 @@ fn paths_plot(report: &Report, file: &Path) -> PlotResult<bool> {
     }
     chart
         .configure_series_labels()
+        .position(SeriesLabelPosition::UpperRight)
         .background_style(WHITE.mix(0.85))
         .border_style(BLACK)
         .draw()?;
@@ -135,7 +148,7 @@ fn heading_plot(report: &Report, file: &Path) -> PlotResult<()> {
         .margin(15)
         .x_label_area_size(40)
         .y_label_area_size(55)
-        .build_cartesian_2d(0.0..n + 1.0, -ymax..ymax)?;
+        .build_cartesian_2d(0.0..1.4 * n + 1.0, -ymax..ymax)?;
     chart
         .configure_mesh()
         .x_desc("run (calibration rounds, then verification)")
@@ -183,6 +196,7 @@ fn heading_plot(report: &Report, file: &Path) -> PlotResult<()> {
     ))?;
     chart
         .configure_series_labels()
+        .position(SeriesLabelPosition::UpperRight)
         .background_style(WHITE.mix(0.85))
         .border_style(BLACK)
         .draw()?;
@@ -217,7 +231,8 @@ fn end_points_plot(report: &Report, file: &Path) -> PlotResult<bool> {
         return Ok(false);
     }
     let (x0, x1, y0, y1) = bounds(sets.iter().flat_map(|s| s.1.iter()));
-    let root = SVGBackend::new(file, (800, 700)).into_drawing_area();
+    let x1 = x1 + 0.4 * (x1 - x0);
+    let root = SVGBackend::new(file, (900, 700)).into_drawing_area();
     root.fill(&WHITE)?;
     let mut chart = ChartBuilder::on(&root)
         .caption("True end points (start at the origin)", ("sans-serif", 22))
@@ -245,6 +260,7 @@ fn end_points_plot(report: &Report, file: &Path) -> PlotResult<bool> {
     }
     chart
         .configure_series_labels()
+        .position(SeriesLabelPosition::UpperRight)
         .background_style(WHITE.mix(0.85))
         .border_style(BLACK)
         .draw()?;

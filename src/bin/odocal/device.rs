@@ -62,7 +62,7 @@ pub struct MockArgs {
     ignore_stdin: bool,
 }
 
-fn parse_faults(s: &str) -> Result<FaultConfig, String> {
+pub fn parse_faults(s: &str) -> Result<FaultConfig, String> {
     let mut f = FaultConfig::default();
     for item in s.split(',').filter(|i| !i.trim().is_empty()) {
         let (k, v) = item

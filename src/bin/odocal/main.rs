@@ -3,6 +3,7 @@
 mod device;
 mod estimate;
 mod replay;
+mod routine;
 mod simulate;
 
 use clap::{Parser, Subcommand, ValueEnum};
@@ -19,6 +20,14 @@ struct Cli {
 
 #[derive(Debug, Subcommand)]
 enum Command {
+    /// Full recalibration of the built-in simulated robot: calibrate, write back, verify, report.
+    Demo(routine::DemoArgs),
+    /// Recalibrate a real robot on a serial port (moves it; asks first unless --yes).
+    Calibrate(routine::CalibrateArgs),
+    /// Run a routine file (TOML); `port = "mock"` runs it on the simulated robot.
+    Run(routine::RunArgs),
+    /// Export a calibration report for other software (ros2_control).
+    Export(routine::ExportArgs),
     /// Estimate E_b, E_d from square-test measurements taken by hand.
     Estimate(estimate::Args),
     /// Simulate the square test on a mis-calibrated robot, calibrate, write back and verify.
@@ -99,6 +108,10 @@ fn block_on(
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
+        Command::Demo(args) => block_on(routine::demo(args)),
+        Command::Calibrate(args) => block_on(routine::calibrate(args)),
+        Command::Run(args) => block_on(routine::run_file(args)),
+        Command::Export(args) => routine::export(args),
         Command::Estimate(args) => estimate::run(args),
         Command::Simulate(args) => simulate::run(args),
         Command::Replay(args) => replay::run(args),

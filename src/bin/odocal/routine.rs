@@ -1,0 +1,481 @@
+//! `odocal demo`, `calibrate`, `run` and `export`: the recalibration routine's commands.
+
+use crate::print_json;
+use indicatif::{ProgressBar, ProgressStyle};
+use odocal::calibration::Method;
+use odocal::hal::open_port;
+use odocal::kinematics::WheelParams;
+use odocal::routine::config::{ConventionName, RoutineConfig, StraightCheck, WritePolicy};
+use odocal::routine::demo::{run_demo, DemoOptions};
+use odocal::routine::export::ros2_diff_drive_yaml;
+use odocal::routine::report::Report;
+use odocal::routine::{run, RoutineEvent, RoutineUi};
+use serde_json::json;
+use std::io::{BufRead, IsTerminal, Write};
+use std::path::PathBuf;
+use tokio_util::sync::CancellationToken;
+
+type CliResult = Result<(), Box<dyn std::error::Error>>;
+
+/// Progress bar and questions on the terminal (stderr), answers from stdin.
+struct TerminalUi {
+    bar: Option<ProgressBar>,
+    quiet: bool,
+    assume_yes: bool,
+}
+
+impl TerminalUi {
+    fn new(quiet: bool, assume_yes: bool) -> Self {
+        TerminalUi {
+            bar: None,
+            quiet,
+            assume_yes,
+        }
+    }
+
+    fn say(&self, line: &str) {
+        if self.quiet {
+            return;
+        }
+        match &self.bar {
+            Some(b) => b.println(line),
+            None => eprintln!("{line}"),
+        }
+    }
+}
+
+impl RoutineUi for TerminalUi {
+    fn confirm(&mut self, question: &str) -> bool {
+        if self.assume_yes {
+            self.say(&format!("{question} yes (--yes)"));
+            return true;
+        }
+        let ask = || {
+            eprint!("{question} [y/N] ");
+            let _ = std::io::stderr().flush();
+            let mut line = String::new();
+            let ok = std::io::stdin().lock().read_line(&mut line).is_ok();
+            ok && matches!(line.trim(), "y" | "Y" | "yes" | "YES")
+        };
+        match &self.bar {
+            Some(b) => b.suspend(|| tokio::task::block_in_place(ask)),
+            None => tokio::task::block_in_place(ask),
+        }
+    }
+
+    fn event(&mut self, event: &RoutineEvent) {
+        match event {
+            RoutineEvent::Stage(s) => self.say(&format!("· {s}")),
+            RoutineEvent::Warning(w) => self.say(&format!("warning: {w}")),
+            RoutineEvent::Plan { motions } => {
+                if let Some(b) = self.bar.take() {
+                    b.finish_and_clear();
+                }
+                if !self.quiet && std::io::stderr().is_terminal() {
+                    let bar = ProgressBar::new(*motions);
+                    bar.set_style(
+                        ProgressStyle::with_template(
+                            "{bar:30} {pos}/{len} motions · {msg} · ETA {eta}",
+                        )
+                        .unwrap_or_else(|_| ProgressStyle::default_bar()),
+                    );
+                    self.bar = Some(bar);
+                }
+            }
+            RoutineEvent::Motion {
+                phase,
+                run,
+                of,
+                direction,
+                motion,
+            } => {
+                if let Some(b) = &self.bar {
+                    let what = if motion % 2 == 1 { "leg" } else { "turn" };
+                    b.set_message(format!(
+                        "{phase}: run {run}/{of} {direction}, {what} {}/4",
+                        motion.div_ceil(2)
+                    ));
+                    b.inc(1);
+                }
+            }
+            RoutineEvent::RunDone { heading_error_deg } => {
+                if self.bar.is_none() {
+                    self.say(&format!(
+                        "  run done: heading error {heading_error_deg:+.3}°"
+                    ));
+                }
+            }
+        }
+    }
+}
+
+impl Drop for TerminalUi {
+    fn drop(&mut self) {
+        if let Some(b) = self.bar.take() {
+            b.finish_and_clear();
+        }
+    }
+}
+
+/// A token cancelled by Ctrl-C.
+fn ctrl_c_token() -> CancellationToken {
+    let token = CancellationToken::new();
+    let t = token.clone();
+    tokio::spawn(async move {
+        if tokio::signal::ctrl_c().await.is_ok() {
+            eprintln!("\nCtrl-C: stopping the robot and restoring the parameters…");
+            t.cancel();
+        }
+    });
+    token
+}
+
+fn print_outcome(report: &Report, json_out: bool, files: &[PathBuf]) -> CliResult {
+    if json_out {
+        let mut v = serde_json::to_value(report)?;
+        if let Some(obj) = v.as_object_mut() {
+            obj.insert("report_files".into(), json!(files));
+        }
+        return print_json(&v);
+    }
+    if let Some(r) = report.rounds.last() {
+        println!("estimates (round {}):", r.round);
+        println!(
+            "{:<13} {:>9} {:>9} {:>9} {:>9}",
+            "method", "E_b", "±", "E_d", "±"
+        );
+        for e in &r.estimates {
+            let f = |v: Option<f64>| v.map_or("–".into(), |v| format!("{v:.5}"));
+            println!(
+                "{:<13} {:>9.6} {:>9} {:>9.6} {:>9}{}",
+                e.method.name(),
+                e.e_b,
+                f(e.e_b_std_err),
+                e.e_d,
+                f(e.e_d_std_err),
+                if e.method == r.chosen.method {
+                    "  ← chosen"
+                } else {
+                    ""
+                }
+            );
+        }
+        println!();
+    }
+    println!(
+        "{} round(s), {}, {}",
+        report.rounds.len(),
+        if report.converged {
+            "converged"
+        } else {
+            "not converged"
+        },
+        if report.written {
+            "parameters written and saved"
+        } else {
+            "nothing written"
+        }
+    );
+    print!("{}", report.summary_table());
+    println!(
+        "backup of the original parameters: {}",
+        report.backup_path.display()
+    );
+    for f in files {
+        println!("wrote {}", f.display());
+    }
+    for w in &report.warnings {
+        println!("warning: {w}");
+    }
+    Ok(())
+}
+
+fn finish(report: &Report, report_dir: Option<&PathBuf>, json_out: bool) -> CliResult {
+    let files = match report_dir {
+        Some(d) => report.write_dir(d)?,
+        None => Vec::new(),
+    };
+    print_outcome(report, json_out, &files)
+}
+
+/// Arguments of `odocal demo`.
+#[derive(Debug, clap::Args)]
+pub struct DemoArgs {
+    /// True E_b of the simulated robot.
+    #[arg(long, default_value_t = 0.976)]
+    true_eb: f64,
+    /// True E_d of the simulated robot.
+    #[arg(long, default_value_t = 0.992)]
+    true_ed: f64,
+    /// Compass noise per reading (deg).
+    #[arg(long, default_value_t = 0.37)]
+    compass_sigma_deg: f64,
+    /// Seed of the simulated robot.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Link faults, as for `mock-device` (e.g. "corrupt=0.01,drop=0.05").
+    #[arg(long)]
+    faults: Option<String>,
+    /// Where to write report.json, report.md and the plots.
+    #[arg(long, default_value = "odocal-demo-report")]
+    report_dir: PathBuf,
+    /// Print the whole report as one JSON object.
+    #[arg(long)]
+    json: bool,
+}
+
+/// Runs `odocal demo`.
+pub async fn demo(args: DemoArgs) -> CliResult {
+    let mut opts = DemoOptions {
+        true_e_b: args.true_eb,
+        true_e_d: args.true_ed,
+        compass_sigma_deg: args.compass_sigma_deg,
+        seed: args.seed,
+        ..DemoOptions::default()
+    };
+    if let Some(f) = &args.faults {
+        opts.faults = crate::device::parse_faults(f)?;
+    }
+    opts.faults.seed = args.seed;
+    opts.routine.backup_dir = args.report_dir.clone();
+    opts.routine.report_dir = Some(args.report_dir.clone());
+    if !args.json {
+        eprintln!(
+            "odocal demo: a simulated robot (E_b {}, E_d {}, D {} m, b {} m, compass σ {}°) on a \
+             pseudo-terminal; full recalibration in virtual time",
+            opts.true_e_b,
+            opts.true_e_d,
+            opts.nominal.left_wheel_diameter_m,
+            opts.nominal.wheelbase_m,
+            opts.compass_sigma_deg
+        );
+    }
+    let mut ui = TerminalUi::new(args.json, true);
+    let token = ctrl_c_token();
+    let (report, _device) = run_demo(&opts, &mut ui, &token).await?;
+    drop(ui);
+    finish(&report, Some(&args.report_dir), args.json)
+}
+
+/// Routine settings that can be given as flags (they override a routine file).
+#[derive(Debug, Clone, clap::Args)]
+pub struct RoutineFlags {
+    /// Square side (m).
+    #[arg(long)]
+    side_m: Option<f64>,
+    /// Squares per direction per round.
+    #[arg(long)]
+    runs: Option<usize>,
+    /// Straight-leg speed limit (m/s, at most 1.0).
+    #[arg(long)]
+    max_speed_m_s: Option<f64>,
+    /// Turn-rate limit (rad/s, at most 3.0).
+    #[arg(long)]
+    max_rate_rad_s: Option<f64>,
+    /// Estimator to write: umbmark, lee, heading-only, jung-chung or exact.
+    #[arg(long)]
+    method: Option<String>,
+    /// Diameter split for estimation and write-back.
+    #[arg(long, value_parser = ["left-nominal", "mean-preserving"])]
+    convention: Option<String>,
+    /// Straight-line check: commanded distance (m); with --straight-measured-m.
+    #[arg(long, requires = "straight_measured_m")]
+    straight_commanded_m: Option<f64>,
+    /// Straight-line check: measured distance (m).
+    #[arg(long, requires = "straight_commanded_m")]
+    straight_measured_m: Option<f64>,
+    /// Verification squares per direction.
+    #[arg(long)]
+    verification_runs: Option<usize>,
+    /// Convergence tolerance on |E_b − 1| and |E_d − 1|.
+    #[arg(long)]
+    tolerance: Option<f64>,
+    /// Most calibration rounds.
+    #[arg(long)]
+    max_rounds: Option<usize>,
+    /// Estimate and report only; write nothing.
+    #[arg(long, conflicts_with = "yes")]
+    dry_run: bool,
+    /// Move and write without asking.
+    #[arg(long)]
+    yes: bool,
+    /// Where to write the backup (default: the report directory, or here).
+    #[arg(long)]
+    backup_dir: Option<PathBuf>,
+    /// Where to write report.json, report.md and the plots.
+    #[arg(long)]
+    report_dir: Option<PathBuf>,
+    /// Print the whole report as one JSON object.
+    #[arg(long)]
+    json: bool,
+}
+
+impl RoutineFlags {
+    fn apply(&self, cfg: &mut RoutineConfig) -> Result<(), Box<dyn std::error::Error>> {
+        macro_rules! set {
+            ($($f:ident => $t:ident),*) => { $(if let Some(v) = self.$f.clone() { cfg.$t = v; })* };
+        }
+        set!(side_m => side_m, runs => runs_per_direction, max_speed_m_s => max_speed_m_s,
+             max_rate_rad_s => max_rate_rad_s, verification_runs => verification_runs,
+             tolerance => tolerance, max_rounds => max_rounds);
+        if let Some(m) = &self.method {
+            cfg.method = m.parse::<Method>()?;
+        }
+        if let Some(c) = &self.convention {
+            cfg.convention = if c == "mean-preserving" {
+                ConventionName::MeanPreserving
+            } else {
+                ConventionName::LeftNominal
+            };
+        }
+        if let (Some(commanded_m), Some(measured_m)) =
+            (self.straight_commanded_m, self.straight_measured_m)
+        {
+            cfg.straight_check = Some(StraightCheck {
+                commanded_m,
+                measured_m,
+            });
+        }
+        if self.dry_run {
+            cfg.write_back = WritePolicy::DryRun;
+        } else if self.yes {
+            cfg.write_back = WritePolicy::Yes;
+        }
+        if let Some(d) = &self.report_dir {
+            cfg.report_dir = Some(d.clone());
+            cfg.backup_dir = d.clone();
+        }
+        if let Some(d) = &self.backup_dir {
+            cfg.backup_dir = d.clone();
+        }
+        cfg.validate()?;
+        Ok(())
+    }
+}
+
+/// Arguments of `odocal calibrate`.
+#[derive(Debug, clap::Args)]
+pub struct CalibrateArgs {
+    /// Serial port of the motor controller.
+    #[arg(long)]
+    port: String,
+    /// Baud rate.
+    #[arg(long, default_value_t = 115_200)]
+    baud: u32,
+    /// A routine file to start from (flags override it).
+    #[arg(long)]
+    config: Option<PathBuf>,
+    #[command(flatten)]
+    flags: RoutineFlags,
+}
+
+fn read_config(path: &PathBuf) -> Result<RoutineConfig, Box<dyn std::error::Error>> {
+    let text = std::fs::read_to_string(path)
+        .map_err(|e| format!("cannot read {}: {e}", path.display()))?;
+    RoutineConfig::from_toml(&text).map_err(|e| format!("{}: {e}", path.display()).into())
+}
+
+async fn run_on_port(cfg: RoutineConfig, port: &str, baud: u32, flags: &RoutineFlags) -> CliResult {
+    if !flags.json {
+        eprintln!(
+            "odocal calibrate: this MOVES THE ROBOT on {port}: {} squares of {} m per direction \
+             per round at up to {} m/s. Ctrl-C stops it at any time.",
+            cfg.runs_per_direction, cfg.side_m, cfg.max_speed_m_s
+        );
+    }
+    let (client, info) = open_port(port, baud).await?;
+    if !flags.json {
+        eprintln!(
+            "connected: {} (protocol {}.{}, serial {:#x})",
+            info.firmware_id, info.major, info.minor, info.serial_number
+        );
+    }
+    let mut ui = TerminalUi::new(flags.json, flags.yes);
+    let token = ctrl_c_token();
+    let report = run(&client, &cfg, None, &mut ui, &token).await?;
+    drop(ui);
+    finish(&report, cfg.report_dir.as_ref(), flags.json)
+}
+
+/// Runs `odocal calibrate`.
+pub async fn calibrate(args: CalibrateArgs) -> CliResult {
+    let mut cfg = match &args.config {
+        Some(p) => read_config(p)?,
+        None => RoutineConfig::default(),
+    };
+    args.flags.apply(&mut cfg)?;
+    run_on_port(cfg, &args.port, args.baud, &args.flags).await
+}
+
+/// Arguments of `odocal run`.
+#[derive(Debug, clap::Args)]
+pub struct RunArgs {
+    /// The routine file (TOML; see examples/*.toml). `port = "mock"` uses the simulated robot.
+    routine: PathBuf,
+    #[command(flatten)]
+    flags: RoutineFlags,
+}
+
+/// Runs `odocal run`.
+pub async fn run_file(args: RunArgs) -> CliResult {
+    let mut cfg = read_config(&args.routine)?;
+    args.flags.apply(&mut cfg)?;
+    match cfg.port.clone().as_deref() {
+        Some("mock") => {
+            // The simulated robot moves nobody's hardware: no need to ask before it drives.
+            cfg.confirm_motion = false;
+            let opts = DemoOptions {
+                routine: cfg.clone(),
+                ..DemoOptions::default()
+            };
+            let mut ui = TerminalUi::new(args.flags.json, args.flags.yes);
+            let token = ctrl_c_token();
+            let (report, _) = run_demo(&opts, &mut ui, &token).await?;
+            drop(ui);
+            finish(&report, cfg.report_dir.as_ref(), args.flags.json)
+        }
+        Some(port) => run_on_port(cfg.clone(), port, cfg.baud, &args.flags).await,
+        None => Err(format!(
+            "{}: no `port` (a serial port path, or \"mock\" for the simulated robot)",
+            args.routine.display()
+        )
+        .into()),
+    }
+}
+
+/// Arguments of `odocal export`.
+#[derive(Debug, clap::Args)]
+pub struct ExportArgs {
+    /// A report.json written by `odocal demo`, `calibrate` or `run`.
+    #[arg(long)]
+    report: PathBuf,
+    /// Write ros2_control diff_drive_controller parameters (YAML) to this file.
+    #[arg(long)]
+    ros2: PathBuf,
+    /// The controller's name in the YAML.
+    #[arg(long, default_value = "diff_drive_controller")]
+    controller_name: String,
+}
+
+/// Runs `odocal export`.
+pub fn export(args: ExportArgs) -> CliResult {
+    let text = std::fs::read_to_string(&args.report)
+        .map_err(|e| format!("cannot read {}: {e}", args.report.display()))?;
+    let v: serde_json::Value = serde_json::from_str(&text)
+        .map_err(|e| format!("{}: not a report ({e})", args.report.display()))?;
+    let params = |key: &str| -> Result<WheelParams, Box<dyn std::error::Error>> {
+        let p: WheelParams = serde_json::from_value(v[key].clone())
+            .map_err(|e| format!("{}: {key}: {e}", args.report.display()))?;
+        p.validate()?;
+        Ok(p)
+    };
+    let yaml = ros2_diff_drive_yaml(
+        &args.controller_name,
+        &params("original_params")?,
+        &params("final_params")?,
+    );
+    std::fs::write(&args.ros2, yaml)
+        .map_err(|e| format!("cannot write {}: {e}", args.ros2.display()))?;
+    println!("wrote {}", args.ros2.display());
+    Ok(())
+}
