@@ -5,6 +5,7 @@
 //! - [`sim`]: a true robot driven open-loop by a controller with its own configured parameters.
 //! - [`calibration`]: pure estimators from square tests (UMBmark, Lee, heading-only,
 //!   Jung & Chung, exact) with standard errors and the Cramér–Rao bound.
+//! - [`track`]: the online estimator fed from live telemetry, logs or recorded data sets.
 //! - [`study`]: simulated calibrate → write back → verify experiments (the paper's Sec. 3).
 //! - [`dataset`]: readers for recorded runs (OptiOdom) and replay evaluation.
 //! - [`protocol`]: the serial wire protocol of `protocol/SPEC.md`: frames and typed messages.
@@ -37,3 +38,4 @@ pub mod protocol;
 pub mod routine;
 pub mod sim;
 pub mod study;
+pub mod track;

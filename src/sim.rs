@@ -288,6 +288,24 @@ impl Simulator {
         self.pose
     }
 
+    /// Turns the wheels by these encoder counts (a free-path drive step, e.g. 10 ms of a wheel
+    /// speed command): the true robot moves by the counts times its true travel per count,
+    /// with this step's slip drawn from the noise model. Returns the true pose.
+    pub fn step_counts(&mut self, left_counts: f64, right_counts: f64) -> Pose {
+        let slip = self.noise.wheel_slip_sigma;
+        let plan = MotionPlan {
+            left_counts,
+            right_counts,
+            left_arc_m: left_counts
+                * self.truth.left_m_per_count()
+                * (1.0 + gaussian(&mut self.rng, slip)),
+            right_arc_m: right_counts
+                * self.truth.right_m_per_count()
+                * (1.0 + gaussian(&mut self.rng, slip)),
+        };
+        self.advance_plan(&plan, 0.0, 1.0)
+    }
+
     /// Executes one motion open-loop and moves the true robot.
     pub fn execute(&mut self, motion: &Motion) -> Result<MotionOutcome, SimError> {
         let plan = self.plan(motion)?;

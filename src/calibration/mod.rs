@@ -25,6 +25,7 @@ pub mod exact;
 pub mod heading_only;
 pub mod jung_chung;
 pub mod lee;
+pub mod online;
 pub mod umbmark;
 pub mod uncertainty;
 

@@ -190,7 +190,7 @@ pub async fn run(
         "reading and backing up the controller's parameters".into(),
     ));
     let backup = cancellable(cancel, client.get_params(ParamSource::Active)).await?;
-    let backup_path = write_backup(client, cfg, &backup)?;
+    let backup_path = write_backup(client, &cfg.backup_dir, &backup)?;
     let mut changes = Changes {
         backup,
         backup_path,
@@ -240,13 +240,13 @@ async fn undo(client: &Client, changes: &Changes, err: RoutineError) -> RoutineE
 
 fn write_backup(
     client: &Client,
-    cfg: &RoutineConfig,
+    backup_dir: &std::path::Path,
     params: &WheelParams,
 ) -> Result<PathBuf, RoutineError> {
     let stamp = std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
         .map_or(0, |d| d.as_millis());
-    let path = cfg.backup_dir.join(format!(
+    let path = backup_dir.join(format!(
         "odocal-backup-{}-{stamp}.json",
         client.device_info().serial_number
     ));
@@ -254,7 +254,7 @@ fn write_backup(
         path: path.clone(),
         reason,
     };
-    std::fs::create_dir_all(&cfg.backup_dir).map_err(|e| err(e.to_string()))?;
+    std::fs::create_dir_all(backup_dir).map_err(|e| err(e.to_string()))?;
     let text = serde_json::to_string_pretty(&serde_json::json!({
         "device": client.device_info(),
         "active": params,
@@ -349,7 +349,7 @@ async fn body(
             break;
         }
         let proposed = chosen.correction.apply(&current)?;
-        check_bounds(cfg, &changes.backup, &proposed)?;
+        check_bounds(cfg.max_change, &changes.backup, &proposed)?;
         rr.params_after = Some(proposed);
         let write = match cfg.write_back {
             WritePolicy::DryRun => false,
@@ -598,7 +598,7 @@ fn cramer_rao_std(
 }
 
 fn check_bounds(
-    cfg: &RoutineConfig,
+    max_change: f64,
     original: &WheelParams,
     proposed: &WheelParams,
 ) -> Result<(), RoutineError> {
@@ -617,16 +617,56 @@ fn check_bounds(
         ("wheelbase", original.wheelbase_m, proposed.wheelbase_m),
     ] {
         let change = new / old - 1.0;
-        if change.abs() > cfg.max_change {
+        if change.abs() > max_change {
             return Err(RoutineError::OutOfBounds(format!(
                 "{name} would change by {:+.1} % ({old:.6} → {new:.6} m), more than the \
                  allowed ±{:.1} %",
                 change * 100.0,
-                cfg.max_change * 100.0
+                max_change * 100.0
             )));
         }
     }
     Ok(())
+}
+
+/// Writes `new` to the controller under the routine's safety rules, for callers outside the
+/// routine (the online estimator's write-back): backs up the active parameters to `backup_dir`
+/// first, refuses changes beyond `max_change`, asks unless `policy` is `Yes` (and writes
+/// nothing for `DryRun`), writes, reads back, saves, reads back the stored copy, and restores
+/// the backup on any failure. Returns the parameters as the device holds them and the backup.
+pub async fn write_parameters(
+    client: &Client,
+    new: &WheelParams,
+    policy: WritePolicy,
+    max_change: f64,
+    backup_dir: &std::path::Path,
+    ui: &mut dyn RoutineUi,
+    cancel: &CancellationToken,
+) -> Result<(WheelParams, PathBuf), RoutineError> {
+    let current = cancellable(cancel, client.get_params(ParamSource::Active)).await?;
+    let backup_path = write_backup(client, backup_dir, &current)?;
+    check_bounds(max_change, &current, new)?;
+    let go = match policy {
+        WritePolicy::DryRun => false,
+        WritePolicy::Yes => true,
+        WritePolicy::Ask => ui.confirm(&format!(
+            "Write these parameters to the controller and save them?\n{}",
+            report::params_table(&current, new)
+        )),
+    };
+    if !go {
+        return Err(RoutineError::Declined("parameters not written".into()));
+    }
+    let mut changes = Changes {
+        backup: current,
+        backup_path: backup_path.clone(),
+        written: false,
+        saved: false,
+    };
+    match write_params(client, cancel, &mut changes, new).await {
+        Ok(applied) => Ok((applied, backup_path)),
+        Err(e) => Err(undo(client, &changes, e).await),
+    }
 }
 
 /// Writes to RAM, reads back, saves, reads back the stored copy; returns the parameters as the

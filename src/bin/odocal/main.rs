@@ -5,6 +5,7 @@ mod estimate;
 mod replay;
 mod routine;
 mod simulate;
+mod track;
 
 use clap::{Parser, Subcommand, ValueEnum};
 use odocal::kinematics::SplitConvention;
@@ -28,6 +29,10 @@ enum Command {
     Run(routine::RunArgs),
     /// Export a calibration report for other software (ros2_control).
     Export(routine::ExportArgs),
+    /// Online estimator: calibrate continuously from live telemetry, a log or a recorded set.
+    Track(track::TrackArgs),
+    /// Record telemetry (encoders, heading) to a JSON-lines log for `track --log`.
+    Record(track::RecordArgs),
     /// Estimate E_b, E_d from square-test measurements taken by hand.
     Estimate(estimate::Args),
     /// Simulate the square test on a mis-calibrated robot, calibrate, write back and verify.
@@ -112,6 +117,8 @@ fn main() -> ExitCode {
         Command::Calibrate(args) => block_on(routine::calibrate(args)),
         Command::Run(args) => block_on(routine::run_file(args)),
         Command::Export(args) => routine::export(args),
+        Command::Track(args) => block_on(track::track(args)),
+        Command::Record(args) => block_on(track::record(args)),
         Command::Estimate(args) => estimate::run(args),
         Command::Simulate(args) => simulate::run(args),
         Command::Replay(args) => replay::run(args),

@@ -1,0 +1,452 @@
+//! Online calibration: an augmented extended Kalman filter that estimates the odometry
+//! parameters from encoder increments and heading readings while the robot drives any path.
+//!
+//! # State
+//! `[x, y, θ, u_L, u_R, k, β]`: the pose (m, m, rad; CCW positive), the two combinations a
+//! heading sensor can observe — `u = (D_actual / D_configured) / E_b` per wheel, exactly the
+//! exact square inversion's `u_L`, `u_R` — the wheel scale `k = E_b` (observable only with
+//! absolute position fixes; otherwise it keeps its prior), and an optional constant heading
+//! bias `β`. With true wheel travel `k·u·s` for a configured travel `s`:
+//!
+//! `Δθ = (u_R s_R − u_L s_L) / b_cfg`, `Δs = k (u_R s_R + u_L s_L) / 2`,
+//! `x += Δs cos(θ + Δθ/2)`, `y += Δs sin(θ + Δθ/2)`.
+//!
+//! # Noise models
+//! Each wheel's configured travel per step is uncertain by `σ = slip_fraction·|s| +
+//! count_noise·(m per count)` (slip and quantisation), propagated through the motion Jacobian.
+//! The parameters may drift as a random walk of `parameter_walk` per √m driven (0 by default:
+//! they are constants). Heading readings have standard deviation `heading_sigma_rad`; position
+//! fixes `position_sigma_m` per axis. Innovations of heading are wrapped to (−π, π].
+//!
+//! # Consistency
+//! Every update records its normalised innovation squared (NIS); [`OnlineEstimator::nis_mean`]
+//! should be near 1 for heading and 2 for position fixes when the noise models are right.
+
+use super::CalibrationError;
+use crate::kinematics::{wrap_angle, Correction, SplitConvention, WheelParams};
+use nalgebra::{Matrix2, SMatrix, SVector, Vector2};
+use serde::{Deserialize, Serialize};
+
+/// Number of state variables.
+pub const N: usize = 7;
+type Vector = SVector<f64, N>;
+type Matrix = SMatrix<f64, N, N>;
+
+const X: usize = 0;
+const Y: usize = 1;
+const TH: usize = 2;
+const UL: usize = 3;
+const UR: usize = 4;
+const K: usize = 5;
+const BIAS: usize = 6;
+
+/// Noise models and priors of the filter.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct OnlineConfig {
+    /// Parameters the encoder counts are converted with (the controller's, during the drive).
+    pub configured: WheelParams,
+    /// Relative standard deviation of each wheel's travel per step (slip).
+    pub slip_fraction: f64,
+    /// Standard deviation of each wheel's count per step (quantisation), in counts.
+    pub count_noise: f64,
+    /// Standard deviation of one heading reading (rad).
+    pub heading_sigma_rad: f64,
+    /// Standard deviation of a position fix per axis (m).
+    pub position_sigma_m: f64,
+    /// Prior standard deviation of `u_L`, `u_R` around 1.
+    pub ratio_prior_sigma: f64,
+    /// Prior standard deviation of the wheel scale `k` around 1.
+    pub scale_prior_sigma: f64,
+    /// Estimate a constant heading bias (needs position fixes or a known initial heading).
+    pub estimate_heading_bias: bool,
+    /// Prior standard deviation of the heading bias (rad).
+    pub bias_prior_sigma_rad: f64,
+    /// Random walk of `u_L`, `u_R`, `k` per √m driven (0: constants).
+    pub parameter_walk: f64,
+}
+
+impl OnlineConfig {
+    /// Defaults for a robot whose controller is configured with `configured`.
+    pub fn new(configured: WheelParams) -> Self {
+        OnlineConfig {
+            configured,
+            slip_fraction: 0.01,
+            count_noise: 0.5,
+            heading_sigma_rad: 0.37f64.to_radians(),
+            position_sigma_m: 0.01,
+            ratio_prior_sigma: 0.05,
+            scale_prior_sigma: 0.05,
+            estimate_heading_bias: false,
+            bias_prior_sigma_rad: 0.1,
+            parameter_walk: 0.0,
+        }
+    }
+}
+
+/// Where the absolute wheel scale comes from when turning the state into parameters.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub enum ScaleSource {
+    /// A split convention (heading-only operation).
+    Convention(SplitConvention),
+    /// The filter's own scale `k` (meaningful with position fixes).
+    Filter,
+}
+
+/// The filter's current answer.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct OnlineEstimate {
+    /// Always "online".
+    pub method: &'static str,
+    /// `E_b` under the chosen scale source.
+    pub e_b: f64,
+    /// `E_d = u_R / u_L`.
+    pub e_d: f64,
+    /// Standard deviation of `e_b`.
+    pub e_b_std: f64,
+    /// Standard deviation of `e_d`.
+    pub e_d_std: f64,
+    /// Factors to apply to the configured parameters.
+    pub correction: Correction,
+    /// Distance driven so far (m, by odometry).
+    pub distance_m: f64,
+}
+
+/// The augmented EKF.
+#[derive(Debug, Clone)]
+pub struct OnlineEstimator {
+    cfg: OnlineConfig,
+    x: Vector,
+    p: Matrix,
+    heading_initialized: bool,
+    distance_m: f64,
+    nis_heading: (f64, u64),
+    nis_position: (f64, u64),
+}
+
+impl OnlineEstimator {
+    /// A filter at the prior: parameters nominal, pose at the origin, heading unknown until the
+    /// first reading.
+    pub fn new(cfg: OnlineConfig) -> Result<Self, CalibrationError> {
+        cfg.configured.validate()?;
+        for (name, v) in [
+            ("slip_fraction", cfg.slip_fraction),
+            ("count_noise", cfg.count_noise),
+            ("parameter_walk", cfg.parameter_walk),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(CalibrationError::BadGeometry { name, value: v });
+            }
+        }
+        for (name, v) in [
+            ("heading_sigma_rad", cfg.heading_sigma_rad),
+            ("position_sigma_m", cfg.position_sigma_m),
+            ("ratio_prior_sigma", cfg.ratio_prior_sigma),
+            ("scale_prior_sigma", cfg.scale_prior_sigma),
+            ("bias_prior_sigma_rad", cfg.bias_prior_sigma_rad),
+        ] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(CalibrationError::BadGeometry { name, value: v });
+            }
+        }
+        let mut x = Vector::zeros();
+        x[UL] = 1.0;
+        x[UR] = 1.0;
+        x[K] = 1.0;
+        let mut p = Matrix::zeros();
+        p[(UL, UL)] = cfg.ratio_prior_sigma.powi(2);
+        p[(UR, UR)] = cfg.ratio_prior_sigma.powi(2);
+        p[(K, K)] = cfg.scale_prior_sigma.powi(2);
+        if cfg.estimate_heading_bias {
+            p[(BIAS, BIAS)] = cfg.bias_prior_sigma_rad.powi(2);
+        }
+        Ok(OnlineEstimator {
+            cfg,
+            x,
+            p,
+            heading_initialized: false,
+            distance_m: 0.0,
+            nis_heading: (0.0, 0),
+            nis_position: (0.0, 0),
+        })
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &OnlineConfig {
+        &self.cfg
+    }
+
+    /// The state `[x, y, θ, u_L, u_R, k, β]`.
+    pub fn state(&self) -> Vector {
+        self.x
+    }
+
+    /// The state covariance.
+    pub fn covariance(&self) -> Matrix {
+        self.p
+    }
+
+    /// Distance driven (m, by odometry).
+    pub fn distance_m(&self) -> f64 {
+        self.distance_m
+    }
+
+    /// Starts a new run: the pose goes back to the origin (exactly known) and the heading is
+    /// taken from the next reading; the parameters and their uncertainty carry over.
+    pub fn restart_pose(&mut self) {
+        for i in [X, Y, TH] {
+            self.x[i] = 0.0;
+            for j in 0..N {
+                self.p[(i, j)] = 0.0;
+                self.p[(j, i)] = 0.0;
+            }
+        }
+        self.heading_initialized = false;
+    }
+
+    /// Predicts with encoder count increments since the last step.
+    pub fn predict_counts(&mut self, left_counts: f64, right_counts: f64) {
+        let c = &self.cfg.configured;
+        self.predict_travel(
+            left_counts * c.left_m_per_count(),
+            right_counts * c.right_m_per_count(),
+        );
+    }
+
+    /// Predicts with the wheel travels the configured parameters imply (m).
+    pub fn predict_travel(&mut self, s_l: f64, s_r: f64) {
+        let b = self.cfg.configured.wheelbase_m;
+        let (ul, ur, k, th) = (self.x[UL], self.x[UR], self.x[K], self.x[TH]);
+        let dth = (ur * s_r - ul * s_l) / b;
+        let half_sum = 0.5 * (ur * s_r + ul * s_l);
+        let ds = k * half_sum;
+        let phi = th + 0.5 * dth;
+        let (sp, cp) = phi.sin_cos();
+
+        // State Jacobian: identity except the pose rows.
+        let d_dth = [-s_l / b, s_r / b]; // ∂Δθ/∂(u_L, u_R)
+        let d_ds = [0.5 * k * s_l, 0.5 * k * s_r]; // ∂Δs/∂(u_L, u_R)
+        let mut f = Matrix::identity();
+        f[(X, TH)] = -ds * sp;
+        f[(Y, TH)] = ds * cp;
+        for (col, i) in [(UL, 0), (UR, 1)] {
+            f[(X, col)] = cp * d_ds[i] - 0.5 * ds * sp * d_dth[i];
+            f[(Y, col)] = sp * d_ds[i] + 0.5 * ds * cp * d_dth[i];
+            f[(TH, col)] = d_dth[i];
+        }
+        f[(X, K)] = cp * half_sum;
+        f[(Y, K)] = sp * half_sum;
+
+        // Input Jacobian and input noise.
+        let g_dth = [-ul / b, ur / b];
+        let g_ds = [0.5 * k * ul, 0.5 * k * ur];
+        let mpc = [
+            self.cfg.configured.left_m_per_count(),
+            self.cfg.configured.right_m_per_count(),
+        ];
+        let mut q = Matrix::zeros();
+        for (i, s) in [s_l, s_r].into_iter().enumerate() {
+            let sigma = self.cfg.slip_fraction * s.abs() + self.cfg.count_noise * mpc[i];
+            let var = sigma * sigma;
+            let g = [
+                cp * g_ds[i] - 0.5 * ds * sp * g_dth[i],
+                sp * g_ds[i] + 0.5 * ds * cp * g_dth[i],
+                g_dth[i],
+            ];
+            for r in 0..3 {
+                for c2 in 0..3 {
+                    q[(r, c2)] += g[r] * g[c2] * var;
+                }
+            }
+        }
+        let travelled = ds.abs().max(0.5 * (s_l.abs() + s_r.abs()) * k);
+        if self.cfg.parameter_walk > 0.0 {
+            let w = self.cfg.parameter_walk.powi(2) * travelled;
+            q[(UL, UL)] += w;
+            q[(UR, UR)] += w;
+            q[(K, K)] += w;
+        }
+
+        self.x[X] += ds * cp;
+        self.x[Y] += ds * sp;
+        self.x[TH] = wrap_angle(th + dth);
+        self.p = f * self.p * f.transpose() + q;
+        self.distance_m += ds.abs();
+    }
+
+    /// Updates with a heading reading (rad, counter-clockwise positive). Returns the
+    /// normalised innovation squared.
+    pub fn update_heading(&mut self, heading_rad: f64) -> Option<f64> {
+        if !heading_rad.is_finite() {
+            return None;
+        }
+        let r = self.cfg.heading_sigma_rad.powi(2);
+        if !self.heading_initialized {
+            self.x[TH] = wrap_angle(heading_rad - self.x[BIAS]);
+            self.p[(TH, TH)] = r;
+            self.heading_initialized = true;
+            return None;
+        }
+        let mut h = SVector::<f64, N>::zeros();
+        h[TH] = 1.0;
+        if self.cfg.estimate_heading_bias {
+            h[BIAS] = 1.0;
+        }
+        let innovation = wrap_angle(heading_rad - (self.x[TH] + self.x[BIAS]));
+        let ph = self.p * h;
+        let s = h.dot(&ph) + r;
+        let kgain = ph / s;
+        self.x += kgain * innovation;
+        self.x[TH] = wrap_angle(self.x[TH]);
+        // Joseph form keeps P symmetric and positive over millions of updates.
+        let ikh = Matrix::identity() - kgain * h.transpose();
+        self.p = ikh * self.p * ikh.transpose() + kgain * kgain.transpose() * r;
+        let nis = innovation * innovation / s;
+        self.nis_heading.0 += nis;
+        self.nis_heading.1 += 1;
+        Some(nis)
+    }
+
+    /// Updates with an absolute position fix (m, in the frame the run started in). Returns the
+    /// normalised innovation squared.
+    pub fn update_position(&mut self, x_m: f64, y_m: f64) -> Option<f64> {
+        if !(x_m.is_finite() && y_m.is_finite()) {
+            return None;
+        }
+        let r = self.cfg.position_sigma_m.powi(2);
+        let mut h = SMatrix::<f64, 2, N>::zeros();
+        h[(0, X)] = 1.0;
+        h[(1, Y)] = 1.0;
+        let nu = Vector2::new(x_m - self.x[X], y_m - self.x[Y]);
+        let s = h * self.p * h.transpose() + Matrix2::identity() * r;
+        let s_inv = s.try_inverse()?;
+        let kgain = self.p * h.transpose() * s_inv;
+        self.x += kgain * nu;
+        let ikh = Matrix::identity() - kgain * h;
+        self.p = ikh * self.p * ikh.transpose() + kgain * kgain.transpose() * r;
+        let nis = (nu.transpose() * s_inv * nu)[(0, 0)];
+        self.nis_position.0 += nis;
+        self.nis_position.1 += 1;
+        Some(nis)
+    }
+
+    /// Mean NIS of heading updates (≈ 1 for a consistent filter) and their count.
+    pub fn nis_mean(&self) -> (f64, u64) {
+        let (s, n) = self.nis_heading;
+        (if n > 0 { s / n as f64 } else { f64::NAN }, n)
+    }
+
+    /// Mean NIS of position fixes (≈ 2 for a consistent filter) and their count.
+    pub fn nis_position_mean(&self) -> (f64, u64) {
+        let (s, n) = self.nis_position;
+        (if n > 0 { s / n as f64 } else { f64::NAN }, n)
+    }
+
+    /// NEES of `(u_L, u_R)` against known true values (≈ 2 on average when consistent).
+    pub fn nees_ratios(&self, true_u_l: f64, true_u_r: f64) -> f64 {
+        let e = Vector2::new(self.x[UL] - true_u_l, self.x[UR] - true_u_r);
+        let p = Matrix2::new(
+            self.p[(UL, UL)],
+            self.p[(UL, UR)],
+            self.p[(UR, UL)],
+            self.p[(UR, UR)],
+        );
+        p.try_inverse()
+            .map_or(f64::INFINITY, |pi| (e.transpose() * pi * e)[(0, 0)])
+    }
+
+    /// The parameters' estimate and uncertainty.
+    pub fn estimate(&self, scale: ScaleSource) -> Result<OnlineEstimate, CalibrationError> {
+        let (ul, ur, k) = (self.x[UL], self.x[UR], self.x[K]);
+        if !(ul > 0.0 && ur > 0.0 && k > 0.0) {
+            return Err(CalibrationError::Unsupported(format!(
+                "filter state is not a robot (u_L {ul}, u_R {ur}, k {k})"
+            )));
+        }
+        let e_d = ur / ul;
+        // (E_b as a function of u_L, u_R, k) and its gradient.
+        let (e_b, grad_b, correction) = match scale {
+            ScaleSource::Convention(SplitConvention::MeanPreserving) => {
+                let g = 0.5 * (ul + ur);
+                let e_b = 1.0 / g;
+                (
+                    e_b,
+                    [-0.5 / (g * g), -0.5 / (g * g), 0.0],
+                    SplitConvention::MeanPreserving.split(
+                        e_b,
+                        e_d,
+                        self.cfg.configured.wheelbase_m,
+                    )?,
+                )
+            }
+            ScaleSource::Convention(conv) => {
+                let e_b = 1.0 / ul;
+                (
+                    e_b,
+                    [-1.0 / (ul * ul), 0.0, 0.0],
+                    conv.split(e_b, e_d, self.cfg.configured.wheelbase_m)?,
+                )
+            }
+            ScaleSource::Filter => (
+                k,
+                [0.0, 0.0, 1.0],
+                Correction {
+                    left_diameter_scale: k * ul,
+                    right_diameter_scale: k * ur,
+                    wheelbase_scale: k,
+                },
+            ),
+        };
+        let grad_d = [-ur / (ul * ul), 1.0 / ul, 0.0];
+        let idx = [UL, UR, K];
+        let var = |g: [f64; 3]| {
+            let mut v = 0.0;
+            for a in 0..3 {
+                for b in 0..3 {
+                    v += g[a] * self.p[(idx[a], idx[b])] * g[b];
+                }
+            }
+            v.max(0.0)
+        };
+        Ok(OnlineEstimate {
+            method: "online",
+            e_b,
+            e_d,
+            e_b_std: var(grad_b).sqrt(),
+            e_d_std: var(grad_d).sqrt(),
+            correction,
+            distance_m: self.distance_m,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn bad_configurations_are_refused() {
+        let mut cfg = OnlineConfig::new(WheelParams::nominal(0.15, 0.39, 4096.0));
+        cfg.heading_sigma_rad = 0.0;
+        assert!(OnlineEstimator::new(cfg).is_err());
+        let cfg = OnlineConfig::new(WheelParams::nominal(-0.15, 0.39, 4096.0));
+        assert!(OnlineEstimator::new(cfg).is_err());
+    }
+
+    #[test]
+    fn straight_driving_alone_leaves_the_ratios_at_their_prior_correlation() {
+        // Driving straight only observes u_R − u_L (through heading drift), not their mean.
+        let mut f =
+            OnlineEstimator::new(OnlineConfig::new(WheelParams::nominal(0.15, 0.39, 4096.0)))
+                .unwrap();
+        f.update_heading(0.0);
+        for _ in 0..1000 {
+            f.predict_travel(0.01, 0.01);
+            f.update_heading(0.0);
+        }
+        let p = f.covariance();
+        let diff_var = p[(UL, UL)] + p[(UR, UR)] - 2.0 * p[(UL, UR)];
+        let sum_var = p[(UL, UL)] + p[(UR, UR)] + 2.0 * p[(UL, UR)];
+        assert!(diff_var < 1e-6, "u_R − u_L is learned: {diff_var}");
+        assert!(sum_var > 1e-3, "u_R + u_L is not: {sum_var}");
+    }
+}

@@ -1,0 +1,336 @@
+//! The online estimator (augmented EKF) in simulation along random non-square paths, and on
+//! the recorded OptiOdom runs.
+
+use odocal::calibration::online::{OnlineConfig, OnlineEstimator, ScaleSource};
+use odocal::calibration::{estimate, Method};
+use odocal::dataset::{default_optiodom_root, OptiOdomSet};
+use odocal::kinematics::{Correction, SplitConvention, WheelParams};
+use odocal::sim::{NoiseModel, Simulator};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+const SLIP: f64 = 0.005;
+const COMPASS_DEG: f64 = 0.37;
+
+struct Drive {
+    filter: OnlineEstimator,
+    true_u: (f64, f64),
+    truth: Correction,
+}
+
+/// Drives a random path of `steps` × 10 ms (random curvature and speed changes every ~2 s),
+/// with a compass reading every 100 ms, and runs the filter alongside.
+fn random_drive(seed: u64, steps: usize) -> Drive {
+    let nominal = WheelParams::nominal(0.15, 0.39, 4096.0);
+    let truth = Correction {
+        left_diameter_scale: 1.0,
+        right_diameter_scale: 0.992,
+        wheelbase_scale: 0.976,
+    };
+    let noise = NoiseModel {
+        compass_sigma_rad: COMPASS_DEG.to_radians(),
+        wheel_slip_sigma: SLIP,
+        ..NoiseModel::default()
+    };
+    let mut sim = Simulator::new(truth.apply(&nominal).unwrap(), nominal, noise, seed).unwrap();
+    let mut cfg = OnlineConfig::new(nominal);
+    cfg.slip_fraction = SLIP;
+    cfg.count_noise = 0.0;
+    cfg.heading_sigma_rad = COMPASS_DEG.to_radians();
+    let mut filter = OnlineEstimator::new(cfg).unwrap();
+    let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0xABCD);
+    let (mut v, mut w) = (0.3, 0.0);
+    filter.update_heading(sim.read_heading());
+    for step in 0..steps {
+        if step % 200 == 0 {
+            v = rng.gen_range(0.1..0.5);
+            w = rng.gen_range(-1.5..1.5);
+        }
+        let dt = 0.01;
+        let s_l = (v - 0.5 * w * nominal.wheelbase_m) * dt;
+        let s_r = (v + 0.5 * w * nominal.wheelbase_m) * dt;
+        let (cl, cr) = (
+            s_l / nominal.left_m_per_count(),
+            s_r / nominal.right_m_per_count(),
+        );
+        sim.step_counts(cl, cr);
+        filter.predict_counts(cl, cr);
+        if step % 10 == 9 {
+            filter.update_heading(sim.read_heading());
+        }
+    }
+    Drive {
+        filter,
+        true_u: (
+            truth.left_diameter_scale / truth.wheelbase_scale,
+            truth.right_diameter_scale / truth.wheelbase_scale,
+        ),
+        truth,
+    }
+}
+
+#[test]
+fn converges_to_the_truth_within_three_sigma() {
+    for seed in 0..10 {
+        let d = random_drive(seed, 12_000); // 2 minutes, ~36 m
+        let e = d
+            .filter
+            .estimate(ScaleSource::Convention(SplitConvention::LeftNominal))
+            .unwrap();
+        let (true_b, true_d) = (d.truth.e_b(), d.truth.e_d());
+        assert!(
+            (e.e_b - true_b).abs() < 3.0 * e.e_b_std,
+            "seed {seed}: E_b {} ± {} vs {true_b}",
+            e.e_b,
+            e.e_b_std
+        );
+        assert!(
+            (e.e_d - true_d).abs() < 3.0 * e.e_d_std,
+            "seed {seed}: E_d {} ± {} vs {true_d}",
+            e.e_d,
+            e.e_d_std
+        );
+        // And it has learned something: far tighter than the 5 % prior.
+        assert!(e.e_b_std < 0.005 && e.e_d_std < 0.002, "{e:?}");
+        assert!(e.distance_m > 20.0);
+    }
+}
+
+#[test]
+fn the_filter_is_consistent_over_many_seeds() {
+    // NEES of (u_L, u_R) averaged over M runs: for a consistent filter M·mean ~ χ²(2M).
+    // 95 % band for M = 60: χ²(120) ∈ [91.57, 152.21].
+    let m = 60;
+    let mut nees = 0.0;
+    let mut nis = 0.0;
+    for seed in 100..100 + m {
+        let d = random_drive(seed, 6_000);
+        nees += d.filter.nees_ratios(d.true_u.0, d.true_u.1);
+        nis += d.filter.nis_mean().0;
+    }
+    let total = nees;
+    eprintln!(
+        "NEES sum {total:.1} over {m} runs, mean heading NIS {:.3}",
+        nis / m as f64
+    );
+    assert!(
+        (91.57..=152.21).contains(&total),
+        "sum of NEES {total} over {m} runs outside the 95 % band [91.6, 152.2]"
+    );
+    let nis = nis / m as f64;
+    assert!((0.9..1.1).contains(&nis), "mean heading NIS {nis}");
+}
+
+fn optiodom() -> Option<std::path::PathBuf> {
+    let root = default_optiodom_root();
+    if root.join("free").is_dir() {
+        return Some(root);
+    }
+    assert!(
+        std::env::var_os("CI").is_none(),
+        "OptiOdom data missing in CI at {}",
+        root.display()
+    );
+    eprintln!(
+        "NOTICE: skipping, OptiOdom data not found at {}",
+        root.display()
+    );
+    None
+}
+
+/// Runs the filter over every run of `set`: ticks predict, ground-truth heading updates.
+fn learn(filter: &mut OnlineEstimator, set: &OptiOdomSet) {
+    for run in &set.runs {
+        filter.restart_pose();
+        for s in &run.samples {
+            filter.predict_counts(s.left_counts, s.right_counts);
+            filter.update_heading(s.truth.heading_rad);
+        }
+    }
+}
+
+#[test]
+fn learned_on_a_free_run_it_improves_the_other_recorded_runs() {
+    let Some(root) = optiodom() else { return };
+    let free = OptiOdomSet::load(root.join("free/020120212354")).unwrap();
+    let mut cfg = OnlineConfig::new(free.configured);
+    cfg.slip_fraction = 0.02;
+    cfg.heading_sigma_rad = 0.5f64.to_radians();
+    let mut filter = OnlineEstimator::new(cfg).unwrap();
+    learn(&mut filter, &free);
+    let online = filter
+        .estimate(ScaleSource::Convention(SplitConvention::LeftNominal))
+        .unwrap();
+    let calibrated = online.correction.apply(&free.configured).unwrap();
+    // Other runs of the same robot with the same configured parameters: the other free set
+    // and the square sets.
+    let others = [
+        "free/030120210001",
+        "square/231220200029",
+        "square/231220200040",
+        "square/231220200045",
+        "square/230620202042",
+    ];
+    for id in others {
+        let set = OptiOdomSet::load(root.join(id)).unwrap();
+        assert_eq!(
+            set.configured, free.configured,
+            "{id} is the same configuration"
+        );
+        let (before, _) = set.evaluate(&set.configured);
+        let (after, _) = set.evaluate(&calibrated);
+        assert!(
+            after < before,
+            "{id}: final heading error {:.2}° with nominal, {:.2}° with the online estimate",
+            before.to_degrees(),
+            after.to_degrees()
+        );
+    }
+    // Compared with the square test on the same robot: report the difference (the free run is
+    // short and mostly straight, so its E_b is less certain than a square test's).
+    let square = OptiOdomSet::load(root.join("square/231220200040")).unwrap();
+    let sq = estimate(
+        Method::Exact,
+        &square.square_test().unwrap(),
+        SplitConvention::LeftNominal,
+    )
+    .unwrap();
+    eprintln!(
+        "online (free run, {:.1} m): E_b {:.4} ± {:.4}, E_d {:.5} ± {:.5}; square test: E_b {:.4} ± {:.4}, E_d {:.5} ± {:.5}",
+        online.distance_m, online.e_b, online.e_b_std, online.e_d, online.e_d_std,
+        sq.e_b, sq.e_b_std_err.unwrap_or(f64::NAN), sq.e_d, sq.e_d_std_err.unwrap_or(f64::NAN)
+    );
+    // Agreement within the stated uncertainties (3 σ of the difference).
+    let sb = online.e_b_std.hypot(sq.e_b_std_err.unwrap());
+    let sd = online.e_d_std.hypot(sq.e_d_std_err.unwrap());
+    assert!(
+        (online.e_b - sq.e_b).abs() < 3.0 * sb,
+        "E_b differs by more than 3σ"
+    );
+    assert!(
+        (online.e_d - sq.e_d).abs() < 3.0 * sd,
+        "E_d differs by more than 3σ"
+    );
+}
+
+fn odocal_json(args: &[&str]) -> serde_json::Value {
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_odocal"))
+        .args(args)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&out.stdout).unwrap()
+}
+
+#[test]
+fn track_reads_a_recorded_log_and_converges() {
+    use odocal::hal::TelemetrySample;
+    use odocal::protocol::message::MotionState;
+    use odocal::track::{LogHeader, LogWriter};
+    // A 3-minute random drive written as a telemetry log at 50 Hz (counts unwrapped).
+    let nominal = WheelParams::nominal(0.15, 0.39, 4096.0);
+    let truth = Correction {
+        left_diameter_scale: 1.0,
+        right_diameter_scale: 0.992,
+        wheelbase_scale: 0.976,
+    };
+    let noise = NoiseModel {
+        compass_sigma_rad: COMPASS_DEG.to_radians(),
+        wheel_slip_sigma: SLIP,
+        ..NoiseModel::default()
+    };
+    let mut sim = Simulator::new(truth.apply(&nominal).unwrap(), nominal, noise, 42).unwrap();
+    let dir = std::env::temp_dir().join(format!("odocal-track-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("drive.jsonl");
+    let header = LogHeader {
+        odocal_version: "test".into(),
+        device: None,
+        params: nominal,
+        period_ms: 20,
+    };
+    let mut log = LogWriter::create(&path, header).unwrap();
+    let mut rng = ChaCha8Rng::seed_from_u64(42);
+    let (mut v, mut w) = (0.3, 0.0);
+    let (mut cl, mut cr) = (0.0f64, 0.0f64);
+    for step in 0..9000u32 {
+        if step % 100 == 0 {
+            v = rng.gen_range(0.1..0.5);
+            w = rng.gen_range(-1.5..1.5);
+        }
+        let dt = 0.02;
+        let dl = (v - 0.5 * w * 0.39) * dt / nominal.left_m_per_count();
+        let dr = (v + 0.5 * w * 0.39) * dt / nominal.right_m_per_count();
+        sim.step_counts(dl, dr);
+        cl += dl;
+        cr += dr;
+        log.sample(&TelemetrySample {
+            sample_index: step,
+            device_time_s: f64::from(step) * dt,
+            left_counts: cl.round() as i64,
+            right_counts: cr.round() as i64,
+            heading_rad: sim.read_heading(),
+            heading_valid: true,
+            motion_state: MotionState::Moving,
+            queue_depth: 0,
+            dropped_before: 0,
+        })
+        .unwrap();
+    }
+    log.flush().unwrap();
+    drop(log);
+    let v = odocal_json(&[
+        "track",
+        "--log",
+        path.to_str().unwrap(),
+        "--slip-fraction",
+        "0.005",
+        "--json",
+    ]);
+    let est = v["estimates"].as_array().unwrap();
+    assert!(est.len() > 10, "running estimates are printed");
+    let last = est.last().unwrap();
+    assert_eq!(last["method"], "online");
+    let f = |k: &str| last[k].as_f64().unwrap();
+    assert!((f("e_b") - 0.976).abs() < 3.0 * f("e_b_std"), "{last}");
+    assert!((f("e_d") - 0.992).abs() < 3.0 * f("e_d_std"), "{last}");
+    assert!(f("distance_m") > 40.0);
+    // Standard deviations shrink as the robot drives.
+    assert!(est[0]["e_b_std"].as_f64().unwrap() > 3.0 * f("e_b_std"));
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn track_on_the_recorded_free_run_prints_converging_estimates() {
+    let Some(root) = optiodom() else { return };
+    let v = odocal_json(&[
+        "track",
+        "--dataset",
+        root.join("free/030120210001").to_str().unwrap(),
+        "--json",
+    ]);
+    let est = v["estimates"].as_array().unwrap();
+    let std_b: Vec<f64> = est.iter().map(|e| e["e_b_std"].as_f64().unwrap()).collect();
+    assert!(std_b.len() > 10);
+    assert!(
+        std_b.windows(2).all(|w| w[1] <= w[0] * 1.05),
+        "std must shrink: {std_b:?}"
+    );
+    assert!(std_b[std_b.len() - 1] < 0.25 * std_b[0]);
+    let (bad, _, err) = {
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_odocal"))
+            .args(["track", "--log", "/nonexistent.jsonl"])
+            .output()
+            .unwrap();
+        (
+            out.status.success(),
+            (),
+            String::from_utf8_lossy(&out.stderr).into_owned(),
+        )
+    };
+    assert!(!bad && err.contains("/nonexistent.jsonl"), "{err}");
+}
