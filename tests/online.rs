@@ -334,3 +334,145 @@ fn track_on_the_recorded_free_run_prints_converging_estimates() {
     };
     assert!(!bad && err.contains("/nonexistent.jsonl"), "{err}");
 }
+
+#[test]
+fn position_fixes_make_the_wheel_scale_observable() {
+    // Both wheels 1.2 % larger and the base 2.4 % shorter than configured: the scale is not the
+    // left-nominal one, so only absolute positions can reveal it.
+    let nominal = WheelParams::nominal(0.15, 0.39, 4096.0);
+    let truth = Correction {
+        left_diameter_scale: 1.012,
+        right_diameter_scale: 1.004,
+        wheelbase_scale: 0.976,
+    };
+    let noise = NoiseModel {
+        compass_sigma_rad: COMPASS_DEG.to_radians(),
+        wheel_slip_sigma: SLIP,
+        ..NoiseModel::default()
+    };
+    let mut sim = Simulator::new(truth.apply(&nominal).unwrap(), nominal, noise, 9).unwrap();
+    let mut cfg = OnlineConfig::new(nominal);
+    cfg.slip_fraction = SLIP;
+    cfg.count_noise = 0.0;
+    cfg.position_sigma_m = 0.01;
+    let mut f = OnlineEstimator::new(cfg).unwrap();
+    let mut rng = ChaCha8Rng::seed_from_u64(9);
+    let (mut v, mut w) = (0.3, 0.0);
+    f.update_heading(sim.read_heading());
+    for step in 0..12_000 {
+        if step % 200 == 0 {
+            v = rng.gen_range(0.1..0.5);
+            w = rng.gen_range(-1.5..1.5);
+        }
+        let (sl, sr) = ((v - 0.195 * w) * 0.01, (v + 0.195 * w) * 0.01);
+        let (cl, cr) = (
+            sl / nominal.left_m_per_count(),
+            sr / nominal.right_m_per_count(),
+        );
+        sim.step_counts(cl, cr);
+        f.predict_counts(cl, cr);
+        if step % 10 == 9 {
+            f.update_heading(sim.read_heading());
+        }
+        if step % 100 == 99 {
+            // An external tracker with 1 cm noise, once a second.
+            let p = sim.pose();
+            f.update_position(
+                p.x_m + rng.gen_range(-0.017..0.017),
+                p.y_m + rng.gen_range(-0.017..0.017),
+            );
+        }
+    }
+    let e = f.estimate(ScaleSource::Filter).unwrap();
+    assert!((e.e_b - 0.976).abs() < 3.0 * e.e_b_std, "{e:?}");
+    let c = e.correction;
+    assert!((c.left_diameter_scale - 1.012).abs() < 0.002, "{c:?}");
+    assert!((c.right_diameter_scale - 1.004).abs() < 0.002, "{c:?}");
+    let (nis, n) = f.nis_position_mean();
+    assert!(n == 120 && nis < 4.0, "position NIS {nis}");
+    // Heading-only, the left-nominal answer would have been off by the unseen scale.
+    let ln = f
+        .estimate(ScaleSource::Convention(SplitConvention::LeftNominal))
+        .unwrap();
+    assert!((ln.e_b - 0.976 / 1.012).abs() < 0.003, "{ln:?}");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn live_telemetry_from_the_mock_calibrates_and_writes_back() {
+    use odocal::hal::link::LinkConfig;
+    use odocal::hal::motion::{run_square, SquareCommand};
+    use odocal::hal::Client;
+    use odocal::kinematics::Direction;
+    use odocal::mock::{lock, spawn_duplex, FaultConfig, MockConfig, MockDevice, TimeMode};
+    use odocal::protocol::message::ParamSource;
+    use odocal::routine::config::WritePolicy;
+    use odocal::routine::{write_parameters, Unattended};
+    use odocal::track::Tracker;
+    use std::sync::{Arc, Mutex};
+    use std::time::Duration;
+
+    let nominal = WheelParams::nominal(0.15, 0.39, 4096.0);
+    let mut mc = MockConfig::with_ratios(nominal, 0.976, 0.992).unwrap();
+    mc.noise.compass_sigma_rad = COMPASS_DEG.to_radians();
+    let device = Arc::new(Mutex::new(MockDevice::new(mc).unwrap()));
+    let (stream, _task) = spawn_duplex(device.clone(), TimeMode::Virtual, FaultConfig::default());
+    let (client, _) = Client::connect(stream, LinkConfig::default())
+        .await
+        .unwrap();
+    let configured = client.get_params(ParamSource::Active).await.unwrap();
+    let mut cfg = OnlineConfig::new(configured);
+    cfg.slip_fraction = 0.001;
+    let mut tracker = Tracker::new(
+        cfg,
+        ScaleSource::Convention(SplitConvention::LeftNominal),
+        1.0,
+    )
+    .unwrap();
+    let mut rx = client.subscribe();
+    client
+        .configure_telemetry(Some(Duration::from_millis(20)))
+        .await
+        .unwrap();
+    // Any driving will do; squares of 2 m in both directions here.
+    for direction in [Direction::Cw, Direction::Ccw, Direction::Cw, Direction::Ccw] {
+        let cmd = SquareCommand {
+            side_m: 2.0,
+            direction,
+            max_speed_m_s: 0.3,
+            max_rate_rad_s: 1.0,
+            heading_samples: 1,
+            settle: Duration::ZERO,
+        };
+        run_square(&client, &cmd).await.unwrap();
+        while let Ok(s) = rx.try_recv() {
+            tracker.feed_sample(&s);
+        }
+    }
+    let e = tracker.estimate().unwrap();
+    assert!(
+        (e.e_b - 0.976).abs() < 3.0 * e.e_b_std && e.e_b_std < 0.002,
+        "{e:?}"
+    );
+    assert!(
+        (e.e_d - 0.992).abs() < 3.0 * e.e_d_std && e.e_d_std < 0.002,
+        "{e:?}"
+    );
+    let new = e.correction.apply(&configured).unwrap();
+    let backup_dir = std::env::temp_dir().join(format!("odocal-online-wb-{}", std::process::id()));
+    let (applied, backup) = write_parameters(
+        &client,
+        &new,
+        WritePolicy::Yes,
+        0.1,
+        &backup_dir,
+        &mut Unattended,
+        &tokio_util::sync::CancellationToken::new(),
+    )
+    .await
+    .unwrap();
+    assert!(backup.is_file());
+    let d = lock(&device);
+    assert_eq!(d.active_params(), applied);
+    assert_eq!(d.stored_params(), Some(applied));
+    assert!((applied.wheelbase_m / d.sim().truth().wheelbase_m - 1.0).abs() < 0.003);
+}
