@@ -98,15 +98,14 @@ pub fn square_test(
     }
 }
 
-/// `E_max,sys`: the larger distance of the CW and CCW runs' mean final position from the start.
+/// `E_max,sys` of simulated runs, from their true end points (see [`calibration::e_max_sys`]).
 pub fn e_max_sys(cw: &[SquareRun], ccw: &[SquareRun]) -> f64 {
-    let cg = |runs: &[SquareRun]| {
-        let n = runs.len().max(1) as f64;
-        let x: f64 = runs.iter().map(|r| r.final_pose.x_m).sum::<f64>() / n;
-        let y: f64 = runs.iter().map(|r| r.final_pose.y_m).sum::<f64>() / n;
-        x.hypot(y)
+    let ends = |runs: &[SquareRun]| -> Vec<[f64; 2]> {
+        runs.iter()
+            .map(|r| [r.final_pose.x_m, r.final_pose.y_m])
+            .collect()
     };
-    cg(cw).max(cg(ccw))
+    calibration::e_max_sys(&ends(cw), &ends(ccw)).unwrap_or(0.0)
 }
 
 /// The calibration tests of one trial: the main track and Lee's track.

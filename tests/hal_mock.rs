@@ -470,3 +470,13 @@ async fn telemetry_at_200_hz_for_10_s_arrives_complete_and_unwrapped() {
     assert!((l - target).abs() < 1.0 && (r - target).abs() < 1.0);
     assert!((samples[1999].left_counts as f64 - target).abs() < target * 0.001);
 }
+
+#[test]
+fn a_mock_whose_factory_parameters_cannot_travel_on_the_wire_is_refused() {
+    let mut cfg = MockConfig::with_ratios(nominal(), 0.976, 0.992).unwrap();
+    cfg.factory.wheelbase_m = 5.0; // the wire's limit is 2 m
+    assert!(matches!(
+        MockDevice::new(cfg),
+        Err(odocal::mock::MockError::FactoryOutOfRange(_))
+    ));
+}

@@ -12,6 +12,41 @@ use rand_chacha::ChaCha8Rng;
 const SLIP: f64 = 0.005;
 const COMPASS_DEG: f64 = 0.37;
 
+/// A random drive: every 2 s a new speed (0.1–0.5 m/s) and turn rate (±1.5 rad/s), as the
+/// encoder counts of each `dt` step for a robot configured with `nominal`.
+struct RandomPath {
+    rng: ChaCha8Rng,
+    v: f64,
+    w: f64,
+    t: f64,
+}
+
+impl RandomPath {
+    fn new(seed: u64) -> Self {
+        RandomPath {
+            rng: ChaCha8Rng::seed_from_u64(seed),
+            v: 0.3,
+            w: 0.0,
+            t: 0.0,
+        }
+    }
+
+    /// Encoder counts (left, right) of the next `dt` seconds.
+    fn counts(&mut self, dt: f64, nominal: &WheelParams) -> (f64, f64) {
+        if self.t <= 0.0 {
+            self.v = self.rng.gen_range(0.1..0.5);
+            self.w = self.rng.gen_range(-1.5..1.5);
+            self.t = 2.0;
+        }
+        self.t -= dt;
+        let half = 0.5 * self.w * nominal.wheelbase_m;
+        (
+            (self.v - half) * dt / nominal.left_m_per_count(),
+            (self.v + half) * dt / nominal.right_m_per_count(),
+        )
+    }
+}
+
 struct Drive {
     filter: OnlineEstimator,
     true_u: (f64, f64),
@@ -38,21 +73,10 @@ fn random_drive(seed: u64, steps: usize) -> Drive {
     cfg.count_noise = 0.0;
     cfg.heading_sigma_rad = COMPASS_DEG.to_radians();
     let mut filter = OnlineEstimator::new(cfg).unwrap();
-    let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0xABCD);
-    let (mut v, mut w) = (0.3, 0.0);
+    let mut path = RandomPath::new(seed ^ 0xABCD);
     filter.update_heading(sim.read_heading());
     for step in 0..steps {
-        if step % 200 == 0 {
-            v = rng.gen_range(0.1..0.5);
-            w = rng.gen_range(-1.5..1.5);
-        }
-        let dt = 0.01;
-        let s_l = (v - 0.5 * w * nominal.wheelbase_m) * dt;
-        let s_r = (v + 0.5 * w * nominal.wheelbase_m) * dt;
-        let (cl, cr) = (
-            s_l / nominal.left_m_per_count(),
-            s_r / nominal.right_m_per_count(),
-        );
+        let (cl, cr) = path.counts(0.01, &nominal);
         sim.step_counts(cl, cr);
         filter.predict_counts(cl, cr);
         if step % 10 == 9 {
@@ -246,25 +270,19 @@ fn track_reads_a_recorded_log_and_converges() {
     let mut sim = Simulator::new(truth.apply(&nominal).unwrap(), nominal, noise, 42).unwrap();
     let dir = std::env::temp_dir().join(format!("odocal-track-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
-    let path = dir.join("drive.jsonl");
+    let log_path = dir.join("drive.jsonl");
     let header = LogHeader {
         odocal_version: "test".into(),
         device: None,
         params: nominal,
         period_ms: 20,
     };
-    let mut log = LogWriter::create(&path, header).unwrap();
-    let mut rng = ChaCha8Rng::seed_from_u64(42);
-    let (mut v, mut w) = (0.3, 0.0);
+    let mut log = LogWriter::create(&log_path, header).unwrap();
+    let mut path = RandomPath::new(42);
     let (mut cl, mut cr) = (0.0f64, 0.0f64);
+    let dt = 0.02;
     for step in 0..9000u32 {
-        if step % 100 == 0 {
-            v = rng.gen_range(0.1..0.5);
-            w = rng.gen_range(-1.5..1.5);
-        }
-        let dt = 0.02;
-        let dl = (v - 0.5 * w * 0.39) * dt / nominal.left_m_per_count();
-        let dr = (v + 0.5 * w * 0.39) * dt / nominal.right_m_per_count();
+        let (dl, dr) = path.counts(dt, &nominal);
         sim.step_counts(dl, dr);
         cl += dl;
         cr += dr;
@@ -286,7 +304,7 @@ fn track_reads_a_recorded_log_and_converges() {
     let v = odocal_json(&[
         "track",
         "--log",
-        path.to_str().unwrap(),
+        log_path.to_str().unwrap(),
         "--slip-fraction",
         "0.005",
         "--json",
@@ -356,19 +374,11 @@ fn position_fixes_make_the_wheel_scale_observable() {
     cfg.count_noise = 0.0;
     cfg.position_sigma_m = 0.01;
     let mut f = OnlineEstimator::new(cfg).unwrap();
-    let mut rng = ChaCha8Rng::seed_from_u64(9);
-    let (mut v, mut w) = (0.3, 0.0);
+    let mut path = RandomPath::new(9);
+    let mut rng = ChaCha8Rng::seed_from_u64(10);
     f.update_heading(sim.read_heading());
     for step in 0..12_000 {
-        if step % 200 == 0 {
-            v = rng.gen_range(0.1..0.5);
-            w = rng.gen_range(-1.5..1.5);
-        }
-        let (sl, sr) = ((v - 0.195 * w) * 0.01, (v + 0.195 * w) * 0.01);
-        let (cl, cr) = (
-            sl / nominal.left_m_per_count(),
-            sr / nominal.right_m_per_count(),
-        );
+        let (cl, cr) = path.counts(0.01, &nominal);
         sim.step_counts(cl, cr);
         f.predict_counts(cl, cr);
         if step % 10 == 9 {

@@ -444,6 +444,21 @@ fn standard_errors(
     Some((out[(0, 0)].max(0.0).sqrt(), out[(1, 1)].max(0.0).sqrt()))
 }
 
+/// `E_max,sys` (Borenstein & Feng): the larger distance from the start of the CW and the CCW
+/// runs' mean end points (m). `None` when a direction has no end points.
+pub fn e_max_sys(cw_xy_m: &[[f64; 2]], ccw_xy_m: &[[f64; 2]]) -> Option<f64> {
+    let centre = |pts: &[[f64; 2]]| -> Option<f64> {
+        if pts.is_empty() {
+            return None;
+        }
+        let n = pts.len() as f64;
+        let x = pts.iter().map(|p| p[0]).sum::<f64>() / n;
+        let y = pts.iter().map(|p| p[1]).sum::<f64>() / n;
+        Some(x.hypot(y))
+    };
+    Some(centre(cw_xy_m)?.max(centre(ccw_xy_m)?))
+}
+
 /// `E_d` from a per-leg heading drift `β` (rad) on a straight leg of `side_m` (paper eq. 11 and
 /// Borenstein's form): the leg is an arc of radius `R = (L/2)/sin(β/2)` and
 /// `E_d = (R + b/2)/(R − b/2)`, written with `1/R` so that `β = 0` gives exactly 1.

@@ -20,6 +20,17 @@ use serde::{Deserialize, Serialize};
 use std::collections::VecDeque;
 use std::path::PathBuf;
 
+/// Errors building or power-cycling a mock device.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum MockError {
+    /// The simulator refused the robot.
+    #[error(transparent)]
+    Sim(#[from] SimError),
+    /// The factory parameters cannot travel on the wire (SPEC.md §4.1).
+    #[error("factory parameters {0:?} are outside the protocol's ranges (SPEC.md §4.1)")]
+    FactoryOutOfRange(WheelParams),
+}
+
 /// Deepest motion queue the mock accepts (SPEC.md requires at least 4).
 pub const QUEUE_DEPTH: usize = 8;
 
@@ -175,7 +186,11 @@ fn nack<T>(code: NackCode, detail: u8) -> Result<T, Nack> {
 impl MockDevice {
     /// Powers the device up: loads the stored copy (from `storage_path` if given) or the
     /// factory defaults.
-    pub fn new(config: MockConfig) -> Result<Self, SimError> {
+    pub fn new(config: MockConfig) -> Result<Self, MockError> {
+        // The factory parameters must be ones the device could report and accept on the wire.
+        if !ParamsBlock::from_params(&config.factory).is_some_and(|b| b.validate().is_ok()) {
+            return Err(MockError::FactoryOutOfRange(config.factory));
+        }
         let stored = config
             .storage_path
             .as_ref()
@@ -208,7 +223,7 @@ impl MockDevice {
 
     /// Simulates a power cycle: RAM parameters are lost, the stored copy (or factory) is loaded,
     /// motion, telemetry and watchdog settings reset. The robot stays where it is.
-    pub fn power_cycle(&mut self) -> Result<(), SimError> {
+    pub fn power_cycle(&mut self) -> Result<(), MockError> {
         let active = self.stored.map_or(self.config.factory, |b| b.to_params());
         self.sim.set_configured(active)?;
         self.queue.clear();

@@ -7,7 +7,7 @@
 pub mod device;
 pub mod serve;
 
-pub use device::{CompassConvention, DeviceCounters, MockConfig, MockDevice};
+pub use device::{CompassConvention, DeviceCounters, MockConfig, MockDevice, MockError};
 pub use serve::{
     lock, serve, spawn_duplex, spawn_pty, FaultConfig, PtyServer, ServeEnd, SharedDevice, TimeMode,
 };

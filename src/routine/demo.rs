@@ -5,7 +5,6 @@ use super::{run, GroundTruth, Report, RoutineError, RoutineUi};
 use crate::hal::open_port;
 use crate::kinematics::{Pose, WheelParams};
 use crate::mock::{lock, spawn_pty, FaultConfig, MockConfig, MockDevice, SharedDevice, TimeMode};
-use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
 use tokio_util::sync::CancellationToken;
 
@@ -85,9 +84,4 @@ pub async fn run_demo(
     let truth = MockTruth(device.clone());
     let report = run(&client, &opts.routine, Some(&truth), ui, cancel).await?;
     Ok((report, device))
-}
-
-/// Where the demo writes its report when asked for none: a fresh temporary directory.
-pub fn default_report_dir() -> PathBuf {
-    std::env::temp_dir().join("odocal-demo")
 }

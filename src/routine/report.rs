@@ -200,24 +200,16 @@ pub struct Report {
     pub warnings: Vec<String>,
 }
 
-/// `E_max,sys` of runs with true final positions: the larger distance of the CW and CCW mean
-/// end points from the start.
+/// `E_max,sys` of runs with true final positions (simulation only), see
+/// [`crate::calibration::e_max_sys`].
 pub fn e_max_sys(runs: &[RunReport]) -> Option<f64> {
-    let cg = |d: Direction| -> Option<f64> {
-        let pts: Vec<[f64; 2]> = runs
-            .iter()
+    let ends = |d: Direction| -> Option<Vec<[f64; 2]>> {
+        runs.iter()
             .filter(|r| r.direction == d)
             .map(|r| r.true_final_xy_m)
-            .collect::<Option<_>>()?;
-        if pts.is_empty() {
-            return None;
-        }
-        let n = pts.len() as f64;
-        let x = pts.iter().map(|p| p[0]).sum::<f64>() / n;
-        let y = pts.iter().map(|p| p[1]).sum::<f64>() / n;
-        Some(x.hypot(y))
+            .collect()
     };
-    Some(cg(Direction::Cw)?.max(cg(Direction::Ccw)?))
+    crate::calibration::e_max_sys(&ends(Direction::Cw)?, &ends(Direction::Ccw)?)
 }
 
 fn mean_abs_heading_deg(runs: &[RunReport]) -> Option<f64> {

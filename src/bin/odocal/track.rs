@@ -52,6 +52,36 @@ async fn until_stopped(duration_s: Option<f64>) {
     }
 }
 
+/// Streams live telemetry into `on_sample` until Ctrl-C or `duration_s`, then turns telemetry
+/// off again.
+async fn stream_telemetry(
+    client: &odocal::hal::Client,
+    period_ms: u64,
+    duration_s: Option<f64>,
+    mut on_sample: impl FnMut(&odocal::hal::TelemetrySample) -> CliResult,
+) -> CliResult {
+    let mut rx = client.subscribe();
+    client
+        .configure_telemetry(Some(Duration::from_millis(period_ms)))
+        .await?;
+    let stop = until_stopped(duration_s);
+    tokio::pin!(stop);
+    let result = loop {
+        tokio::select! {
+            () = &mut stop => break Ok(()),
+            s = rx.recv() => match s {
+                Ok(s) => if let Err(e) = on_sample(&s) { break Err(e) },
+                Err(tokio::sync::broadcast::error::RecvError::Lagged(k)) => {
+                    eprintln!("warning: {k} telemetry samples lost (host too slow)");
+                }
+                Err(_) => break Ok(()),
+            }
+        }
+    };
+    let _ = client.configure_telemetry(None).await;
+    result
+}
+
 /// Runs `odocal record`.
 pub async fn record(args: RecordArgs) -> CliResult {
     let (client, info) = open_port(&args.port, args.baud).await?;
@@ -65,33 +95,16 @@ pub async fn record(args: RecordArgs) -> CliResult {
             period_ms: args.period_ms,
         },
     )?;
-    let mut rx = client.subscribe();
-    client
-        .configure_telemetry(Some(Duration::from_millis(args.period_ms)))
-        .await?;
     eprintln!(
         "recording telemetry to {} (Ctrl-C to stop)",
         args.out.display()
     );
     let mut n = 0u64;
-    let stop = until_stopped(args.duration_s);
-    tokio::pin!(stop);
-    loop {
-        tokio::select! {
-            () = &mut stop => break,
-            s = rx.recv() => match s {
-                Ok(s) => {
-                    log.sample(&s)?;
-                    n += 1;
-                }
-                Err(tokio::sync::broadcast::error::RecvError::Lagged(k)) => {
-                    eprintln!("warning: {k} samples lost (host too slow)");
-                }
-                Err(_) => break,
-            }
-        }
-    }
-    let _ = client.configure_telemetry(None).await;
+    stream_telemetry(&client, args.period_ms, args.duration_s, |s| {
+        n += 1;
+        log.sample(s).map_err(Into::into)
+    })
+    .await?;
     log.flush()?;
     let stats = client.stats();
     println!(
@@ -218,23 +231,13 @@ pub async fn track(args: TrackArgs) -> CliResult {
         let (client, _) = open_port(port, args.baud).await?;
         let configured = client.get_params(ParamSource::Active).await?;
         let mut t = Tracker::new(config(configured), scale, args.every_m)?;
-        let mut rx = client.subscribe();
-        client
-            .configure_telemetry(Some(Duration::from_millis(args.period_ms)))
-            .await?;
-        let stop = until_stopped(args.duration_s);
-        tokio::pin!(stop);
-        loop {
-            tokio::select! {
-                () = &mut stop => break,
-                s = rx.recv() => match s {
-                    Ok(s) => if let Some(e) = t.feed_sample(&s) { show(&e, args.json, "") },
-                    Err(tokio::sync::broadcast::error::RecvError::Lagged(_)) => {}
-                    Err(_) => break,
-                }
+        stream_telemetry(&client, args.period_ms, args.duration_s, |s| {
+            if let Some(e) = t.feed_sample(s) {
+                show(&e, args.json, "");
             }
-        }
-        let _ = client.configure_telemetry(None).await;
+            Ok(())
+        })
+        .await?;
         write_back = Some(client);
         (t, configured)
     } else {
