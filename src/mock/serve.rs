@@ -11,6 +11,9 @@ use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::Duration;
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
 
+/// SPEC.md §2.1's inter-byte gap after which a partial frame is discarded.
+pub const INTER_BYTE_GAP: Duration = Duration::from_millis(20);
+
 /// A device shared between its server task and observers (tests, the CLI).
 pub type SharedDevice = Arc<Mutex<MockDevice>>;
 
@@ -121,6 +124,7 @@ where
     let mut chunk = [0u8; 1024];
     let tick = Duration::from_millis(2);
     let mut last = tokio::time::Instant::now();
+    let mut last_byte = last;
     loop {
         let n = match time {
             TimeMode::Virtual => rd.read(&mut chunk).await?,
@@ -141,6 +145,13 @@ where
         if n == 0 {
             return Ok(ServeEnd::HostClosed);
         }
+        // SPEC.md §2.1: a partial frame older than the inter-byte gap is discarded (the host
+        // may have restarted mid-frame).
+        let now = tokio::time::Instant::now();
+        if !buf.is_empty() && now - last_byte > INTER_BYTE_GAP {
+            buf.clear();
+        }
+        last_byte = now;
         let bytes = &mut chunk[..n];
         faults.corrupt(bytes);
         for frame in codec.feed(&mut buf, bytes) {
