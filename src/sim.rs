@@ -85,6 +85,14 @@ pub enum Motion {
         /// Angle (rad).
         angle_rad: f64,
     },
+    /// Turn each wheel by the rotation that moves it this far by the configured parameters
+    /// (m; a wheel-speed command run for a while).
+    Wheels {
+        /// Left wheel travel (m).
+        left_m: f64,
+        /// Right wheel travel (m).
+        right_m: f64,
+    },
 }
 
 /// One motion as planned: the controller's wheel targets and the true wheel travel.
@@ -239,6 +247,7 @@ impl Simulator {
                 let arc = 0.5 * angle_rad * c.wheelbase_m;
                 (-arc, arc)
             }
+            Motion::Wheels { left_m, right_m } => (left_m, right_m),
         };
         let mut left = left_arc / c.left_m_per_count();
         let mut right = right_arc / c.right_m_per_count();
@@ -254,6 +263,7 @@ impl Simulator {
         let size = match *motion {
             Motion::Straight { distance_m } => distance_m,
             Motion::TurnInPlace { angle_rad } => angle_rad,
+            Motion::Wheels { left_m, right_m } => left_m + right_m,
         };
         if !size.is_finite() {
             return Err(SimError::Motion(format!("{motion:?} is not finite")));

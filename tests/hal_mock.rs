@@ -370,14 +370,12 @@ async fn bad_parameter_writes_are_refused_and_change_nothing() {
         before
     );
     assert!(lock(&dev).stored_params().is_none());
-    // The mock has no wheel-speed mode and says so; an unsendable speed never leaves the host.
-    assert_eq!(
-        client
-            .wheel_speed(0.1, 0.1, None)
-            .await
-            .unwrap_err()
-            .nack_code(),
-        Some(NackCode::UnknownMessage)
+    // Over-limit wheel speeds are refused naming the wheel; unsendable ones never leave the
+    // host.
+    let err = client.wheel_speed(0.1, 2.0, None).await.unwrap_err();
+    assert!(
+        matches!(err, HalError::Nack { nack, .. } if nack.code == NackCode::OutOfRange && nack.detail == 1),
+        "{err:?}"
     );
     assert!(matches!(
         client.wheel_speed(f64::NAN, 0.1, None).await,
@@ -479,4 +477,45 @@ fn a_mock_whose_factory_parameters_cannot_travel_on_the_wire_is_refused() {
         MockDevice::new(cfg),
         Err(odocal::mock::MockError::FactoryOutOfRange(_))
     ));
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn wheel_speed_commands_drive_until_their_duration_or_stop() {
+    // Virtual time: a timed command runs to completion; an open-ended one cannot.
+    let dev = device(0.0, 11);
+    let (stream, _task) = spawn_duplex(dev.clone(), TimeMode::Virtual, FaultConfig::default());
+    let (client, _) = Client::connect(stream, fast_link()).await.unwrap();
+    client
+        .wheel_speed(0.2, 0.2, Some(Duration::from_millis(2000)))
+        .await
+        .unwrap();
+    // 2 s at 0.2 m/s by the configured wheels: 0.4 m of configured travel per wheel, which the
+    // true robot (right wheel 0.992, base 0.976 × 0.39 m) turns into a slight right arc.
+    let expected = odocal::kinematics::Pose::default().advance(0.4, 0.4 * 0.992, 0.39 * 0.976);
+    let p = lock(&dev).sim().pose();
+    assert!(
+        (p.x_m - expected.x_m).abs() < 1e-9 && (p.y_m - expected.y_m).abs() < 1e-9,
+        "{p:?} vs {expected:?}"
+    );
+    let open = client.wheel_speed(0.2, 0.2, None).await.unwrap_err();
+    assert!(
+        matches!(open, HalError::Nack { nack, .. } if nack.detail == 2),
+        "{open:?}"
+    );
+    // Real time: an open-ended command runs until STOP.
+    let dev = device(0.0, 12);
+    let (stream, _task) = spawn_duplex(
+        dev.clone(),
+        TimeMode::RealTime { scale: 1.0 },
+        FaultConfig::default(),
+    );
+    let (client, _) = Client::connect(stream, fast_link()).await.unwrap();
+    client.wheel_speed(0.2, 0.2, None).await.unwrap();
+    tokio::time::sleep(Duration::from_millis(100)).await;
+    assert!(lock(&dev).is_moving());
+    client.stop().await.unwrap();
+    let d = lock(&dev);
+    assert!(!d.is_moving());
+    let x = d.sim().pose().x_m;
+    assert!(x > 0.01 && x < 0.1, "{x}");
 }

@@ -390,6 +390,7 @@ impl MockDevice {
                         | capability::TELEMETRY
                         | capability::WATCHDOG
                         | capability::STORAGE
+                        | capability::WHEEL_SPEED
                         | capability::MOTION_QUEUE,
                     serial_number: self.config.serial_number,
                     max_speed_mm_s: (self.config.max_speed_m_s * 1000.0).round() as u16,
@@ -497,8 +498,41 @@ impl MockDevice {
                 )
                 .map(Response::TurnInPlace)
             }
-            // The mock has no direct wheel-speed mode (its capability bit is clear).
-            Request::WheelSpeed { .. } => nack(NackCode::UnknownMessage, 0xFF),
+            Request::WheelSpeed {
+                left_mm_s,
+                right_mm_s,
+                duration_ms,
+            } => {
+                let limit = self.config.max_speed_m_s + 1e-9;
+                let (l, r) = (f64::from(left_mm_s) * 1e-3, f64::from(right_mm_s) * 1e-3);
+                if l.abs() > limit {
+                    return nack(NackCode::OutOfRange, 0);
+                }
+                if r.abs() > limit {
+                    return nack(NackCode::OutOfRange, 1);
+                }
+                if self.watchdog_state == WatchdogState::Tripped {
+                    return nack(NackCode::InvalidState, 0xFF);
+                }
+                // "Until the next command" runs an hour; STOP, a new motion or the watchdog
+                // end it sooner. In virtual time that would be an hour of driving at once, so
+                // the mock's virtual mode needs a duration (see `serve`).
+                let t = if duration_ms == 0 {
+                    3600.0
+                } else {
+                    f64::from(duration_ms) * 1e-3
+                };
+                self.queue.clear();
+                self.accept_motion(
+                    Motion::Wheels {
+                        left_m: l * t,
+                        right_m: r * t,
+                    },
+                    t,
+                    MotionMode::Replace,
+                )?;
+                Ok(Response::WheelSpeed)
+            }
             Request::Stop => {
                 self.counters.stops += 1;
                 self.stop();

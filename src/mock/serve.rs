@@ -187,6 +187,20 @@ where
                     .is_some_and(|k| k > 0 && faults.requests % k == 0);
             if busy {
                 out.extend(MockDevice::busy(&frame));
+            } else if time == TimeMode::Virtual && is_open_ended_wheel_speed(&frame) {
+                // Virtual time cannot run "until the next command": refuse, naming the field.
+                out.extend(
+                    crate::protocol::Packet::nack(
+                        frame.seq,
+                        frame.msg,
+                        crate::protocol::Nack {
+                            code: crate::protocol::NackCode::OutOfRange,
+                            detail: 2,
+                        },
+                    )
+                    .to_frame()
+                    .ok(),
+                );
             } else {
                 let mut d = lock(&device);
                 if let TimeMode::RealTime { scale } = time {
@@ -206,6 +220,18 @@ where
             send(&mut wr, out, &mut faults).await?;
         }
     }
+}
+
+fn is_open_ended_wheel_speed(frame: &Frame) -> bool {
+    matches!(
+        crate::protocol::Packet::from_frame(frame),
+        Ok(crate::protocol::Packet {
+            body: crate::protocol::Body::Request {
+                request: crate::protocol::Request::WheelSpeed { duration_ms: 0, .. }
+            },
+            ..
+        })
+    )
 }
 
 /// An in-process link: the host's end of a `tokio::io::duplex` whose other end is served.
