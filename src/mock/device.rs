@@ -3,7 +3,7 @@
 //! [`MockDevice::handle`] takes one decoded frame and returns the frames the device sends back;
 //! [`MockDevice::advance`] moves device time forward, executing queued motions and emitting
 //! telemetry and motion-done events. Both are synchronous and deterministic, so tests can drive
-//! the device directly; [`super::serve`] puts them behind a byte stream.
+//! the device directly; [`mod@super::serve`] puts them behind a byte stream.
 
 use crate::kinematics::{wrap_angle, WheelParams};
 use crate::protocol::frame::{Frame, FrameKind, CRC16, MAJOR, VERSION};

@@ -1,7 +1,7 @@
 //! A simulated robot base that speaks `protocol/SPEC.md`: the kinematic simulator behind the
 //! protocol, with non-volatile parameters, a watchdog and seeded faults.
 //!
-//! [`device`] is the firmware (protocol semantics, motion, telemetry); [`serve`] puts it on an
+//! [`device`] is the firmware (protocol semantics, motion, telemetry); [`mod@serve`] puts it on an
 //! in-memory duplex or a real pseudo-terminal, in virtual or scaled real time.
 
 pub mod device;
