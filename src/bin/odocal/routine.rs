@@ -375,7 +375,16 @@ fn read_config(path: &PathBuf) -> Result<RoutineConfig, Box<dyn std::error::Erro
     RoutineConfig::from_toml(&text).map_err(|e| format!("{}: {e}", path.display()).into())
 }
 
-async fn run_on_port(cfg: RoutineConfig, port: &str, baud: u32, flags: &RoutineFlags) -> CliResult {
+async fn run_on_port(
+    mut cfg: RoutineConfig,
+    port: &str,
+    baud: u32,
+    flags: &RoutineFlags,
+) -> CliResult {
+    // A real calibration always leaves its evidence behind.
+    if cfg.report_dir.is_none() {
+        cfg.report_dir = Some(PathBuf::from("odocal-report"));
+    }
     if !flags.json {
         eprintln!(
             "odocal calibrate: this MOVES THE ROBOT on {port}: {} squares of {} m per direction \
