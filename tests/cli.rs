@@ -279,3 +279,58 @@ fn routine_files_run_and_malformed_ones_name_the_line() {
             .unwrap_or_else(|e| panic!("{f}: {e}"));
     }
 }
+
+#[test]
+fn calibrate_drives_a_device_on_a_port_end_to_end() {
+    use std::io::{BufRead, BufReader};
+    use std::process::Stdio;
+    let mut mock = Command::new(env!("CARGO_BIN_EXE_odocal"))
+        .args(["mock-device", "--seed", "5"])
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("mock-device starts");
+    let mut line = String::new();
+    BufReader::new(mock.stdout.take().unwrap())
+        .read_line(&mut line)
+        .unwrap();
+    let port = line.trim().to_string();
+    let dir = scratch("calibrate");
+    let common = [
+        "calibrate",
+        "--port",
+        &port,
+        "--side-m",
+        "2",
+        "--runs",
+        "3",
+        "--settle-s",
+        "0",
+        "--json",
+    ];
+    // A dry run first: estimates, writes nothing.
+    let mut args = common.to_vec();
+    args.extend(["--dry-run", "--yes", "--report-dir", dir.to_str().unwrap()]);
+    let v = json(&args);
+    assert_eq!(v["written"], false);
+    assert_eq!(
+        json(&["params", "get", "--port", &port, "--json"])["wheelbase_m"],
+        0.39
+    );
+    // Then for real.
+    let mut args = common.to_vec();
+    args.extend(["--yes", "--report-dir", dir.to_str().unwrap()]);
+    let v = json(&args);
+    assert_eq!(v["written"], true);
+    assert!(v["converged"].as_bool().unwrap());
+    let b = json(&[
+        "params", "get", "--port", &port, "--source", "stored", "--json",
+    ])["wheelbase_m"]
+        .as_f64()
+        .unwrap();
+    assert!((b - 0.39 * 0.976).abs() < 0.002, "stored wheelbase {b}");
+    assert!(dir.join("report.md").is_file());
+    drop(mock.stdin.take());
+    assert!(mock.wait().unwrap().success());
+}

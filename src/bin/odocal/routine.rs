@@ -272,6 +272,12 @@ pub struct RoutineFlags {
     /// Turn-rate limit (rad/s, at most 3.0).
     #[arg(long)]
     max_rate_rad_s: Option<f64>,
+    /// Pause before each heading reading for the base to settle (s).
+    #[arg(long)]
+    settle_s: Option<f64>,
+    /// Heading readings averaged at rest before and after each square.
+    #[arg(long)]
+    heading_samples: Option<usize>,
     /// Estimator to write: umbmark, lee, heading-only, jung-chung or exact.
     #[arg(long)]
     method: Option<String>,
@@ -293,10 +299,11 @@ pub struct RoutineFlags {
     /// Most calibration rounds.
     #[arg(long)]
     max_rounds: Option<usize>,
-    /// Estimate and report only; write nothing.
-    #[arg(long, conflicts_with = "yes")]
+    /// Estimate and report only; write nothing (with --yes: move without asking, still write
+    /// nothing).
+    #[arg(long)]
     dry_run: bool,
-    /// Move and write without asking.
+    /// Answer yes to every question: move, and write unless --dry-run.
     #[arg(long)]
     yes: bool,
     /// Where to write the backup (default: the report directory, or here).
@@ -317,7 +324,8 @@ impl RoutineFlags {
         }
         set!(side_m => side_m, runs => runs_per_direction, max_speed_m_s => max_speed_m_s,
              max_rate_rad_s => max_rate_rad_s, verification_runs => verification_runs,
-             tolerance => tolerance, max_rounds => max_rounds);
+             tolerance => tolerance, max_rounds => max_rounds, settle_s => settle_s,
+             heading_samples => heading_samples);
         if let Some(m) = &self.method {
             cfg.method = m.parse::<Method>()?;
         }
