@@ -54,53 +54,7 @@ pub struct LogHeader {
 #[serde(tag = "type", rename_all = "snake_case")]
 enum LogLine {
     Header(LogHeader),
-    Telemetry(LoggedSample),
-}
-
-/// A telemetry sample as logged (the same fields as [`TelemetrySample`]).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-struct LoggedSample {
-    sample_index: u32,
-    device_time_s: f64,
-    left_counts: i64,
-    right_counts: i64,
-    heading_rad: f64,
-    heading_valid: bool,
-    motion_state: crate::protocol::message::MotionState,
-    queue_depth: u8,
-    dropped_before: u32,
-}
-
-impl From<&TelemetrySample> for LoggedSample {
-    fn from(s: &TelemetrySample) -> Self {
-        LoggedSample {
-            sample_index: s.sample_index,
-            device_time_s: s.device_time_s,
-            left_counts: s.left_counts,
-            right_counts: s.right_counts,
-            heading_rad: s.heading_rad,
-            heading_valid: s.heading_valid,
-            motion_state: s.motion_state,
-            queue_depth: s.queue_depth,
-            dropped_before: s.dropped_before,
-        }
-    }
-}
-
-impl From<LoggedSample> for TelemetrySample {
-    fn from(s: LoggedSample) -> Self {
-        TelemetrySample {
-            sample_index: s.sample_index,
-            device_time_s: s.device_time_s,
-            left_counts: s.left_counts,
-            right_counts: s.right_counts,
-            heading_rad: s.heading_rad,
-            heading_valid: s.heading_valid,
-            motion_state: s.motion_state,
-            queue_depth: s.queue_depth,
-            dropped_before: s.dropped_before,
-        }
-    }
+    Telemetry(TelemetrySample),
 }
 
 /// Writes a telemetry log.
@@ -138,7 +92,7 @@ impl LogWriter {
 
     /// Appends one sample.
     pub fn sample(&mut self, s: &TelemetrySample) -> Result<(), LogError> {
-        self.line(&LogLine::Telemetry(s.into()))
+        self.line(&LogLine::Telemetry(*s))
     }
 
     /// Flushes to disk.
@@ -174,7 +128,7 @@ pub fn read_log(path: &Path) -> Result<(LogHeader, Vec<TelemetrySample>), LogErr
             LogLine::Telemetry(_) if header.is_none() => {
                 return Err(bad("telemetry before the header line".into()))
             }
-            LogLine::Telemetry(s) => samples.push(s.into()),
+            LogLine::Telemetry(s) => samples.push(s),
         }
     }
     let header = header.ok_or_else(|| LogError::Malformed {

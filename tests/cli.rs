@@ -153,20 +153,8 @@ fn replay_json_has_evaluations() {
 
 #[test]
 fn mock_device_serves_a_pty_that_params_get_can_open() {
-    use std::io::{BufRead, BufReader};
-    use std::process::Stdio;
-    let mut mock = Command::new(env!("CARGO_BIN_EXE_odocal"))
-        .args(["mock-device", "--wheelbase-m", "0.41", "--seed", "3"])
-        .stdin(Stdio::piped())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::null())
-        .spawn()
-        .expect("mock-device starts");
-    let mut line = String::new();
-    BufReader::new(mock.stdout.take().unwrap())
-        .read_line(&mut line)
-        .unwrap();
-    let path = line.trim().to_string();
+    let (mut mock, line) = spawn_mock(&["--wheelbase-m", "0.41", "--seed", "3"]);
+    let path = line;
     assert!(
         path.starts_with("/dev/"),
         "first line is the terminal path: {path:?}"
@@ -185,6 +173,26 @@ fn mock_device_serves_a_pty_that_params_get_can_open() {
         !ok && err.contains("cannot open /dev/does-not-exist"),
         "{err}"
     );
+}
+
+/// Starts `odocal mock-device` with `args`; returns the process (stdin kept open: closing it
+/// stops the device) and the first line it printed, the terminal's path.
+fn spawn_mock(args: &[&str]) -> (std::process::Child, String) {
+    use std::io::{BufRead, BufReader};
+    use std::process::Stdio;
+    let mut mock = Command::new(env!("CARGO_BIN_EXE_odocal"))
+        .arg("mock-device")
+        .args(args)
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("mock-device starts");
+    let mut line = String::new();
+    BufReader::new(mock.stdout.take().expect("stdout piped"))
+        .read_line(&mut line)
+        .expect("mock-device prints its path");
+    (mock, line.trim().to_string())
 }
 
 fn scratch(name: &str) -> std::path::PathBuf {
@@ -282,20 +290,7 @@ fn routine_files_run_and_malformed_ones_name_the_line() {
 
 #[test]
 fn calibrate_drives_a_device_on_a_port_end_to_end() {
-    use std::io::{BufRead, BufReader};
-    use std::process::Stdio;
-    let mut mock = Command::new(env!("CARGO_BIN_EXE_odocal"))
-        .args(["mock-device", "--seed", "5"])
-        .stdin(Stdio::piped())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::null())
-        .spawn()
-        .expect("mock-device starts");
-    let mut line = String::new();
-    BufReader::new(mock.stdout.take().unwrap())
-        .read_line(&mut line)
-        .unwrap();
-    let port = line.trim().to_string();
+    let (mut mock, port) = spawn_mock(&["--seed", "5"]);
     let dir = scratch("calibrate");
     let common = [
         "calibrate",

@@ -47,6 +47,26 @@ impl RandomPath {
     }
 }
 
+/// A simulated robot with `truth` applied to `nominal`, with the compass noise and per-step
+/// slip the filters here assume.
+fn noisy_robot(nominal: &WheelParams, truth: &Correction, seed: u64) -> Simulator {
+    let noise = NoiseModel {
+        compass_sigma_rad: COMPASS_DEG.to_radians(),
+        wheel_slip_sigma: SLIP,
+        ..NoiseModel::default()
+    };
+    Simulator::new(truth.apply(nominal).unwrap(), *nominal, noise, seed).unwrap()
+}
+
+/// A filter whose noise model matches [`noisy_robot`].
+fn matched_config(nominal: &WheelParams) -> OnlineConfig {
+    let mut cfg = OnlineConfig::new(*nominal);
+    cfg.slip_fraction = SLIP;
+    cfg.count_noise = 0.0;
+    cfg.heading_sigma_rad = COMPASS_DEG.to_radians();
+    cfg
+}
+
 struct Drive {
     filter: OnlineEstimator,
     true_u: (f64, f64),
@@ -62,17 +82,8 @@ fn random_drive(seed: u64, steps: usize) -> Drive {
         right_diameter_scale: 0.992,
         wheelbase_scale: 0.976,
     };
-    let noise = NoiseModel {
-        compass_sigma_rad: COMPASS_DEG.to_radians(),
-        wheel_slip_sigma: SLIP,
-        ..NoiseModel::default()
-    };
-    let mut sim = Simulator::new(truth.apply(&nominal).unwrap(), nominal, noise, seed).unwrap();
-    let mut cfg = OnlineConfig::new(nominal);
-    cfg.slip_fraction = SLIP;
-    cfg.count_noise = 0.0;
-    cfg.heading_sigma_rad = COMPASS_DEG.to_radians();
-    let mut filter = OnlineEstimator::new(cfg).unwrap();
+    let mut sim = noisy_robot(&nominal, &truth, seed);
+    let mut filter = OnlineEstimator::new(matched_config(&nominal)).unwrap();
     let mut path = RandomPath::new(seed ^ 0xABCD);
     filter.update_heading(sim.read_heading());
     for step in 0..steps {
@@ -262,12 +273,7 @@ fn track_reads_a_recorded_log_and_converges() {
         right_diameter_scale: 0.992,
         wheelbase_scale: 0.976,
     };
-    let noise = NoiseModel {
-        compass_sigma_rad: COMPASS_DEG.to_radians(),
-        wheel_slip_sigma: SLIP,
-        ..NoiseModel::default()
-    };
-    let mut sim = Simulator::new(truth.apply(&nominal).unwrap(), nominal, noise, 42).unwrap();
+    let mut sim = noisy_robot(&nominal, &truth, 42);
     let dir = std::env::temp_dir().join(format!("odocal-track-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let log_path = dir.join("drive.jsonl");
@@ -363,15 +369,8 @@ fn position_fixes_make_the_wheel_scale_observable() {
         right_diameter_scale: 1.004,
         wheelbase_scale: 0.976,
     };
-    let noise = NoiseModel {
-        compass_sigma_rad: COMPASS_DEG.to_radians(),
-        wheel_slip_sigma: SLIP,
-        ..NoiseModel::default()
-    };
-    let mut sim = Simulator::new(truth.apply(&nominal).unwrap(), nominal, noise, 9).unwrap();
-    let mut cfg = OnlineConfig::new(nominal);
-    cfg.slip_fraction = SLIP;
-    cfg.count_noise = 0.0;
+    let mut sim = noisy_robot(&nominal, &truth, 9);
+    let mut cfg = matched_config(&nominal);
     cfg.position_sigma_m = 0.01;
     let mut f = OnlineEstimator::new(cfg).unwrap();
     let mut path = RandomPath::new(9);

@@ -176,7 +176,7 @@ impl LinkStats {
 }
 
 /// One telemetry sample with host-side unwrapping.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, serde::Deserialize)]
 pub struct TelemetrySample {
     /// Device sample index.
     pub sample_index: u32,

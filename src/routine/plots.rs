@@ -2,6 +2,7 @@
 
 use super::report::{Report, RunReport};
 use crate::kinematics::Direction;
+use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;
 use std::path::{Path, PathBuf};
 
@@ -26,6 +27,46 @@ pub fn write_all(report: &Report, dir: &Path) -> std::io::Result<Vec<PathBuf>> {
         out.push(ends);
     }
     Ok(out)
+}
+
+/// The chart type every plot here draws on.
+type Chart<'a, 'b> = ChartContext<'a, SVGBackend<'b>, Cartesian2d<RangedCoordf64, RangedCoordf64>>;
+
+/// One chart in its own SVG file in the house style (caption, labelled axes, legend top
+/// right); `body` draws the series.
+#[allow(clippy::too_many_arguments)]
+fn draw_chart(
+    file: &Path,
+    size: (u32, u32),
+    caption: &str,
+    x: std::ops::Range<f64>,
+    y: std::ops::Range<f64>,
+    x_desc: &str,
+    y_desc: &str,
+    body: impl FnOnce(&mut Chart<'_, '_>) -> PlotResult<()>,
+) -> PlotResult<()> {
+    let root = SVGBackend::new(file, size).into_drawing_area();
+    root.fill(&WHITE)?;
+    let mut chart = ChartBuilder::on(&root)
+        .caption(caption, ("sans-serif", 22))
+        .margin(15)
+        .x_label_area_size(40)
+        .y_label_area_size(55)
+        .build_cartesian_2d(x, y)?;
+    chart
+        .configure_mesh()
+        .x_desc(x_desc)
+        .y_desc(y_desc)
+        .draw()?;
+    body(&mut chart)?;
+    chart
+        .configure_series_labels()
+        .position(SeriesLabelPosition::UpperRight)
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .draw()?;
+    root.present()?;
+    Ok(())
 }
 
 fn bounds<'a>(paths: impl Iterator<Item = &'a [f64; 2]>) -> (f64, f64, f64, f64) {
@@ -90,37 +131,30 @@ fn paths_plot(report: &Report, file: &Path) -> PlotResult<bool> {
     let x1 = x1 + 0.5 * (x1 - x0);
     // True paths first (thick), odometry on top (thin), so both stay visible where they agree.
     series.sort_by_key(|s| !s.0.contains("true"));
-    let root = SVGBackend::new(file, (1100, 800)).into_drawing_area();
-    root.fill(&WHITE)?;
-    let mut chart = ChartBuilder::on(&root)
-        .caption("Square runs: odometry vs true path", ("sans-serif", 22))
-        .margin(15)
-        .x_label_area_size(40)
-        .y_label_area_size(55)
-        .build_cartesian_2d(x0..x1, y0..y1)?;
-    chart
-        .configure_mesh()
-        .x_desc("x (m), first leg")
-        .y_desc("y (m), left")
-        .draw()?;
-    for (label, pts, colour) in series {
-        chart
-            .draw_series(LineSeries::new(
-                pts.iter().map(|p| (p[0], p[1])),
-                colour.stroke_width(2),
-            ))?
-            .label(label)
-            .legend(move |(x, y)| {
-                PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(2))
-            });
-    }
-    chart
-        .configure_series_labels()
-        .position(SeriesLabelPosition::UpperRight)
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK)
-        .draw()?;
-    root.present()?;
+    draw_chart(
+        file,
+        (1100, 800),
+        "Square runs: odometry vs true path",
+        x0..x1,
+        y0..y1,
+        "x (m), first leg",
+        "y (m), left",
+        |chart| {
+            for (label, pts, colour) in series {
+                let width = if label.contains("true") { 3 } else { 1 };
+                chart
+                    .draw_series(LineSeries::new(
+                        pts.iter().map(|p| (p[0], p[1])),
+                        colour.stroke_width(width),
+                    ))?
+                    .label(label)
+                    .legend(move |(x, y)| {
+                        PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(width))
+                    });
+            }
+            Ok(())
+        },
+    )?;
     Ok(true)
 }
 
@@ -141,67 +175,60 @@ fn heading_plot(report: &Report, file: &Path) -> PlotResult<()> {
     }
     let ymax = points.iter().map(|p| p.2.abs()).fold(0.5f64, f64::max) * 1.15;
     let n = points.len().max(1) as f64;
-    let root = SVGBackend::new(file, (900, 500)).into_drawing_area();
-    root.fill(&WHITE)?;
-    let mut chart = ChartBuilder::on(&root)
-        .caption("Final heading error per run", ("sans-serif", 22))
-        .margin(15)
-        .x_label_area_size(40)
-        .y_label_area_size(55)
-        .build_cartesian_2d(0.0..1.4 * n + 1.0, -ymax..ymax)?;
-    chart
-        .configure_mesh()
-        .x_desc("run (calibration rounds, then verification)")
-        .y_desc("heading error (deg, CCW positive)")
-        .draw()?;
-    let colours = [RED, MAGENTA, CYAN, GREEN, BLUE];
-    let mut phases: Vec<String> = points.iter().map(|p| p.0.clone()).collect();
-    phases.dedup();
-    for (k, phase) in phases.iter().enumerate() {
-        let colour = if phase == "verification" {
-            BLUE
-        } else {
-            colours[k % 4]
-        };
-        for (d, label) in [(Direction::Cw, "CW"), (Direction::Ccw, "CCW")] {
-            let pts: Vec<(f64, f64)> = points
-                .iter()
-                .enumerate()
-                .filter(|(_, p)| &p.0 == phase && p.1 == d)
-                .map(|(i, p)| (i as f64 + 1.0, p.2))
-                .collect();
-            if pts.is_empty() {
-                continue;
+    draw_chart(
+        file,
+        (900, 500),
+        "Final heading error per run",
+        0.0..1.4 * n + 1.0,
+        -ymax..ymax,
+        "run (calibration rounds, then verification)",
+        "heading error (deg, CCW positive)",
+        |chart| {
+            let colours = [RED, MAGENTA, CYAN, GREEN, BLUE];
+            let mut phases: Vec<String> = points.iter().map(|p| p.0.clone()).collect();
+            phases.dedup();
+            for (k, phase) in phases.iter().enumerate() {
+                let colour = if phase == "verification" {
+                    BLUE
+                } else {
+                    colours[k % 4]
+                };
+                for (d, label) in [(Direction::Cw, "CW"), (Direction::Ccw, "CCW")] {
+                    let pts: Vec<(f64, f64)> = points
+                        .iter()
+                        .enumerate()
+                        .filter(|(_, p)| &p.0 == phase && p.1 == d)
+                        .map(|(i, p)| (i as f64 + 1.0, p.2))
+                        .collect();
+                    if pts.is_empty() {
+                        continue;
+                    }
+                    let name = format!("{phase} {label}");
+                    if d == Direction::Cw {
+                        chart
+                            .draw_series(pts.iter().map(|&p| Circle::new(p, 5, colour.filled())))?
+                            .label(name)
+                            .legend(move |(x, y)| Circle::new((x + 10, y), 5, colour.filled()));
+                    } else {
+                        chart
+                            .draw_series(
+                                pts.iter()
+                                    .map(|&p| TriangleMarker::new(p, 6, colour.filled())),
+                            )?
+                            .label(name)
+                            .legend(move |(x, y)| {
+                                TriangleMarker::new((x + 10, y), 6, colour.filled())
+                            });
+                    }
+                }
             }
-            let name = format!("{phase} {label}");
-            if d == Direction::Cw {
-                chart
-                    .draw_series(pts.iter().map(|&p| Circle::new(p, 5, colour.filled())))?
-                    .label(name)
-                    .legend(move |(x, y)| Circle::new((x + 10, y), 5, colour.filled()));
-            } else {
-                chart
-                    .draw_series(
-                        pts.iter()
-                            .map(|&p| TriangleMarker::new(p, 6, colour.filled())),
-                    )?
-                    .label(name)
-                    .legend(move |(x, y)| TriangleMarker::new((x + 10, y), 6, colour.filled()));
-            }
-        }
-    }
-    chart.draw_series(LineSeries::new(
-        [(0.0, 0.0), (n + 1.0, 0.0)],
-        BLACK.mix(0.4),
-    ))?;
-    chart
-        .configure_series_labels()
-        .position(SeriesLabelPosition::UpperRight)
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK)
-        .draw()?;
-    root.present()?;
-    Ok(())
+            chart.draw_series(LineSeries::new(
+                [(0.0, 0.0), (1.4 * n + 1.0, 0.0)],
+                BLACK.mix(0.4),
+            ))?;
+            Ok(())
+        },
+    )
 }
 
 /// True end points of round 1 and of the verification (simulation only).
@@ -232,38 +259,30 @@ fn end_points_plot(report: &Report, file: &Path) -> PlotResult<bool> {
     }
     let (x0, x1, y0, y1) = bounds(sets.iter().flat_map(|s| s.1.iter()));
     let x1 = x1 + 0.4 * (x1 - x0);
-    let root = SVGBackend::new(file, (900, 700)).into_drawing_area();
-    root.fill(&WHITE)?;
-    let mut chart = ChartBuilder::on(&root)
-        .caption("True end points (start at the origin)", ("sans-serif", 22))
-        .margin(15)
-        .x_label_area_size(40)
-        .y_label_area_size(55)
-        .build_cartesian_2d(x0..x1, y0..y1)?;
-    chart
-        .configure_mesh()
-        .x_desc("x (m)")
-        .y_desc("y (m)")
-        .draw()?;
-    chart.draw_series([Cross::new((0.0, 0.0), 8, BLACK.stroke_width(2))])?;
-    for (label, pts, colour) in sets {
-        if pts.is_empty() {
-            continue;
-        }
-        chart
-            .draw_series(
-                pts.iter()
-                    .map(|p| Circle::new((p[0], p[1]), 5, colour.filled())),
-            )?
-            .label(label)
-            .legend(move |(x, y)| Circle::new((x + 10, y), 5, colour.filled()));
-    }
-    chart
-        .configure_series_labels()
-        .position(SeriesLabelPosition::UpperRight)
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK)
-        .draw()?;
-    root.present()?;
+    draw_chart(
+        file,
+        (900, 700),
+        "True end points (start at the origin)",
+        x0..x1,
+        y0..y1,
+        "x (m)",
+        "y (m)",
+        |chart| {
+            chart.draw_series([Cross::new((0.0, 0.0), 8, BLACK.stroke_width(2))])?;
+            for (label, pts, colour) in sets {
+                if pts.is_empty() {
+                    continue;
+                }
+                chart
+                    .draw_series(
+                        pts.iter()
+                            .map(|p| Circle::new((p[0], p[1]), 5, colour.filled())),
+                    )?
+                    .label(label)
+                    .legend(move |(x, y)| Circle::new((x + 10, y), 5, colour.filled()));
+            }
+            Ok(())
+        },
+    )?;
     Ok(true)
 }
