@@ -2,7 +2,7 @@
 //! including the pseudo-terminal link: `cargo run --release --example demo_benchmark`.
 //! Target (issue 5): under 3 s.
 
-use odocal::routine::demo::{run_demo, DemoOptions};
+use odocal::demo::{run_demo, DemoOptions};
 use odocal::routine::Unattended;
 use std::time::Instant;
 use tokio_util::sync::CancellationToken;
@@ -22,7 +22,9 @@ async fn main() -> Result<(), Box<dyn std::error::Error>> {
         let (report, device) = run_demo(&opts, &mut Unattended, &CancellationToken::new()).await?;
         times.push(t.elapsed().as_secs_f64());
         motions = odocal::mock::lock(&device).counters().motions_completed;
-        samples = report.link.telemetry_received;
+        samples = report.diagnostics["telemetry_received"]
+            .as_u64()
+            .unwrap_or(0);
         assert!(report.written && report.converged);
     }
     times.sort_by(f64::total_cmp);

@@ -6,10 +6,11 @@
 //! stops it (the motion guard sends STOP). Without a port argument it drives the built-in
 //! simulated robot on a pseudo-terminal instead.
 
-use odocal::hal::motion::{run_square, SquareCommand};
+use odocal::base::Base;
 use odocal::hal::open_port;
 use odocal::kinematics::{Direction, WheelParams};
 use odocal::mock::{spawn_pty, FaultConfig, MockConfig, MockDevice, TimeMode};
+use odocal::routine::square::{run_square, SquareCommand};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
@@ -55,9 +56,11 @@ async fn main() -> Result<(), Box<dyn std::error::Error>> {
         max_rate_rad_s: 0.5,
         heading_samples: 5,
         settle: Duration::from_millis(500),
+        stream_period: Duration::from_millis(20),
     };
+    let base = Base::single(client.clone());
     let rec = tokio::select! {
-        r = run_square(&client, &cmd) => r?,
+        r = run_square(&base, &cmd, |_| {}) => r?,
         _ = tokio::signal::ctrl_c() => {
             client.stop().await?;
             return Err("interrupted: robot stopped".into());

@@ -3,9 +3,10 @@
 //!
 //! `cargo run --release --example scripted_recalibration [-- /dev/ttyUSB0]`
 
+use odocal::base::Base;
+use odocal::demo::{run_demo, DemoOptions};
 use odocal::hal::open_port;
 use odocal::routine::config::{RoutineConfig, WritePolicy};
-use odocal::routine::demo::{run_demo, DemoOptions};
 use odocal::routine::{run, RoutineEvent, RoutineUi};
 use tokio_util::sync::CancellationToken;
 
@@ -43,7 +44,7 @@ async fn main() -> Result<(), Box<dyn std::error::Error>> {
     let report = match std::env::args().nth(1) {
         Some(port) => {
             let (client, _) = open_port(&port, cfg.baud).await?;
-            run(&client, &cfg, None, &mut Printer, &cancel).await?
+            run(&Base::single(client), &cfg, None, &mut Printer, &cancel).await?
         }
         None => {
             let opts = DemoOptions {
@@ -53,6 +54,6 @@ async fn main() -> Result<(), Box<dyn std::error::Error>> {
             run_demo(&opts, &mut Printer, &cancel).await?.0
         }
     };
-    print!("{}", report.summary_table());
+    print!("{}", odocal::report::summary_table(&report));
     Ok(())
 }

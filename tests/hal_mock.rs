@@ -1,9 +1,9 @@
 //! The HAL client against the mock device: over a real pseudo-terminal opened by path (as a user
 //! opens a USB adapter) and over an in-memory duplex, clean and with injected faults.
 
+use odocal::base::{Base, MotionGuard};
 use odocal::calibration::{estimate, Method, RunMeasurement, SquareTest};
 use odocal::hal::link::LinkConfig;
-use odocal::hal::motion::{run_square, SquareCommand};
 use odocal::hal::{open_port, Client, HalError, LinkError};
 use odocal::kinematics::{wrap_angle, Direction, SplitConvention, WheelParams};
 use odocal::mock::{
@@ -12,6 +12,7 @@ use odocal::mock::{
 };
 use odocal::protocol::message::{MotionMode, NackCode, ParamSource, ParamsBlock, WatchdogState};
 use odocal::protocol::Request;
+use odocal::routine::square::{self, SquareCommand, SquareRecord};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
@@ -43,7 +44,16 @@ fn square(side_m: f64, direction: Direction) -> SquareCommand {
         max_rate_rad_s: 2.0,
         heading_samples: 3,
         settle: Duration::ZERO,
+        stream_period: Duration::from_millis(20),
     }
+}
+
+/// Drives one square on the client through the seam, as the routine does.
+async fn run_square(
+    client: &Client,
+    cmd: &SquareCommand,
+) -> Result<SquareRecord, odocal::routine::RoutineError> {
+    square::run_square(&Base::single(client.clone()), cmd, |_| {}).await
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -224,14 +234,10 @@ async fn a_device_that_vanishes_mid_move_gives_a_typed_error_and_stops() {
         .await
         .unwrap();
     let started = Instant::now();
-    let err = odocal::hal::motion::wait_until_done(
-        &client,
-        accepted.motion_id,
-        1,
-        Duration::from_secs(20),
-    )
-    .await
-    .unwrap_err();
+    let err = client
+        .wait_motion(accepted.motion_id, 1, Duration::from_secs(20))
+        .await
+        .unwrap_err();
     let took = started.elapsed();
     assert!(
         matches!(
@@ -349,7 +355,7 @@ async fn bad_parameter_writes_are_refused_and_change_nothing() {
     };
     assert!(matches!(
         client.set_params(&nan).await,
-        Err(HalError::Link(LinkError::InvalidArgument(_)))
+        Err(HalError::InvalidArgument(_))
     ));
     // Saving or writing while moving is refused too.
     client
@@ -379,7 +385,7 @@ async fn bad_parameter_writes_are_refused_and_change_nothing() {
     );
     assert!(matches!(
         client.wheel_speed(f64::NAN, 0.1, None).await,
-        Err(HalError::Link(LinkError::InvalidArgument(_)))
+        Err(HalError::InvalidArgument(_))
     ));
     // Over-limit speeds are refused with the field named.
     let fast = client
@@ -414,7 +420,8 @@ async fn dropping_a_motion_guard_stops_the_base() {
     );
     let (client, _) = Client::connect(stream, fast_link()).await.unwrap();
     {
-        let _guard = odocal::hal::motion::MotionGuard::new(&client);
+        let drive: Arc<dyn odocal::base::Drive> = Arc::new(client.clone());
+        let _guard = MotionGuard::new(&drive);
         client
             .move_straight(1.0, 0.2, MotionMode::Replace)
             .await

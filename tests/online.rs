@@ -408,13 +408,14 @@ fn position_fixes_make_the_wheel_scale_observable() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn live_telemetry_from_the_mock_calibrates_and_writes_back() {
+    use odocal::base::Base;
     use odocal::hal::link::LinkConfig;
-    use odocal::hal::motion::{run_square, SquareCommand};
     use odocal::hal::Client;
     use odocal::kinematics::Direction;
     use odocal::mock::{lock, spawn_duplex, FaultConfig, MockConfig, MockDevice, TimeMode};
     use odocal::protocol::message::ParamSource;
     use odocal::routine::config::WritePolicy;
+    use odocal::routine::square::{run_square, SquareCommand};
     use odocal::routine::{write_parameters, Unattended};
     use odocal::track::Tracker;
     use std::sync::{Arc, Mutex};
@@ -437,6 +438,7 @@ async fn live_telemetry_from_the_mock_calibrates_and_writes_back() {
         1.0,
     )
     .unwrap();
+    let base = Base::single(client.clone());
     let mut rx = client.subscribe();
     client
         .configure_telemetry(Some(Duration::from_millis(20)))
@@ -451,8 +453,9 @@ async fn live_telemetry_from_the_mock_calibrates_and_writes_back() {
             max_rate_rad_s: 1.0,
             heading_samples: 1,
             settle: Duration::ZERO,
+            stream_period: Duration::from_millis(20),
         };
-        run_square(&client, &cmd).await.unwrap();
+        run_square(&base, &cmd, |_| {}).await.unwrap();
         while let Ok(s) = rx.try_recv() {
             tracker.feed_sample(&s);
         }
@@ -469,7 +472,7 @@ async fn live_telemetry_from_the_mock_calibrates_and_writes_back() {
     let new = e.correction.apply(&configured).unwrap();
     let backup_dir = std::env::temp_dir().join(format!("odocal-online-wb-{}", std::process::id()));
     let (applied, backup) = write_parameters(
-        &client,
+        &base,
         &new,
         WritePolicy::Yes,
         0.1,

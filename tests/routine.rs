@@ -1,12 +1,13 @@
 //! The recalibration routine end to end against the mock device: the demo calibrates and
 //! verifies, and every failure path stops the base and leaves the parameters as they were.
 
+use odocal::base::Base;
+use odocal::demo::{run_demo, DemoError, DemoOptions, MockTruth};
 use odocal::hal::link::LinkConfig;
 use odocal::hal::Client;
 use odocal::kinematics::WheelParams;
 use odocal::mock::{lock, spawn_duplex, FaultConfig, MockConfig, MockDevice, TimeMode};
 use odocal::routine::config::{RoutineConfig, WritePolicy};
-use odocal::routine::demo::{run_demo, DemoOptions, MockTruth};
 use odocal::routine::{run, RoutineError, RoutineEvent, RoutineUi, Unattended};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
@@ -67,7 +68,7 @@ async fn the_demo_calibrates_verifies_and_writes_its_report() {
         serde_json::from_str(&std::fs::read_to_string(&report.backup_path).unwrap()).unwrap();
     assert_eq!(backup["active"]["wheelbase_m"], 0.39);
     // The report directory.
-    let files = report.write_dir(&report_dir).unwrap();
+    let files = odocal::report::write_dir(&report, &report_dir).unwrap();
     for name in [
         "report.json",
         "report.md",
@@ -155,7 +156,10 @@ async fn declining_to_move_or_to_write_changes_nothing() {
     let err = run_demo(&opts, &mut ui, &CancellationToken::new())
         .await
         .unwrap_err();
-    assert!(matches!(err, RoutineError::Declined(_)), "{err}");
+    assert!(
+        matches!(err, DemoError::Routine(RoutineError::Declined(_))),
+        "{err}"
+    );
     assert!(ui.questions[0].contains("may it move"));
     // Allowed to move, not to write.
     let mut ui = Scripted {
@@ -206,7 +210,7 @@ async fn a_nack_on_save_restores_the_backup() {
         .unwrap();
     let truth = MockTruth(device.clone());
     let err = run(
-        &client,
+        &Base::single(client),
         &quick_routine("save-nack"),
         Some(&truth),
         &mut Unattended,
@@ -215,7 +219,10 @@ async fn a_nack_on_save_restores_the_backup() {
     .await
     .unwrap_err();
     match &err {
-        RoutineError::Restored { source, saved } => {
+        RoutineError::Restored {
+            source,
+            committed: saved,
+        } => {
             assert!(!saved, "a refused save leaves the stored copy alone");
             assert!(source.to_string().contains("StorageFailure"), "{source}");
         }
@@ -248,9 +255,15 @@ async fn cancelling_mid_square_stops_the_base_and_leaves_parameters_alone() {
             token.clone(),
         )),
     };
-    let err = run(&client, &quick_routine("cancel"), None, &mut ui, &token)
-        .await
-        .unwrap_err();
+    let err = run(
+        &Base::single(client),
+        &quick_routine("cancel"),
+        None,
+        &mut ui,
+        &token,
+    )
+    .await
+    .unwrap_err();
     assert!(matches!(err, RoutineError::Cancelled), "{err}");
     tokio::time::sleep(Duration::from_millis(30)).await;
     let d = lock(&device);
@@ -278,7 +291,7 @@ async fn cancelling_after_a_write_restores_ram_and_storage() {
         cancel_on: Some(("round 2".into(), token.clone())),
     };
     let err = run(
-        &client,
+        &Base::single(client),
         &quick_routine("cancel-after"),
         None,
         &mut ui,
@@ -287,7 +300,10 @@ async fn cancelling_after_a_write_restores_ram_and_storage() {
     .await
     .unwrap_err();
     match err {
-        RoutineError::Restored { source, saved } => {
+        RoutineError::Restored {
+            source,
+            committed: saved,
+        } => {
             assert!(matches!(*source, RoutineError::Cancelled));
             assert!(saved);
         }
@@ -315,7 +331,7 @@ async fn a_clockwise_compass_is_caught_before_anything_is_written() {
         .await
         .unwrap();
     let err = run(
-        &client,
+        &Base::single(client),
         &quick_routine("cw-compass"),
         None,
         &mut Unattended,

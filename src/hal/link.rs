@@ -178,7 +178,7 @@ impl Link {
                 },
                 read = rd.read(&mut chunk) => match read {
                     Ok(0) => closed = Some(LinkError::Closed),
-                    Err(e) => closed = Some(LinkError::Io(e.to_string())),
+                    Err(e) => closed = Some(e.into()),
                     Ok(n) => {
                         for frame in codec.feed(&mut buf, &chunk[..n]) {
                             self.dispatch(&frame, &mut pending, &mut unwrap);
@@ -230,7 +230,7 @@ impl Link {
             .to_frame()
             .map_err(LinkError::Decode)?
             .to_bytes()
-            .map_err(|e| LinkError::Io(e.to_string()))?
+            .map_err(|e| LinkError::Protocol(e.to_string()))?
             .to_vec();
         write(wr, &bytes).await?;
         self.stats.requests.fetch_add(1, Ordering::Relaxed);
@@ -357,10 +357,8 @@ fn fail(reply: Option<oneshot::Sender<Result<Response, HalError>>>, err: LinkErr
 }
 
 async fn write<W: AsyncWrite + Unpin>(wr: &mut W, bytes: &[u8]) -> Result<(), LinkError> {
-    wr.write_all(bytes)
-        .await
-        .map_err(|e| LinkError::Io(e.to_string()))?;
-    wr.flush().await.map_err(|e| LinkError::Io(e.to_string()))
+    wr.write_all(bytes).await?;
+    Ok(wr.flush().await?)
 }
 
 async fn sleep_until_opt(deadline: Option<Instant>) {

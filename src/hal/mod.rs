@@ -9,16 +9,19 @@
 //! channel with encoder counts and device time unwrapped on the host ([`Client::subscribe`]).
 //! [`motion`] has the helpers the calibration routine drives the base with.
 
+pub mod base;
+pub mod error;
 pub mod link;
-pub mod motion;
+
+pub use error::{HalError, LinkError};
 
 use crate::kinematics::{wrap_angle, WheelParams};
 use crate::protocol::frame::{MAJOR, VERSION};
 use crate::protocol::message::{
-    DeviceInfo, Encoders, MotionAccepted, MotionMode, MotionState, Nack, NackCode, ParamSource,
-    ParamsBlock, RestoreTarget, Status,
+    DeviceInfo, Encoders, MotionAccepted, MotionMode, MotionState, NackCode, ParamSource,
+    ParamsBlock, RestoreTarget, Status, WatchdogState,
 };
-use crate::protocol::{MessageError, Request, Response};
+use crate::protocol::{Request, Response};
 use link::{Command, Link, LinkConfig};
 use serde::Serialize;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -26,91 +29,6 @@ use std::sync::Arc;
 use std::time::Duration;
 use tokio::io::{AsyncRead, AsyncWrite};
 use tokio::sync::{broadcast, mpsc, oneshot};
-
-/// The link or the protocol failed (as opposed to the device refusing).
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-pub enum LinkError {
-    /// Reading or writing the stream failed.
-    #[error("link I/O error: {0}")]
-    Io(String),
-    /// The stream ended (device unplugged, port closed).
-    #[error("the link closed")]
-    Closed,
-    /// No answer after every retry.
-    #[error("no answer to message 0x{msg:02X} after {attempts} attempts ({after:?})")]
-    Timeout {
-        /// The request's message id.
-        msg: u8,
-        /// Attempts made.
-        attempts: u32,
-        /// Total time waited.
-        after: Duration,
-    },
-    /// A motion did not finish in the time it should take.
-    #[error("motion {motion_id} did not finish within {after:?}")]
-    MotionTimeout {
-        /// The motion.
-        motion_id: u16,
-        /// Time waited.
-        after: Duration,
-    },
-    /// An answer could not be decoded.
-    #[error("undecodable answer: {0}")]
-    Decode(MessageError),
-    /// The device answered with something that does not fit the request.
-    #[error("protocol violation: {0}")]
-    Protocol(String),
-    /// The device speaks another major protocol version.
-    #[error("device speaks protocol {major}.{minor}, this host speaks {host}.x")]
-    VersionMismatch {
-        /// Device's major.
-        major: u8,
-        /// Device's minor.
-        minor: u8,
-        /// Host's major.
-        host: u8,
-    },
-    /// An emergency stop abandoned the request.
-    #[error("cancelled by an emergency stop")]
-    Cancelled,
-    /// The port could not be opened.
-    #[error("cannot open {path}: {reason}")]
-    Open {
-        /// The port path.
-        path: String,
-        /// Why.
-        reason: String,
-    },
-    /// A caller-supplied value cannot be sent (e.g. outside the wire's range).
-    #[error("invalid argument: {0}")]
-    InvalidArgument(String),
-}
-
-/// Errors of HAL calls: the link failed, or the device refused.
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-pub enum HalError {
-    /// Transport or protocol failure.
-    #[error(transparent)]
-    Link(#[from] LinkError),
-    /// The device answered NACK.
-    #[error("device refused message 0x{msg:02X}: {:?} (field {})", nack.code, nack.detail)]
-    Nack {
-        /// The refused message id.
-        msg: u8,
-        /// Code and detail.
-        nack: Nack,
-    },
-}
-
-impl HalError {
-    /// The NACK code, if the device refused.
-    pub fn nack_code(&self) -> Option<NackCode> {
-        match self {
-            HalError::Nack { nack, .. } => Some(nack.code),
-            HalError::Link(_) => None,
-        }
-    }
-}
 
 /// Counters of the link's health.
 #[derive(Debug, Default)]
@@ -219,6 +137,10 @@ pub struct Client {
     stats: Arc<LinkStats>,
     config: LinkConfig,
     info: DeviceInfo,
+    /// The port path, or what the stream is, for reports.
+    label: Arc<str>,
+    /// The active parameters as last read or written, to turn counts into metres.
+    geometry: Arc<std::sync::Mutex<Option<WheelParams>>>,
 }
 
 /// Opens a serial port by path (the only place that names `tokio_serial`) and connects.
@@ -226,18 +148,20 @@ pub async fn open_port(path: &str, baud: u32) -> Result<(Client, DeviceInfo), Ha
     use tokio_serial::SerialPortBuilderExt;
     let port = tokio_serial::new(path, baud)
         .open_native_async()
-        .map_err(|e| LinkError::Open {
+        .map_err(|e| HalError::Open {
             path: path.to_string(),
-            reason: e.to_string(),
+            source: Arc::new(e),
         })?;
-    Client::connect(
+    let (mut client, info) = Client::connect(
         port,
         LinkConfig {
             baud,
             ..LinkConfig::default()
         },
     )
-    .await
+    .await?;
+    client.label = Arc::from(path);
+    Ok((client, info))
 }
 
 macro_rules! expect {
@@ -282,6 +206,8 @@ impl Client {
             stats,
             config,
             info: placeholder,
+            label: Arc::from("stream"),
+            geometry: Arc::default(),
         };
         let hello = client
             .request(Request::Hello {
@@ -321,6 +247,21 @@ impl Client {
         &self.info
     }
 
+    /// The port path this client was opened on (`stream` for other transports).
+    pub fn label(&self) -> &str {
+        &self.label
+    }
+
+    /// The active parameters as last read or written through this client.
+    pub fn known_geometry(&self) -> Option<WheelParams> {
+        *self.geometry.lock().unwrap_or_else(|p| p.into_inner())
+    }
+
+    fn remember(&self, params: WheelParams) -> WheelParams {
+        *self.geometry.lock().unwrap_or_else(|p| p.into_inner()) = Some(params);
+        params
+    }
+
     /// The link's timing policy.
     pub fn link_config(&self) -> LinkConfig {
         self.config
@@ -352,17 +293,21 @@ impl Client {
 
     /// Reads a parameter copy.
     pub async fn get_params(&self, source: ParamSource) -> Result<WheelParams, HalError> {
-        expect!(self.request(Request::GetParams { source }).await?,
-            Response::GetParams { params, .. } => params.to_params())
+        let params = expect!(self.request(Request::GetParams { source }).await?,
+            Response::GetParams { params, .. } => params.to_params())?;
+        if source == ParamSource::Active {
+            self.remember(params);
+        }
+        Ok(params)
     }
 
     /// Writes the active (RAM) parameters; returns them as the device applied them.
     pub async fn set_params(&self, params: &WheelParams) -> Result<WheelParams, HalError> {
         let block = ParamsBlock::from_params(params).ok_or_else(|| {
-            LinkError::InvalidArgument(format!("{params:?} does not fit the wire format"))
+            HalError::InvalidArgument(format!("{params:?} does not fit the wire format"))
         })?;
         expect!(self.request(Request::SetParams(block)).await?,
-            Response::SetParams(b) => b.to_params())
+            Response::SetParams(b) => self.remember(b.to_params()))
     }
 
     /// Commits the active parameters to non-volatile storage; returns the stored copy's CRC.
@@ -374,12 +319,12 @@ impl Client {
     /// Restores factory defaults (RAM, or RAM and storage).
     pub async fn restore_defaults(&self, target: RestoreTarget) -> Result<WheelParams, HalError> {
         expect!(self.request(Request::RestoreDefaults { target }).await?,
-            Response::RestoreDefaults(b) => b.to_params())
+            Response::RestoreDefaults(b) => self.remember(b.to_params()))
     }
 
     /// Reloads the stored parameters into RAM.
     pub async fn load_params(&self) -> Result<WheelParams, HalError> {
-        expect!(self.request(Request::LoadParams).await?, Response::LoadParams(b) => b.to_params())
+        expect!(self.request(Request::LoadParams).await?, Response::LoadParams(b) => self.remember(b.to_params()))
     }
 
     /// Zeroes the encoders.
@@ -428,7 +373,9 @@ impl Client {
             if r.is_finite() && (f64::from(i16::MIN)..=f64::from(i16::MAX)).contains(&r) {
                 Ok(r as i16)
             } else {
-                Err(LinkError::InvalidArgument(format!("{what} speed {v} m/s does not fit")).into())
+                Err(HalError::InvalidArgument(format!(
+                    "{what} speed {v} m/s does not fit"
+                )))
             }
         };
         let request = Request::WheelSpeed {
@@ -484,6 +431,35 @@ impl Client {
             Response::ConfigureWatchdog { timeout_ms } => Duration::from_millis(u64::from(timeout_ms)))
     }
 
+    /// Polls the status until `completed` motions are done and the base is idle, failing if
+    /// that takes longer than `limit` or the watchdog stops the base.
+    pub async fn wait_motion(
+        &self,
+        motion_id: u16,
+        completed: u32,
+        limit: Duration,
+    ) -> Result<(), HalError> {
+        let start = tokio::time::Instant::now();
+        loop {
+            let s = self.status().await?;
+            if s.motion_state == MotionState::Idle
+                && s.completed_motions.wrapping_sub(completed) < u32::MAX / 2
+            {
+                return Ok(());
+            }
+            if s.watchdog_state == WatchdogState::Tripped {
+                return Err(HalError::WatchdogTripped);
+            }
+            if start.elapsed() > limit {
+                return Err(HalError::MotionTimeout {
+                    motion_id,
+                    after: limit,
+                });
+            }
+            tokio::time::sleep(Duration::from_millis(5)).await;
+        }
+    }
+
     /// Feeds the watchdog (and acknowledges a trip).
     pub async fn heartbeat(&self) -> Result<(), HalError> {
         expect!(self.request(Request::Heartbeat).await?, Response::Heartbeat => ())
@@ -495,7 +471,9 @@ fn to_wire_i32(v: f64, what: &str) -> Result<i32, HalError> {
     if r.is_finite() && r >= f64::from(i32::MIN) && r <= f64::from(i32::MAX) {
         Ok(r as i32)
     } else {
-        Err(LinkError::InvalidArgument(format!("{what} {v} does not fit the wire format")).into())
+        Err(HalError::InvalidArgument(format!(
+            "{what} {v} does not fit the wire format"
+        )))
     }
 }
 
@@ -504,6 +482,8 @@ fn to_wire_u16(v: f64, what: &str) -> Result<u16, HalError> {
     if r.is_finite() && (0.0..=f64::from(u16::MAX)).contains(&r) {
         Ok(r as u16)
     } else {
-        Err(LinkError::InvalidArgument(format!("{what} {v} does not fit the wire format")).into())
+        Err(HalError::InvalidArgument(format!(
+            "{what} {v} does not fit the wire format"
+        )))
     }
 }

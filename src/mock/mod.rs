@@ -1,11 +1,15 @@
-//! A simulated robot base that speaks `protocol/SPEC.md`: the kinematic simulator behind the
-//! protocol, with non-volatile parameters, a watchdog and seeded faults.
+//! Simulated robots: the kinematic simulator behind each protocol, and behind the seam itself.
 //!
-//! [`device`] is the firmware (protocol semantics, motion, telemetry); [`mod@serve`] puts it on an
-//! in-memory duplex or a real pseudo-terminal, in virtual or scaled real time.
+//! [`device`] is firmware that speaks `protocol/SPEC.md` (protocol semantics, motion,
+//! telemetry, non-volatile parameters, a watchdog, seeded faults); [`mod@serve`] puts it on an
+//! in-memory duplex or a real pseudo-terminal, in virtual or scaled real time. [`sim_base`] is
+//! the same simulator as a [`crate::base`] backend in process, with no protocol at all.
 
 pub mod device;
 pub mod serve;
+pub mod sim_base;
+
+pub use sim_base::{SimBase, SimCounters, SimFaults};
 
 pub use device::{CompassConvention, DeviceCounters, MockConfig, MockDevice, MockError};
 pub use serve::{

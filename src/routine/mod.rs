@@ -1,106 +1,35 @@
-//! The scripted recalibration: from a mis-calibrated base to written, saved and verified
-//! parameters, safely.
+//! The scripted recalibration: from a mis-calibrated base to written, committed and verified
+//! parameters, safely, on any [`Base`].
 //!
-//! [`run`] drives a connected [`Client`] through: backup of the controller's parameters (before
-//! anything else), pre-flight checks (encoders, heading validity, heading noise at rest),
-//! calibration rounds of CW and CCW squares (each checked for plausibility, including the
-//! compass's sign convention against the commanded turns), estimation with every method,
-//! bounded write-back (set, read back, save, read back the stored copy) under the configured
-//! policy, iteration until converged, and verification squares. Any error or cancellation stops
-//! the base and restores the backed-up parameters. The result is a [`report::Report`].
+//! [`run`] drives a base through: a backup of its parameters (a [`Transaction`], before
+//! anything else), pre-flight checks (drive faults, heading validity and noise at rest, the
+//! watchdog), calibration rounds of CW and CCW squares ([`square`]; each checked for
+//! plausibility, including the compass's sign convention against the commanded turns),
+//! estimation with every method, bounded write-back through the transaction under the
+//! configured policy, iteration until converged, and verification squares. Any error or
+//! cancellation stops the base and rolls the parameters back. The result is a [`Report`].
+//! Nothing here knows which robot, protocol or simulator is behind the base.
 
 pub mod config;
-pub mod demo;
-pub mod export;
-pub mod plots;
+pub mod error;
+pub mod heading;
 pub mod report;
+pub mod square;
 
+pub use error::RoutineError;
+pub use report::Report;
+
+use crate::base::transaction::Transaction;
+pub use crate::base::GroundTruth;
+use crate::base::{Base, BaseError, HeadingSample};
 use crate::calibration::uncertainty::{cramer_rao_bound, heading_error_sigma, TestDesign};
-use crate::calibration::{estimate_all, CalibrationError, Estimate, RunMeasurement, SquareTest};
-use crate::hal::motion::{run_square_with_progress, SquareCommand, SquareRecord};
-use crate::hal::{Client, HalError, LinkError, TelemetrySample};
-use crate::kinematics::{wrap_angle, Direction, KinematicsError, Pose, WheelParams};
-use crate::protocol::message::ParamSource;
+use crate::calibration::{estimate_all, Estimate, RunMeasurement, SquareTest};
+use crate::kinematics::{wrap_angle, Direction, WheelParams};
 use config::{RoutineConfig, WritePolicy};
-use report::{Phase, Report, RoundReport, RunReport};
-use std::path::PathBuf;
+use report::{Phase, RoundReport, RunReport};
+use square::{run_square, SquareCommand, SquareRecord};
 use std::time::Duration;
 use tokio_util::sync::CancellationToken;
-
-/// Errors of the routine. Whatever the error, the base was told to stop and the parameters
-/// were restored if any had been written (see [`RoutineError::Restored`]).
-#[derive(Debug, thiserror::Error)]
-pub enum RoutineError {
-    /// The settings are unusable.
-    #[error(transparent)]
-    Config(#[from] config::ConfigError),
-    /// The link or the device failed.
-    #[error(transparent)]
-    Hal(#[from] HalError),
-    /// The measurements could not be calibrated.
-    #[error(transparent)]
-    Calibration(#[from] CalibrationError),
-    /// New parameters would be impossible.
-    #[error(transparent)]
-    Kinematics(#[from] KinematicsError),
-    /// The backup could not be written: nothing was changed.
-    #[error("cannot write the parameter backup {path}: {reason}; nothing was changed")]
-    Backup {
-        /// Backup path.
-        path: PathBuf,
-        /// Why.
-        reason: String,
-    },
-    /// The pre-flight checks failed.
-    #[error("pre-flight check failed: {0}")]
-    Preflight(String),
-    /// The measurements are implausible (e.g. the compass turns the wrong way).
-    #[error("implausible measurement: {0}")]
-    Implausible(String),
-    /// The estimate asks for a change beyond the configured bounds.
-    #[error("refusing to write: {0}")]
-    OutOfBounds(String),
-    /// What was written did not read back.
-    #[error("read-back mismatch: wrote {written:?}, device reports {read:?}")]
-    ReadBack {
-        /// What was sent.
-        written: WheelParams,
-        /// What came back.
-        read: WheelParams,
-    },
-    /// The user declined (to move or to write).
-    #[error("declined by the user: {0}")]
-    Declined(String),
-    /// Ctrl-C or the caller cancelled.
-    #[error("cancelled")]
-    Cancelled,
-    /// An error happened after parameters were written; the backup was put back.
-    #[error("{source} (the original parameters were restored{})", if *.saved { " and saved" } else { "" })]
-    Restored {
-        /// The error.
-        source: Box<RoutineError>,
-        /// Whether the stored copy was restored too.
-        saved: bool,
-    },
-    /// An error happened after parameters were written and restoring them failed too.
-    #[error("{source}; RESTORING THE BACKUP FAILED ({restore_error}): restore {backup} by hand")]
-    RestoreFailed {
-        /// The error.
-        source: Box<RoutineError>,
-        /// Why restoring failed.
-        restore_error: String,
-        /// The backup file to restore from.
-        backup: PathBuf,
-    },
-}
-
-/// Where the robot truly is: available in simulation, used for `E_max,sys` and true paths.
-pub trait GroundTruth: Send + Sync {
-    /// The robot's true pose now.
-    fn pose(&self) -> Pose;
-    /// The robot's true parameters.
-    fn true_params(&self) -> WheelParams;
-}
 
 /// Something the routine reports while it works.
 #[derive(Debug, Clone, PartialEq)]
@@ -155,14 +84,6 @@ impl RoutineUi for Unattended {
 /// Largest |heading error| a square should produce before the routine warns (45°).
 pub const IMPLAUSIBLE_HEADING_RAD: f64 = std::f64::consts::FRAC_PI_4;
 
-/// What has been changed on the controller, so a failure can undo it.
-struct Changes {
-    backup: WheelParams,
-    backup_path: PathBuf,
-    written: bool,
-    saved: bool,
-}
-
 async fn cancellable<T, E: Into<RoutineError>>(
     cancel: &CancellationToken,
     fut: impl std::future::Future<Output = Result<T, E>>,
@@ -173,13 +94,13 @@ async fn cancellable<T, E: Into<RoutineError>>(
     }
 }
 
-/// Runs the whole routine on a connected client.
+/// Runs the whole routine on `base`.
 ///
 /// `truth` (simulation only) adds true final positions, `E_max,sys` and true paths to the
 /// report. `cancel` stops the routine at the next await point: the base is stopped and any
-/// written parameters are restored before this returns.
+/// written parameters are rolled back before this returns.
 pub async fn run(
-    client: &Client,
+    base: &Base,
     cfg: &RoutineConfig,
     truth: Option<&dyn GroundTruth>,
     ui: &mut dyn RoutineUi,
@@ -187,92 +108,51 @@ pub async fn run(
 ) -> Result<Report, RoutineError> {
     cfg.validate()?;
     ui.event(&RoutineEvent::Stage(
-        "reading and backing up the controller's parameters".into(),
+        "reading and backing up the robot's parameters".into(),
     ));
-    let backup = cancellable(cancel, client.get_params(ParamSource::Active)).await?;
-    let backup_path = write_backup(client, &cfg.backup_dir, &backup)?;
-    let mut changes = Changes {
-        backup,
-        backup_path,
-        written: false,
-        saved: false,
-    };
-    let result = body(client, cfg, truth, ui, cancel, &mut changes).await;
+    let mut tx = cancellable(
+        cancel,
+        Transaction::begin(base.store.clone(), &cfg.backup_dir),
+    )
+    .await?;
+    let result = body(base, cfg, truth, ui, cancel, &mut tx).await;
     match result {
         Ok(report) => Ok(report),
         Err(err) => {
-            // Stop first (the guard in run_square has already sent STOP if a square was cut
-            // short; this covers everything else), then undo any write.
-            let _ = tokio::time::timeout(Duration::from_secs(2), client.stop()).await;
-            Err(undo(client, &changes, err).await)
+            // Stop first (the guard in run_square has already asked for a stop if a square was
+            // cut short; this covers everything else), then undo any write.
+            let _ = tokio::time::timeout(Duration::from_secs(2), base.drive.stop()).await;
+            Err(undo(&mut tx, err).await)
         }
     }
 }
 
-async fn undo(client: &Client, changes: &Changes, err: RoutineError) -> RoutineError {
-    if !changes.written {
-        return err;
-    }
-    let restore = async {
-        let read = client.set_params(&changes.backup).await?;
-        if changes.saved {
-            client.save_params().await?;
-        }
-        Ok::<_, HalError>(read)
-    };
-    match tokio::time::timeout(Duration::from_secs(5), restore).await {
-        Ok(Ok(_)) => RoutineError::Restored {
+/// Rolls back `tx` after `err` and says what became of the parameters.
+async fn undo(tx: &mut Transaction, err: RoutineError) -> RoutineError {
+    use crate::base::transaction::Rollback;
+    match tx.rollback().await {
+        Ok(Rollback::NothingWritten) => err,
+        Ok(outcome) => RoutineError::Restored {
             source: Box::new(err),
-            saved: changes.saved,
+            committed: outcome == Rollback::RestoredAndCommitted,
         },
-        Ok(Err(e)) => RoutineError::RestoreFailed {
+        Err(e) => RoutineError::RestoreFailed {
             source: Box::new(err),
-            restore_error: e.to_string(),
-            backup: changes.backup_path.clone(),
-        },
-        Err(_) => RoutineError::RestoreFailed {
-            source: Box::new(err),
-            restore_error: "timed out".into(),
-            backup: changes.backup_path.clone(),
+            restore_error: Box::new(e),
+            backup: tx.backup_path().to_path_buf(),
         },
     }
-}
-
-fn write_backup(
-    client: &Client,
-    backup_dir: &std::path::Path,
-    params: &WheelParams,
-) -> Result<PathBuf, RoutineError> {
-    let stamp = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0, |d| d.as_millis());
-    let path = backup_dir.join(format!(
-        "odocal-backup-{}-{stamp}.json",
-        client.device_info().serial_number
-    ));
-    let err = |reason: String| RoutineError::Backup {
-        path: path.clone(),
-        reason,
-    };
-    std::fs::create_dir_all(backup_dir).map_err(|e| err(e.to_string()))?;
-    let text = serde_json::to_string_pretty(&serde_json::json!({
-        "device": client.device_info(),
-        "active": params,
-    }))
-    .map_err(|e| err(e.to_string()))?;
-    std::fs::write(&path, text).map_err(|e| err(e.to_string()))?;
-    Ok(path)
 }
 
 async fn body(
-    client: &Client,
+    base: &Base,
     cfg: &RoutineConfig,
     truth: Option<&dyn GroundTruth>,
     ui: &mut dyn RoutineUi,
     cancel: &CancellationToken,
-    changes: &mut Changes,
+    tx: &mut Transaction,
 ) -> Result<Report, RoutineError> {
-    let heading_noise_rad = preflight(client, cfg, ui, cancel).await?;
+    let (heading_noise_rad, mut warnings) = preflight(base, cfg, ui, cancel).await?;
     let total_runs = cfg.runs_per_direction * 2;
     if cfg.confirm_motion
         && !ui.confirm(&format!(
@@ -282,16 +162,16 @@ async fn body(
     )) {
         return Err(RoutineError::Declined("the robot may not move".into()));
     }
-    let mut current = changes.backup;
+    let original = *tx.original();
+    let mut current = original;
     let mut rounds = Vec::new();
     let mut converged = false;
-    let mut warnings = Vec::new();
     for round in 1..=cfg.max_rounds {
         ui.event(&RoutineEvent::Stage(format!(
             "round {round}: calibration squares"
         )));
         let runs = drive_runs(
-            client,
+            base,
             cfg,
             truth,
             ui,
@@ -349,13 +229,13 @@ async fn body(
             break;
         }
         let proposed = chosen.correction.apply(&current)?;
-        check_bounds(cfg.max_change, &changes.backup, &proposed)?;
+        check_bounds(cfg.max_change, &original, &proposed)?;
         rr.params_after = Some(proposed);
         let write = match cfg.write_back {
             WritePolicy::DryRun => false,
             WritePolicy::Yes => true,
             WritePolicy::Ask => ui.confirm(&format!(
-                "Write these parameters to the controller and save them?\n{}",
+                "Write these parameters and commit them?\n{}",
                 report::params_table(&current, &proposed)
             )),
         };
@@ -367,12 +247,12 @@ async fn body(
             rounds.push(rr);
             break;
         }
-        // From here on, the parameters are what the device reports (rounded to the wire).
-        current = write_params(client, cancel, changes, &proposed).await?;
+        // From here on, the parameters are what the store reports (rounded to its resolution).
+        current = cancellable(cancel, tx.apply(&proposed)).await?;
         rr.written = true;
         rounds.push(rr);
     }
-    if !converged && changes.written {
+    if !converged && tx.written() {
         let msg = format!(
             "not converged to ±{} after {} round(s); the last estimate was written",
             cfg.tolerance, cfg.max_rounds
@@ -380,10 +260,10 @@ async fn body(
         ui.event(&RoutineEvent::Warning(msg.clone()));
         warnings.push(msg);
     }
-    let verification = if changes.written && cfg.verification_runs > 0 {
+    let verification = if tx.written() && cfg.verification_runs > 0 {
         ui.event(&RoutineEvent::Stage("verification squares".into()));
         drive_runs(
-            client,
+            base,
             cfg,
             truth,
             ui,
@@ -397,76 +277,67 @@ async fn body(
         Vec::new()
     };
     Ok(Report::assemble(
-        client,
+        base,
         cfg,
-        changes.backup,
-        changes.backup_path.clone(),
+        original,
+        tx.backup_path().to_path_buf(),
         current,
         heading_noise_rad,
         rounds,
         verification,
         converged,
-        changes.written,
+        tx.written(),
         warnings,
     ))
 }
 
 async fn preflight(
-    client: &Client,
+    base: &Base,
     cfg: &RoutineConfig,
     ui: &mut dyn RoutineUi,
     cancel: &CancellationToken,
-) -> Result<f64, RoutineError> {
+) -> Result<(f64, Vec<String>), RoutineError> {
     ui.event(&RoutineEvent::Stage("pre-flight checks".into()));
-    let status = cancellable(cancel, client.status()).await?;
-    if status.fault_flags != 0 {
-        return Err(RoutineError::Preflight(format!(
-            "device reports faults {:#06x}",
-            status.fault_flags
-        )));
+    let check = cancellable(cancel, base.drive.preflight()).await?;
+    if !check.faults.is_empty() {
+        return Err(RoutineError::Preflight(check.faults.join("; ")));
     }
-    cancellable(cancel, client.read_encoders()).await?;
-    let mut readings = Vec::new();
-    for _ in 0..10 {
-        let h = cancellable(cancel, client.read_heading()).await?;
-        if !h.valid {
-            return Err(RoutineError::Preflight(
-                "the heading sensor reports invalid".into(),
-            ));
+    let mut warnings = check.warnings;
+    let readings = match cancellable(cancel, heading::readings(base.heading.as_ref(), 10)).await {
+        Err(RoutineError::Base(BaseError::HeadingInvalid { reason })) => {
+            return Err(RoutineError::Preflight(format!(
+                "the heading sensor reports invalid: {reason}"
+            )))
         }
-        readings.push(h.heading_rad);
-    }
-    let mean = circular_mean(&readings);
-    let noise = (readings
-        .iter()
-        .map(|h| wrap_angle(h - mean).powi(2))
-        .sum::<f64>()
-        / (readings.len() - 1) as f64)
-        .sqrt();
+        other => other?,
+    };
+    let noise = heading::circular_std(&readings);
     ui.event(&RoutineEvent::Stage(format!(
         "heading noise at rest: {:.3}° (σ of 10 readings)",
         noise.to_degrees()
     )));
-    cancellable(
+    let armed = cancellable(
         cancel,
-        client.configure_watchdog(Some(Duration::from_millis(cfg.watchdog_ms))),
+        base.drive
+            .arm_watchdog(Duration::from_millis(cfg.watchdog_ms)),
     )
     .await?;
-    let period = (cfg.telemetry_ms > 0).then(|| Duration::from_millis(cfg.telemetry_ms));
-    cancellable(cancel, client.configure_telemetry(period)).await?;
-    Ok(noise)
-}
-
-fn circular_mean(angles: &[f64]) -> f64 {
-    let (s, c) = angles
-        .iter()
-        .fold((0.0, 0.0), |(s, c), a| (s + a.sin(), c + a.cos()));
-    s.atan2(c)
+    if armed.is_none() {
+        warnings.push(
+            "the drive has no watchdog: if this host vanishes mid-motion, only the \
+                       drive's own limits stop the robot"
+                .into(),
+        );
+    }
+    for w in &warnings {
+        ui.event(&RoutineEvent::Warning(w.clone()));
+    }
+    Ok((noise, warnings))
 }
 
 #[allow(clippy::too_many_arguments)]
 async fn drive_runs(
-    client: &Client,
+    base: &Base,
     cfg: &RoutineConfig,
     truth: Option<&dyn GroundTruth>,
     ui: &mut dyn RoutineUi,
@@ -492,6 +363,7 @@ async fn drive_runs(
                 max_rate_rad_s: cfg.max_rate_rad_s,
                 heading_samples: cfg.heading_samples,
                 settle: Duration::from_secs_f64(cfg.settle_s),
+                stream_period: Duration::from_millis(cfg.telemetry_ms.max(1)),
             };
             let start = truth.map(|t| t.pose());
             let rec = {
@@ -506,10 +378,10 @@ async fn drive_runs(
                         motion,
                     })
                 };
-                cancellable(cancel, run_square_with_progress(client, &cmd, on_motion)).await?
+                cancellable(cancel, run_square(base, &cmd, on_motion)).await?
             };
             let run = RunReport::new(phase, &rec, params, start, truth);
-            check_plausible(&rec, &run, ui)?;
+            check_plausible(&rec, &run, params, ui)?;
             ui.event(&RoutineEvent::RunDone {
                 heading_error_deg: run.heading_error_deg,
             });
@@ -519,30 +391,53 @@ async fn drive_runs(
     Ok(out)
 }
 
-/// Total turn of the compass heading over a run's telemetry (rad, unwrapped).
-fn compass_turn(trace: &[TelemetrySample]) -> Option<f64> {
-    let valid: Vec<f64> = trace
+/// Total turn of the streamed heading over a run (rad, unwrapped).
+fn compass_turn(headings: &[HeadingSample]) -> Option<f64> {
+    let valid: Vec<f64> = headings
         .iter()
-        .filter(|s| s.heading_valid)
+        .filter(|s| s.validity.is_valid())
         .map(|s| s.heading_rad)
         .collect();
     (valid.len() > 8).then(|| valid.windows(2).map(|w| wrap_angle(w[1] - w[0])).sum())
 }
 
+/// Total turn the drive's own odometry saw over a run (rad), from its wheel travel.
+fn odometry_turn(rec: &SquareRecord, params: &WheelParams) -> Option<f64> {
+    (rec.travel.len() > 8).then(|| {
+        rec.travel
+            .iter()
+            .map(|t| (t.right_m - t.left_m) / params.wheelbase_m)
+            .sum()
+    })
+}
+
 fn check_plausible(
     rec: &SquareRecord,
     run: &RunReport,
+    params: &WheelParams,
     ui: &mut dyn RoutineUi,
 ) -> Result<(), RoutineError> {
     let expected = rec.command.direction.turn_sign() * 2.0 * std::f64::consts::PI;
-    match compass_turn(&rec.trace) {
-        // The compass must turn about ±360° the way the square was commanded; the opposite
-        // sign means it reports clockwise-positive azimuth (or left/right are swapped).
-        Some(turn) if (turn + expected).abs() < (turn - expected).abs() => {
+    let opposite = |turn: f64| (turn + expected).abs() < (turn - expected).abs();
+    // The wheels must turn the robot the way the square was commanded; the opposite sign
+    // means the encoders or motor channels are swapped or reversed.
+    if let Some(turn) = odometry_turn(rec, params).filter(|&t| opposite(t)) {
+        return Err(RoutineError::Implausible(format!(
+            "the drive's odometry turned {:.0}° during a {} square that should turn {:.0}°: \
+             left and right wheels (or encoder directions) are swapped",
+            turn.to_degrees(),
+            rec.command.direction,
+            expected.to_degrees()
+        )));
+    }
+    match compass_turn(&rec.headings) {
+        // The heading must turn about ±360° the way the square was commanded; the opposite
+        // sign means the sensor reports clockwise-positive azimuth.
+        Some(turn) if opposite(turn) => {
             return Err(RoutineError::Implausible(format!(
                 "the heading turned {:.0}° during a {} square that should turn {:.0}°: the \
-                 heading sensor reports clockwise-positive (negate it in firmware) or the \
-                 wheels are swapped",
+                 heading sensor reports clockwise-positive (negate it) or is mounted upside \
+                 down",
                 turn.to_degrees(),
                 rec.command.direction,
                 expected.to_degrees()
@@ -550,7 +445,7 @@ fn check_plausible(
         }
         Some(_) => {}
         None => ui.event(&RoutineEvent::Warning(
-            "no telemetry: the heading sensor's sign convention cannot be checked".into(),
+            "no heading stream: the heading sensor's sign convention cannot be checked".into(),
         )),
     }
     for w in &run.warnings {
@@ -629,93 +524,36 @@ fn check_bounds(
     Ok(())
 }
 
-/// Writes `new` to the controller under the routine's safety rules, for callers outside the
-/// routine (the online estimator's write-back): backs up the active parameters to `backup_dir`
-/// first, refuses changes beyond `max_change`, asks unless `policy` is `Yes` (and writes
-/// nothing for `DryRun`), writes, reads back, saves, reads back the stored copy, and restores
-/// the backup on any failure. Returns the parameters as the device holds them and the backup.
+/// Writes `new` under the routine's safety rules, for callers outside the routine (the online
+/// estimator's write-back): a [`Transaction`] backs the store up to `backup_dir` first;
+/// changes beyond `max_change` are refused; it asks unless `policy` is `Yes` (and writes
+/// nothing for `DryRun`); it writes, reads back, commits, reads back the committed copy, and
+/// rolls back on any failure. Returns the parameters as the store holds them and the backup.
 pub async fn write_parameters(
-    client: &Client,
+    base: &Base,
     new: &WheelParams,
     policy: WritePolicy,
     max_change: f64,
     backup_dir: &std::path::Path,
     ui: &mut dyn RoutineUi,
     cancel: &CancellationToken,
-) -> Result<(WheelParams, PathBuf), RoutineError> {
-    let current = cancellable(cancel, client.get_params(ParamSource::Active)).await?;
-    let backup_path = write_backup(client, backup_dir, &current)?;
+) -> Result<(WheelParams, std::path::PathBuf), RoutineError> {
+    let mut tx = cancellable(cancel, Transaction::begin(base.store.clone(), backup_dir)).await?;
+    let current = *tx.original();
     check_bounds(max_change, &current, new)?;
     let go = match policy {
         WritePolicy::DryRun => false,
         WritePolicy::Yes => true,
         WritePolicy::Ask => ui.confirm(&format!(
-            "Write these parameters to the controller and save them?\n{}",
+            "Write these parameters and commit them?\n{}",
             report::params_table(&current, new)
         )),
     };
     if !go {
         return Err(RoutineError::Declined("parameters not written".into()));
     }
-    let mut changes = Changes {
-        backup: current,
-        backup_path: backup_path.clone(),
-        written: false,
-        saved: false,
-    };
-    match write_params(client, cancel, &mut changes, new).await {
-        Ok(applied) => Ok((applied, backup_path)),
-        Err(e) => Err(undo(client, &changes, e).await),
-    }
-}
-
-/// Writes to RAM, reads back, saves, reads back the stored copy; returns the parameters as the
-/// device holds them.
-async fn write_params(
-    client: &Client,
-    cancel: &CancellationToken,
-    changes: &mut Changes,
-    params: &WheelParams,
-) -> Result<WheelParams, RoutineError> {
-    changes.written = true;
-    let applied = cancellable(cancel, client.set_params(params)).await?;
-    let read = cancellable(cancel, client.get_params(ParamSource::Active)).await?;
-    if !same_on_wire(&applied, params) || !same_on_wire(&read, params) {
-        return Err(RoutineError::ReadBack {
-            written: *params,
-            read,
-        });
-    }
-    match cancellable(cancel, client.save_params()).await {
-        Ok(_) => changes.saved = true,
-        // A NACK means the device kept its stored copy (SPEC.md: SAVE_PARAMS is atomic).
-        Err(e @ RoutineError::Hal(HalError::Nack { .. })) => return Err(e),
-        // Anything else leaves it unknown whether the save happened: restore it too.
-        Err(e) => {
-            changes.saved = true;
-            return Err(e);
-        }
-    }
-    let stored = cancellable(cancel, client.get_params(ParamSource::Stored)).await?;
-    if !same_on_wire(&stored, params) {
-        return Err(RoutineError::ReadBack {
-            written: *params,
-            read: stored,
-        });
-    }
-    Ok(read)
-}
-
-/// Equal within the wire's resolution (1 nm, 1e-6 count).
-fn same_on_wire(a: &WheelParams, b: &WheelParams) -> bool {
-    (a.left_wheel_diameter_m - b.left_wheel_diameter_m).abs() < 1e-9
-        && (a.right_wheel_diameter_m - b.right_wheel_diameter_m).abs() < 1e-9
-        && (a.wheelbase_m - b.wheelbase_m).abs() < 1e-9
-        && (a.counts_per_wheel_rev - b.counts_per_wheel_rev).abs() < 1e-6
-}
-
-impl From<LinkError> for RoutineError {
-    fn from(e: LinkError) -> Self {
-        RoutineError::Hal(HalError::Link(e))
+    match cancellable(cancel, tx.apply(new)).await {
+        Ok(applied) => Ok((applied, tx.backup_path().to_path_buf())),
+        Err(e) => Err(undo(&mut tx, e).await),
     }
 }

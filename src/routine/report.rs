@@ -1,16 +1,16 @@
-//! What the routine measured and did: the report's data, its Markdown form, and the report
-//! directory (`report.json`, `report.md`, SVG plots).
+//! What the routine measured and did, as data: every square, round and verification, the
+//! parameters before and after, and the summary figures. Rendering it (Markdown, plots, files,
+//! exports) is [`crate::report`]'s job.
 
 use super::config::RoutineConfig;
-use super::{plots, GroundTruth};
+use super::square::SquareRecord;
+use super::GroundTruth;
+use crate::base::{Base, BaseInfo, TravelSample};
 use crate::calibration::{Estimate, Method};
-use crate::hal::motion::SquareRecord;
-use crate::hal::{Client, LinkStatsSnapshot, TelemetrySample};
 use crate::kinematics::{Direction, Pose, WheelParams};
-use crate::protocol::message::DeviceInfo;
 use serde::Serialize;
 use std::fmt::Write as _;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 /// Which part of the routine a run belongs to.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
@@ -58,26 +58,31 @@ pub struct RunReport {
     pub params: WheelParams,
     /// True final position in the start frame (simulation only).
     pub true_final_xy_m: Option<[f64; 2]>,
-    /// Odometry path from telemetry (start frame, decimated).
+    /// Odometry path from the streamed wheel travel (start frame, decimated).
     pub odometry_path: Vec<[f64; 2]>,
-    /// True path (simulation only): the same wheel counts with the true parameters.
+    /// True path (simulation only): the same wheel rotations with the true parameters.
     pub true_path: Option<Vec<[f64; 2]>>,
-    /// Telemetry samples received.
-    pub telemetry_samples: usize,
+    /// Wheel-travel samples streamed during the run.
+    pub travel_samples: usize,
+    /// Heading samples streamed during the run.
+    pub heading_samples: usize,
     /// Plausibility warnings.
     pub warnings: Vec<String>,
 }
 
-/// Integrates a telemetry trace's encoder counts with `params`, from the origin.
-fn integrate(trace: &[TelemetrySample], params: &WheelParams) -> Vec<[f64; 2]> {
+/// Integrates wheel travel reported with `configured` parameters as a robot with `actual`
+/// parameters would move, from the origin; decimated to [`PATH_POINTS`].
+fn integrate(
+    travel: &[TravelSample],
+    configured: &WheelParams,
+    actual: &WheelParams,
+) -> Vec<[f64; 2]> {
+    let left = actual.left_m_per_count() / configured.left_m_per_count();
+    let right = actual.right_m_per_count() / configured.right_m_per_count();
     let mut pose = Pose::default();
     let mut out = vec![[0.0, 0.0]];
-    for w in trace.windows(2) {
-        pose = params.odometry_step(
-            &pose,
-            (w[1].left_counts - w[0].left_counts) as f64,
-            (w[1].right_counts - w[0].right_counts) as f64,
-        );
+    for t in travel {
+        pose = pose.advance(t.left_m * left, t.right_m * right, actual.wheelbase_m);
         out.push([pose.x_m, pose.y_m]);
     }
     let step = out.len().div_ceil(PATH_POINTS).max(1);
@@ -126,9 +131,10 @@ impl RunReport {
             heading_after_rad: rec.heading_after_rad,
             params: *params,
             true_final_xy_m,
-            odometry_path: integrate(&rec.trace, params),
-            true_path: truth.map(|t| integrate(&rec.trace, &t.true_params())),
-            telemetry_samples: rec.trace.len(),
+            odometry_path: integrate(&rec.travel, params, params),
+            true_path: truth.map(|t| integrate(&rec.travel, params, &t.true_params())),
+            travel_samples: rec.travel.len(),
+            heading_samples: rec.headings.len(),
             warnings,
         }
     }
@@ -164,15 +170,15 @@ pub struct RoundReport {
 pub struct Report {
     /// odocal version.
     pub odocal_version: String,
-    /// The device.
-    pub device: DeviceInfo,
+    /// The drive, heading source and parameter store.
+    pub base: BaseInfo,
     /// The settings.
     pub config: RoutineConfig,
-    /// Parameters found on the controller (backed up).
+    /// Parameters found in the store (backed up).
     pub original_params: WheelParams,
     /// Where the backup was written.
     pub backup_path: PathBuf,
-    /// Parameters on the controller at the end.
+    /// Parameters in the store at the end.
     pub final_params: WheelParams,
     /// Heading noise at rest (σ of single readings, rad).
     pub heading_noise_rad: f64,
@@ -194,8 +200,8 @@ pub struct Report {
     pub mean_abs_heading_error_before_deg: f64,
     /// Mean |final heading error| of the verification (deg).
     pub mean_abs_heading_error_after_deg: Option<f64>,
-    /// Link health.
-    pub link: LinkStatsSnapshot,
+    /// The drive's link or device health at the end.
+    pub diagnostics: serde_json::Value,
     /// Warnings raised on the way.
     pub warnings: Vec<String>,
 }
@@ -220,7 +226,7 @@ fn mean_abs_heading_deg(runs: &[RunReport]) -> Option<f64> {
 impl Report {
     #[allow(clippy::too_many_arguments)]
     pub(super) fn assemble(
-        client: &Client,
+        base: &Base,
         cfg: &RoutineConfig,
         original_params: WheelParams,
         backup_path: PathBuf,
@@ -235,7 +241,7 @@ impl Report {
         let first = rounds.first().map(|r| r.runs.as_slice()).unwrap_or(&[]);
         Report {
             odocal_version: env!("CARGO_PKG_VERSION").into(),
-            device: client.device_info().clone(),
+            base: base.info(),
             config: cfg.clone(),
             original_params,
             backup_path,
@@ -253,162 +259,9 @@ impl Report {
             verification,
             converged,
             written,
-            link: client.stats(),
+            diagnostics: base.drive.diagnostics(),
             warnings,
         }
-    }
-
-    /// The before/after summary as a plain-text table.
-    pub fn summary_table(&self) -> String {
-        let mut s = String::new();
-        let opt =
-            |v: Option<f64>, unit: &str| v.map_or("–".to_string(), |v| format!("{v:.4} {unit}"));
-        let _ = writeln!(s, "{:<34} {:>14} {:>14}", "", "before", "after");
-        let _ = writeln!(
-            s,
-            "{:<34} {:>14} {:>14}",
-            "E_max,sys (true end points)",
-            opt(self.e_max_sys_before_m, "m"),
-            opt(self.e_max_sys_after_m, "m")
-        );
-        let _ = writeln!(
-            s,
-            "{:<34} {:>14} {:>14}",
-            "mean |final heading error|",
-            format!("{:.3}°", self.mean_abs_heading_error_before_deg),
-            self.mean_abs_heading_error_after_deg
-                .map_or("–".to_string(), |v| format!("{v:.3}°"))
-        );
-        s.push('\n');
-        s.push_str(&params_table(&self.original_params, &self.final_params));
-        s
-    }
-
-    /// The report as Markdown.
-    pub fn to_markdown(&self) -> String {
-        let mut s = String::new();
-        let _ = writeln!(s, "# odocal recalibration report\n");
-        let _ = writeln!(
-            s,
-            "Device `{}` (serial {:#x}, protocol {}.{}), odocal {}.\n",
-            self.device.firmware_id,
-            self.device.serial_number,
-            self.device.major,
-            self.device.minor,
-            self.odocal_version
-        );
-        let _ = writeln!(
-            s,
-            "Squares of {} m, {} per direction per round, method `{}`, convention `{}`, \
-             write-back `{:?}`. Backup of the original parameters: `{}`.\n",
-            self.config.side_m,
-            self.config.runs_per_direction,
-            self.config.method,
-            self.config.split_convention().name(),
-            self.config.write_back,
-            self.backup_path.display()
-        );
-        let _ = writeln!(
-            s,
-            "Heading noise at rest: {:.3}°. Converged: {}. Written: {}.\n",
-            self.heading_noise_rad.to_degrees(),
-            self.converged,
-            self.written
-        );
-        let _ = writeln!(
-            s,
-            "## Before and after\n\n```text\n{}```\n",
-            self.summary_table()
-        );
-        for r in &self.rounds {
-            let _ = writeln!(s, "## Round {}\n", r.round);
-            let _ = writeln!(s, "| run | direction | heading error (°) |\n|---|---|---|");
-            for (i, run) in r.runs.iter().enumerate() {
-                let _ = writeln!(
-                    s,
-                    "| {} | {} | {:+.3} |",
-                    i + 1,
-                    run.direction,
-                    run.heading_error_deg
-                );
-            }
-            let _ = writeln!(s, "\n| method | E_b | ± | E_d | ± |\n|---|---|---|---|---|");
-            for e in &r.estimates {
-                let f = |v: Option<f64>| v.map_or("–".into(), |v| format!("{v:.5}"));
-                let _ = writeln!(
-                    s,
-                    "| {}{} | {:.6} | {} | {:.6} | {} |",
-                    e.method,
-                    if e.method == r.chosen.method {
-                        " (chosen)"
-                    } else {
-                        ""
-                    },
-                    e.e_b,
-                    f(e.e_b_std_err),
-                    e.e_d,
-                    f(e.e_d_std_err)
-                );
-            }
-            if let Some([b, d]) = r.cramer_rao_std {
-                let _ = writeln!(s, "\nCramér–Rao bound (std): E_b {b:.5}, E_d {d:.5}.");
-            }
-            let _ = writeln!(
-                s,
-                "\n{}\n",
-                if r.converged {
-                    "Within tolerance: nothing to write.".to_string()
-                } else if r.written {
-                    "Written and saved.".to_string()
-                } else {
-                    "Not written.".to_string()
-                }
-            );
-        }
-        if !self.verification.is_empty() {
-            let _ = writeln!(
-                s,
-                "## Verification\n\n| run | direction | heading error (°) |\n|---|---|---|"
-            );
-            for (i, run) in self.verification.iter().enumerate() {
-                let _ = writeln!(
-                    s,
-                    "| {} | {} | {:+.3} |",
-                    i + 1,
-                    run.direction,
-                    run.heading_error_deg
-                );
-            }
-            s.push('\n');
-        }
-        if !self.warnings.is_empty() {
-            let _ = writeln!(s, "## Warnings\n");
-            for w in &self.warnings {
-                let _ = writeln!(s, "- {w}");
-            }
-            s.push('\n');
-        }
-        let _ = writeln!(
-            s,
-            "## Plots\n\n![paths](paths.svg)\n\n![heading errors](heading_errors.svg)\n\n\
-             ![end points](end_points.svg)\n"
-        );
-        s
-    }
-
-    /// Writes `report.json`, `report.md` and the SVG plots into `dir` (created if needed).
-    pub fn write_dir(&self, dir: &Path) -> std::io::Result<Vec<PathBuf>> {
-        std::fs::create_dir_all(dir)?;
-        let json = dir.join("report.json");
-        std::fs::write(
-            &json,
-            serde_json::to_string_pretty(self).map_err(std::io::Error::other)?,
-        )?;
-        let md = dir.join("report.md");
-        std::fs::write(&md, self.to_markdown())?;
-        let mut written = vec![json, md];
-        written.extend(plots::write_all(self, dir)?);
-        Ok(written)
     }
 }
 

@@ -356,7 +356,7 @@ pub struct HeadingArgs {
 /// Runs `odocal heading`.
 pub async fn heading(args: HeadingArgs) -> CliResult {
     let client = args.port.connect().await?;
-    let mean = odocal::hal::motion::mean_heading(&client, args.samples).await?;
+    let mean = odocal::routine::heading::mean_heading(&client, args.samples).await?;
     if args.port.json {
         return print_json(&json!({
             "heading_rad": mean,

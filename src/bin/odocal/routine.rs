@@ -2,12 +2,13 @@
 
 use crate::print_json;
 use indicatif::{ProgressBar, ProgressStyle};
+use odocal::base::Base;
 use odocal::calibration::Method;
+use odocal::demo::{run_demo, DemoOptions};
 use odocal::hal::open_port;
 use odocal::kinematics::WheelParams;
+use odocal::report::ros2::ros2_diff_drive_yaml;
 use odocal::routine::config::{ConventionName, RoutineConfig, StraightCheck, WritePolicy};
-use odocal::routine::demo::{run_demo, DemoOptions};
-use odocal::routine::export::ros2_diff_drive_yaml;
 use odocal::routine::report::Report;
 use odocal::routine::{run, RoutineEvent, RoutineUi};
 use serde_json::json;
@@ -171,12 +172,12 @@ fn print_outcome(report: &Report, json_out: bool, files: &[PathBuf]) -> CliResul
             "not converged"
         },
         if report.written {
-            "parameters written and saved"
+            "parameters written and committed"
         } else {
             "nothing written"
         }
     );
-    print!("{}", report.summary_table());
+    print!("{}", odocal::report::summary_table(report));
     println!(
         "backup of the original parameters: {}",
         report.backup_path.display()
@@ -192,7 +193,7 @@ fn print_outcome(report: &Report, json_out: bool, files: &[PathBuf]) -> CliResul
 
 fn finish(report: &Report, report_dir: Option<&PathBuf>, json_out: bool) -> CliResult {
     let files = match report_dir {
-        Some(d) => report.write_dir(d)?,
+        Some(d) => odocal::report::write_dir(report, d)?,
         None => Vec::new(),
     };
     print_outcome(report, json_out, &files)
@@ -409,7 +410,7 @@ async fn run_on_port(
     }
     let mut ui = TerminalUi::new(flags.json, flags.yes);
     let token = ctrl_c_token();
-    let report = run(&client, &cfg, None, &mut ui, &token).await?;
+    let report = run(&Base::single(client), &cfg, None, &mut ui, &token).await?;
     drop(ui);
     finish(&report, cfg.report_dir.as_ref(), flags.json)
 }

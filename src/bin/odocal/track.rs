@@ -256,7 +256,7 @@ pub async fn track(args: TrackArgs) -> CliResult {
                 WritePolicy::Ask
             };
             let (applied, backup) = write_parameters(
-                client,
+                &odocal::base::Base::single(client.clone()),
                 &new,
                 policy,
                 0.1,
@@ -265,7 +265,7 @@ pub async fn track(args: TrackArgs) -> CliResult {
                 &CancellationToken::new(),
             )
             .await?;
-            eprintln!("written and saved; backup in {}", backup.display());
+            eprintln!("written and committed; backup in {}", backup.display());
             written = Some(applied);
         } else {
             eprintln!(

@@ -1,7 +1,7 @@
 //! SVG plots of a report (plotters): paths, heading errors per run, end points before/after.
 
-use super::report::{Report, RunReport};
 use crate::kinematics::Direction;
+use crate::routine::report::{Report, RunReport};
 use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;
 use std::path::{Path, PathBuf};

@@ -1,12 +1,38 @@
-//! The demo: the full routine against the built-in simulated robot on a pseudo-terminal.
+//! The demo: the full routine against the built-in simulated robot, served on a real
+//! pseudo-terminal and opened by its path like a USB adapter, in virtual time. It wires the
+//! mock device, the HAL and the routine together, which is why it lives above all three.
 
-use super::config::{RoutineConfig, WritePolicy};
-use super::{run, GroundTruth, Report, RoutineError, RoutineUi};
-use crate::hal::open_port;
+use crate::base::{Base, GroundTruth};
+use crate::hal::{open_port, HalError};
 use crate::kinematics::{Pose, WheelParams};
-use crate::mock::{lock, spawn_pty, FaultConfig, MockConfig, MockDevice, SharedDevice, TimeMode};
+use crate::mock::{
+    lock, spawn_pty, FaultConfig, MockConfig, MockDevice, MockError, SharedDevice, TimeMode,
+};
+use crate::routine::config::{RoutineConfig, WritePolicy};
+use crate::routine::{run, Report, RoutineError, RoutineUi};
+use crate::sim::SimError;
 use std::sync::{Arc, Mutex};
 use tokio_util::sync::CancellationToken;
+
+/// Why the demo could not run.
+#[derive(Debug, thiserror::Error)]
+pub enum DemoError {
+    /// The demo robot's settings are impossible.
+    #[error("the demo robot cannot be built: {0}")]
+    Robot(#[from] SimError),
+    /// The mock device refused its configuration.
+    #[error(transparent)]
+    Mock(#[from] MockError),
+    /// No pseudo-terminal could be created.
+    #[error("cannot create a pseudo-terminal: {0}")]
+    Pty(#[source] std::io::Error),
+    /// Opening or greeting the mock device failed.
+    #[error(transparent)]
+    Link(#[from] HalError),
+    /// The routine failed.
+    #[error(transparent)]
+    Routine(#[from] RoutineError),
+}
 
 /// The demo robot and routine.
 #[derive(Debug, Clone, PartialEq)]
@@ -61,12 +87,11 @@ impl GroundTruth for MockTruth {
 }
 
 /// Builds the demo's simulated robot.
-pub fn demo_device(opts: &DemoOptions) -> Result<SharedDevice, RoutineError> {
-    let mut cfg = MockConfig::with_ratios(opts.nominal, opts.true_e_b, opts.true_e_d)
-        .map_err(|e| RoutineError::Preflight(e.to_string()))?;
+pub fn demo_device(opts: &DemoOptions) -> Result<SharedDevice, DemoError> {
+    let mut cfg = MockConfig::with_ratios(opts.nominal, opts.true_e_b, opts.true_e_d)?;
     cfg.noise.compass_sigma_rad = opts.compass_sigma_deg.to_radians();
     cfg.seed = opts.seed;
-    let device = MockDevice::new(cfg).map_err(|e| RoutineError::Preflight(e.to_string()))?;
+    let device = MockDevice::new(cfg)?;
     Ok(Arc::new(Mutex::new(device)))
 }
 
@@ -76,12 +101,19 @@ pub async fn run_demo(
     opts: &DemoOptions,
     ui: &mut dyn RoutineUi,
     cancel: &CancellationToken,
-) -> Result<(Report, SharedDevice), RoutineError> {
+) -> Result<(Report, SharedDevice), DemoError> {
     let device = demo_device(opts)?;
-    let server = spawn_pty(device.clone(), TimeMode::Virtual, opts.faults)
-        .map_err(|e| RoutineError::Preflight(format!("cannot create a pseudo-terminal: {e}")))?;
+    let server =
+        spawn_pty(device.clone(), TimeMode::Virtual, opts.faults).map_err(DemoError::Pty)?;
     let (client, _) = open_port(&server.path, opts.routine.baud).await?;
     let truth = MockTruth(device.clone());
-    let report = run(&client, &opts.routine, Some(&truth), ui, cancel).await?;
+    let report = run(
+        &Base::single(client),
+        &opts.routine,
+        Some(&truth),
+        ui,
+        cancel,
+    )
+    .await?;
     Ok((report, device))
 }

@@ -1,0 +1,271 @@
+//! The seam between the calibration routine and a robot: a [`Base`] is a [`Drive`], a
+//! [`HeadingSource`] and a [`ParamStore`], each of which may be a different device or file.
+//!
+//! Everything crossing the seam is in SI units on the conventions of [`crate::kinematics`]
+//! (x forward, y left, headings counter-clockwise positive in radians wrapped to (−π, π]).
+//! A backend converts its own units (encoder counts, compass azimuths, wire fixed point) on
+//! its side. The routine ([`crate::routine`]) sees nothing but these traits, so a new robot
+//! is one new backend: implement the three traits (or the ones it provides and compose the
+//! rest from other devices or files) and hand a [`Base`] to the routine.
+//!
+//! Parameters are written only through a [`transaction::Transaction`]: backup, write, read
+//! back, commit, read back the committed copy, and roll back on any failure.
+
+pub mod error;
+pub mod guard;
+pub mod transaction;
+
+pub use error::BaseError;
+pub use guard::MotionGuard;
+
+use crate::kinematics::{Pose, WheelParams};
+use async_trait::async_trait;
+use serde::{Deserialize, Serialize};
+use std::sync::Arc;
+use std::time::Duration;
+use tokio::sync::mpsc;
+
+/// Most samples a stream buffers for a slow reader; beyond it samples are dropped (and a
+/// backend says so in its diagnostics), so a reader that stalls cannot exhaust memory.
+pub const STREAM_CAPACITY: usize = 1 << 16;
+
+/// Samples from a drive or heading source, in the order they were taken.
+pub type SampleStream<T> = mpsc::Receiver<T>;
+
+/// Wheel travel since the previous sample of the same stream, as the drive believes it
+/// (encoder counts times the *configured* travel per count; metres, forward positive).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct TravelSample {
+    /// Time on the drive's clock (s); streams of different devices need not share a clock.
+    pub time_s: f64,
+    /// Left wheel travel since the previous sample (m).
+    pub left_m: f64,
+    /// Right wheel travel since the previous sample (m).
+    pub right_m: f64,
+}
+
+/// Whether a heading reading may be used, and if not, why.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case", tag = "state", content = "reason")]
+pub enum Validity {
+    /// Usable.
+    Valid,
+    /// Not usable, with the sensor's or the backend's reason.
+    Invalid(String),
+}
+
+impl Validity {
+    /// `true` for [`Validity::Valid`].
+    pub fn is_valid(&self) -> bool {
+        matches!(self, Validity::Valid)
+    }
+}
+
+/// One heading reading.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct HeadingSample {
+    /// Time on the heading source's clock (s).
+    pub time_s: f64,
+    /// Heading (rad), counter-clockwise positive, wrapped to (−π, π].
+    pub heading_rad: f64,
+    /// Whether it may be used.
+    pub validity: Validity,
+}
+
+/// What a component says about itself, for reports and backups.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ComponentInfo {
+    /// The kind of backend (`odocal-protocol`, `simulated`, `ros2-yaml`, …).
+    pub kind: String,
+    /// Which one: a port, a file path, a serial number.
+    pub id: String,
+    /// Anything else worth keeping in a report (firmware, versions, limits).
+    pub details: serde_json::Value,
+}
+
+/// What the routine learns from a drive's pre-flight check.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct Preflight {
+    /// Problems that forbid moving (faults, encoders not answering).
+    pub faults: Vec<String>,
+    /// Observations worth a warning (no watchdog, low battery).
+    pub warnings: Vec<String>,
+}
+
+/// The part of a robot that moves: open-loop motions computed from the parameters the robot
+/// is configured with, and the wheel travel its encoders report.
+///
+/// Motions **move the robot**. Each motion call returns when the motion has finished (or
+/// fails); dropping its future must not leave the robot driving for longer than the device's
+/// watchdog — callers wrap motions in a [`MotionGuard`], which calls [`Drive::emergency_stop`].
+#[async_trait]
+pub trait Drive: Send + Sync {
+    /// Describes the drive.
+    fn info(&self) -> ComponentInfo;
+
+    /// Checks the drive can move: encoders answer, no faults.
+    async fn preflight(&self) -> Result<Preflight, BaseError>;
+
+    /// Arms the device's dead-man timer so the base stops by itself if the host goes away.
+    /// Returns the timeout applied, or `None` when the device has no such timer.
+    async fn arm_watchdog(&self, timeout: Duration) -> Result<Option<Duration>, BaseError>;
+
+    /// **Moves the robot**: straight by `distance_m` (negative backwards) at most
+    /// `max_speed_m_s`; returns when the drive reports the motion finished.
+    async fn move_straight(&self, distance_m: f64, max_speed_m_s: f64) -> Result<(), BaseError>;
+
+    /// **Moves the robot**: turns in place by `angle_rad` (counter-clockwise positive) at most
+    /// `max_rate_rad_s`; returns when the drive reports the motion finished.
+    async fn turn_in_place(&self, angle_rad: f64, max_rate_rad_s: f64) -> Result<(), BaseError>;
+
+    /// Stops the base and waits for the drive to acknowledge.
+    async fn stop(&self) -> Result<(), BaseError>;
+
+    /// Tells the base to stop at once, without waiting: safe from `Drop` and signal handlers.
+    fn emergency_stop(&self);
+
+    /// Wheel travel from now on, sampled about every `period` (the drive may choose another
+    /// rate), or `None` when the drive cannot stream.
+    async fn travel(
+        &self,
+        period: Duration,
+    ) -> Result<Option<SampleStream<TravelSample>>, BaseError>;
+
+    /// Link or device health worth keeping in a report.
+    fn diagnostics(&self) -> serde_json::Value {
+        serde_json::Value::Null
+    }
+}
+
+/// A compass, IMU or any sensor of absolute heading.
+#[async_trait]
+pub trait HeadingSource: Send + Sync {
+    /// Describes the source.
+    fn info(&self) -> ComponentInfo;
+
+    /// The newest reading; an invalid one is returned as such, not as an error.
+    async fn read(&self) -> Result<HeadingSample, BaseError>;
+
+    /// Readings from now on, about every `period`, or `None` when the source cannot stream.
+    async fn stream(
+        &self,
+        period: Duration,
+    ) -> Result<Option<SampleStream<HeadingSample>>, BaseError>;
+}
+
+/// Where the robot keeps its wheel parameters: device memory with a committed copy, or a file.
+///
+/// `write` changes what the robot uses now (device RAM; for a file, the staged content);
+/// `commit` makes it survive a restart (device storage; for a file, the atomic replace).
+/// Use [`transaction::Transaction`] rather than these calls directly: it backs up first and
+/// rolls back on failure.
+#[async_trait]
+pub trait ParamStore: Send + Sync {
+    /// Describes the store (its `id` names backups).
+    fn info(&self) -> ComponentInfo;
+
+    /// The parameters in use now.
+    async fn read(&self) -> Result<WheelParams, BaseError>;
+
+    /// Sets the parameters in use; returns them as the store holds them (rounded to its
+    /// resolution).
+    async fn write(&self, params: &WheelParams) -> Result<WheelParams, BaseError>;
+
+    /// Makes the parameters in use persistent.
+    async fn commit(&self) -> Result<(), BaseError>;
+
+    /// The persistent copy, or `None` when nothing was ever committed.
+    async fn read_committed(&self) -> Result<Option<WheelParams>, BaseError>;
+
+    /// Smallest difference the store can represent, per field (diameters and wheelbase in
+    /// metres, counts per revolution): read-backs are compared to this.
+    fn resolution(&self) -> WheelParams;
+}
+
+/// Where the robot truly is: known only in simulation, where it gives reports true end points,
+/// `E_max,sys` and true paths. Real bases do not implement it.
+pub trait GroundTruth: Send + Sync {
+    /// The robot's true pose now.
+    fn pose(&self) -> Pose;
+    /// The robot's true parameters.
+    fn true_params(&self) -> WheelParams;
+}
+
+/// A robot as the routine sees it: one drive, one heading source, one parameter store.
+#[derive(Clone)]
+pub struct Base {
+    /// What moves and counts wheel travel.
+    pub drive: Arc<dyn Drive>,
+    /// What measures the heading.
+    pub heading: Arc<dyn HeadingSource>,
+    /// Where the parameters live.
+    pub store: Arc<dyn ParamStore>,
+}
+
+/// The three components' descriptions.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct BaseInfo {
+    /// The drive.
+    pub drive: ComponentInfo,
+    /// The heading source.
+    pub heading: ComponentInfo,
+    /// The parameter store.
+    pub store: ComponentInfo,
+}
+
+impl Base {
+    /// Composes a base from three components (which may be one device, several, or files).
+    pub fn new(
+        drive: Arc<dyn Drive>,
+        heading: Arc<dyn HeadingSource>,
+        store: Arc<dyn ParamStore>,
+    ) -> Self {
+        Base {
+            drive,
+            heading,
+            store,
+        }
+    }
+
+    /// A base whose one device is drive, heading source and store at once.
+    pub fn single<T>(device: T) -> Self
+    where
+        T: Drive + HeadingSource + ParamStore + 'static,
+    {
+        let d = Arc::new(device);
+        Base {
+            drive: d.clone(),
+            heading: d.clone(),
+            store: d,
+        }
+    }
+
+    /// The components' descriptions.
+    pub fn info(&self) -> BaseInfo {
+        BaseInfo {
+            drive: self.drive.info(),
+            heading: self.heading.info(),
+            store: self.store.info(),
+        }
+    }
+}
+
+/// Equal within a store's resolution, field by field.
+pub fn same_within(a: &WheelParams, b: &WheelParams, resolution: &WheelParams) -> bool {
+    // One full step, not half: the store rounds, and the conversion back may add an ulp.
+    let close = |x: f64, y: f64, r: f64| (x - y).abs() <= r + 1e-12 * x.abs().max(1.0);
+    close(
+        a.left_wheel_diameter_m,
+        b.left_wheel_diameter_m,
+        resolution.left_wheel_diameter_m,
+    ) && close(
+        a.right_wheel_diameter_m,
+        b.right_wheel_diameter_m,
+        resolution.right_wheel_diameter_m,
+    ) && close(a.wheelbase_m, b.wheelbase_m, resolution.wheelbase_m)
+        && close(
+            a.counts_per_wheel_rev,
+            b.counts_per_wheel_rev,
+            resolution.counts_per_wheel_rev,
+        )
+}

@@ -1,0 +1,235 @@
+//! The only way parameters get written: a transaction over a [`ParamStore`].
+//!
+//! [`Transaction::begin`] reads what the store holds and writes it to a new backup file before
+//! anything else (created exclusively: an earlier backup is never overwritten, a symlink never
+//! followed). [`Transaction::apply`] writes, reads back, commits and reads back the committed
+//! copy; [`Transaction::rollback`] puts the original back, in use and, if a commit may have
+//! happened, committed too. Callers decide *whether* to write (policy, bounds, confirmation);
+//! this file decides *how*.
+
+use super::{same_within, BaseError, ComponentInfo, ParamStore};
+use crate::kinematics::WheelParams;
+use serde::{Deserialize, Serialize};
+use std::io::Write as _;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::Duration;
+
+/// How long a rollback may take before it is reported as failed.
+pub const ROLLBACK_TIMEOUT: Duration = Duration::from_secs(5);
+
+/// The content of a backup file.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct BackupFile {
+    /// odocal version that wrote it.
+    pub odocal_version: String,
+    /// The store the parameters came from.
+    pub store: ComponentInfo,
+    /// The parameters in use when the backup was taken.
+    pub active: WheelParams,
+    /// The committed copy, when the store has one.
+    pub committed: Option<WheelParams>,
+}
+
+/// What a rollback achieved.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+pub enum Rollback {
+    /// Nothing had been written: nothing to undo.
+    NothingWritten,
+    /// The original parameters are in use again (nothing had been committed).
+    Restored,
+    /// The original parameters are in use and committed again.
+    RestoredAndCommitted,
+}
+
+/// A write in progress; see the module documentation.
+pub struct Transaction {
+    store: Arc<dyn ParamStore>,
+    original: WheelParams,
+    backup_path: PathBuf,
+    written: bool,
+    committed: bool,
+}
+
+impl Transaction {
+    /// Reads the store and writes the backup into `backup_dir` (created if needed). Nothing
+    /// is written to the store.
+    pub async fn begin(
+        store: Arc<dyn ParamStore>,
+        backup_dir: &Path,
+    ) -> Result<Transaction, BaseError> {
+        let original = store.read().await?;
+        // A committed copy that cannot be read (never saved, corrupt) must not block a backup
+        // of what is in use; the backup then records none.
+        let committed = store.read_committed().await.ok().flatten();
+        let backup = BackupFile {
+            odocal_version: env!("CARGO_PKG_VERSION").into(),
+            store: store.info(),
+            active: original,
+            committed,
+        };
+        let backup_path = write_backup(backup_dir, &backup)?;
+        Ok(Transaction {
+            store,
+            original,
+            backup_path,
+            written: false,
+            committed: false,
+        })
+    }
+
+    /// The parameters the store held at the start.
+    pub fn original(&self) -> &WheelParams {
+        &self.original
+    }
+
+    /// The backup file.
+    pub fn backup_path(&self) -> &Path {
+        &self.backup_path
+    }
+
+    /// Whether anything may have been written.
+    pub fn written(&self) -> bool {
+        self.written
+    }
+
+    /// Writes `params`, reads them back, commits, and reads back the committed copy. Returns
+    /// the parameters as the store holds them (rounded to its resolution).
+    pub async fn apply(&mut self, params: &WheelParams) -> Result<WheelParams, BaseError> {
+        let resolution = self.store.resolution();
+        // Marked before the call: a cancelled or failed write may still have landed.
+        self.written = true;
+        let applied = self.store.write(params).await?;
+        let read = self.store.read().await?;
+        if !same_within(&applied, params, &resolution) || !same_within(&read, params, &resolution) {
+            return Err(BaseError::ReadBack {
+                copy: "in use",
+                written: *params,
+                read: Some(read),
+            });
+        }
+        match self.store.commit().await {
+            Ok(()) => self.committed = true,
+            // A refusal leaves the committed copy as it was (SPEC.md §5 SAVE_PARAMS is atomic;
+            // file stores replace atomically).
+            Err(e @ BaseError::Refused { .. }) => return Err(e),
+            // Anything else leaves it unknown whether the commit happened: undo it too.
+            Err(e) => {
+                self.committed = true;
+                return Err(e);
+            }
+        }
+        let stored = self.store.read_committed().await?;
+        match stored {
+            Some(s) if same_within(&s, params, &resolution) => Ok(read),
+            other => Err(BaseError::ReadBack {
+                copy: "committed",
+                written: *params,
+                read: other,
+            }),
+        }
+    }
+
+    /// Puts the original parameters back: in use, and committed if a commit may have happened.
+    pub async fn rollback(&mut self) -> Result<Rollback, BaseError> {
+        if !self.written {
+            return Ok(Rollback::NothingWritten);
+        }
+        let undo = async {
+            self.store.write(&self.original).await?;
+            if self.committed {
+                self.store.commit().await?;
+            }
+            Ok::<_, BaseError>(())
+        };
+        match tokio::time::timeout(ROLLBACK_TIMEOUT, undo).await {
+            Ok(Ok(())) => {
+                let outcome = if self.committed {
+                    Rollback::RestoredAndCommitted
+                } else {
+                    Rollback::Restored
+                };
+                self.written = false;
+                self.committed = false;
+                Ok(outcome)
+            }
+            Ok(Err(e)) => Err(e),
+            Err(_) => Err(BaseError::MotionTimeout {
+                after: ROLLBACK_TIMEOUT,
+            }),
+        }
+    }
+}
+
+/// A file-name-safe form of a store id.
+fn sanitise(id: &str) -> String {
+    let s: String = id
+        .chars()
+        .map(|c| if c.is_ascii_alphanumeric() { c } else { '-' })
+        .collect();
+    let s = s.trim_matches('-');
+    // Only ASCII is left, so byte offsets are character offsets.
+    match &s[s.len().saturating_sub(40)..] {
+        "" => "store".into(),
+        tail => tail.to_string(),
+    }
+}
+
+/// Creates a new backup file in `dir`; never replaces an existing file or follows a link.
+fn write_backup(dir: &Path, backup: &BackupFile) -> Result<PathBuf, BaseError> {
+    let stamp = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_millis());
+    let stem = format!("odocal-backup-{}-{stamp}", sanitise(&backup.store.id));
+    let err = |path: &Path, source: std::io::Error| BaseError::Backup {
+        path: path.to_path_buf(),
+        source,
+    };
+    std::fs::create_dir_all(dir).map_err(|e| err(dir, e))?;
+    let text =
+        serde_json::to_string_pretty(backup).map_err(|e| err(dir, std::io::Error::other(e)))?;
+    for n in 0..1000u32 {
+        let path = if n == 0 {
+            dir.join(format!("{stem}.json"))
+        } else {
+            dir.join(format!("{stem}-{n}.json"))
+        };
+        match std::fs::OpenOptions::new()
+            .write(true)
+            .create_new(true)
+            .open(&path)
+        {
+            Ok(mut f) => {
+                f.write_all(text.as_bytes())
+                    .and_then(|()| f.sync_all())
+                    .map_err(|e| err(&path, e))?;
+                return Ok(path);
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => continue,
+            Err(e) => return Err(err(&path, e)),
+        }
+    }
+    Err(err(
+        dir,
+        std::io::Error::new(
+            std::io::ErrorKind::AlreadyExists,
+            "1000 backups with the same time stamp",
+        ),
+    ))
+}
+
+/// Reads a backup file written by [`Transaction::begin`].
+pub fn read_backup(path: &Path) -> Result<BackupFile, BaseError> {
+    let err = |source: std::io::Error| BaseError::Backup {
+        path: path.to_path_buf(),
+        source,
+    };
+    let text = std::fs::read_to_string(path).map_err(err)?;
+    let backup: BackupFile = serde_json::from_str(&text)
+        .map_err(|e| err(std::io::Error::new(std::io::ErrorKind::InvalidData, e)))?;
+    backup
+        .active
+        .validate()
+        .map_err(|e| err(std::io::Error::new(std::io::ErrorKind::InvalidData, e)))?;
+    Ok(backup)
+}

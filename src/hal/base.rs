@@ -1,0 +1,307 @@
+//! The seam ([`crate::base`]) over our own protocol: a [`Client`] is a drive, a heading source
+//! and a parameter store at once (`Base::single(client)`).
+
+use super::{Client, HalError, TelemetrySample};
+use crate::base::{
+    BaseError, ComponentInfo, Drive, HeadingSample, HeadingSource, ParamStore, Preflight,
+    SampleStream, TravelSample, Validity, STREAM_CAPACITY,
+};
+use crate::kinematics::WheelParams;
+use crate::protocol::message::{capability, fault, MotionMode, ParamSource};
+use async_trait::async_trait;
+use std::time::Duration;
+use tokio::sync::{broadcast, mpsc};
+
+const KIND: &str = "odocal-protocol";
+
+fn to_base(component: &'static str, what: &'static str) -> impl Fn(HalError) -> BaseError {
+    move |e| match e {
+        HalError::Nack { nack, .. } => BaseError::Refused {
+            component: component.into(),
+            what: what.into(),
+            reason: format!("{:?} (field {})", nack.code, nack.detail),
+        },
+        HalError::InvalidArgument(reason) => BaseError::InvalidArgument {
+            component: component.into(),
+            reason,
+        },
+        HalError::WatchdogTripped => BaseError::WatchdogTripped,
+        HalError::MotionTimeout { after, .. } => BaseError::MotionTimeout { after },
+        other => BaseError::backend(component, other),
+    }
+}
+
+impl Client {
+    fn component_info(&self) -> ComponentInfo {
+        let d = self.device_info();
+        ComponentInfo {
+            kind: KIND.into(),
+            id: format!("{}-{:x}", d.firmware_id, d.serial_number),
+            details: serde_json::json!({
+                "port": self.label(),
+                "device": d,
+            }),
+        }
+    }
+
+    /// Starts telemetry (idempotent) and forwards each sample converted by `map` until the
+    /// receiver is dropped or the link closes.
+    async fn forward<T: Send + 'static>(
+        &self,
+        period: Duration,
+        map: impl FnMut(&TelemetrySample) -> Option<T> + Send + 'static,
+    ) -> Result<SampleStream<T>, HalError> {
+        let mut events = self.subscribe();
+        // At least 1 ms: 0 would turn telemetry off.
+        self.configure_telemetry(Some(period.max(Duration::from_millis(1))))
+            .await?;
+        let (tx, rx) = mpsc::channel(STREAM_CAPACITY);
+        let mut map = map;
+        tokio::spawn(async move {
+            loop {
+                match events.recv().await {
+                    Ok(s) => {
+                        if let Some(v) = map(&s) {
+                            if tx.try_send(v).is_err() && tx.is_closed() {
+                                return;
+                            }
+                        }
+                    }
+                    // Lost samples are counted by the link (telemetry_dropped).
+                    Err(broadcast::error::RecvError::Lagged(_)) => continue,
+                    Err(broadcast::error::RecvError::Closed) => return,
+                }
+            }
+        });
+        Ok(rx)
+    }
+}
+
+#[async_trait]
+impl Drive for Client {
+    fn info(&self) -> ComponentInfo {
+        self.component_info()
+    }
+
+    async fn preflight(&self) -> Result<Preflight, BaseError> {
+        let map = to_base("drive", "a status read");
+        let status = self.status().await.map_err(&map)?;
+        let mut out = Preflight::default();
+        for (bit, name) in [
+            (fault::MOTOR_OVERCURRENT, "motor over-current"),
+            (fault::ENCODER, "encoder fault"),
+            (fault::HEADING_SENSOR, "heading sensor fault"),
+            (fault::WATCHDOG_TRIPPED, "watchdog tripped"),
+            (fault::STORAGE, "storage fault"),
+            (fault::LOW_BATTERY, "low battery"),
+        ] {
+            if status.fault_flags & bit != 0 {
+                out.faults.push(format!("device reports {name}"));
+            }
+        }
+        let unknown = status.fault_flags & !0x3F;
+        if unknown != 0 {
+            out.faults
+                .push(format!("device reports fault bits {unknown:#06x}"));
+        }
+        self.read_encoders()
+            .await
+            .map_err(to_base("drive", "an encoder read"))?;
+        if self.device_info().capabilities & capability::WATCHDOG == 0 {
+            out.warnings.push(
+                "the device has no watchdog: it will not stop by itself if this host vanishes"
+                    .into(),
+            );
+        }
+        if self.known_geometry().is_none() {
+            self.get_params(ParamSource::Active)
+                .await
+                .map_err(to_base("drive", "a parameter read"))?;
+        }
+        Ok(out)
+    }
+
+    async fn arm_watchdog(&self, timeout: Duration) -> Result<Option<Duration>, BaseError> {
+        if self.device_info().capabilities & capability::WATCHDOG == 0 {
+            return Ok(None);
+        }
+        self.configure_watchdog(Some(timeout))
+            .await
+            .map(Some)
+            .map_err(to_base("drive", "the watchdog setting"))
+    }
+
+    async fn move_straight(&self, distance_m: f64, max_speed_m_s: f64) -> Result<(), BaseError> {
+        let map = to_base("drive", "a straight motion");
+        let completed = self.status().await.map_err(&map)?.completed_motions;
+        let accepted = Client::move_straight(self, distance_m, max_speed_m_s, MotionMode::Queue)
+            .await
+            .map_err(&map)?;
+        let expected_s = distance_m.abs() / max_speed_m_s;
+        self.wait_motion(
+            accepted.motion_id,
+            completed.wrapping_add(1),
+            motion_limit(expected_s),
+        )
+        .await
+        .map_err(&map)
+    }
+
+    async fn turn_in_place(&self, angle_rad: f64, max_rate_rad_s: f64) -> Result<(), BaseError> {
+        let map = to_base("drive", "a turn");
+        let completed = self.status().await.map_err(&map)?.completed_motions;
+        let accepted = Client::turn_in_place(self, angle_rad, max_rate_rad_s, MotionMode::Queue)
+            .await
+            .map_err(&map)?;
+        let expected_s = angle_rad.abs() / max_rate_rad_s;
+        self.wait_motion(
+            accepted.motion_id,
+            completed.wrapping_add(1),
+            motion_limit(expected_s),
+        )
+        .await
+        .map_err(&map)
+    }
+
+    async fn stop(&self) -> Result<(), BaseError> {
+        Client::stop(self).await.map_err(to_base("drive", "STOP"))
+    }
+
+    fn emergency_stop(&self) {
+        Client::emergency_stop(self);
+    }
+
+    async fn travel(
+        &self,
+        period: Duration,
+    ) -> Result<Option<SampleStream<TravelSample>>, BaseError> {
+        if self.device_info().capabilities & capability::TELEMETRY == 0 {
+            return Ok(None);
+        }
+        if self.known_geometry().is_none() {
+            self.get_params(ParamSource::Active)
+                .await
+                .map_err(to_base("drive", "a parameter read"))?;
+        }
+        let geometry = self.geometry.clone();
+        let mut last: Option<(i64, i64)> = None;
+        self.forward(period, move |s| {
+            let g = (*geometry.lock().unwrap_or_else(|p| p.into_inner()))?;
+            let prev = last.replace((s.left_counts, s.right_counts));
+            let (l0, r0) = prev.unwrap_or((s.left_counts, s.right_counts));
+            Some(TravelSample {
+                time_s: s.device_time_s,
+                left_m: (s.left_counts - l0) as f64 * g.left_m_per_count(),
+                right_m: (s.right_counts - r0) as f64 * g.right_m_per_count(),
+            })
+        })
+        .await
+        .map(Some)
+        .map_err(to_base("drive", "the telemetry setting"))
+    }
+
+    fn diagnostics(&self) -> serde_json::Value {
+        serde_json::to_value(self.stats()).unwrap_or_default()
+    }
+}
+
+/// Real hardware ramps and the mock may run slower than real time: allow 3× + 2 s.
+fn motion_limit(expected_s: f64) -> Duration {
+    let s = 3.0 * expected_s + 2.0;
+    Duration::from_secs_f64(if s.is_finite() { s.min(86_400.0) } else { 2.0 })
+}
+
+#[async_trait]
+impl HeadingSource for Client {
+    fn info(&self) -> ComponentInfo {
+        self.component_info()
+    }
+
+    async fn read(&self) -> Result<HeadingSample, BaseError> {
+        let h = self
+            .read_heading()
+            .await
+            .map_err(to_base("heading", "a heading read"))?;
+        Ok(HeadingSample {
+            time_s: f64::from(h.timestamp_us) * 1e-6,
+            heading_rad: h.heading_rad,
+            validity: if h.valid {
+                Validity::Valid
+            } else {
+                Validity::Invalid(format!("sensor status {:#04x}", h.sensor_status))
+            },
+        })
+    }
+
+    async fn stream(
+        &self,
+        period: Duration,
+    ) -> Result<Option<SampleStream<HeadingSample>>, BaseError> {
+        if self.device_info().capabilities & capability::TELEMETRY == 0 {
+            return Ok(None);
+        }
+        self.forward(period, |s| {
+            Some(HeadingSample {
+                time_s: s.device_time_s,
+                heading_rad: s.heading_rad,
+                validity: if s.heading_valid {
+                    Validity::Valid
+                } else {
+                    Validity::Invalid("telemetry marks the heading invalid".into())
+                },
+            })
+        })
+        .await
+        .map(Some)
+        .map_err(to_base("heading", "the telemetry setting"))
+    }
+}
+
+#[async_trait]
+impl ParamStore for Client {
+    fn info(&self) -> ComponentInfo {
+        self.component_info()
+    }
+
+    async fn read(&self) -> Result<WheelParams, BaseError> {
+        self.get_params(ParamSource::Active)
+            .await
+            .map_err(to_base("store", "a parameter read"))
+    }
+
+    async fn write(&self, params: &WheelParams) -> Result<WheelParams, BaseError> {
+        self.set_params(params)
+            .await
+            .map_err(to_base("store", "the parameters"))
+    }
+
+    async fn commit(&self) -> Result<(), BaseError> {
+        self.save_params()
+            .await
+            .map(|_| ())
+            .map_err(to_base("store", "SAVE_PARAMS"))
+    }
+
+    async fn read_committed(&self) -> Result<Option<WheelParams>, BaseError> {
+        match self.get_params(ParamSource::Stored).await {
+            Ok(p) => Ok(Some(p)),
+            // A device with nothing stored refuses the read (SPEC.md §5 GET_PARAMS).
+            Err(HalError::Nack { nack, .. })
+                if nack.code == crate::protocol::message::NackCode::InvalidState =>
+            {
+                Ok(None)
+            }
+            Err(e) => Err(to_base("store", "a stored-parameter read")(e)),
+        }
+    }
+
+    fn resolution(&self) -> WheelParams {
+        // SPEC.md §4.1: nanometres and millionths of a count.
+        WheelParams {
+            left_wheel_diameter_m: 1e-9,
+            right_wheel_diameter_m: 1e-9,
+            wheelbase_m: 1e-9,
+            counts_per_wheel_rev: 1e-6,
+        }
+    }
+}

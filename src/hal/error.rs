@@ -1,0 +1,103 @@
+//! Errors of the HAL, in two layers: [`LinkError`] (the link or the protocol failed) and
+//! [`HalError`] (a call failed: the link, the device's refusal, the caller's argument, or a
+//! device state such as a tripped watchdog).
+
+use crate::protocol::message::{Nack, NackCode};
+use crate::protocol::MessageError;
+use std::sync::Arc;
+use std::time::Duration;
+
+/// The link or the protocol failed (as opposed to the device refusing).
+#[derive(Debug, Clone, thiserror::Error)]
+pub enum LinkError {
+    /// Reading or writing the stream failed.
+    #[error("link I/O error: {0}")]
+    Io(#[source] Arc<std::io::Error>),
+    /// The stream ended (device unplugged, port closed).
+    #[error("the link closed")]
+    Closed,
+    /// No answer after every retry.
+    #[error("no answer to message 0x{msg:02X} after {attempts} attempts ({after:?})")]
+    Timeout {
+        /// The request's message id.
+        msg: u8,
+        /// Attempts made.
+        attempts: u32,
+        /// Total time waited.
+        after: Duration,
+    },
+    /// An answer could not be decoded, or a request could not be encoded.
+    #[error("undecodable message: {0}")]
+    Decode(#[source] MessageError),
+    /// The device answered with something that does not fit the request.
+    #[error("protocol violation: {0}")]
+    Protocol(String),
+    /// The device speaks another major protocol version.
+    #[error("device speaks protocol {major}.{minor}, this host speaks {host}.x")]
+    VersionMismatch {
+        /// Device's major.
+        major: u8,
+        /// Device's minor.
+        minor: u8,
+        /// Host's major.
+        host: u8,
+    },
+    /// An emergency stop abandoned the request.
+    #[error("cancelled by an emergency stop")]
+    Cancelled,
+}
+
+impl From<std::io::Error> for LinkError {
+    fn from(e: std::io::Error) -> Self {
+        LinkError::Io(Arc::new(e))
+    }
+}
+
+/// Errors of HAL calls.
+#[derive(Debug, Clone, thiserror::Error)]
+pub enum HalError {
+    /// Transport or protocol failure.
+    #[error(transparent)]
+    Link(#[from] LinkError),
+    /// The device answered NACK.
+    #[error("device refused message 0x{msg:02X}: {:?} (field {})", nack.code, nack.detail)]
+    Nack {
+        /// The refused message id.
+        msg: u8,
+        /// Code and detail.
+        nack: Nack,
+    },
+    /// A caller-supplied value cannot be sent (outside the wire's range); nothing was sent.
+    #[error("invalid argument: {0}")]
+    InvalidArgument(String),
+    /// The port could not be opened.
+    #[error("cannot open {path}: {source}")]
+    Open {
+        /// The port path.
+        path: String,
+        /// Why.
+        #[source]
+        source: Arc<tokio_serial::Error>,
+    },
+    /// A motion did not finish in the time it should take.
+    #[error("motion {motion_id} did not finish within {after:?}")]
+    MotionTimeout {
+        /// The motion.
+        motion_id: u16,
+        /// Time waited.
+        after: Duration,
+    },
+    /// The device's watchdog stopped the base.
+    #[error("the device watchdog stopped the base")]
+    WatchdogTripped,
+}
+
+impl HalError {
+    /// The NACK code, if the device refused.
+    pub fn nack_code(&self) -> Option<NackCode> {
+        match self {
+            HalError::Nack { nack, .. } => Some(nack.code),
+            _ => None,
+        }
+    }
+}

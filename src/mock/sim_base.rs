@@ -1,0 +1,330 @@
+//! A simulated robot behind the seam, in process: no protocol, no pseudo-terminal, virtual
+//! time. The same [`Simulator`] as the mock device, driven directly, so the routine can be
+//! tested end to end in microseconds and its failure paths provoked on purpose.
+
+use crate::base::{
+    BaseError, ComponentInfo, Drive, GroundTruth, HeadingSample, HeadingSource, ParamStore,
+    Preflight, SampleStream, TravelSample, Validity, STREAM_CAPACITY,
+};
+use crate::kinematics::{Pose, WheelParams};
+use crate::sim::{Motion, SimError, Simulator};
+use async_trait::async_trait;
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::time::Duration;
+use tokio::sync::mpsc;
+
+/// Failures a test can ask the simulated base for.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct SimFaults {
+    /// Every motion after this many completed ones fails (the drive "vanishes").
+    pub fail_after_motions: Option<u64>,
+    /// Every commit fails with an I/O error (it is unknown whether it happened).
+    pub commit_fails: bool,
+    /// The heading source reports invalid readings.
+    pub heading_invalid: bool,
+}
+
+/// What a test can read back from the simulated base.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct SimCounters {
+    /// Motions completed.
+    pub motions: u64,
+    /// Stops asked for (`stop` and `emergency_stop`).
+    pub stops: u64,
+    /// Parameter writes.
+    pub writes: u64,
+    /// Commits.
+    pub commits: u64,
+}
+
+struct State {
+    sim: Simulator,
+    time_s: f64,
+    committed: Option<WheelParams>,
+    faults: SimFaults,
+    counters: SimCounters,
+    travel: Vec<mpsc::Sender<TravelSample>>,
+    headings: Vec<mpsc::Sender<HeadingSample>>,
+    period_s: f64,
+}
+
+/// A simulated base: drive, heading source and parameter store at once. Cheap to clone; all
+/// clones share one robot.
+#[derive(Clone)]
+pub struct SimBase {
+    state: Arc<Mutex<State>>,
+}
+
+#[derive(Debug, thiserror::Error)]
+#[error("simulated fault: {0}")]
+struct SimFault(&'static str);
+
+impl SimBase {
+    /// A base around `sim` whose parameters were committed as configured.
+    pub fn new(sim: Simulator) -> Self {
+        let committed = Some(*sim.configured());
+        SimBase {
+            state: Arc::new(Mutex::new(State {
+                sim,
+                time_s: 0.0,
+                committed,
+                faults: SimFaults::default(),
+                counters: SimCounters::default(),
+                travel: Vec::new(),
+                headings: Vec::new(),
+                period_s: 0.02,
+            })),
+        }
+    }
+
+    fn state(&self) -> MutexGuard<'_, State> {
+        // A panic elsewhere leaves the simulation usable for observers.
+        self.state.lock().unwrap_or_else(|p| p.into_inner())
+    }
+
+    /// Sets the failures to simulate from now on.
+    pub fn set_faults(&self, faults: SimFaults) {
+        self.state().faults = faults;
+    }
+
+    /// What happened so far.
+    pub fn counters(&self) -> SimCounters {
+        self.state().counters
+    }
+
+    /// The parameters the simulated controller uses now.
+    pub fn configured(&self) -> WheelParams {
+        *self.state().sim.configured()
+    }
+
+    /// The committed copy.
+    pub fn committed(&self) -> Option<WheelParams> {
+        self.state().committed
+    }
+
+    /// Runs `f` on the simulator (to place the robot, read its truth).
+    pub fn with_sim<T>(&self, f: impl FnOnce(&mut Simulator) -> T) -> T {
+        f(&mut self.state().sim)
+    }
+
+    async fn execute(&self, motion: Motion, duration_s: f64) -> Result<(), BaseError> {
+        let steps = {
+            let st = self.state();
+            if let Some(n) = st.faults.fail_after_motions {
+                if st.counters.motions >= n {
+                    return Err(BaseError::backend("drive", SimFault("the drive vanished")));
+                }
+            }
+            (duration_s / st.period_s).ceil().clamp(1.0, 1e6) as u32
+        };
+        let plan = self
+            .state()
+            .sim
+            .plan(&motion)
+            .map_err(|e| BaseError::InvalidArgument {
+                component: "drive".into(),
+                reason: e.to_string(),
+            })?;
+        for k in 0..steps {
+            {
+                let mut st = self.state();
+                let (from, to) = (
+                    f64::from(k) / f64::from(steps),
+                    f64::from(k + 1) / f64::from(steps),
+                );
+                st.sim.advance_plan(&plan, from, to);
+                st.time_s += duration_s / f64::from(steps);
+                let cfg = *st.sim.configured();
+                let f = to - from;
+                let travel = TravelSample {
+                    time_s: st.time_s,
+                    left_m: f * plan.left_counts * cfg.left_m_per_count(),
+                    right_m: f * plan.right_counts * cfg.right_m_per_count(),
+                };
+                let heading = HeadingSample {
+                    time_s: st.time_s,
+                    heading_rad: st.sim.read_heading(),
+                    validity: heading_validity(&st.faults),
+                };
+                st.travel.retain(|tx| !tx.is_closed());
+                st.headings.retain(|tx| !tx.is_closed());
+                for tx in &st.travel {
+                    let _ = tx.try_send(travel);
+                }
+                for tx in &st.headings {
+                    let _ = tx.try_send(heading.clone());
+                }
+            }
+            // Let a cancellation (Ctrl-C in a test) land mid-motion, as it would on hardware.
+            tokio::task::yield_now().await;
+        }
+        self.state().counters.motions += 1;
+        Ok(())
+    }
+}
+
+fn heading_validity(faults: &SimFaults) -> Validity {
+    if faults.heading_invalid {
+        Validity::Invalid("simulated sensor fault".into())
+    } else {
+        Validity::Valid
+    }
+}
+
+fn info(what: &str) -> ComponentInfo {
+    ComponentInfo {
+        kind: "simulated".into(),
+        id: format!("in-process-{what}"),
+        details: serde_json::Value::Null,
+    }
+}
+
+fn check_limit(what: &str, v: f64) -> Result<(), BaseError> {
+    if v.is_finite() && v > 0.0 {
+        Ok(())
+    } else {
+        Err(BaseError::InvalidArgument {
+            component: "drive".into(),
+            reason: format!("{what} must be positive and finite, got {v}"),
+        })
+    }
+}
+
+#[async_trait]
+impl Drive for SimBase {
+    fn info(&self) -> ComponentInfo {
+        info("drive")
+    }
+
+    async fn preflight(&self) -> Result<Preflight, BaseError> {
+        Ok(Preflight::default())
+    }
+
+    async fn arm_watchdog(&self, timeout: Duration) -> Result<Option<Duration>, BaseError> {
+        // Nothing can vanish in process; say the timer was set so the routine does not warn.
+        Ok(Some(timeout))
+    }
+
+    async fn move_straight(&self, distance_m: f64, max_speed_m_s: f64) -> Result<(), BaseError> {
+        check_limit("speed limit", max_speed_m_s)?;
+        self.execute(
+            Motion::Straight { distance_m },
+            distance_m.abs() / max_speed_m_s,
+        )
+        .await
+    }
+
+    async fn turn_in_place(&self, angle_rad: f64, max_rate_rad_s: f64) -> Result<(), BaseError> {
+        check_limit("turn-rate limit", max_rate_rad_s)?;
+        self.execute(
+            Motion::TurnInPlace { angle_rad },
+            angle_rad.abs() / max_rate_rad_s,
+        )
+        .await
+    }
+
+    async fn stop(&self) -> Result<(), BaseError> {
+        self.state().counters.stops += 1;
+        Ok(())
+    }
+
+    fn emergency_stop(&self) {
+        self.state().counters.stops += 1;
+    }
+
+    async fn travel(
+        &self,
+        period: Duration,
+    ) -> Result<Option<SampleStream<TravelSample>>, BaseError> {
+        let (tx, rx) = mpsc::channel(STREAM_CAPACITY);
+        let mut st = self.state();
+        st.period_s = period.as_secs_f64().max(1e-3);
+        st.travel.push(tx);
+        Ok(Some(rx))
+    }
+}
+
+#[async_trait]
+impl HeadingSource for SimBase {
+    fn info(&self) -> ComponentInfo {
+        info("heading")
+    }
+
+    async fn read(&self) -> Result<HeadingSample, BaseError> {
+        let mut st = self.state();
+        let validity = heading_validity(&st.faults);
+        Ok(HeadingSample {
+            time_s: st.time_s,
+            heading_rad: st.sim.read_heading(),
+            validity,
+        })
+    }
+
+    async fn stream(
+        &self,
+        period: Duration,
+    ) -> Result<Option<SampleStream<HeadingSample>>, BaseError> {
+        let (tx, rx) = mpsc::channel(STREAM_CAPACITY);
+        let mut st = self.state();
+        st.period_s = period.as_secs_f64().max(1e-3);
+        st.headings.push(tx);
+        Ok(Some(rx))
+    }
+}
+
+#[async_trait]
+impl ParamStore for SimBase {
+    fn info(&self) -> ComponentInfo {
+        info("store")
+    }
+
+    async fn read(&self) -> Result<WheelParams, BaseError> {
+        Ok(*self.state().sim.configured())
+    }
+
+    async fn write(&self, params: &WheelParams) -> Result<WheelParams, BaseError> {
+        let mut st = self.state();
+        st.sim
+            .set_configured(*params)
+            .map_err(|e: SimError| BaseError::Refused {
+                component: "store".into(),
+                what: "the parameters".into(),
+                reason: e.to_string(),
+            })?;
+        st.counters.writes += 1;
+        Ok(*params)
+    }
+
+    async fn commit(&self) -> Result<(), BaseError> {
+        let mut st = self.state();
+        if st.faults.commit_fails {
+            return Err(BaseError::backend("store", SimFault("the commit was lost")));
+        }
+        st.committed = Some(*st.sim.configured());
+        st.counters.commits += 1;
+        Ok(())
+    }
+
+    async fn read_committed(&self) -> Result<Option<WheelParams>, BaseError> {
+        Ok(self.state().committed)
+    }
+
+    fn resolution(&self) -> WheelParams {
+        WheelParams {
+            left_wheel_diameter_m: 0.0,
+            right_wheel_diameter_m: 0.0,
+            wheelbase_m: 0.0,
+            counts_per_wheel_rev: 0.0,
+        }
+    }
+}
+
+impl GroundTruth for SimBase {
+    fn pose(&self) -> Pose {
+        self.state().sim.pose()
+    }
+
+    fn true_params(&self) -> WheelParams {
+        *self.state().sim.truth()
+    }
+}

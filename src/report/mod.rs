@@ -1,0 +1,166 @@
+//! Rendering what the routine did: the before/after summary, the Markdown report, the report
+//! directory (`report.json`, `report.md`, SVG [`plots`]) and the ROS 2 export ([`ros2`]).
+
+pub mod plots;
+pub mod ros2;
+
+use crate::routine::report::{params_table, Report};
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+/// The before/after summary as a plain-text table.
+pub fn summary_table(report: &Report) -> String {
+    let mut s = String::new();
+    let opt =
+        |v: Option<f64>, unit: &str| v.map_or("–".to_string(), |v| format!("{v:.4} {unit}"));
+    let _ = writeln!(s, "{:<34} {:>14} {:>14}", "", "before", "after");
+    let _ = writeln!(
+        s,
+        "{:<34} {:>14} {:>14}",
+        "E_max,sys (true end points)",
+        opt(report.e_max_sys_before_m, "m"),
+        opt(report.e_max_sys_after_m, "m")
+    );
+    let _ = writeln!(
+        s,
+        "{:<34} {:>14} {:>14}",
+        "mean |final heading error|",
+        format!("{:.3}°", report.mean_abs_heading_error_before_deg),
+        report
+            .mean_abs_heading_error_after_deg
+            .map_or("–".to_string(), |v| format!("{v:.3}°"))
+    );
+    s.push('\n');
+    s.push_str(&params_table(&report.original_params, &report.final_params));
+    s
+}
+
+/// The report as Markdown.
+pub fn markdown(report: &Report) -> String {
+    let mut s = String::new();
+    let _ = writeln!(s, "# odocal recalibration report\n");
+    let b = &report.base;
+    let _ = writeln!(
+        s,
+        "Drive `{}` ({}), heading `{}` ({}), parameters in `{}` ({}); odocal {}.\n",
+        b.drive.id,
+        b.drive.kind,
+        b.heading.id,
+        b.heading.kind,
+        b.store.id,
+        b.store.kind,
+        report.odocal_version
+    );
+    let _ = writeln!(
+        s,
+        "Squares of {} m, {} per direction per round, method `{}`, convention `{}`, \
+         write-back `{:?}`. Backup of the original parameters: `{}`.\n",
+        report.config.side_m,
+        report.config.runs_per_direction,
+        report.config.method,
+        report.config.split_convention().name(),
+        report.config.write_back,
+        report.backup_path.display()
+    );
+    let _ = writeln!(
+        s,
+        "Heading noise at rest: {:.3}°. Converged: {}. Written: {}.\n",
+        report.heading_noise_rad.to_degrees(),
+        report.converged,
+        report.written
+    );
+    let _ = writeln!(
+        s,
+        "## Before and after\n\n```text\n{}```\n",
+        summary_table(report)
+    );
+    for r in &report.rounds {
+        let _ = writeln!(s, "## Round {}\n", r.round);
+        let _ = writeln!(s, "| run | direction | heading error (°) |\n|---|---|---|");
+        for (i, run) in r.runs.iter().enumerate() {
+            let _ = writeln!(
+                s,
+                "| {} | {} | {:+.3} |",
+                i + 1,
+                run.direction,
+                run.heading_error_deg
+            );
+        }
+        let _ = writeln!(s, "\n| method | E_b | ± | E_d | ± |\n|---|---|---|---|---|");
+        for e in &r.estimates {
+            let f = |v: Option<f64>| v.map_or("–".into(), |v| format!("{v:.5}"));
+            let _ = writeln!(
+                s,
+                "| {}{} | {:.6} | {} | {:.6} | {} |",
+                e.method,
+                if e.method == r.chosen.method {
+                    " (chosen)"
+                } else {
+                    ""
+                },
+                e.e_b,
+                f(e.e_b_std_err),
+                e.e_d,
+                f(e.e_d_std_err)
+            );
+        }
+        if let Some([b, d]) = r.cramer_rao_std {
+            let _ = writeln!(s, "\nCramér–Rao bound (std): E_b {b:.5}, E_d {d:.5}.");
+        }
+        let _ = writeln!(
+            s,
+            "\n{}\n",
+            if r.converged {
+                "Within tolerance: nothing to write.".to_string()
+            } else if r.written {
+                "Written and saved.".to_string()
+            } else {
+                "Not written.".to_string()
+            }
+        );
+    }
+    if !report.verification.is_empty() {
+        let _ = writeln!(
+            s,
+            "## Verification\n\n| run | direction | heading error (°) |\n|---|---|---|"
+        );
+        for (i, run) in report.verification.iter().enumerate() {
+            let _ = writeln!(
+                s,
+                "| {} | {} | {:+.3} |",
+                i + 1,
+                run.direction,
+                run.heading_error_deg
+            );
+        }
+        s.push('\n');
+    }
+    if !report.warnings.is_empty() {
+        let _ = writeln!(s, "## Warnings\n");
+        for w in &report.warnings {
+            let _ = writeln!(s, "- {w}");
+        }
+        s.push('\n');
+    }
+    let _ = writeln!(
+        s,
+        "## Plots\n\n![paths](paths.svg)\n\n![heading errors](heading_errors.svg)\n\n\
+         ![end points](end_points.svg)\n"
+    );
+    s
+}
+
+/// Writes `report.json`, `report.md` and the SVG plots into `dir` (created if needed).
+pub fn write_dir(report: &Report, dir: &Path) -> std::io::Result<Vec<PathBuf>> {
+    std::fs::create_dir_all(dir)?;
+    let json = dir.join("report.json");
+    std::fs::write(
+        &json,
+        serde_json::to_string_pretty(report).map_err(std::io::Error::other)?,
+    )?;
+    let md = dir.join("report.md");
+    std::fs::write(&md, markdown(report))?;
+    let mut written = vec![json, md];
+    written.extend(plots::write_all(report, dir)?);
+    Ok(written)
+}

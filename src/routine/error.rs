@@ -1,0 +1,58 @@
+//! Errors of the routine. Whatever the error, the base was told to stop and any parameters
+//! written were rolled back, or the error says that this failed and where the backup is.
+
+use super::config::ConfigError;
+use crate::base::BaseError;
+use crate::calibration::CalibrationError;
+use crate::kinematics::KinematicsError;
+use std::path::PathBuf;
+
+/// Errors of the routine.
+#[derive(Debug, thiserror::Error)]
+pub enum RoutineError {
+    /// The settings are unusable.
+    #[error(transparent)]
+    Config(#[from] ConfigError),
+    /// A component of the base failed.
+    #[error(transparent)]
+    Base(#[from] BaseError),
+    /// The measurements could not be calibrated.
+    #[error(transparent)]
+    Calibration(#[from] CalibrationError),
+    /// New parameters would be impossible.
+    #[error(transparent)]
+    Kinematics(#[from] KinematicsError),
+    /// The pre-flight checks failed.
+    #[error("pre-flight check failed: {0}")]
+    Preflight(String),
+    /// The measurements are implausible (e.g. the compass turns the wrong way).
+    #[error("implausible measurement: {0}")]
+    Implausible(String),
+    /// The estimate asks for a change beyond the configured bounds.
+    #[error("refusing to write: {0}")]
+    OutOfBounds(String),
+    /// The user declined (to move or to write).
+    #[error("declined by the user: {0}")]
+    Declined(String),
+    /// Ctrl-C or the caller cancelled.
+    #[error("cancelled")]
+    Cancelled,
+    /// An error happened after parameters were written; the backup was put back.
+    #[error("{source} (the original parameters were restored{})", if *.committed { " and committed" } else { "" })]
+    Restored {
+        /// The error.
+        source: Box<RoutineError>,
+        /// Whether the committed copy was restored too.
+        committed: bool,
+    },
+    /// An error happened after parameters were written and restoring them failed too.
+    #[error("{source}; RESTORING THE BACKUP FAILED ({restore_error}): restore {} by hand", backup.display())]
+    RestoreFailed {
+        /// The error.
+        source: Box<RoutineError>,
+        /// Why restoring failed.
+        restore_error: Box<BaseError>,
+        /// The backup file to restore from.
+        backup: PathBuf,
+    },
+}

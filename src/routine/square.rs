@@ -1,0 +1,103 @@
+//! One open-loop square over the seam: four legs and four ±90° turns, each a separate motion,
+//! the heading averaged at rest before and after, and the wheel travel and heading streamed
+//! while it drives.
+
+use super::heading::mean_heading;
+use super::RoutineError;
+use crate::base::{Base, HeadingSample, MotionGuard, SampleStream, TravelSample};
+use crate::kinematics::{wrap_angle, Direction};
+use serde::Serialize;
+use std::f64::consts::FRAC_PI_2;
+use std::time::Duration;
+
+/// How to drive a square. Speeds are limits the drive must not exceed.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct SquareCommand {
+    /// Side (m).
+    pub side_m: f64,
+    /// Direction.
+    pub direction: Direction,
+    /// Straight-leg speed limit (m/s).
+    pub max_speed_m_s: f64,
+    /// Turn-rate limit (rad/s).
+    pub max_rate_rad_s: f64,
+    /// Heading readings averaged at rest before and after.
+    pub heading_samples: usize,
+    /// Pause between the end of a motion and a heading reading, for the base to settle.
+    pub settle: Duration,
+    /// Requested period of the travel and heading streams.
+    pub stream_period: Duration,
+}
+
+/// One square as measured.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct SquareRecord {
+    /// The command.
+    pub command: SquareCommand,
+    /// Mean heading at rest before (rad).
+    pub heading_before_rad: f64,
+    /// Mean heading at rest after (rad).
+    pub heading_after_rad: f64,
+    /// Final-minus-start heading error (rad, wrapped).
+    pub heading_error_rad: f64,
+    /// Wheel travel streamed while driving (empty when the drive cannot stream).
+    pub travel: Vec<TravelSample>,
+    /// Headings streamed while driving (empty when the source cannot stream).
+    pub headings: Vec<HeadingSample>,
+}
+
+fn drain<T>(stream: &mut Option<SampleStream<T>>) -> Vec<T> {
+    let mut out = Vec::new();
+    if let Some(rx) = stream {
+        while let Ok(v) = rx.try_recv() {
+            out.push(v);
+        }
+    }
+    out
+}
+
+/// **Moves the robot**: drives one open-loop square and measures its final heading error at
+/// rest, calling `on_motion(k)` after motion `k` of 8 (1-based) has finished. Any error or a
+/// dropped future stops the base ([`MotionGuard`]).
+pub async fn run_square(
+    base: &Base,
+    cmd: &SquareCommand,
+    mut on_motion: impl FnMut(usize),
+) -> Result<SquareRecord, RoutineError> {
+    if !cmd.settle.is_zero() {
+        tokio::time::sleep(cmd.settle).await;
+    }
+    let before = mean_heading(base.heading.as_ref(), cmd.heading_samples).await?;
+    let mut travel = base.drive.travel(cmd.stream_period).await?;
+    let mut headings = base.heading.stream(cmd.stream_period).await?;
+    let guard = MotionGuard::new(&base.drive);
+    let turn = cmd.direction.turn_sign() * FRAC_PI_2;
+    let mut done = 0;
+    for _ in 0..4 {
+        base.drive
+            .move_straight(cmd.side_m, cmd.max_speed_m_s)
+            .await?;
+        done += 1;
+        on_motion(done);
+        base.drive.turn_in_place(turn, cmd.max_rate_rad_s).await?;
+        done += 1;
+        on_motion(done);
+    }
+    guard.disarm();
+    if !cmd.settle.is_zero() {
+        tokio::time::sleep(cmd.settle).await;
+    }
+    let after = mean_heading(base.heading.as_ref(), cmd.heading_samples).await?;
+    // Streams are forwarded by tasks of their own: let them hand over what they hold.
+    for _ in 0..8 {
+        tokio::task::yield_now().await;
+    }
+    Ok(SquareRecord {
+        command: *cmd,
+        heading_before_rad: before,
+        heading_after_rad: after,
+        heading_error_rad: wrap_angle(after - before),
+        travel: drain(&mut travel),
+        headings: drain(&mut headings),
+    })
+}

@@ -1,0 +1,175 @@
+//! The routine on the in-process simulated base: no protocol, no pseudo-terminal, virtual
+//! time. The whole procedure and its failure paths, in milliseconds.
+
+use odocal::base::transaction::read_backup;
+use odocal::base::{Base, GroundTruth};
+use odocal::kinematics::{SplitConvention, WheelParams};
+use odocal::mock::{SimBase, SimFaults};
+use odocal::routine::config::{RoutineConfig, WritePolicy};
+use odocal::routine::{run, RoutineError, Unattended};
+use odocal::sim::{NoiseModel, Simulator};
+use tokio_util::sync::CancellationToken;
+
+fn nominal() -> WheelParams {
+    WheelParams::nominal(0.15, 0.39, 4096.0)
+}
+
+fn robot(compass_sigma_deg: f64) -> SimBase {
+    let truth =
+        WheelParams::from_ratios(&nominal(), 0.976, 0.992, &SplitConvention::LeftNominal).unwrap();
+    let noise = NoiseModel {
+        compass_sigma_rad: compass_sigma_deg.to_radians(),
+        ..NoiseModel::default()
+    };
+    SimBase::new(Simulator::new(truth, nominal(), noise, 3).unwrap())
+}
+
+fn routine(name: &str) -> RoutineConfig {
+    let dir = std::env::temp_dir().join(format!("odocal-simbase-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    RoutineConfig {
+        write_back: WritePolicy::Yes,
+        confirm_motion: false,
+        settle_s: 0.0,
+        backup_dir: dir,
+        ..RoutineConfig::default()
+    }
+}
+
+#[tokio::test]
+async fn the_whole_routine_runs_on_an_in_process_base() {
+    let sim = robot(0.37);
+    let cfg = routine("whole");
+    let report = run(
+        &Base::single(sim.clone()),
+        &cfg,
+        Some(&sim),
+        &mut Unattended,
+        &CancellationToken::new(),
+    )
+    .await
+    .unwrap();
+    assert!(report.written && report.converged, "{report:?}");
+    let before = report.e_max_sys_before_m.unwrap();
+    let after = report.e_max_sys_after_m.unwrap();
+    assert!(before > 1.0 && after * 10.0 < before, "{before} → {after}");
+    assert!(
+        report.mean_abs_heading_error_after_deg.unwrap() * 10.0
+            < report.mean_abs_heading_error_before_deg
+    );
+    // Every round's squares streamed travel and heading, and the paths were integrated.
+    let run1 = &report.rounds[0].runs[0];
+    assert!(
+        run1.travel_samples > 100 && run1.heading_samples > 100,
+        "{run1:?}"
+    );
+    assert!(run1.true_path.as_ref().is_some_and(|p| p.len() > 10));
+    // What the report says is what the store holds, in use and committed.
+    assert_eq!(sim.configured(), report.final_params);
+    assert_eq!(sim.committed(), Some(report.final_params));
+    let truth = sim.true_params();
+    assert!((report.final_params.wheelbase_m / truth.wheelbase_m - 1.0).abs() < 1e-3);
+    assert!((report.final_params.e_d() / truth.e_d() - 1.0).abs() < 2e-4);
+    // The backup holds the original parameters and names its store.
+    let backup = read_backup(&report.backup_path).unwrap();
+    assert_eq!(backup.active, nominal());
+    assert_eq!(backup.store.kind, "simulated");
+    let c = sim.counters();
+    assert_eq!(c.writes, c.commits, "every write was committed");
+    assert!(c.motions >= 8 * 10 * 2 + 8 * 6, "{c:?}");
+}
+
+#[tokio::test]
+async fn a_drive_that_vanishes_after_a_write_rolls_back_in_use_and_committed() {
+    let sim = robot(0.0);
+    // Round 1 is 80 motions; the drive vanishes early in round 2, after the first write.
+    sim.set_faults(SimFaults {
+        fail_after_motions: Some(90),
+        ..SimFaults::default()
+    });
+    let err = run(
+        &Base::single(sim.clone()),
+        &routine("vanish"),
+        None,
+        &mut Unattended,
+        &CancellationToken::new(),
+    )
+    .await
+    .unwrap_err();
+    match &err {
+        RoutineError::Restored { source, committed } => {
+            assert!(*committed, "the committed copy is put back too");
+            assert!(source.to_string().contains("vanished"), "{source}");
+        }
+        other => panic!("expected a rollback, got {other}"),
+    }
+    assert_eq!(sim.configured(), nominal());
+    assert_eq!(sim.committed(), Some(nominal()));
+    assert!(sim.counters().stops >= 1, "the base was told to stop");
+}
+
+#[tokio::test]
+async fn a_commit_of_unknown_outcome_is_rolled_back_and_reported() {
+    let sim = robot(0.0);
+    sim.set_faults(SimFaults {
+        commit_fails: true,
+        ..SimFaults::default()
+    });
+    let err = run(
+        &Base::single(sim.clone()),
+        &routine("commit"),
+        None,
+        &mut Unattended,
+        &CancellationToken::new(),
+    )
+    .await
+    .unwrap_err();
+    // The rollback's own commit fails too: the error says so and names the backup.
+    match &err {
+        RoutineError::RestoreFailed { backup, .. } => assert!(backup.is_file()),
+        other => panic!("expected a failed rollback, got {other}"),
+    }
+    // What is in use is the original again even though nothing could be committed.
+    assert_eq!(sim.configured(), nominal());
+}
+
+#[tokio::test]
+async fn an_invalid_heading_stops_the_routine_before_anything_moves() {
+    let sim = robot(0.0);
+    sim.set_faults(SimFaults {
+        heading_invalid: true,
+        ..SimFaults::default()
+    });
+    let err = run(
+        &Base::single(sim.clone()),
+        &routine("heading"),
+        None,
+        &mut Unattended,
+        &CancellationToken::new(),
+    )
+    .await
+    .unwrap_err();
+    assert!(matches!(err, RoutineError::Preflight(_)), "{err}");
+    assert_eq!(sim.counters().motions, 0);
+    assert_eq!(sim.counters().writes, 0);
+}
+
+#[tokio::test]
+async fn a_dry_run_moves_but_writes_nothing() {
+    let sim = robot(0.37);
+    let mut cfg = routine("dry");
+    cfg.write_back = WritePolicy::DryRun;
+    let report = run(
+        &Base::single(sim.clone()),
+        &cfg,
+        None,
+        &mut Unattended,
+        &CancellationToken::new(),
+    )
+    .await
+    .unwrap();
+    assert!(!report.written);
+    assert!(report.rounds[0].params_after.is_some());
+    assert_eq!(sim.counters().writes, 0);
+    assert_eq!(sim.committed(), Some(nominal()));
+}
