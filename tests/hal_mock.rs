@@ -10,7 +10,9 @@ use odocal::mock::{
     lock, spawn_duplex, spawn_pty, FaultConfig, MockConfig, MockDevice, ServeEnd, SharedDevice,
     TimeMode,
 };
-use odocal::protocol::message::{MotionMode, NackCode, ParamSource, ParamsBlock, WatchdogState};
+use odocal::protocol::message::{
+    HelloRequest, MotionMode, NackCode, ParamSource, ParamsBlock, WatchdogState,
+};
 use odocal::protocol::Request;
 use odocal::routine::square::{self, SquareCommand, SquareRecord};
 use std::sync::{Arc, Mutex};
@@ -309,7 +311,7 @@ async fn bad_parameter_writes_are_refused_and_change_nothing() {
     );
     let (client, _) = Client::connect(stream, fast_link()).await.unwrap();
     let before = client.get_params(ParamSource::Active).await.unwrap();
-    let good = ParamsBlock::from_params(&before).unwrap();
+    let good = ParamsBlock::try_from(&before).unwrap();
     for (block, field) in [
         (
             ParamsBlock {
@@ -401,10 +403,10 @@ async fn an_incompatible_host_version_is_refused() {
     let (stream, _task) = spawn_duplex(dev, TimeMode::Virtual, FaultConfig::default());
     let (client, _) = Client::connect(stream, fast_link()).await.unwrap();
     let err = client
-        .request(Request::Hello {
+        .request(Request::Hello(HelloRequest {
             host_major: 2,
             host_min_minor: 0,
-        })
+        }))
         .await
         .unwrap_err();
     assert_eq!(err.nack_code(), Some(NackCode::VersionMismatch));

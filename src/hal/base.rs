@@ -223,7 +223,7 @@ impl HeadingSource for Client {
             .await
             .map_err(to_base("heading", "a heading read"))?;
         Ok(HeadingSample {
-            time_s: f64::from(h.timestamp_us) * 1e-6,
+            time_s: crate::protocol::units::us_to_s(u64::from(h.timestamp_us)),
             heading_rad: h.heading_rad,
             validity: if h.valid {
                 Validity::Valid

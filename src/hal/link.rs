@@ -4,6 +4,7 @@
 use super::{HalError, LinkError, LinkStats, TelemetrySample};
 use crate::kinematics::wrap_angle;
 use crate::protocol::message::{id, payload_len, Event, NackCode};
+use crate::protocol::units;
 use crate::protocol::{Body, FrameCodec, FrameKind, Packet, Request, Response};
 use bytes::BytesMut;
 use std::collections::VecDeque;
@@ -191,7 +192,7 @@ impl Link {
                         if p.resend_new_seq {
                             seq = seq.wrapping_add(1);
                             let reply = p.reply.take();
-                            match self.start(&mut wr, p.request.clone(), seq, p.busy_left, reply).await {
+                            match self.start(&mut wr, p.request, seq, p.busy_left, reply).await {
                                 Ok(np) => pending = Some(np),
                                 Err(e) => closed = Some(e),
                             }
@@ -226,12 +227,7 @@ impl Link {
         busy_left: u32,
         reply: Option<oneshot::Sender<Result<Response, HalError>>>,
     ) -> Result<Pending, LinkError> {
-        let bytes = Packet::request(seq, request.clone())
-            .to_frame()
-            .map_err(LinkError::Decode)?
-            .to_bytes()
-            .map_err(|e| LinkError::Protocol(e.to_string()))?
-            .to_vec();
+        let bytes = Packet::request(seq, request).to_frame().to_bytes();
         write(wr, &bytes).await?;
         self.stats.requests.fetch_add(1, Ordering::Relaxed);
         Ok(Pending {
@@ -338,10 +334,10 @@ impl Link {
             .fetch_add(1, Ordering::Relaxed);
         let _ = self.events.send(TelemetrySample {
             sample_index: t.sample_index,
-            device_time_s: u.time_us as f64 * 1e-6,
+            device_time_s: units::us_to_s(u.time_us),
             left_counts: u.left,
             right_counts: u.right,
-            heading_rad: wrap_angle(f64::from(t.heading_urad) * 1e-6),
+            heading_rad: wrap_angle(units::urad_to_rad(t.heading_urad)),
             heading_valid: t.heading_valid,
             motion_state: t.motion_state,
             queue_depth: t.queue_depth,

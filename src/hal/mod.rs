@@ -18,9 +18,12 @@ pub use error::{HalError, LinkError};
 use crate::kinematics::{wrap_angle, WheelParams};
 use crate::protocol::frame::{MAJOR, VERSION};
 use crate::protocol::message::{
-    DeviceInfo, Encoders, MotionAccepted, MotionMode, MotionState, NackCode, ParamSource,
-    ParamsBlock, RestoreTarget, Status, WatchdogState,
+    DeviceInfo, Encoders, FirmwareId, GetParamsRequest, HelloRequest, MotionAccepted, MotionMode,
+    MotionState, MoveStraightRequest, NackCode, ParamSource, ParamsBlock, RestoreDefaultsRequest,
+    RestoreTarget, Status, TelemetryPeriod, TurnInPlaceRequest, WatchdogState, WatchdogTimeout,
+    WheelSpeedRequest,
 };
+use crate::protocol::units::{self, UnitError};
 use crate::protocol::{Request, Response};
 use link::{Command, Link, LinkConfig};
 use serde::Serialize;
@@ -193,7 +196,7 @@ impl Client {
         let placeholder = DeviceInfo {
             major: 0,
             minor: 0,
-            firmware_id: String::new(),
+            firmware_id: FirmwareId::new("").unwrap_or_else(|_| unreachable!()),
             firmware_version: 0,
             capabilities: 0,
             serial_number: 0,
@@ -210,10 +213,10 @@ impl Client {
             geometry: Arc::default(),
         };
         let hello = client
-            .request(Request::Hello {
+            .request(Request::Hello(HelloRequest {
                 host_major: MAJOR,
                 host_min_minor: 0,
-            })
+            }))
             .await;
         let info = match hello {
             Ok(Response::Hello(info)) => info,
@@ -238,7 +241,7 @@ impl Client {
             }
             .into());
         }
-        client.info = info.clone();
+        client.info = info;
         Ok((client, info))
     }
 
@@ -293,8 +296,8 @@ impl Client {
 
     /// Reads a parameter copy.
     pub async fn get_params(&self, source: ParamSource) -> Result<WheelParams, HalError> {
-        let params = expect!(self.request(Request::GetParams { source }).await?,
-            Response::GetParams { params, .. } => params.to_params())?;
+        let params = expect!(self.request(Request::GetParams(GetParamsRequest { source })).await?,
+            Response::GetParams(p) => WheelParams::from(&p.params))?;
         if source == ParamSource::Active {
             self.remember(params);
         }
@@ -303,28 +306,26 @@ impl Client {
 
     /// Writes the active (RAM) parameters; returns them as the device applied them.
     pub async fn set_params(&self, params: &WheelParams) -> Result<WheelParams, HalError> {
-        let block = ParamsBlock::from_params(params).ok_or_else(|| {
-            HalError::InvalidArgument(format!("{params:?} does not fit the wire format"))
-        })?;
+        let block = ParamsBlock::try_from(params).map_err(invalid)?;
         expect!(self.request(Request::SetParams(block)).await?,
-            Response::SetParams(b) => self.remember(b.to_params()))
+            Response::SetParams(b) => self.remember(WheelParams::from(&b)))
     }
 
     /// Commits the active parameters to non-volatile storage; returns the stored copy's CRC.
     pub async fn save_params(&self) -> Result<u16, HalError> {
         expect!(self.request(Request::SaveParams).await?,
-            Response::SaveParams { stored_crc } => stored_crc)
+            Response::SaveParams(c) => c.stored_crc)
     }
 
     /// Restores factory defaults (RAM, or RAM and storage).
     pub async fn restore_defaults(&self, target: RestoreTarget) -> Result<WheelParams, HalError> {
-        expect!(self.request(Request::RestoreDefaults { target }).await?,
-            Response::RestoreDefaults(b) => self.remember(b.to_params()))
+        expect!(self.request(Request::RestoreDefaults(RestoreDefaultsRequest { target })).await?,
+            Response::RestoreDefaults(b) => self.remember(WheelParams::from(&b)))
     }
 
     /// Reloads the stored parameters into RAM.
     pub async fn load_params(&self) -> Result<WheelParams, HalError> {
-        expect!(self.request(Request::LoadParams).await?, Response::LoadParams(b) => self.remember(b.to_params()))
+        expect!(self.request(Request::LoadParams).await?, Response::LoadParams(b) => self.remember(WheelParams::from(&b)))
     }
 
     /// Zeroes the encoders.
@@ -339,9 +340,12 @@ impl Client {
         max_speed_m_s: f64,
         mode: MotionMode,
     ) -> Result<MotionAccepted, HalError> {
-        let distance_um = to_wire_i32(distance_m * 1e6, "distance")?;
-        let max_speed_mm_s = to_wire_u16(max_speed_m_s * 1e3, "speed")?;
-        expect!(self.request(Request::MoveStraight { distance_um, max_speed_mm_s, mode }).await?,
+        let request = MoveStraightRequest {
+            distance_um: units::m_to_um("distance", distance_m).map_err(invalid)?,
+            max_speed_mm_s: units::m_s_to_mm_s("speed limit", max_speed_m_s).map_err(invalid)?,
+            mode,
+        };
+        expect!(self.request(Request::MoveStraight(request)).await?,
             Response::MoveStraight(a) => a)
     }
 
@@ -353,9 +357,13 @@ impl Client {
         max_rate_rad_s: f64,
         mode: MotionMode,
     ) -> Result<MotionAccepted, HalError> {
-        let angle_urad = to_wire_i32(angle_rad * 1e6, "angle")?;
-        let max_rate_mrad_s = to_wire_u16(max_rate_rad_s * 1e3, "turn rate")?;
-        expect!(self.request(Request::TurnInPlace { angle_urad, max_rate_mrad_s, mode }).await?,
+        let request = TurnInPlaceRequest {
+            angle_urad: units::rad_to_urad("angle", angle_rad).map_err(invalid)?,
+            max_rate_mrad_s: units::rad_s_to_mrad_s("turn-rate limit", max_rate_rad_s)
+                .map_err(invalid)?,
+            mode,
+        };
+        expect!(self.request(Request::TurnInPlace(request)).await?,
             Response::TurnInPlace(a) => a)
     }
 
@@ -368,21 +376,12 @@ impl Client {
         right_m_s: f64,
         duration: Option<Duration>,
     ) -> Result<(), HalError> {
-        let to_i16 = |v: f64, what: &str| -> Result<i16, HalError> {
-            let r = (v * 1e3).round();
-            if r.is_finite() && (f64::from(i16::MIN)..=f64::from(i16::MAX)).contains(&r) {
-                Ok(r as i16)
-            } else {
-                Err(HalError::InvalidArgument(format!(
-                    "{what} speed {v} m/s does not fit"
-                )))
-            }
-        };
-        let request = Request::WheelSpeed {
-            left_mm_s: to_i16(left_m_s, "left")?,
-            right_mm_s: to_i16(right_m_s, "right")?,
-            duration_ms: to_wire_u16(duration.map_or(0.0, |d| d.as_secs_f64() * 1e3), "duration")?,
-        };
+        let request = Request::WheelSpeed(WheelSpeedRequest {
+            left_mm_s: units::m_s_to_mm_s_signed("left speed", left_m_s).map_err(invalid)?,
+            right_mm_s: units::m_s_to_mm_s_signed("right speed", right_m_s).map_err(invalid)?,
+            duration_ms: units::s_to_ms("duration", duration.map_or(0.0, |d| d.as_secs_f64()))
+                .map_err(invalid)?,
+        });
         expect!(self.request(request).await?, Response::WheelSpeed => ())
     }
 
@@ -404,7 +403,7 @@ impl Client {
     /// Reads the heading.
     pub async fn read_heading(&self) -> Result<HeadingReading, HalError> {
         expect!(self.request(Request::ReadHeading).await?, Response::ReadHeading(h) => HeadingReading {
-            heading_rad: wrap_angle(f64::from(h.heading_urad) * 1e-6),
+            heading_rad: wrap_angle(units::urad_to_rad(h.heading_urad)),
             valid: h.valid,
             sensor_status: h.sensor_status,
             timestamp_us: h.timestamp_us,
@@ -416,9 +415,10 @@ impl Client {
         &self,
         period: Option<Duration>,
     ) -> Result<Duration, HalError> {
-        let period_ms = to_wire_u16(period.map_or(0.0, |p| p.as_secs_f64() * 1e3), "period")?;
-        expect!(self.request(Request::ConfigureTelemetry { period_ms }).await?,
-            Response::ConfigureTelemetry { period_ms } => Duration::from_millis(u64::from(period_ms)))
+        let period_ms = units::s_to_ms("telemetry period", period.map_or(0.0, |p| p.as_secs_f64()))
+            .map_err(invalid)?;
+        expect!(self.request(Request::ConfigureTelemetry(TelemetryPeriod { period_ms })).await?,
+            Response::ConfigureTelemetry(p) => Duration::from_millis(u64::from(p.period_ms)))
     }
 
     /// Arms the device watchdog (`None` disarms it); returns the timeout applied.
@@ -426,9 +426,11 @@ impl Client {
         &self,
         timeout: Option<Duration>,
     ) -> Result<Duration, HalError> {
-        let timeout_ms = to_wire_u16(timeout.map_or(0.0, |p| p.as_secs_f64() * 1e3), "timeout")?;
-        expect!(self.request(Request::ConfigureWatchdog { timeout_ms }).await?,
-            Response::ConfigureWatchdog { timeout_ms } => Duration::from_millis(u64::from(timeout_ms)))
+        let timeout_ms =
+            units::s_to_ms("watchdog timeout", timeout.map_or(0.0, |p| p.as_secs_f64()))
+                .map_err(invalid)?;
+        expect!(self.request(Request::ConfigureWatchdog(WatchdogTimeout { timeout_ms })).await?,
+            Response::ConfigureWatchdog(t) => Duration::from_millis(u64::from(t.timeout_ms)))
     }
 
     /// Polls the status until `completed` motions are done and the base is idle, failing if
@@ -466,24 +468,6 @@ impl Client {
     }
 }
 
-fn to_wire_i32(v: f64, what: &str) -> Result<i32, HalError> {
-    let r = v.round();
-    if r.is_finite() && r >= f64::from(i32::MIN) && r <= f64::from(i32::MAX) {
-        Ok(r as i32)
-    } else {
-        Err(HalError::InvalidArgument(format!(
-            "{what} {v} does not fit the wire format"
-        )))
-    }
-}
-
-fn to_wire_u16(v: f64, what: &str) -> Result<u16, HalError> {
-    let r = v.round();
-    if r.is_finite() && (0.0..=f64::from(u16::MAX)).contains(&r) {
-        Ok(r as u16)
-    } else {
-        Err(HalError::InvalidArgument(format!(
-            "{what} {v} does not fit the wire format"
-        )))
-    }
+fn invalid(e: UnitError) -> HalError {
+    HalError::InvalidArgument(e.to_string())
 }

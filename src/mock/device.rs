@@ -8,10 +8,13 @@
 use crate::kinematics::{wrap_angle, WheelParams};
 use crate::protocol::frame::{Frame, FrameKind, CRC16, MAJOR, VERSION};
 use crate::protocol::message::{
-    capability, fault, DeviceInfo, Encoders, Event, Heading, MotionAccepted, MotionMode,
-    MotionState, Nack, NackCode, Packet, ParamSource, ParamsBlock, Request, Response,
-    RestoreTarget, Status, Telemetry, WatchdogState,
+    capability, fault, DeviceInfo, Encoders, Event, FirmwareId, GetParamsRequest, Heading,
+    HelloRequest, MotionAccepted, MotionDone, MotionMode, MotionState, MoveStraightRequest, Nack,
+    NackCode, Packet, ParamSource, ParamsBlock, Request, Response, RestoreDefaultsRequest,
+    RestoreTarget, SavedCrc, Status, StoredParams, Telemetry, TelemetryPeriod, TurnInPlaceRequest,
+    WatchdogState, WatchdogTimeout, WheelSpeedRequest,
 };
+use crate::protocol::{units, Payload, Writer};
 use crate::sim::{Motion, MotionPlan, NoiseModel, SimError, Simulator};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -162,7 +165,7 @@ pub struct MockDevice {
 
 fn block(p: &WheelParams) -> ParamsBlock {
     // Parameters inside the mock were validated on the way in, so they always fit the wire.
-    ParamsBlock::from_params(p).unwrap_or(ParamsBlock {
+    ParamsBlock::try_from(p).unwrap_or(ParamsBlock {
         left_wheel_diameter_nm: 0,
         right_wheel_diameter_nm: 0,
         wheelbase_nm: 0,
@@ -171,11 +174,8 @@ fn block(p: &WheelParams) -> ParamsBlock {
 }
 
 fn block_crc(b: &ParamsBlock) -> u16 {
-    let mut bytes = Vec::with_capacity(20);
-    bytes.extend_from_slice(&b.left_wheel_diameter_nm.to_le_bytes());
-    bytes.extend_from_slice(&b.right_wheel_diameter_nm.to_le_bytes());
-    bytes.extend_from_slice(&b.wheelbase_nm.to_le_bytes());
-    bytes.extend_from_slice(&b.counts_per_wheel_rev_micro.to_le_bytes());
+    let mut bytes = [0u8; <ParamsBlock as Payload>::LEN];
+    b.put(&mut Writer::new(&mut bytes));
     CRC16.checksum(&bytes)
 }
 
@@ -188,7 +188,7 @@ impl MockDevice {
     /// factory defaults.
     pub fn new(config: MockConfig) -> Result<Self, MockError> {
         // The factory parameters must be ones the device could report and accept on the wire.
-        if !ParamsBlock::from_params(&config.factory).is_some_and(|b| b.validate().is_ok()) {
+        if !ParamsBlock::try_from(&config.factory).is_ok_and(|b| b.validate().is_ok()) {
             return Err(MockError::FactoryOutOfRange(config.factory));
         }
         let stored = config
@@ -197,7 +197,7 @@ impl MockDevice {
             .and_then(|p| std::fs::read_to_string(p).ok())
             .and_then(|s| serde_json::from_str::<ParamsBlock>(&s).ok())
             .filter(|b| b.validate().is_ok());
-        let active = stored.map_or(config.factory, |b| b.to_params());
+        let active = stored.map_or(config.factory, |b| WheelParams::from(&b));
         let sim = Simulator::new(config.truth, active, config.noise, config.seed)?;
         Ok(MockDevice {
             rng: ChaCha8Rng::seed_from_u64(config.seed ^ 0x7E1E_3E7F),
@@ -224,7 +224,9 @@ impl MockDevice {
     /// Simulates a power cycle: RAM parameters are lost, the stored copy (or factory) is loaded,
     /// motion, telemetry and watchdog settings reset. The robot stays where it is.
     pub fn power_cycle(&mut self) -> Result<(), MockError> {
-        let active = self.stored.map_or(self.config.factory, |b| b.to_params());
+        let active = self
+            .stored
+            .map_or(self.config.factory, |b| WheelParams::from(&b));
         self.sim.set_configured(active)?;
         self.queue.clear();
         self.telemetry_period_us = 0;
@@ -242,7 +244,7 @@ impl MockDevice {
 
     /// The non-volatile copy, if one was saved.
     pub fn stored_params(&self) -> Option<WheelParams> {
-        self.stored.map(|b| b.to_params())
+        self.stored.map(|b| WheelParams::from(&b))
     }
 
     /// The simulator (true pose, true parameters).
@@ -298,7 +300,8 @@ impl MockDevice {
         if self.config.compass == CompassConvention::Clockwise {
             h = wrap_angle(-h);
         }
-        (h * 1e6).round() as i32
+        // A wrapped heading always fits the µrad field.
+        units::rad_to_urad("heading", h).unwrap_or(0)
     }
 
     fn encoders(&self) -> (i32, i32) {
@@ -320,11 +323,11 @@ impl MockDevice {
         }
         // Any accepted request feeds the watchdog.
         self.last_request_us = self.now_us;
-        let crc = CRC16.checksum(&frame.payload);
+        let crc = CRC16.checksum(frame.payload());
         if let Some(last) = &self.last {
             if last.seq == frame.seq && last.msg == frame.msg && last.crc == crc {
                 self.counters.replayed_answers += 1;
-                return vec![last.answer.clone()];
+                return vec![last.answer];
             }
         }
         self.counters.executed_requests += 1;
@@ -339,9 +342,7 @@ impl MockDevice {
             Ok(_) => return Vec::new(),
             Err(e) => Packet::nack(frame.seq, frame.msg, e.nack()),
         };
-        let Ok(answer) = answer.to_frame() else {
-            return Vec::new();
-        };
+        let answer = answer.to_frame();
         if frame.msg == crate::protocol::message::id::HELLO {
             self.last = None;
         } else {
@@ -349,7 +350,7 @@ impl MockDevice {
                 seq: frame.seq,
                 msg: frame.msg,
                 crc,
-                answer: answer.clone(),
+                answer,
             });
         }
         vec![answer]
@@ -367,22 +368,22 @@ impl MockDevice {
             },
         )
         .to_frame()
-        .ok()
+        .into()
     }
 
     fn execute(&mut self, request: &Request) -> Result<Response, Nack> {
         match *request {
-            Request::Hello {
+            Request::Hello(HelloRequest {
                 host_major,
                 host_min_minor,
-            } => {
+            }) => {
                 if host_major != MAJOR || (VERSION & 0x0F) < host_min_minor {
                     return nack(NackCode::VersionMismatch, 0xFF);
                 }
                 Ok(Response::Hello(DeviceInfo {
                     major: MAJOR,
                     minor: VERSION & 0x0F,
-                    firmware_id: "odocal-mock".into(),
+                    firmware_id: FirmwareId::new("odocal-mock").unwrap_or_else(|_| unreachable!()),
                     firmware_version: (env!("CARGO_PKG_VERSION_MAJOR").parse::<u32>().unwrap_or(0)
                         << 16)
                         | (env!("CARGO_PKG_VERSION_MINOR").parse::<u32>().unwrap_or(0) << 8),
@@ -393,11 +394,16 @@ impl MockDevice {
                         | capability::WHEEL_SPEED
                         | capability::MOTION_QUEUE,
                     serial_number: self.config.serial_number,
-                    max_speed_mm_s: (self.config.max_speed_m_s * 1000.0).round() as u16,
-                    max_rate_mrad_s: (self.config.max_rate_rad_s * 1000.0).round() as u16,
+                    max_speed_mm_s: units::m_s_to_mm_s("speed limit", self.config.max_speed_m_s)
+                        .unwrap_or(u16::MAX),
+                    max_rate_mrad_s: units::rad_s_to_mrad_s(
+                        "rate limit",
+                        self.config.max_rate_rad_s,
+                    )
+                    .unwrap_or(u16::MAX),
                 }))
             }
-            Request::GetParams { source } => {
+            Request::GetParams(GetParamsRequest { source }) => {
                 let (params, stored_crc) = match source {
                     ParamSource::Active => (block(&self.active_params()), 0),
                     ParamSource::Stored => match self.stored {
@@ -406,11 +412,11 @@ impl MockDevice {
                     },
                     ParamSource::Factory => (block(&self.config.factory), 0),
                 };
-                Ok(Response::GetParams {
+                Ok(Response::GetParams(StoredParams {
                     source,
                     params,
                     stored_crc,
-                })
+                }))
             }
             Request::SetParams(b) => {
                 if let Err(field) = b.validate() {
@@ -428,11 +434,11 @@ impl MockDevice {
                 }
                 let b = block(&self.active_params());
                 self.store(b)?;
-                Ok(Response::SaveParams {
+                Ok(Response::SaveParams(SavedCrc {
                     stored_crc: block_crc(&b),
-                })
+                }))
             }
-            Request::RestoreDefaults { target } => {
+            Request::RestoreDefaults(RestoreDefaultsRequest { target }) => {
                 if self.is_moving() {
                     return nack(NackCode::InvalidState, 0xFF);
                 }
@@ -458,16 +464,16 @@ impl MockDevice {
                 self.sim.reset_encoders();
                 Ok(Response::ResetOdometry)
             }
-            Request::MoveStraight {
+            Request::MoveStraight(MoveStraightRequest {
                 distance_um,
                 max_speed_mm_s,
                 mode,
-            } => {
-                let distance_m = f64::from(distance_um) * 1e-6;
+            }) => {
+                let distance_m = units::um_to_m(distance_um);
                 if distance_um == 0 || distance_um.unsigned_abs() > 100_000_000 {
                     return nack(NackCode::OutOfRange, 0);
                 }
-                let speed = f64::from(max_speed_mm_s) * 1e-3;
+                let speed = units::mm_s_to_m_s(i32::from(max_speed_mm_s));
                 if max_speed_mm_s == 0 || speed > self.config.max_speed_m_s + 1e-9 {
                     return nack(NackCode::OutOfRange, 1);
                 }
@@ -478,16 +484,16 @@ impl MockDevice {
                 )
                 .map(Response::MoveStraight)
             }
-            Request::TurnInPlace {
+            Request::TurnInPlace(TurnInPlaceRequest {
                 angle_urad,
                 max_rate_mrad_s,
                 mode,
-            } => {
-                let angle_rad = f64::from(angle_urad) * 1e-6;
+            }) => {
+                let angle_rad = units::urad_to_rad(angle_urad);
                 if angle_urad == 0 || angle_rad.abs() > 4.0 * std::f64::consts::PI {
                     return nack(NackCode::OutOfRange, 0);
                 }
-                let rate = f64::from(max_rate_mrad_s) * 1e-3;
+                let rate = units::mrad_s_to_rad_s(max_rate_mrad_s);
                 if max_rate_mrad_s == 0 || rate > self.config.max_rate_rad_s + 1e-9 {
                     return nack(NackCode::OutOfRange, 1);
                 }
@@ -498,13 +504,16 @@ impl MockDevice {
                 )
                 .map(Response::TurnInPlace)
             }
-            Request::WheelSpeed {
+            Request::WheelSpeed(WheelSpeedRequest {
                 left_mm_s,
                 right_mm_s,
                 duration_ms,
-            } => {
+            }) => {
                 let limit = self.config.max_speed_m_s + 1e-9;
-                let (l, r) = (f64::from(left_mm_s) * 1e-3, f64::from(right_mm_s) * 1e-3);
+                let (l, r) = (
+                    units::mm_s_to_m_s(i32::from(left_mm_s)),
+                    units::mm_s_to_m_s(i32::from(right_mm_s)),
+                );
                 if l.abs() > limit {
                     return nack(NackCode::OutOfRange, 0);
                 }
@@ -520,7 +529,7 @@ impl MockDevice {
                 let t = if duration_ms == 0 {
                     3600.0
                 } else {
-                    f64::from(duration_ms) * 1e-3
+                    f64::from(duration_ms) / 1e3
                 };
                 self.queue.clear();
                 self.accept_motion(
@@ -553,15 +562,15 @@ impl MockDevice {
                 valid: true,
                 sensor_status: 1,
             })),
-            Request::ConfigureTelemetry { period_ms } => {
+            Request::ConfigureTelemetry(TelemetryPeriod { period_ms }) => {
                 if period_ms != 0 && !(5..=1000).contains(&period_ms) {
                     return nack(NackCode::OutOfRange, 0);
                 }
                 self.telemetry_period_us = u64::from(period_ms) * 1000;
                 self.next_telemetry_us = self.now_us;
-                Ok(Response::ConfigureTelemetry { period_ms })
+                Ok(Response::ConfigureTelemetry(TelemetryPeriod { period_ms }))
             }
-            Request::ConfigureWatchdog { timeout_ms } => {
+            Request::ConfigureWatchdog(WatchdogTimeout { timeout_ms }) => {
                 if timeout_ms != 0 && !(50..=10_000).contains(&timeout_ms) {
                     return nack(NackCode::OutOfRange, 0);
                 }
@@ -572,7 +581,7 @@ impl MockDevice {
                     WatchdogState::Armed
                 };
                 self.fault_flags &= !fault::WATCHDOG_TRIPPED;
-                Ok(Response::ConfigureWatchdog { timeout_ms })
+                Ok(Response::ConfigureWatchdog(WatchdogTimeout { timeout_ms }))
             }
             Request::Heartbeat => {
                 if self.watchdog_state == WatchdogState::Tripped {
@@ -585,10 +594,12 @@ impl MockDevice {
     }
 
     fn set_active(&mut self, b: ParamsBlock) -> Result<(), Nack> {
-        self.sim.set_configured(b.to_params()).map_err(|_| Nack {
-            code: NackCode::OutOfRange,
-            detail: 0xFF,
-        })
+        self.sim
+            .set_configured(WheelParams::from(&b))
+            .map_err(|_| Nack {
+                code: NackCode::OutOfRange,
+                detail: 0xFF,
+            })
     }
 
     /// Writes the non-volatile copy atomically: the file is written beside its final name and
@@ -699,17 +710,16 @@ impl MockDevice {
                     self.completed_motions = self.completed_motions.wrapping_add(1);
                     self.counters.motions_completed += 1;
                     let seq = self.next_event_seq();
-                    if let Ok(f) = Packet::event(
-                        seq,
-                        Event::MotionDone {
-                            motion_id: id,
-                            completed_motions: self.completed_motions,
-                        },
-                    )
-                    .to_frame()
-                    {
-                        events.push(f);
-                    }
+                    events.push(
+                        Packet::event(
+                            seq,
+                            Event::MotionDone(MotionDone {
+                                motion_id: id,
+                                completed_motions: self.completed_motions,
+                            }),
+                        )
+                        .to_frame(),
+                    );
                 }
             }
             if self.watchdog_state == WatchdogState::Armed
@@ -764,6 +774,6 @@ impl MockDevice {
         };
         self.sample_index = self.sample_index.wrapping_add(1);
         let seq = self.next_event_seq();
-        Packet::event(seq, Event::Telemetry(t)).to_frame().ok()
+        Some(Packet::event(seq, Event::Telemetry(t)).to_frame())
     }
 }

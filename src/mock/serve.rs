@@ -94,8 +94,7 @@ async fn send<W: AsyncWrite + Unpin>(
         if faults.lose() {
             continue;
         }
-        let Ok(bytes) = f.to_bytes() else { continue };
-        let mut bytes = bytes.to_vec();
+        let mut bytes = f.to_bytes();
         faults.corrupt(&mut bytes);
         w.write_all(&bytes).await?;
     }
@@ -189,7 +188,7 @@ where
                 out.extend(MockDevice::busy(&frame));
             } else if time == TimeMode::Virtual && is_open_ended_wheel_speed(&frame) {
                 // Virtual time cannot run "until the next command": refuse, naming the field.
-                out.extend(
+                out.push(
                     crate::protocol::Packet::nack(
                         frame.seq,
                         frame.msg,
@@ -198,8 +197,7 @@ where
                             detail: 2,
                         },
                     )
-                    .to_frame()
-                    .ok(),
+                    .to_frame(),
                 );
             } else {
                 let mut d = lock(&device);
@@ -227,7 +225,9 @@ fn is_open_ended_wheel_speed(frame: &Frame) -> bool {
         crate::protocol::Packet::from_frame(frame),
         Ok(crate::protocol::Packet {
             body: crate::protocol::Body::Request {
-                request: crate::protocol::Request::WheelSpeed { duration_ms: 0, .. }
+                request: crate::protocol::Request::WheelSpeed(
+                    crate::protocol::message::WheelSpeedRequest { duration_ms: 0, .. }
+                )
             },
             ..
         })

@@ -1,9 +1,10 @@
 //! Property tests: every message, with any field values, survives encode → frame bytes →
 //! decode unchanged, including when the bytes arrive split at any point.
+#![cfg(feature = "tokio")]
 
 use bytes::BytesMut;
-use odocal::protocol::message::*;
-use odocal::protocol::FrameCodec;
+use odocal_protocol::message::*;
+use odocal_protocol::FrameCodec;
 use proptest::prelude::*;
 
 fn params() -> impl Strategy<Value = ParamsBlock> {
@@ -27,39 +28,45 @@ fn motion_state() -> impl Strategy<Value = MotionState> {
 
 fn request() -> impl Strategy<Value = Request> {
     prop_oneof![
-        (any::<u8>(), any::<u8>()).prop_map(|(a, b)| Request::Hello {
+        (any::<u8>(), any::<u8>()).prop_map(|(a, b)| Request::Hello(HelloRequest {
             host_major: a,
             host_min_minor: b
-        }),
-        source().prop_map(|source| Request::GetParams { source }),
+        })),
+        source().prop_map(|source| Request::GetParams(GetParamsRequest { source })),
         params().prop_map(Request::SetParams),
         Just(Request::SaveParams),
-        (0u8..2).prop_map(|b| Request::RestoreDefaults {
+        (0u8..2).prop_map(|b| Request::RestoreDefaults(RestoreDefaultsRequest {
             target: RestoreTarget::from_byte(b).unwrap()
-        }),
+        })),
         Just(Request::LoadParams),
         Just(Request::ResetOdometry),
-        (any::<i32>(), any::<u16>(), mode()).prop_map(|(d, s, mode)| Request::MoveStraight {
-            distance_um: d,
-            max_speed_mm_s: s,
-            mode
-        }),
-        (any::<i32>(), any::<u16>(), mode()).prop_map(|(a, r, mode)| Request::TurnInPlace {
-            angle_urad: a,
-            max_rate_mrad_s: r,
-            mode
-        }),
-        (any::<i16>(), any::<i16>(), any::<u16>()).prop_map(|(l, r, d)| Request::WheelSpeed {
-            left_mm_s: l,
-            right_mm_s: r,
-            duration_ms: d
-        }),
+        (any::<i32>(), any::<u16>(), mode()).prop_map(|(d, s, mode)| Request::MoveStraight(
+            MoveStraightRequest {
+                distance_um: d,
+                max_speed_mm_s: s,
+                mode
+            }
+        )),
+        (any::<i32>(), any::<u16>(), mode()).prop_map(|(a, r, mode)| Request::TurnInPlace(
+            TurnInPlaceRequest {
+                angle_urad: a,
+                max_rate_mrad_s: r,
+                mode
+            }
+        )),
+        (any::<i16>(), any::<i16>(), any::<u16>()).prop_map(|(l, r, d)| Request::WheelSpeed(
+            WheelSpeedRequest {
+                left_mm_s: l,
+                right_mm_s: r,
+                duration_ms: d
+            }
+        )),
         Just(Request::Stop),
         Just(Request::GetStatus),
         Just(Request::ReadEncoders),
         Just(Request::ReadHeading),
-        any::<u16>().prop_map(|p| Request::ConfigureTelemetry { period_ms: p }),
-        any::<u16>().prop_map(|t| Request::ConfigureWatchdog { timeout_ms: t }),
+        any::<u16>().prop_map(|p| Request::ConfigureTelemetry(TelemetryPeriod { period_ms: p })),
+        any::<u16>().prop_map(|t| Request::ConfigureWatchdog(WatchdogTimeout { timeout_ms: t })),
         Just(Request::Heartbeat),
     ]
 }
@@ -79,7 +86,7 @@ fn response() -> impl Strategy<Value = Response> {
             |(major, minor, firmware_id, fv, caps, sn, ms, mr)| DeviceInfo {
                 major,
                 minor,
-                firmware_id,
+                firmware_id: FirmwareId::new(&firmware_id).unwrap(),
                 firmware_version: fv,
                 capabilities: caps,
                 serial_number: sn,
@@ -112,14 +119,14 @@ fn response() -> impl Strategy<Value = Response> {
     prop_oneof![
         info.prop_map(Response::Hello),
         (source(), params(), any::<u16>()).prop_map(|(source, params, stored_crc)| {
-            Response::GetParams {
+            Response::GetParams(StoredParams {
                 source,
                 params,
                 stored_crc,
-            }
+            })
         }),
         params().prop_map(Response::SetParams),
-        any::<u16>().prop_map(|c| Response::SaveParams { stored_crc: c }),
+        any::<u16>().prop_map(|c| Response::SaveParams(SavedCrc { stored_crc: c })),
         params().prop_map(Response::RestoreDefaults),
         params().prop_map(Response::LoadParams),
         Just(Response::ResetOdometry),
@@ -143,8 +150,8 @@ fn response() -> impl Strategy<Value = Response> {
                 sensor_status: s,
             })
         }),
-        any::<u16>().prop_map(|p| Response::ConfigureTelemetry { period_ms: p }),
-        any::<u16>().prop_map(|t| Response::ConfigureWatchdog { timeout_ms: t }),
+        any::<u16>().prop_map(|p| Response::ConfigureTelemetry(TelemetryPeriod { period_ms: p })),
+        any::<u16>().prop_map(|t| Response::ConfigureWatchdog(WatchdogTimeout { timeout_ms: t })),
         Just(Response::Heartbeat),
     ]
 }
@@ -171,10 +178,10 @@ fn event() -> impl Strategy<Value = Event> {
                 motion_state: m,
                 queue_depth: q,
             })),
-        (any::<u16>(), any::<u32>()).prop_map(|(m, c)| Event::MotionDone {
+        (any::<u16>(), any::<u32>()).prop_map(|(m, c)| Event::MotionDone(MotionDone {
             motion_id: m,
             completed_motions: c
-        }),
+        })),
     ]
 }
 
@@ -205,7 +212,7 @@ proptest! {
 
     #[test]
     fn every_message_round_trips(p in packet(), split in any::<prop::sample::Index>()) {
-        let bytes = p.to_frame().unwrap().to_bytes().unwrap();
+        let bytes = p.to_frame().to_bytes();
         let at = split.index(bytes.len() + 1);
         let mut codec = FrameCodec::new();
         let mut buf = BytesMut::new();

@@ -4,8 +4,9 @@
 
 use bytes::BytesMut;
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
-use odocal::protocol::message::*;
-use odocal::protocol::{FrameCodec, Packet};
+use odocal_protocol::frame::FrameDecoder;
+use odocal_protocol::message::*;
+use odocal_protocol::FrameCodec;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
@@ -38,18 +39,14 @@ fn mixed_stream() -> (Vec<u8>, u64) {
             ),
             _ => Packet::request(
                 rng.gen(),
-                Request::MoveStraight {
+                Request::MoveStraight(MoveStraightRequest {
                     distance_um: rng.gen(),
                     max_speed_mm_s: 200,
                     mode: MotionMode::Queue,
-                },
+                }),
             ),
         };
-        let bytes = p
-            .to_frame()
-            .expect("bench frames encode")
-            .to_bytes()
-            .expect("fits");
+        let bytes = p.to_frame().to_bytes();
         let garbage = bytes.len() / 9;
         out.extend((0..garbage).map(|_| rng.gen::<u8>()));
         out.extend_from_slice(&bytes);
@@ -68,14 +65,28 @@ fn decode_stream(stream: &[u8]) -> usize {
     n
 }
 
+/// The same with the fixed-buffer decoder firmware uses.
+fn decode_stream_fixed(stream: &[u8]) -> usize {
+    let mut decoder = FrameDecoder::<512>::new();
+    let mut n = 0;
+    for chunk in stream.chunks(64) {
+        decoder.feed(chunk, |_| n += 1);
+    }
+    n
+}
+
 fn bench(c: &mut Criterion) {
     let (stream, frames) = mixed_stream();
     // The figure means nothing unless every frame is actually recovered.
     assert_eq!(decode_stream(&stream) as u64, frames);
+    assert_eq!(decode_stream_fixed(&stream) as u64, frames);
     let mut g = c.benchmark_group("decode_mixed_stream");
     g.throughput(Throughput::Bytes(stream.len() as u64));
     g.bench_function("bytes", |b| {
         b.iter(|| decode_stream(std::hint::black_box(&stream)))
+    });
+    g.bench_function("bytes_fixed_buffer", |b| {
+        b.iter(|| decode_stream_fixed(std::hint::black_box(&stream)))
     });
     g.throughput(Throughput::Elements(frames));
     g.bench_function("frames", |b| {
