@@ -263,8 +263,14 @@ impl Correction {
 /// Heading errors only observe `D_R/(D·E_b)` and `D_L/(D·E_b)`; the absolute wheel scale is
 /// invisible to them. A convention supplies the missing constraint. Estimation and write-back
 /// must use the same one: mixed, a 4 m square is left several centimetres open.
+///
+/// This one type serves the library, routine files, the command line and JSON. Its text form
+/// ([`FromStr`](std::str::FromStr), [`Display`](std::fmt::Display)) is `left-nominal`,
+/// `mean-preserving` or `measured-scale:COMMANDED_M,MEASURED_M`; in TOML and JSON the first two
+/// are strings and the third a table, `{ measured-scale = { commanded_m = 2.0, measured_m =
+/// 1.98 } }`.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(rename_all = "kebab-case", tag = "convention")]
+#[serde(rename_all = "kebab-case")]
 pub enum SplitConvention {
     /// The mean of the two diameter factors stays 1 (Borenstein's UMBmark split:
     /// `D_L = 2D/(E_d+1)`, `D_R = 2D/(1/E_d+1)` for equal configured wheels).
@@ -291,6 +297,26 @@ impl SplitConvention {
             SplitConvention::LeftNominal => "left-nominal",
             SplitConvention::MeasuredScale { .. } => "measured-scale",
         }
+    }
+
+    /// Checks a measured scale is physical: both distances positive and within 20 % of each
+    /// other (a larger difference is a measuring mistake, not a wheel).
+    pub fn validate(&self) -> Result<(), KinematicsError> {
+        if let SplitConvention::MeasuredScale {
+            commanded_m,
+            measured_m,
+        } = *self
+        {
+            check_positive("commanded straight distance", commanded_m)?;
+            check_positive("measured straight distance", measured_m)?;
+            if (measured_m / commanded_m - 1.0).abs() > 0.2 {
+                return Err(KinematicsError::BadScaleCheck(format!(
+                    "measured {measured_m} m for {commanded_m} m commanded differs by more \
+                     than 20 %: check the measurement"
+                )));
+            }
+        }
+        Ok(())
     }
 
     /// Splits ratio estimates into per-parameter factors on the configured parameters.
@@ -324,6 +350,47 @@ impl SplitConvention {
                 base.rescaled_to_distance(commanded_m, measured_m, configured_wheelbase_m)
             }
         }
+    }
+}
+
+impl std::fmt::Display for SplitConvention {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            SplitConvention::MeasuredScale {
+                commanded_m,
+                measured_m,
+            } => write!(f, "measured-scale:{commanded_m},{measured_m}"),
+            other => f.write_str(other.name()),
+        }
+    }
+}
+
+impl std::str::FromStr for SplitConvention {
+    type Err = KinematicsError;
+
+    fn from_str(s: &str) -> Result<Self, KinematicsError> {
+        let bad = || {
+            KinematicsError::BadScaleCheck(format!(
+                "unknown convention {s:?}: use left-nominal, mean-preserving or \
+                 measured-scale:COMMANDED_M,MEASURED_M"
+            ))
+        };
+        let c = match s.trim() {
+            "left-nominal" => SplitConvention::LeftNominal,
+            "mean-preserving" => SplitConvention::MeanPreserving,
+            other => {
+                let (commanded, measured) = other
+                    .strip_prefix("measured-scale:")
+                    .and_then(|rest| rest.split_once(','))
+                    .ok_or_else(bad)?;
+                SplitConvention::MeasuredScale {
+                    commanded_m: commanded.trim().parse().map_err(|_| bad())?,
+                    measured_m: measured.trim().parse().map_err(|_| bad())?,
+                }
+            }
+        };
+        c.validate()?;
+        Ok(c)
     }
 }
 
@@ -363,6 +430,28 @@ impl Correction {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn one_convention_type_reads_and_writes_every_form() {
+        for c in [
+            SplitConvention::LeftNominal,
+            SplitConvention::MeanPreserving,
+            SplitConvention::MeasuredScale {
+                commanded_m: 2.0,
+                measured_m: 1.98,
+            },
+        ] {
+            assert_eq!(c.to_string().parse::<SplitConvention>().unwrap(), c);
+            let json = serde_json::to_string(&c).unwrap();
+            assert_eq!(serde_json::from_str::<SplitConvention>(&json).unwrap(), c);
+        }
+        assert_eq!(
+            serde_json::to_string(&SplitConvention::LeftNominal).unwrap(),
+            "\"left-nominal\""
+        );
+        assert!("measured-scale:2,1".parse::<SplitConvention>().is_err());
+        assert!("right-nominal".parse::<SplitConvention>().is_err());
+    }
     use approx::assert_relative_eq;
 
     #[test]

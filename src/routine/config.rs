@@ -22,26 +22,6 @@ pub enum WritePolicy {
     Yes,
 }
 
-/// Which diameter split the routine estimates and writes with.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum ConventionName {
-    /// Left wheel keeps its diameter.
-    LeftNominal,
-    /// Mean diameter is kept.
-    MeanPreserving,
-}
-
-/// A straight-line tape-measure check that fixes the absolute wheel scale.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct StraightCheck {
-    /// Distance commanded (m).
-    pub commanded_m: f64,
-    /// Distance measured start to end (m).
-    pub measured_m: f64,
-}
-
 /// Everything the recalibration routine needs to know.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -64,10 +44,8 @@ pub struct RoutineConfig {
     pub settle_s: f64,
     /// Estimator whose result is written.
     pub method: Method,
-    /// Diameter split for estimation and write-back.
-    pub convention: ConventionName,
-    /// Optional straight-line check (overrides `convention` for the wheel scale).
-    pub straight_check: Option<StraightCheck>,
+    /// Diameter split for estimation and write-back (see [`SplitConvention`]).
+    pub convention: SplitConvention,
     /// Write-back policy.
     pub write_back: WritePolicy,
     /// Ask before the robot first moves (off only for the simulated robot).
@@ -102,8 +80,7 @@ impl Default for RoutineConfig {
             heading_samples: 5,
             settle_s: 0.5,
             method: Method::Exact,
-            convention: ConventionName::LeftNominal,
-            straight_check: None,
+            convention: SplitConvention::LeftNominal,
             write_back: WritePolicy::Ask,
             confirm_motion: true,
             verification_runs: 3,
@@ -131,14 +108,7 @@ pub struct ConfigError {
 impl RoutineConfig {
     /// The split convention these settings select.
     pub fn split_convention(&self) -> SplitConvention {
-        match (self.straight_check, self.convention) {
-            (Some(s), _) => SplitConvention::MeasuredScale {
-                commanded_m: s.commanded_m,
-                measured_m: s.measured_m,
-            },
-            (None, ConventionName::LeftNominal) => SplitConvention::LeftNominal,
-            (None, ConventionName::MeanPreserving) => SplitConvention::MeanPreserving,
-        }
+        self.convention
     }
 
     /// Parses a routine file; errors name the line.
@@ -205,19 +175,8 @@ impl RoutineConfig {
                 format!("must be in [0, 10] s, got {}", self.settle_s),
             );
         }
-        if let Some(s) = self.straight_check {
-            if !positive(s.commanded_m) || !positive(s.measured_m) {
-                return bad("straight_check", "distances must be > 0".into());
-            }
-            if (s.measured_m / s.commanded_m - 1.0).abs() > 0.2 {
-                return bad(
-                    "straight_check",
-                    format!(
-                        "measured {} m for {} m commanded is more than 20 % off; check the units",
-                        s.measured_m, s.commanded_m
-                    ),
-                );
-            }
+        if let Err(e) = self.convention.validate() {
+            return bad("convention", e.to_string());
         }
         if self.verification_runs > 50 {
             return bad(
@@ -284,8 +243,8 @@ mod tests {
     fn a_full_file_parses() {
         let cfg = RoutineConfig::from_toml(
             "port = \"mock\"\nside_m = 2.0\nruns_per_direction = 3\nmethod = \"jung-chung\"\n\
-             convention = \"mean-preserving\"\nwrite_back = \"dry-run\"\n\
-             [straight_check]\ncommanded_m = 2.0\nmeasured_m = 1.98\n",
+             write_back = \"dry-run\"\n\
+             convention = { measured-scale = { commanded_m = 2.0, measured_m = 1.98 } }\n",
         )
         .unwrap();
         assert_eq!(cfg.method, Method::JungChung);
@@ -294,6 +253,13 @@ mod tests {
             cfg.split_convention(),
             SplitConvention::MeasuredScale { .. }
         ));
+        let plain = RoutineConfig::from_toml("convention = \"mean-preserving\"\n").unwrap();
+        assert_eq!(plain.convention, SplitConvention::MeanPreserving);
+        let e = RoutineConfig::from_toml(
+            "side_m = 2.0\nconvention = { measured-scale = { commanded_m = 2.0, measured_m = 1.0 } }\n",
+        )
+        .unwrap_err();
+        assert!(e.to_string().contains("convention"), "{e}");
     }
 
     #[test]

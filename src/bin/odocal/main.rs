@@ -7,7 +7,7 @@ mod routine;
 mod simulate;
 mod track;
 
-use clap::{Parser, Subcommand, ValueEnum};
+use clap::{Parser, Subcommand};
 use odocal::kinematics::SplitConvention;
 use std::process::ExitCode;
 
@@ -52,21 +52,13 @@ enum Command {
     Heading(device::HeadingArgs),
 }
 
-/// Which diameter split to use for estimation and write-back.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
-pub enum ConventionArg {
-    /// Mean of the two wheel diameters stays as configured (Borenstein).
-    MeanPreserving,
-    /// Left wheel stays as configured (the paper's coupled term).
-    LeftNominal,
-}
-
 /// Convention flags shared by the subcommands that estimate.
 #[derive(Debug, Clone, clap::Args)]
 pub struct ConventionArgs {
-    /// Diameter split for estimation and write-back.
-    #[arg(long, value_enum, default_value = "left-nominal")]
-    convention: ConventionArg,
+    /// Diameter split for estimation and write-back: left-nominal, mean-preserving or
+    /// measured-scale:COMMANDED_M,MEASURED_M.
+    #[arg(long, default_value = "left-nominal")]
+    convention: SplitConvention,
     /// Straight-line scale check: distance commanded (m). With --straight-measured-m, fixes
     /// the absolute wheel scale (overrides --convention).
     #[arg(long, requires = "straight_measured_m")]
@@ -84,10 +76,7 @@ impl ConventionArgs {
                 commanded_m,
                 measured_m,
             },
-            _ => match self.convention {
-                ConventionArg::MeanPreserving => SplitConvention::MeanPreserving,
-                ConventionArg::LeftNominal => SplitConvention::LeftNominal,
-            },
+            _ => self.convention,
         }
     }
 }

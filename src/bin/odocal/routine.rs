@@ -6,9 +6,10 @@ use odocal::base::Base;
 use odocal::calibration::Method;
 use odocal::demo::{run_demo, DemoOptions};
 use odocal::hal::open_port;
+use odocal::kinematics::SplitConvention;
 use odocal::kinematics::WheelParams;
 use odocal::report::ros2::ros2_diff_drive_yaml;
-use odocal::routine::config::{ConventionName, RoutineConfig, StraightCheck, WritePolicy};
+use odocal::routine::config::{RoutineConfig, WritePolicy};
 use odocal::routine::report::Report;
 use odocal::routine::{run, RoutineEvent, RoutineUi};
 use serde_json::json;
@@ -282,9 +283,10 @@ pub struct RoutineFlags {
     /// Estimator to write: umbmark, lee, heading-only, jung-chung or exact.
     #[arg(long)]
     method: Option<String>,
-    /// Diameter split for estimation and write-back.
-    #[arg(long, value_parser = ["left-nominal", "mean-preserving"])]
-    convention: Option<String>,
+    /// Diameter split for estimation and write-back: left-nominal, mean-preserving or
+    /// measured-scale:COMMANDED_M,MEASURED_M.
+    #[arg(long)]
+    convention: Option<SplitConvention>,
     /// Straight-line check: commanded distance (m); with --straight-measured-m.
     #[arg(long, requires = "straight_measured_m")]
     straight_commanded_m: Option<f64>,
@@ -330,20 +332,16 @@ impl RoutineFlags {
         if let Some(m) = &self.method {
             cfg.method = m.parse::<Method>()?;
         }
-        if let Some(c) = &self.convention {
-            cfg.convention = if c == "mean-preserving" {
-                ConventionName::MeanPreserving
-            } else {
-                ConventionName::LeftNominal
-            };
+        if let Some(c) = self.convention {
+            cfg.convention = c;
         }
         if let (Some(commanded_m), Some(measured_m)) =
             (self.straight_commanded_m, self.straight_measured_m)
         {
-            cfg.straight_check = Some(StraightCheck {
+            cfg.convention = SplitConvention::MeasuredScale {
                 commanded_m,
                 measured_m,
-            });
+            };
         }
         if self.dry_run {
             cfg.write_back = WritePolicy::DryRun;

@@ -1,6 +1,6 @@
 //! `odocal simulate`: the paper's simulation study on a configurable robot.
 
-use crate::{pm, print_json, ConventionArg, ConventionArgs};
+use crate::{pm, print_json, ConventionArgs};
 use odocal::kinematics::{SplitConvention, WheelParams};
 use odocal::sim::NoiseModel;
 use odocal::study::{run_trials, StudyConfig};
@@ -31,8 +31,8 @@ pub struct Args {
     #[arg(long, default_value_t = 10_000.0)]
     counts_per_rev: f64,
     /// How the true E_d splits into two true diameters.
-    #[arg(long, value_enum, default_value = "left-nominal")]
-    truth_split: ConventionArg,
+    #[arg(long, default_value = "left-nominal")]
+    truth_split: SplitConvention,
     #[command(flatten)]
     convention: ConventionArgs,
     /// Runs per direction (calibration and verification).
@@ -70,10 +70,7 @@ pub fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
         nominal: WheelParams::nominal(args.wheel_diameter_m, args.wheelbase_m, args.counts_per_rev),
         true_e_b: args.true_eb,
         true_e_d: args.true_ed,
-        truth_split: match args.truth_split {
-            ConventionArg::LeftNominal => SplitConvention::LeftNominal,
-            ConventionArg::MeanPreserving => SplitConvention::MeanPreserving,
-        },
+        truth_split: args.truth_split,
         side_m: args.side_m,
         lee_side_m: args.lee_side_m,
         runs: args.runs,

@@ -132,8 +132,8 @@ pub struct TrackArgs {
     #[arg(long)]
     dataset: Option<PathBuf>,
     /// Diameter split for E_b.
-    #[arg(long, default_value = "left-nominal", value_parser = ["left-nominal", "mean-preserving"])]
-    convention: String,
+    #[arg(long, default_value = "left-nominal")]
+    convention: SplitConvention,
     /// Relative wheel slip per step assumed by the filter.
     #[arg(long, default_value_t = 0.01)]
     slip_fraction: f64,
@@ -196,11 +196,7 @@ impl RoutineUi for StdinUi {
 
 /// Runs `odocal track`.
 pub async fn track(args: TrackArgs) -> CliResult {
-    let scale = ScaleSource::Convention(if args.convention == "mean-preserving" {
-        SplitConvention::MeanPreserving
-    } else {
-        SplitConvention::LeftNominal
-    });
+    let scale = ScaleSource::Convention(args.convention);
     let config = |configured| {
         let mut c = OnlineConfig::new(configured);
         c.slip_fraction = args.slip_fraction;
