@@ -1,24 +1,12 @@
 //! The `odocal` binary end to end: JSON shapes other tools rely on, and clear failures.
 
-use serde_json::Value;
-use std::process::Command;
+mod common;
 
-fn odocal(args: &[&str]) -> (bool, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_odocal"))
-        .args(args)
-        .output()
-        .expect("binary runs");
-    (
-        out.status.success(),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
-}
+use common::{odocal, odocal_json, scratch, spawn_mock};
+use serde_json::Value;
 
 fn json(args: &[&str]) -> Value {
-    let (ok, stdout, stderr) = odocal(args);
-    assert!(ok, "odocal {args:?} failed: {stderr}");
-    serde_json::from_str(&stdout).expect("stdout is one JSON object")
+    odocal_json(args)
 }
 
 /// `odocal estimate` on the README's 4 m square, followed by `extra`.
@@ -173,32 +161,6 @@ fn mock_device_serves_a_pty_that_params_get_can_open() {
         !ok && err.contains("cannot open /dev/does-not-exist"),
         "{err}"
     );
-}
-
-/// Starts `odocal mock-device` with `args`; returns the process (stdin kept open: closing it
-/// stops the device) and the first line it printed, the terminal's path.
-fn spawn_mock(args: &[&str]) -> (std::process::Child, String) {
-    use std::io::{BufRead, BufReader};
-    use std::process::Stdio;
-    let mut mock = Command::new(env!("CARGO_BIN_EXE_odocal"))
-        .arg("mock-device")
-        .args(args)
-        .stdin(Stdio::piped())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::null())
-        .spawn()
-        .expect("mock-device starts");
-    let mut line = String::new();
-    BufReader::new(mock.stdout.take().expect("stdout piped"))
-        .read_line(&mut line)
-        .expect("mock-device prints its path");
-    (mock, line.trim().to_string())
-}
-
-fn scratch(name: &str) -> std::path::PathBuf {
-    let d = std::env::temp_dir().join(format!("odocal-cli-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    d
 }
 
 #[test]

@@ -2,6 +2,8 @@
 //! opens a USB adapter) and over an in-memory duplex, clean and with injected faults.
 
 use odocal::base::{Base, MotionGuard};
+mod common;
+
 use odocal::calibration::{estimate, Method, RunMeasurement, SquareTest};
 use odocal::hal::link::LinkConfig;
 use odocal::hal::{open_port, Client, HalError, LinkError};
@@ -15,18 +17,15 @@ use odocal::protocol::message::{
 };
 use odocal::protocol::Request;
 use odocal::routine::square::{self, SquareCommand, SquareRecord};
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 fn nominal() -> WheelParams {
-    WheelParams::nominal(0.15, 0.39, 4096.0)
+    common::nominal()
 }
 
 fn device(compass_sigma_deg: f64, seed: u64) -> SharedDevice {
-    let mut cfg = MockConfig::with_ratios(nominal(), 0.976, 0.992).unwrap();
-    cfg.noise.compass_sigma_rad = compass_sigma_deg.to_radians();
-    cfg.seed = seed;
-    Arc::new(Mutex::new(MockDevice::new(cfg).unwrap()))
+    common::mock_device(compass_sigma_deg, seed)
 }
 
 fn fast_link() -> LinkConfig {

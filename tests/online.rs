@@ -1,9 +1,12 @@
 //! The online estimator (augmented EKF) in simulation along random non-square paths, and on
 //! the recorded OptiOdom runs.
 
+mod common;
+
+use common::odocal_json;
 use odocal::calibration::online::{OnlineConfig, OnlineEstimator, ScaleSource};
 use odocal::calibration::{estimate, Method};
-use odocal::dataset::{default_optiodom_root, OptiOdomSet};
+use odocal::dataset::OptiOdomSet;
 use odocal::kinematics::{Correction, SplitConvention, WheelParams};
 use odocal::sim::{NoiseModel, Simulator};
 use rand::{Rng, SeedableRng};
@@ -157,20 +160,7 @@ fn the_filter_is_consistent_over_many_seeds() {
 }
 
 fn optiodom() -> Option<std::path::PathBuf> {
-    let root = default_optiodom_root();
-    if root.join("free").is_dir() {
-        return Some(root);
-    }
-    assert!(
-        std::env::var_os("CI").is_none(),
-        "OptiOdom data missing in CI at {}",
-        root.display()
-    );
-    eprintln!(
-        "NOTICE: skipping, OptiOdom data not found at {}",
-        root.display()
-    );
-    None
+    common::optiodom("free")
 }
 
 /// Runs the filter over every run of `set`: ticks predict, ground-truth heading updates.
@@ -246,19 +236,6 @@ fn learned_on_a_free_run_it_improves_the_other_recorded_runs() {
         (online.e_d - sq.e_d).abs() < 3.0 * sd,
         "E_d differs by more than 3σ"
     );
-}
-
-fn odocal_json(args: &[&str]) -> serde_json::Value {
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_odocal"))
-        .args(args)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    serde_json::from_slice(&out.stdout).unwrap()
 }
 
 #[test]
@@ -412,19 +389,15 @@ async fn live_telemetry_from_the_mock_calibrates_and_writes_back() {
     use odocal::hal::link::LinkConfig;
     use odocal::hal::Client;
     use odocal::kinematics::Direction;
-    use odocal::mock::{lock, spawn_duplex, FaultConfig, MockConfig, MockDevice, TimeMode};
+    use odocal::mock::{lock, spawn_duplex, FaultConfig, TimeMode};
     use odocal::protocol::message::ParamSource;
     use odocal::routine::config::WritePolicy;
     use odocal::routine::square::{run_square, SquareCommand};
     use odocal::routine::{write_parameters, Unattended};
     use odocal::track::Tracker;
-    use std::sync::{Arc, Mutex};
     use std::time::Duration;
 
-    let nominal = WheelParams::nominal(0.15, 0.39, 4096.0);
-    let mut mc = MockConfig::with_ratios(nominal, 0.976, 0.992).unwrap();
-    mc.noise.compass_sigma_rad = COMPASS_DEG.to_radians();
-    let device = Arc::new(Mutex::new(MockDevice::new(mc).unwrap()));
+    let device = common::mock_device(COMPASS_DEG, 1);
     let (stream, _task) = spawn_duplex(device.clone(), TimeMode::Virtual, FaultConfig::default());
     let (client, _) = Client::connect(stream, LinkConfig::default())
         .await

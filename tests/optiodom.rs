@@ -3,27 +3,15 @@
 //! robot and side length. Fails when `CI` is set and the data is missing; otherwise skips with
 //! a notice.
 
+mod common;
+
 use odocal::calibration::{estimate, Method};
-use odocal::dataset::{default_optiodom_root, replay, DatasetError, OptiOdomSet};
+use odocal::dataset::{replay, DatasetError, OptiOdomSet};
 use odocal::kinematics::SplitConvention;
 use std::path::PathBuf;
 
 fn data_root() -> Option<PathBuf> {
-    let root = default_optiodom_root();
-    if root.join("square").is_dir() {
-        return Some(root);
-    }
-    if std::env::var_os("CI").is_some() {
-        panic!(
-            "OptiOdom data set missing at {} (set ODOCAL_OPTIODOM); CI must have ../shared",
-            root.display()
-        );
-    }
-    eprintln!(
-        "NOTICE: skipping, OptiOdom data not found at {}",
-        root.display()
-    );
-    None
+    common::optiodom("square")
 }
 
 fn square_sets(root: &std::path::Path) -> Vec<OptiOdomSet> {

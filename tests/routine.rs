@@ -1,6 +1,8 @@
 //! The recalibration routine end to end against the mock device: the demo calibrates and
 //! verifies, and every failure path stops the base and leaves the parameters as they were.
 
+mod common;
+
 use odocal::base::Base;
 use odocal::demo::{run_demo, DemoError, DemoOptions, MockTruth};
 use odocal::hal::link::LinkConfig;
@@ -14,9 +16,7 @@ use std::time::Duration;
 use tokio_util::sync::CancellationToken;
 
 fn temp_dir(name: &str) -> std::path::PathBuf {
-    let d = std::env::temp_dir().join(format!("odocal-test-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    d
+    common::scratch(name)
 }
 
 fn demo_options(name: &str) -> DemoOptions {
@@ -180,11 +180,7 @@ async fn declining_to_move_or_to_write_changes_nothing() {
 }
 
 fn real_time_device(storage_fails: bool) -> Arc<Mutex<MockDevice>> {
-    let mut cfg =
-        MockConfig::with_ratios(WheelParams::nominal(0.15, 0.39, 4096.0), 0.976, 0.992).unwrap();
-    cfg.noise.compass_sigma_rad = 0.2f64.to_radians();
-    cfg.storage_fails = storage_fails;
-    Arc::new(Mutex::new(MockDevice::new(cfg).unwrap()))
+    common::mock_device_with(0.2, 1, |c| c.storage_fails = storage_fails)
 }
 
 fn quick_routine(name: &str) -> RoutineConfig {

@@ -1,32 +1,26 @@
 //! The routine on the in-process simulated base: no protocol, no pseudo-terminal, virtual
 //! time. The whole procedure and its failure paths, in milliseconds.
 
+mod common;
+
 use odocal::base::transaction::read_backup;
 use odocal::base::{Base, GroundTruth};
-use odocal::kinematics::{SplitConvention, WheelParams};
+use odocal::kinematics::WheelParams;
 use odocal::mock::{SimBase, SimFaults};
 use odocal::routine::config::{RoutineConfig, WritePolicy};
 use odocal::routine::{run, RoutineError, Unattended};
-use odocal::sim::{NoiseModel, Simulator};
 use tokio_util::sync::CancellationToken;
 
 fn nominal() -> WheelParams {
-    WheelParams::nominal(0.15, 0.39, 4096.0)
+    common::nominal()
 }
 
 fn robot(compass_sigma_deg: f64) -> SimBase {
-    let truth =
-        WheelParams::from_ratios(&nominal(), 0.976, 0.992, &SplitConvention::LeftNominal).unwrap();
-    let noise = NoiseModel {
-        compass_sigma_rad: compass_sigma_deg.to_radians(),
-        ..NoiseModel::default()
-    };
-    SimBase::new(Simulator::new(truth, nominal(), noise, 3).unwrap())
+    common::sim_base(compass_sigma_deg, 3)
 }
 
 fn routine(name: &str) -> RoutineConfig {
-    let dir = std::env::temp_dir().join(format!("odocal-simbase-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
+    let dir = common::scratch(&format!("simbase-{name}"));
     RoutineConfig {
         write_back: WritePolicy::Yes,
         confirm_motion: false,

@@ -1,0 +1,126 @@
+//! Helpers the integration tests share: the demo robot as a mock device or an in-process base,
+//! scratch directories, the recorded data set (loud in CI), and running the `odocal` binary.
+//! Each test file compiles its own copy, so not every file uses every helper.
+#![allow(dead_code)]
+
+use odocal::dataset::default_optiodom_root;
+use odocal::kinematics::{SplitConvention, WheelParams};
+use odocal::mock::{MockConfig, MockDevice, SharedDevice, SimBase};
+use odocal::sim::{NoiseModel, Simulator};
+use std::path::PathBuf;
+use std::process::Command;
+use std::sync::{Arc, Mutex};
+
+/// True `E_b` of the test robot (the paper's).
+pub const TRUE_E_B: f64 = 0.976;
+/// True `E_d` of the test robot (the paper's), left wheel nominal.
+pub const TRUE_E_D: f64 = 0.992;
+
+/// The controller's factory configuration: D 0.15 m, b 0.39 m, 4096 counts per revolution.
+pub fn nominal() -> WheelParams {
+    WheelParams::nominal(0.15, 0.39, 4096.0)
+}
+
+/// The test robot's true parameters.
+pub fn truth() -> WheelParams {
+    WheelParams::from_ratios(
+        &nominal(),
+        TRUE_E_B,
+        TRUE_E_D,
+        &SplitConvention::LeftNominal,
+    )
+    .expect("the test robot is physical")
+}
+
+/// A mock device (protocol firmware) of the test robot with this compass noise and seed.
+pub fn mock_device(compass_sigma_deg: f64, seed: u64) -> SharedDevice {
+    mock_device_with(compass_sigma_deg, seed, |_| {})
+}
+
+/// The same, with `tweak` applied to its configuration first.
+pub fn mock_device_with(
+    compass_sigma_deg: f64,
+    seed: u64,
+    tweak: impl FnOnce(&mut MockConfig),
+) -> SharedDevice {
+    let mut cfg = MockConfig::with_ratios(nominal(), TRUE_E_B, TRUE_E_D).expect("valid robot");
+    cfg.noise.compass_sigma_rad = compass_sigma_deg.to_radians();
+    cfg.seed = seed;
+    tweak(&mut cfg);
+    Arc::new(Mutex::new(MockDevice::new(cfg).expect("valid mock")))
+}
+
+/// The test robot as an in-process base (no protocol) with this compass noise and seed.
+pub fn sim_base(compass_sigma_deg: f64, seed: u64) -> SimBase {
+    let noise = NoiseModel {
+        compass_sigma_rad: compass_sigma_deg.to_radians(),
+        ..NoiseModel::default()
+    };
+    SimBase::new(Simulator::new(truth(), nominal(), noise, seed).expect("valid simulator"))
+}
+
+/// An empty scratch directory unique to this test process.
+pub fn scratch(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("odocal-test-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    d
+}
+
+/// The OptiOdom data set's root if it holds `sub` (`square`, `free`). Missing data fails the
+/// test when `CI` is set, and skips it with a notice otherwise.
+pub fn optiodom(sub: &str) -> Option<PathBuf> {
+    let root = default_optiodom_root();
+    if root.join(sub).is_dir() {
+        return Some(root);
+    }
+    assert!(
+        std::env::var_os("CI").is_none(),
+        "OptiOdom data set missing at {} (set ODOCAL_OPTIODOM); CI must have ../shared",
+        root.display()
+    );
+    eprintln!(
+        "NOTICE: skipping, OptiOdom data not found at {}",
+        root.display()
+    );
+    None
+}
+
+/// Runs the `odocal` binary: success, stdout, stderr.
+pub fn odocal(args: &[&str]) -> (bool, String, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_odocal"))
+        .args(args)
+        .output()
+        .expect("binary runs");
+    (
+        out.status.success(),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+/// Runs the `odocal` binary, which must succeed and print one JSON object.
+pub fn odocal_json(args: &[&str]) -> serde_json::Value {
+    let (ok, stdout, stderr) = odocal(args);
+    assert!(ok, "odocal {args:?} failed: {stderr}");
+    serde_json::from_str(&stdout).expect("stdout is one JSON object")
+}
+
+/// Starts `odocal mock-device` with `args`; returns the process (stdin kept open: closing it
+/// stops the device) and the first line it printed, the terminal's path.
+pub fn spawn_mock(args: &[&str]) -> (std::process::Child, String) {
+    use std::io::{BufRead, BufReader};
+    use std::process::Stdio;
+    let mut mock = Command::new(env!("CARGO_BIN_EXE_odocal"))
+        .arg("mock-device")
+        .args(args)
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("mock-device starts");
+    let mut line = String::new();
+    BufReader::new(mock.stdout.take().expect("stdout piped"))
+        .read_line(&mut line)
+        .expect("mock-device prints its path");
+    (mock, line.trim().to_string())
+}
