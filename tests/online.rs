@@ -9,7 +9,7 @@ use odocal::calibration::{estimate, Method};
 use odocal::dataset::OptiOdomSet;
 use odocal::kinematics::{Correction, SplitConvention, WheelParams};
 use odocal::sim::{NoiseModel, Simulator};
-use rand::{Rng, SeedableRng};
+use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 const SLIP: f64 = 0.005;
@@ -37,8 +37,8 @@ impl RandomPath {
     /// Encoder counts (left, right) of the next `dt` seconds.
     fn counts(&mut self, dt: f64, nominal: &WheelParams) -> (f64, f64) {
         if self.t <= 0.0 {
-            self.v = self.rng.gen_range(0.1..0.5);
-            self.w = self.rng.gen_range(-1.5..1.5);
+            self.v = self.rng.random_range(0.1..0.5);
+            self.w = self.rng.random_range(-1.5..1.5);
             self.t = 2.0;
         }
         self.t -= dt;
@@ -364,8 +364,8 @@ fn position_fixes_make_the_wheel_scale_observable() {
             // An external tracker with 1 cm noise, once a second.
             let p = sim.pose();
             f.update_position(
-                p.x_m + rng.gen_range(-0.017..0.017),
-                p.y_m + rng.gen_range(-0.017..0.017),
+                p.x_m + rng.random_range(-0.017..0.017),
+                p.y_m + rng.random_range(-0.017..0.017),
             );
         }
     }

@@ -7,7 +7,7 @@ use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use odocal_protocol::frame::FrameDecoder;
 use odocal_protocol::message::*;
 use odocal_protocol::FrameCodec;
-use rand::{Rng, SeedableRng};
+use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 fn mixed_stream() -> (Vec<u8>, u64) {
@@ -15,32 +15,32 @@ fn mixed_stream() -> (Vec<u8>, u64) {
     let mut out = Vec::new();
     let mut frames = 0;
     while out.len() < 1 << 20 {
-        let p = match rng.gen_range(0..3) {
+        let p = match rng.random_range(0..3) {
             0 => Packet::event(
-                rng.gen(),
+                rng.random(),
                 Event::Telemetry(Telemetry {
-                    sample_index: rng.gen(),
-                    timestamp_us: rng.gen(),
-                    left_counts: rng.gen(),
-                    right_counts: rng.gen(),
-                    heading_urad: rng.gen(),
+                    sample_index: rng.random(),
+                    timestamp_us: rng.random(),
+                    left_counts: rng.random(),
+                    right_counts: rng.random(),
+                    heading_urad: rng.random(),
                     heading_valid: true,
                     motion_state: MotionState::Moving,
                     queue_depth: 1,
                 }),
             ),
             1 => Packet::response(
-                rng.gen(),
+                rng.random(),
                 Response::ReadEncoders(Encoders {
-                    timestamp_us: rng.gen(),
-                    left_counts: rng.gen(),
-                    right_counts: rng.gen(),
+                    timestamp_us: rng.random(),
+                    left_counts: rng.random(),
+                    right_counts: rng.random(),
                 }),
             ),
             _ => Packet::request(
-                rng.gen(),
+                rng.random(),
                 Request::MoveStraight(MoveStraightRequest {
-                    distance_um: rng.gen(),
+                    distance_um: rng.random(),
                     max_speed_mm_s: 200,
                     mode: MotionMode::Queue,
                 }),
@@ -48,7 +48,7 @@ fn mixed_stream() -> (Vec<u8>, u64) {
         };
         let bytes = p.to_frame().to_bytes();
         let garbage = bytes.len() / 9;
-        out.extend((0..garbage).map(|_| rng.gen::<u8>()));
+        out.extend((0..garbage).map(|_| rng.random::<u8>()));
         out.extend_from_slice(&bytes);
         frames += 1;
     }

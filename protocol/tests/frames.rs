@@ -5,7 +5,7 @@
 
 use bytes::BytesMut;
 use odocal_protocol::{Frame, FrameCodec, FrameDecoder, FrameKind};
-use rand::{Rng, SeedableRng};
+use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use tokio_util::codec::Decoder;
 
@@ -15,21 +15,21 @@ fn random_frame(rng: &mut ChaCha8Rng) -> Frame {
         FrameKind::Response,
         FrameKind::Nack,
         FrameKind::Event,
-    ][rng.gen_range(0..4)];
-    let len = rng.gen_range(0..=240);
-    let payload: Vec<u8> = (0..len).map(|_| rng.gen()).collect();
-    Frame::new(kind, rng.gen(), rng.gen(), &payload).unwrap()
+    ][rng.random_range(0..4)];
+    let len = rng.random_range(0..=240);
+    let payload: Vec<u8> = (0..len).map(|_| rng.random()).collect();
+    Frame::new(kind, rng.random(), rng.random(), &payload).unwrap()
 }
 
 /// Garbage biased towards sync bytes and plausible headers, the worst case for a resyncer.
 fn garbage(rng: &mut ChaCha8Rng, max: usize) -> Vec<u8> {
-    let n = rng.gen_range(0..=max);
+    let n = rng.random_range(0..=max);
     (0..n)
-        .map(|_| match rng.gen_range(0..8) {
+        .map(|_| match rng.random_range(0..8) {
             0 => 0xAA,
             1 => 0x55,
             2 => 0x10,
-            _ => rng.gen(),
+            _ => rng.random(),
         })
         .collect()
 }
@@ -68,7 +68,7 @@ fn valid_frames_in_garbage_are_all_recovered_at_any_split() {
         stream.extend_from_slice(&sent[0].to_bytes());
         stream.extend(garbage(&mut rng, 40));
         stream.extend_from_slice(&sent[1].to_bytes());
-        let split = rng.gen_range(0..=stream.len());
+        let split = rng.random_range(0..=stream.len());
         let mut codec = FrameCodec::new();
         let mut buf = BytesMut::new();
         let mut got = codec.feed(&mut buf, &stream[..split]);

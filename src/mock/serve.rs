@@ -4,7 +4,7 @@
 use super::device::MockDevice;
 use crate::protocol::{Frame, FrameCodec, FrameKind};
 use bytes::BytesMut;
-use rand::{Rng, SeedableRng};
+use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 use std::sync::{Arc, Mutex, MutexGuard};
@@ -74,14 +74,14 @@ impl Faults {
             return;
         }
         for b in bytes {
-            if self.rng.gen_bool(self.cfg.corrupt_byte_rate.min(1.0)) {
-                *b ^= 1 << self.rng.gen_range(0..8);
+            if self.rng.random_bool(self.cfg.corrupt_byte_rate.min(1.0)) {
+                *b ^= 1 << self.rng.random_range(0..8);
             }
         }
     }
 
     fn lose(&mut self) -> bool {
-        self.cfg.drop_frame_rate > 0.0 && self.rng.gen_bool(self.cfg.drop_frame_rate.min(1.0))
+        self.cfg.drop_frame_rate > 0.0 && self.rng.random_bool(self.cfg.drop_frame_rate.min(1.0))
     }
 }
 

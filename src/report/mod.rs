@@ -1,6 +1,8 @@
 //! Rendering what the routine did: the before/after summary, the Markdown report, the report
-//! directory (`report.json`, `report.md`, SVG [`plots`]) and the ROS 2 export ([`ros2`]).
+//! directory (`report.json`, `report.md`, SVG plots with the `plots` feature) and the ROS 2
+//! export ([`ros2`]).
 
+#[cfg(feature = "plots")]
 pub mod plots;
 pub mod ros2;
 
@@ -150,7 +152,8 @@ pub fn markdown(report: &Report) -> String {
     s
 }
 
-/// Writes `report.json`, `report.md` and the SVG plots into `dir` (created if needed).
+/// Writes `report.json`, `report.md` and (with the `plots` feature) the SVG plots into `dir`
+/// (created if needed).
 pub fn write_dir(report: &Report, dir: &Path) -> std::io::Result<Vec<PathBuf>> {
     std::fs::create_dir_all(dir)?;
     let json = dir.join("report.json");
@@ -160,7 +163,9 @@ pub fn write_dir(report: &Report, dir: &Path) -> std::io::Result<Vec<PathBuf>> {
     )?;
     let md = dir.join("report.md");
     std::fs::write(&md, markdown(report))?;
+    #[allow(unused_mut)]
     let mut written = vec![json, md];
+    #[cfg(feature = "plots")]
     written.extend(plots::write_all(report, dir)?);
     Ok(written)
 }
