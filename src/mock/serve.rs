@@ -183,7 +183,7 @@ where
                 && faults
                     .cfg
                     .busy_every
-                    .is_some_and(|k| k > 0 && faults.requests % k == 0);
+                    .is_some_and(|k| k > 0 && faults.requests.is_multiple_of(k));
             if busy {
                 out.extend(MockDevice::busy(&frame));
             } else if time == TimeMode::Virtual && is_open_ended_wheel_speed(&frame) {
