@@ -291,3 +291,15 @@ fn calibrate_drives_a_device_on_a_port_end_to_end() {
     drop(mock.stdin.take());
     assert!(mock.wait().unwrap().success());
 }
+
+#[test]
+fn ports_lists_serial_ports_as_json() {
+    let v = odocal_json(&["ports", "--json"]);
+    let ports = v["ports"]
+        .as_array()
+        .expect("a ports array, possibly empty");
+    for p in ports {
+        assert!(p["port"].as_str().is_some_and(|s| !s.is_empty()), "{p}");
+        assert!(p["type"].is_string(), "{p}");
+    }
+}

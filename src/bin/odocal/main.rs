@@ -2,6 +2,7 @@
 
 mod device;
 mod estimate;
+mod ports;
 mod replay;
 mod routine;
 mod simulate;
@@ -50,6 +51,8 @@ enum Command {
     Status(device::PortArgs),
     /// Read the heading (counter-clockwise positive).
     Heading(device::HeadingArgs),
+    /// List this machine's serial ports with their USB ids.
+    Ports(ports::Args),
 }
 
 /// Convention flags shared by the subcommands that estimate.
@@ -115,6 +118,7 @@ fn main() -> ExitCode {
         Command::Params { command } => block_on(device::params(command)),
         Command::Status(port) => block_on(device::status(port)),
         Command::Heading(args) => block_on(device::heading(args)),
+        Command::Ports(args) => ports::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
