@@ -58,17 +58,8 @@ impl Transaction {
         store: Arc<dyn ParamStore>,
         backup_dir: &Path,
     ) -> Result<Transaction, BaseError> {
-        let original = store.read().await?;
-        // A committed copy that cannot be read (never saved, corrupt) must not block a backup
-        // of what is in use; the backup then records none.
-        let committed = store.read_committed().await.ok().flatten();
-        let backup = BackupFile {
-            odocal_version: env!("CARGO_PKG_VERSION").into(),
-            store: store.info(),
-            active: original,
-            committed,
-        };
-        let backup_path = write_backup(backup_dir, &backup)?;
+        let (backup_path, backup) = backup_store(store.as_ref(), backup_dir).await?;
+        let original = backup.active;
         Ok(Transaction {
             store,
             original,
@@ -159,6 +150,27 @@ impl Transaction {
             }),
         }
     }
+}
+
+/// Reads `store` and writes what it holds to a new backup file in `dir`; returns the file and
+/// its content. Used by [`Transaction::begin`] and by tools that change a store by other means
+/// (a device's factory reset).
+pub async fn backup_store(
+    store: &dyn ParamStore,
+    dir: &Path,
+) -> Result<(PathBuf, BackupFile), BaseError> {
+    let active = store.read().await?;
+    // A committed copy that cannot be read (never saved, corrupt) must not block a backup of
+    // what is in use; the backup then records none.
+    let committed = store.read_committed().await.ok().flatten();
+    let backup = BackupFile {
+        odocal_version: env!("CARGO_PKG_VERSION").into(),
+        store: store.info(),
+        active,
+        committed,
+    };
+    let path = write_backup(dir, &backup)?;
+    Ok((path, backup))
 }
 
 /// A file-name-safe form of a store id.

@@ -5,6 +5,7 @@
 //! telemetry and motion-done events. Both are synchronous and deterministic, so tests can drive
 //! the device directly; [`mod@super::serve`] puts them behind a byte stream.
 
+pub use super::error::MockError;
 use crate::kinematics::{wrap_angle, WheelParams};
 use crate::protocol::frame::{Frame, FrameKind, CRC16, MAJOR, VERSION};
 use crate::protocol::message::{
@@ -22,17 +23,6 @@ use rand_distr::{Distribution, Normal};
 use serde::{Deserialize, Serialize};
 use std::collections::VecDeque;
 use std::path::PathBuf;
-
-/// Errors building or power-cycling a mock device.
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-pub enum MockError {
-    /// The simulator refused the robot.
-    #[error(transparent)]
-    Sim(#[from] SimError),
-    /// The factory parameters cannot travel on the wire (SPEC.md §4.1).
-    #[error("factory parameters {0:?} are outside the protocol's ranges (SPEC.md §4.1)")]
-    FactoryOutOfRange(WheelParams),
-}
 
 /// Deepest motion queue the mock accepts (SPEC.md requires at least 4).
 pub const QUEUE_DEPTH: usize = 8;

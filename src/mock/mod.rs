@@ -6,6 +6,7 @@
 //! the same simulator as a [`crate::base`] backend in process, with no protocol at all.
 
 pub mod device;
+pub mod error;
 pub mod serve;
 pub mod sim_base;
 

@@ -193,9 +193,9 @@ pub enum ParamsCommand {
         /// Encoder counts per wheel revolution.
         #[arg(long)]
         counts_per_rev: Option<f64>,
-        /// Backup file (default: odocal-params-backup-<unix time>.json here).
-        #[arg(long)]
-        backup: Option<PathBuf>,
+        /// Directory for the backup (a new, uniquely named file; never overwritten).
+        #[arg(long, default_value = ".")]
+        backup_dir: PathBuf,
     },
     /// Commit the active parameters to non-volatile storage.
     Save {
@@ -209,9 +209,9 @@ pub enum ParamsCommand {
         /// Also overwrite the stored copy.
         #[arg(long)]
         stored: bool,
-        /// Backup file (default: odocal-params-backup-<unix time>.json here).
-        #[arg(long)]
-        backup: Option<PathBuf>,
+        /// Directory for the backup (a new, uniquely named file; never overwritten).
+        #[arg(long, default_value = ".")]
+        backup_dir: PathBuf,
     },
 }
 
@@ -230,28 +230,13 @@ fn print_params(p: &WheelParams, json_out: bool, extra: serde_json::Value) -> Cl
     Ok(())
 }
 
-/// Saves the active parameters to `path` (or a timestamped file) before a write.
+/// Backs the device's parameters up into a new file in `dir` (never overwriting one).
 async fn backup(
     client: &Client,
-    path: Option<PathBuf>,
+    dir: &std::path::Path,
 ) -> Result<PathBuf, Box<dyn std::error::Error>> {
-    let current = client.get_params(ParamSource::Active).await?;
-    let path = path.unwrap_or_else(|| {
-        let t = std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map_or(0, |d| d.as_secs());
-        PathBuf::from(format!("odocal-params-backup-{t}.json"))
-    });
-    let text = serde_json::to_string_pretty(&json!({
-        "device": client.device_info(),
-        "active": current,
-    }))?;
-    std::fs::write(&path, text).map_err(|e| {
-        format!(
-            "cannot write backup {}: {e}; nothing was changed",
-            path.display()
-        )
-    })?;
+    let (path, _) = odocal::base::transaction::backup_store(client, dir).await?;
+    eprintln!("backed up the current parameters to {}", path.display());
     Ok(path)
 }
 
@@ -274,7 +259,7 @@ pub async fn params(cmd: ParamsCommand) -> CliResult {
             right_wheel_diameter_m,
             wheelbase_m,
             counts_per_rev,
-            backup: backup_path,
+            backup_dir,
         } => {
             let client = port.connect().await?;
             let current = client.get_params(ParamSource::Active).await?;
@@ -287,8 +272,7 @@ pub async fn params(cmd: ParamsCommand) -> CliResult {
                 counts_per_wheel_rev: counts_per_rev.unwrap_or(current.counts_per_wheel_rev),
             };
             wanted.validate()?;
-            let saved_to = backup(&client, backup_path).await?;
-            eprintln!("backed up the current parameters to {}", saved_to.display());
+            let saved_to = backup(&client, &backup_dir).await?;
             let applied = client.set_params(&wanted).await?;
             eprintln!("written to RAM; run `odocal params save` to keep them across power cycles");
             print_params(&applied, port.json, json!({ "backup": saved_to }))
@@ -306,11 +290,10 @@ pub async fn params(cmd: ParamsCommand) -> CliResult {
         ParamsCommand::Restore {
             port,
             stored,
-            backup: backup_path,
+            backup_dir,
         } => {
             let client = port.connect().await?;
-            let saved_to = backup(&client, backup_path).await?;
-            eprintln!("backed up the current parameters to {}", saved_to.display());
+            let saved_to = backup(&client, &backup_dir).await?;
             let target = if stored {
                 RestoreTarget::ActiveAndStored
             } else {

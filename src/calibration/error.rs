@@ -1,0 +1,68 @@
+//! Errors of the calibration layer.
+
+use super::Method;
+use crate::kinematics::{Direction, KinematicsError};
+
+/// Errors of the calibration layer: input no real test can produce, or an estimate that is not a
+/// robot.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum CalibrationError {
+    /// A direction has no runs.
+    #[error("no {0} runs: a square test needs at least one run in each direction")]
+    NoRuns(Direction),
+    /// A number is NaN or infinite.
+    #[error("{what} of {direction} run {} is not finite", index + 1)]
+    NonFinite {
+        /// Which quantity.
+        what: &'static str,
+        /// Direction of the run.
+        direction: Direction,
+        /// 0-based run index.
+        index: usize,
+    },
+    /// A heading error of 90° or more cannot come from a square of 90° turns.
+    #[error("{direction} run {}: heading error {degrees:.2}° is 90° or more in size; check the sign convention and the units (degrees vs radians)", index + 1)]
+    HeadingTooLarge {
+        /// Direction of the run.
+        direction: Direction,
+        /// 0-based run index.
+        index: usize,
+        /// The error in degrees.
+        degrees: f64,
+    },
+    /// Some runs have a final position and others do not.
+    #[error(
+        "final positions must be given for every run or for none ({with} of {total} have one)"
+    )]
+    InconsistentPositions {
+        /// Runs that have a position.
+        with: usize,
+        /// All runs.
+        total: usize,
+    },
+    /// The side or wheelbase is not a positive length.
+    #[error("{name} must be finite and > 0, got {value}")]
+    BadGeometry {
+        /// Which length.
+        name: &'static str,
+        /// Its value.
+        value: f64,
+    },
+    /// A position-based method was asked for without final positions.
+    #[error("method {0} needs the final positions of every run")]
+    MissingPositions(Method),
+    /// The measurements imply an impossible robot (e.g. a non-positive wheel diameter).
+    #[error("method {method}: {reason}")]
+    NotPhysical {
+        /// The method.
+        method: Method,
+        /// What went wrong.
+        reason: String,
+    },
+    /// The estimate could not be turned into parameters.
+    #[error(transparent)]
+    Kinematics(#[from] KinematicsError),
+    /// The request is valid but not supported by this computation.
+    #[error("unsupported: {0}")]
+    Unsupported(String),
+}

@@ -1,0 +1,15 @@
+//! Errors of the mock layer.
+
+use crate::kinematics::WheelParams;
+use crate::sim::SimError;
+
+/// Errors building or power-cycling a mock device.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum MockError {
+    /// The simulator refused the robot.
+    #[error(transparent)]
+    Sim(#[from] SimError),
+    /// The factory parameters cannot travel on the wire (SPEC.md §4.1).
+    #[error("factory parameters {0:?} are outside the protocol's ranges (SPEC.md §4.1)")]
+    FactoryOutOfRange(WheelParams),
+}
