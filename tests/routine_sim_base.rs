@@ -8,7 +8,7 @@ use odocal::base::{Base, GroundTruth};
 use odocal::kinematics::WheelParams;
 use odocal::mock::{SimBase, SimFaults};
 use odocal::routine::config::{RoutineConfig, WritePolicy};
-use odocal::routine::{run, RoutineError, Unattended};
+use odocal::routine::{run, Report, RoutineError, Unattended};
 use tokio_util::sync::CancellationToken;
 
 fn nominal() -> WheelParams {
@@ -17,6 +17,19 @@ fn nominal() -> WheelParams {
 
 fn robot(compass_sigma_deg: f64) -> SimBase {
     common::sim_base(compass_sigma_deg, 3)
+}
+
+/// Runs the routine on `sim` after setting `faults`, without ground truth.
+async fn run_faulty(sim: &SimBase, faults: SimFaults, name: &str) -> Result<Report, RoutineError> {
+    sim.set_faults(faults);
+    run(
+        &Base::single(sim.clone()),
+        &routine(name),
+        None,
+        &mut Unattended,
+        &CancellationToken::new(),
+    )
+    .await
 }
 
 fn routine(name: &str) -> RoutineConfig {
@@ -77,19 +90,11 @@ async fn the_whole_routine_runs_on_an_in_process_base() {
 async fn a_drive_that_vanishes_after_a_write_rolls_back_in_use_and_committed() {
     let sim = robot(0.0);
     // Round 1 is 80 motions; the drive vanishes early in round 2, after the first write.
-    sim.set_faults(SimFaults {
+    let faults = SimFaults {
         fail_after_motions: Some(90),
         ..SimFaults::default()
-    });
-    let err = run(
-        &Base::single(sim.clone()),
-        &routine("vanish"),
-        None,
-        &mut Unattended,
-        &CancellationToken::new(),
-    )
-    .await
-    .unwrap_err();
+    };
+    let err = run_faulty(&sim, faults, "vanish").await.unwrap_err();
     match &err {
         RoutineError::Restored { source, committed } => {
             assert!(*committed, "the committed copy is put back too");
@@ -105,19 +110,11 @@ async fn a_drive_that_vanishes_after_a_write_rolls_back_in_use_and_committed() {
 #[tokio::test]
 async fn a_commit_of_unknown_outcome_is_rolled_back_and_reported() {
     let sim = robot(0.0);
-    sim.set_faults(SimFaults {
+    let faults = SimFaults {
         commit_fails: true,
         ..SimFaults::default()
-    });
-    let err = run(
-        &Base::single(sim.clone()),
-        &routine("commit"),
-        None,
-        &mut Unattended,
-        &CancellationToken::new(),
-    )
-    .await
-    .unwrap_err();
+    };
+    let err = run_faulty(&sim, faults, "commit").await.unwrap_err();
     // The rollback's own commit fails too: the error says so and names the backup.
     match &err {
         RoutineError::RestoreFailed { backup, .. } => assert!(backup.is_file()),
@@ -130,19 +127,11 @@ async fn a_commit_of_unknown_outcome_is_rolled_back_and_reported() {
 #[tokio::test]
 async fn an_invalid_heading_stops_the_routine_before_anything_moves() {
     let sim = robot(0.0);
-    sim.set_faults(SimFaults {
+    let faults = SimFaults {
         heading_invalid: true,
         ..SimFaults::default()
-    });
-    let err = run(
-        &Base::single(sim.clone()),
-        &routine("heading"),
-        None,
-        &mut Unattended,
-        &CancellationToken::new(),
-    )
-    .await
-    .unwrap_err();
+    };
+    let err = run_faulty(&sim, faults, "heading").await.unwrap_err();
     assert!(matches!(err, RoutineError::Preflight(_)), "{err}");
     assert_eq!(sim.counters().motions, 0);
     assert_eq!(sim.counters().writes, 0);

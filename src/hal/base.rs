@@ -7,7 +7,7 @@ use crate::base::{
     SampleStream, TravelSample, Validity, STREAM_CAPACITY,
 };
 use crate::kinematics::WheelParams;
-use crate::protocol::message::{capability, fault, MotionMode, ParamSource};
+use crate::protocol::message::{capability, fault, MotionAccepted, MotionMode, ParamSource};
 use async_trait::async_trait;
 use std::time::Duration;
 use tokio::sync::{broadcast, mpsc};
@@ -42,6 +42,26 @@ impl Client {
                 "device": d,
             }),
         }
+    }
+
+    /// Notes the completed-motion count, starts the motion and waits until the device reports
+    /// it finished, allowing for slower-than-commanded execution.
+    async fn run_motion(
+        &self,
+        what: &'static str,
+        start: impl std::future::Future<Output = Result<MotionAccepted, HalError>>,
+        expected_s: f64,
+    ) -> Result<(), BaseError> {
+        let map = to_base("drive", what);
+        let completed = self.status().await.map_err(&map)?.completed_motions;
+        let accepted = start.await.map_err(&map)?;
+        self.wait_motion(
+            accepted.motion_id,
+            completed.wrapping_add(1),
+            motion_limit(expected_s),
+        )
+        .await
+        .map_err(&map)
     }
 
     /// Starts telemetry (idempotent) and forwards each sample converted by `map` until the
@@ -132,35 +152,15 @@ impl Drive for Client {
     }
 
     async fn move_straight(&self, distance_m: f64, max_speed_m_s: f64) -> Result<(), BaseError> {
-        let map = to_base("drive", "a straight motion");
-        let completed = self.status().await.map_err(&map)?.completed_motions;
-        let accepted = Client::move_straight(self, distance_m, max_speed_m_s, MotionMode::Queue)
+        let start = Client::move_straight(self, distance_m, max_speed_m_s, MotionMode::Queue);
+        self.run_motion("a straight motion", start, distance_m.abs() / max_speed_m_s)
             .await
-            .map_err(&map)?;
-        let expected_s = distance_m.abs() / max_speed_m_s;
-        self.wait_motion(
-            accepted.motion_id,
-            completed.wrapping_add(1),
-            motion_limit(expected_s),
-        )
-        .await
-        .map_err(&map)
     }
 
     async fn turn_in_place(&self, angle_rad: f64, max_rate_rad_s: f64) -> Result<(), BaseError> {
-        let map = to_base("drive", "a turn");
-        let completed = self.status().await.map_err(&map)?.completed_motions;
-        let accepted = Client::turn_in_place(self, angle_rad, max_rate_rad_s, MotionMode::Queue)
+        let start = Client::turn_in_place(self, angle_rad, max_rate_rad_s, MotionMode::Queue);
+        self.run_motion("a turn", start, angle_rad.abs() / max_rate_rad_s)
             .await
-            .map_err(&map)?;
-        let expected_s = angle_rad.abs() / max_rate_rad_s;
-        self.wait_motion(
-            accepted.motion_id,
-            completed.wrapping_add(1),
-            motion_limit(expected_s),
-        )
-        .await
-        .map_err(&map)
     }
 
     async fn stop(&self) -> Result<(), BaseError> {
