@@ -13,6 +13,7 @@
 //! - [`hal`]: our protocol's async client over any byte stream; a [`base`] backend.
 //! - [`mock`]: simulated robots behind the protocol (duplex or pseudo-terminal) and behind the
 //!   seam in process.
+//! - [`ros`]: ROS robots — messages, the ros2_control YAML store, bags, rosbridge.
 //! - [`routine`]: the recalibration procedure, over the seam only.
 //! - [`track`]: the online estimator fed from live telemetry, logs or recorded data sets.
 //! - [`report`]: Markdown, plots, report files and the ROS 2 export.
@@ -44,6 +45,7 @@ pub mod kinematics;
 pub mod mock;
 pub mod protocol;
 pub mod report;
+pub mod ros;
 pub mod routine;
 pub mod sim;
 pub mod study;

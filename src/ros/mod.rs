@@ -1,0 +1,6 @@
+//! ROS robots: the message types odocal needs ([`msg`]), the ros2_control YAML as a parameter
+//! store ([`yaml`]), offline calibration from ROS 2 bags ([`bag`]), and a live base through
+//! rosbridge ([`rosbridge`]).
+
+pub mod msg;
+pub mod yaml;

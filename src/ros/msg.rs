@@ -1,0 +1,446 @@
+//! The ROS message types odocal reads and writes, field for field as ROS 2 defines them, so one
+//! serde derive serves rosbridge's JSON and a bag's CDR. ROS 1 JSON (rosbridge on ROS 1) is
+//! read too: `secs`/`nsecs` stamps and the header's `seq` are accepted.
+//!
+//! Sign conventions are ROS's (REP 103), which are ours: x forward, y left, yaw
+//! counter-clockwise positive. [`yaw_of`] is the one place a quaternion becomes a heading.
+
+use crate::kinematics::wrap_angle;
+use serde::{Deserialize, Deserializer, Serialize, Serializer};
+
+/// `builtin_interfaces/Time`.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct Time {
+    /// Seconds.
+    #[serde(alias = "secs")]
+    pub sec: i32,
+    /// Nanoseconds.
+    #[serde(alias = "nsecs")]
+    pub nanosec: u32,
+}
+
+impl Time {
+    /// Seconds as a float.
+    pub fn seconds(&self) -> f64 {
+        f64::from(self.sec) + f64::from(self.nanosec) * 1e-9
+    }
+
+    /// The stamp for `t` seconds (clamped to the representable range).
+    pub fn from_seconds(t: f64) -> Self {
+        let t = if t.is_finite() { t.max(0.0) } else { 0.0 };
+        let sec = t.floor().min(f64::from(i32::MAX));
+        Time {
+            sec: sec as i32,
+            nanosec: (((t - sec) * 1e9).round() as u32).min(999_999_999),
+        }
+    }
+}
+
+/// `std_msgs/Header`.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct Header {
+    /// Time of the measurement.
+    pub stamp: Time,
+    /// Frame.
+    #[serde(default)]
+    pub frame_id: String,
+}
+
+/// `geometry_msgs/Vector3` (also `Point`).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct Vector3 {
+    /// x.
+    pub x: f64,
+    /// y.
+    pub y: f64,
+    /// z.
+    pub z: f64,
+}
+
+/// `geometry_msgs/Quaternion`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Quaternion {
+    /// x.
+    pub x: f64,
+    /// y.
+    pub y: f64,
+    /// z.
+    pub z: f64,
+    /// w.
+    pub w: f64,
+}
+
+impl Default for Quaternion {
+    fn default() -> Self {
+        Quaternion::from_yaw(0.0)
+    }
+}
+
+impl Quaternion {
+    /// A rotation about z by `yaw_rad`.
+    pub fn from_yaw(yaw_rad: f64) -> Self {
+        Quaternion {
+            x: 0.0,
+            y: 0.0,
+            z: (0.5 * yaw_rad).sin(),
+            w: (0.5 * yaw_rad).cos(),
+        }
+    }
+}
+
+/// The yaw (rad, counter-clockwise positive, wrapped to (−π, π]) of an orientation, or why it
+/// has none: not finite, not a rotation (norm far from 1), or pointing up or down so that yaw
+/// is undefined. Wrap-safe: the result never jumps by 2π for orientations near ±π.
+pub fn yaw_of(q: &Quaternion) -> Result<f64, &'static str> {
+    let n2 = q.x * q.x + q.y * q.y + q.z * q.z + q.w * q.w;
+    if !n2.is_finite() {
+        return Err("orientation is not finite");
+    }
+    if (n2 - 1.0).abs() > 0.1 {
+        return Err("orientation is not a unit quaternion");
+    }
+    let siny = 2.0 * (q.w * q.z + q.x * q.y);
+    let cosy = n2 - 2.0 * (q.y * q.y + q.z * q.z);
+    if siny.hypot(cosy) < 1e-6 {
+        return Err("orientation is vertical: yaw is undefined");
+    }
+    Ok(wrap_angle(siny.atan2(cosy)))
+}
+
+/// A fixed array of 36 covariances (serde's derives stop at 32).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Covariance36(pub [f64; 36]);
+
+impl Default for Covariance36 {
+    fn default() -> Self {
+        Covariance36([0.0; 36])
+    }
+}
+
+impl Serialize for Covariance36 {
+    fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        use serde::ser::SerializeTuple;
+        let mut t = s.serialize_tuple(36)?;
+        for v in &self.0 {
+            t.serialize_element(v)?;
+        }
+        t.end()
+    }
+}
+
+impl<'de> Deserialize<'de> for Covariance36 {
+    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        struct V;
+        impl<'de> serde::de::Visitor<'de> for V {
+            type Value = Covariance36;
+            fn expecting(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+                f.write_str("36 numbers")
+            }
+            fn visit_seq<A: serde::de::SeqAccess<'de>>(self, mut a: A) -> Result<Covariance36, A::Error> {
+                let mut out = [0.0; 36];
+                for (i, v) in out.iter_mut().enumerate() {
+                    *v = a
+                        .next_element()?
+                        .ok_or_else(|| serde::de::Error::invalid_length(i, &self))?;
+                }
+                Ok(Covariance36(out))
+            }
+        }
+        d.deserialize_tuple(36, V)
+    }
+}
+
+/// `sensor_msgs/JointState`.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct JointState {
+    /// Header.
+    pub header: Header,
+    /// Joint names.
+    pub name: Vec<String>,
+    /// Positions (rad for revolute joints).
+    pub position: Vec<f64>,
+    /// Velocities (rad/s).
+    #[serde(default)]
+    pub velocity: Vec<f64>,
+    /// Efforts.
+    #[serde(default)]
+    pub effort: Vec<f64>,
+}
+
+/// `sensor_msgs/Imu`.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct Imu {
+    /// Header.
+    pub header: Header,
+    /// Orientation.
+    pub orientation: Quaternion,
+    /// Orientation covariance; element 0 = −1 means "no orientation" (REP 145).
+    pub orientation_covariance: [f64; 9],
+    /// Angular velocity (rad/s).
+    pub angular_velocity: Vector3,
+    /// Its covariance.
+    pub angular_velocity_covariance: [f64; 9],
+    /// Linear acceleration (m/s²).
+    pub linear_acceleration: Vector3,
+    /// Its covariance.
+    pub linear_acceleration_covariance: [f64; 9],
+}
+
+/// `geometry_msgs/Pose`.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct Pose {
+    /// Position.
+    pub position: Vector3,
+    /// Orientation.
+    pub orientation: Quaternion,
+}
+
+/// `geometry_msgs/PoseWithCovariance`.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct PoseWithCovariance {
+    /// Pose.
+    pub pose: Pose,
+    /// Covariance.
+    pub covariance: Covariance36,
+}
+
+/// `geometry_msgs/Twist`.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct Twist {
+    /// Linear velocity (m/s).
+    pub linear: Vector3,
+    /// Angular velocity (rad/s).
+    pub angular: Vector3,
+}
+
+impl Twist {
+    /// Forward speed `v` and yaw rate `w` of a planar base.
+    pub fn planar(v_m_s: f64, w_rad_s: f64) -> Self {
+        Twist {
+            linear: Vector3 {
+                x: v_m_s,
+                ..Vector3::default()
+            },
+            angular: Vector3 {
+                z: w_rad_s,
+                ..Vector3::default()
+            },
+        }
+    }
+
+    /// Whether every component is zero (a stop command).
+    pub fn is_zero(&self) -> bool {
+        [
+            self.linear.x,
+            self.linear.y,
+            self.linear.z,
+            self.angular.x,
+            self.angular.y,
+            self.angular.z,
+        ]
+        .iter()
+        .all(|v| *v == 0.0)
+    }
+}
+
+/// `geometry_msgs/TwistWithCovariance`.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct TwistWithCovariance {
+    /// Twist.
+    pub twist: Twist,
+    /// Covariance.
+    pub covariance: Covariance36,
+}
+
+/// `geometry_msgs/TwistStamped`.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct TwistStamped {
+    /// Header.
+    pub header: Header,
+    /// Twist.
+    pub twist: Twist,
+}
+
+/// `nav_msgs/Odometry`.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct Odometry {
+    /// Header.
+    pub header: Header,
+    /// Child frame.
+    #[serde(default)]
+    pub child_frame_id: String,
+    /// Pose in the odometry frame.
+    pub pose: PoseWithCovariance,
+    /// Twist in the child frame.
+    pub twist: TwistWithCovariance,
+}
+
+/// ROS 2 type names and message definitions (the `ros2msg` schema text a bag stores).
+pub mod types {
+    /// `sensor_msgs/msg/JointState`.
+    pub const JOINT_STATE: &str = "sensor_msgs/msg/JointState";
+    /// `sensor_msgs/msg/Imu`.
+    pub const IMU: &str = "sensor_msgs/msg/Imu";
+    /// `nav_msgs/msg/Odometry`.
+    pub const ODOMETRY: &str = "nav_msgs/msg/Odometry";
+    /// `geometry_msgs/msg/Twist`.
+    pub const TWIST: &str = "geometry_msgs/msg/Twist";
+    /// `geometry_msgs/msg/TwistStamped`.
+    pub const TWIST_STAMPED: &str = "geometry_msgs/msg/TwistStamped";
+
+    /// Whether `name` is `pkg/msg/Type` or the ROS 1 form `pkg/Type` of `canonical`.
+    pub fn is(name: &str, canonical: &str) -> bool {
+        name == canonical || name == canonical.replacen("/msg/", "/", 1)
+    }
+
+    const HEADER: &str = "================================================================================\n\
+MSG: std_msgs/Header\nbuiltin_interfaces/Time stamp\nstring frame_id\n\
+================================================================================\n\
+MSG: builtin_interfaces/Time\nint32 sec\nuint32 nanosec\n";
+
+    /// The `ros2msg` definition of a type we write, with its dependencies.
+    pub fn definition(name: &str) -> String {
+        let sep = "================================================================================\n";
+        match name {
+            JOINT_STATE => format!(
+                "std_msgs/Header header\nstring[] name\nfloat64[] position\nfloat64[] velocity\nfloat64[] effort\n{HEADER}"
+            ),
+            IMU => format!(
+                "std_msgs/Header header\ngeometry_msgs/Quaternion orientation\nfloat64[9] orientation_covariance\n\
+geometry_msgs/Vector3 angular_velocity\nfloat64[9] angular_velocity_covariance\n\
+geometry_msgs/Vector3 linear_acceleration\nfloat64[9] linear_acceleration_covariance\n{HEADER}\
+{sep}MSG: geometry_msgs/Quaternion\nfloat64 x 0\nfloat64 y 0\nfloat64 z 0\nfloat64 w 1\n\
+{sep}MSG: geometry_msgs/Vector3\nfloat64 x\nfloat64 y\nfloat64 z\n"
+            ),
+            ODOMETRY => format!(
+                "std_msgs/Header header\nstring child_frame_id\ngeometry_msgs/PoseWithCovariance pose\n\
+geometry_msgs/TwistWithCovariance twist\n{HEADER}\
+{sep}MSG: geometry_msgs/PoseWithCovariance\ngeometry_msgs/Pose pose\nfloat64[36] covariance\n\
+{sep}MSG: geometry_msgs/Pose\ngeometry_msgs/Point position\ngeometry_msgs/Quaternion orientation\n\
+{sep}MSG: geometry_msgs/Point\nfloat64 x\nfloat64 y\nfloat64 z\n\
+{sep}MSG: geometry_msgs/Quaternion\nfloat64 x 0\nfloat64 y 0\nfloat64 z 0\nfloat64 w 1\n\
+{sep}MSG: geometry_msgs/TwistWithCovariance\ngeometry_msgs/Twist twist\nfloat64[36] covariance\n\
+{sep}MSG: geometry_msgs/Twist\ngeometry_msgs/Vector3 linear\ngeometry_msgs/Vector3 angular\n\
+{sep}MSG: geometry_msgs/Vector3\nfloat64 x\nfloat64 y\nfloat64 z\n"
+            ),
+            _ => String::new(),
+        }
+    }
+}
+
+/// CDR as ROS 2 puts it on the wire and in bags: a 4-byte encapsulation header, then the
+/// message, little- or big-endian as the header says.
+pub mod cdr {
+    use serde::de::DeserializeOwned;
+    use serde::Serialize;
+
+    /// A CDR payload that cannot be read or written.
+    #[derive(Debug, thiserror::Error)]
+    pub enum CdrError {
+        /// Shorter than the encapsulation header.
+        #[error("CDR payload of {0} bytes has no encapsulation header")]
+        Short(usize),
+        /// An encapsulation this reader does not handle (e.g. XCDR2, parameter lists).
+        #[error("unsupported CDR encapsulation 0x{0:04X}")]
+        Encapsulation(u16),
+        /// The body does not decode as the expected type.
+        #[error("{0}")]
+        Body(#[from] cdr_encoding::Error),
+    }
+
+    /// Decodes a CDR-encapsulated message.
+    pub fn decode<T: DeserializeOwned>(bytes: &[u8]) -> Result<T, CdrError> {
+        let head = bytes.get(..4).ok_or(CdrError::Short(bytes.len()))?;
+        let kind = u16::from_be_bytes([head[0], head[1]]);
+        let body = &bytes[4..];
+        match kind {
+            0x0001 => Ok(cdr_encoding::from_bytes::<T, byteorder::LittleEndian>(body)?.0),
+            0x0000 => Ok(cdr_encoding::from_bytes::<T, byteorder::BigEndian>(body)?.0),
+            other => Err(CdrError::Encapsulation(other)),
+        }
+    }
+
+    /// Encodes a message as little-endian CDR with its encapsulation header.
+    pub fn encode<T: Serialize>(value: &T) -> Result<Vec<u8>, CdrError> {
+        let mut out = vec![0x00, 0x01, 0x00, 0x00];
+        out.extend(cdr_encoding::to_vec::<T, byteorder::LittleEndian>(value)?);
+        Ok(out)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::f64::consts::PI;
+
+    #[test]
+    fn yaw_is_wrap_safe_and_rejects_what_is_not_a_heading() {
+        for yaw in [0.0, 1.0, -2.5, PI - 1e-9, -PI + 1e-9, PI] {
+            let got = yaw_of(&Quaternion::from_yaw(yaw)).unwrap();
+            assert!(wrap_angle(got - yaw).abs() < 1e-12, "{yaw} → {got}");
+        }
+        // -q is the same rotation.
+        let q = Quaternion::from_yaw(3.0);
+        let neg = Quaternion {
+            x: -q.x,
+            y: -q.y,
+            z: -q.z,
+            w: -q.w,
+        };
+        assert!((yaw_of(&neg).unwrap() - 3.0).abs() < 1e-12);
+        assert!(yaw_of(&Quaternion { x: 0.0, y: 0.0, z: 0.0, w: 0.0 }).is_err());
+        assert!(yaw_of(&Quaternion { x: f64::NAN, y: 0.0, z: 0.0, w: 1.0 }).is_err());
+        // Pitched 90°: yaw undefined.
+        let s = std::f64::consts::FRAC_1_SQRT_2;
+        assert!(yaw_of(&Quaternion { x: 0.0, y: s, z: 0.0, w: s }).is_err());
+    }
+
+    #[test]
+    fn cdr_round_trips_and_matches_the_ros2_layout() {
+        let js = JointState {
+            header: Header {
+                stamp: Time { sec: 12, nanosec: 5 },
+                frame_id: "base".into(),
+            },
+            name: vec!["left_wheel_joint".into(), "right_wheel_joint".into()],
+            position: vec![1.5, -2.25],
+            velocity: vec![],
+            effort: vec![],
+        };
+        let bytes = cdr::encode(&js).unwrap();
+        // Encapsulation, then sec = 12, nanosec = 5, frame_id "base\0" (length 5).
+        assert_eq!(&bytes[..4], &[0, 1, 0, 0]);
+        assert_eq!(&bytes[4..8], &12i32.to_le_bytes());
+        assert_eq!(&bytes[8..12], &5u32.to_le_bytes());
+        assert_eq!(&bytes[12..16], &5u32.to_le_bytes());
+        assert_eq!(&bytes[16..21], b"base\0");
+        assert_eq!(cdr::decode::<JointState>(&bytes).unwrap(), js);
+        let odom = Odometry {
+            pose: PoseWithCovariance {
+                pose: Pose {
+                    position: Vector3 { x: 1.0, y: 2.0, z: 0.0 },
+                    orientation: Quaternion::from_yaw(0.3),
+                },
+                covariance: Covariance36([0.5; 36]),
+            },
+            ..Odometry::default()
+        };
+        assert_eq!(cdr::decode::<Odometry>(&cdr::encode(&odom).unwrap()).unwrap(), odom);
+        assert!(cdr::decode::<JointState>(&[0, 1]).is_err());
+    }
+
+    #[test]
+    fn ros1_and_ros2_json_both_read() {
+        let ros1: JointState = serde_json::from_str(
+            r#"{"header":{"seq":3,"stamp":{"secs":1,"nsecs":2},"frame_id":""},
+                "name":["l","r"],"position":[0.1,0.2],"velocity":[],"effort":[]}"#,
+        )
+        .unwrap();
+        assert_eq!(ros1.header.stamp, Time { sec: 1, nanosec: 2 });
+        let ros2: JointState = serde_json::from_str(
+            r#"{"header":{"stamp":{"sec":1,"nanosec":2},"frame_id":""},"name":["l"],"position":[0.1]}"#,
+        )
+        .unwrap();
+        assert_eq!(ros2.position, vec![0.1]);
+    }
+}
