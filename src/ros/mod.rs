@@ -2,5 +2,6 @@
 //! store ([`yaml`]), offline calibration from ROS 2 bags ([`bag`]), and a live base through
 //! rosbridge ([`rosbridge`]).
 
+pub mod bag;
 pub mod msg;
 pub mod yaml;

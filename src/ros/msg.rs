@@ -136,7 +136,10 @@ impl<'de> Deserialize<'de> for Covariance36 {
             fn expecting(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
                 f.write_str("36 numbers")
             }
-            fn visit_seq<A: serde::de::SeqAccess<'de>>(self, mut a: A) -> Result<Covariance36, A::Error> {
+            fn visit_seq<A: serde::de::SeqAccess<'de>>(
+                self,
+                mut a: A,
+            ) -> Result<Covariance36, A::Error> {
                 let mut out = [0.0; 36];
                 for (i, v) in out.iter_mut().enumerate() {
                     *v = a
@@ -293,14 +296,16 @@ pub mod types {
         name == canonical || name == canonical.replacen("/msg/", "/", 1)
     }
 
-    const HEADER: &str = "================================================================================\n\
+    const HEADER: &str =
+        "================================================================================\n\
 MSG: std_msgs/Header\nbuiltin_interfaces/Time stamp\nstring frame_id\n\
 ================================================================================\n\
 MSG: builtin_interfaces/Time\nint32 sec\nuint32 nanosec\n";
 
     /// The `ros2msg` definition of a type we write, with its dependencies.
     pub fn definition(name: &str) -> String {
-        let sep = "================================================================================\n";
+        let sep =
+            "================================================================================\n";
         match name {
             JOINT_STATE => format!(
                 "std_msgs/Header header\nstring[] name\nfloat64[] position\nfloat64[] velocity\nfloat64[] effort\n{HEADER}"
@@ -388,18 +393,39 @@ mod tests {
             w: -q.w,
         };
         assert!((yaw_of(&neg).unwrap() - 3.0).abs() < 1e-12);
-        assert!(yaw_of(&Quaternion { x: 0.0, y: 0.0, z: 0.0, w: 0.0 }).is_err());
-        assert!(yaw_of(&Quaternion { x: f64::NAN, y: 0.0, z: 0.0, w: 1.0 }).is_err());
+        assert!(yaw_of(&Quaternion {
+            x: 0.0,
+            y: 0.0,
+            z: 0.0,
+            w: 0.0
+        })
+        .is_err());
+        assert!(yaw_of(&Quaternion {
+            x: f64::NAN,
+            y: 0.0,
+            z: 0.0,
+            w: 1.0
+        })
+        .is_err());
         // Pitched 90°: yaw undefined.
         let s = std::f64::consts::FRAC_1_SQRT_2;
-        assert!(yaw_of(&Quaternion { x: 0.0, y: s, z: 0.0, w: s }).is_err());
+        assert!(yaw_of(&Quaternion {
+            x: 0.0,
+            y: s,
+            z: 0.0,
+            w: s
+        })
+        .is_err());
     }
 
     #[test]
     fn cdr_round_trips_and_matches_the_ros2_layout() {
         let js = JointState {
             header: Header {
-                stamp: Time { sec: 12, nanosec: 5 },
+                stamp: Time {
+                    sec: 12,
+                    nanosec: 5,
+                },
                 frame_id: "base".into(),
             },
             name: vec!["left_wheel_joint".into(), "right_wheel_joint".into()],
@@ -418,14 +444,21 @@ mod tests {
         let odom = Odometry {
             pose: PoseWithCovariance {
                 pose: Pose {
-                    position: Vector3 { x: 1.0, y: 2.0, z: 0.0 },
+                    position: Vector3 {
+                        x: 1.0,
+                        y: 2.0,
+                        z: 0.0,
+                    },
                     orientation: Quaternion::from_yaw(0.3),
                 },
                 covariance: Covariance36([0.5; 36]),
             },
             ..Odometry::default()
         };
-        assert_eq!(cdr::decode::<Odometry>(&cdr::encode(&odom).unwrap()).unwrap(), odom);
+        assert_eq!(
+            cdr::decode::<Odometry>(&cdr::encode(&odom).unwrap()).unwrap(),
+            odom
+        );
         assert!(cdr::decode::<JointState>(&[0, 1]).is_err());
     }
 

@@ -134,7 +134,11 @@ impl DiffDriveConfig {
         if params.as_hash().is_none() {
             let sections = doc
                 .as_hash()
-                .map(|h| h.keys().filter_map(|k| k.as_str().map(String::from)).collect())
+                .map(|h| {
+                    h.keys()
+                        .filter_map(|k| k.as_str().map(String::from))
+                        .collect()
+                })
                 .unwrap_or_default();
             return Err(YamlError::NoController {
                 path: path.to_path_buf(),
@@ -166,7 +170,11 @@ impl DiffDriveConfig {
         let names = |key: &str| -> Vec<String> {
             params[key]
                 .as_vec()
-                .map(|v| v.iter().filter_map(|n| n.as_str().map(String::from)).collect())
+                .map(|v| {
+                    v.iter()
+                        .filter_map(|n| n.as_str().map(String::from))
+                        .collect()
+                })
                 .unwrap_or_default()
         };
         let cfg = DiffDriveConfig {
@@ -262,7 +270,9 @@ pub fn merge_multipliers(
         .iter()
         .position(|l| {
             let t = l.trim_start();
-            t == head || t.starts_with(&format!("{head} ")) && t[head.len()..].trim_start().starts_with('#')
+            t == head
+                || t.starts_with(&format!("{head} "))
+                    && t[head.len()..].trim_start().starts_with('#')
         })
         .ok_or_else(flow)?;
     let c_indent = indent_of(&lines[c]);
@@ -270,7 +280,9 @@ pub fn merge_multipliers(
         .take_while(|&i| !is_content(&lines[i]) || indent_of(&lines[i]) > c_indent)
         .find(|&i| {
             let t = lines[i].trim();
-            t == "ros__parameters:" || t.starts_with("ros__parameters: #") || t.starts_with("ros__parameters:  #")
+            t == "ros__parameters:"
+                || t.starts_with("ros__parameters: #")
+                || t.starts_with("ros__parameters:  #")
         })
         .ok_or_else(flow)?;
     let rp_indent = indent_of(&lines[rp]);
@@ -280,7 +292,10 @@ pub fn merge_multipliers(
     let child = (rp + 1..end)
         .find(|&i| is_content(&lines[i]))
         .map_or(rp_indent + 2, |i| indent_of(&lines[i]));
-    let mut last_content = (rp + 1..end).rev().find(|&i| is_content(&lines[i])).unwrap_or(rp);
+    let mut last_content = (rp + 1..end)
+        .rev()
+        .find(|&i| is_content(&lines[i]))
+        .unwrap_or(rp);
     for (key, value) in [
         (MULTIPLIER_KEYS[0], m.wheel_separation_multiplier),
         (MULTIPLIER_KEYS[1], m.left_wheel_radius_multiplier),
@@ -301,7 +316,10 @@ pub fn merge_multipliers(
                 lines[i] = format!("{}{key}: {value}{comment}", " ".repeat(child));
             }
             None => {
-                lines.insert(last_content + 1, format!("{}{key}: {value}", " ".repeat(child)));
+                lines.insert(
+                    last_content + 1,
+                    format!("{}{key}: {value}", " ".repeat(child)),
+                );
                 last_content += 1;
             }
         }
@@ -321,7 +339,11 @@ pub fn merge_multipliers(
         m.left_wheel_radius_multiplier,
         m.right_wheel_radius_multiplier,
     ];
-    if got.iter().zip(want).any(|(g, w)| (g - w).abs() > 1e-9 * w.abs().max(1.0)) {
+    if got
+        .iter()
+        .zip(want)
+        .any(|(g, w)| (g - w).abs() > 1e-9 * w.abs().max(1.0))
+    {
         return Err(flow());
     }
     Ok(out)
@@ -330,12 +352,21 @@ pub fn merge_multipliers(
 /// Writes `text` to `path` atomically (a temporary file in the same directory, synced, renamed
 /// over it), keeping the file's permissions.
 pub fn replace_atomically(path: &Path, text: &str) -> std::io::Result<()> {
-    let dir = path.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
-    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    let dir = path
+        .parent()
+        .filter(|d| !d.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
     let tmp = dir.join(format!(".{name}.odocal-tmp-{}", std::process::id()));
     let perms = std::fs::metadata(path).ok().map(|m| m.permissions());
     let result = (|| {
-        let mut f = std::fs::OpenOptions::new().write(true).create_new(true).open(&tmp)?;
+        let mut f = std::fs::OpenOptions::new()
+            .write(true)
+            .create_new(true)
+            .open(&tmp)?;
         f.write_all(text.as_bytes())?;
         f.sync_all()?;
         if let Some(p) = perms {
@@ -357,9 +388,17 @@ pub fn backup_beside(path: &Path) -> std::io::Result<PathBuf> {
     let text = std::fs::read(path)?;
     for n in 0..1000 {
         let mut name = path.as_os_str().to_owned();
-        name.push(if n == 0 { format!(".odocal-backup-{stamp}") } else { format!(".odocal-backup-{stamp}-{n}") });
+        name.push(if n == 0 {
+            format!(".odocal-backup-{stamp}")
+        } else {
+            format!(".odocal-backup-{stamp}-{n}")
+        });
         let candidate = PathBuf::from(name);
-        match std::fs::OpenOptions::new().write(true).create_new(true).open(&candidate) {
+        match std::fs::OpenOptions::new()
+            .write(true)
+            .create_new(true)
+            .open(&candidate)
+        {
             Ok(mut f) => {
                 f.write_all(&text)?;
                 f.sync_all()?;
@@ -369,7 +408,10 @@ pub fn backup_beside(path: &Path) -> std::io::Result<PathBuf> {
             Err(e) => return Err(e),
         }
     }
-    Err(std::io::Error::new(std::io::ErrorKind::AlreadyExists, "1000 backups with one time stamp"))
+    Err(std::io::Error::new(
+        std::io::ErrorKind::AlreadyExists,
+        "1000 backups with one time stamp",
+    ))
 }
 
 /// The controller's YAML file as a [`ParamStore`]: `write` stages effective parameters (and
@@ -417,7 +459,10 @@ impl YamlStore {
 
     /// The copy of the original file made before the first replacement, if any.
     pub fn file_backup(&self) -> Option<PathBuf> {
-        self.file_backup.lock().unwrap_or_else(|p| p.into_inner()).clone()
+        self.file_backup
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .clone()
     }
 
     fn set_geometry(&self, p: WheelParams) {
@@ -474,14 +519,21 @@ impl ParamStore for YamlStore {
         let Some(p) = *self.staged.lock().unwrap_or_else(|p| p.into_inner()) else {
             return Ok(());
         };
-        let io = |source| store_err(&self.path)(YamlError::Io {
-            path: self.path.clone(),
-            source,
-        });
+        let io = |source| {
+            store_err(&self.path)(YamlError::Io {
+                path: self.path.clone(),
+                source,
+            })
+        };
         let cfg = self.config().map_err(store_err(&self.path))?;
         let text = read_bounded(&self.path).map_err(store_err(&self.path))?;
-        let merged = merge_multipliers(&text, &self.controller, &cfg.multipliers_for(&p), &self.path)
-            .map_err(store_err(&self.path))?;
+        let merged = merge_multipliers(
+            &text,
+            &self.controller,
+            &cfg.multipliers_for(&p),
+            &self.path,
+        )
+        .map_err(store_err(&self.path))?;
         {
             let mut backup = self.file_backup.lock().unwrap_or_else(|p| p.into_inner());
             if backup.is_none() {
@@ -494,7 +546,9 @@ impl ParamStore for YamlStore {
     }
 
     async fn read_committed(&self) -> Result<Option<WheelParams>, BaseError> {
-        Ok(Some(self.config().map_err(store_err(&self.path))?.effective()))
+        Ok(Some(
+            self.config().map_err(store_err(&self.path))?.effective(),
+        ))
     }
 
     fn resolution(&self) -> WheelParams {
@@ -543,7 +597,10 @@ diff_drive_controller:
     fn a_missing_controller_lists_the_sections_there_are() {
         let e = DiffDriveConfig::parse(FILE, "diff_cont", Path::new("f.yaml")).unwrap_err();
         let msg = e.to_string();
-        assert!(msg.contains("controller_manager") && msg.contains("diff_drive_controller"), "{msg}");
+        assert!(
+            msg.contains("controller_manager") && msg.contains("diff_drive_controller"),
+            "{msg}"
+        );
         let e = DiffDriveConfig::parse("a: [1,\n", "x", Path::new("f.yaml")).unwrap_err();
         assert!(matches!(e, YamlError::Parse { .. }), "{e}");
     }
@@ -561,8 +618,14 @@ diff_drive_controller:
         let kept: Vec<&str> = out.lines().filter(|l| !l.contains("multiplier")).collect();
         let orig: Vec<&str> = FILE.lines().filter(|l| !l.contains("multiplier")).collect();
         assert_eq!(kept, orig);
-        assert!(out.contains("wheel_separation_multiplier: 0.9760000000  # tuned 2024"), "{out}");
-        assert!(out.contains("    right_wheel_radius_multiplier: 0.9920000000\n"), "{out}");
+        assert!(
+            out.contains("wheel_separation_multiplier: 0.9760000000  # tuned 2024"),
+            "{out}"
+        );
+        assert!(
+            out.contains("    right_wheel_radius_multiplier: 0.9920000000\n"),
+            "{out}"
+        );
         let back = DiffDriveConfig::parse(&out, "diff_drive_controller", path).unwrap();
         assert!((back.effective().wheelbase_m - p.wheelbase_m).abs() < 1e-12);
         // Calibrating again composes: the new multipliers multiply the written ones.
