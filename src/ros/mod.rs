@@ -3,5 +3,6 @@
 //! rosbridge ([`rosbridge`]).
 
 pub mod bag;
+pub mod bag_writer;
 pub mod msg;
 pub mod yaml;

@@ -4,6 +4,7 @@ mod device;
 mod estimate;
 mod ports;
 mod replay;
+mod ros;
 mod routine;
 mod simulate;
 mod track;
@@ -53,6 +54,8 @@ enum Command {
     Heading(device::HeadingArgs),
     /// List this machine's serial ports with their USB ids.
     Ports(ports::Args),
+    /// Calibrate offline from a ROS 2 bag (MCAP): finds the square runs, every method.
+    Bag(ros::BagArgs),
 }
 
 /// Convention flags shared by the subcommands that estimate.
@@ -119,6 +122,7 @@ fn main() -> ExitCode {
         Command::Status(port) => block_on(device::status(port)),
         Command::Heading(args) => block_on(device::heading(args)),
         Command::Ports(args) => ports::run(args),
+        Command::Bag(args) => ros::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -19,11 +19,25 @@ pub struct Args {
     /// Print one JSON object instead of tables.
     #[arg(long)]
     json: bool,
+    /// Instead, convert the set to a ROS 2 bag (MCAP) at this new file: encoder counts as wheel
+    /// joint angles, the motion-capture heading as /imu, the configured odometry as /odom.
+    #[arg(long)]
+    write_bag: Option<PathBuf>,
 }
 
 /// Runs `odocal replay`.
 pub fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
     let calib = OptiOdomSet::load(&args.dataset)?;
+    if let Some(path) = &args.write_bag {
+        let topics = odocal::ros::bag::RosTopics::default();
+        let n = odocal::ros::bag_writer::write_optiodom_bag(path, &calib, 2.0, &topics)?;
+        println!(
+            "wrote {} ({n} messages, {} runs)",
+            path.display(),
+            calib.runs.len()
+        );
+        return Ok(());
+    }
     let evaluate = if args.evaluate.is_empty() {
         vec![calib.clone()]
     } else {

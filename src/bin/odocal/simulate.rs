@@ -62,10 +62,58 @@ pub struct Args {
     /// Print one JSON object instead of a table.
     #[arg(long)]
     json: bool,
+    /// Instead of the study, write the simulated square test as a ROS 2 bag (MCAP) to this new
+    /// file: /joint_states, /imu and /odom as a ROS robot would publish them, for `odocal bag`.
+    #[arg(long)]
+    bag: Option<std::path::PathBuf>,
+}
+
+/// Writes the simulated square test as a ROS 2 bag.
+fn write_bag(args: &Args, path: &std::path::Path) -> Result<(), Box<dyn std::error::Error>> {
+    use odocal::ros::bag::RosTopics;
+    use odocal::ros::bag_writer::{write_simulated_bag, SimulatedBag};
+    use odocal::ros::yaml::RAD_PER_REV;
+    let configured = WheelParams::nominal(args.wheel_diameter_m, args.wheelbase_m, RAD_PER_REV);
+    let truth =
+        WheelParams::from_ratios(&configured, args.true_eb, args.true_ed, &args.truth_split)?;
+    let noise = NoiseModel {
+        compass_sigma_rad: args.compass_sigma_deg.to_radians(),
+        compass_bias_rad: args.compass_bias_deg.to_radians(),
+        wheel_slip_sigma: args.slip_sigma,
+        ..NoiseModel::default()
+    };
+    let mut sim = odocal::sim::Simulator::new(truth, configured, noise, args.seed)?;
+    let cfg = SimulatedBag {
+        side_m: args.side_m,
+        runs: args.runs.max(1),
+        ..SimulatedBag::default()
+    };
+    let n = write_simulated_bag(path, &mut sim, &cfg, &RosTopics::default())?;
+    if args.json {
+        return print_json(&json!({
+            "bag": path,
+            "messages": n,
+            "truth": truth,
+            "configured": configured,
+            "side_m": cfg.side_m,
+            "runs_per_direction": cfg.runs,
+        }));
+    }
+    println!(
+        "wrote {} ({n} messages: {} squares of {} m each way; /joint_states, /imu, /odom)",
+        path.display(),
+        cfg.runs,
+        cfg.side_m
+    );
+    println!("calibrate from it: odocal bag {}", path.display());
+    Ok(())
 }
 
 /// Runs `odocal simulate`.
 pub fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
+    if let Some(path) = &args.bag {
+        return write_bag(&args, path);
+    }
     let cfg = StudyConfig {
         nominal: WheelParams::nominal(args.wheel_diameter_m, args.wheelbase_m, args.counts_per_rev),
         true_e_b: args.true_eb,

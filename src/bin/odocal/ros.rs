@@ -1,0 +1,211 @@
+//! `odocal bag` (and the ROS flags other commands share): calibrate from a ROS 2 bag.
+
+use crate::print_json;
+use odocal::kinematics::SplitConvention;
+use odocal::ros::bag::{self, BagOptions, GeometrySource, RosTopics};
+use odocal::ros::yaml::DiffDriveConfig;
+use serde_json::json;
+use std::path::PathBuf;
+
+/// Where a ROS robot's geometry and data are.
+#[derive(Debug, Clone, clap::Args)]
+pub struct RosArgs {
+    /// The controller's ros2_control YAML (`<controller>: ros__parameters:`).
+    #[arg(long)]
+    pub ros_yaml: Option<PathBuf>,
+    /// The diff_drive_controller's name (its section in the YAML).
+    #[arg(long, default_value = "diff_drive_controller")]
+    pub controller: String,
+    /// Wheel joint states topic (sensor_msgs/JointState).
+    #[arg(long, default_value = "/joint_states")]
+    pub joint_states_topic: String,
+    /// IMU topic (sensor_msgs/Imu with an orientation).
+    #[arg(long, default_value = "/imu")]
+    pub imu_topic: String,
+    /// The controller's odometry topic (nav_msgs/Odometry).
+    #[arg(long, default_value = "/odom")]
+    pub odom_topic: String,
+    /// Left wheel joint name (default: the YAML's left_wheel_names, or the one name with "left").
+    #[arg(long)]
+    pub left_joint: Option<String>,
+    /// Right wheel joint name.
+    #[arg(long)]
+    pub right_joint: Option<String>,
+}
+
+impl RosArgs {
+    /// The topics.
+    pub fn topics(&self) -> RosTopics {
+        RosTopics {
+            joint_states: self.joint_states_topic.clone(),
+            imu: self.imu_topic.clone(),
+            odom: self.odom_topic.clone(),
+        }
+    }
+
+    /// The YAML section, if a file was given.
+    pub fn config(&self) -> Result<Option<DiffDriveConfig>, Box<dyn std::error::Error>> {
+        Ok(match &self.ros_yaml {
+            Some(p) => Some(DiffDriveConfig::load(p, &self.controller)?),
+            None => None,
+        })
+    }
+}
+
+/// Arguments of `odocal bag`.
+#[derive(Debug, clap::Args)]
+pub struct BagArgs {
+    /// The bag (MCAP, the ROS 2 default storage).
+    file: PathBuf,
+    #[command(flatten)]
+    ros: RosArgs,
+    /// Explicit runs instead of finding them: START:END seconds from the bag's first message;
+    /// repeatable.
+    #[arg(long = "range")]
+    ranges: Vec<String>,
+    /// Square side (m); default: the bag's metadata, else the mean leg length by odometry.
+    #[arg(long)]
+    side_m: Option<f64>,
+    /// Shortest rest (s) that separates one run from the next.
+    #[arg(long, default_value_t = 0.5)]
+    min_rest_s: f64,
+    /// Diameter split: left-nominal, mean-preserving or measured-scale:COMMANDED_M,MEASURED_M.
+    #[arg(long, default_value = "left-nominal")]
+    convention: SplitConvention,
+    /// Print one JSON object.
+    #[arg(long)]
+    json: bool,
+}
+
+fn parse_range(s: &str) -> Result<(f64, f64), String> {
+    let (a, b) = s
+        .split_once(':')
+        .ok_or_else(|| format!("--range {s}: expected START:END in seconds"))?;
+    let num = |v: &str| {
+        v.trim()
+            .parse::<f64>()
+            .map_err(|_| format!("--range {s}: {v:?} is not a number of seconds"))
+    };
+    Ok((num(a)?, num(b)?))
+}
+
+/// Runs `odocal bag`.
+pub fn run(args: BagArgs) -> Result<(), Box<dyn std::error::Error>> {
+    let cfg = args.ros.config()?;
+    let opts = BagOptions {
+        topics: args.ros.topics(),
+        left_joint: args.ros.left_joint.clone().or_else(|| {
+            cfg.as_ref()
+                .and_then(|c| c.left_wheel_names.first().cloned())
+        }),
+        right_joint: args.ros.right_joint.clone().or_else(|| {
+            cfg.as_ref()
+                .and_then(|c| c.right_wheel_names.first().cloned())
+        }),
+        min_rest_s: args.min_rest_s,
+        ranges: args
+            .ranges
+            .iter()
+            .map(|r| parse_range(r))
+            .collect::<Result<_, _>>()?,
+        side_m: args.side_m,
+        convention: args.convention,
+    };
+    if let Some(s) = opts.side_m {
+        if !(s.is_finite() && s > 0.0 && s <= 100.0) {
+            return Err(format!("--side-m must be in (0, 100] m, got {s}").into());
+        }
+    }
+    let data = bag::read_bag(&args.file, &opts)?;
+    let (configured, geometry, nominal) = match (&cfg, &args.ros.ros_yaml) {
+        (Some(c), Some(file)) => (
+            c.effective(),
+            GeometrySource::Yaml {
+                file: file.clone(),
+                controller: c.controller.clone(),
+            },
+            (c.wheel_radius_m, c.wheel_separation_m),
+        ),
+        _ => {
+            let g = bag::infer_geometry(&data)?;
+            (
+                g.params(),
+                GeometrySource::Inferred(g),
+                (g.wheel_radius_m, g.wheel_separation_m),
+            )
+        }
+    };
+    let report = bag::analyse(&args.file, &data, configured, geometry, nominal, &opts)?;
+    if args.json {
+        let mut v = serde_json::to_value(&report)?;
+        v["default_method"] = json!("exact");
+        return print_json(&v);
+    }
+    match &report.geometry {
+        GeometrySource::Yaml { file, controller } => println!(
+            "configured geometry from {} ({controller}): wheel radius {:.6} m, separation {:.6} m",
+            file.display(),
+            0.5 * report.configured.left_wheel_diameter_m,
+            report.configured.wheelbase_m
+        ),
+        GeometrySource::Inferred(g) => println!(
+            "configured geometry INFERRED from {} against {} (no --ros-yaml given): wheel radius \
+             {:.6} m, separation {:.6} m over {} intervals",
+            args.ros.odom_topic,
+            args.ros.joint_states_topic,
+            g.wheel_radius_m,
+            g.wheel_separation_m,
+            g.intervals
+        ),
+    }
+    println!(
+        "{} messages; {} square run(s), side {:.3} m (from {})",
+        report.messages,
+        report.runs.len(),
+        report.side_m,
+        report.side_source
+    );
+    for r in &report.runs {
+        println!(
+            "  {:>7.1}–{:<7.1} s  {:<3}  heading error {:+.3}°",
+            r.start_s,
+            r.end_s,
+            r.direction,
+            r.heading_error_rad.to_degrees()
+        );
+    }
+    for s in &report.skipped {
+        println!("  skipped: {s}");
+    }
+    println!(
+        "\n{:<14}{:>11}{:>11}   {:>12}{:>12}{:>12}",
+        "method", "E_b", "E_d", "sep_mult", "left_mult", "right_mult"
+    );
+    for e in &report.estimates {
+        println!(
+            "{:<14}{:>11.6}{:>11.6}   {:>12.6}{:>12.6}{:>12.6}",
+            e.estimate.method.name(),
+            e.estimate.e_b,
+            e.estimate.e_d,
+            e.multipliers.wheel_separation_multiplier,
+            e.multipliers.left_wheel_radius_multiplier,
+            e.multipliers.right_wheel_radius_multiplier
+        );
+    }
+    for (m, why) in &report.failures {
+        println!("{:<14}– {why}", m.name());
+    }
+    if let Some(o) = &report.online {
+        println!(
+            "{:<14}{:>11.6}{:>11.6}   ± {:.5}, {:.5} (whole bag, {:.1} m driven, mean NIS {:.2})",
+            "online",
+            o.e_b,
+            o.e_d,
+            o.e_b_std,
+            o.e_d_std,
+            o.distance_m,
+            report.online_nis.unwrap_or(f64::NAN)
+        );
+    }
+    Ok(())
+}

@@ -1,0 +1,335 @@
+//! Writing ROS 2 bags (MCAP, CDR) with the topics odocal reads: simulated square tests and
+//! recorded OptiOdom sets, so a user can see what to record and tests can check `odocal bag`.
+
+use super::bag::{BagError, RosTopics};
+use super::msg::{cdr, types, Header, Imu, JointState, Odometry, Quaternion, Time};
+use super::yaml::RAD_PER_REV;
+use crate::kinematics::{wrap_angle, Direction, WheelParams};
+use serde::Serialize;
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+/// Writes ROS 2 bags (MCAP, CDR) with the topics odocal reads.
+pub struct BagWriter {
+    path: PathBuf,
+    writer: mcap::Writer<std::io::BufWriter<std::fs::File>>,
+    channels: BTreeMap<&'static str, u16>,
+    sequence: u32,
+}
+
+impl BagWriter {
+    /// Creates `path` (which must not exist yet).
+    pub fn create(path: &Path, topics: &RosTopics) -> Result<Self, BagError> {
+        let file = std::fs::OpenOptions::new()
+            .write(true)
+            .create_new(true)
+            .open(path)
+            .map_err(|source| BagError::Io {
+                path: path.to_path_buf(),
+                source,
+            })?;
+        let werr = |source| BagError::Write {
+            path: path.to_path_buf(),
+            source,
+        };
+        let mut writer = mcap::WriteOptions::new()
+            .profile("ros2")
+            .create(std::io::BufWriter::new(file))
+            .map_err(werr)?;
+        let mut channels = BTreeMap::new();
+        for (kind, topic) in [
+            (types::JOINT_STATE, &topics.joint_states),
+            (types::IMU, &topics.imu),
+            (types::ODOMETRY, &topics.odom),
+        ] {
+            let schema = writer
+                .add_schema(kind, "ros2msg", types::definition(kind).as_bytes())
+                .map_err(werr)?;
+            let ch = writer
+                .add_channel(schema, topic, "cdr", &BTreeMap::new())
+                .map_err(werr)?;
+            channels.insert(kind, ch);
+        }
+        Ok(BagWriter {
+            path: path.to_path_buf(),
+            writer,
+            channels,
+            sequence: 0,
+        })
+    }
+
+    fn write<T: Serialize>(&mut self, kind: &'static str, t: f64, msg: &T) -> Result<(), BagError> {
+        let data = cdr::encode(msg).map_err(|source| BagError::Decode {
+            topic: kind.into(),
+            index: self.sequence as usize,
+            source,
+        })?;
+        let ns = (t.max(0.0) * 1e9) as u64;
+        self.sequence += 1;
+        let header = mcap::records::MessageHeader {
+            channel_id: self.channels[kind],
+            sequence: self.sequence,
+            log_time: ns,
+            publish_time: ns,
+        };
+        self.writer
+            .write_to_known_channel(&header, &data)
+            .map_err(|source| BagError::Write {
+                path: self.path.clone(),
+                source,
+            })
+    }
+
+    /// Writes wheel joint angles (rad) at `t` (s).
+    pub fn joints(&mut self, t: f64, left_rad: f64, right_rad: f64) -> Result<(), BagError> {
+        let msg = JointState {
+            header: Header {
+                stamp: Time::from_seconds(t),
+                frame_id: String::new(),
+            },
+            name: vec!["left_wheel_joint".into(), "right_wheel_joint".into()],
+            position: vec![left_rad, right_rad],
+            velocity: vec![],
+            effort: vec![],
+        };
+        self.write(types::JOINT_STATE, t, &msg)
+    }
+
+    /// Writes an IMU yaw (rad) at `t`.
+    pub fn imu(&mut self, t: f64, yaw_rad: f64) -> Result<(), BagError> {
+        let msg = Imu {
+            header: Header {
+                stamp: Time::from_seconds(t),
+                frame_id: "imu_link".into(),
+            },
+            orientation: Quaternion::from_yaw(yaw_rad),
+            ..Imu::default()
+        };
+        self.write(types::IMU, t, &msg)
+    }
+
+    /// Writes the controller's odometry pose at `t`.
+    pub fn odom(&mut self, t: f64, x_m: f64, y_m: f64, yaw_rad: f64) -> Result<(), BagError> {
+        let mut msg = Odometry {
+            header: Header {
+                stamp: Time::from_seconds(t),
+                frame_id: "odom".into(),
+            },
+            child_frame_id: "base_link".into(),
+            ..Odometry::default()
+        };
+        msg.pose.pose.position.x = x_m;
+        msg.pose.pose.position.y = y_m;
+        msg.pose.pose.orientation = Quaternion::from_yaw(yaw_rad);
+        self.write(types::ODOMETRY, t, &msg)
+    }
+
+    /// Records the square side for `odocal bag` (metadata `odocal.side_m`).
+    pub fn side(&mut self, side_m: f64) -> Result<(), BagError> {
+        let metadata = mcap::records::Metadata {
+            name: "odocal".into(),
+            metadata: BTreeMap::from([("side_m".to_string(), format!("{side_m}"))]),
+        };
+        self.writer
+            .write_metadata(&metadata)
+            .map_err(|source| BagError::Write {
+                path: self.path.clone(),
+                source,
+            })
+    }
+
+    /// Finishes the file (summary, indexes).
+    pub fn finish(mut self) -> Result<(), BagError> {
+        self.writer.finish().map_err(|source| BagError::Write {
+            path: self.path.clone(),
+            source,
+        })?;
+        Ok(())
+    }
+}
+
+/// Rates and speeds of a simulated square-test bag.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SimulatedBag {
+    /// Square side (m).
+    pub side_m: f64,
+    /// Runs per direction.
+    pub runs: usize,
+    /// Leg speed (m/s).
+    pub speed_m_s: f64,
+    /// Turn rate (rad/s).
+    pub rate_rad_s: f64,
+    /// Joint state and odometry rate (Hz).
+    pub joint_hz: f64,
+    /// IMU rate (Hz); a multiple of `joint_hz`.
+    pub imu_hz: f64,
+    /// Rest before and after each square (s).
+    pub rest_s: f64,
+}
+
+impl Default for SimulatedBag {
+    fn default() -> Self {
+        SimulatedBag {
+            side_m: 2.0,
+            runs: 5,
+            speed_m_s: 0.3,
+            rate_rad_s: 0.8,
+            joint_hz: 50.0,
+            imu_hz: 100.0,
+            rest_s: 1.5,
+        }
+    }
+}
+
+/// Drives `sim` (whose parameters count wheel angles in radians: counts per revolution 2π)
+/// through `cfg.runs` squares each way and writes what a ROS robot would publish: joint
+/// angles, IMU yaw (the simulator's compass, with its noise) and the controller's odometry.
+pub fn write_simulated_bag(
+    path: &Path,
+    sim: &mut crate::sim::Simulator,
+    cfg: &SimulatedBag,
+    topics: &RosTopics,
+) -> Result<u64, BagError> {
+    let mut w = BagWriter::create(path, topics)?;
+    w.side(cfg.side_m)?;
+    let configured = *sim.configured();
+    let sub = (cfg.imu_hz / cfg.joint_hz).round().max(1.0) as u64;
+    let dt = 1.0 / (cfg.joint_hz * sub as f64);
+    let mut t = 0.0;
+    let mut step = 0u64;
+    let mut odo = crate::kinematics::Pose::default();
+    let mut last = sim.encoder_counts();
+    let mut messages = 0u64;
+    // One time step: IMU every step, joints and odometry every `sub` steps.
+    let mut emit =
+        |w: &mut BagWriter, sim: &mut crate::sim::Simulator, t: f64| -> Result<(), BagError> {
+            w.imu(t, sim.read_heading())?;
+            messages += 1;
+            if step.is_multiple_of(sub) {
+                let (l, r) = sim.encoder_counts();
+                odo = configured.odometry_step(&odo, l - last.0, r - last.1);
+                last = (l, r);
+                w.joints(t, l, r)?;
+                w.odom(t, odo.x_m, odo.y_m, odo.heading_rad)?;
+                messages += 2;
+            }
+            step += 1;
+            Ok(())
+        };
+    for direction in [Direction::Cw, Direction::Ccw] {
+        for _ in 0..cfg.runs {
+            for _ in 0..(cfg.rest_s / dt).round() as u64 {
+                emit(&mut w, sim, t)?;
+                t += dt;
+            }
+            for motion in crate::sim::Simulator::square_motions(cfg.side_m, direction) {
+                let duration = match motion {
+                    crate::sim::Motion::Straight { distance_m } => distance_m.abs() / cfg.speed_m_s,
+                    crate::sim::Motion::TurnInPlace { angle_rad } => {
+                        angle_rad.abs() / cfg.rate_rad_s
+                    }
+                    crate::sim::Motion::Wheels { .. } => 0.0,
+                };
+                let plan = sim.plan(&motion).map_err(|e| {
+                    BagError::Inference(format!("the simulator refused a motion: {e}"))
+                })?;
+                let n = (duration / dt).ceil().max(1.0) as u64;
+                for k in 0..n {
+                    sim.advance_plan(&plan, k as f64 / n as f64, (k + 1) as f64 / n as f64);
+                    t += dt;
+                    emit(&mut w, sim, t)?;
+                }
+                // A short pause between motions, as a controller brakes.
+                for _ in 0..(0.2 / dt).round() as u64 {
+                    t += dt;
+                    emit(&mut w, sim, t)?;
+                }
+            }
+        }
+    }
+    for _ in 0..(cfg.rest_s / dt).round() as u64 {
+        t += dt;
+        emit(&mut w, sim, t)?;
+    }
+    w.finish()?;
+    Ok(messages)
+}
+
+/// Writes a recorded OptiOdom set as a ROS 2 bag: its encoder counts as wheel joint angles, its
+/// motion-capture heading as the IMU, the controller's odometry integrated with its configured
+/// parameters, and `rest_s` of stillness around every run. `odocal bag` on the result
+/// calibrates as `odocal replay` does on the set.
+pub fn write_optiodom_bag(
+    path: &Path,
+    set: &crate::dataset::OptiOdomSet,
+    rest_s: f64,
+    topics: &RosTopics,
+) -> Result<u64, BagError> {
+    let mut w = BagWriter::create(path, topics)?;
+    if let Some(side) = set.side_m {
+        w.side(side)?;
+    }
+    let p = set.configured;
+    let rad_per_count = RAD_PER_REV / p.counts_per_wheel_rev;
+    // In radians the configured geometry is the same wheels with 2π "counts" per revolution.
+    let configured = WheelParams {
+        counts_per_wheel_rev: RAD_PER_REV,
+        ..p
+    };
+    let dt = 0.05;
+    let (mut t, mut l, mut r) = (0.0, 0.0, 0.0);
+    let mut odo = crate::kinematics::Pose::default();
+    let mut messages = 0u64;
+    let mut heading_offset = 0.0;
+    let still = |w: &mut BagWriter,
+                 t: &mut f64,
+                 yaw: f64,
+                 l: f64,
+                 r: f64,
+                 odo: &crate::kinematics::Pose|
+     -> Result<u64, BagError> {
+        let n = (rest_s / dt).round() as u64;
+        for _ in 0..n {
+            *t += dt;
+            w.joints(*t, l, r)?;
+            w.imu(*t, yaw)?;
+            w.odom(*t, odo.x_m, odo.y_m, odo.heading_rad)?;
+        }
+        Ok(3 * n)
+    };
+    for run in &set.runs {
+        // Each run's ground truth starts at its own origin: continue the heading from where the
+        // previous run ended so the IMU is one continuous sensor.
+        let first = run.samples.first().map_or(0.0, |s| s.truth.heading_rad);
+        messages += still(
+            &mut w,
+            &mut t,
+            wrap_angle(heading_offset + first),
+            l,
+            r,
+            &odo,
+        )?;
+        let mut yaw = heading_offset + first;
+        let mut prev = first;
+        for s in run.samples.iter().skip(1) {
+            let (dl, dr) = (
+                s.left_counts * rad_per_count,
+                s.right_counts * rad_per_count,
+            );
+            odo = configured.odometry_step(&odo, dl, dr);
+            l += dl;
+            r += dr;
+            yaw += wrap_angle(s.truth.heading_rad - prev);
+            prev = s.truth.heading_rad;
+            t += dt;
+            w.joints(t, l, r)?;
+            w.imu(t, wrap_angle(yaw))?;
+            w.odom(t, odo.x_m, odo.y_m, odo.heading_rad)?;
+            messages += 3;
+        }
+        heading_offset = yaw - first;
+        messages += still(&mut w, &mut t, wrap_angle(yaw), l, r, &odo)?;
+    }
+    w.finish()?;
+    Ok(messages)
+}

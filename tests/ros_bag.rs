@@ -1,0 +1,157 @@
+//! `odocal bag` end to end: simulated bags give back the simulated robot, a bag converted from
+//! a recorded OptiOdom set calibrates as `replay` does on the set, and bad input is named.
+
+mod common;
+
+use common::{odocal, odocal_json, scratch};
+use serde_json::Value;
+
+fn method<'a>(v: &'a Value, name: &str) -> &'a Value {
+    v["estimates"]
+        .as_array()
+        .expect("estimates array")
+        .iter()
+        .find(|e| e["method"] == name)
+        .unwrap_or_else(|| panic!("no {name} estimate in {v}"))
+}
+
+fn f(v: &Value) -> f64 {
+    v.as_f64().unwrap_or_else(|| panic!("not a number: {v}"))
+}
+
+#[test]
+fn a_simulated_bag_gives_back_the_simulated_parameters() {
+    let dir = scratch("bag-sim");
+    std::fs::create_dir_all(&dir).unwrap();
+    let bag = dir.join("square.mcap");
+    let bag_s = bag.to_str().unwrap();
+    odocal_json(&[
+        "simulate", "--bag", bag_s, "--runs", "2", "--side-m", "2", "--json",
+    ]);
+    let v = odocal_json(&["bag", bag_s, "--json"]);
+    assert_eq!(v["runs"].as_array().unwrap().len(), 4, "{v}");
+    assert_eq!(v["geometry"]["source"], "inferred");
+    let exact = method(&v, "exact");
+    assert!((f(&exact["e_b"]) - 0.976).abs() < 1e-6, "{exact}");
+    assert!((f(&exact["e_d"]) - 0.992).abs() < 1e-6, "{exact}");
+    // The multipliers it would write, relative to the nominal wheel radius and separation.
+    let m = &exact["multipliers"];
+    assert!(
+        (f(&m["wheel_separation_multiplier"]) - 0.976).abs() < 1e-6,
+        "{m}"
+    );
+    assert!(
+        (f(&m["left_wheel_radius_multiplier"]) - 1.0).abs() < 1e-9,
+        "{m}"
+    );
+    assert!(
+        (f(&m["right_wheel_radius_multiplier"]) - 0.992).abs() < 1e-6,
+        "{m}"
+    );
+    for name in ["heading-only", "jung-chung"] {
+        let e = method(&v, name);
+        assert!(e["e_b"].is_number() && e["e_d"].is_number() && e["multipliers"].is_object());
+    }
+    // Given the YAML, the geometry comes from it and the multipliers compose with its own.
+    let yaml = dir.join("diff_drive.yaml");
+    std::fs::write(
+        &yaml,
+        "diff_drive_controller:\n  ros__parameters:\n    wheel_separation: 0.39\n    \
+         wheel_radius: 0.075\n",
+    )
+    .unwrap();
+    let v = odocal_json(&["bag", bag_s, "--ros-yaml", yaml.to_str().unwrap(), "--json"]);
+    assert_eq!(v["geometry"]["source"], "yaml");
+    assert!((f(&method(&v, "exact")["e_b"]) - 0.976).abs() < 1e-6);
+    // A bag is never overwritten.
+    let (ok, _, err) = odocal(&["simulate", "--bag", bag_s]);
+    assert!(!ok && err.contains("exists"), "{err}");
+}
+
+#[test]
+fn a_bag_converted_from_a_recorded_set_calibrates_as_replay_does() {
+    let Some(root) = common::optiodom("square") else {
+        return;
+    };
+    let set = root.join("square/231220200040");
+    let set_s = set.to_str().unwrap();
+    let dir = scratch("bag-optiodom");
+    std::fs::create_dir_all(&dir).unwrap();
+    let bag = dir.join("set.mcap");
+    let (ok, _, err) = odocal(&[
+        "replay",
+        "--dataset",
+        set_s,
+        "--write-bag",
+        bag.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    let from_bag = odocal_json(&[
+        "bag",
+        bag.to_str().unwrap(),
+        "--min-rest-s",
+        "1.5",
+        "--json",
+    ]);
+    let replayed = odocal_json(&["replay", "--dataset", set_s, "--json"]);
+    assert_eq!(from_bag["runs"].as_array().unwrap().len(), 6, "{from_bag}");
+    // The bag reads each run's heading as the mean over the rest before and after it, replay
+    // as the first and last motion-capture sample: they differ by the capture's jitter at
+    // rest, which must stay far inside the run-to-run standard error.
+    for name in ["heading-only", "jung-chung", "exact"] {
+        let (a, b) = (method(&from_bag, name), method(&replayed, name));
+        for (k, se) in [("e_b", "e_b_std_err"), ("e_d", "e_d_std_err")] {
+            let diff = (f(&a[k]) - f(&b[k])).abs();
+            assert!(
+                diff < 0.1 * f(&b[se]),
+                "{name} {k}: bag {} vs replay {} (standard error {})",
+                a[k],
+                b[k],
+                b[se]
+            );
+        }
+    }
+}
+
+#[test]
+fn bad_bags_and_files_are_named() {
+    let dir = scratch("bag-bad");
+    std::fs::create_dir_all(&dir).unwrap();
+    let bag = dir.join("s.mcap");
+    let bag_s = bag.to_str().unwrap();
+    odocal_json(&[
+        "simulate", "--bag", bag_s, "--runs", "1", "--side-m", "1", "--json",
+    ]);
+    // A topic that is not there: the error lists the topics there are.
+    let (ok, _, err) = odocal(&["bag", bag_s, "--imu-topic", "/imu/data"]);
+    assert!(!ok, "must fail");
+    assert!(
+        err.contains("/imu/data")
+            && err.contains("/imu (sensor_msgs/msg/Imu)")
+            && err.contains("/odom"),
+        "{err}"
+    );
+    // A topic of another type: the type is named.
+    let (ok, _, err) = odocal(&["bag", bag_s, "--imu-topic", "/odom"]);
+    assert!(!ok && err.contains("nav_msgs/msg/Odometry"), "{err}");
+    // A YAML without the controller: the sections it has are listed.
+    let yaml = dir.join("c.yaml");
+    std::fs::write(
+        &yaml,
+        "controller_manager:\n  ros__parameters:\n    update_rate: 50\n",
+    )
+    .unwrap();
+    let (ok, _, err) = odocal(&["bag", bag_s, "--ros-yaml", yaml.to_str().unwrap()]);
+    assert!(
+        !ok && err.contains("controller_manager") && err.contains("diff_drive_controller"),
+        "{err}"
+    );
+    // Not a bag at all.
+    let junk = dir.join("junk.mcap");
+    std::fs::write(&junk, b"this is not an mcap file").unwrap();
+    let (ok, _, err) = odocal(&["bag", junk.to_str().unwrap()]);
+    assert!(!ok && err.contains("not a readable MCAP"), "{err}");
+    // Joints that cannot be told apart.
+    let (ok, _, err) = odocal(&["bag", bag_s, "--left-joint", "wheel_fl"]);
+    assert!(!ok && err.contains("left_wheel_joint"), "{err}");
+}
