@@ -83,6 +83,15 @@ pub struct ComponentInfo {
     pub details: serde_json::Value,
 }
 
+/// What a drive's own odometry (with the parameters it is configured with) saw of one motion.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct Achieved {
+    /// Forward distance (m).
+    pub distance_m: f64,
+    /// Turn (rad, counter-clockwise positive, not wrapped).
+    pub turn_rad: f64,
+}
+
 /// What the routine learns from a drive's pre-flight check.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct Preflight {
@@ -111,12 +120,22 @@ pub trait Drive: Send + Sync {
     async fn arm_watchdog(&self, timeout: Duration) -> Result<Option<Duration>, BaseError>;
 
     /// **Moves the robot**: straight by `distance_m` (negative backwards) at most
-    /// `max_speed_m_s`; returns when the drive reports the motion finished.
-    async fn move_straight(&self, distance_m: f64, max_speed_m_s: f64) -> Result<(), BaseError>;
+    /// `max_speed_m_s`; returns when the drive reports the motion finished, with what its own
+    /// odometry saw when that can differ from the command (`None`: executed to the drive's
+    /// resolution, as a controller that counts wheel targets does).
+    async fn move_straight(
+        &self,
+        distance_m: f64,
+        max_speed_m_s: f64,
+    ) -> Result<Option<Achieved>, BaseError>;
 
     /// **Moves the robot**: turns in place by `angle_rad` (counter-clockwise positive) at most
-    /// `max_rate_rad_s`; returns when the drive reports the motion finished.
-    async fn turn_in_place(&self, angle_rad: f64, max_rate_rad_s: f64) -> Result<(), BaseError>;
+    /// `max_rate_rad_s`; returns as [`Drive::move_straight`] does.
+    async fn turn_in_place(
+        &self,
+        angle_rad: f64,
+        max_rate_rad_s: f64,
+    ) -> Result<Option<Achieved>, BaseError>;
 
     /// Stops the base and waits for the drive to acknowledge.
     async fn stop(&self) -> Result<(), BaseError>;

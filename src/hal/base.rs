@@ -3,7 +3,7 @@
 
 use super::{Client, HalError, TelemetrySample};
 use crate::base::{
-    BaseError, ComponentInfo, Drive, HeadingSample, HeadingSource, ParamStore, Preflight,
+    Achieved, BaseError, ComponentInfo, Drive, HeadingSample, HeadingSource, ParamStore, Preflight,
     SampleStream, TravelSample, Validity, STREAM_CAPACITY,
 };
 use crate::kinematics::WheelParams;
@@ -151,16 +151,27 @@ impl Drive for Client {
             .map_err(to_base("drive", "the watchdog setting"))
     }
 
-    async fn move_straight(&self, distance_m: f64, max_speed_m_s: f64) -> Result<(), BaseError> {
+    async fn move_straight(
+        &self,
+        distance_m: f64,
+        max_speed_m_s: f64,
+    ) -> Result<Option<Achieved>, BaseError> {
         let start = Client::move_straight(self, distance_m, max_speed_m_s, MotionMode::Queue);
         self.run_motion("a straight motion", start, distance_m.abs() / max_speed_m_s)
-            .await
+            .await?;
+        // The firmware drives each wheel to its count target (SPEC.md): executed as commanded.
+        Ok(None)
     }
 
-    async fn turn_in_place(&self, angle_rad: f64, max_rate_rad_s: f64) -> Result<(), BaseError> {
+    async fn turn_in_place(
+        &self,
+        angle_rad: f64,
+        max_rate_rad_s: f64,
+    ) -> Result<Option<Achieved>, BaseError> {
         let start = Client::turn_in_place(self, angle_rad, max_rate_rad_s, MotionMode::Queue);
         self.run_motion("a turn", start, angle_rad.abs() / max_rate_rad_s)
-            .await
+            .await?;
+        Ok(None)
     }
 
     async fn stop(&self) -> Result<(), BaseError> {

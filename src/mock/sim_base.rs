@@ -3,8 +3,8 @@
 //! tested end to end in microseconds and its failure paths provoked on purpose.
 
 use crate::base::{
-    BaseError, ComponentInfo, Drive, GroundTruth, HeadingSample, HeadingSource, ParamStore,
-    Preflight, SampleStream, TravelSample, Validity, STREAM_CAPACITY,
+    Achieved, BaseError, ComponentInfo, Drive, GroundTruth, HeadingSample, HeadingSource,
+    ParamStore, Preflight, SampleStream, TravelSample, Validity, STREAM_CAPACITY,
 };
 use crate::kinematics::{Pose, WheelParams};
 use crate::sim::{Motion, SimError, Simulator};
@@ -205,22 +205,28 @@ impl Drive for SimBase {
         Ok(Some(timeout))
     }
 
-    async fn move_straight(&self, distance_m: f64, max_speed_m_s: f64) -> Result<(), BaseError> {
+    async fn move_straight(
+        &self,
+        distance_m: f64,
+        max_speed_m_s: f64,
+    ) -> Result<Option<Achieved>, BaseError> {
         check_limit("speed limit", max_speed_m_s)?;
-        self.execute(
-            Motion::Straight { distance_m },
-            distance_m.abs() / max_speed_m_s,
-        )
-        .await
+        let duration = distance_m.abs() / max_speed_m_s;
+        self.execute(Motion::Straight { distance_m }, duration)
+            .await?;
+        Ok(None)
     }
 
-    async fn turn_in_place(&self, angle_rad: f64, max_rate_rad_s: f64) -> Result<(), BaseError> {
+    async fn turn_in_place(
+        &self,
+        angle_rad: f64,
+        max_rate_rad_s: f64,
+    ) -> Result<Option<Achieved>, BaseError> {
         check_limit("turn-rate limit", max_rate_rad_s)?;
-        self.execute(
-            Motion::TurnInPlace { angle_rad },
-            angle_rad.abs() / max_rate_rad_s,
-        )
-        .await
+        let duration = angle_rad.abs() / max_rate_rad_s;
+        self.execute(Motion::TurnInPlace { angle_rad }, duration)
+            .await?;
+        Ok(None)
     }
 
     async fn stop(&self) -> Result<(), BaseError> {

@@ -4,5 +4,7 @@
 
 pub mod bag;
 pub mod bag_writer;
+pub mod base;
 pub mod msg;
+pub mod rosbridge;
 pub mod yaml;

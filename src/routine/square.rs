@@ -38,8 +38,12 @@ pub struct SquareRecord {
     pub heading_before_rad: f64,
     /// Mean heading at rest after (rad).
     pub heading_after_rad: f64,
-    /// Final-minus-start heading error (rad, wrapped).
+    /// Heading error (rad, wrapped): the heading's change at rest minus the drive's own
+    /// odometry turn (the commanded ±360° when the drive executes to its resolution), which
+    /// removes what the drive did not execute as commanded.
     pub heading_error_rad: f64,
+    /// The drive's odometry turn over the square, when it reported one (rad).
+    pub odometry_turn_rad: Option<f64>,
     /// Wheel travel streamed while driving (empty when the drive cannot stream).
     pub travel: Vec<TravelSample>,
     /// Headings streamed while driving (empty when the source cannot stream).
@@ -73,15 +77,22 @@ pub async fn run_square(
     let guard = MotionGuard::new(&base.drive);
     let turn = cmd.direction.turn_sign() * FRAC_PI_2;
     let mut done = 0;
+    // Σ of the drive's reported turns while every motion reported one.
+    let mut achieved: Option<f64> = Some(0.0);
     for _ in 0..4 {
-        base.drive
+        let leg = base
+            .drive
             .move_straight(cmd.side_m, cmd.max_speed_m_s)
             .await?;
         done += 1;
         on_motion(done);
-        base.drive.turn_in_place(turn, cmd.max_rate_rad_s).await?;
+        let corner = base.drive.turn_in_place(turn, cmd.max_rate_rad_s).await?;
         done += 1;
         on_motion(done);
+        achieved = match (achieved, leg, corner) {
+            (Some(sum), Some(a), Some(b)) => Some(sum + a.turn_rad + b.turn_rad),
+            _ => None,
+        };
     }
     guard.disarm();
     if !cmd.settle.is_zero() {
@@ -96,7 +107,8 @@ pub async fn run_square(
         command: *cmd,
         heading_before_rad: before,
         heading_after_rad: after,
-        heading_error_rad: wrap_angle(after - before),
+        heading_error_rad: wrap_angle(after - before - achieved.map_or(0.0, |t| t - 4.0 * turn)),
+        odometry_turn_rad: achieved,
         travel: drain(&mut travel),
         headings: drain(&mut headings),
     })

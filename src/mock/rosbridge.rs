@@ -1,0 +1,473 @@
+//! A mock rosbridge server on a loopback socket, backed by the simulator: a ROS 2 robot with
+//! `diff_drive_controller` as seen through `rosbridge_server`.
+//!
+//! The controller turns each `cmd_vel` twist into wheel speeds with its **configured** geometry
+//! (from the YAML), ramps them at its acceleration limits and stops them after
+//! `cmd_vel_timeout` without a command; the **true** robot moves those wheel rotations with its
+//! true geometry. It publishes `/joint_states` (wheel angles), `/odom` (the controller's
+//! odometry, configured geometry) and `/imu` (true yaw with noise) at their rates, in time that
+//! can run faster than the wall clock, and answers `set_parameters` on the controller.
+//! [`MockRosbridge::vanish`] drops every connection and stops listening while the robot keeps
+//! running, as a crashed `rosbridge_server` would.
+
+use crate::kinematics::{Pose, WheelParams};
+use crate::ros::msg::{Header, Imu, JointState, Odometry, Quaternion, Time, Twist, TwistStamped};
+use crate::ros::yaml::{DiffDriveConfig, MULTIPLIER_KEYS};
+use crate::sim::{NoiseModel, Simulator};
+use futures_util::{SinkExt, StreamExt};
+use serde_json::{json, Value};
+use std::collections::HashSet;
+use std::net::SocketAddr;
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::time::Duration;
+use tokio::sync::broadcast;
+use tokio::task::JoinHandle;
+use tokio_tungstenite::tungstenite::Message;
+
+/// Everything that defines a mock ROS robot.
+#[derive(Debug, Clone)]
+pub struct MockRosConfig {
+    /// The controller's section as its YAML has it (the configured geometry).
+    pub controller: DiffDriveConfig,
+    /// The robot's true effective parameters (wheel angles in radians).
+    pub truth: WheelParams,
+    /// IMU noise (the simulator's compass).
+    pub noise: NoiseModel,
+    /// Seed of the simulator.
+    pub seed: u64,
+    /// Robot seconds per wall-clock second.
+    pub time_scale: f64,
+    /// Joint state and odometry rate (Hz).
+    pub joint_hz: f64,
+    /// IMU rate (Hz); a multiple of `joint_hz`.
+    pub imu_hz: f64,
+    /// The controller's linear acceleration limit (m/s²).
+    pub accel_limit_m_s2: f64,
+    /// The controller's angular acceleration limit (rad/s²).
+    pub alpha_limit_rad_s2: f64,
+    /// Velocity topic it obeys.
+    pub cmd_vel: String,
+    /// Delay before each message leaves (wall clock).
+    pub latency: Duration,
+    /// Stop publishing `/joint_states` after this much robot time (a failing driver).
+    pub joint_states_stop_after_s: Option<f64>,
+}
+
+impl MockRosConfig {
+    /// A robot with true ratios `e_b`, `e_d` (left wheel nominal) to the controller's geometry.
+    pub fn with_ratios(
+        controller: DiffDriveConfig,
+        e_b: f64,
+        e_d: f64,
+    ) -> Result<Self, crate::kinematics::KinematicsError> {
+        let truth = WheelParams::from_ratios(
+            &controller.effective(),
+            e_b,
+            e_d,
+            &crate::kinematics::SplitConvention::LeftNominal,
+        )?;
+        Ok(MockRosConfig {
+            controller,
+            truth,
+            noise: NoiseModel::default(),
+            seed: 1,
+            time_scale: 1.0,
+            joint_hz: 50.0,
+            imu_hz: 100.0,
+            accel_limit_m_s2: 1.0,
+            alpha_limit_rad_s2: 4.0,
+            cmd_vel: "/cmd_vel".into(),
+            latency: Duration::from_millis(2),
+            joint_states_stop_after_s: None,
+        })
+    }
+}
+
+/// What a test can read back.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct MockRosCounters {
+    /// Velocity commands received.
+    pub commands: u64,
+    /// Of those, zero twists.
+    pub zero_commands: u64,
+    /// The last command (v, w).
+    pub last_command: (f64, f64),
+    /// Connections accepted.
+    pub connections: u64,
+    /// `set_parameters` calls answered.
+    pub parameter_sets: u64,
+    /// Messages received that were not rosbridge operations.
+    pub bad_requests: u64,
+}
+
+/// The simulated robot and controller.
+pub struct MockRosState {
+    sim: Simulator,
+    controller: DiffDriveConfig,
+    /// Robot time (s).
+    pub time_s: f64,
+    cmd: (f64, f64),
+    last_cmd_s: f64,
+    wheel_speed: (f64, f64),
+    odo: Pose,
+    angles: (f64, f64),
+    /// Counters.
+    pub counters: MockRosCounters,
+}
+
+impl MockRosState {
+    /// The robot's true pose.
+    pub fn true_pose(&self) -> Pose {
+        self.sim.pose()
+    }
+
+    /// The robot's true parameters.
+    pub fn true_params(&self) -> WheelParams {
+        *self.sim.truth()
+    }
+
+    /// Wheel speeds now (rad/s): zero when the robot stands.
+    pub fn wheel_speeds(&self) -> (f64, f64) {
+        self.wheel_speed
+    }
+
+    /// The geometry the running controller uses.
+    pub fn configured(&self) -> WheelParams {
+        self.controller.effective()
+    }
+}
+
+/// A running mock server.
+pub struct MockRosbridge {
+    addr: SocketAddr,
+    state: Arc<Mutex<MockRosState>>,
+    listener: JoinHandle<()>,
+    physics: JoinHandle<()>,
+    connections: Arc<Mutex<Vec<JoinHandle<()>>>>,
+}
+
+/// A message for subscribers: topic, content, when it was made.
+type Outgoing = (String, Value, tokio::time::Instant);
+
+fn lock(s: &Mutex<MockRosState>) -> MutexGuard<'_, MockRosState> {
+    s.lock().unwrap_or_else(|p| p.into_inner())
+}
+
+impl MockRosbridge {
+    /// Serves on `addr` (use port 0 for any free loopback port).
+    pub async fn spawn(cfg: MockRosConfig, addr: SocketAddr) -> std::io::Result<Self> {
+        if !addr.ip().is_loopback() {
+            return Err(std::io::Error::new(
+                std::io::ErrorKind::InvalidInput,
+                "the mock serves on loopback addresses only",
+            ));
+        }
+        let configured = cfg.controller.effective();
+        let sim = Simulator::new(cfg.truth, configured, cfg.noise, cfg.seed)
+            .map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidInput, e))?;
+        let state = Arc::new(Mutex::new(MockRosState {
+            sim,
+            controller: cfg.controller.clone(),
+            time_s: 0.0,
+            cmd: (0.0, 0.0),
+            last_cmd_s: f64::NEG_INFINITY,
+            wheel_speed: (0.0, 0.0),
+            odo: Pose::default(),
+            angles: (0.0, 0.0),
+            counters: MockRosCounters::default(),
+        }));
+        let (out, _) = broadcast::channel::<Outgoing>(1 << 14);
+        let listener = tokio::net::TcpListener::bind(addr).await?;
+        let addr = listener.local_addr()?;
+        let physics = tokio::spawn(physics(cfg.clone(), state.clone(), out.clone()));
+        let connections: Arc<Mutex<Vec<JoinHandle<()>>>> = Arc::default();
+        let (st, conns) = (state.clone(), connections.clone());
+        let listener = tokio::spawn(async move {
+            while let Ok((tcp, _)) = listener.accept().await {
+                let h = tokio::spawn(serve(tcp, cfg.clone(), st.clone(), out.subscribe()));
+                conns.lock().unwrap_or_else(|p| p.into_inner()).push(h);
+            }
+        });
+        Ok(MockRosbridge {
+            addr,
+            state,
+            listener,
+            physics,
+            connections,
+        })
+    }
+
+    /// `rosbridge://127.0.0.1:PORT`.
+    pub fn url(&self) -> String {
+        format!("rosbridge://{}", self.addr)
+    }
+
+    /// The simulated robot and controller.
+    pub fn state(&self) -> MutexGuard<'_, MockRosState> {
+        lock(&self.state)
+    }
+
+    /// rosbridge crashes: every connection drops and nothing listens; the robot keeps running.
+    pub fn vanish(&self) {
+        self.listener.abort();
+        for h in self
+            .connections
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .drain(..)
+        {
+            h.abort();
+        }
+    }
+}
+
+impl Drop for MockRosbridge {
+    fn drop(&mut self) {
+        self.vanish();
+        self.physics.abort();
+    }
+}
+
+fn header(t: f64, frame: &str) -> Header {
+    Header {
+        stamp: Time::from_seconds(t),
+        frame_id: frame.into(),
+    }
+}
+
+/// Advances the robot in robot time, as fast as `time_scale` asks, and publishes.
+async fn physics(
+    cfg: MockRosConfig,
+    state: Arc<Mutex<MockRosState>>,
+    out: broadcast::Sender<Outgoing>,
+) {
+    let dt = 1.0 / cfg.imu_hz.max(1.0);
+    let every = (cfg.imu_hz / cfg.joint_hz).round().max(1.0) as u64;
+    let timeout = cfg.controller.cmd_vel_timeout_s.unwrap_or(0.5);
+    let start = tokio::time::Instant::now();
+    let mut tick = tokio::time::interval(Duration::from_millis(1));
+    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
+    let mut step: u64 = 0;
+    loop {
+        tick.tick().await;
+        let target = start.elapsed().as_secs_f64() * cfg.time_scale.max(1e-3);
+        let mut batch = Vec::new();
+        {
+            let mut s = lock(&state);
+            while s.time_s + dt <= target {
+                s.time_s += dt;
+                let t = s.time_s;
+                let g = s.controller.effective();
+                // The controller: commands time out; wheel speeds from the configured geometry,
+                // ramped at the acceleration limits.
+                let (v, w) = if t - s.last_cmd_s > timeout {
+                    (0.0, 0.0)
+                } else {
+                    s.cmd
+                };
+                let (v0, w0) = (
+                    0.5 * (s.wheel_speed.0 * g.left_m_per_count()
+                        + s.wheel_speed.1 * g.right_m_per_count()),
+                    (s.wheel_speed.1 * g.right_m_per_count()
+                        - s.wheel_speed.0 * g.left_m_per_count())
+                        / g.wheelbase_m,
+                );
+                let step_to =
+                    |now: f64, want: f64, lim: f64| now + (want - now).clamp(-lim * dt, lim * dt);
+                let v1 = step_to(v0, v, cfg.accel_limit_m_s2);
+                let w1 = step_to(w0, w, cfg.alpha_limit_rad_s2);
+                let wl = (v1 - 0.5 * w1 * g.wheelbase_m) / g.left_m_per_count();
+                let wr = (v1 + 0.5 * w1 * g.wheelbase_m) / g.right_m_per_count();
+                s.wheel_speed = (wl, wr);
+                let (dl, dr) = (wl * dt, wr * dt);
+                s.sim.step_counts(dl, dr);
+                s.angles.0 += dl;
+                s.angles.1 += dr;
+                s.odo = g.odometry_step(&s.odo, dl, dr);
+                let yaw = s.sim.read_heading();
+                batch.push((
+                    "/imu".to_string(),
+                    serde_json::to_value(Imu {
+                        header: header(t, "imu_link"),
+                        orientation: Quaternion::from_yaw(yaw),
+                        ..Imu::default()
+                    })
+                    .unwrap_or(Value::Null),
+                ));
+                if step.is_multiple_of(every) {
+                    let names = (
+                        s.controller
+                            .left_wheel_names
+                            .first()
+                            .cloned()
+                            .unwrap_or("left_wheel_joint".into()),
+                        s.controller
+                            .right_wheel_names
+                            .first()
+                            .cloned()
+                            .unwrap_or("right_wheel_joint".into()),
+                    );
+                    if cfg.joint_states_stop_after_s.is_none_or(|stop| t < stop) {
+                        batch.push((
+                            "/joint_states".to_string(),
+                            serde_json::to_value(JointState {
+                                header: header(t, ""),
+                                name: vec![names.0, names.1],
+                                position: vec![s.angles.0, s.angles.1],
+                                velocity: vec![wl, wr],
+                                effort: vec![],
+                            })
+                            .unwrap_or(Value::Null),
+                        ));
+                    }
+                    let mut o = Odometry {
+                        header: header(t, "odom"),
+                        child_frame_id: "base_link".into(),
+                        ..Odometry::default()
+                    };
+                    o.pose.pose.position.x = s.odo.x_m;
+                    o.pose.pose.position.y = s.odo.y_m;
+                    o.pose.pose.orientation = Quaternion::from_yaw(s.odo.heading_rad);
+                    o.twist.twist = Twist::planar(v1, w1);
+                    batch.push((
+                        "/odom".to_string(),
+                        serde_json::to_value(o).unwrap_or(Value::Null),
+                    ));
+                }
+                step += 1;
+            }
+        }
+        let at = tokio::time::Instant::now();
+        for (topic, msg) in batch {
+            let _ = out.send((topic, msg, at));
+        }
+    }
+}
+
+/// One client connection: its subscriptions, its commands, its service calls.
+async fn serve(
+    tcp: tokio::net::TcpStream,
+    cfg: MockRosConfig,
+    state: Arc<Mutex<MockRosState>>,
+    mut topics: broadcast::Receiver<Outgoing>,
+) {
+    let Ok(ws) = tokio_tungstenite::accept_async(tcp).await else {
+        return;
+    };
+    lock(&state).counters.connections += 1;
+    let (mut sink, mut source) = ws.split();
+    let mut subscribed: HashSet<String> = HashSet::new();
+    loop {
+        tokio::select! {
+            m = topics.recv() => match m {
+                Ok((topic, msg, at)) => {
+                    if subscribed.contains(&topic) {
+                        // Transport latency: no message leaves earlier than this after it was made.
+                        tokio::time::sleep_until(at + cfg.latency).await;
+                        let text = json!({"op": "publish", "topic": topic, "msg": msg}).to_string();
+                        if sink.send(Message::text(text)).await.is_err() {
+                            return;
+                        }
+                    }
+                }
+                Err(broadcast::error::RecvError::Lagged(_)) => {}
+                Err(_) => return,
+            },
+            m = source.next() => {
+                let text = match m {
+                    Some(Ok(Message::Text(t))) => t.to_string(),
+                    Some(Ok(Message::Close(_))) | None | Some(Err(_)) => return,
+                    Some(Ok(_)) => continue,
+                };
+                let Ok(op) = serde_json::from_str::<Value>(&text) else {
+                    lock(&state).counters.bad_requests += 1;
+                    let _ = sink.send(Message::text(json!({"op": "status", "level": "error", "msg": "not JSON"}).to_string())).await;
+                    continue;
+                };
+                match op.get("op").and_then(Value::as_str) {
+                    Some("subscribe") => {
+                        if let Some(t) = op.get("topic").and_then(Value::as_str) {
+                            subscribed.insert(t.to_string());
+                        }
+                    }
+                    Some("unsubscribe") => {
+                        if let Some(t) = op.get("topic").and_then(Value::as_str) {
+                            subscribed.remove(t);
+                        }
+                    }
+                    Some("advertise") | Some("unadvertise") => {}
+                    Some("publish") => {
+                        if op.get("topic").and_then(Value::as_str) == Some(cfg.cmd_vel.as_str()) {
+                            let msg = op.get("msg").cloned().unwrap_or(Value::Null);
+                            let twist = serde_json::from_value::<TwistStamped>(msg.clone())
+                                .map(|t| t.twist)
+                                .or_else(|_| serde_json::from_value::<Twist>(msg));
+                            if let Ok(tw) = twist {
+                                let mut s = lock(&state);
+                                s.cmd = (tw.linear.x, tw.angular.z);
+                                s.last_cmd_s = s.time_s;
+                                s.counters.commands += 1;
+                                s.counters.last_command = s.cmd;
+                                if tw.is_zero() {
+                                    s.counters.zero_commands += 1;
+                                }
+                            }
+                        }
+                    }
+                    Some("call_service") => {
+                        let reply = call_service(&op, &state);
+                        if sink.send(Message::text(reply.to_string())).await.is_err() {
+                            return;
+                        }
+                    }
+                    _ => {
+                        lock(&state).counters.bad_requests += 1;
+                    }
+                }
+            }
+        }
+    }
+}
+
+fn call_service(op: &Value, state: &Mutex<MockRosState>) -> Value {
+    let id = op.get("id").cloned().unwrap_or(Value::Null);
+    let service = op
+        .get("service")
+        .and_then(Value::as_str)
+        .unwrap_or("")
+        .to_string();
+    let mut s = lock(state);
+    let controller = s.controller.controller.clone();
+    if service == format!("/{controller}/set_parameters") {
+        let mut results = Vec::new();
+        let params = op["args"]["parameters"]
+            .as_array()
+            .cloned()
+            .unwrap_or_default();
+        for p in params {
+            let name = p["name"].as_str().unwrap_or("");
+            let value = p["value"]["double_value"].as_f64();
+            let ok = match (MULTIPLIER_KEYS.iter().position(|k| *k == name), value) {
+                (Some(i), Some(v)) if v.is_finite() && v > 0.0 => {
+                    match i {
+                        0 => s.controller.separation_multiplier = v,
+                        1 => s.controller.left_radius_multiplier = v,
+                        _ => s.controller.right_radius_multiplier = v,
+                    }
+                    true
+                }
+                _ => false,
+            };
+            results.push(json!({"successful": ok, "reason": if ok { "" } else { "not a multiplier odocal sets" }}));
+        }
+        let g = s.controller.effective();
+        let _ = s.sim.set_configured(g);
+        s.counters.parameter_sets += 1;
+        return json!({"op": "service_response", "id": id, "service": service, "values": {"results": results}, "result": true});
+    }
+    if service == "/rosapi/topics" {
+        return json!({"op": "service_response", "id": id, "service": service, "result": true,
+            "values": {"topics": ["/joint_states", "/imu", "/odom"], "types": ["sensor_msgs/msg/JointState", "sensor_msgs/msg/Imu", "nav_msgs/msg/Odometry"]}});
+    }
+    json!({"op": "service_response", "id": id, "service": service, "result": false, "values": format!("no service {service}")})
+}

@@ -1,0 +1,873 @@
+//! A ROS robot as a [`Base`], live through rosbridge: a drive that publishes `Twist` (or
+//! `TwistStamped`) on the velocity topic and ends each leg or turn when the robot's **own
+//! odometry** — its wheel joint angles integrated with the configured geometry from the YAML,
+//! or the controller's `/odom` — says it is done (the paper's open loop on a ROS robot); the
+//! IMU's orientation as the heading; and the controller's YAML as the parameter store,
+//! optionally also set live on the running controller.
+//!
+//! Safety: every motion speed is limited and ramped; the drive publishes zero when a motion
+//! ends, fails or is abandoned (`emergency_stop`), and it keeps publishing during a motion so
+//! that the controller's own `cmd_vel_timeout` (0.5 s in `diff_drive_controller`) stops the
+//! wheels when this host or the connection goes away.
+
+use super::bag::RosTopics;
+use super::msg::{types, yaw_of, Imu, JointState, Odometry, Twist, TwistStamped};
+use super::rosbridge::{RosbridgeClient, RosbridgeError};
+use super::yaml::{DiffDriveConfig, YamlStore, MULTIPLIER_KEYS};
+use crate::base::{
+    Achieved, Base, BaseError, ComponentInfo, Drive, HeadingSample, HeadingSource, ParamStore,
+    Preflight, SampleStream, TravelSample, Validity, STREAM_CAPACITY,
+};
+use crate::kinematics::{wrap_angle, WheelParams};
+use async_trait::async_trait;
+use serde_json::{json, Value};
+use std::sync::{Arc, Mutex, RwLock};
+use std::time::Duration;
+use tokio::sync::{mpsc, watch};
+use tokio::time::Instant;
+
+/// Where the drive's odometry comes from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum WheelSource {
+    /// `sensor_msgs/JointState` wheel angles, integrated here with the YAML's geometry (so a
+    /// written calibration takes effect at once, without restarting the controller).
+    JointStates,
+    /// The controller's `nav_msgs/Odometry` (uses the parameters the controller was started with).
+    Odom,
+}
+
+/// How to reach and drive a ROS robot.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct RosBaseConfig {
+    /// `rosbridge://HOST:PORT` or `ws://HOST:PORT`.
+    pub url: String,
+    /// The controller's YAML file.
+    pub yaml: std::path::PathBuf,
+    /// The controller's name (its YAML section and its node).
+    pub controller: String,
+    /// Topics read.
+    pub topics: RosTopics,
+    /// Velocity command topic.
+    pub cmd_vel: String,
+    /// Publish `TwistStamped` (newer `diff_drive_controller` releases) instead of `Twist`.
+    pub twist_stamped: bool,
+    /// Odometry source for ending motions.
+    pub wheel_source: WheelSource,
+    /// Left wheel joint (default: the YAML's first `left_wheel_names`).
+    pub left_joint: Option<String>,
+    /// Right wheel joint.
+    pub right_joint: Option<String>,
+    /// Acceleration used for ramps (m/s²).
+    pub max_accel_m_s2: f64,
+    /// Angular acceleration used for ramps (rad/s²).
+    pub max_alpha_rad_s2: f64,
+    /// Also set written multipliers on the running controller (`set_parameters`).
+    pub set_live: bool,
+    /// How long to wait for the first message of each topic (s).
+    pub first_message_timeout_s: f64,
+}
+
+impl Default for RosBaseConfig {
+    fn default() -> Self {
+        RosBaseConfig {
+            url: "rosbridge://localhost:9090".into(),
+            yaml: "diff_drive.yaml".into(),
+            controller: "diff_drive_controller".into(),
+            topics: RosTopics::default(),
+            cmd_vel: "/cmd_vel".into(),
+            twist_stamped: false,
+            wheel_source: WheelSource::JointStates,
+            left_joint: None,
+            right_joint: None,
+            max_accel_m_s2: 0.5,
+            max_alpha_rad_s2: 2.0,
+            set_live: false,
+            first_message_timeout_s: 5.0,
+        }
+    }
+}
+
+/// Errors connecting a ROS base.
+#[derive(Debug, thiserror::Error)]
+pub enum RosBaseError {
+    /// The rosbridge connection failed.
+    #[error(transparent)]
+    Rosbridge(#[from] RosbridgeError),
+    /// The YAML is unusable.
+    #[error(transparent)]
+    Yaml(#[from] super::yaml::YamlError),
+    /// A setting is unusable.
+    #[error("{0}")]
+    Config(String),
+}
+
+/// The drive's odometry now.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+struct Odo {
+    /// Cumulative forward distance (m).
+    distance_m: f64,
+    /// Cumulative turn (rad).
+    turn_rad: f64,
+    /// Messages integrated.
+    samples: u64,
+    /// Message time of the last one (s).
+    stamp_s: f64,
+    /// Message time since which the wheels have not moved (s).
+    still_since_s: Option<f64>,
+}
+
+/// The velocity publisher, shared by motions, stops and guards.
+///
+/// A motion is meant in the *configured* geometry (the store's, which a calibration changes),
+/// but the running controller turns twists into wheel speeds with the geometry it was started
+/// with (or last set live). The commander translates: the wheel speeds the configured geometry
+/// asks for, expressed as the twist the running controller needs to produce them.
+#[derive(Clone)]
+struct Commander {
+    client: RosbridgeClient,
+    topic: String,
+    stamped: bool,
+    configured: Arc<RwLock<WheelParams>>,
+    running: Arc<RwLock<WheelParams>>,
+}
+
+/// The twist that makes a controller running with `running` turn its wheels as (`v`, `w`) in
+/// `configured` asks.
+fn translate(v: f64, w: f64, configured: &WheelParams, running: &WheelParams) -> (f64, f64) {
+    let wl = (v - 0.5 * w * configured.wheelbase_m) / configured.left_m_per_count();
+    let wr = (v + 0.5 * w * configured.wheelbase_m) / configured.right_m_per_count();
+    let (sl, sr) = (
+        wl * running.left_m_per_count(),
+        wr * running.right_m_per_count(),
+    );
+    (0.5 * (sl + sr), (sr - sl) / running.wheelbase_m)
+}
+
+impl Commander {
+    fn send(&self, v: f64, w: f64) -> Result<(), RosbridgeError> {
+        let (v, w) = if v == 0.0 && w == 0.0 {
+            (0.0, 0.0)
+        } else {
+            let c = *self.configured.read().unwrap_or_else(|p| p.into_inner());
+            let r = *self.running.read().unwrap_or_else(|p| p.into_inner());
+            translate(v, w, &c, &r)
+        };
+        let twist = Twist::planar(v, w);
+        let msg = if self.stamped {
+            serde_json::to_value(TwistStamped {
+                twist,
+                ..TwistStamped::default()
+            })
+        } else {
+            serde_json::to_value(twist)
+        };
+        self.client.publish(&self.topic, msg.unwrap_or(Value::Null))
+    }
+}
+
+/// The drive.
+pub struct RosDrive {
+    commander: Commander,
+    cfg: RosBaseConfig,
+    odo: watch::Receiver<Odo>,
+    travel: Arc<Mutex<Vec<mpsc::Sender<TravelSample>>>>,
+    cmd_vel_timeout_s: f64,
+}
+
+/// The IMU.
+pub struct RosHeading {
+    url: String,
+    topic: String,
+    latest: watch::Receiver<Option<(Instant, HeadingSample)>>,
+    /// The drive's odometry: a reading must be no older than its newest wheel data.
+    wheels: watch::Receiver<Odo>,
+    streams: Arc<Mutex<Vec<mpsc::Sender<HeadingSample>>>>,
+    stale: Duration,
+}
+
+/// The YAML store, optionally also set on the running controller.
+pub struct RosStore {
+    yaml: YamlStore,
+    client: RosbridgeClient,
+    controller: String,
+    set_live: bool,
+    running: Arc<RwLock<WheelParams>>,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn twists_are_translated_into_the_running_geometry() {
+        let running = WheelParams::nominal(0.15, 0.39, std::f64::consts::TAU);
+        let mut configured = running;
+        configured.right_wheel_diameter_m *= 0.99;
+        configured.wheelbase_m *= 0.97;
+        // Same geometry: unchanged.
+        let (v, w) = translate(0.3, 0.2, &running, &running);
+        assert!((v - 0.3).abs() < 1e-12 && (w - 0.2).abs() < 1e-12);
+        // Straight in the configured geometry: the right wheel turns faster by 1/0.99, which the
+        // running controller sees as a slight left turn.
+        let (v, w) = translate(0.3, 0.0, &configured, &running);
+        let wl = (v - 0.5 * w * running.wheelbase_m) / running.left_m_per_count();
+        let wr = (v + 0.5 * w * running.wheelbase_m) / running.right_m_per_count();
+        assert!(
+            (wr * configured.right_m_per_count() - wl * configured.left_m_per_count()).abs()
+                < 1e-12
+        );
+        assert!(w > 0.0);
+    }
+}
+
+fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|p| p.into_inner())
+}
+
+fn drive_err(e: impl std::error::Error + Send + Sync + 'static) -> BaseError {
+    BaseError::backend("drive (rosbridge)", e)
+}
+
+/// Connects to the robot and composes its base: drive and heading over rosbridge, the YAML as
+/// the store. Fails with a clear message if the server is not rosbridge or a topic is silent.
+pub async fn connect(cfg: &RosBaseConfig) -> Result<Base, RosBaseError> {
+    let yaml_cfg = DiffDriveConfig::load(&cfg.yaml, &cfg.controller)?;
+    let store = YamlStore::open(&cfg.yaml, &cfg.controller)?;
+    let geometry = store.geometry();
+    let timeout = Duration::from_secs_f64(cfg.first_message_timeout_s.clamp(0.1, 60.0));
+    let client = RosbridgeClient::connect(&cfg.url, timeout).await?;
+    let left = cfg
+        .left_joint
+        .clone()
+        .or_else(|| yaml_cfg.left_wheel_names.first().cloned());
+    let right = cfg
+        .right_joint
+        .clone()
+        .or_else(|| yaml_cfg.right_wheel_names.first().cloned());
+    // Wheels.
+    let (odo_tx, odo_rx) = watch::channel(Odo::default());
+    let travel: Arc<Mutex<Vec<mpsc::Sender<TravelSample>>>> = Arc::default();
+    match cfg.wheel_source {
+        WheelSource::JointStates => {
+            let rx = client.subscribe(&cfg.topics.joint_states, types::JOINT_STATE)?;
+            tokio::spawn(integrate_joints(
+                rx,
+                geometry.clone(),
+                left,
+                right,
+                odo_tx,
+                travel.clone(),
+            ));
+        }
+        WheelSource::Odom => {
+            let rx = client.subscribe(&cfg.topics.odom, types::ODOMETRY)?;
+            tokio::spawn(integrate_odom(rx, geometry.clone(), odo_tx, travel.clone()));
+        }
+    }
+    // Heading.
+    let imu_rx = client.subscribe(&cfg.topics.imu, types::IMU)?;
+    let (head_tx, head_rx) = watch::channel(None);
+    let streams: Arc<Mutex<Vec<mpsc::Sender<HeadingSample>>>> = Arc::default();
+    tokio::spawn(follow_imu(imu_rx, head_tx, streams.clone()));
+    let vel_type = if cfg.twist_stamped {
+        types::TWIST_STAMPED
+    } else {
+        types::TWIST
+    };
+    client.advertise(&cfg.cmd_vel, vel_type)?;
+    // The first messages, or a diagnosis.
+    let wheel_topic = match cfg.wheel_source {
+        WheelSource::JointStates => &cfg.topics.joint_states,
+        WheelSource::Odom => &cfg.topics.odom,
+    };
+    wait_first(&client, &odo_rx, |o| o.samples > 0, wheel_topic, timeout).await?;
+    wait_first(&client, &head_rx, |h| h.is_some(), &cfg.topics.imu, timeout).await?;
+    // What the controller was started with: the file as it is now.
+    let running = Arc::new(RwLock::new(yaml_cfg.effective()));
+    let drive = RosDrive {
+        commander: Commander {
+            client: client.clone(),
+            topic: cfg.cmd_vel.clone(),
+            stamped: cfg.twist_stamped,
+            configured: geometry.clone(),
+            running: running.clone(),
+        },
+        cfg: cfg.clone(),
+        odo: odo_rx,
+        travel,
+        cmd_vel_timeout_s: yaml_cfg.cmd_vel_timeout_s.unwrap_or(0.5),
+    };
+    let heading = RosHeading {
+        url: cfg.url.clone(),
+        topic: cfg.topics.imu.clone(),
+        latest: head_rx,
+        wheels: drive.odo.clone(),
+        streams,
+        stale: Duration::from_millis(500),
+    };
+    let store = RosStore {
+        yaml: store,
+        client,
+        controller: cfg.controller.clone(),
+        set_live: cfg.set_live,
+        running,
+    };
+    Ok(Base::new(
+        Arc::new(drive),
+        Arc::new(heading),
+        Arc::new(store),
+    ))
+}
+
+async fn wait_first<T>(
+    client: &RosbridgeClient,
+    rx: &watch::Receiver<T>,
+    ready: impl Fn(&T) -> bool,
+    topic: &str,
+    timeout: Duration,
+) -> Result<(), RosbridgeError> {
+    let mut rx = rx.clone();
+    let waited = tokio::time::timeout(timeout, rx.wait_for(|v| ready(v))).await;
+    if matches!(waited, Ok(Ok(_))) {
+        return Ok(());
+    }
+    if let Some(reason) = client.closed() {
+        return Err(RosbridgeError::Closed(reason));
+    }
+    let (n, first) = client.foreign();
+    if n > 0 {
+        return Err(RosbridgeError::NotRosbridge {
+            url: client.url().into(),
+            reason: format!(
+                "{n} message(s) that are not rosbridge operations, e.g. {}",
+                first.unwrap_or_default()
+            ),
+        });
+    }
+    let topics = client
+        .call_service(
+            "/rosapi/topics",
+            "rosapi_msgs/srv/Topics",
+            json!({}),
+            Duration::from_secs(1),
+        )
+        .await
+        .ok()
+        .and_then(|v| v.get("topics").cloned())
+        .map(|t| format!("; the robot publishes {t}"))
+        .unwrap_or_default();
+    Err(RosbridgeError::Timeout(format!(
+        "no message on {topic} within {timeout:?}: is the robot's driver running and the topic \
+         name right (a flag or the routine file sets it)?{topics}"
+    )))
+}
+
+fn stamp_of(v: &Value) -> Option<f64> {
+    let s = v.get("header")?.get("stamp")?;
+    let sec = s.get("sec").or_else(|| s.get("secs"))?.as_f64()?;
+    let ns = s.get("nanosec").or_else(|| s.get("nsecs"))?.as_f64()?;
+    Some(sec + ns * 1e-9)
+}
+
+fn forward<T: Clone>(subs: &Mutex<Vec<mpsc::Sender<T>>>, v: &T) {
+    let mut subs = lock(subs);
+    subs.retain(|tx| !tx.is_closed());
+    for tx in subs.iter() {
+        let _ = tx.try_send(v.clone());
+    }
+}
+
+fn advance(odo: &mut Odo, stamp: f64, ds: f64, dth: f64) {
+    let dt = (stamp - odo.stamp_s).max(1e-6);
+    let moving = ds.abs() / dt > 0.002 || dth.abs() / dt > 0.01;
+    odo.distance_m += ds;
+    odo.turn_rad += dth;
+    odo.samples += 1;
+    odo.stamp_s = stamp;
+    odo.still_since_s = match (moving, odo.still_since_s) {
+        (true, _) => None,
+        (false, Some(s)) => Some(s),
+        (false, None) => Some(stamp),
+    };
+}
+
+async fn integrate_joints(
+    mut rx: tokio::sync::broadcast::Receiver<Value>,
+    geometry: Arc<RwLock<WheelParams>>,
+    left: Option<String>,
+    right: Option<String>,
+    tx: watch::Sender<Odo>,
+    travel: Arc<Mutex<Vec<mpsc::Sender<TravelSample>>>>,
+) {
+    let mut last: Option<(f64, f64)> = None;
+    let mut odo = Odo::default();
+    loop {
+        let v = match rx.recv().await {
+            Ok(v) => v,
+            Err(tokio::sync::broadcast::error::RecvError::Lagged(_)) => continue,
+            Err(_) => return,
+        };
+        let Ok(js) = serde_json::from_value::<JointState>(v.clone()) else {
+            continue;
+        };
+        let find = |given: &Option<String>, side: &str| match given {
+            Some(g) => js.name.iter().position(|n| n == g),
+            None => {
+                let hits: Vec<usize> = (0..js.name.len())
+                    .filter(|&i| js.name[i].to_ascii_lowercase().contains(side))
+                    .collect();
+                (hits.len() == 1).then(|| hits[0])
+            }
+        };
+        let (Some(l), Some(r)) = (find(&left, "left"), find(&right, "right")) else {
+            continue;
+        };
+        let (Some(&lp), Some(&rp)) = (js.position.get(l), js.position.get(r)) else {
+            continue;
+        };
+        let stamp = stamp_of(&v).unwrap_or(odo.stamp_s);
+        let g = *geometry.read().unwrap_or_else(|p| p.into_inner());
+        if let Some((l0, r0)) = last {
+            let sl = (lp - l0) * g.left_m_per_count();
+            let sr = (rp - r0) * g.right_m_per_count();
+            advance(&mut odo, stamp, 0.5 * (sl + sr), (sr - sl) / g.wheelbase_m);
+            forward(
+                &travel,
+                &TravelSample {
+                    time_s: stamp,
+                    left_m: sl,
+                    right_m: sr,
+                },
+            );
+        } else {
+            odo.samples = 1;
+            odo.stamp_s = stamp;
+        }
+        last = Some((lp, rp));
+        let _ = tx.send(odo);
+    }
+}
+
+async fn integrate_odom(
+    mut rx: tokio::sync::broadcast::Receiver<Value>,
+    geometry: Arc<RwLock<WheelParams>>,
+    tx: watch::Sender<Odo>,
+    travel: Arc<Mutex<Vec<mpsc::Sender<TravelSample>>>>,
+) {
+    let mut last: Option<(f64, f64, f64)> = None;
+    let mut odo = Odo::default();
+    loop {
+        let v = match rx.recv().await {
+            Ok(v) => v,
+            Err(tokio::sync::broadcast::error::RecvError::Lagged(_)) => continue,
+            Err(_) => return,
+        };
+        let Ok(o) = serde_json::from_value::<Odometry>(v.clone()) else {
+            continue;
+        };
+        let Ok(yaw) = yaw_of(&o.pose.pose.orientation) else {
+            continue;
+        };
+        let (x, y) = (o.pose.pose.position.x, o.pose.pose.position.y);
+        let stamp = stamp_of(&v).unwrap_or(odo.stamp_s);
+        if let Some((x0, y0, yaw0)) = last {
+            let dth = wrap_angle(yaw - yaw0);
+            let mid = yaw0 + 0.5 * dth;
+            let ds = (x - x0) * mid.cos() + (y - y0) * mid.sin();
+            let b = geometry
+                .read()
+                .unwrap_or_else(|p| p.into_inner())
+                .wheelbase_m;
+            advance(&mut odo, stamp, ds, dth);
+            forward(
+                &travel,
+                &TravelSample {
+                    time_s: stamp,
+                    left_m: ds - 0.5 * dth * b,
+                    right_m: ds + 0.5 * dth * b,
+                },
+            );
+        } else {
+            odo.samples = 1;
+            odo.stamp_s = stamp;
+        }
+        last = Some((x, y, yaw));
+        let _ = tx.send(odo);
+    }
+}
+
+async fn follow_imu(
+    mut rx: tokio::sync::broadcast::Receiver<Value>,
+    tx: watch::Sender<Option<(Instant, HeadingSample)>>,
+    streams: Arc<Mutex<Vec<mpsc::Sender<HeadingSample>>>>,
+) {
+    loop {
+        let v = match rx.recv().await {
+            Ok(v) => v,
+            Err(tokio::sync::broadcast::error::RecvError::Lagged(_)) => continue,
+            Err(_) => return,
+        };
+        let stamp = stamp_of(&v).unwrap_or(0.0);
+        let sample = match serde_json::from_value::<Imu>(v) {
+            Err(e) => HeadingSample {
+                time_s: stamp,
+                heading_rad: 0.0,
+                validity: Validity::Invalid(format!("undecodable IMU message: {e}")),
+            },
+            Ok(imu) if imu.orientation_covariance[0] == -1.0 => HeadingSample {
+                time_s: stamp,
+                heading_rad: 0.0,
+                validity: Validity::Invalid(
+                    "the IMU publishes no orientation (orientation_covariance[0] = -1)".into(),
+                ),
+            },
+            Ok(imu) => match yaw_of(&imu.orientation) {
+                Ok(yaw) => HeadingSample {
+                    time_s: stamp,
+                    heading_rad: yaw,
+                    validity: Validity::Valid,
+                },
+                Err(why) => HeadingSample {
+                    time_s: stamp,
+                    heading_rad: 0.0,
+                    validity: Validity::Invalid(why.into()),
+                },
+            },
+        };
+        forward(&streams, &sample);
+        let _ = tx.send(Some((Instant::now(), sample)));
+    }
+}
+
+/// Which odometry quantity a motion watches.
+#[derive(Clone, Copy)]
+enum Kind {
+    Straight,
+    Turn,
+}
+
+impl RosDrive {
+    /// Drives until the odometry's `kind` quantity has changed by `target`, ramping at the
+    /// configured acceleration and limited to `max` (m/s or rad/s).
+    async fn motion(
+        &self,
+        kind: Kind,
+        target: f64,
+        max: f64,
+    ) -> Result<Option<Achieved>, BaseError> {
+        if !(target.is_finite() && max.is_finite() && max > 0.0) {
+            return Err(BaseError::InvalidArgument {
+                component: "drive (rosbridge)".into(),
+                reason: format!("motion {target} at up to {max} is not a motion"),
+            });
+        }
+        let accel = match kind {
+            Kind::Straight => self.cfg.max_accel_m_s2,
+            Kind::Turn => self.cfg.max_alpha_rad_s2,
+        }
+        .max(1e-3);
+        let mut odo = self.odo.clone();
+        let mut closed = self.commander.client.closed_watch();
+        let start = *odo.borrow();
+        let pick = |o: &Odo| match kind {
+            Kind::Straight => o.distance_m,
+            Kind::Turn => o.turn_rad,
+        };
+        let (sign, goal) = (target.signum(), target.abs());
+        // Tolerance: a millimetre, or a twentieth of a degree.
+        let tol = match kind {
+            Kind::Straight => 0.001,
+            Kind::Turn => 0.001,
+        };
+        let expected = goal / max + max / accel;
+        let deadline = Instant::now() + Duration::from_secs_f64(3.0 * expected + 5.0);
+        let mut last_cmd = 0.0f64;
+        let mut last_t = Instant::now();
+        let mut last_progress_t = Instant::now();
+        let mut last_samples = start.samples;
+        loop {
+            let now_odo = *odo.borrow();
+            let progress = sign * (pick(&now_odo) - pick(&start));
+            let remaining = goal - progress;
+            if remaining <= tol {
+                break;
+            }
+            if now_odo.samples != last_samples {
+                last_samples = now_odo.samples;
+                last_progress_t = Instant::now();
+            }
+            let now = Instant::now();
+            if now > deadline {
+                let _ = self.commander.send(0.0, 0.0);
+                return Err(BaseError::MotionTimeout {
+                    after: Duration::from_secs_f64(3.0 * expected + 5.0),
+                });
+            }
+            if now - last_progress_t > Duration::from_secs(1) {
+                let _ = self.commander.send(0.0, 0.0);
+                return Err(drive_err(RosbridgeError::Timeout(format!(
+                    "no wheel data for 1 s during a motion (topic {}): stopped",
+                    match self.cfg.wheel_source {
+                        WheelSource::JointStates => &self.cfg.topics.joint_states,
+                        WheelSource::Odom => &self.cfg.topics.odom,
+                    }
+                ))));
+            }
+            let dt = (now - last_t).as_secs_f64().clamp(0.0, 0.1);
+            last_t = now;
+            // Ramp up at `accel`, brake so as to stop at the goal, never below a creep speed.
+            let cmd = max
+                .min((2.0 * accel * remaining).sqrt())
+                .min(last_cmd + accel * dt.max(0.02))
+                .max(0.05 * max);
+            last_cmd = cmd;
+            let (v, w) = match kind {
+                Kind::Straight => (sign * cmd, 0.0),
+                Kind::Turn => (0.0, sign * cmd),
+            };
+            self.commander.send(v, w).map_err(drive_err)?;
+            tokio::select! {
+                _ = odo.changed() => {}
+                _ = tokio::time::sleep(Duration::from_millis(50)) => {}
+                _ = closed.changed() => {
+                    let reason = self.commander.client.closed().unwrap_or_default();
+                    return Err(drive_err(RosbridgeError::Closed(format!(
+                        "{reason} during a motion; the controller's cmd_vel_timeout ({} s) stops the wheels",
+                        self.cmd_vel_timeout_s
+                    ))));
+                }
+            }
+        }
+        self.commander.send(0.0, 0.0).map_err(drive_err)?;
+        // Wait until the wheels have been still for 0.2 s of robot time (at most 3 s).
+        let settled = tokio::time::timeout(
+            Duration::from_secs(3),
+            odo.wait_for(|o| o.still_since_s.is_some_and(|s| o.stamp_s - s >= 0.2)),
+        )
+        .await
+        .map(|r| r.map(|o| *o));
+        if let Ok(Err(_)) = settled {
+            return Err(drive_err(RosbridgeError::Closed("wheel data ended".into())));
+        }
+        let end = *self.odo.borrow();
+        Ok(Some(Achieved {
+            distance_m: end.distance_m - start.distance_m,
+            turn_rad: end.turn_rad - start.turn_rad,
+        }))
+    }
+}
+
+#[async_trait]
+impl Drive for RosDrive {
+    fn info(&self) -> ComponentInfo {
+        ComponentInfo {
+            kind: "rosbridge".into(),
+            id: self.cfg.url.clone(),
+            details: json!({
+                "cmd_vel": self.cfg.cmd_vel,
+                "twist_stamped": self.cfg.twist_stamped,
+                "wheel_source": self.cfg.wheel_source,
+                "topics": self.cfg.topics,
+            }),
+        }
+    }
+
+    async fn preflight(&self) -> Result<Preflight, BaseError> {
+        let mut out = Preflight::default();
+        if let Some(reason) = self.commander.client.closed() {
+            out.faults
+                .push(format!("the rosbridge connection closed: {reason}"));
+        }
+        if self.odo.borrow().samples == 0 {
+            out.faults.push("no wheel data yet".into());
+        }
+        Ok(out)
+    }
+
+    async fn arm_watchdog(&self, _timeout: Duration) -> Result<Option<Duration>, BaseError> {
+        // The dead-man is the controller's cmd_vel_timeout: it is configured on the robot, and
+        // the drive publishes at least every 50 ms during a motion to stay inside it.
+        Ok(Some(Duration::from_secs_f64(
+            self.cmd_vel_timeout_s.clamp(0.01, 60.0),
+        )))
+    }
+
+    async fn move_straight(
+        &self,
+        distance_m: f64,
+        max_speed_m_s: f64,
+    ) -> Result<Option<Achieved>, BaseError> {
+        self.motion(Kind::Straight, distance_m, max_speed_m_s).await
+    }
+
+    async fn turn_in_place(
+        &self,
+        angle_rad: f64,
+        max_rate_rad_s: f64,
+    ) -> Result<Option<Achieved>, BaseError> {
+        self.motion(Kind::Turn, angle_rad, max_rate_rad_s).await
+    }
+
+    async fn stop(&self) -> Result<(), BaseError> {
+        self.commander.send(0.0, 0.0).map_err(drive_err)
+    }
+
+    fn emergency_stop(&self) {
+        let _ = self.commander.send(0.0, 0.0);
+    }
+
+    async fn travel(
+        &self,
+        _period: Duration,
+    ) -> Result<Option<SampleStream<TravelSample>>, BaseError> {
+        let (tx, rx) = mpsc::channel(STREAM_CAPACITY);
+        lock(&self.travel).push(tx);
+        Ok(Some(rx))
+    }
+}
+
+impl Drop for RosDrive {
+    fn drop(&mut self) {
+        // Leaving: whatever happened, the last word on the velocity topic is zero.
+        let _ = self.commander.send(0.0, 0.0);
+    }
+}
+
+#[async_trait]
+impl HeadingSource for RosHeading {
+    fn info(&self) -> ComponentInfo {
+        ComponentInfo {
+            kind: "rosbridge-imu".into(),
+            id: format!("{}{}", self.url, self.topic),
+            details: Value::Null,
+        }
+    }
+
+    async fn read(&self) -> Result<HeadingSample, BaseError> {
+        // Robot time of the newest wheel data: the reading must be at least as new, so that a
+        // heading "at rest" is never one taken before the wheels stopped (messages of the two
+        // topics can be processed at different paces).
+        let newest = self.wheels.borrow().stamp_s;
+        let mut rx = self.latest.clone();
+        let fresh = tokio::time::timeout(
+            self.stale,
+            rx.wait_for(|h| h.as_ref().is_some_and(|(_, s)| s.time_s >= newest)),
+        )
+        .await;
+        match fresh {
+            Ok(Ok(h)) => Ok(h.as_ref().map(|(_, s)| s.clone()).unwrap_or(HeadingSample {
+                time_s: newest,
+                heading_rad: 0.0,
+                validity: Validity::Invalid("no reading".into()),
+            })),
+            Ok(Err(_)) => Err(BaseError::HeadingInvalid {
+                reason: format!("{} ended", self.topic),
+            }),
+            Err(_) => {
+                let last = self.latest.borrow().clone();
+                Ok(HeadingSample {
+                    time_s: last.as_ref().map_or(0.0, |(_, s)| s.time_s),
+                    heading_rad: last.as_ref().map_or(0.0, |(_, s)| s.heading_rad),
+                    validity: Validity::Invalid(format!(
+                        "stale: no {} message as new as the wheel data ({newest:.3} s) within {:?}",
+                        self.topic, self.stale
+                    )),
+                })
+            }
+        }
+    }
+
+    async fn stream(
+        &self,
+        _period: Duration,
+    ) -> Result<Option<SampleStream<HeadingSample>>, BaseError> {
+        let (tx, rx) = mpsc::channel(STREAM_CAPACITY);
+        lock(&self.streams).push(tx);
+        Ok(Some(rx))
+    }
+}
+
+#[async_trait]
+impl ParamStore for RosStore {
+    fn info(&self) -> ComponentInfo {
+        let mut info = self.yaml.info();
+        info.details["set_live"] = json!(self.set_live);
+        info
+    }
+
+    async fn read(&self) -> Result<WheelParams, BaseError> {
+        self.yaml.read().await
+    }
+
+    async fn write(&self, params: &WheelParams) -> Result<WheelParams, BaseError> {
+        self.yaml.write(params).await
+    }
+
+    async fn commit(&self) -> Result<(), BaseError> {
+        // The multipliers the file will hold after this commit.
+        let staged = self.yaml.read().await?;
+        self.yaml.commit().await?;
+        if self.set_live {
+            let cfg = self
+                .yaml
+                .config()
+                .map_err(|e| BaseError::backend("store", e))?;
+            let m = cfg.multipliers_for(&staged);
+            let values = [
+                m.wheel_separation_multiplier,
+                m.left_wheel_radius_multiplier,
+                m.right_wheel_radius_multiplier,
+            ];
+            let parameters: Vec<Value> = MULTIPLIER_KEYS
+                .iter()
+                .zip(values)
+                .map(|(name, v)| json!({"name": name, "value": {"type": 3, "double_value": v}}))
+                .collect();
+            let service = format!("/{}/set_parameters", self.controller);
+            let answer = self
+                .client
+                .call_service(
+                    &service,
+                    "rcl_interfaces/srv/SetParameters",
+                    json!({ "parameters": parameters }),
+                    Duration::from_secs(3),
+                )
+                .await
+                .map_err(|e| BaseError::backend("store (live)", e))?;
+            let refused: Vec<String> = answer
+                .get("results")
+                .and_then(Value::as_array)
+                .map(|r| {
+                    r.iter()
+                        .filter(|x| x.get("successful").and_then(Value::as_bool) != Some(true))
+                        .map(|x| {
+                            x.get("reason")
+                                .and_then(Value::as_str)
+                                .unwrap_or("refused")
+                                .to_string()
+                        })
+                        .collect()
+                })
+                .unwrap_or_else(|| vec!["no results in the answer".into()]);
+            if !refused.is_empty() {
+                return Err(BaseError::Refused {
+                    component: "store (live)".into(),
+                    what: service,
+                    reason: refused.join("; "),
+                });
+            }
+            *self.running.write().unwrap_or_else(|p| p.into_inner()) = staged;
+        }
+        Ok(())
+    }
+
+    async fn read_committed(&self) -> Result<Option<WheelParams>, BaseError> {
+        self.yaml.read_committed().await
+    }
+
+    fn resolution(&self) -> WheelParams {
+        self.yaml.resolution()
+    }
+}

@@ -1,0 +1,327 @@
+//! A client of the rosbridge v2 protocol: JSON operations over a WebSocket, as
+//! `rosbridge_server` serves them on ROS 1 and ROS 2 robots (`subscribe`, `advertise`,
+//! `publish`, `call_service`, and the server's `publish`, `service_response` and `status`).
+//!
+//! One task reads the socket and fans messages out per topic; one writes. The connection
+//! state is shared: once the server goes away every call fails with [`RosbridgeError::Closed`]
+//! and every subscription ends.
+
+use futures_util::{SinkExt, StreamExt};
+use serde_json::{json, Value};
+use std::collections::HashMap;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+use tokio::sync::{broadcast, mpsc, oneshot, watch};
+use tokio_tungstenite::tungstenite::Message;
+
+/// Errors talking to rosbridge.
+#[derive(Debug, Clone, thiserror::Error)]
+pub enum RosbridgeError {
+    /// The URL is not `ws://HOST:PORT` or `rosbridge://HOST:PORT`.
+    #[error("bad rosbridge URL {url:?}: {reason}")]
+    Url {
+        /// The URL.
+        url: String,
+        /// What is wrong.
+        reason: String,
+    },
+    /// Nothing answered, or not with a WebSocket.
+    #[error("cannot open a WebSocket to {url}: {reason}")]
+    Connect {
+        /// The URL.
+        url: String,
+        /// Why (refused, not a WebSocket server, …).
+        reason: String,
+    },
+    /// The server answered, but not in the rosbridge protocol.
+    #[error("{url} is not a rosbridge server: {reason}")]
+    NotRosbridge {
+        /// The URL.
+        url: String,
+        /// What it sent instead.
+        reason: String,
+    },
+    /// The connection ended.
+    #[error("the rosbridge connection closed: {0}")]
+    Closed(String),
+    /// Something expected did not arrive in time.
+    #[error("{0}")]
+    Timeout(String),
+    /// A service call failed.
+    #[error("service {service} failed: {reason}")]
+    Service {
+        /// The service.
+        service: String,
+        /// The server's message.
+        reason: String,
+    },
+}
+
+type Pending = Arc<Mutex<HashMap<String, oneshot::Sender<Result<Value, String>>>>>;
+type Topics = Arc<Mutex<HashMap<String, broadcast::Sender<Value>>>>;
+
+/// A connection to a rosbridge server; cheap to clone, all clones share it.
+#[derive(Clone)]
+pub struct RosbridgeClient {
+    url: String,
+    out: mpsc::UnboundedSender<Message>,
+    topics: Topics,
+    pending: Pending,
+    closed: watch::Receiver<Option<String>>,
+    next_id: Arc<AtomicU64>,
+    /// Messages that were not rosbridge operations, with the first of them.
+    foreign: Arc<Mutex<(u64, Option<String>)>>,
+}
+
+/// Turns `rosbridge://h:p` or `ws://h:p` into the WebSocket URL.
+pub fn websocket_url(url: &str) -> Result<String, RosbridgeError> {
+    let bad = |reason: &str| RosbridgeError::Url {
+        url: url.into(),
+        reason: reason.into(),
+    };
+    let rest = url
+        .strip_prefix("rosbridge://")
+        .or_else(|| url.strip_prefix("ws://"))
+        .ok_or_else(|| bad("use rosbridge://HOST:PORT or ws://HOST:PORT"))?;
+    if rest.is_empty() || rest.starts_with('/') {
+        return Err(bad("no host"));
+    }
+    Ok(format!("ws://{rest}"))
+}
+
+fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|p| p.into_inner())
+}
+
+impl RosbridgeClient {
+    /// Opens the WebSocket (within `timeout`) and starts the connection's tasks.
+    pub async fn connect(url: &str, timeout: Duration) -> Result<Self, RosbridgeError> {
+        let ws_url = websocket_url(url)?;
+        let connect = tokio_tungstenite::connect_async(ws_url.as_str());
+        let (stream, _) = tokio::time::timeout(timeout, connect)
+            .await
+            .map_err(|_| RosbridgeError::Connect {
+                url: url.into(),
+                reason: format!("no answer within {timeout:?}"),
+            })?
+            .map_err(|e| RosbridgeError::Connect {
+                url: url.into(),
+                reason: match e {
+                    tokio_tungstenite::tungstenite::Error::Http(r) => format!(
+                        "the server answered HTTP {} instead of upgrading to a WebSocket: not a \
+                         rosbridge server",
+                        r.status()
+                    ),
+                    other => other.to_string(),
+                },
+            })?;
+        let (mut sink, mut source) = stream.split();
+        let (out, mut out_rx) = mpsc::unbounded_channel::<Message>();
+        let (closed_tx, closed) = watch::channel(None);
+        let topics: Topics = Arc::default();
+        let pending: Pending = Arc::default();
+        let foreign: Arc<Mutex<(u64, Option<String>)>> = Arc::default();
+        let closed_w = closed_tx.clone();
+        tokio::spawn(async move {
+            while let Some(m) = out_rx.recv().await {
+                if let Err(e) = sink.send(m).await {
+                    let _ = closed_w.send(Some(e.to_string()));
+                    return;
+                }
+            }
+            // Every handle is gone: close politely.
+            let _ = sink.send(Message::Close(None)).await;
+        });
+        let (t, p, f) = (topics.clone(), pending.clone(), foreign.clone());
+        tokio::spawn(async move {
+            let reason = loop {
+                match source.next().await {
+                    None => break "the server closed the connection".to_string(),
+                    Some(Err(e)) => break e.to_string(),
+                    Some(Ok(Message::Close(frame))) => {
+                        break frame.map_or("the server closed the connection".into(), |f| {
+                            format!("the server closed the connection: {}", f.reason)
+                        })
+                    }
+                    Some(Ok(Message::Text(text))) => dispatch(text.as_str(), &t, &p, &f),
+                    Some(Ok(Message::Binary(b))) => {
+                        note_foreign(&f, format!("{} binary bytes", b.len()))
+                    }
+                    Some(Ok(_)) => {}
+                }
+            };
+            lock(&t).clear();
+            for (_, reply) in lock(&p).drain() {
+                let _ = reply.send(Err(reason.clone()));
+            }
+            let _ = closed_tx.send(Some(reason));
+        });
+        Ok(RosbridgeClient {
+            url: url.into(),
+            out,
+            topics,
+            pending,
+            closed,
+            next_id: Arc::new(AtomicU64::new(1)),
+            foreign,
+        })
+    }
+
+    /// The URL it was opened with.
+    pub fn url(&self) -> &str {
+        &self.url
+    }
+
+    /// Why the connection ended, if it has.
+    pub fn closed(&self) -> Option<String> {
+        self.closed.borrow().clone()
+    }
+
+    /// A receiver that changes when the connection ends.
+    pub fn closed_watch(&self) -> watch::Receiver<Option<String>> {
+        self.closed.clone()
+    }
+
+    /// Messages received that were not rosbridge operations, and the first of them.
+    pub fn foreign(&self) -> (u64, Option<String>) {
+        lock(&self.foreign).clone()
+    }
+
+    fn send(&self, op: Value) -> Result<(), RosbridgeError> {
+        if let Some(r) = self.closed() {
+            return Err(RosbridgeError::Closed(r));
+        }
+        self.out
+            .send(Message::text(op.to_string()))
+            .map_err(|_| RosbridgeError::Closed("the connection's writer ended".into()))
+    }
+
+    fn id(&self, what: &str) -> String {
+        format!(
+            "odocal-{what}-{}",
+            self.next_id.fetch_add(1, Ordering::Relaxed)
+        )
+    }
+
+    /// Subscribes to `topic` of `type_name`; every message's `msg` object arrives on the receiver.
+    pub fn subscribe(
+        &self,
+        topic: &str,
+        type_name: &str,
+    ) -> Result<broadcast::Receiver<Value>, RosbridgeError> {
+        let rx = {
+            let mut topics = lock(&self.topics);
+            match topics.get(topic) {
+                Some(tx) => return Ok(tx.subscribe()),
+                None => {
+                    let (tx, rx) = broadcast::channel(4096);
+                    topics.insert(topic.to_string(), tx);
+                    rx
+                }
+            }
+        };
+        self.send(json!({
+            "op": "subscribe",
+            "id": self.id("sub"),
+            "topic": topic,
+            "type": type_name,
+            "queue_length": 0,
+        }))?;
+        Ok(rx)
+    }
+
+    /// Announces that this client publishes `topic` of `type_name`.
+    pub fn advertise(&self, topic: &str, type_name: &str) -> Result<(), RosbridgeError> {
+        self.send(
+            json!({"op": "advertise", "id": self.id("adv"), "topic": topic, "type": type_name}),
+        )
+    }
+
+    /// Publishes `msg` on `topic` (advertised first). Never waits: safe from `Drop`.
+    pub fn publish(&self, topic: &str, msg: Value) -> Result<(), RosbridgeError> {
+        self.send(json!({"op": "publish", "topic": topic, "msg": msg}))
+    }
+
+    /// Calls a service and waits up to `timeout` for its `values`.
+    pub async fn call_service(
+        &self,
+        service: &str,
+        type_name: &str,
+        args: Value,
+        timeout: Duration,
+    ) -> Result<Value, RosbridgeError> {
+        let id = self.id("call");
+        let (tx, rx) = oneshot::channel();
+        lock(&self.pending).insert(id.clone(), tx);
+        self.send(json!({
+            "op": "call_service",
+            "id": id,
+            "service": service,
+            "type": type_name,
+            "args": args,
+        }))?;
+        let answer = tokio::time::timeout(timeout, rx).await;
+        lock(&self.pending).remove(&id);
+        match answer {
+            Err(_) => Err(RosbridgeError::Timeout(format!(
+                "service {service} did not answer within {timeout:?}"
+            ))),
+            Ok(Err(_)) => Err(RosbridgeError::Closed("the connection ended".into())),
+            Ok(Ok(Err(reason))) => Err(RosbridgeError::Service {
+                service: service.into(),
+                reason,
+            }),
+            Ok(Ok(Ok(values))) => Ok(values),
+        }
+    }
+}
+
+fn note_foreign(f: &Mutex<(u64, Option<String>)>, what: String) {
+    let mut f = lock(f);
+    f.0 += 1;
+    if f.1.is_none() {
+        f.1 = Some(what.chars().take(120).collect());
+    }
+}
+
+fn dispatch(
+    text: &str,
+    topics: &Topics,
+    pending: &Pending,
+    foreign: &Mutex<(u64, Option<String>)>,
+) {
+    let Ok(v) = serde_json::from_str::<Value>(text) else {
+        note_foreign(foreign, format!("non-JSON text {text:?}"));
+        return;
+    };
+    match v.get("op").and_then(Value::as_str) {
+        Some("publish") => {
+            let (Some(topic), Some(msg)) = (v.get("topic").and_then(Value::as_str), v.get("msg"))
+            else {
+                return;
+            };
+            if let Some(tx) = lock(topics).get(topic) {
+                let _ = tx.send(msg.clone());
+            }
+        }
+        Some("service_response") => {
+            let Some(id) = v.get("id").and_then(Value::as_str) else {
+                return;
+            };
+            if let Some(reply) = lock(pending).remove(id) {
+                let ok = v.get("result").and_then(Value::as_bool).unwrap_or(true);
+                let values = v.get("values").cloned().unwrap_or(Value::Null);
+                let _ = reply.send(if ok {
+                    Ok(values)
+                } else {
+                    Err(values
+                        .as_str()
+                        .map_or_else(|| values.to_string(), String::from))
+                });
+            }
+        }
+        Some(_) => {}
+        None => note_foreign(foreign, format!("JSON without an \"op\": {text}")),
+    }
+}

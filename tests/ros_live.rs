@@ -1,0 +1,290 @@
+//! Calibrating a ROS robot live through rosbridge, against the mock rosbridge server (loopback
+//! only): the routine writes multipliers into the controller's YAML that fix the robot, and
+//! the robot is stopped (zero twist) on Ctrl-C, on an error, and when rosbridge vanishes.
+
+mod common;
+
+use odocal::base::Base;
+use odocal::mock::rosbridge::{MockRosConfig, MockRosbridge};
+use odocal::ros::base::{connect, RosBaseConfig};
+use odocal::ros::yaml::DiffDriveConfig;
+use odocal::routine::config::{RoutineConfig, WritePolicy};
+use odocal::routine::{run, RoutineError, RoutineEvent, RoutineUi, Unattended};
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+use tokio_util::sync::CancellationToken;
+
+const YAML: &str = "\
+controller_manager:
+  ros__parameters:
+    update_rate: 100  # Hz
+
+diff_drive_controller:
+  ros__parameters:
+    left_wheel_names: [\"left_wheel_joint\"]
+    right_wheel_names: [\"right_wheel_joint\"]
+    wheel_separation: 0.39
+    wheel_radius: 0.075
+    cmd_vel_timeout: 0.5  # s
+";
+
+fn yaml_file(name: &str) -> (PathBuf, PathBuf) {
+    let dir = common::scratch(name);
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("diff_drive.yaml");
+    std::fs::write(&path, YAML).unwrap();
+    (dir, path)
+}
+
+async fn mock(yaml: &Path, tweak: impl FnOnce(&mut MockRosConfig)) -> MockRosbridge {
+    let controller = DiffDriveConfig::load(yaml, "diff_drive_controller").unwrap();
+    let mut cfg =
+        MockRosConfig::with_ratios(controller, common::TRUE_E_B, common::TRUE_E_D).unwrap();
+    cfg.noise.compass_sigma_rad = 0.05f64.to_radians();
+    cfg.time_scale = 40.0;
+    tweak(&mut cfg);
+    MockRosbridge::spawn(cfg, "127.0.0.1:0".parse().unwrap())
+        .await
+        .unwrap()
+}
+
+fn ros_config(url: String, yaml: &Path) -> RosBaseConfig {
+    RosBaseConfig {
+        url,
+        yaml: yaml.to_path_buf(),
+        ..RosBaseConfig::default()
+    }
+}
+
+fn routine(dir: &Path) -> RoutineConfig {
+    RoutineConfig {
+        side_m: 1.0,
+        runs_per_direction: 3,
+        max_speed_m_s: 0.5,
+        max_rate_rad_s: 1.5,
+        heading_samples: 3,
+        settle_s: 0.0,
+        verification_runs: 2,
+        write_back: WritePolicy::Yes,
+        confirm_motion: false,
+        backup_dir: dir.join("backups"),
+        ..RoutineConfig::default()
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn calibrating_through_rosbridge_writes_multipliers_that_fix_the_robot() {
+    let (dir, yaml) = yaml_file("ros-live");
+    let server = mock(&yaml, |_| {}).await;
+    let base = connect(&ros_config(server.url(), &yaml)).await.unwrap();
+    let report = run(
+        &base,
+        &routine(&dir),
+        None,
+        &mut Unattended,
+        &CancellationToken::new(),
+    )
+    .await
+    .unwrap();
+    let before = report.mean_abs_heading_error_before_deg;
+    let after = report.mean_abs_heading_error_after_deg.unwrap();
+    assert!(before > 3.0, "the robot is mis-calibrated: {before}°");
+    assert!(
+        after * 10.0 < before,
+        "mean |heading error| {before}° → {after}°"
+    );
+    // The YAML holds the multipliers (the rest of the file as it was), with its backup beside it.
+    let written = DiffDriveConfig::load(&yaml, "diff_drive_controller").unwrap();
+    assert!(
+        (written.separation_multiplier - common::TRUE_E_B).abs() < 0.003,
+        "{written:?}"
+    );
+    assert!(
+        (written.right_radius_multiplier / written.left_radius_multiplier - common::TRUE_E_D).abs()
+            < 0.002,
+        "{written:?}"
+    );
+    assert_eq!(written.wheel_separation_m, 0.39);
+    let text = std::fs::read_to_string(&yaml).unwrap();
+    assert!(
+        text.contains("update_rate: 100  # Hz") && text.contains("cmd_vel_timeout: 0.5  # s"),
+        "{text}"
+    );
+    let backups: Vec<_> = std::fs::read_dir(&dir)
+        .unwrap()
+        .filter_map(|e| e.ok())
+        .filter(|e| {
+            e.file_name()
+                .to_string_lossy()
+                .starts_with("diff_drive.yaml.odocal-backup-")
+        })
+        .collect();
+    assert_eq!(backups.len(), 1);
+    assert_eq!(std::fs::read_to_string(backups[0].path()).unwrap(), YAML);
+    assert_eq!(
+        last_command(&server).await,
+        (0.0, 0.0),
+        "the last word is a zero twist"
+    );
+    drop(base);
+}
+
+/// Cancels the routine on the first motion of round 1's second square.
+struct CancelMidLeg(CancellationToken);
+
+impl RoutineUi for CancelMidLeg {
+    fn confirm(&mut self, _: &str) -> bool {
+        true
+    }
+    fn event(&mut self, e: &RoutineEvent) {
+        if let RoutineEvent::Motion {
+            run: 2, motion: 1, ..
+        } = e
+        {
+            self.0.cancel();
+        }
+    }
+}
+
+/// The last velocity command the mock has processed, once it is zero (or after 2 s).
+async fn last_command(server: &MockRosbridge) -> (f64, f64) {
+    for _ in 0..200 {
+        let c = server.state().counters.last_command;
+        if c == (0.0, 0.0) {
+            return c;
+        }
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    }
+    server.state().counters.last_command
+}
+
+async fn wait_still(server: &MockRosbridge) -> (f64, f64) {
+    // Give the controller up to 2 s of wall time (40 s of robot time) to come to rest.
+    for _ in 0..200 {
+        let w = server.state().wheel_speeds();
+        if w.0.abs() < 1e-9 && w.1.abs() < 1e-9 {
+            return w;
+        }
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    }
+    server.state().wheel_speeds()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn ctrl_c_mid_leg_publishes_zero_and_writes_nothing() {
+    let (dir, yaml) = yaml_file("ros-cancel");
+    let server = mock(&yaml, |_| {}).await;
+    let base: Base = connect(&ros_config(server.url(), &yaml)).await.unwrap();
+    let token = CancellationToken::new();
+    let err = run(
+        &base,
+        &routine(&dir),
+        None,
+        &mut CancelMidLeg(token.clone()),
+        &token,
+    )
+    .await
+    .unwrap_err();
+    assert!(matches!(err, RoutineError::Cancelled), "{err}");
+    let zeros = server.state().counters.zero_commands;
+    assert_eq!(last_command(&server).await, (0.0, 0.0));
+    assert!(
+        server.state().counters.zero_commands > zeros.saturating_sub(1),
+        "no zero twist"
+    );
+    assert_eq!(
+        wait_still(&server).await,
+        (0.0, 0.0),
+        "the robot must stand"
+    );
+    assert_eq!(
+        std::fs::read_to_string(&yaml).unwrap(),
+        YAML,
+        "nothing written"
+    );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_error_mid_leg_publishes_zero() {
+    let (dir, yaml) = yaml_file("ros-error");
+    // The wheel driver stops publishing 3 s of robot time in: mid-leg.
+    let server = mock(&yaml, |c| c.joint_states_stop_after_s = Some(3.0)).await;
+    let base = connect(&ros_config(server.url(), &yaml)).await.unwrap();
+    let err = run(
+        &base,
+        &routine(&dir),
+        None,
+        &mut Unattended,
+        &CancellationToken::new(),
+    )
+    .await
+    .unwrap_err();
+    assert!(err.to_string().contains("no wheel data"), "{err}");
+    assert_eq!(last_command(&server).await, (0.0, 0.0));
+    assert_eq!(wait_still(&server).await, (0.0, 0.0));
+    assert_eq!(std::fs::read_to_string(&yaml).unwrap(), YAML);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn rosbridge_vanishing_mid_leg_fails_fast_and_the_controller_stops_the_robot() {
+    let (dir, yaml) = yaml_file("ros-vanish");
+    let server = mock(&yaml, |_| {}).await;
+    let base = connect(&ros_config(server.url(), &yaml)).await.unwrap();
+    let server = std::sync::Arc::new(server);
+    let s2 = server.clone();
+    let killer = tokio::spawn(async move {
+        // Wait until the robot is moving, then take rosbridge away.
+        loop {
+            let w = s2.state().wheel_speeds();
+            if w.0.abs() > 1.0 {
+                break;
+            }
+            tokio::time::sleep(Duration::from_millis(2)).await;
+        }
+        s2.vanish();
+    });
+    let started = std::time::Instant::now();
+    let err = run(
+        &base,
+        &routine(&dir),
+        None,
+        &mut Unattended,
+        &CancellationToken::new(),
+    )
+    .await
+    .unwrap_err();
+    killer.await.unwrap();
+    assert!(
+        started.elapsed() < Duration::from_secs(10),
+        "took {:?}",
+        started.elapsed()
+    );
+    assert!(err.to_string().contains("closed"), "{err}");
+    // Nothing can reach the robot now: its controller's cmd_vel_timeout stops it.
+    assert_eq!(wait_still(&server).await, (0.0, 0.0));
+    assert_eq!(std::fs::read_to_string(&yaml).unwrap(), YAML);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_server_that_is_not_rosbridge_is_diagnosed() {
+    let (_dir, yaml) = yaml_file("ros-wrong");
+    // A plain HTTP server: no WebSocket upgrade.
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let addr = listener.local_addr().unwrap();
+    tokio::spawn(async move {
+        while let Ok((mut s, _)) = listener.accept().await {
+            use tokio::io::{AsyncReadExt, AsyncWriteExt};
+            let mut buf = [0u8; 1024];
+            let _ = s.read(&mut buf).await;
+            let _ = s
+                .write_all(b"HTTP/1.1 200 OK\r\ncontent-length: 2\r\n\r\nhi")
+                .await;
+        }
+    });
+    let err = match connect(&ros_config(format!("rosbridge://{addr}"), &yaml)).await {
+        Err(e) => e.to_string(),
+        Ok(_) => panic!("a plain HTTP server must be refused"),
+    };
+    assert!(err.contains("not a rosbridge server"), "{err}");
+    let _ = Unattended;
+}
