@@ -288,3 +288,61 @@ async fn a_server_that_is_not_rosbridge_is_diagnosed() {
     assert!(err.contains("not a rosbridge server"), "{err}");
     let _ = Unattended;
 }
+
+#[test]
+fn calibrate_base_rosbridge_end_to_end_from_the_command_line() {
+    let (dir, yaml) = yaml_file("ros-cli");
+    let yaml_s = yaml.to_str().unwrap();
+    let (mut server, url) = common::spawn_server(
+        "mock-rosbridge",
+        &[
+            "--ros-yaml",
+            yaml_s,
+            "--port",
+            "0",
+            "--time-scale",
+            "40",
+            "--compass-sigma-deg",
+            "0.05",
+        ],
+    );
+    assert!(url.starts_with("rosbridge://127.0.0.1:"), "{url}");
+    let report_dir = dir.join("report");
+    let v = common::odocal_json(&[
+        "calibrate",
+        "--base",
+        &url,
+        "--ros-yaml",
+        yaml_s,
+        "--yes",
+        "--side-m",
+        "1",
+        "--runs",
+        "3",
+        "--max-speed-m-s",
+        "0.5",
+        "--max-rate-rad-s",
+        "1.5",
+        "--settle-s",
+        "0",
+        "--heading-samples",
+        "3",
+        "--verification-runs",
+        "2",
+        "--report-dir",
+        report_dir.to_str().unwrap(),
+        "--json",
+    ]);
+    let _ = server.kill();
+    let before = v["mean_abs_heading_error_before_deg"].as_f64().unwrap();
+    let after = v["mean_abs_heading_error_after_deg"].as_f64().unwrap();
+    assert!(after * 10.0 < before, "{before}° → {after}°");
+    assert_eq!(v["base"]["drive"]["kind"], "rosbridge");
+    assert_eq!(v["base"]["store"]["kind"], "ros2-control-yaml");
+    let written = DiffDriveConfig::load(&yaml, "diff_drive_controller").unwrap();
+    assert!(
+        (written.separation_multiplier - common::TRUE_E_B).abs() < 0.003,
+        "{written:?}"
+    );
+    assert!(report_dir.join("report.json").is_file());
+}

@@ -26,8 +26,12 @@ pub enum WritePolicy {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct RoutineConfig {
-    /// Serial port (`/dev/ttyUSB0`), or `mock` for the built-in simulated robot.
+    /// Where the robot is: a serial port (`/dev/ttyUSB0`), `mock` for the built-in simulated
+    /// robot, or `rosbridge://HOST:PORT` for a ROS robot (with a `[ros]` table).
     pub port: Option<String>,
+    /// Settings of a ROS base (`yaml`, `controller`, `cmd_vel`, `twist_stamped`, `topics`, …),
+    /// read by the ROS backend, not by the routine.
+    pub ros: Option<toml::Table>,
     /// Baud rate.
     pub baud: u32,
     /// Square side (m).
@@ -72,6 +76,7 @@ impl Default for RoutineConfig {
     fn default() -> Self {
         RoutineConfig {
             port: None,
+            ros: None,
             baud: 115_200,
             side_m: 4.0,
             runs_per_direction: 5,

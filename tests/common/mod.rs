@@ -108,10 +108,16 @@ pub fn odocal_json(args: &[&str]) -> serde_json::Value {
 /// Starts `odocal mock-device` with `args`; returns the process (stdin kept open: closing it
 /// stops the device) and the first line it printed, the terminal's path.
 pub fn spawn_mock(args: &[&str]) -> (std::process::Child, String) {
+    spawn_server("mock-device", args)
+}
+
+/// Starts an `odocal` server subcommand (`mock-device`, `mock-rosbridge`) with `args`; returns
+/// the process (closing its stdin stops it) and its first line (its path or URL).
+pub fn spawn_server(command: &str, args: &[&str]) -> (std::process::Child, String) {
     use std::io::{BufRead, BufReader};
     use std::process::Stdio;
     let mut mock = Command::new(env!("CARGO_BIN_EXE_odocal"))
-        .arg("mock-device")
+        .arg(command)
         .args(args)
         .stdin(Stdio::piped())
         .stdout(Stdio::piped())

@@ -25,7 +25,8 @@ struct Cli {
 enum Command {
     /// Full recalibration of the built-in simulated robot: calibrate, write back, verify, report.
     Demo(routine::DemoArgs),
-    /// Recalibrate a real robot on a serial port (moves it; asks first unless --yes).
+    /// Recalibrate a real robot: --port (odocal protocol) or --base rosbridge://… (moves it;
+    /// asks first unless --yes).
     Calibrate(routine::CalibrateArgs),
     /// Run a routine file (TOML); `port = "mock"` runs it on the simulated robot.
     Run(routine::RunArgs),
@@ -56,6 +57,8 @@ enum Command {
     Ports(ports::Args),
     /// Calibrate offline from a ROS 2 bag (MCAP): finds the square runs, every method.
     Bag(ros::BagArgs),
+    /// Serve a simulated ROS 2 robot behind a mock rosbridge server on loopback.
+    MockRosbridge(ros::MockArgs),
 }
 
 /// Convention flags shared by the subcommands that estimate.
@@ -123,6 +126,7 @@ fn main() -> ExitCode {
         Command::Heading(args) => block_on(device::heading(args)),
         Command::Ports(args) => ports::run(args),
         Command::Bag(args) => ros::run(args),
+        Command::MockRosbridge(args) => block_on(ros::mock(args)),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

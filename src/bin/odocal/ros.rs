@@ -209,3 +209,83 @@ pub fn run(args: BagArgs) -> Result<(), Box<dyn std::error::Error>> {
     }
     Ok(())
 }
+
+/// Arguments of `odocal mock-rosbridge`.
+#[derive(Debug, clap::Args)]
+pub struct MockArgs {
+    /// The controller's YAML: the robot's configured geometry (the mock never writes it).
+    #[arg(long)]
+    ros_yaml: PathBuf,
+    /// The controller's name.
+    #[arg(long, default_value = "diff_drive_controller")]
+    controller: String,
+    /// Loopback port (0: any free one). The URL is printed on the first line.
+    #[arg(long, default_value_t = 9090)]
+    port: u16,
+    /// True E_b of the simulated robot.
+    #[arg(long, default_value_t = 0.976)]
+    true_eb: f64,
+    /// True E_d of the simulated robot (left wheel nominal).
+    #[arg(long, default_value_t = 0.992)]
+    true_ed: f64,
+    /// IMU noise per reading (deg).
+    #[arg(long, default_value_t = 0.1)]
+    compass_sigma_deg: f64,
+    /// Robot seconds per wall-clock second (1: real time).
+    #[arg(long, default_value_t = 1.0)]
+    time_scale: f64,
+    /// Velocity topic the controller obeys.
+    #[arg(long, default_value = "/cmd_vel")]
+    cmd_vel: String,
+    /// Keep serving when stdin closes (stop with Ctrl-C only).
+    #[arg(long)]
+    ignore_stdin: bool,
+}
+
+/// Runs `odocal mock-rosbridge`.
+pub async fn mock(args: MockArgs) -> Result<(), Box<dyn std::error::Error>> {
+    use odocal::mock::rosbridge::{MockRosConfig, MockRosbridge};
+    for (name, v, lo, hi) in [
+        ("--true-eb", args.true_eb, 0.5, 2.0),
+        ("--true-ed", args.true_ed, 0.8, 1.25),
+        ("--compass-sigma-deg", args.compass_sigma_deg, 0.0, 10.0),
+        ("--time-scale", args.time_scale, 0.01, 100.0),
+    ] {
+        if !(v.is_finite() && (lo..=hi).contains(&v)) {
+            return Err(format!("{name} must be in [{lo}, {hi}], got {v}").into());
+        }
+    }
+    let controller = DiffDriveConfig::load(&args.ros_yaml, &args.controller)?;
+    let mut cfg = MockRosConfig::with_ratios(controller, args.true_eb, args.true_ed)?;
+    cfg.noise.compass_sigma_rad = args.compass_sigma_deg.to_radians();
+    cfg.time_scale = args.time_scale;
+    cfg.cmd_vel = args.cmd_vel.clone();
+    let server =
+        MockRosbridge::spawn(cfg, std::net::SocketAddr::from(([127, 0, 0, 1], args.port))).await?;
+    println!("{}", server.url());
+    eprintln!(
+        "mock rosbridge: a ROS 2 robot with diff_drive_controller (true E_b {}, E_d {}) on {}; \
+         /joint_states, /odom, /imu; obeys {}. Ctrl-C{} stops it.",
+        args.true_eb,
+        args.true_ed,
+        server.url(),
+        args.cmd_vel,
+        if args.ignore_stdin {
+            ""
+        } else {
+            " or closing stdin"
+        }
+    );
+    let stdin_closed = async {
+        if args.ignore_stdin {
+            std::future::pending::<()>().await;
+        }
+        let mut sink = Vec::new();
+        let _ = tokio::io::AsyncReadExt::read_to_end(&mut tokio::io::stdin(), &mut sink).await;
+    };
+    tokio::select! {
+        _ = tokio::signal::ctrl_c() => {}
+        () = stdin_closed => {}
+    }
+    Ok(())
+}

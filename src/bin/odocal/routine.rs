@@ -363,9 +363,14 @@ impl RoutineFlags {
 /// Arguments of `odocal calibrate`.
 #[derive(Debug, clap::Args)]
 pub struct CalibrateArgs {
-    /// Serial port of the motor controller.
+    /// Serial port of a motor controller that speaks odocal's protocol.
+    #[arg(long, conflicts_with = "base")]
+    port: Option<String>,
+    /// A ROS robot: rosbridge://HOST:PORT (needs --ros-yaml).
     #[arg(long)]
-    port: String,
+    base: Option<String>,
+    #[command(flatten)]
+    ros: RosLiveArgs,
     /// Baud rate.
     #[arg(long, default_value_t = 115_200)]
     baud: u32,
@@ -382,33 +387,139 @@ fn read_config(path: &PathBuf) -> Result<RoutineConfig, Box<dyn std::error::Erro
     RoutineConfig::from_toml(&text).map_err(|e| format!("{}: {e}", path.display()).into())
 }
 
-async fn run_on_port(
-    mut cfg: RoutineConfig,
-    port: &str,
-    baud: u32,
-    flags: &RoutineFlags,
-) -> CliResult {
+/// ROS settings of `calibrate --base rosbridge://…` (a routine file's `[ros]` table holds the
+/// same keys).
+#[derive(Debug, Clone, clap::Args)]
+pub struct RosLiveArgs {
+    /// The controller's ros2_control YAML: the geometry is read from it and the calibrated
+    /// multipliers are written into it (backed up beside it first).
+    #[arg(long)]
+    ros_yaml: Option<PathBuf>,
+    /// The diff_drive_controller's name.
+    #[arg(long)]
+    controller: Option<String>,
+    /// Velocity topic (default /cmd_vel; newer setups use /diff_drive_controller/cmd_vel).
+    #[arg(long)]
+    cmd_vel: Option<String>,
+    /// Publish geometry_msgs/TwistStamped instead of Twist.
+    #[arg(long)]
+    twist_stamped: bool,
+    /// Where the drive's odometry comes from: joint-states (default) or odom.
+    #[arg(long)]
+    wheel_source: Option<String>,
+    /// Joint states topic.
+    #[arg(long)]
+    joint_states_topic: Option<String>,
+    /// IMU topic.
+    #[arg(long)]
+    imu_topic: Option<String>,
+    /// Odometry topic.
+    #[arg(long)]
+    odom_topic: Option<String>,
+    /// Also set the written multipliers on the running controller (set_parameters).
+    #[arg(long)]
+    ros_set_live: bool,
+}
+
+impl RosLiveArgs {
+    /// The base settings: the routine file's `[ros]` table, then these flags.
+    fn config(
+        &self,
+        url: &str,
+        file: Option<&toml::Table>,
+    ) -> Result<odocal::ros::base::RosBaseConfig, Box<dyn std::error::Error>> {
+        let mut c: odocal::ros::base::RosBaseConfig = match file {
+            Some(t) => t
+                .clone()
+                .try_into()
+                .map_err(|e| format!("[ros] table: {e}"))?,
+            None => Default::default(),
+        };
+        c.url = url.to_string();
+        if let Some(y) = &self.ros_yaml {
+            c.yaml = y.clone();
+        } else if file.is_none_or(|t| !t.contains_key("yaml")) {
+            return Err("a ROS robot needs --ros-yaml (the controller's ros2_control YAML)".into());
+        }
+        if let Some(v) = &self.controller {
+            c.controller = v.clone();
+        }
+        if let Some(v) = &self.cmd_vel {
+            c.cmd_vel = v.clone();
+        }
+        c.twist_stamped |= self.twist_stamped;
+        c.set_live |= self.ros_set_live;
+        if let Some(v) = &self.wheel_source {
+            c.wheel_source = match v.as_str() {
+                "joint-states" => odocal::ros::base::WheelSource::JointStates,
+                "odom" => odocal::ros::base::WheelSource::Odom,
+                other => {
+                    return Err(format!("--wheel-source {other}: use joint-states or odom").into())
+                }
+            };
+        }
+        if let Some(v) = &self.joint_states_topic {
+            c.topics.joint_states = v.clone();
+        }
+        if let Some(v) = &self.imu_topic {
+            c.topics.imu = v.clone();
+        }
+        if let Some(v) = &self.odom_topic {
+            c.topics.odom = v.clone();
+        }
+        Ok(c)
+    }
+}
+
+/// Where the routine runs: a serial port or a ROS robot.
+enum Target<'a> {
+    Port { path: &'a str, baud: u32 },
+    Ros(odocal::ros::base::RosBaseConfig),
+}
+
+async fn run_on(mut cfg: RoutineConfig, target: Target<'_>, flags: &RoutineFlags) -> CliResult {
     // A real calibration always leaves its evidence behind.
     if cfg.report_dir.is_none() {
         cfg.report_dir = Some(PathBuf::from("odocal-report"));
     }
+    let place = match &target {
+        Target::Port { path, .. } => path.to_string(),
+        Target::Ros(r) => r.url.clone(),
+    };
     if !flags.json {
         eprintln!(
-            "odocal calibrate: this MOVES THE ROBOT on {port}: {} squares of {} m per direction \
+            "odocal calibrate: this MOVES THE ROBOT on {place}: {} squares of {} m per direction \
              per round at up to {} m/s. Ctrl-C stops it at any time.",
             cfg.runs_per_direction, cfg.side_m, cfg.max_speed_m_s
         );
     }
-    let (client, info) = open_port(port, baud).await?;
-    if !flags.json {
-        eprintln!(
-            "connected: {} (protocol {}.{}, serial {:#x})",
-            info.firmware_id, info.major, info.minor, info.serial_number
-        );
-    }
+    let base = match target {
+        Target::Port { path, baud } => {
+            let (client, info) = open_port(path, baud).await?;
+            if !flags.json {
+                eprintln!(
+                    "connected: {} (protocol {}.{}, serial {:#x})",
+                    info.firmware_id, info.major, info.minor, info.serial_number
+                );
+            }
+            Base::single(client)
+        }
+        Target::Ros(r) => {
+            let base = odocal::ros::base::connect(&r).await?;
+            if !flags.json {
+                eprintln!(
+                    "connected: rosbridge at {}, geometry and write-back in {} ({})",
+                    r.url,
+                    r.yaml.display(),
+                    r.controller
+                );
+            }
+            base
+        }
+    };
     let mut ui = TerminalUi::new(flags.json, flags.yes);
     let token = ctrl_c_token();
-    let report = run(&Base::single(client), &cfg, None, &mut ui, &token).await?;
+    let report = run(&base, &cfg, None, &mut ui, &token).await?;
     drop(ui);
     finish(&report, cfg.report_dir.as_ref(), flags.json)
 }
@@ -420,7 +531,25 @@ pub async fn calibrate(args: CalibrateArgs) -> CliResult {
         None => RoutineConfig::default(),
     };
     args.flags.apply(&mut cfg)?;
-    run_on_port(cfg, &args.port, args.baud, &args.flags).await
+    let target = match (&args.port, &args.base) {
+        (Some(p), None) => Target::Port {
+            path: p,
+            baud: args.baud,
+        },
+        (None, Some(url)) if url.starts_with("rosbridge://") || url.starts_with("ws://") => {
+            Target::Ros(args.ros.config(url, cfg.ros.as_ref())?)
+        }
+        (None, Some(other)) => {
+            return Err(format!(
+                "--base {other}: use rosbridge://HOST:PORT (or --port for a serial controller)"
+            )
+            .into())
+        }
+        _ => {
+            return Err("give --port PATH (odocal protocol) or --base rosbridge://HOST:PORT".into())
+        }
+    };
+    run_on(cfg, target, &args.flags).await
 }
 
 /// Arguments of `odocal run`.
@@ -450,7 +579,28 @@ pub async fn run_file(args: RunArgs) -> CliResult {
             drop(ui);
             finish(&report, cfg.report_dir.as_ref(), args.flags.json)
         }
-        Some(port) => run_on_port(cfg.clone(), port, cfg.baud, &args.flags).await,
+        Some(url) if url.starts_with("rosbridge://") || url.starts_with("ws://") => {
+            let ros = RosLiveArgs {
+                ros_yaml: None,
+                controller: None,
+                cmd_vel: None,
+                twist_stamped: false,
+                wheel_source: None,
+                joint_states_topic: None,
+                imu_topic: None,
+                odom_topic: None,
+                ros_set_live: false,
+            }
+            .config(url, cfg.ros.as_ref())?;
+            run_on(cfg.clone(), Target::Ros(ros), &args.flags).await
+        }
+        Some(port) => {
+            let target = Target::Port {
+                path: port,
+                baud: cfg.baud,
+            };
+            run_on(cfg.clone(), target, &args.flags).await
+        }
         None => Err(format!(
             "{}: no `port` (a serial port path, or \"mock\" for the simulated robot)",
             args.routine.display()
