@@ -155,3 +155,102 @@ fn bad_bags_and_files_are_named() {
     let (ok, _, err) = odocal(&["bag", bag_s, "--left-joint", "wheel_fl"]);
     assert!(!ok && err.contains("left_wheel_joint"), "{err}");
 }
+
+#[test]
+fn export_takes_any_result_and_merges_into_the_controller_yaml() {
+    let dir = scratch("export-any");
+    std::fs::create_dir_all(&dir).unwrap();
+    let bag = dir.join("s.mcap");
+    odocal_json(&[
+        "simulate",
+        "--bag",
+        bag.to_str().unwrap(),
+        "--runs",
+        "2",
+        "--side-m",
+        "2",
+        "--json",
+    ]);
+    let (ok, bag_json, err) = odocal(&["bag", bag.to_str().unwrap(), "--json"]);
+    assert!(ok, "{err}");
+    let result = dir.join("bag.json");
+    std::fs::write(&result, bag_json).unwrap();
+    // An existing controller file: only the multipliers change; a backup sits beside it.
+    let yaml = dir.join("controllers.yaml");
+    let original = "controller_manager:\n  ros__parameters:\n    update_rate: 50\n\n\
+diff_drive_controller:\n  ros__parameters:\n    wheel_separation: 0.39  # URDF\n    \
+wheel_radius: 0.075\n    publish_rate: 50.0\n";
+    std::fs::write(&yaml, original).unwrap();
+    let (ok, out, err) = odocal(&[
+        "export",
+        "--from",
+        result.to_str().unwrap(),
+        "--ros2",
+        yaml.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    assert!(out.contains("merged") && out.contains("exact"), "{out}");
+    let text = std::fs::read_to_string(&yaml).unwrap();
+    assert!(
+        text.contains("wheel_separation: 0.39  # URDF") && text.contains("update_rate: 50"),
+        "{text}"
+    );
+    let cfg =
+        odocal::ros::yaml::DiffDriveConfig::parse(&text, "diff_drive_controller", &yaml).unwrap();
+    assert!((cfg.separation_multiplier - 0.976).abs() < 1e-5, "{text}");
+    assert!((cfg.right_radius_multiplier - 0.992).abs() < 1e-5, "{text}");
+    let backups = std::fs::read_dir(&dir)
+        .unwrap()
+        .filter_map(|e| e.ok())
+        .filter(|e| {
+            e.file_name()
+                .to_string_lossy()
+                .starts_with("controllers.yaml.odocal-backup-")
+        })
+        .count();
+    assert_eq!(backups, 1);
+    // `estimate --json` exports too; into a new file, which is then never replaced silently.
+    let est = dir.join("est.json");
+    let (ok, est_json, err) = odocal(&[
+        "estimate",
+        "--side-m",
+        "4",
+        "--wheelbase-m",
+        "0.39",
+        "--wheel-diameter-m",
+        "0.15",
+        "--cw-heading-deg=-26.31,-26.92",
+        "--ccw-heading-deg=-11.62,-12.15",
+        "--json",
+    ]);
+    assert!(ok, "{err}");
+    std::fs::write(&est, est_json).unwrap();
+    let fresh = dir.join("fresh.yaml");
+    let (ok, out, err) = odocal(&[
+        "export",
+        "--from",
+        est.to_str().unwrap(),
+        "--ros2",
+        fresh.to_str().unwrap(),
+        "--method",
+        "jung-chung",
+    ]);
+    assert!(ok && out.contains("wrote"), "{out}{err}");
+    assert!(std::fs::read_to_string(&fresh)
+        .unwrap()
+        .contains("wheel_separation_multiplier: 0.976"));
+    // A method the result does not have is named with the ones it has.
+    let (ok, _, err) = odocal(&[
+        "export",
+        "--from",
+        est.to_str().unwrap(),
+        "--ros2",
+        fresh.to_str().unwrap(),
+        "--method",
+        "umbmark",
+    ]);
+    assert!(
+        !ok && err.contains("umbmark") && err.contains("exact"),
+        "{err}"
+    );
+}

@@ -1,7 +1,160 @@
 //! Exporting a calibration for other software: ros2_control's `diff_drive_controller`.
+//!
+//! Any result odocal prints as JSON can be exported — a routine report (`demo`, `calibrate`,
+//! `run`), `estimate`, `track` or `bag` — and either merged into the controller's existing
+//! YAML (only the multipliers change; the file is backed up beside itself and replaced
+//! atomically) or written as a new file (never over an existing one).
 
 use crate::kinematics::WheelParams;
+use crate::ros::yaml::{backup_beside, merge_multipliers, replace_atomically, DiffDriveConfig};
+use serde_json::Value;
 use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+/// A result that cannot be exported.
+#[derive(Debug, thiserror::Error)]
+pub enum ExportError {
+    /// The JSON is not an odocal result.
+    #[error("not an odocal result: {0}")]
+    NotAResult(String),
+    /// The method asked for has no estimate in the result.
+    #[error("the result has no `{method}` estimate; it has {}", available.join(", "))]
+    NoMethod {
+        /// The method asked for.
+        method: String,
+        /// The methods it has.
+        available: Vec<String>,
+    },
+    /// The parameters are not a robot.
+    #[error(transparent)]
+    Kinematics(#[from] crate::kinematics::KinematicsError),
+    /// The target YAML is unusable.
+    #[error(transparent)]
+    Yaml(#[from] crate::ros::yaml::YamlError),
+    /// Writing failed.
+    #[error("{}: {source}", path.display())]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        #[source]
+        source: std::io::Error,
+    },
+}
+
+/// What a result says was configured during the test, and what it calibrated.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Calibration {
+    /// Parameters configured during the test.
+    pub configured: WheelParams,
+    /// Calibrated parameters.
+    pub calibrated: WheelParams,
+    /// Which method (or `routine` for a routine report's written parameters).
+    pub method: String,
+}
+
+fn params(v: &Value, key: &str) -> Result<WheelParams, ExportError> {
+    let p: WheelParams = serde_json::from_value(v[key].clone())
+        .map_err(|e| ExportError::NotAResult(format!("`{key}`: {e}")))?;
+    p.validate()?;
+    Ok(p)
+}
+
+/// Reads any odocal result: a routine report's final parameters, or `method`'s estimate
+/// (default: the result's `default_method`, else `exact`, else `online`) applied to its
+/// `configured` parameters.
+pub fn calibration_of(v: &Value, method: Option<&str>) -> Result<Calibration, ExportError> {
+    if v.get("final_params").is_some() && v.get("original_params").is_some() && method.is_none() {
+        return Ok(Calibration {
+            configured: params(v, "original_params")?,
+            calibrated: params(v, "final_params")?,
+            method: "routine".into(),
+        });
+    }
+    let estimates = v["estimates"]
+        .as_array()
+        .ok_or_else(|| ExportError::NotAResult("no `estimates` array".into()))?;
+    let configured = if v.get("configured").is_some_and(|c| !c.is_null()) {
+        params(v, "configured")?
+    } else if v.get("original_params").is_some() {
+        // A routine report's last round was estimated on its final parameters.
+        params(v, "final_params")?
+    } else {
+        return Err(ExportError::NotAResult(
+            "no `configured` parameters (for `estimate`, give --wheel-diameter-m)".into(),
+        ));
+    };
+    let names: Vec<String> = estimates
+        .iter()
+        .filter_map(|e| e["method"].as_str().map(String::from))
+        .collect();
+    let wanted = method
+        .map(String::from)
+        .or_else(|| v["default_method"].as_str().map(String::from))
+        .unwrap_or_else(|| {
+            if names.iter().any(|n| n == "exact") {
+                "exact".into()
+            } else {
+                names.first().cloned().unwrap_or_default()
+            }
+        });
+    let e = estimates
+        .iter()
+        .find(|e| e["method"].as_str() == Some(wanted.as_str()))
+        .ok_or_else(|| ExportError::NoMethod {
+            method: wanted.clone(),
+            available: names.clone(),
+        })?;
+    let correction: crate::kinematics::Correction = serde_json::from_value(e["correction"].clone())
+        .map_err(|err| ExportError::NotAResult(format!("`{wanted}` has no correction: {err}")))?;
+    Ok(Calibration {
+        calibrated: correction.apply(&configured)?,
+        configured,
+        method: wanted,
+    })
+}
+
+/// What [`export`] did.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Exported {
+    /// A new file.
+    Created,
+    /// Merged into an existing controller YAML; the original is at `backup`.
+    Merged {
+        /// The copy of the file as it was.
+        backup: PathBuf,
+    },
+}
+
+/// Writes `cal` for `controller` into `path`: merged into an existing YAML (multipliers only,
+/// backup beside, atomic replace) or a new file (never replacing anything).
+pub fn export(path: &Path, controller: &str, cal: &Calibration) -> Result<Exported, ExportError> {
+    let io = |source| ExportError::Io {
+        path: path.to_path_buf(),
+        source,
+    };
+    if path.exists() {
+        let text = std::fs::read_to_string(path).map_err(io)?;
+        let cfg = DiffDriveConfig::parse(&text, controller, path)?;
+        let merged = merge_multipliers(
+            &text,
+            controller,
+            &cfg.multipliers_for(&cal.calibrated),
+            path,
+        )?;
+        let backup = backup_beside(path).map_err(io)?;
+        replace_atomically(path, &merged).map_err(io)?;
+        return Ok(Exported::Merged { backup });
+    }
+    let text = ros2_diff_drive_yaml(controller, &cal.configured, &cal.calibrated);
+    let mut f = std::fs::OpenOptions::new()
+        .write(true)
+        .create_new(true)
+        .open(path)
+        .map_err(io)?;
+    std::io::Write::write_all(&mut f, text.as_bytes()).map_err(io)?;
+    Ok(Exported::Created)
+}
 
 /// YAML parameters for ros2_control's `diff_drive_controller`.
 ///

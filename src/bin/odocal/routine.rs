@@ -7,8 +7,6 @@ use odocal::calibration::Method;
 use odocal::demo::{run_demo, DemoOptions};
 use odocal::hal::open_port;
 use odocal::kinematics::SplitConvention;
-use odocal::kinematics::WheelParams;
-use odocal::report::ros2::ros2_diff_drive_yaml;
 use odocal::routine::config::{RoutineConfig, WritePolicy};
 use odocal::routine::report::Report;
 use odocal::routine::{run, RoutineEvent, RoutineUi};
@@ -474,7 +472,7 @@ impl RosLiveArgs {
 /// Where the routine runs: a serial port or a ROS robot.
 enum Target<'a> {
     Port { path: &'a str, baud: u32 },
-    Ros(odocal::ros::base::RosBaseConfig),
+    Ros(Box<odocal::ros::base::RosBaseConfig>),
 }
 
 async fn run_on(mut cfg: RoutineConfig, target: Target<'_>, flags: &RoutineFlags) -> CliResult {
@@ -537,7 +535,7 @@ pub async fn calibrate(args: CalibrateArgs) -> CliResult {
             baud: args.baud,
         },
         (None, Some(url)) if url.starts_with("rosbridge://") || url.starts_with("ws://") => {
-            Target::Ros(args.ros.config(url, cfg.ros.as_ref())?)
+            Target::Ros(Box::new(args.ros.config(url, cfg.ros.as_ref())?))
         }
         (None, Some(other)) => {
             return Err(format!(
@@ -592,7 +590,7 @@ pub async fn run_file(args: RunArgs) -> CliResult {
                 ros_set_live: false,
             }
             .config(url, cfg.ros.as_ref())?;
-            run_on(cfg.clone(), Target::Ros(ros), &args.flags).await
+            run_on(cfg.clone(), Target::Ros(Box::new(ros)), &args.flags).await
         }
         Some(port) => {
             let target = Target::Port {
@@ -612,36 +610,53 @@ pub async fn run_file(args: RunArgs) -> CliResult {
 /// Arguments of `odocal export`.
 #[derive(Debug, clap::Args)]
 pub struct ExportArgs {
-    /// A report.json written by `odocal demo`, `calibrate` or `run`.
-    #[arg(long)]
-    report: PathBuf,
-    /// Write ros2_control diff_drive_controller parameters (YAML) to this file.
+    /// Any odocal result as JSON: a report.json (demo, calibrate, run), or the --json output of
+    /// estimate, track or bag.
+    #[arg(long, alias = "report")]
+    from: PathBuf,
+    /// The ros2_control YAML: merged into if it exists (multipliers only, backup beside),
+    /// created otherwise.
     #[arg(long)]
     ros2: PathBuf,
     /// The controller's name in the YAML.
-    #[arg(long, default_value = "diff_drive_controller")]
-    controller_name: String,
+    #[arg(
+        long,
+        alias = "controller-name",
+        default_value = "diff_drive_controller"
+    )]
+    controller: String,
+    /// Which estimate to export (default: the result's default method, else exact).
+    #[arg(long)]
+    method: Option<String>,
 }
 
 /// Runs `odocal export`.
 pub fn export(args: ExportArgs) -> CliResult {
-    let text = std::fs::read_to_string(&args.report)
-        .map_err(|e| format!("cannot read {}: {e}", args.report.display()))?;
+    use odocal::report::ros2::{calibration_of, export, Exported};
+    let len = std::fs::metadata(&args.from)
+        .map_err(|e| format!("cannot read {}: {e}", args.from.display()))?
+        .len();
+    if len > 64 << 20 {
+        return Err(format!(
+            "{}: {len} bytes is not an odocal result",
+            args.from.display()
+        )
+        .into());
+    }
+    let text = std::fs::read_to_string(&args.from)
+        .map_err(|e| format!("cannot read {}: {e}", args.from.display()))?;
     let v: serde_json::Value = serde_json::from_str(&text)
-        .map_err(|e| format!("{}: not a report ({e})", args.report.display()))?;
-    let params = |key: &str| -> Result<WheelParams, Box<dyn std::error::Error>> {
-        let p: WheelParams = serde_json::from_value(v[key].clone())
-            .map_err(|e| format!("{}: {key}: {e}", args.report.display()))?;
-        p.validate()?;
-        Ok(p)
-    };
-    let yaml = ros2_diff_drive_yaml(
-        &args.controller_name,
-        &params("original_params")?,
-        &params("final_params")?,
-    );
-    std::fs::write(&args.ros2, yaml)
-        .map_err(|e| format!("cannot write {}: {e}", args.ros2.display()))?;
-    println!("wrote {}", args.ros2.display());
+        .map_err(|e| format!("{}: not JSON ({e})", args.from.display()))?;
+    let cal = calibration_of(&v, args.method.as_deref())
+        .map_err(|e| format!("{}: {e}", args.from.display()))?;
+    match export(&args.ros2, &args.controller, &cal)? {
+        Exported::Created => println!("wrote {} ({} calibration)", args.ros2.display(), cal.method),
+        Exported::Merged { backup } => println!(
+            "merged the {} calibration's multipliers into {} (the original is {})",
+            cal.method,
+            args.ros2.display(),
+            backup.display()
+        ),
+    }
     Ok(())
 }
