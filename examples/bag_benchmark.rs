@@ -37,7 +37,14 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let t = Instant::now();
         let data = read_bag(&path, &opts)?;
         let g = infer_geometry(&data)?;
-        let report = analyse(&path, &data, g.params(), GeometrySource::Inferred(g), (0.075, 0.39), &opts)?;
+        let report = analyse(
+            &path,
+            &data,
+            g.params(),
+            GeometrySource::Inferred(g),
+            (0.075, 0.39),
+            &opts,
+        )?;
         times.push(t.elapsed().as_secs_f64());
         messages = data.messages;
         assert_eq!(report.runs.len(), 40);
