@@ -12,6 +12,7 @@
 //! back, commit, read back the committed copy, and roll back on any failure.
 
 pub mod error;
+pub mod files;
 pub mod guard;
 pub mod transaction;
 

@@ -1,0 +1,417 @@
+//! A robot profile: the TOML file that holds the geometry of a robot whose controller knows
+//! none (a RoboClaw counts encoder ticks), how it is wired, and its limits — and, as a
+//! [`ParamStore`], where a calibration writes back.
+//!
+//! ```toml
+//! [geometry]
+//! left_wheel_diameter_m = 0.15
+//! right_wheel_diameter_m = 0.15
+//! wheelbase_m = 0.39
+//! encoder_counts_per_motor_rev = 1024   # quadrature counts per motor shaft revolution
+//! gear_ratio = 4.0                      # motor revolutions per wheel revolution
+//!
+//! [wiring]
+//! left_channel = "M1"                   # the RoboClaw channel of the left wheel
+//! left_encoder_sign = 1                 # -1 when the left encoder counts down driving forward
+//! right_encoder_sign = 1
+//!
+//! [limits]
+//! max_speed_m_s = 0.5
+//! max_accel_m_s2 = 0.5
+//! min_battery_v = 10.5
+//! ```
+//!
+//! Writing back changes only the three geometry values, in place (comments and everything else
+//! stay, `toml_edit`), after copying the file beside itself, and replaces it atomically.
+
+use crate::base::files::{backup_beside, replace_atomically};
+use crate::base::{BaseError, ComponentInfo, ParamStore};
+use crate::kinematics::WheelParams;
+use async_trait::async_trait;
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex, RwLock};
+
+/// A profile that cannot be used.
+#[derive(Debug, thiserror::Error)]
+pub enum ProfileError {
+    /// Reading or writing failed.
+    #[error("{}: {source}", path.display())]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        #[source]
+        source: std::io::Error,
+    },
+    /// Not a valid profile.
+    #[error("{}: {message}", path.display())]
+    Invalid {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong (with the line where TOML gives one).
+        message: String,
+    },
+}
+
+/// A RoboClaw channel.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum Channel {
+    /// Motor 1.
+    M1,
+    /// Motor 2.
+    M2,
+}
+
+/// The geometry.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Geometry {
+    /// Left wheel diameter (m).
+    pub left_wheel_diameter_m: f64,
+    /// Right wheel diameter (m).
+    pub right_wheel_diameter_m: f64,
+    /// Wheelbase (m).
+    pub wheelbase_m: f64,
+    /// Encoder counts per motor revolution (quadrature).
+    pub encoder_counts_per_motor_rev: f64,
+    /// Motor revolutions per wheel revolution.
+    #[serde(default = "one")]
+    pub gear_ratio: f64,
+}
+
+fn one() -> f64 {
+    1.0
+}
+
+/// How the robot is wired.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Wiring {
+    /// The left wheel's channel (the right wheel has the other).
+    pub left_channel: Channel,
+    /// +1 when the left encoder counts up driving forward, -1 when it counts down.
+    #[serde(default = "plus")]
+    pub left_encoder_sign: i8,
+    /// The same for the right encoder.
+    #[serde(default = "plus")]
+    pub right_encoder_sign: i8,
+}
+
+fn plus() -> i8 {
+    1
+}
+
+/// Motion limits.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Limits {
+    /// Fastest wheel speed any motion may command (m/s).
+    pub max_speed_m_s: f64,
+    /// Acceleration of every motion (m/s²).
+    pub max_accel_m_s2: f64,
+    /// Battery voltage below which pre-flight refuses to move (V).
+    pub min_battery_v: Option<f64>,
+}
+
+/// A robot profile.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Profile {
+    /// Geometry.
+    pub geometry: Geometry,
+    /// Wiring.
+    pub wiring: Wiring,
+    /// Limits.
+    pub limits: Limits,
+}
+
+impl Profile {
+    /// Parses and checks a profile (`path` names the file in errors).
+    pub fn parse(text: &str, path: &Path) -> Result<Self, ProfileError> {
+        let invalid = |message: String| ProfileError::Invalid {
+            path: path.to_path_buf(),
+            message,
+        };
+        let p: Profile = toml::from_str(text).map_err(|e| {
+            let line = e
+                .span()
+                .map(|s| text[..s.start.min(text.len())].matches('\n').count() + 1);
+            invalid(match line {
+                Some(l) => format!("line {l}: {}", e.message()),
+                None => e.message().to_string(),
+            })
+        })?;
+        p.params().validate().map_err(|e| invalid(e.to_string()))?;
+        let g = &p.geometry;
+        if !(g.encoder_counts_per_motor_rev.is_finite() && g.encoder_counts_per_motor_rev >= 1.0) {
+            return Err(invalid(
+                "geometry.encoder_counts_per_motor_rev must be ≥ 1".into(),
+            ));
+        }
+        if !(g.gear_ratio.is_finite() && g.gear_ratio > 0.0 && g.gear_ratio <= 1000.0) {
+            return Err(invalid("geometry.gear_ratio must be in (0, 1000]".into()));
+        }
+        for (k, s) in [
+            ("left", p.wiring.left_encoder_sign),
+            ("right", p.wiring.right_encoder_sign),
+        ] {
+            if s != 1 && s != -1 {
+                return Err(invalid(format!(
+                    "wiring.{k}_encoder_sign must be 1 or -1, got {s}"
+                )));
+            }
+        }
+        let l = &p.limits;
+        if !(l.max_speed_m_s.is_finite() && l.max_speed_m_s > 0.0 && l.max_speed_m_s <= 5.0) {
+            return Err(invalid("limits.max_speed_m_s must be in (0, 5] m/s".into()));
+        }
+        if !(l.max_accel_m_s2.is_finite() && l.max_accel_m_s2 > 0.0 && l.max_accel_m_s2 <= 20.0) {
+            return Err(invalid(
+                "limits.max_accel_m_s2 must be in (0, 20] m/s²".into(),
+            ));
+        }
+        Ok(p)
+    }
+
+    /// Reads a profile file (at most 1 MiB).
+    pub fn load(path: &Path) -> Result<Self, ProfileError> {
+        Self::parse(&read_bounded(path)?, path)
+    }
+
+    /// The wheel parameters (counts per wheel revolution = encoder counts × gear ratio).
+    pub fn params(&self) -> WheelParams {
+        let g = &self.geometry;
+        WheelParams {
+            left_wheel_diameter_m: g.left_wheel_diameter_m,
+            right_wheel_diameter_m: g.right_wheel_diameter_m,
+            wheelbase_m: g.wheelbase_m,
+            counts_per_wheel_rev: g.encoder_counts_per_motor_rev * g.gear_ratio,
+        }
+    }
+}
+
+fn read_bounded(path: &Path) -> Result<String, ProfileError> {
+    let io = |source| ProfileError::Io {
+        path: path.to_path_buf(),
+        source,
+    };
+    let len = std::fs::metadata(path).map_err(io)?.len();
+    if len > 1 << 20 {
+        return Err(io(std::io::Error::new(
+            std::io::ErrorKind::InvalidData,
+            format!("{len} bytes is not a robot profile"),
+        )));
+    }
+    std::fs::read_to_string(path).map_err(io)
+}
+
+/// `text` with the geometry set to `p`'s diameters and wheelbase, everything else untouched.
+pub fn with_geometry(text: &str, p: &WheelParams, path: &Path) -> Result<String, ProfileError> {
+    let invalid = |message: String| ProfileError::Invalid {
+        path: path.to_path_buf(),
+        message,
+    };
+    let mut doc: toml_edit::DocumentMut = text
+        .parse()
+        .map_err(|e: toml_edit::TomlError| invalid(e.to_string()))?;
+    let g = doc
+        .get_mut("geometry")
+        .and_then(|g| g.as_table_like_mut())
+        .ok_or_else(|| invalid("no [geometry] table".into()))?;
+    for (k, v) in [
+        ("left_wheel_diameter_m", p.left_wheel_diameter_m),
+        ("right_wheel_diameter_m", p.right_wheel_diameter_m),
+        ("wheelbase_m", p.wheelbase_m),
+    ] {
+        // Twelve significant digits: far below a micrometre, and readable.
+        let rounded: f64 = format!("{v:.12e}").parse().unwrap_or(v);
+        match g.get_mut(k).and_then(|item| item.as_value_mut()) {
+            Some(value) => {
+                let decor = value.decor().clone();
+                *value = toml_edit::Value::from(rounded);
+                *value.decor_mut() = decor;
+            }
+            None => {
+                g.insert(k, toml_edit::value(rounded));
+            }
+        }
+    }
+    let out = doc.to_string();
+    // What was written must read back as a profile with these values.
+    let back = Profile::parse(&out, path)?.params();
+    if (back.wheelbase_m - p.wheelbase_m).abs() > 1e-9 {
+        return Err(invalid("the rewritten profile does not read back".into()));
+    }
+    Ok(out)
+}
+
+/// The profile as a [`ParamStore`]: `write` stages (and updates the geometry a drive counts
+/// with), `commit` rewrites the file.
+pub struct ProfileStore {
+    path: PathBuf,
+    staged: Mutex<Option<WheelParams>>,
+    backup: Mutex<Option<PathBuf>>,
+    geometry: Arc<RwLock<Profile>>,
+}
+
+fn store_err(e: ProfileError) -> BaseError {
+    BaseError::backend("store (profile)", e)
+}
+
+impl ProfileStore {
+    /// Opens a profile.
+    pub fn open(path: &Path) -> Result<Self, ProfileError> {
+        let p = Profile::load(path)?;
+        Ok(ProfileStore {
+            path: path.to_path_buf(),
+            staged: Mutex::new(None),
+            backup: Mutex::new(None),
+            geometry: Arc::new(RwLock::new(p)),
+        })
+    }
+
+    /// The profile in use (staged geometry included), shared with a drive.
+    pub fn shared(&self) -> Arc<RwLock<Profile>> {
+        self.geometry.clone()
+    }
+
+    /// The copy of the file made before its first replacement.
+    pub fn file_backup(&self) -> Option<PathBuf> {
+        self.backup
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .clone()
+    }
+}
+
+#[async_trait]
+impl ParamStore for ProfileStore {
+    fn info(&self) -> ComponentInfo {
+        ComponentInfo {
+            kind: "robot-profile".into(),
+            id: self.path.display().to_string(),
+            details: serde_json::json!({ "file": self.path }),
+        }
+    }
+
+    async fn read(&self) -> Result<WheelParams, BaseError> {
+        Ok(self
+            .geometry
+            .read()
+            .unwrap_or_else(|p| p.into_inner())
+            .params())
+    }
+
+    async fn write(&self, params: &WheelParams) -> Result<WheelParams, BaseError> {
+        params.validate().map_err(|e| BaseError::InvalidArgument {
+            component: "store (profile)".into(),
+            reason: e.to_string(),
+        })?;
+        let mut g = self.geometry.write().unwrap_or_else(|p| p.into_inner());
+        if (params.counts_per_wheel_rev - g.params().counts_per_wheel_rev).abs() > 1e-9 {
+            return Err(BaseError::InvalidArgument {
+                component: "store (profile)".into(),
+                reason: "encoder resolution and gearing are not calibrated: counts per revolution must stay".into(),
+            });
+        }
+        let text = read_bounded(&self.path).map_err(store_err)?;
+        let held = Profile::parse(
+            &with_geometry(&text, params, &self.path).map_err(store_err)?,
+            &self.path,
+        )
+        .map_err(store_err)?;
+        *g = held;
+        *self.staged.lock().unwrap_or_else(|p| p.into_inner()) = Some(held.params());
+        Ok(held.params())
+    }
+
+    async fn commit(&self) -> Result<(), BaseError> {
+        let Some(p) = *self.staged.lock().unwrap_or_else(|p| p.into_inner()) else {
+            return Ok(());
+        };
+        let io = |source| {
+            store_err(ProfileError::Io {
+                path: self.path.clone(),
+                source,
+            })
+        };
+        let text = read_bounded(&self.path).map_err(store_err)?;
+        let out = with_geometry(&text, &p, &self.path).map_err(store_err)?;
+        {
+            let mut b = self.backup.lock().unwrap_or_else(|p| p.into_inner());
+            if b.is_none() {
+                *b = Some(backup_beside(&self.path).map_err(io)?);
+            }
+        }
+        replace_atomically(&self.path, &out).map_err(io)?;
+        *self.staged.lock().unwrap_or_else(|p| p.into_inner()) = None;
+        Ok(())
+    }
+
+    async fn read_committed(&self) -> Result<Option<WheelParams>, BaseError> {
+        Ok(Some(Profile::load(&self.path).map_err(store_err)?.params()))
+    }
+
+    fn resolution(&self) -> WheelParams {
+        WheelParams {
+            left_wheel_diameter_m: 1e-9,
+            right_wheel_diameter_m: 1e-9,
+            wheelbase_m: 1e-9,
+            counts_per_wheel_rev: 1e-9,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    pub(crate) const EXAMPLE: &str = "\
+# my robot
+[geometry]
+left_wheel_diameter_m = 0.15   # measured with calipers
+right_wheel_diameter_m = 0.15
+wheelbase_m = 0.39
+encoder_counts_per_motor_rev = 1024
+gear_ratio = 4.0
+
+[wiring]
+left_channel = \"M1\"
+left_encoder_sign = 1
+right_encoder_sign = -1
+
+[limits]
+max_speed_m_s = 0.5
+max_accel_m_s2 = 0.5
+min_battery_v = 10.5
+";
+
+    #[test]
+    fn profiles_read_check_and_rewrite_only_the_geometry() {
+        let path = Path::new("robot.toml");
+        let p = Profile::parse(EXAMPLE, path).unwrap();
+        assert_eq!(p.params().counts_per_wheel_rev, 4096.0);
+        assert_eq!(p.wiring.right_encoder_sign, -1);
+        let mut new = p.params();
+        new.wheelbase_m = 0.380_638;
+        new.right_wheel_diameter_m = 0.148_789;
+        let out = with_geometry(EXAMPLE, &new, path).unwrap();
+        assert!(
+            out.contains("left_wheel_diameter_m = 0.15   # measured with calipers"),
+            "{out}"
+        );
+        assert!(out.contains("wheelbase_m = 0.380638"), "{out}");
+        assert!(
+            out.contains("# my robot") && out.contains("min_battery_v = 10.5"),
+            "{out}"
+        );
+        let bad = EXAMPLE.replace("right_encoder_sign = -1", "right_encoder_sign = 2");
+        let e = Profile::parse(&bad, path).unwrap_err().to_string();
+        assert!(e.contains("right_encoder_sign"), "{e}");
+        let e = Profile::parse("[geometry]\nwheelbase_m = \"x\"\n", path)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("line 2"), "{e}");
+    }
+}

@@ -1,0 +1,338 @@
+//! Transactions with a RoboClaw over any byte stream: one at a time, deadlines from the baud
+//! rate, reads retried (they are safe to repeat), writes acknowledged and never blindly resent.
+
+use super::packet::{self, cmd, ACK, ADDRESSES};
+use std::sync::Arc;
+use std::time::Duration;
+use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
+use tokio::sync::Mutex;
+
+/// Errors talking to a RoboClaw.
+#[derive(Debug, Clone, thiserror::Error)]
+pub enum RoboClawError {
+    /// Reading or writing the port failed.
+    #[error("RoboClaw I/O error: {0}")]
+    Io(#[source] Arc<std::io::Error>),
+    /// The port could not be opened.
+    #[error("cannot open {path}: {source}")]
+    Open {
+        /// The port.
+        path: String,
+        /// Why.
+        #[source]
+        source: Arc<tokio_serial::Error>,
+    },
+    /// No (complete) answer in time.
+    #[error("no answer to command {command} within {after:?} after {attempts} attempt(s)")]
+    Timeout {
+        /// The command.
+        command: u8,
+        /// The deadline per attempt.
+        after: Duration,
+        /// Attempts made.
+        attempts: u32,
+    },
+    /// Answers failed their CRC on every attempt.
+    #[error("answers to command {command} failed their CRC {attempts} time(s): wrong baud or a noisy line?")]
+    Crc {
+        /// The command.
+        command: u8,
+        /// Attempts made.
+        attempts: u32,
+    },
+    /// A write was answered with something other than the acknowledgement.
+    #[error("command {command} was answered with 0x{got:02X}, not the acknowledgement 0xFF")]
+    Nak {
+        /// The command.
+        command: u8,
+        /// The byte received.
+        got: u8,
+    },
+    /// A value cannot be sent.
+    #[error("invalid argument: {0}")]
+    InvalidArgument(String),
+    /// Whatever answers on the port is not a RoboClaw.
+    #[error(
+        "{port}: not a RoboClaw at address 0x{address:02X} (wrong baud or address?): {reason}"
+    )]
+    NotARoboClaw {
+        /// The port.
+        port: String,
+        /// The address tried.
+        address: u8,
+        /// What happened.
+        reason: String,
+    },
+}
+
+impl From<std::io::Error> for RoboClawError {
+    fn from(e: std::io::Error) -> Self {
+        RoboClawError::Io(Arc::new(e))
+    }
+}
+
+/// How to reach the controller.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RoboClawConfig {
+    /// Packet serial address (0x80–0x87).
+    pub address: u8,
+    /// Baud rate, for deadlines.
+    pub baud: u32,
+    /// Attempts of a read.
+    pub read_attempts: u32,
+    /// Added to every deadline beyond transmission time.
+    pub margin: Duration,
+}
+
+impl Default for RoboClawConfig {
+    fn default() -> Self {
+        RoboClawConfig {
+            address: 0x80,
+            baud: 38_400,
+            read_attempts: 3,
+            margin: Duration::from_millis(20),
+        }
+    }
+}
+
+trait Port: AsyncRead + AsyncWrite + Unpin + Send {}
+impl<T: AsyncRead + AsyncWrite + Unpin + Send> Port for T {}
+
+/// A connection to one controller; cheap to clone, all clones share the port.
+#[derive(Clone)]
+pub struct RoboClaw {
+    port: Arc<Mutex<Box<dyn Port>>>,
+    cfg: RoboClawConfig,
+    label: Arc<str>,
+}
+
+impl RoboClaw {
+    /// Takes a byte stream (serial port, PTY, in-memory duplex); `label` names it in errors.
+    pub fn new<S>(stream: S, cfg: RoboClawConfig, label: &str) -> Result<Self, RoboClawError>
+    where
+        S: AsyncRead + AsyncWrite + Unpin + Send + 'static,
+    {
+        if !ADDRESSES.contains(&cfg.address) {
+            return Err(RoboClawError::InvalidArgument(format!(
+                "address 0x{:02X} is outside 0x80–0x87",
+                cfg.address
+            )));
+        }
+        if !(1200..=460_800).contains(&cfg.baud) {
+            return Err(RoboClawError::InvalidArgument(format!(
+                "baud {} is not a RoboClaw rate",
+                cfg.baud
+            )));
+        }
+        Ok(RoboClaw {
+            port: Arc::new(Mutex::new(Box::new(stream))),
+            cfg,
+            label: Arc::from(label),
+        })
+    }
+
+    /// Opens a serial port by path.
+    pub fn open(path: &str, cfg: RoboClawConfig) -> Result<Self, RoboClawError> {
+        use tokio_serial::SerialPortBuilderExt;
+        let port = tokio_serial::new(path, cfg.baud)
+            .open_native_async()
+            .map_err(|e| RoboClawError::Open {
+                path: path.into(),
+                source: Arc::new(e),
+            })?;
+        Self::new(port, cfg, path)
+    }
+
+    /// The port's name.
+    pub fn label(&self) -> &str {
+        &self.label
+    }
+
+    /// The settings.
+    pub fn config(&self) -> RoboClawConfig {
+        self.cfg
+    }
+
+    fn deadline(&self, bytes: usize) -> Duration {
+        Duration::from_secs_f64(10.0 * bytes as f64 / f64::from(self.cfg.baud)) + self.cfg.margin
+    }
+
+    async fn drain(port: &mut Box<dyn Port>) {
+        let mut junk = [0u8; 64];
+        while let Ok(Ok(n)) =
+            tokio::time::timeout(Duration::from_millis(1), port.read(&mut junk)).await
+        {
+            if n == 0 {
+                break;
+            }
+        }
+    }
+
+    /// A read of `len` data bytes (plus CRC), retried on timeout or CRC failure.
+    pub async fn read(&self, command: u8, len: usize) -> Result<Vec<u8>, RoboClawError> {
+        let after = self.deadline(len + 4);
+        let mut crc_failures = 0;
+        for attempt in 1..=self.cfg.read_attempts.max(1) {
+            let mut port = self.port.lock().await;
+            Self::drain(&mut port).await;
+            port.write_all(&packet::read_frame(self.cfg.address, command))
+                .await?;
+            port.flush().await?;
+            let mut buf = vec![0u8; len + 2];
+            match tokio::time::timeout(after, port.read_exact(&mut buf)).await {
+                Err(_) => continue,
+                Ok(Err(e)) => return Err(e.into()),
+                Ok(Ok(_)) => {}
+            }
+            match packet::check_answer(self.cfg.address, command, &buf) {
+                Some(data) => return Ok(data.to_vec()),
+                None => crc_failures = attempt,
+            }
+        }
+        let attempts = self.cfg.read_attempts.max(1);
+        if crc_failures > 0 {
+            Err(RoboClawError::Crc { command, attempts })
+        } else {
+            Err(RoboClawError::Timeout {
+                command,
+                after,
+                attempts,
+            })
+        }
+    }
+
+    /// A write, acknowledged once; the caller decides whether repeating it is safe.
+    pub async fn write(&self, command: u8, data: &[u8]) -> Result<(), RoboClawError> {
+        let frame = packet::write_frame(self.cfg.address, command, data);
+        let after = self.deadline(frame.len() + 1);
+        let mut port = self.port.lock().await;
+        Self::drain(&mut port).await;
+        port.write_all(&frame).await?;
+        port.flush().await?;
+        let mut ack = [0u8; 1];
+        match tokio::time::timeout(after, port.read_exact(&mut ack)).await {
+            Err(_) => Err(RoboClawError::Timeout {
+                command,
+                after,
+                attempts: 1,
+            }),
+            Ok(Err(e)) => Err(e.into()),
+            Ok(Ok(_)) if ack[0] == ACK => Ok(()),
+            Ok(Ok(_)) => Err(RoboClawError::Nak {
+                command,
+                got: ack[0],
+            }),
+        }
+    }
+
+    /// A write that is safe to repeat (stop, settings), tried up to the read attempts.
+    pub async fn write_idempotent(&self, command: u8, data: &[u8]) -> Result<(), RoboClawError> {
+        let mut last = None;
+        for _ in 0..self.cfg.read_attempts.max(1) {
+            match self.write(command, data).await {
+                Ok(()) => return Ok(()),
+                Err(e @ RoboClawError::Io(_)) => return Err(e),
+                Err(e) => last = Some(e),
+            }
+        }
+        Err(last.unwrap_or(RoboClawError::Timeout {
+            command,
+            after: Duration::ZERO,
+            attempts: 0,
+        }))
+    }
+
+    /// The firmware version string (the handshake: a RoboClaw answers it, others do not).
+    pub async fn version(&self) -> Result<String, RoboClawError> {
+        let after = self.deadline(52);
+        for _ in 0..self.cfg.read_attempts.max(1) {
+            let mut port = self.port.lock().await;
+            Self::drain(&mut port).await;
+            port.write_all(&packet::read_frame(self.cfg.address, cmd::READ_VERSION))
+                .await?;
+            port.flush().await?;
+            // Up to 48 characters ending "\n\0", then the CRC.
+            let mut got = Vec::new();
+            let read = tokio::time::timeout(after, async {
+                let mut b = [0u8; 1];
+                loop {
+                    port.read_exact(&mut b).await?;
+                    got.push(b[0]);
+                    if got.ends_with(b"\n\0") || got.len() >= 48 {
+                        break;
+                    }
+                }
+                let mut crc = [0u8; 2];
+                port.read_exact(&mut crc).await?;
+                got.extend_from_slice(&crc);
+                Ok::<_, std::io::Error>(())
+            })
+            .await;
+            if let Ok(Ok(())) = read {
+                if let Some(text) = packet::check_answer(self.cfg.address, cmd::READ_VERSION, &got)
+                {
+                    return Ok(String::from_utf8_lossy(text)
+                        .trim_end_matches(['\0', '\n'])
+                        .to_string());
+                }
+            }
+        }
+        Err(RoboClawError::Timeout {
+            command: cmd::READ_VERSION,
+            after,
+            attempts: self.cfg.read_attempts.max(1),
+        })
+    }
+
+    /// Both encoder counters (M1, M2), wrapping 32-bit.
+    pub async fn encoders(&self) -> Result<(u32, u32), RoboClawError> {
+        let d = self.read(cmd::READ_ENCODERS, 8).await?;
+        Ok((
+            packet::be_u32(&d, 0).unwrap_or(0),
+            packet::be_u32(&d, 4).unwrap_or(0),
+        ))
+    }
+
+    /// One encoder (1 or 2) with its status byte ([`packet::encoder_status`]).
+    pub async fn encoder(&self, motor: u8) -> Result<(u32, u8), RoboClawError> {
+        let c = if motor == 2 {
+            cmd::READ_ENCODER_M2
+        } else {
+            cmd::READ_ENCODER_M1
+        };
+        let d = self.read(c, 5).await?;
+        Ok((packet::be_u32(&d, 0).unwrap_or(0), d[4]))
+    }
+
+    /// Main battery voltage (V).
+    pub async fn battery_v(&self) -> Result<f64, RoboClawError> {
+        let d = self.read(cmd::READ_MAIN_BATTERY, 2).await?;
+        Ok(f64::from(u16::from_be_bytes([d[0], d[1]])) / 10.0)
+    }
+
+    /// Status bits (errors and warnings; 0 when all is well).
+    pub async fn status(&self) -> Result<u32, RoboClawError> {
+        let d = self.read(cmd::READ_STATUS, 4).await?;
+        Ok(packet::be_u32(&d, 0).unwrap_or(0))
+    }
+
+    /// Both motors' buffer lengths ([`packet::BUFFER_IDLE`] when finished).
+    pub async fn buffers(&self) -> Result<(u8, u8), RoboClawError> {
+        let d = self.read(cmd::READ_BUFFERS, 2).await?;
+        Ok((d[0], d[1]))
+    }
+
+    /// Stops both motors (speed 0); safe to repeat.
+    pub async fn stop(&self) -> Result<(), RoboClawError> {
+        self.write_idempotent(cmd::DRIVE_SPEEDS, &[0; 8]).await
+    }
+
+    /// The serial timeout: the controller stops its motors when no valid packet arrives for
+    /// this long (rounded to tenths of a second, at most 25.5 s; zero turns it off).
+    pub async fn set_serial_timeout(&self, t: Duration) -> Result<Duration, RoboClawError> {
+        let tenths = (t.as_secs_f64() * 10.0).round().clamp(0.0, 255.0) as u8;
+        self.write_idempotent(cmd::SET_SERIAL_TIMEOUT, &[tenths])
+            .await?;
+        Ok(Duration::from_millis(u64::from(tenths) * 100))
+    }
+}

@@ -1,0 +1,330 @@
+//! A RoboClaw as the seam's [`Drive`]: each leg or turn is one buffered "speed, acceleration
+//! and distance" command for both motors, its encoder counts computed from the robot profile's
+//! *configured* geometry (the open loop of the paper); motion ends when both buffers report
+//! idle. The profile says which channel is the left wheel and which way each encoder counts.
+
+use super::client::{RoboClaw, RoboClawError};
+use super::packet::{cmd, drive_distance_data, BUFFER_IDLE};
+use crate::base::{
+    Achieved, BaseError, ComponentInfo, Drive, Preflight, SampleStream, TravelSample,
+    STREAM_CAPACITY,
+};
+use crate::profile::{Channel, Profile};
+use async_trait::async_trait;
+use std::sync::{Arc, Mutex, RwLock};
+use std::time::Duration;
+use tokio::sync::mpsc;
+use tokio::time::Instant;
+
+/// How often a running motion is polled (this also feeds the controller's serial timeout).
+pub const POLL: Duration = Duration::from_millis(20);
+
+/// The drive.
+pub struct RoboClawDrive {
+    claw: RoboClaw,
+    version: String,
+    profile: Arc<RwLock<Profile>>,
+    travel: Arc<Mutex<Vec<mpsc::Sender<TravelSample>>>>,
+    start: Instant,
+}
+
+fn err(what: &'static str) -> impl Fn(RoboClawError) -> BaseError {
+    move |e| match e {
+        RoboClawError::InvalidArgument(reason) => BaseError::InvalidArgument {
+            component: "drive (RoboClaw)".into(),
+            reason,
+        },
+        RoboClawError::Nak { command, got } => BaseError::Refused {
+            component: "drive (RoboClaw)".into(),
+            what: what.into(),
+            reason: format!("command {command} answered 0x{got:02X}"),
+        },
+        other => BaseError::backend(format!("drive (RoboClaw, {what})"), other),
+    }
+}
+
+/// Encoder counts (left, right) as wheel rotations forward, from M1/M2 counters.
+fn wheels(p: &Profile, m1: u32, m2: u32) -> (u32, u32, i8, i8) {
+    let w = &p.wiring;
+    match w.left_channel {
+        Channel::M1 => (m1, m2, w.left_encoder_sign, w.right_encoder_sign),
+        Channel::M2 => (m2, m1, w.left_encoder_sign, w.right_encoder_sign),
+    }
+}
+
+impl RoboClawDrive {
+    /// Greets the controller (reads its firmware version) and wraps it; fails with a diagnosis
+    /// when nothing or something else answers.
+    pub async fn connect(
+        claw: RoboClaw,
+        profile: Arc<RwLock<Profile>>,
+    ) -> Result<Self, RoboClawError> {
+        let version = claw
+            .version()
+            .await
+            .map_err(|e| RoboClawError::NotARoboClaw {
+                port: claw.label().into(),
+                address: claw.config().address,
+                reason: e.to_string(),
+            })?;
+        Ok(RoboClawDrive {
+            claw,
+            version,
+            profile,
+            travel: Arc::default(),
+            start: Instant::now(),
+        })
+    }
+
+    /// The firmware version it reported.
+    pub fn version(&self) -> &str {
+        &self.version
+    }
+
+    fn profile(&self) -> Profile {
+        *self.profile.read().unwrap_or_else(|p| p.into_inner())
+    }
+
+    /// Wheel travel (m, forward) between two encoder readings.
+    fn travel_between(&self, p: &Profile, a: (u32, u32), b: (u32, u32)) -> (f64, f64) {
+        let (la, ra, ls, rs) = wheels(p, a.0, a.1);
+        let (lb, rb, _, _) = wheels(p, b.0, b.1);
+        let g = p.params();
+        (
+            f64::from(lb.wrapping_sub(la) as i32) * f64::from(ls) * g.left_m_per_count(),
+            f64::from(rb.wrapping_sub(ra) as i32) * f64::from(rs) * g.right_m_per_count(),
+        )
+    }
+
+    fn forward(&self, left_m: f64, right_m: f64) {
+        let sample = TravelSample {
+            time_s: self.start.elapsed().as_secs_f64(),
+            left_m,
+            right_m,
+        };
+        let mut subs = self.travel.lock().unwrap_or_else(|p| p.into_inner());
+        subs.retain(|tx| !tx.is_closed());
+        for tx in subs.iter() {
+            let _ = tx.try_send(sample);
+        }
+    }
+
+    /// Drives the wheels by `left_m`, `right_m` at most `speed_m_s` (the faster wheel), both
+    /// finishing together.
+    async fn wheels_by(
+        &self,
+        left_m: f64,
+        right_m: f64,
+        speed_m_s: f64,
+    ) -> Result<Option<Achieved>, BaseError> {
+        let p = self.profile();
+        let g = p.params();
+        let invalid = |reason: String| BaseError::InvalidArgument {
+            component: "drive (RoboClaw)".into(),
+            reason,
+        };
+        if !(left_m.is_finite() && right_m.is_finite() && speed_m_s.is_finite() && speed_m_s > 0.0)
+        {
+            return Err(invalid(format!(
+                "wheels {left_m}, {right_m} m at {speed_m_s} m/s is not a motion"
+            )));
+        }
+        let speed = speed_m_s.min(p.limits.max_speed_m_s);
+        let longest = left_m.abs().max(right_m.abs()).max(1e-9);
+        let counts = |m: f64, per: f64| (m / per).round();
+        let (cl, cr) = (
+            counts(left_m, g.left_m_per_count()),
+            counts(right_m, g.right_m_per_count()),
+        );
+        if cl.abs() > f64::from(i32::MAX) || cr.abs() > f64::from(i32::MAX) {
+            return Err(invalid(
+                "the motion is longer than the encoders can count".into(),
+            ));
+        }
+        // Speeds proportional to each wheel's share so both finish together.
+        let ql = speed * left_m.abs() / longest / g.left_m_per_count();
+        let qr = speed * right_m.abs() / longest / g.right_m_per_count();
+        let accel =
+            (p.limits.max_accel_m_s2 / g.left_m_per_count().min(g.right_m_per_count())).round();
+        // Encoder counts per channel, signed as that encoder counts forward travel.
+        let (w1, w2) = match p.wiring.left_channel {
+            Channel::M1 => (
+                (cl, ql, p.wiring.left_encoder_sign),
+                (cr, qr, p.wiring.right_encoder_sign),
+            ),
+            Channel::M2 => (
+                (cr, qr, p.wiring.right_encoder_sign),
+                (cl, ql, p.wiring.left_encoder_sign),
+            ),
+        };
+        let speed_of =
+            |(c, q, s): (f64, f64, i8)| (q.round().max(1.0) * c.signum() * f64::from(s)) as i32;
+        let data = drive_distance_data(
+            accel.clamp(1.0, f64::from(u32::MAX)) as u32,
+            speed_of(w1),
+            w1.0.abs() as u32,
+            speed_of(w2),
+            w2.0.abs() as u32,
+        );
+        let before = self.claw.encoders().await.map_err(err("an encoder read"))?;
+        match self
+            .claw
+            .write(cmd::DRIVE_SPEED_ACCEL_DISTANCE, &data)
+            .await
+        {
+            Ok(()) => {}
+            Err(RoboClawError::Timeout { .. }) => {
+                // The acknowledgement is lost: did the command arrive? Moving encoders or a busy
+                // buffer say yes. Never resend a motion that may be running.
+                tokio::time::sleep(POLL).await;
+                let (b1, b2) = self.claw.buffers().await.map_err(err("a buffer read"))?;
+                let now = self.claw.encoders().await.map_err(err("an encoder read"))?;
+                let arrived = b1 != BUFFER_IDLE || b2 != BUFFER_IDLE || now != before;
+                if !arrived {
+                    self.claw
+                        .write(cmd::DRIVE_SPEED_ACCEL_DISTANCE, &data)
+                        .await
+                        .map_err(err("a motion"))?;
+                }
+            }
+            Err(e) => return Err(err("a motion")(e)),
+        }
+        // Trapezoid time plus slack: 3× + 2 s.
+        let expected = longest / speed + speed / p.limits.max_accel_m_s2;
+        let limit = Duration::from_secs_f64(3.0 * expected + 2.0);
+        let started = Instant::now();
+        let mut last = before;
+        loop {
+            tokio::time::sleep(POLL).await;
+            let now = self.claw.encoders().await.map_err(err("an encoder read"))?;
+            let (sl, sr) = self.travel_between(&p, last, now);
+            if sl != 0.0 || sr != 0.0 {
+                self.forward(sl, sr);
+            }
+            last = now;
+            let (b1, b2) = self.claw.buffers().await.map_err(err("a buffer read"))?;
+            if b1 == BUFFER_IDLE && b2 == BUFFER_IDLE {
+                break;
+            }
+            if started.elapsed() > limit {
+                let _ = self.claw.stop().await;
+                return Err(BaseError::MotionTimeout { after: limit });
+            }
+        }
+        let after = self.claw.encoders().await.map_err(err("an encoder read"))?;
+        let (sl, sr) = self.travel_between(&p, before, after);
+        let (tl, tr) = self.travel_between(&p, last, after);
+        if tl != 0.0 || tr != 0.0 {
+            self.forward(tl, tr);
+        }
+        Ok(Some(Achieved {
+            distance_m: 0.5 * (sl + sr),
+            turn_rad: (sr - sl) / g.wheelbase_m,
+        }))
+    }
+}
+
+#[async_trait]
+impl Drive for RoboClawDrive {
+    fn info(&self) -> ComponentInfo {
+        let c = self.claw.config();
+        ComponentInfo {
+            kind: "roboclaw".into(),
+            id: format!("{}@0x{:02X}", self.claw.label(), c.address),
+            details: serde_json::json!({
+                "port": self.claw.label(),
+                "address": c.address,
+                "baud": c.baud,
+                "firmware": self.version,
+            }),
+        }
+    }
+
+    async fn preflight(&self) -> Result<Preflight, BaseError> {
+        let mut out = Preflight::default();
+        let p = self.profile();
+        let v = self
+            .claw
+            .battery_v()
+            .await
+            .map_err(err("the battery voltage"))?;
+        if let Some(min) = p.limits.min_battery_v {
+            if v < min {
+                out.faults.push(format!(
+                    "main battery {v:.1} V is below the profile's {min:.1} V"
+                ));
+            }
+        }
+        let status = self.claw.status().await.map_err(err("the status"))?;
+        if status != 0 {
+            out.warnings
+                .push(format!("the RoboClaw reports status bits 0x{status:08X}"));
+        }
+        for m in [1u8, 2] {
+            let (_, s) = self.claw.encoder(m).await.map_err(err("an encoder"))?;
+            if s & (super::packet::encoder_status::UNDERFLOW
+                | super::packet::encoder_status::OVERFLOW)
+                != 0
+            {
+                out.warnings.push(format!(
+                    "encoder M{m} reports an over- or underflow (status 0x{s:02X})"
+                ));
+            }
+        }
+        Ok(out)
+    }
+
+    async fn arm_watchdog(&self, timeout: Duration) -> Result<Option<Duration>, BaseError> {
+        // The RoboClaw's serial timeout, at least a few polls long.
+        let t = timeout.max(POLL * 5);
+        self.claw
+            .set_serial_timeout(t)
+            .await
+            .map(Some)
+            .map_err(err("the serial timeout"))
+    }
+
+    async fn move_straight(
+        &self,
+        distance_m: f64,
+        max_speed_m_s: f64,
+    ) -> Result<Option<Achieved>, BaseError> {
+        self.wheels_by(distance_m, distance_m, max_speed_m_s).await
+    }
+
+    async fn turn_in_place(
+        &self,
+        angle_rad: f64,
+        max_rate_rad_s: f64,
+    ) -> Result<Option<Achieved>, BaseError> {
+        let b = self.profile().params().wheelbase_m;
+        let arc = 0.5 * angle_rad * b;
+        self.wheels_by(-arc, arc, max_rate_rad_s * 0.5 * b).await
+    }
+
+    async fn stop(&self) -> Result<(), BaseError> {
+        self.claw.stop().await.map_err(err("STOP"))
+    }
+
+    fn emergency_stop(&self) {
+        let claw = self.claw.clone();
+        // Not awaitable from Drop: stop in the background (the serial timeout backs it up).
+        if let Ok(rt) = tokio::runtime::Handle::try_current() {
+            rt.spawn(async move {
+                let _ = claw.stop().await;
+            });
+        }
+    }
+
+    async fn travel(
+        &self,
+        _period: Duration,
+    ) -> Result<Option<SampleStream<TravelSample>>, BaseError> {
+        let (tx, rx) = mpsc::channel(STREAM_CAPACITY);
+        self.travel
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .push(tx);
+        Ok(Some(rx))
+    }
+}
