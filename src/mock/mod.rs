@@ -8,6 +8,7 @@
 
 pub mod device;
 pub mod error;
+pub mod roboclaw;
 pub mod rosbridge;
 pub mod serve;
 pub mod sim_base;

@@ -72,7 +72,7 @@ pub fn read_frame(address: u8, command: u8) -> [u8; 2] {
 }
 
 /// Checks a read answer (`data` then CRC over address, command and data); returns the data.
-pub fn check_answer<'a>(address: u8, command: u8, answer: &'a [u8]) -> Option<&'a [u8]> {
+pub fn check_answer(address: u8, command: u8, answer: &[u8]) -> Option<&[u8]> {
     let (data, crc) = answer.split_at(answer.len().checked_sub(2)?);
     let mut d = CRC16.digest();
     d.update(&[address, command]);

@@ -1,0 +1,228 @@
+//! A RoboClaw, an NMEA compass and a robot profile as one base, against the mocks (one
+//! simulated robot behind both): calibration fixes the robot and writes the profile; the
+//! controller's serial timeout stops the robot when the host vanishes; a lost acknowledgement
+//! never drives a leg twice.
+
+mod common;
+
+use odocal::base::Drive;
+use odocal::kinematics::WheelParams;
+use odocal::mock::roboclaw::{
+    robot, serve_compass, serve_roboclaw, spawn_robot, MockRoboClawConfig, SharedRobot,
+};
+use odocal::nmea::NmeaCompass;
+use odocal::profile::{Profile, ProfileStore};
+use odocal::roboclaw::client::{RoboClaw, RoboClawConfig};
+use odocal::roboclaw::drive::RoboClawDrive;
+use odocal::routine::config::{RoutineConfig, WritePolicy};
+use odocal::routine::{run, Unattended};
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::Duration;
+use tokio_util::sync::CancellationToken;
+
+const PROFILE: &str = "\
+# test robot
+[geometry]
+left_wheel_diameter_m = 0.15
+right_wheel_diameter_m = 0.15
+wheelbase_m = 0.39
+encoder_counts_per_motor_rev = 1024
+gear_ratio = 4.0
+
+[wiring]
+left_channel = \"M2\"
+left_encoder_sign = 1
+right_encoder_sign = -1
+
+[limits]
+max_speed_m_s = 1.0
+max_accel_m_s2 = 1.0
+min_battery_v = 10.5
+";
+
+fn profile_file(name: &str) -> (PathBuf, PathBuf) {
+    let dir = common::scratch(name);
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("robot.toml");
+    std::fs::write(&path, PROFILE).unwrap();
+    (dir, path)
+}
+
+fn mock_config(time_scale: f64) -> MockRoboClawConfig {
+    let mut truth = common::truth();
+    truth.counts_per_wheel_rev = 4096.0;
+    let mut cfg = MockRoboClawConfig::new(truth);
+    // Wired as the profile says: left wheel on M2, right encoder counting down.
+    cfg.left_on_m1 = false;
+    cfg.right_encoder_sign = -1;
+    cfg.noise.compass_sigma_rad = 0.05f64.to_radians();
+    cfg.time_scale = time_scale;
+    cfg.compass_hz = 20.0;
+    cfg
+}
+
+/// A RoboClaw client on an in-memory link to the mock.
+fn claw_on(robot_state: &SharedRobot) -> RoboClaw {
+    let (host, dev) = tokio::io::duplex(4096);
+    tokio::spawn(serve_roboclaw(dev, robot_state.clone()));
+    RoboClaw::new(host, RoboClawConfig::default(), "duplex").unwrap()
+}
+
+fn compass_on(robot_state: &SharedRobot) -> NmeaCompass {
+    let (host, dev) = tokio::io::duplex(4096);
+    tokio::spawn(serve_compass(dev, robot_state.clone()));
+    NmeaCompass::new(host, "duplex", Duration::from_millis(500))
+}
+
+fn routine(dir: &Path) -> RoutineConfig {
+    RoutineConfig {
+        side_m: 1.0,
+        runs_per_direction: 3,
+        max_speed_m_s: 0.5,
+        max_rate_rad_s: 1.5,
+        heading_samples: 3,
+        settle_s: 0.0,
+        verification_runs: 2,
+        write_back: WritePolicy::Yes,
+        confirm_motion: false,
+        backup_dir: dir.join("backups"),
+        ..RoutineConfig::default()
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_roboclaw_and_a_compass_calibrate_the_robot_and_write_its_profile() {
+    let (dir, path) = profile_file("roboclaw-e2e");
+    let robot_state = spawn_robot(mock_config(20.0)).unwrap();
+    let store = ProfileStore::open(&path).unwrap();
+    let base = odocal::roboclaw::base(
+        claw_on(&robot_state),
+        Arc::new(compass_on(&robot_state)),
+        store,
+    )
+    .await
+    .unwrap();
+    let report = run(
+        &base,
+        &routine(&dir),
+        None,
+        &mut Unattended,
+        &CancellationToken::new(),
+    )
+    .await
+    .unwrap();
+    let before = report.mean_abs_heading_error_before_deg;
+    let after = report.mean_abs_heading_error_after_deg.unwrap();
+    assert!(
+        before > 3.0 && after * 10.0 < before,
+        "{before}° → {after}°"
+    );
+    // The profile holds the heading-observable combinations of the truth: the diameter ratio
+    // and the wheelbase over the left diameter (left wheel nominal).
+    let written = Profile::load(&path).unwrap().params();
+    let truth = common::truth();
+    assert!(
+        (written.e_d() / truth.e_d() - 1.0).abs() < 5e-4,
+        "{written:?}"
+    );
+    let ratio = |p: &WheelParams| p.wheelbase_m / p.left_wheel_diameter_m;
+    assert!(
+        (ratio(&written) / ratio(&truth) - 1.0).abs() < 2e-3,
+        "{written:?}"
+    );
+    let text = std::fs::read_to_string(&path).unwrap();
+    assert!(
+        text.contains("# test robot") && text.contains("left_channel = \"M2\""),
+        "{text}"
+    );
+    let backups = std::fs::read_dir(&dir)
+        .unwrap()
+        .filter_map(|e| e.ok())
+        .filter(|e| {
+            e.file_name()
+                .to_string_lossy()
+                .starts_with("robot.toml.odocal-backup-")
+        })
+        .count();
+    assert_eq!(backups, 1);
+    assert!(!robot(&robot_state).moving());
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_serial_timeout_stops_the_robot_when_the_host_vanishes_mid_leg() {
+    let (_dir, path) = profile_file("roboclaw-vanish");
+    let robot_state = spawn_robot(mock_config(1.0)).unwrap();
+    let profile = Arc::new(std::sync::RwLock::new(Profile::load(&path).unwrap()));
+    let drive = RoboClawDrive::connect(claw_on(&robot_state), profile)
+        .await
+        .unwrap();
+    let armed = drive
+        .arm_watchdog(Duration::from_millis(200))
+        .await
+        .unwrap();
+    assert_eq!(armed, Some(Duration::from_millis(200)));
+    // A 5 m leg, abandoned after 300 ms: the host stops talking (no stop is sent).
+    let leg = tokio::time::timeout(Duration::from_millis(300), drive.move_straight(5.0, 0.5)).await;
+    assert!(leg.is_err(), "the leg cannot be done yet");
+    std::mem::forget(drive);
+    assert!(
+        robot(&robot_state).moving(),
+        "it was moving when the host went silent"
+    );
+    tokio::time::sleep(Duration::from_millis(500)).await;
+    let r = robot(&robot_state);
+    assert!(!r.moving(), "the serial timeout must stop it");
+    assert_eq!(r.counters.serial_timeouts, 1);
+    assert_eq!(
+        r.counters.stops, 0,
+        "stopped by the controller itself, not by a host command"
+    );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_lost_acknowledgement_never_drives_a_leg_twice() {
+    let (_dir, path) = profile_file("roboclaw-ack");
+    let mut cfg = mock_config(10.0);
+    cfg.lose_ack_rate = 1.0;
+    let robot_state = spawn_robot(cfg).unwrap();
+    let profile = Arc::new(std::sync::RwLock::new(Profile::load(&path).unwrap()));
+    let drive = RoboClawDrive::connect(claw_on(&robot_state), profile)
+        .await
+        .unwrap();
+    let start = robot(&robot_state).pose();
+    let achieved = drive.move_straight(1.0, 0.5).await.unwrap().unwrap();
+    let r = robot(&robot_state);
+    assert_eq!(r.counters.drive_commands, 1, "the leg was sent once");
+    assert!(r.counters.lost_acks >= 1);
+    // One leg: a metre by the drive's odometry, a metre (±scale error) in truth.
+    assert!((achieved.distance_m - 1.0).abs() < 1e-3, "{achieved:?}");
+    let moved = r.pose().relative_to(&start).distance_m();
+    assert!((moved - 1.0).abs() < 0.02, "moved {moved} m");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn something_else_on_the_port_is_not_a_roboclaw() {
+    let (host, mut dev) = tokio::io::duplex(1024);
+    tokio::spawn(async move {
+        use tokio::io::{AsyncReadExt, AsyncWriteExt};
+        let mut b = [0u8; 64];
+        while let Ok(n) = dev.read(&mut b).await {
+            if n == 0 {
+                break;
+            }
+            let _ = dev.write_all(b"garbage!").await;
+        }
+    });
+    let claw = RoboClaw::new(host, RoboClawConfig::default(), "/dev/ttyACM0").unwrap();
+    let (_dir, path) = profile_file("roboclaw-wrong");
+    let profile = Arc::new(std::sync::RwLock::new(Profile::load(&path).unwrap()));
+    let err = match RoboClawDrive::connect(claw, profile).await {
+        Err(e) => e.to_string(),
+        Ok(_) => panic!("garbage is not a RoboClaw"),
+    };
+    assert!(
+        err.contains("not a RoboClaw") && err.contains("/dev/ttyACM0"),
+        "{err}"
+    );
+}
