@@ -226,3 +226,79 @@ async fn something_else_on_the_port_is_not_a_roboclaw() {
         "{err}"
     );
 }
+
+#[test]
+fn calibrate_a_roboclaw_base_from_the_command_line_on_pseudo_terminals() {
+    let (dir, path) = profile_file("roboclaw-cli");
+    let profile = path.to_str().unwrap();
+    let (mut mock, lines) = common::spawn_server_lines(
+        "mock-roboclaw",
+        &[
+            "--profile",
+            profile,
+            "--time-scale",
+            "20",
+            "--compass-hz",
+            "20",
+            "--compass-sigma-deg",
+            "0.05",
+        ],
+        2,
+    );
+    let (first, compass) = (lines[0].clone(), lines[1].clone());
+    assert!(first.starts_with("roboclaw:/"), "{first}");
+    assert!(compass.starts_with("nmea:/"), "{compass}");
+    let heading = format!("{compass}?baud=115200");
+    let v = common::odocal_json(&["heading", "--port", &heading, "--samples", "2", "--json"]);
+    assert!(v["heading_rad"].as_f64().is_some_and(f64::is_finite), "{v}");
+    let v = common::odocal_json(&["status", "--port", &first, "--json"]);
+    assert!(v["firmware"].as_str().unwrap().contains("Roboclaw"), "{v}");
+    let report_dir = dir.join("report");
+    let v = common::odocal_json(&[
+        "calibrate",
+        "--base",
+        &first,
+        "--heading",
+        &heading,
+        "--profile",
+        profile,
+        "--yes",
+        "--side-m",
+        "1",
+        "--runs",
+        "3",
+        "--max-speed-m-s",
+        "0.5",
+        "--max-rate-rad-s",
+        "1.5",
+        "--settle-s",
+        "0",
+        "--heading-samples",
+        "3",
+        "--verification-runs",
+        "2",
+        "--report-dir",
+        report_dir.to_str().unwrap(),
+        "--json",
+    ]);
+    let _ = mock.kill();
+    let before = v["mean_abs_heading_error_before_deg"].as_f64().unwrap();
+    let after = v["mean_abs_heading_error_after_deg"].as_f64().unwrap();
+    assert!(after * 10.0 < before, "{before}° → {after}°");
+    assert_eq!(v["base"]["drive"]["kind"], "roboclaw");
+    assert_eq!(v["base"]["heading"]["kind"], "nmea0183");
+    assert_eq!(v["base"]["store"]["kind"], "robot-profile");
+    // And the result exports to ros2_control like any other.
+    let yaml = dir.join("diff_drive.yaml");
+    let (ok, _, err) = common::odocal(&[
+        "export",
+        "--from",
+        report_dir.join("report.json").to_str().unwrap(),
+        "--ros2",
+        yaml.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    assert!(std::fs::read_to_string(&yaml)
+        .unwrap()
+        .contains("wheel_separation_multiplier: 0.97"));
+}

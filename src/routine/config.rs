@@ -32,6 +32,10 @@ pub struct RoutineConfig {
     /// Settings of a ROS base (`yaml`, `controller`, `cmd_vel`, `twist_stamped`, `topics`, …),
     /// read by the ROS backend, not by the routine.
     pub ros: Option<toml::Table>,
+    /// The heading source of a `roboclaw:` base: `nmea:PORT[?baud=4800]`.
+    pub heading: Option<String>,
+    /// The robot profile of a `roboclaw:` base.
+    pub profile: Option<PathBuf>,
     /// Baud rate.
     pub baud: u32,
     /// Square side (m).
@@ -77,6 +81,8 @@ impl Default for RoutineConfig {
         RoutineConfig {
             port: None,
             ros: None,
+            heading: None,
+            profile: None,
             baud: 115_200,
             side_m: 4.0,
             runs_per_direction: 5,

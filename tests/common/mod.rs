@@ -114,6 +114,16 @@ pub fn spawn_mock(args: &[&str]) -> (std::process::Child, String) {
 /// Starts an `odocal` server subcommand (`mock-device`, `mock-rosbridge`) with `args`; returns
 /// the process (closing its stdin stops it) and its first line (its path or URL).
 pub fn spawn_server(command: &str, args: &[&str]) -> (std::process::Child, String) {
+    let (child, mut lines) = spawn_server_lines(command, args, 1);
+    (child, lines.remove(0))
+}
+
+/// [`spawn_server`] for a server that prints `n` lines (paths or URLs) first.
+pub fn spawn_server_lines(
+    command: &str,
+    args: &[&str],
+    n: usize,
+) -> (std::process::Child, Vec<String>) {
     use std::io::{BufRead, BufReader};
     use std::process::Stdio;
     let mut mock = Command::new(env!("CARGO_BIN_EXE_odocal"))
@@ -124,9 +134,14 @@ pub fn spawn_server(command: &str, args: &[&str]) -> (std::process::Child, Strin
         .stderr(Stdio::null())
         .spawn()
         .expect("mock-device starts");
-    let mut line = String::new();
-    BufReader::new(mock.stdout.take().expect("stdout piped"))
-        .read_line(&mut line)
-        .expect("mock-device prints its path");
-    (mock, line.trim().to_string())
+    let mut out = BufReader::new(mock.stdout.take().expect("stdout piped"));
+    let lines = (0..n)
+        .map(|_| {
+            let mut line = String::new();
+            out.read_line(&mut line)
+                .expect("the server prints its address");
+            line.trim().to_string()
+        })
+        .collect();
+    (mock, lines)
 }

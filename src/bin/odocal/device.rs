@@ -149,7 +149,9 @@ pub async fn mock_device(args: MockArgs) -> CliResult {
 /// Port flags shared by the device commands.
 #[derive(Debug, Clone, clap::Args)]
 pub struct PortArgs {
-    /// Serial port path (e.g. /dev/ttyUSB0, or the path `odocal mock-device` printed).
+    /// Serial port path (e.g. /dev/ttyUSB0, or the path `odocal mock-device` printed);
+    /// `roboclaw:PORT?address=128&baud=38400` for `status` of a RoboClaw, `nmea:PORT?baud=4800`
+    /// for `heading` of an NMEA compass.
     #[arg(long)]
     port: String,
     /// Baud rate.
@@ -307,6 +309,9 @@ pub async fn params(cmd: ParamsCommand) -> CliResult {
 
 /// Runs `odocal status`.
 pub async fn status(port: PortArgs) -> CliResult {
+    if port.port.starts_with("roboclaw:") {
+        return crate::serial_bases::roboclaw_status(&port.port, port.json).await;
+    }
     let client = port.connect().await?;
     let s = client.status().await?;
     if port.json {
@@ -338,6 +343,10 @@ pub struct HeadingArgs {
 
 /// Runs `odocal heading`.
 pub async fn heading(args: HeadingArgs) -> CliResult {
+    if args.port.port.starts_with("nmea:") {
+        return crate::serial_bases::nmea_heading(&args.port.port, args.samples, args.port.json)
+            .await;
+    }
     let client = args.port.connect().await?;
     let mean = odocal::routine::heading::mean_heading(&client, args.samples).await?;
     if args.port.json {

@@ -6,6 +6,7 @@ mod ports;
 mod replay;
 mod ros;
 mod routine;
+mod serial_bases;
 mod simulate;
 mod track;
 
@@ -61,6 +62,8 @@ enum Command {
     Bag(ros::BagArgs),
     /// Serve a simulated ROS 2 robot behind a mock rosbridge server on loopback.
     MockRosbridge(ros::MockArgs),
+    /// Serve a mock RoboClaw and a mock NMEA compass of one simulated robot on two PTYs.
+    MockRoboclaw(serial_bases::MockArgs),
 }
 
 /// Convention flags shared by the subcommands that estimate.
@@ -129,6 +132,7 @@ fn main() -> ExitCode {
         Command::Ports(args) => ports::run(args),
         Command::Bag(args) => ros::run(args),
         Command::MockRosbridge(args) => block_on(ros::mock(args)),
+        Command::MockRoboclaw(args) => block_on(serial_bases::mock(args)),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -364,9 +364,16 @@ pub struct CalibrateArgs {
     /// Serial port of a motor controller that speaks odocal's protocol.
     #[arg(long, conflicts_with = "base")]
     port: Option<String>,
-    /// A ROS robot: rosbridge://HOST:PORT (needs --ros-yaml).
+    /// A ROS robot: rosbridge://HOST:PORT (needs --ros-yaml); or a RoboClaw:
+    /// roboclaw:PORT[?address=128&baud=38400] (needs --heading and --profile).
     #[arg(long)]
     base: Option<String>,
+    /// The heading source of a RoboClaw base: nmea:PORT[?baud=4800].
+    #[arg(long)]
+    heading: Option<String>,
+    /// The robot profile of a RoboClaw base (geometry, wiring, limits; written back).
+    #[arg(long)]
+    profile: Option<PathBuf>,
     #[command(flatten)]
     ros: RosLiveArgs,
     /// Baud rate.
@@ -469,10 +476,18 @@ impl RosLiveArgs {
     }
 }
 
-/// Where the routine runs: a serial port or a ROS robot.
+/// Where the routine runs: a serial port, a ROS robot, or a RoboClaw with a compass.
 enum Target<'a> {
-    Port { path: &'a str, baud: u32 },
+    Port {
+        path: &'a str,
+        baud: u32,
+    },
     Ros(Box<odocal::ros::base::RosBaseConfig>),
+    RoboClaw {
+        drive: String,
+        heading: Option<String>,
+        profile: Option<PathBuf>,
+    },
 }
 
 async fn run_on(mut cfg: RoutineConfig, target: Target<'_>, flags: &RoutineFlags) -> CliResult {
@@ -483,6 +498,7 @@ async fn run_on(mut cfg: RoutineConfig, target: Target<'_>, flags: &RoutineFlags
     let place = match &target {
         Target::Port { path, .. } => path.to_string(),
         Target::Ros(r) => r.url.clone(),
+        Target::RoboClaw { drive, .. } => drive.clone(),
     };
     if !flags.json {
         eprintln!(
@@ -501,6 +517,23 @@ async fn run_on(mut cfg: RoutineConfig, target: Target<'_>, flags: &RoutineFlags
                 );
             }
             Base::single(client)
+        }
+        Target::RoboClaw {
+            drive,
+            heading,
+            profile,
+        } => {
+            let base =
+                crate::serial_bases::roboclaw_base(&drive, heading.as_deref(), profile.as_deref())
+                    .await?;
+            if !flags.json {
+                let info = base.info();
+                eprintln!(
+                    "connected: {} ({}), heading {}, profile {}",
+                    info.drive.id, info.drive.details["firmware"], info.heading.id, info.store.id
+                );
+            }
+            base
         }
         Target::Ros(r) => {
             let base = odocal::ros::base::connect(&r).await?;
@@ -537,14 +570,24 @@ pub async fn calibrate(args: CalibrateArgs) -> CliResult {
         (None, Some(url)) if url.starts_with("rosbridge://") || url.starts_with("ws://") => {
             Target::Ros(Box::new(args.ros.config(url, cfg.ros.as_ref())?))
         }
+        (None, Some(spec)) if spec.starts_with("roboclaw:") => Target::RoboClaw {
+            drive: spec.clone(),
+            heading: args.heading.clone().or_else(|| cfg.heading.clone()),
+            profile: args.profile.clone().or_else(|| cfg.profile.clone()),
+        },
         (None, Some(other)) => {
             return Err(format!(
-                "--base {other}: use rosbridge://HOST:PORT (or --port for a serial controller)"
+                "--base {other}: use rosbridge://HOST:PORT or roboclaw:PORT (or --port for a \
+                 controller that speaks odocal's protocol)"
             )
             .into())
         }
         _ => {
-            return Err("give --port PATH (odocal protocol) or --base rosbridge://HOST:PORT".into())
+            return Err(
+                "give --port PATH (odocal protocol), --base rosbridge://HOST:PORT or --base \
+                 roboclaw:PORT"
+                    .into(),
+            )
         }
     };
     run_on(cfg, target, &args.flags).await
@@ -591,6 +634,14 @@ pub async fn run_file(args: RunArgs) -> CliResult {
             }
             .config(url, cfg.ros.as_ref())?;
             run_on(cfg.clone(), Target::Ros(Box::new(ros)), &args.flags).await
+        }
+        Some(spec) if spec.starts_with("roboclaw:") => {
+            let target = Target::RoboClaw {
+                drive: spec.to_string(),
+                heading: cfg.heading.clone(),
+                profile: cfg.profile.clone(),
+            };
+            run_on(cfg.clone(), target, &args.flags).await
         }
         Some(port) => {
             let target = Target::Port {
