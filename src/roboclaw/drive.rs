@@ -213,6 +213,21 @@ impl RoboClawDrive {
         }
         let after = self.claw.encoders().await.map_err(err("an encoder read"))?;
         let (sl, sr) = self.travel_between(&p, before, after);
+        // A wheel that went the other way than commanded means the profile's wiring is wrong
+        // (channel swapped, or an encoder counting the other way): stop before it goes on.
+        for (name, got, want) in [("left", sl, left_m), ("right", sr, right_m)] {
+            if want.abs() > 0.01 && got * want < 0.0 && got.abs() > 0.1 * want.abs() {
+                let _ = self.claw.stop().await;
+                return Err(BaseError::Refused {
+                    component: "drive (RoboClaw)".into(),
+                    what: "a motion".into(),
+                    reason: format!(
+                        "the {name} wheel moved {got:+.3} m for {want:+.3} m commanded: check \
+                         the profile's [wiring] (left_channel, {name}_encoder_sign)"
+                    ),
+                });
+            }
+        }
         let (tl, tr) = self.travel_between(&p, last, after);
         if tl != 0.0 || tr != 0.0 {
             self.forward(tl, tr);
