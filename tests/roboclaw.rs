@@ -302,3 +302,31 @@ fn calibrate_a_roboclaw_base_from_the_command_line_on_pseudo_terminals() {
         .unwrap()
         .contains("wheel_separation_multiplier: 0.97"));
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn lost_answers_are_recovered_by_retried_reads_and_a_brown_out_is_seen() {
+    let mut cfg = mock_config(10.0);
+    cfg.lose_answer_rate = 0.3;
+    let robot_state = spawn_robot(cfg).unwrap();
+    let claw = claw_on(&robot_state);
+    // Reads are safe to repeat: 30 % of answers lost, every read still completes.
+    let mut ok = 0;
+    for _ in 0..50 {
+        if claw.encoders().await.is_ok() {
+            ok += 1;
+        }
+    }
+    assert!(ok >= 48, "{ok} of 50 reads completed");
+    assert!(robot(&robot_state).counters.lost_answers > 5);
+    // A brown-out resets the controller: its encoders read zero again.
+    robot(&robot_state).brown_out();
+    let (_dir, path) = profile_file("roboclaw-brownout");
+    let profile = Arc::new(std::sync::RwLock::new(Profile::load(&path).unwrap()));
+    let drive = RoboClawDrive::connect(claw, profile).await.unwrap();
+    drive.move_straight(0.2, 0.5).await.unwrap();
+    robot(&robot_state).brown_out();
+    let (m1, m2) = odocal::roboclaw::client::RoboClaw::encoders(&claw_on(&robot_state))
+        .await
+        .unwrap();
+    assert_eq!((m1, m2), (0, 0));
+}

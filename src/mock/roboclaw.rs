@@ -43,6 +43,8 @@ pub struct MockRoboClawConfig {
     pub battery_v: f64,
     /// Probability that a write's acknowledgement is lost (the write executes).
     pub lose_ack_rate: f64,
+    /// Probability that a read's answer is lost on the line.
+    pub lose_answer_rate: f64,
     /// Compass sentences per second of robot time.
     pub compass_hz: f64,
     /// Compass talker id.
@@ -66,6 +68,7 @@ impl MockRoboClawConfig {
             version: "USB Roboclaw 2x7a v4.2.8\n".into(),
             battery_v: 12.3,
             lose_ack_rate: 0.0,
+            lose_answer_rate: 0.0,
             compass_hz: 10.0,
             compass_talker: "HC".into(),
             bad_checksum_rate: 0.0,
@@ -105,6 +108,8 @@ pub struct RoboClawCounters {
     pub lost_acks: u64,
     /// Packets refused for a bad CRC.
     pub bad_crcs: u64,
+    /// Read answers deliberately lost.
+    pub lost_answers: u64,
 }
 
 /// The shared robot.
@@ -373,7 +378,15 @@ where
             let answer = match write_len(command) {
                 None => {
                     buf.drain(..2);
-                    robot(&robot_state).execute(command, &[])
+                    let mut r = robot(&robot_state);
+                    let answer = r.execute(command, &[]);
+                    let lose = r.cfg.lose_answer_rate;
+                    if lose > 0.0 && r.rng.random_bool(lose.min(1.0)) {
+                        r.counters.lost_answers += 1;
+                        Vec::new()
+                    } else {
+                        answer
+                    }
                 }
                 Some(len) => {
                     if buf.len() < len + 4 {
