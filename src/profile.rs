@@ -192,18 +192,10 @@ impl Profile {
 }
 
 fn read_bounded(path: &Path) -> Result<String, ProfileError> {
-    let io = |source| ProfileError::Io {
+    crate::base::files::read_bounded(path, 1 << 20).map_err(|source| ProfileError::Io {
         path: path.to_path_buf(),
         source,
-    };
-    let len = std::fs::metadata(path).map_err(io)?.len();
-    if len > 1 << 20 {
-        return Err(io(std::io::Error::new(
-            std::io::ErrorKind::InvalidData,
-            format!("{len} bytes is not a robot profile"),
-        )));
-    }
-    std::fs::read_to_string(path).map_err(io)
+    })
 }
 
 /// `text` with the geometry set to `p`'s diameters and wheelbase, everything else untouched.

@@ -14,7 +14,7 @@ use odocal::nmea::NmeaCompass;
 use odocal::profile::{Profile, ProfileStore};
 use odocal::roboclaw::client::{RoboClaw, RoboClawConfig};
 use odocal::roboclaw::drive::RoboClawDrive;
-use odocal::routine::config::{RoutineConfig, WritePolicy};
+use odocal::routine::config::RoutineConfig;
 use odocal::routine::{run, Unattended};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -76,19 +76,7 @@ fn compass_on(robot_state: &SharedRobot) -> NmeaCompass {
 }
 
 fn routine(dir: &Path) -> RoutineConfig {
-    RoutineConfig {
-        side_m: 1.0,
-        runs_per_direction: 3,
-        max_speed_m_s: 0.5,
-        max_rate_rad_s: 1.5,
-        heading_samples: 3,
-        settle_s: 0.0,
-        verification_runs: 2,
-        write_back: WritePolicy::Yes,
-        confirm_motion: false,
-        backup_dir: dir.join("backups"),
-        ..RoutineConfig::default()
-    }
+    common::quick_routine(dir)
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -254,33 +242,20 @@ fn calibrate_a_roboclaw_base_from_the_command_line_on_pseudo_terminals() {
     let v = common::odocal_json(&["status", "--port", &first, "--json"]);
     assert!(v["firmware"].as_str().unwrap().contains("Roboclaw"), "{v}");
     let report_dir = dir.join("report");
-    let v = common::odocal_json(&[
-        "calibrate",
-        "--base",
-        &first,
-        "--heading",
-        &heading,
-        "--profile",
-        profile,
-        "--yes",
-        "--side-m",
-        "1",
-        "--runs",
-        "3",
-        "--max-speed-m-s",
-        "0.5",
-        "--max-rate-rad-s",
-        "1.5",
-        "--settle-s",
-        "0",
-        "--heading-samples",
-        "3",
-        "--verification-runs",
-        "2",
-        "--report-dir",
-        report_dir.to_str().unwrap(),
-        "--json",
-    ]);
+    let v = {
+        let mut args = vec![
+            "calibrate",
+            "--base",
+            &first,
+            "--heading",
+            &heading,
+            "--profile",
+            profile,
+        ];
+        args.extend(common::QUICK_FLAGS);
+        args.extend(["--report-dir", report_dir.to_str().unwrap(), "--json"]);
+        common::odocal_json(&args)
+    };
     let _ = mock.kill();
     let before = v["mean_abs_heading_error_before_deg"].as_f64().unwrap();
     let after = v["mean_abs_heading_error_after_deg"].as_f64().unwrap();

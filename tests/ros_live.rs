@@ -8,7 +8,7 @@ use odocal::base::Base;
 use odocal::mock::rosbridge::{MockRosConfig, MockRosbridge};
 use odocal::ros::base::{connect, RosBaseConfig};
 use odocal::ros::yaml::DiffDriveConfig;
-use odocal::routine::config::{RoutineConfig, WritePolicy};
+use odocal::routine::config::RoutineConfig;
 use odocal::routine::{run, RoutineError, RoutineEvent, RoutineUi, Unattended};
 use std::path::{Path, PathBuf};
 use std::time::Duration;
@@ -57,19 +57,7 @@ fn ros_config(url: String, yaml: &Path) -> RosBaseConfig {
 }
 
 fn routine(dir: &Path) -> RoutineConfig {
-    RoutineConfig {
-        side_m: 1.0,
-        runs_per_direction: 3,
-        max_speed_m_s: 0.5,
-        max_rate_rad_s: 1.5,
-        heading_samples: 3,
-        settle_s: 0.0,
-        verification_runs: 2,
-        write_back: WritePolicy::Yes,
-        confirm_motion: false,
-        backup_dir: dir.join("backups"),
-        ..RoutineConfig::default()
-    }
+    common::quick_routine(dir)
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -308,31 +296,12 @@ fn calibrate_base_rosbridge_end_to_end_from_the_command_line() {
     );
     assert!(url.starts_with("rosbridge://127.0.0.1:"), "{url}");
     let report_dir = dir.join("report");
-    let v = common::odocal_json(&[
-        "calibrate",
-        "--base",
-        &url,
-        "--ros-yaml",
-        yaml_s,
-        "--yes",
-        "--side-m",
-        "1",
-        "--runs",
-        "3",
-        "--max-speed-m-s",
-        "0.5",
-        "--max-rate-rad-s",
-        "1.5",
-        "--settle-s",
-        "0",
-        "--heading-samples",
-        "3",
-        "--verification-runs",
-        "2",
-        "--report-dir",
-        report_dir.to_str().unwrap(),
-        "--json",
-    ]);
+    let v = {
+        let mut args = vec!["calibrate", "--base", &url, "--ros-yaml", yaml_s];
+        args.extend(common::QUICK_FLAGS);
+        args.extend(["--report-dir", report_dir.to_str().unwrap(), "--json"]);
+        common::odocal_json(&args)
+    };
     let _ = server.kill();
     let before = v["mean_abs_heading_error_before_deg"].as_f64().unwrap();
     let after = v["mean_abs_heading_error_after_deg"].as_f64().unwrap();

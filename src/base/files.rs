@@ -68,3 +68,21 @@ pub fn backup_beside(path: &Path) -> std::io::Result<PathBuf> {
         "1000 backups with one time stamp",
     ))
 }
+
+/// Reads a text file of at most `max_bytes` (configuration files are small; a device node or a
+/// huge file is refused rather than read until memory runs out).
+pub fn read_bounded(path: &Path, max_bytes: u64) -> std::io::Result<String> {
+    let len = std::fs::metadata(path)?.len();
+    if len > max_bytes {
+        return Err(std::io::Error::new(
+            std::io::ErrorKind::InvalidData,
+            format!("{len} bytes is more than the {max_bytes} a configuration file may have"),
+        ));
+    }
+    let mut text = String::new();
+    std::io::Read::read_to_string(
+        &mut std::io::Read::take(std::fs::File::open(path)?, max_bytes + 1),
+        &mut text,
+    )?;
+    Ok(text)
+}

@@ -221,18 +221,10 @@ impl DiffDriveConfig {
 
 /// Reads a YAML file, refusing anything larger than a configuration file can be (16 MiB).
 fn read_bounded(path: &Path) -> Result<String, YamlError> {
-    let io = |source| YamlError::Io {
+    crate::base::files::read_bounded(path, 16 << 20).map_err(|source| YamlError::Io {
         path: path.to_path_buf(),
         source,
-    };
-    let meta = std::fs::metadata(path).map_err(io)?;
-    if meta.len() > 16 << 20 {
-        return Err(io(std::io::Error::new(
-            std::io::ErrorKind::InvalidData,
-            format!("{} bytes is not a configuration file", meta.len()),
-        )));
-    }
-    std::fs::read_to_string(path).map_err(io)
+    })
 }
 
 fn indent_of(line: &str) -> usize {

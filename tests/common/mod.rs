@@ -145,3 +145,40 @@ pub fn spawn_server_lines(
         .collect();
     (mock, lines)
 }
+
+/// A short routine for tests on real-time mocks: 1 m squares, 3 per direction, 2 verification
+/// runs each way, written without asking; backups under `dir`.
+pub fn quick_routine(dir: &std::path::Path) -> odocal::routine::config::RoutineConfig {
+    odocal::routine::config::RoutineConfig {
+        side_m: 1.0,
+        runs_per_direction: 3,
+        max_speed_m_s: 0.5,
+        max_rate_rad_s: 1.5,
+        heading_samples: 3,
+        settle_s: 0.0,
+        verification_runs: 2,
+        write_back: odocal::routine::config::WritePolicy::Yes,
+        confirm_motion: false,
+        backup_dir: dir.join("backups"),
+        ..odocal::routine::config::RoutineConfig::default()
+    }
+}
+
+/// The `calibrate` flags of [`quick_routine`], for CLI tests.
+pub const QUICK_FLAGS: [&str; 15] = [
+    "--yes",
+    "--side-m",
+    "1",
+    "--runs",
+    "3",
+    "--max-speed-m-s",
+    "0.5",
+    "--max-rate-rad-s",
+    "1.5",
+    "--settle-s",
+    "0",
+    "--heading-samples",
+    "3",
+    "--verification-runs",
+    "2",
+];

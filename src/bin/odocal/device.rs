@@ -127,17 +127,7 @@ pub async fn mock_device(args: MockArgs) -> CliResult {
             " or closing stdin"
         }
     );
-    let stdin_closed = async {
-        if args.ignore_stdin {
-            std::future::pending::<()>().await;
-        }
-        let mut sink = Vec::new();
-        let _ = tokio::io::AsyncReadExt::read_to_end(&mut tokio::io::stdin(), &mut sink).await;
-    };
-    tokio::select! {
-        _ = tokio::signal::ctrl_c() => {}
-        () = stdin_closed => {}
-    }
+    crate::serve_until_stopped(args.ignore_stdin).await;
     let counters = lock(&device).counters();
     eprintln!("mock device stopped: {counters:?}");
     if let Some(link) = &args.link {

@@ -106,6 +106,22 @@ pub fn pm(std_err: Option<f64>) -> String {
     std_err.map_or_else(String::new, |s| format!("± {s:.5}"))
 }
 
+/// Waits until Ctrl-C, or until stdin closes unless `ignore_stdin` (how a test or a script
+/// that started a mock server stops it).
+pub async fn serve_until_stopped(ignore_stdin: bool) {
+    let stdin_closed = async {
+        if ignore_stdin {
+            std::future::pending::<()>().await;
+        }
+        let mut sink = Vec::new();
+        let _ = tokio::io::AsyncReadExt::read_to_end(&mut tokio::io::stdin(), &mut sink).await;
+    };
+    tokio::select! {
+        _ = tokio::signal::ctrl_c() => {}
+        () = stdin_closed => {}
+    }
+}
+
 /// Runs an async command on a fresh runtime.
 fn block_on(
     fut: impl std::future::Future<Output = Result<(), Box<dyn std::error::Error>>>,

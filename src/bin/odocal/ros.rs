@@ -276,16 +276,6 @@ pub async fn mock(args: MockArgs) -> Result<(), Box<dyn std::error::Error>> {
             " or closing stdin"
         }
     );
-    let stdin_closed = async {
-        if args.ignore_stdin {
-            std::future::pending::<()>().await;
-        }
-        let mut sink = Vec::new();
-        let _ = tokio::io::AsyncReadExt::read_to_end(&mut tokio::io::stdin(), &mut sink).await;
-    };
-    tokio::select! {
-        _ = tokio::signal::ctrl_c() => {}
-        () = stdin_closed => {}
-    }
+    crate::serve_until_stopped(args.ignore_stdin).await;
     Ok(())
 }
