@@ -122,13 +122,30 @@ fn bad_bags_and_files_are_named() {
     odocal_json(&[
         "simulate", "--bag", bag_s, "--runs", "1", "--side-m", "1", "--json",
     ]);
-    // A topic that is not there: the error lists the topics there are.
-    let (ok, _, err) = odocal(&["bag", bag_s, "--imu-topic", "/imu/data"]);
+    // A topic that is not there, but one of its type is: that one is used, and said so.
+    let v = odocal_json(&["bag", bag_s, "--imu-topic", "/imu/data", "--json"]);
+    assert_eq!(
+        v["notes"][0], "IMU from /imu: the bag has no /imu/data",
+        "{v}"
+    );
+    // No IMU at all: the error lists the topics there are.
+    let no_imu = dir.join("no_imu.mcap");
+    {
+        use odocal::ros::bag_writer::BagWriter;
+        let mut w = BagWriter::create(&no_imu, &odocal::ros::bag::RosTopics::default()).unwrap();
+        for k in 0..10 {
+            let t = f64::from(k) * 0.1;
+            w.joints(t, t, t).unwrap();
+            w.odom(t, 0.0, 0.0, 0.0).unwrap();
+        }
+        w.finish().unwrap();
+    }
+    let (ok, _, err) = odocal(&["bag", no_imu.to_str().unwrap()]);
     assert!(!ok, "must fail");
     assert!(
-        err.contains("/imu/data")
-            && err.contains("/imu (sensor_msgs/msg/Imu)")
-            && err.contains("/odom"),
+        err.contains("no IMU topic `/imu`")
+            && err.contains("/joint_states (sensor_msgs/msg/JointState)")
+            && err.contains("/odom (nav_msgs/msg/Odometry)"),
         "{err}"
     );
     // A topic of another type: the type is named.

@@ -217,6 +217,8 @@ pub struct BagData {
     pub messages: u64,
     /// `odocal.side_m` from the bag's metadata, if a tool of ours wrote it.
     pub side_m: Option<f64>,
+    /// Choices made while reading (a topic found by its type).
+    pub notes: Vec<String>,
 }
 
 fn stamp_or(h: &Header, log_time_ns: u64) -> f64 {
@@ -287,7 +289,9 @@ pub fn read_bag_bytes(bytes: &[u8], path: &Path, opts: &BagOptions) -> Result<Ba
         path: path.to_path_buf(),
         source,
     };
-    let t = &opts.topics;
+    let mut notes = Vec::new();
+    let topics = resolve_topics(bytes, &opts.topics, &mut notes);
+    let t = &topics;
     let mut data = BagData::default();
     let mut channels: BTreeMap<String, String> = BTreeMap::new();
     let mut counts = [0usize; 3];
@@ -358,7 +362,15 @@ pub fn read_bag_bytes(bytes: &[u8], path: &Path, opts: &BagOptions) -> Result<Ba
                 if let Some((l, r)) = ix {
                     if let (Some(&lp), Some(&rp)) = (js.position.get(l), js.position.get(r)) {
                         if lp.is_finite() && rp.is_finite() {
-                            raw_joints.push((stamp_or(&js.header, m.log_time), lp, rp));
+                            // Unwrapped against the previous sample (a wrapping driver).
+                            let (ul, ur) = match raw_joints.last() {
+                                Some(&(_, l0, r0, pl, pr)) => (
+                                    l0 + super::msg::angle_step(pl, lp),
+                                    r0 + super::msg::angle_step(pr, rp),
+                                ),
+                                None => (lp, rp),
+                            };
+                            raw_joints.push((stamp_or(&js.header, m.log_time), ul, ur, lp, rp));
                         }
                     }
                 }
@@ -391,7 +403,7 @@ pub fn read_bag_bytes(bytes: &[u8], path: &Path, opts: &BagOptions) -> Result<Ba
             }
         }
         let first = match which {
-            0 => raw_joints.last().map(|j| j.0),
+            0 => raw_joints.last().map(|j: &(f64, f64, f64, f64, f64)| j.0),
             1 => raw_imu.last().map(|j| j.0),
             _ => raw_odom.last().map(|j| j.0),
         };
@@ -424,7 +436,7 @@ pub fn read_bag_bytes(bytes: &[u8], path: &Path, opts: &BagOptions) -> Result<Ba
     raw_odom.sort_by(|a, b| by_time(&a.0, &b.0));
     data.joints = raw_joints
         .into_iter()
-        .map(|(t, l, r)| JointSample {
+        .map(|(t, l, r, _, _)| JointSample {
             t: t - t0,
             left_rad: l,
             right_rad: r,
@@ -444,7 +456,57 @@ pub fn read_bag_bytes(bytes: &[u8], path: &Path, opts: &BagOptions) -> Result<Ba
         })
         .collect();
     data.side_m = read_side_metadata(bytes);
+    data.notes = notes;
     Ok(data)
+}
+
+/// The topics to read: as given, or — when a given topic is not in the bag and exactly one
+/// channel carries the type it should — that channel (with a note saying so). Needs the bag's
+/// summary (rosbag2 writes one); without it the names are used as given.
+fn resolve_topics(bytes: &[u8], given: &RosTopics, notes: &mut Vec<String>) -> RosTopics {
+    let Ok(Some(summary)) = mcap::read::Summary::read(bytes) else {
+        return given.clone();
+    };
+    let channels: Vec<(String, String)> = summary
+        .channels
+        .values()
+        .map(|c| {
+            (
+                c.topic.clone(),
+                c.schema
+                    .as_ref()
+                    .map(|s| s.name.clone())
+                    .unwrap_or_default(),
+            )
+        })
+        .collect();
+    let pick = |topic: &String, canonical: &str, what: &str, notes: &mut Vec<String>| {
+        if channels.iter().any(|(t, _)| t == topic) {
+            return topic.clone();
+        }
+        let of_type: Vec<&String> = channels
+            .iter()
+            .filter(|(_, ty)| types::is(ty, canonical))
+            .map(|(t, _)| t)
+            .collect();
+        match of_type.as_slice() {
+            [only] => {
+                notes.push(format!("{what} from {only}: the bag has no {topic}"));
+                (*only).clone()
+            }
+            _ => topic.clone(),
+        }
+    };
+    RosTopics {
+        joint_states: pick(
+            &given.joint_states,
+            types::JOINT_STATE,
+            "wheel joints",
+            notes,
+        ),
+        imu: pick(&given.imu, types::IMU, "IMU", notes),
+        odom: pick(&given.odom, types::ODOMETRY, "odometry", notes),
+    }
 }
 
 /// `odocal.side_m` from a bag's metadata records, if present.
@@ -800,6 +862,8 @@ pub struct BagReport {
     pub runs: Vec<BagRun>,
     /// Stretches of motion that were not used, and why.
     pub skipped: Vec<String>,
+    /// Choices made while reading the bag.
+    pub notes: Vec<String>,
     /// Every square method's estimate.
     pub estimates: Vec<BagEstimate>,
     /// Methods without an estimate, and why.
@@ -879,6 +943,7 @@ pub fn analyse(
         side_source,
         runs,
         skipped,
+        notes: data.notes.clone(),
         estimates,
         failures,
         online,
@@ -935,6 +1000,40 @@ mod tests {
             Simulator::new(truth, configured, noise, 4).unwrap(),
             configured,
         )
+    }
+
+    #[test]
+    fn wrapped_joint_angles_are_unwrapped_and_topics_are_found_by_type() {
+        use crate::ros::bag_writer::BagWriter;
+        let dir = std::env::temp_dir().join(format!("odocal-bag-wrap-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("wrapped.mcap");
+        let topics = RosTopics {
+            imu: "/imu/data".into(),
+            ..RosTopics::default()
+        };
+        let mut w = BagWriter::create(&path, &topics).unwrap();
+        // Wheels turning forward 0.3 rad per sample, published wrapped to (−π, π].
+        for k in 0..100 {
+            let a = 0.3 * f64::from(k);
+            let wrapped = crate::kinematics::wrap_angle(a);
+            w.joints(0.02 * f64::from(k), wrapped, wrapped).unwrap();
+            w.imu(0.02 * f64::from(k), 0.0).unwrap();
+        }
+        w.finish().unwrap();
+        let data = read_bag(&path, &BagOptions::default()).unwrap();
+        assert_eq!(
+            data.notes,
+            vec!["IMU from /imu/data: the bag has no /imu".to_string()]
+        );
+        let last = data.joints.last().unwrap();
+        assert!((last.left_rad - 0.3 * 99.0).abs() < 1e-9, "{last:?}");
+        assert!(data
+            .joints
+            .windows(2)
+            .all(|w| w[1].left_rad > w[0].left_rad));
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]

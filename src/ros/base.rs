@@ -430,8 +430,8 @@ async fn integrate_joints(
         let stamp = stamp_of(&v).unwrap_or(odo.stamp_s);
         let g = *geometry.read().unwrap_or_else(|p| p.into_inner());
         if let Some((l0, r0)) = last {
-            let sl = (lp - l0) * g.left_m_per_count();
-            let sr = (rp - r0) * g.right_m_per_count();
+            let sl = super::msg::angle_step(l0, lp) * g.left_m_per_count();
+            let sr = super::msg::angle_step(r0, rp) * g.right_m_per_count();
             advance(&mut odo, stamp, 0.5 * (sl + sr), (sr - sl) / g.wheelbase_m);
             forward(
                 &travel,

@@ -107,6 +107,18 @@ pub fn yaw_of(q: &Quaternion) -> Result<f64, &'static str> {
     Ok(wrap_angle(siny.atan2(cosy)))
 }
 
+/// The change of a wheel angle between two joint-state samples, unwrapped: drivers that
+/// publish continuous joints wrapped to (−π, π] jump by 2π once a turn, which no wheel turns
+/// in one sample.
+pub fn angle_step(from: f64, to: f64) -> f64 {
+    let d = to - from;
+    if d.abs() > std::f64::consts::PI {
+        d - std::f64::consts::TAU * (d / std::f64::consts::TAU).round()
+    } else {
+        d
+    }
+}
+
 /// A fixed array of 36 covariances (serde's derives stop at 32).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Covariance36(pub [f64; 36]);
@@ -416,6 +428,14 @@ mod tests {
             w: s
         })
         .is_err());
+    }
+
+    #[test]
+    fn wheel_angle_steps_unwrap() {
+        assert!((angle_step(3.0, -3.0) - (2.0 * PI - 6.0)).abs() < 1e-12);
+        assert!((angle_step(-3.0, 3.0) + (2.0 * PI - 6.0)).abs() < 1e-12);
+        assert_eq!(angle_step(1.0, 1.5), 0.5);
+        assert_eq!(angle_step(100.0, 100.25), 0.25);
     }
 
     #[test]

@@ -177,6 +177,9 @@ pub fn run(args: BagArgs) -> Result<(), Box<dyn std::error::Error>> {
     for s in &report.skipped {
         println!("  skipped: {s}");
     }
+    for n in &report.notes {
+        println!("note: {n}");
+    }
     println!(
         "\n{:<14}{:>11}{:>11}   {:>12}{:>12}{:>12}",
         "method", "E_b", "E_d", "sep_mult", "left_mult", "right_mult"
