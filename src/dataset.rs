@@ -113,6 +113,38 @@ pub struct RunEnd {
 }
 
 impl RecordedRun {
+    /// The heading error along the legs ([`crate::calibration::legs`]): ground-truth heading
+    /// minus odometry heading (configured `params`), middle of the first leg to the middle of
+    /// the last; `None` unless the odometry finds exactly four legs.
+    pub fn leg_heading_error(&self, params: &WheelParams) -> Option<f64> {
+        use crate::calibration::legs::{leg_heading_error, LegSample};
+        let first = self.samples.first()?;
+        let (mut truth_turn, mut odo_turn, mut prev) = (0.0, 0.0, first.truth.heading_rad);
+        let mut out = vec![LegSample {
+            t: first.time_s,
+            ds: 0.0,
+            dth: 0.0,
+            error_rad: 0.0,
+        }];
+        for s in self.samples.iter().skip(1) {
+            let (sl, sr) = (
+                s.left_counts * params.left_m_per_count(),
+                s.right_counts * params.right_m_per_count(),
+            );
+            let dth = (sr - sl) / params.wheelbase_m;
+            odo_turn += dth;
+            truth_turn += wrap_angle(s.truth.heading_rad - prev);
+            prev = s.truth.heading_rad;
+            out.push(LegSample {
+                t: s.time_s,
+                ds: 0.5 * (sl + sr),
+                dth,
+                error_rad: truth_turn - odo_turn,
+            });
+        }
+        leg_heading_error(&out, params.wheelbase_m)
+    }
+
     /// Integrates the run's encoder increments with `params` and reports both final poses.
     pub fn replay(&self, params: &WheelParams) -> RunEnd {
         let mut odo = Pose::default();
@@ -377,6 +409,7 @@ impl OptiOdomSet {
                     end.truth.x_m - end.odometry.x_m,
                     end.truth.y_m - end.odometry.y_m,
                 ]),
+                leg_heading_error_rad: run.leg_heading_error(&self.configured),
             };
             match direction {
                 Direction::Cw => test.cw.push(m),

@@ -23,7 +23,11 @@
 //! use odocal::calibration::{estimate, Method, RunMeasurement, SquareTest};
 //! use odocal::kinematics::SplitConvention;
 //!
-//! let run = |deg: f64| RunMeasurement { heading_error_rad: deg.to_radians(), final_xy_m: None };
+//! let run = |deg: f64| RunMeasurement {
+//!     heading_error_rad: deg.to_radians(),
+//!     final_xy_m: None,
+//!     leg_heading_error_rad: None,
+//! };
 //! let test = SquareTest {
 //!     side_m: 4.0,
 //!     wheelbase_m: 0.39,

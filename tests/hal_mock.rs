@@ -154,6 +154,7 @@ async fn ten_squares(faults: FaultConfig) -> (SquareTest, SharedDevice, Client) 
             let m = RunMeasurement {
                 heading_error_rad: rec.heading_error_rad,
                 final_xy_m: None,
+                leg_heading_error_rad: None,
             };
             match direction {
                 Direction::Cw => test.cw.push(m),

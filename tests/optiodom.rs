@@ -124,3 +124,33 @@ fn malformed_and_missing_files_are_typed_errors() {
         Err(DatasetError::Io { .. })
     ));
 }
+
+#[test]
+fn legs_are_found_in_every_recorded_run_and_the_leg_method_escapes_the_start_transient() {
+    let Some(root) = data_root() else { return };
+    for set in square_sets(&root) {
+        let test = set.square_test().unwrap();
+        for r in test.cw.iter().chain(test.ccw.iter()) {
+            assert!(
+                r.leg_heading_error_rad.is_some(),
+                "{}: a run without four legs found",
+                set.id
+            );
+        }
+    }
+    // On this set the runs pick up a heading offset before the first corner: the at-rest
+    // methods turn it into E_b, the leg method does not, and lands where the position-based
+    // UMBmark (immune to such an offset) does.
+    let set = OptiOdomSet::load(root.join("square/231220200040")).unwrap();
+    let test = set.square_test().unwrap();
+    let e = |m| {
+        estimate(m, &test, SplitConvention::LeftNominal)
+            .unwrap()
+            .e_b
+    };
+    let (legs, exact, umbmark) = (e(Method::Legs), e(Method::Exact), e(Method::Umbmark));
+    assert!(
+        (legs - umbmark).abs() < 0.25 * (exact - umbmark).abs(),
+        "legs {legs}, exact {exact}, umbmark {umbmark}"
+    );
+}

@@ -59,6 +59,9 @@ pub enum CalibrationError {
         /// What went wrong.
         reason: String,
     },
+    /// The leg-aware method was asked for without the heading along the legs.
+    #[error("method legs needs the heading along the legs of every run (a heading stream during the runs)")]
+    MissingLegHeadings,
     /// The estimate could not be turned into parameters.
     #[error(transparent)]
     Kinematics(#[from] KinematicsError),

@@ -26,6 +26,7 @@ pub mod exact;
 pub mod heading_only;
 pub mod jung_chung;
 pub mod lee;
+pub mod legs;
 pub mod online;
 pub mod umbmark;
 pub mod uncertainty;
@@ -46,6 +47,10 @@ pub struct RunMeasurement {
     pub heading_error_rad: f64,
     /// Final position in the start frame (m): x along the first leg, y to its left.
     pub final_xy_m: Option<[f64; 2]>,
+    /// Heading error from the middle of the first leg to the middle of the last (rad; heading
+    /// sensor minus odometry), when the heading along the legs was recorded ([`legs`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub leg_heading_error_rad: Option<f64>,
 }
 
 /// A bi-directional square test: everything the estimators need.
@@ -116,6 +121,14 @@ impl SquareTest {
         Ok(())
     }
 
+    /// Whether every run has its heading along the legs.
+    pub fn has_leg_headings(&self) -> bool {
+        self.cw
+            .iter()
+            .chain(self.ccw.iter())
+            .all(|r| r.leg_heading_error_rad.is_some_and(f64::is_finite))
+    }
+
     /// Whether every run has a final position.
     pub fn has_positions(&self) -> bool {
         self.cw
@@ -139,16 +152,19 @@ pub enum Method {
     JungChung,
     /// Our exact closed-form inversion (heading errors).
     Exact,
+    /// The exact inversion on the heading along the legs ([`legs`]).
+    Legs,
 }
 
 impl Method {
     /// Every method, in the order reports list them.
-    pub const ALL: [Method; 5] = [
+    pub const ALL: [Method; 6] = [
         Method::Umbmark,
         Method::Lee,
         Method::HeadingOnly,
         Method::JungChung,
         Method::Exact,
+        Method::Legs,
     ];
 
     /// The method's stable name (CLI and JSON).
@@ -159,7 +175,13 @@ impl Method {
             Method::HeadingOnly => "heading-only",
             Method::JungChung => "jung-chung",
             Method::Exact => "exact",
+            Method::Legs => "legs",
         }
+    }
+
+    /// Whether the method needs the heading along the legs.
+    pub fn needs_leg_headings(self) -> bool {
+        matches!(self, Method::Legs)
     }
 
     /// Whether the method needs final positions (otherwise it uses final headings only).
@@ -181,7 +203,7 @@ impl FromStr for Method {
             .into_iter()
             .find(|m| m.name() == s)
             .ok_or_else(|| {
-                format!("unknown method {s:?}; expected one of umbmark, lee, heading-only, jung-chung, exact")
+                format!("unknown method {s:?}; expected one of umbmark, lee, heading-only, jung-chung, exact, legs")
             })
     }
 }
@@ -275,7 +297,8 @@ fn point(
         Method::Lee => lee::ratios(obs, ctx)?,
         Method::HeadingOnly => heading_only::ratios(obs, ctx)?,
         Method::JungChung => jung_chung::ratios(obs, ctx)?,
-        Method::Exact => exact::ratios(obs, ctx)?,
+        // On the test `legs::equivalent_test` made of the leg headings.
+        Method::Exact | Method::Legs => exact::ratios(obs, ctx)?,
     };
     if !(e_b.is_finite() && e_b > 0.0 && e_d.is_finite() && e_d > 0.0) {
         return Err(CalibrationError::NotPhysical {
@@ -296,6 +319,13 @@ pub fn estimate(
     if method.needs_positions() && !test.has_positions() {
         return Err(CalibrationError::MissingPositions(method));
     }
+    let equivalent;
+    let test = if method.needs_leg_headings() {
+        equivalent = legs::equivalent_test(test)?;
+        &equivalent
+    } else {
+        test
+    };
     let ctx = Context {
         side_m: test.side_m,
         wheelbase_m: test.wheelbase_m,
@@ -328,6 +358,7 @@ pub fn estimate_all(
     Ok(Method::ALL
         .into_iter()
         .filter(|m| !m.needs_positions() || test.has_positions())
+        .filter(|m| !m.needs_leg_headings() || test.has_leg_headings())
         .map(|m| (m, estimate(m, test, convention)))
         .collect())
 }
@@ -439,6 +470,7 @@ mod tests {
                 .map(|&h| RunMeasurement {
                     heading_error_rad: h,
                     final_xy_m: None,
+                    leg_heading_error_rad: None,
                 })
                 .collect()
         };

@@ -620,13 +620,7 @@ pub fn infer_geometry(data: &BagData) -> Result<InferredGeometry, BagError> {
     })
 }
 
-/// What one joint sample interval does, by the configured odometry.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Phase {
-    Rest,
-    Straight,
-    Turn,
-}
+use crate::calibration::legs::{classify, Phase};
 
 /// A square run found in (or assigned to) the bag.
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -647,6 +641,9 @@ pub struct BagRun {
     pub heading_error_rad: f64,
     /// IMU readings averaged at rest (before, after).
     pub rest_readings: [usize; 2],
+    /// Heading error from the middle of the first leg to the middle of the last (rad), when
+    /// four legs were found ([`crate::calibration::legs`]).
+    pub leg_heading_error_rad: Option<f64>,
 }
 
 /// Integrated odometry per joint interval: forward travel and turn.
@@ -659,19 +656,6 @@ fn increments(j: &[JointSample], p: &WheelParams) -> Vec<(f64, f64, f64, f64)> {
             (w[0].t, w[1].t, 0.5 * (sl + sr), (sr - sl) / p.wheelbase_m)
         })
         .collect()
-}
-
-fn classify(ds: f64, dth: f64, dt: f64, b: f64) -> Phase {
-    let dt = dt.max(1e-6);
-    // At rest below 5 mm/s and 0.02 rad/s; otherwise a turn when the wheels' rotation part
-    // exceeds their common (forward) part.
-    if ds.abs() / dt < 0.005 && dth.abs() / dt < 0.02 {
-        Phase::Rest
-    } else if (0.5 * dth * b).abs() > ds.abs() {
-        Phase::Turn
-    } else {
-        Phase::Straight
-    }
 }
 
 /// Circular mean of valid IMU yaws with `t` in `[a, b]`, and how many.
@@ -802,6 +786,7 @@ pub fn find_runs(
             continue;
         };
         let imu_turn = wrap_angle(after - before - turn) + turn;
+        let leg_heading_error_rad = legs_of(&inc[s..e], &data.imu, configured.wheelbase_m);
         runs.push(BagRun {
             direction,
             start_s: t_start,
@@ -811,9 +796,42 @@ pub fn find_runs(
             imu_turn_rad: imu_turn,
             heading_error_rad: wrap_angle(imu_turn - turn),
             rest_readings: [nb, na],
+            leg_heading_error_rad,
         });
     }
     Ok((runs, skipped))
+}
+
+/// The heading error along the legs of a run's increments, with the IMU's newest valid yaw at
+/// each wheel sample (unwrapped) against the odometry's turn.
+fn legs_of(inc: &[(f64, f64, f64, f64)], imu: &[YawSample], wheelbase_m: f64) -> Option<f64> {
+    use crate::calibration::legs::{leg_heading_error, LegSample};
+    let yaw_at = |t: f64| -> Option<f64> {
+        let i = imu.partition_point(|y| y.t <= t);
+        imu[..i].iter().rev().find_map(|y| y.yaw_rad)
+    };
+    let first = inc.first()?;
+    let mut prev = yaw_at(first.0)?;
+    let (mut imu_turn, mut odo_turn) = (0.0, 0.0);
+    let mut out = vec![LegSample {
+        t: first.0,
+        ds: 0.0,
+        dth: 0.0,
+        error_rad: 0.0,
+    }];
+    for &(_, t1, ds, dth) in inc {
+        let y = yaw_at(t1)?;
+        imu_turn += wrap_angle(y - prev);
+        prev = y;
+        odo_turn += dth;
+        out.push(LegSample {
+            t: t1,
+            ds,
+            dth,
+            error_rad: imu_turn - odo_turn,
+        });
+    }
+    leg_heading_error(&out, wheelbase_m)
 }
 
 /// Where the configured geometry came from.
@@ -902,6 +920,7 @@ pub fn analyse(
         let m = RunMeasurement {
             heading_error_rad: r.heading_error_rad,
             final_xy_m: None,
+            leg_heading_error_rad: r.leg_heading_error_rad,
         };
         match r.direction {
             Direction::Cw => test.cw.push(m),

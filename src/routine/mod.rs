@@ -465,6 +465,7 @@ fn square_test(cfg: &RoutineConfig, params: &WheelParams, runs: &[RunReport]) ->
         let m = RunMeasurement {
             heading_error_rad: r.heading_error_rad,
             final_xy_m: r.true_final_xy_m,
+            leg_heading_error_rad: None,
         };
         match r.direction {
             Direction::Cw => test.cw.push(m),

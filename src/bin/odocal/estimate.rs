@@ -92,6 +92,7 @@ fn runs(headings_deg: &[f64], xy: Option<&XyList>) -> Result<Vec<RunMeasurement>
         .map(|(i, h)| RunMeasurement {
             heading_error_rad: h.to_radians(),
             final_xy_m: xy.map(|l| l.0[i]),
+            leg_heading_error_rad: None,
         })
         .collect())
 }
