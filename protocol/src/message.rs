@@ -1,6 +1,6 @@
 //! Typed messages of SPEC.md §5, described once.
 //!
-//! Each payload is a struct whose field list (in [`wire_struct!`] form) *is* its layout: the
+//! Each payload is a struct whose field list (in `wire_struct!` form) *is* its layout: the
 //! [`Payload`] length, encoding and decoding follow from it. Each message is one row of the
 //! tables at the end of this file — its id and its payload type — from which [`Request`],
 //! [`Response`] and [`Event`], their ids, their lengths ([`payload_len`]) and their encoding

@@ -7,7 +7,7 @@
 //! one twice. Errors come in two layers: [`LinkError`] (the link or the protocol failed) and
 //! [`HalError::Nack`] (the device understood and said no). Telemetry arrives on a broadcast
 //! channel with encoder counts and device time unwrapped on the host ([`Client::subscribe`]).
-//! [`motion`] has the helpers the calibration routine drives the base with.
+//! [`base`] makes a client a drive, a heading source and a parameter store of the seam.
 
 pub mod base;
 pub mod error;

@@ -1,6 +1,7 @@
 //! Offline calibration from a ROS 2 bag (MCAP): read wheel joint angles, IMU yaw and the
 //! controller's odometry, find the square runs in the data, and estimate with every method and
-//! the online filter. [`BagWriter`] writes such bags (simulated tests, converted recordings).
+//! the online filter. [`super::bag_writer`] writes such bags (simulated tests, converted
+//! recordings).
 //!
 //! Square runs are found from the wheels, not from timing: each joint sample is at rest,
 //! driving straight or turning in place (by the robot's own odometry with the configured
