@@ -139,6 +139,9 @@ pub fn read_log(path: &Path) -> Result<(LogHeader, Vec<TelemetrySample>), LogErr
     Ok((header, samples))
 }
 
+/// Least driving (m) before the online filter reports an estimate.
+pub const MIN_DISTANCE_M: f64 = 0.5;
+
 /// The online estimator with checkpoints every `every_m` metres driven.
 pub struct Tracker {
     filter: OnlineEstimator,
@@ -173,7 +176,18 @@ impl Tracker {
     }
 
     /// The current estimate.
+    ///
+    /// Input with no driving or no heading readings has nothing to estimate from: that is
+    /// [`CalibrationError::TooLittleData`], not the prior dressed up as a result.
     pub fn estimate(&self) -> Result<OnlineEstimate, CalibrationError> {
+        let (_, heading_updates) = self.filter.nis_mean();
+        let distance_m = self.filter.distance_m();
+        if heading_updates < 2 || distance_m < MIN_DISTANCE_M {
+            return Err(CalibrationError::TooLittleData {
+                distance_m,
+                heading_updates,
+            });
+        }
         self.filter.estimate(self.scale)
     }
 

@@ -461,3 +461,50 @@ async fn live_telemetry_from_the_mock_calibrates_and_writes_back() {
     assert_eq!(d.stored_params(), Some(applied));
     assert!((applied.wheelbase_m / d.sim().truth().wheelbase_m - 1.0).abs() < 0.003);
 }
+
+#[test]
+fn a_log_without_driving_is_an_error_not_a_nan() {
+    use odocal::hal::TelemetrySample;
+    use odocal::protocol::message::MotionState;
+    use odocal::track::{LogHeader, LogWriter};
+    let dir = common::scratch("track-empty");
+    std::fs::create_dir_all(&dir).unwrap();
+    let header = LogHeader {
+        odocal_version: "test".into(),
+        device: None,
+        params: WheelParams::nominal(0.15, 0.39, 4096.0),
+        period_ms: 20,
+    };
+    // A header and nothing else; then a robot that stood still.
+    let empty = dir.join("empty.jsonl");
+    LogWriter::create(&empty, header.clone())
+        .unwrap()
+        .flush()
+        .unwrap();
+    let still = dir.join("still.jsonl");
+    let mut log = LogWriter::create(&still, header).unwrap();
+    for i in 0..50u32 {
+        log.sample(&TelemetrySample {
+            sample_index: i,
+            device_time_s: f64::from(i) * 0.02,
+            left_counts: 0,
+            right_counts: 0,
+            heading_rad: 0.1,
+            heading_valid: true,
+            motion_state: MotionState::Idle,
+            queue_depth: 0,
+            dropped_before: 0,
+        })
+        .unwrap();
+    }
+    log.flush().unwrap();
+    drop(log);
+    for path in [&empty, &still] {
+        let (ok, stdout, err) = common::odocal(&["track", "--log", path.to_str().unwrap()]);
+        assert!(!ok, "{path:?} must fail: {stdout}");
+        assert!(
+            err.contains("too little data") && !stdout.contains("NaN"),
+            "{err}"
+        );
+    }
+}

@@ -62,6 +62,14 @@ pub enum CalibrationError {
     /// The leg-aware method was asked for without the heading along the legs.
     #[error("method legs needs the heading along the legs of every run (a heading stream during the runs)")]
     MissingLegHeadings,
+    /// The online filter was given too little to estimate from.
+    #[error("too little data: {distance_m:.2} m driven and {heading_updates} heading reading(s); drive at least half a metre, with turns both ways, while the heading is read")]
+    TooLittleData {
+        /// Distance driven (m).
+        distance_m: f64,
+        /// Heading readings used.
+        heading_updates: u64,
+    },
     /// The estimate could not be turned into parameters.
     #[error(transparent)]
     Kinematics(#[from] KinematicsError),
