@@ -8,14 +8,14 @@
 //! used throughout: the first sentence type heard is kept, in the order HDT, HDG, HDM.
 
 use crate::base::{
-    BaseError, ComponentInfo, HeadingSample, HeadingSource, SampleStream, Validity, STREAM_CAPACITY,
+    BaseError, ComponentInfo, Fanout, HeadingSample, HeadingSource, SampleStream, Validity,
 };
 use crate::kinematics::wrap_angle;
 use async_trait::async_trait;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 use tokio::io::{AsyncRead, AsyncReadExt};
-use tokio::sync::{mpsc, watch};
+use tokio::sync::watch;
 use tokio::time::Instant;
 
 /// Longest sentence NMEA 0183 allows (82 characters including `$` and CR LF).
@@ -138,7 +138,7 @@ pub struct NmeaCompass {
     label: String,
     latest: watch::Receiver<Option<(Instant, HeadingSample)>>,
     stats: Arc<Mutex<(NmeaStats, Option<String>)>>,
-    streams: Arc<Mutex<Vec<mpsc::Sender<HeadingSample>>>>,
+    streams: Fanout<HeadingSample>,
     stale: Duration,
 }
 
@@ -150,7 +150,7 @@ impl NmeaCompass {
     {
         let (tx, latest) = watch::channel(None);
         let stats: Arc<Mutex<(NmeaStats, Option<String>)>> = Arc::default();
-        let streams: Arc<Mutex<Vec<mpsc::Sender<HeadingSample>>>> = Arc::default();
+        let streams: Fanout<HeadingSample> = Fanout::default();
         tokio::spawn(read_sentences(stream, tx, stats.clone(), streams.clone()));
         NmeaCompass {
             label: label.into(),
@@ -186,7 +186,7 @@ async fn read_sentences<S: AsyncRead + Unpin>(
     mut stream: S,
     tx: watch::Sender<Option<(Instant, HeadingSample)>>,
     stats: Arc<Mutex<(NmeaStats, Option<String>)>>,
-    streams: Arc<Mutex<Vec<mpsc::Sender<HeadingSample>>>>,
+    streams: Fanout<HeadingSample>,
 ) {
     let start = Instant::now();
     let mut line: Vec<u8> = Vec::with_capacity(MAX_SENTENCE);
@@ -230,13 +230,7 @@ async fn read_sentences<S: AsyncRead + Unpin>(
                         validity: Validity::Valid,
                     };
                     drop(st);
-                    {
-                        let mut subs = streams.lock().unwrap_or_else(|p| p.into_inner());
-                        subs.retain(|t| !t.is_closed());
-                        for t in subs.iter() {
-                            let _ = t.try_send(sample.clone());
-                        }
-                    }
+                    streams.send(&sample);
                     let _ = tx.send(Some((Instant::now(), sample)));
                 }
                 Err(NmeaError::Other(_)) => st.0.ignored += 1,
@@ -305,12 +299,7 @@ impl HeadingSource for NmeaCompass {
         &self,
         _period: Duration,
     ) -> Result<Option<SampleStream<HeadingSample>>, BaseError> {
-        let (tx, rx) = mpsc::channel(STREAM_CAPACITY);
-        self.streams
-            .lock()
-            .unwrap_or_else(|p| p.into_inner())
-            .push(tx);
-        Ok(Some(rx))
+        Ok(Some(self.streams.subscribe()))
     }
 }
 

@@ -346,12 +346,7 @@ impl ParamStore for ProfileStore {
     }
 
     fn resolution(&self) -> WheelParams {
-        WheelParams {
-            left_wheel_diameter_m: 1e-9,
-            right_wheel_diameter_m: 1e-9,
-            wheelbase_m: 1e-9,
-            counts_per_wheel_rev: 1e-9,
-        }
+        crate::base::files::FILE_RESOLUTION
     }
 }
 

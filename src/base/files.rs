@@ -1,6 +1,7 @@
 //! Safe writes for file-backed parameter stores: a backup copy beside the file, created
 //! exclusively, and an atomic replacement that keeps the file's permissions.
 
+use crate::kinematics::WheelParams;
 use std::io::Write as _;
 use std::path::{Path, PathBuf};
 
@@ -86,3 +87,12 @@ pub fn read_bounded(path: &Path, max_bytes: u64) -> std::io::Result<String> {
     )?;
     Ok(text)
 }
+
+/// What a file store written with odocal's text formats resolves: values are written with
+/// at least ten significant decimals, far below a nanometre at robot sizes.
+pub const FILE_RESOLUTION: WheelParams = WheelParams {
+    left_wheel_diameter_m: 1e-9,
+    right_wheel_diameter_m: 1e-9,
+    wheelbase_m: 1e-9,
+    counts_per_wheel_rev: 1e-9,
+};

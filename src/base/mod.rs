@@ -12,11 +12,13 @@
 //! back, commit, read back the committed copy, and roll back on any failure.
 
 pub mod error;
+pub mod fanout;
 pub mod files;
 pub mod guard;
 pub mod transaction;
 
 pub use error::BaseError;
+pub use fanout::Fanout;
 pub use guard::MotionGuard;
 
 use crate::kinematics::{Pose, WheelParams};

@@ -3,15 +3,14 @@
 //! tested end to end in microseconds and its failure paths provoked on purpose.
 
 use crate::base::{
-    Achieved, BaseError, ComponentInfo, Drive, GroundTruth, HeadingSample, HeadingSource,
-    ParamStore, Preflight, SampleStream, TravelSample, Validity, STREAM_CAPACITY,
+    Achieved, BaseError, ComponentInfo, Drive, Fanout, GroundTruth, HeadingSample, HeadingSource,
+    ParamStore, Preflight, SampleStream, TravelSample, Validity,
 };
 use crate::kinematics::{Pose, WheelParams};
 use crate::sim::{Motion, SimError, Simulator};
 use async_trait::async_trait;
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::Duration;
-use tokio::sync::mpsc;
 
 /// Failures a test can ask the simulated base for.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
@@ -43,8 +42,8 @@ struct State {
     committed: Option<WheelParams>,
     faults: SimFaults,
     counters: SimCounters,
-    travel: Vec<mpsc::Sender<TravelSample>>,
-    headings: Vec<mpsc::Sender<HeadingSample>>,
+    travel: Fanout<TravelSample>,
+    headings: Fanout<HeadingSample>,
     period_s: f64,
 }
 
@@ -70,8 +69,8 @@ impl SimBase {
                 committed,
                 faults: SimFaults::default(),
                 counters: SimCounters::default(),
-                travel: Vec::new(),
-                headings: Vec::new(),
+                travel: Fanout::default(),
+                headings: Fanout::default(),
                 period_s: 0.02,
             })),
         }
@@ -146,14 +145,8 @@ impl SimBase {
                     heading_rad: st.sim.read_heading(),
                     validity: heading_validity(&st.faults),
                 };
-                st.travel.retain(|tx| !tx.is_closed());
-                st.headings.retain(|tx| !tx.is_closed());
-                for tx in &st.travel {
-                    let _ = tx.try_send(travel);
-                }
-                for tx in &st.headings {
-                    let _ = tx.try_send(heading.clone());
-                }
+                st.travel.send(&travel);
+                st.headings.send(&heading);
             }
             // Let a cancellation (Ctrl-C in a test) land mid-motion, as it would on hardware.
             tokio::task::yield_now().await;
@@ -242,11 +235,9 @@ impl Drive for SimBase {
         &self,
         period: Duration,
     ) -> Result<Option<SampleStream<TravelSample>>, BaseError> {
-        let (tx, rx) = mpsc::channel(STREAM_CAPACITY);
         let mut st = self.state();
         st.period_s = period.as_secs_f64().max(1e-3);
-        st.travel.push(tx);
-        Ok(Some(rx))
+        Ok(Some(st.travel.subscribe()))
     }
 }
 
@@ -270,11 +261,9 @@ impl HeadingSource for SimBase {
         &self,
         period: Duration,
     ) -> Result<Option<SampleStream<HeadingSample>>, BaseError> {
-        let (tx, rx) = mpsc::channel(STREAM_CAPACITY);
         let mut st = self.state();
         st.period_s = period.as_secs_f64().max(1e-3);
-        st.headings.push(tx);
-        Ok(Some(rx))
+        Ok(Some(st.headings.subscribe()))
     }
 }
 

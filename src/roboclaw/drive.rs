@@ -6,14 +6,12 @@
 use super::client::{RoboClaw, RoboClawError};
 use super::packet::{cmd, drive_distance_data, BUFFER_IDLE};
 use crate::base::{
-    Achieved, BaseError, ComponentInfo, Drive, Preflight, SampleStream, TravelSample,
-    STREAM_CAPACITY,
+    Achieved, BaseError, ComponentInfo, Drive, Fanout, Preflight, SampleStream, TravelSample,
 };
 use crate::profile::{Channel, Profile};
 use async_trait::async_trait;
-use std::sync::{Arc, Mutex, RwLock};
+use std::sync::{Arc, RwLock};
 use std::time::Duration;
-use tokio::sync::mpsc;
 use tokio::time::Instant;
 
 /// How often a running motion is polled (this also feeds the controller's serial timeout).
@@ -24,7 +22,7 @@ pub struct RoboClawDrive {
     claw: RoboClaw,
     version: String,
     profile: Arc<RwLock<Profile>>,
-    travel: Arc<Mutex<Vec<mpsc::Sender<TravelSample>>>>,
+    travel: Fanout<TravelSample>,
     start: Instant,
 }
 
@@ -71,7 +69,7 @@ impl RoboClawDrive {
             claw,
             version,
             profile,
-            travel: Arc::default(),
+            travel: Fanout::default(),
             start: Instant::now(),
         })
     }
@@ -102,11 +100,7 @@ impl RoboClawDrive {
             left_m,
             right_m,
         };
-        let mut subs = self.travel.lock().unwrap_or_else(|p| p.into_inner());
-        subs.retain(|tx| !tx.is_closed());
-        for tx in subs.iter() {
-            let _ = tx.try_send(sample);
-        }
+        self.travel.send(&sample);
     }
 
     /// Drives the wheels by `left_m`, `right_m` at most `speed_m_s` (the faster wheel), both
@@ -335,11 +329,6 @@ impl Drive for RoboClawDrive {
         &self,
         _period: Duration,
     ) -> Result<Option<SampleStream<TravelSample>>, BaseError> {
-        let (tx, rx) = mpsc::channel(STREAM_CAPACITY);
-        self.travel
-            .lock()
-            .unwrap_or_else(|p| p.into_inner())
-            .push(tx);
-        Ok(Some(rx))
+        Ok(Some(self.travel.subscribe()))
     }
 }

@@ -15,15 +15,15 @@ use super::msg::{types, yaw_of, Imu, JointState, Odometry, Twist, TwistStamped};
 use super::rosbridge::{RosbridgeClient, RosbridgeError};
 use super::yaml::{DiffDriveConfig, YamlStore, MULTIPLIER_KEYS};
 use crate::base::{
-    Achieved, Base, BaseError, ComponentInfo, Drive, HeadingSample, HeadingSource, ParamStore,
-    Preflight, SampleStream, TravelSample, Validity, STREAM_CAPACITY,
+    Achieved, Base, BaseError, ComponentInfo, Drive, Fanout, HeadingSample, HeadingSource,
+    ParamStore, Preflight, SampleStream, TravelSample, Validity,
 };
 use crate::kinematics::{wrap_angle, WheelParams};
 use async_trait::async_trait;
 use serde_json::{json, Value};
-use std::sync::{Arc, Mutex, RwLock};
+use std::sync::{Arc, RwLock};
 use std::time::Duration;
-use tokio::sync::{mpsc, watch};
+use tokio::sync::watch;
 use tokio::time::Instant;
 
 /// Where the drive's odometry comes from.
@@ -172,7 +172,7 @@ pub struct RosDrive {
     commander: Commander,
     cfg: RosBaseConfig,
     odo: watch::Receiver<Odo>,
-    travel: Arc<Mutex<Vec<mpsc::Sender<TravelSample>>>>,
+    travel: Fanout<TravelSample>,
     cmd_vel_timeout_s: f64,
 }
 
@@ -183,7 +183,7 @@ pub struct RosHeading {
     latest: watch::Receiver<Option<(Instant, HeadingSample)>>,
     /// The drive's odometry: a reading must be no older than its newest wheel data.
     wheels: watch::Receiver<Odo>,
-    streams: Arc<Mutex<Vec<mpsc::Sender<HeadingSample>>>>,
+    streams: Fanout<HeadingSample>,
     stale: Duration,
 }
 
@@ -222,10 +222,6 @@ mod tests {
     }
 }
 
-fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
-    m.lock().unwrap_or_else(|p| p.into_inner())
-}
-
 fn drive_err(e: impl std::error::Error + Send + Sync + 'static) -> BaseError {
     BaseError::backend("drive (rosbridge)", e)
 }
@@ -248,7 +244,7 @@ pub async fn connect(cfg: &RosBaseConfig) -> Result<Base, RosBaseError> {
         .or_else(|| yaml_cfg.right_wheel_names.first().cloned());
     // Wheels.
     let (odo_tx, odo_rx) = watch::channel(Odo::default());
-    let travel: Arc<Mutex<Vec<mpsc::Sender<TravelSample>>>> = Arc::default();
+    let travel: Fanout<TravelSample> = Fanout::default();
     match cfg.wheel_source {
         WheelSource::JointStates => {
             let rx = client.subscribe(&cfg.topics.joint_states, types::JOINT_STATE)?;
@@ -269,7 +265,7 @@ pub async fn connect(cfg: &RosBaseConfig) -> Result<Base, RosBaseError> {
     // Heading.
     let imu_rx = client.subscribe(&cfg.topics.imu, types::IMU)?;
     let (head_tx, head_rx) = watch::channel(None);
-    let streams: Arc<Mutex<Vec<mpsc::Sender<HeadingSample>>>> = Arc::default();
+    let streams: Fanout<HeadingSample> = Fanout::default();
     tokio::spawn(follow_imu(imu_rx, head_tx, streams.clone()));
     let vel_type = if cfg.twist_stamped {
         types::TWIST_STAMPED
@@ -371,14 +367,6 @@ fn stamp_of(v: &Value) -> Option<f64> {
     Some(sec + ns * 1e-9)
 }
 
-fn forward<T: Clone>(subs: &Mutex<Vec<mpsc::Sender<T>>>, v: &T) {
-    let mut subs = lock(subs);
-    subs.retain(|tx| !tx.is_closed());
-    for tx in subs.iter() {
-        let _ = tx.try_send(v.clone());
-    }
-}
-
 fn advance(odo: &mut Odo, stamp: f64, ds: f64, dth: f64) {
     let dt = (stamp - odo.stamp_s).max(1e-6);
     let moving = ds.abs() / dt > 0.002 || dth.abs() / dt > 0.01;
@@ -399,7 +387,7 @@ async fn integrate_joints(
     left: Option<String>,
     right: Option<String>,
     tx: watch::Sender<Odo>,
-    travel: Arc<Mutex<Vec<mpsc::Sender<TravelSample>>>>,
+    travel: Fanout<TravelSample>,
 ) {
     let mut last: Option<(f64, f64)> = None;
     let mut odo = Odo::default();
@@ -433,14 +421,11 @@ async fn integrate_joints(
             let sl = super::msg::angle_step(l0, lp) * g.left_m_per_count();
             let sr = super::msg::angle_step(r0, rp) * g.right_m_per_count();
             advance(&mut odo, stamp, 0.5 * (sl + sr), (sr - sl) / g.wheelbase_m);
-            forward(
-                &travel,
-                &TravelSample {
-                    time_s: stamp,
-                    left_m: sl,
-                    right_m: sr,
-                },
-            );
+            travel.send(&TravelSample {
+                time_s: stamp,
+                left_m: sl,
+                right_m: sr,
+            });
         } else {
             odo.samples = 1;
             odo.stamp_s = stamp;
@@ -454,7 +439,7 @@ async fn integrate_odom(
     mut rx: tokio::sync::broadcast::Receiver<Value>,
     geometry: Arc<RwLock<WheelParams>>,
     tx: watch::Sender<Odo>,
-    travel: Arc<Mutex<Vec<mpsc::Sender<TravelSample>>>>,
+    travel: Fanout<TravelSample>,
 ) {
     let mut last: Option<(f64, f64, f64)> = None;
     let mut odo = Odo::default();
@@ -481,14 +466,11 @@ async fn integrate_odom(
                 .unwrap_or_else(|p| p.into_inner())
                 .wheelbase_m;
             advance(&mut odo, stamp, ds, dth);
-            forward(
-                &travel,
-                &TravelSample {
-                    time_s: stamp,
-                    left_m: ds - 0.5 * dth * b,
-                    right_m: ds + 0.5 * dth * b,
-                },
-            );
+            travel.send(&TravelSample {
+                time_s: stamp,
+                left_m: ds - 0.5 * dth * b,
+                right_m: ds + 0.5 * dth * b,
+            });
         } else {
             odo.samples = 1;
             odo.stamp_s = stamp;
@@ -501,7 +483,7 @@ async fn integrate_odom(
 async fn follow_imu(
     mut rx: tokio::sync::broadcast::Receiver<Value>,
     tx: watch::Sender<Option<(Instant, HeadingSample)>>,
-    streams: Arc<Mutex<Vec<mpsc::Sender<HeadingSample>>>>,
+    streams: Fanout<HeadingSample>,
 ) {
     loop {
         let v = match rx.recv().await {
@@ -536,7 +518,7 @@ async fn follow_imu(
                 },
             },
         };
-        forward(&streams, &sample);
+        streams.send(&sample);
         let _ = tx.send(Some((Instant::now(), sample)));
     }
 }
@@ -722,9 +704,7 @@ impl Drive for RosDrive {
         &self,
         _period: Duration,
     ) -> Result<Option<SampleStream<TravelSample>>, BaseError> {
-        let (tx, rx) = mpsc::channel(STREAM_CAPACITY);
-        lock(&self.travel).push(tx);
-        Ok(Some(rx))
+        Ok(Some(self.travel.subscribe()))
     }
 }
 
@@ -783,9 +763,7 @@ impl HeadingSource for RosHeading {
         &self,
         _period: Duration,
     ) -> Result<Option<SampleStream<HeadingSample>>, BaseError> {
-        let (tx, rx) = mpsc::channel(STREAM_CAPACITY);
-        lock(&self.streams).push(tx);
-        Ok(Some(rx))
+        Ok(Some(self.streams.subscribe()))
     }
 }
 
