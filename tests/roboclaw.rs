@@ -305,3 +305,68 @@ async fn lost_answers_are_recovered_by_retried_reads_and_a_brown_out_is_seen() {
         .unwrap();
     assert_eq!((m1, m2), (0, 0));
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn answers_with_bad_crcs_are_refused_as_such_and_a_silent_port_times_out() {
+    use odocal::roboclaw::client::RoboClawError;
+    // A device that answers every read with the right length but a corrupted CRC.
+    let (host, mut dev) = tokio::io::duplex(1024);
+    tokio::spawn(async move {
+        use tokio::io::{AsyncReadExt, AsyncWriteExt};
+        let mut b = [0u8; 2];
+        while dev.read_exact(&mut b).await.is_ok() {
+            // READ_ENCODERS: 8 data bytes, then a CRC that is off by one.
+            let mut crc = odocal::roboclaw::packet::CRC16.digest();
+            crc.update(&b);
+            crc.update(&[0u8; 8]);
+            let bad = crc.finalize().wrapping_add(1).to_be_bytes();
+            let _ = dev
+                .write_all(&[0, 0, 0, 0, 0, 0, 0, 0, bad[0], bad[1]])
+                .await;
+        }
+    });
+    let claw = RoboClaw::new(host, RoboClawConfig::default(), "duplex").unwrap();
+    match claw.encoders().await {
+        Err(RoboClawError::Crc { command, attempts }) => assert_eq!((command, attempts), (78, 3)),
+        other => panic!("expected a CRC error, got {other:?}"),
+    }
+    // A port where nothing answers: a timeout naming the command, within the deadlines.
+    let (host, _dev) = tokio::io::duplex(1024);
+    let claw = RoboClaw::new(host, RoboClawConfig::default(), "duplex").unwrap();
+    let started = std::time::Instant::now();
+    match claw.battery_v().await {
+        Err(RoboClawError::Timeout {
+            command, attempts, ..
+        }) => assert_eq!((command, attempts), (24, 3)),
+        other => panic!("expected a timeout, got {other:?}"),
+    }
+    assert!(
+        started.elapsed() < Duration::from_secs(1),
+        "{:?}",
+        started.elapsed()
+    );
+    // A write answered with something other than the acknowledgement is a NAK, not success.
+    let (host, mut dev) = tokio::io::duplex(1024);
+    tokio::spawn(async move {
+        use tokio::io::{AsyncReadExt, AsyncWriteExt};
+        let mut b = [0u8; 5];
+        while dev.read_exact(&mut b).await.is_ok() {
+            let _ = dev.write_all(&[0x00]).await;
+        }
+    });
+    let claw = RoboClaw::new(host, RoboClawConfig::default(), "duplex").unwrap();
+    let err = claw
+        .write(odocal::roboclaw::packet::cmd::SET_SERIAL_TIMEOUT, &[5])
+        .await
+        .unwrap_err();
+    assert!(
+        matches!(
+            err,
+            RoboClawError::Nak {
+                command: 14,
+                got: 0
+            }
+        ),
+        "{err:?}"
+    );
+}
