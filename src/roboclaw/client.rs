@@ -90,7 +90,8 @@ impl Default for RoboClawConfig {
             address: 0x80,
             baud: 38_400,
             read_attempts: 3,
-            margin: Duration::from_millis(20),
+            // Above USB-serial adapters' latency (up to 16 ms) and a busy host's scheduling.
+            margin: Duration::from_millis(50),
         }
     }
 }
@@ -157,11 +158,12 @@ impl RoboClaw {
         Duration::from_secs_f64(10.0 * bytes as f64 / f64::from(self.cfg.baud)) + self.cfg.margin
     }
 
-    async fn drain(port: &mut Box<dyn Port>) {
+    /// Discards bytes that arrive within `quiet` of each other: before a request, whatever a
+    /// late answer left in the port; after a failed attempt (called with the deadline), the
+    /// rest of an answer that came too late, so the retry does not read its tail.
+    async fn drain(port: &mut Box<dyn Port>, quiet: Duration) {
         let mut junk = [0u8; 64];
-        while let Ok(Ok(n)) =
-            tokio::time::timeout(Duration::from_millis(1), port.read(&mut junk)).await
-        {
+        while let Ok(Ok(n)) = tokio::time::timeout(quiet, port.read(&mut junk)).await {
             if n == 0 {
                 break;
             }
@@ -174,7 +176,13 @@ impl RoboClaw {
         let mut crc_failures = 0;
         for attempt in 1..=self.cfg.read_attempts.max(1) {
             let mut port = self.port.lock().await;
-            Self::drain(&mut port).await;
+            // After a failed attempt, its answer may still be arriving: let it land first.
+            let quiet = if attempt == 1 {
+                Duration::from_millis(1)
+            } else {
+                after
+            };
+            Self::drain(&mut port, quiet).await;
             port.write_all(&packet::read_frame(self.cfg.address, command))
                 .await?;
             port.flush().await?;
@@ -206,7 +214,7 @@ impl RoboClaw {
         let frame = packet::write_frame(self.cfg.address, command, data);
         let after = self.deadline(frame.len() + 1);
         let mut port = self.port.lock().await;
-        Self::drain(&mut port).await;
+        Self::drain(&mut port, Duration::from_millis(1)).await;
         port.write_all(&frame).await?;
         port.flush().await?;
         let mut ack = [0u8; 1];
@@ -245,9 +253,14 @@ impl RoboClaw {
     /// The firmware version string (the handshake: a RoboClaw answers it, others do not).
     pub async fn version(&self) -> Result<String, RoboClawError> {
         let after = self.deadline(52);
-        for _ in 0..self.cfg.read_attempts.max(1) {
+        for attempt in 1..=self.cfg.read_attempts.max(1) {
             let mut port = self.port.lock().await;
-            Self::drain(&mut port).await;
+            let quiet = if attempt == 1 {
+                Duration::from_millis(1)
+            } else {
+                after
+            };
+            Self::drain(&mut port, quiet).await;
             port.write_all(&packet::read_frame(self.cfg.address, cmd::READ_VERSION))
                 .await?;
             port.flush().await?;
