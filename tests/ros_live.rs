@@ -279,6 +279,27 @@ async fn a_server_that_is_not_rosbridge_is_diagnosed() {
         Ok(_) => panic!("a plain HTTP server must be refused"),
     };
     assert!(err.contains("not a rosbridge server"), "{err}");
+    // An HTTP/1.0 server (Python's http.server) and something that is not HTTP at all.
+    for answer in [
+        &b"HTTP/1.0 200 OK\r\n\r\nhi"[..],
+        &b"SSH-2.0-OpenSSH_9.2\r\n"[..],
+    ] {
+        let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+        let addr = listener.local_addr().unwrap();
+        tokio::spawn(async move {
+            use tokio::io::{AsyncReadExt, AsyncWriteExt};
+            if let Ok((mut s, _)) = listener.accept().await {
+                let mut buf = [0u8; 1024];
+                let _ = s.read(&mut buf).await;
+                let _ = s.write_all(answer).await;
+            }
+        });
+        let err = match connect(&ros_config(format!("rosbridge://{addr}"), &yaml)).await {
+            Err(e) => e.to_string(),
+            Ok(_) => panic!("{answer:?} must be refused"),
+        };
+        assert!(err.contains("not a rosbridge server"), "{err}");
+    }
     let _ = Unattended;
 }
 

@@ -108,12 +108,17 @@ impl RosbridgeClient {
             .map_err(|e| RosbridgeError::Connect {
                 url: url.into(),
                 reason: match e {
+                    // Nothing listening, or the network: the server was not reached.
+                    tokio_tungstenite::tungstenite::Error::Io(io) => io.to_string(),
                     tokio_tungstenite::tungstenite::Error::Http(r) => format!(
                         "the server answered HTTP {} instead of upgrading to a WebSocket: not a \
                          rosbridge server",
                         r.status()
                     ),
-                    other => other.to_string(),
+                    // Reached, but the handshake failed (an old HTTP, not HTTP at all, …).
+                    other => format!(
+                        "the server did not accept a WebSocket ({other}): not a rosbridge server"
+                    ),
                 },
             })?;
         let (mut sink, mut source) = stream.split();
