@@ -329,7 +329,10 @@ pub fn spawn_robot(cfg: MockRoboClawConfig) -> Result<SharedRobot, crate::sim::S
             tick.tick().await;
             let Some(r) = weak.upgrade() else { return };
             let mut r = robot(&r);
-            let target = start.elapsed().as_secs_f64() * r.cfg.time_scale.max(1e-3);
+            // At most 20 ms of robot time per tick: a host that falls behind slows the robot's
+            // clock rather than locking the device away from its serial port for a long batch.
+            let target =
+                (start.elapsed().as_secs_f64() * r.cfg.time_scale.max(1e-3)).min(r.time_s + 0.02);
             while r.time_s + 1e-3 <= target {
                 r.advance(1e-3);
             }

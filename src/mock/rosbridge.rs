@@ -250,10 +250,13 @@ async fn physics(
     let mut step: u64 = 0;
     loop {
         tick.tick().await;
-        let target = start.elapsed().as_secs_f64() * cfg.time_scale.max(1e-3);
+        let wall_target = start.elapsed().as_secs_f64() * cfg.time_scale.max(1e-3);
         let mut batch = Vec::new();
         {
             let mut s = lock(&state);
+            // At most 50 ms of robot time per tick: under load the robot's clock slows instead
+            // of one long batch holding the state (and flooding subscribers).
+            let target = wall_target.min(s.time_s + 0.05);
             while s.time_s + dt <= target {
                 s.time_s += dt;
                 let t = s.time_s;
