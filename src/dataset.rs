@@ -14,6 +14,7 @@
 //! did removes that execution error from the calibration. Final positions likewise are ground
 //! truth minus odometry, in the start frame.
 
+use crate::calibration::pool::{Pooled, UncertaintyKind};
 use crate::calibration::{self, Estimate, Method, RunMeasurement, SquareTest};
 use crate::kinematics::{wrap_angle, Direction, Pose, SplitConvention, WheelParams};
 use serde::Serialize;
@@ -432,6 +433,31 @@ impl OptiOdomSet {
         }
         (heading, position)
     }
+
+    /// Replays every run with `params` and measures the **systematic** error, as Borenstein's
+    /// `E_max,sys` does for positions: per direction (told from the ground-truth turn) the mean
+    /// signed final heading error and the mean final position error vector; returns the larger
+    /// |mean heading error| (rad) and the larger |mean position error| (m) of the two directions.
+    /// Run-to-run scatter, which no calibration removes, averages out.
+    pub fn evaluate_systematic(&self, params: &WheelParams) -> (f64, f64) {
+        let mut sums = [[0.0f64; 4]; 2];
+        for run in &self.runs {
+            let end = run.replay(params);
+            let k = usize::from(end.truth_turn_rad > 0.0);
+            sums[k][0] += wrap_angle(end.odometry_turn_rad - end.truth_turn_rad);
+            sums[k][1] += end.odometry.x_m - end.truth.x_m;
+            sums[k][2] += end.odometry.y_m - end.truth.y_m;
+            sums[k][3] += 1.0;
+        }
+        let (mut heading, mut position) = (0.0f64, 0.0f64);
+        for [h, x, y, n] in sums {
+            if n > 0.0 {
+                heading = heading.max((h / n).abs());
+                position = position.max((x / n).hypot(y / n));
+            }
+        }
+        (heading, position)
+    }
 }
 
 /// One row of a replay evaluation.
@@ -445,67 +471,130 @@ pub struct EvaluationRow {
     pub heading_error_deg: f64,
     /// Mean final position error of the odometry (m).
     pub position_error_m: f64,
+    /// Systematic final heading error: the larger |mean| of the two directions (deg; see
+    /// [`OptiOdomSet::evaluate_systematic`]).
+    pub systematic_heading_error_deg: f64,
+    /// Systematic final position error: the larger |mean end-point error| of the two
+    /// directions (m).
+    pub systematic_position_error_m: f64,
 }
 
-/// A replay: estimates from one square set and their evaluation on other sets.
+/// A replay: estimates from one or more square sets of one robot, pooled, and their evaluation
+/// on other sets.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Replay {
-    /// Set calibrated on.
-    pub dataset: String,
-    /// Every estimate that succeeded.
+    /// Sets calibrated on.
+    pub datasets: Vec<String>,
+    /// Every method that succeeded on every set, pooled ([`calibration::pool`]) and expressed
+    /// against the first set's configured parameters.
     pub estimates: Vec<Estimate>,
-    /// Methods that failed, with the reason.
+    /// The pooled physical estimates behind `estimates`, with the per-recording values and the
+    /// recording-to-recording spread.
+    pub pooled: Vec<Pooled>,
+    /// Which uncertainty the estimates' standard errors are.
+    pub uncertainty: UncertaintyKind,
+    /// The method to write back unless told otherwise ([`calibration::default_method`]).
+    pub default_method: Option<Method>,
+    /// Methods that failed on some set, with the set and the reason.
     pub failures: Vec<(Method, String)>,
     /// Uncalibrated and calibrated odometry errors on each evaluated set.
     pub evaluations: Vec<EvaluationRow>,
 }
 
-/// Calibrates from `calibrate_on` with every method and evaluates the results on `evaluate_on`.
+/// Calibrates from `calibrate_on` (one or more square sets of one robot) with every method,
+/// pools each method over the sets in physical terms, and evaluates the results on
+/// `evaluate_on`.
 ///
-/// Calibrated parameters are the estimate's correction applied to the calibration set's
-/// configured parameters; "uncalibrated" is each evaluated set's own configured parameters.
+/// On each evaluated set the pooled robot is expressed against that set's own configured
+/// parameters (so sets recorded with other configurations compare); "uncalibrated" is each
+/// evaluated set's configured parameters.
 pub fn replay(
-    calibrate_on: &OptiOdomSet,
+    calibrate_on: &[OptiOdomSet],
     evaluate_on: &[OptiOdomSet],
     convention: SplitConvention,
 ) -> Result<Replay, DatasetError> {
-    let test = calibrate_on.square_test()?;
-    let mut estimates = Vec::new();
-    let mut failures = Vec::new();
-    for (method, result) in calibration::estimate_all(&test, convention)? {
-        match result {
-            Ok(e) => estimates.push(e),
-            Err(e) => failures.push((method, e.to_string())),
-        }
-    }
-    let calibrated = estimates
+    let first = calibrate_on
+        .first()
+        .ok_or_else(|| DatasetError::NotASet(PathBuf::from("(no calibration set given)")))?;
+    let tests = calibrate_on
         .iter()
-        .map(|e| {
-            Ok((
-                e.method.name(),
-                e.correction.apply(&calibrate_on.configured)?,
-            ))
-        })
-        .collect::<Result<Vec<_>, DatasetError>>()?;
+        .map(OptiOdomSet::square_test)
+        .collect::<Result<Vec<_>, _>>()?;
+    let mut failures = Vec::new();
+    let mut pooled = Vec::new();
+    for method in Method::ALL {
+        let mut estimates = Vec::new();
+        for (set, test) in calibrate_on.iter().zip(&tests) {
+            if (method.needs_positions() && !test.has_positions())
+                || (method.needs_leg_headings() && !test.has_leg_headings())
+            {
+                break;
+            }
+            match calibration::estimate(method, test, convention) {
+                Ok(e) => estimates.push(e),
+                Err(e) => {
+                    failures.push((method, format!("{}: {e}", set.id)));
+                    break;
+                }
+            }
+        }
+        if estimates.len() != calibrate_on.len() {
+            continue;
+        }
+        let recordings: Vec<_> = calibrate_on
+            .iter()
+            .zip(&tests)
+            .zip(&estimates)
+            .map(|((set, test), e)| calibration::pool::Recording {
+                name: set.id.clone(),
+                configured: set.configured,
+                estimate: e,
+                runs_per_direction: test.cw.len().min(test.ccw.len()),
+            })
+            .collect();
+        pooled.push(calibration::pool::pool(&recordings)?);
+    }
+    let estimates = pooled
+        .iter()
+        .map(|p| p.estimate_for(&first.configured, convention))
+        .collect::<Result<Vec<_>, _>>()?;
     let mut evaluations = Vec::new();
     for set in evaluate_on {
         let mut row = |method: String, params: &WheelParams| {
             let (h, p) = set.evaluate(params);
+            let (hs, ps) = set.evaluate_systematic(params);
             evaluations.push(EvaluationRow {
                 dataset: set.id.clone(),
                 method,
                 heading_error_deg: h.to_degrees(),
                 position_error_m: p,
+                systematic_heading_error_deg: hs.to_degrees(),
+                systematic_position_error_m: ps,
             });
         };
         row("uncalibrated".into(), &set.configured);
-        for (method, params) in &calibrated {
-            row((*method).into(), params);
+        for p in &pooled {
+            let params = p
+                .estimate_for(&set.configured, convention)?
+                .correction
+                .apply(&set.configured)?;
+            row(p.method.name().into(), &params);
         }
     }
+    let has = |f: fn(&SquareTest) -> bool| tests.iter().all(f);
+    let default_method = calibration::default_method(
+        has(SquareTest::has_leg_headings),
+        has(SquareTest::has_positions),
+    )
+    .filter(|m| pooled.iter().any(|p| p.method == *m));
     Ok(Replay {
-        dataset: calibrate_on.id.clone(),
+        datasets: calibrate_on.iter().map(|s| s.id.clone()).collect(),
         estimates,
+        uncertainty: pooled
+            .first()
+            .map_or(UncertaintyKind::RunToRun, Pooled::uncertainty_kind),
+        pooled,
+        default_method,
         failures,
         evaluations,
     })

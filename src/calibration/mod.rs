@@ -28,6 +28,7 @@ pub mod jung_chung;
 pub mod lee;
 pub mod legs;
 pub mod online;
+pub mod pool;
 pub mod umbmark;
 pub mod uncertainty;
 
@@ -342,6 +343,21 @@ pub fn estimate(
         e_d_std_err: std_err.map(|s| s.1),
         correction,
         convention: convention.name().to_string(),
+    })
+}
+
+/// The method to write back unless the user names one, by what the data holds.
+///
+/// With the heading along the legs, `legs`: it reads the heading where the paper's model holds
+/// and leaves out the start transient real robots show (see [`legs`] and the README's real-data
+/// scoreboard). With final headings only, `exact`. `None` never happens today; it is kept so a
+/// caller handles a test no method can use.
+pub fn default_method(has_leg_headings: bool, has_positions: bool) -> Option<Method> {
+    let _ = has_positions;
+    Some(if has_leg_headings {
+        Method::Legs
+    } else {
+        Method::Exact
     })
 }
 

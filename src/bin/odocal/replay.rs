@@ -1,6 +1,8 @@
-//! `odocal replay`: calibrate on a recorded square set, evaluate on recorded runs.
+//! `odocal replay`: calibrate on recorded square sets of one robot (pooled), evaluate on
+//! recorded runs.
 
 use crate::{pm, print_json, ConventionArgs};
+use odocal::calibration::pool::UncertaintyKind;
 use odocal::dataset::{replay, OptiOdomSet};
 use serde_json::json;
 use std::path::PathBuf;
@@ -8,10 +10,12 @@ use std::path::PathBuf;
 /// Arguments of `odocal replay`.
 #[derive(Debug, clap::Args)]
 pub struct Args {
-    /// OptiOdom square set to calibrate on (a directory with *_metadata.csv and *_run-NN.csv).
-    #[arg(long)]
-    dataset: PathBuf,
-    /// Sets (square or free) to evaluate on; repeatable. Default: the calibration set itself.
+    /// OptiOdom square set to calibrate on (a directory with *_metadata.csv and *_run-NN.csv);
+    /// repeat it to pool several recordings of one robot (they may have been recorded with
+    /// different configured parameters: they are pooled in physical terms).
+    #[arg(long, required = true)]
+    dataset: Vec<PathBuf>,
+    /// Sets (square or free) to evaluate on; repeatable. Default: the calibration sets.
     #[arg(long)]
     evaluate: Vec<PathBuf>,
     #[command(flatten)]
@@ -27,10 +31,18 @@ pub struct Args {
 
 /// Runs `odocal replay`.
 pub fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
-    let calib = OptiOdomSet::load(&args.dataset)?;
+    let sets = args
+        .dataset
+        .iter()
+        .map(OptiOdomSet::load)
+        .collect::<Result<Vec<_>, _>>()?;
+    let calib = &sets[0];
     if let Some(path) = &args.write_bag {
+        if sets.len() > 1 {
+            return Err("--write-bag converts one set; give one --dataset".into());
+        }
         let topics = odocal::ros::bag::RosTopics::default();
-        let n = odocal::ros::bag_writer::write_optiodom_bag(path, &calib, 2.0, &topics)?;
+        let n = odocal::ros::bag_writer::write_optiodom_bag(path, calib, 2.0, &topics)?;
         println!(
             "wrote {} ({n} messages, {} runs)",
             path.display(),
@@ -39,57 +51,86 @@ pub fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
         return Ok(());
     }
     let evaluate = if args.evaluate.is_empty() {
-        vec![calib.clone()]
+        sets.clone()
     } else {
         args.evaluate
             .iter()
             .map(OptiOdomSet::load)
             .collect::<Result<Vec<_>, _>>()?
     };
-    let report = replay(&calib, &evaluate, args.convention.convention())?;
+    let report = replay(&sets, &evaluate, args.convention.convention())?;
     if args.json {
         return print_json(&json!({
-            "dataset": report.dataset,
+            "datasets": report.datasets,
             "configured": calib.configured,
             "estimates": report.estimates,
+            "default_method": report.default_method,
+            "uncertainty": report.uncertainty,
+            "pooled": report.pooled,
             "failures": report.failures.iter().map(|(m, e)| json!({"method": m.name(), "error": e})).collect::<Vec<_>>(),
             "evaluations": report.evaluations,
         }));
     }
+    let runs: usize = sets.iter().map(|s| s.runs.len()).sum();
     println!(
-        "calibrated on {} ({} runs, side {} m), configured D_L {} D_R {} b {}",
-        report.dataset,
-        calib.runs.len(),
+        "calibrated on {} ({runs} runs, side {} m); estimates against {}'s configuration: D_L {} D_R {} b {}",
+        report.datasets.join(", "),
         calib.side_m.unwrap_or(f64::NAN),
+        calib.id,
         calib.configured.left_wheel_diameter_m,
         calib.configured.right_wheel_diameter_m,
         calib.configured.wheelbase_m
     );
     println!(
-        "{:<13} {:>9} {:>10} {:>9} {:>10}",
-        "method", "E_b", "", "E_d", ""
+        "± is {}",
+        match report.uncertainty {
+            UncertaintyKind::RunToRun =>
+                "one standard error from run-to-run scatter (one recording: the recording-to-recording spread is unknown; pool several with repeated --dataset)",
+            UncertaintyKind::RunToRunAndRecordingToRecording =>
+                "one standard error from run-to-run scatter and the recording-to-recording spread (random-effects pooling)",
+        }
     );
-    for e in &report.estimates {
+    println!(
+        "{:<13} {:>9} {:>10} {:>9} {:>10} {:>16}",
+        "method", "E_b", "±", "E_d", "±", "E_b spread"
+    );
+    for (e, p) in report.estimates.iter().zip(&report.pooled) {
+        let spread = if report.datasets.len() > 1 {
+            format!("{:.5}", p.ln_wheelbase_over_diameter.recording_spread * e.e_b)
+        } else {
+            "-".into()
+        };
+        let mark = if report.default_method == Some(e.method) {
+            "  (default)"
+        } else {
+            ""
+        };
         println!(
-            "{:<13} {:>9.5} {:>10} {:>9.5} {:>10}",
+            "{:<13} {:>9.5} {:>10} {:>9.5} {:>10} {:>16}{mark}",
             e.method.name(),
             e.e_b,
             pm(e.e_b_std_err),
             e.e_d,
-            pm(e.e_d_std_err)
+            pm(e.e_d_std_err),
+            spread
         );
     }
     for (m, e) in &report.failures {
         println!("{m}: not estimated: {e}");
     }
     println!(
-        "\n{:<16} {:<13} {:>18} {:>18}",
-        "evaluated on", "parameters", "|heading err| deg", "position err m"
+        "\n{:<16} {:<13} {:>18} {:>16} {:>18} {:>16}",
+        "evaluated on", "parameters", "|heading err| deg", "position err m", "systematic hdg deg", "systematic pos m"
     );
     for r in &report.evaluations {
         println!(
-            "{:<16} {:<13} {:>18.3} {:>18.4}",
-            r.dataset, r.method, r.heading_error_deg, r.position_error_m
+            "{:<16} {:<13} {:>18.3} {:>16.4} {:>18.3} {:>16.4}",
+            r.dataset,
+            r.method,
+            r.heading_error_deg,
+            r.position_error_m,
+            r.systematic_heading_error_deg,
+            r.systematic_position_error_m
         );
     }
     Ok(())
