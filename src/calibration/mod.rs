@@ -29,6 +29,7 @@ pub mod lee;
 pub mod legs;
 pub mod online;
 pub mod pool;
+pub mod time_offset;
 pub mod umbmark;
 pub mod uncertainty;
 

@@ -18,9 +18,21 @@
 //! they are constants). Heading readings have standard deviation `heading_sigma_rad`; position
 //! fixes `position_sigma_m` per axis. Innovations of heading are wrapped to (−π, π].
 //!
-//! # Consistency
+//! # Consistency and robustness
 //! Every update records its normalised innovation squared (NIS); [`OnlineEstimator::nis_mean`]
 //! should be near 1 for heading and 2 for position fixes when the noise models are right.
+//! A heading reading whose NIS exceeds the gate (`gate_nis`, χ²₁ at 99.9 % by default: a reading
+//! that far off is a sensor glitch, a magnetic disturbance or a bump, not information about the
+//! wheels) is rejected and counted, and does not enter the mean. So that a real step in the
+//! heading (a compass re-levelled, the robot picked up and put down) cannot lock the filter out
+//! for good, `gate_recover_after` rejections in a row re-anchor the heading to the reading,
+//! keeping the parameters and counting a reset.
+//!
+//! # Excitation
+//! A path observes a parameter only if it excites it: straight driving observes `E_d` (a
+//! diameter difference curves the path), turning observes `E_b`. [`OnlineEstimator::excitation`]
+//! compares each parameter's posterior standard deviation with its prior one and gives a verdict,
+//! so "± 0.04" on a path with no turns is reported as *not observed*, not as a measurement.
 
 use super::CalibrationError;
 use crate::kinematics::{wrap_angle, Correction, SplitConvention, WheelParams};
@@ -63,7 +75,14 @@ pub struct OnlineConfig {
     pub bias_prior_sigma_rad: f64,
     /// Random walk of `u_L`, `u_R`, `k` per √m driven (0: constants).
     pub parameter_walk: f64,
+    /// Heading readings with a NIS above this are rejected (`f64::INFINITY`: no gating).
+    pub gate_nis: f64,
+    /// After this many rejections in a row the heading is re-anchored to the reading.
+    pub gate_recover_after: u32,
 }
+
+/// χ² with one degree of freedom at 99.9 %.
+pub const CHI2_1_999: f64 = 10.828;
 
 impl OnlineConfig {
     /// Defaults for a robot whose controller is configured with `configured`.
@@ -79,8 +98,70 @@ impl OnlineConfig {
             estimate_heading_bias: false,
             bias_prior_sigma_rad: 0.1,
             parameter_walk: 0.0,
+            gate_nis: CHI2_1_999,
+            gate_recover_after: 25,
         }
     }
+}
+
+/// How well the path observed one parameter.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Observed {
+    /// Posterior standard deviation below a fifth of the prior's.
+    Yes,
+    /// Between a fifth and 60 % of the prior's: the estimate leans on the prior.
+    Weakly,
+    /// Above 60 %: the path did not excite it; the value is the prior's.
+    No,
+}
+
+impl Observed {
+    fn from_ratio(r: f64) -> Self {
+        if r < 0.2 {
+            Observed::Yes
+        } else if r < 0.6 {
+            Observed::Weakly
+        } else {
+            Observed::No
+        }
+    }
+}
+
+/// The excitation verdict: posterior over prior standard deviation per parameter.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Excitation {
+    /// Verdict on `E_b` (observed by turning).
+    pub e_b: Observed,
+    /// Verdict on `E_d` (observed by driving straight or along curves).
+    pub e_d: Observed,
+    /// Posterior/prior standard deviation of `E_b`.
+    pub e_b_ratio: f64,
+    /// Posterior/prior standard deviation of `E_d`.
+    pub e_d_ratio: f64,
+}
+
+impl Excitation {
+    /// What the user should drive to observe what is not yet observed, if anything.
+    pub fn advice(&self) -> Option<&'static str> {
+        match (self.e_b, self.e_d) {
+            (Observed::Yes, Observed::Yes) => None,
+            (Observed::Yes, _) => Some("E_d is not observed: drive straight stretches (a metre or more) while the heading is read"),
+            (_, Observed::Yes) => Some("E_b is not observed: turn (in place or tightly), both ways, while the heading is read"),
+            _ => Some("neither parameter is observed: drive straight stretches and turns both ways while the heading is read"),
+        }
+    }
+}
+
+/// Counts of the heading gate.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+pub struct GateStats {
+    /// Readings used.
+    pub accepted: u64,
+    /// Readings rejected by the gate.
+    pub rejected: u64,
+    /// Times the heading was re-anchored after `gate_recover_after` rejections in a row.
+    pub resets: u64,
 }
 
 /// Where the absolute wheel scale comes from when turning the state into parameters.
@@ -121,6 +202,9 @@ pub struct OnlineEstimator {
     distance_m: f64,
     nis_heading: (f64, u64),
     nis_position: (f64, u64),
+    prior: Matrix,
+    gate: GateStats,
+    rejected_in_a_row: u32,
 }
 
 impl OnlineEstimator {
@@ -136,6 +220,12 @@ impl OnlineEstimator {
             if !(v.is_finite() && v >= 0.0) {
                 return Err(CalibrationError::BadGeometry { name, value: v });
             }
+        }
+        if !(cfg.gate_nis > 0.0) || cfg.gate_nis.is_nan() {
+            return Err(CalibrationError::BadGeometry {
+                name: "gate_nis",
+                value: cfg.gate_nis,
+            });
         }
         for (name, v) in [
             ("heading_sigma_rad", cfg.heading_sigma_rad),
@@ -167,7 +257,15 @@ impl OnlineEstimator {
             distance_m: 0.0,
             nis_heading: (0.0, 0),
             nis_position: (0.0, 0),
+            prior: p,
+            gate: GateStats::default(),
+            rejected_in_a_row: 0,
         })
+    }
+
+    /// What the heading gate did so far.
+    pub fn gate_stats(&self) -> GateStats {
+        self.gate
     }
 
     /// The configuration.
@@ -274,7 +372,8 @@ impl OnlineEstimator {
     }
 
     /// Updates with a heading reading (rad, counter-clockwise positive). Returns the
-    /// normalised innovation squared.
+    /// normalised innovation squared, or `None` for the first reading (it sets the heading), a
+    /// non-finite one, or one rejected by the gate.
     pub fn update_heading(&mut self, heading_rad: f64) -> Option<f64> {
         if !heading_rad.is_finite() {
             return None;
@@ -294,13 +393,31 @@ impl OnlineEstimator {
         let innovation = wrap_angle(heading_rad - (self.x[TH] + self.x[BIAS]));
         let ph = self.p * h;
         let s = h.dot(&ph) + r;
+        let nis = innovation * innovation / s;
+        if nis > self.cfg.gate_nis {
+            self.gate.rejected += 1;
+            self.rejected_in_a_row += 1;
+            if self.rejected_in_a_row >= self.cfg.gate_recover_after.max(1) {
+                // A lasting step, not a glitch: take the heading from here, keep the parameters.
+                for j in 0..N {
+                    self.p[(TH, j)] = 0.0;
+                    self.p[(j, TH)] = 0.0;
+                }
+                self.x[TH] = wrap_angle(heading_rad - self.x[BIAS]);
+                self.p[(TH, TH)] = r;
+                self.gate.resets += 1;
+                self.rejected_in_a_row = 0;
+            }
+            return None;
+        }
+        self.rejected_in_a_row = 0;
+        self.gate.accepted += 1;
         let kgain = ph / s;
         self.x += kgain * innovation;
         self.x[TH] = wrap_angle(self.x[TH]);
         // Joseph form keeps P symmetric and positive over millions of updates.
         let ikh = Matrix::identity() - kgain * h.transpose();
         self.p = ikh * self.p * ikh.transpose() + kgain * kgain.transpose() * r;
-        let nis = innovation * innovation / s;
         self.nis_heading.0 += nis;
         self.nis_heading.1 += 1;
         Some(nis)
@@ -356,6 +473,31 @@ impl OnlineEstimator {
 
     /// The parameters' estimate and uncertainty.
     pub fn estimate(&self, scale: ScaleSource) -> Result<OnlineEstimate, CalibrationError> {
+        self.estimate_with(scale, &self.p)
+    }
+
+    /// Which parameters the path so far observed (see the module).
+    pub fn excitation(&self, scale: ScaleSource) -> Result<Excitation, CalibrationError> {
+        let post = self.estimate_with(scale, &self.p)?;
+        let prior = self.estimate_with(scale, &self.prior)?;
+        let ratio = |a: f64, b: f64| if b > 0.0 { a / b } else { 0.0 };
+        let (rb, rd) = (
+            ratio(post.e_b_std, prior.e_b_std),
+            ratio(post.e_d_std, prior.e_d_std),
+        );
+        Ok(Excitation {
+            e_b: Observed::from_ratio(rb),
+            e_d: Observed::from_ratio(rd),
+            e_b_ratio: rb,
+            e_d_ratio: rd,
+        })
+    }
+
+    fn estimate_with(
+        &self,
+        scale: ScaleSource,
+        cov: &Matrix,
+    ) -> Result<OnlineEstimate, CalibrationError> {
         let (ul, ur, k) = (self.x[UL], self.x[UR], self.x[K]);
         if !(ul > 0.0 && ur > 0.0 && k > 0.0) {
             return Err(CalibrationError::Unsupported(format!(
@@ -402,7 +544,7 @@ impl OnlineEstimator {
             let mut v = 0.0;
             for a in 0..3 {
                 for b in 0..3 {
-                    v += g[a] * self.p[(idx[a], idx[b])] * g[b];
+                    v += g[a] * cov[(idx[a], idx[b])] * g[b];
                 }
             }
             v.max(0.0)
@@ -448,5 +590,98 @@ mod tests {
         let sum_var = p[(UL, UL)] + p[(UR, UR)] + 2.0 * p[(UL, UR)];
         assert!(diff_var < 1e-6, "u_R − u_L is learned: {diff_var}");
         assert!(sum_var > 1e-3, "u_R + u_L is not: {sum_var}");
+    }
+
+    /// Drives `n` steps of `(s_l, s_r)` configured travel on a robot whose true `u` are
+    /// `(0.99, 1.01)`, reading the true heading after each step plus `glitch(step number)`,
+    /// counting steps from `start`.
+    fn drive(
+        f: &mut OnlineEstimator,
+        heading: &mut f64,
+        (start, n): (usize, usize),
+        step: (f64, f64),
+        glitch: impl Fn(usize) -> f64,
+    ) {
+        let (ul, ur, b) = (0.99, 1.01, f.config().configured.wheelbase_m);
+        for i in start..start + n {
+            f.predict_travel(step.0, step.1);
+            *heading += (ur * step.1 - ul * step.0) / b;
+            f.update_heading(wrap_angle(*heading + glitch(i)));
+        }
+    }
+
+    fn filter() -> OnlineEstimator {
+        OnlineEstimator::new(OnlineConfig::new(WheelParams::nominal(0.15, 0.39, 4096.0))).unwrap()
+    }
+
+    /// Squares' worth of straight stretches and turns both ways.
+    fn tour(f: &mut OnlineEstimator, glitch: impl Fn(usize) -> f64 + Copy) {
+        let mut heading = 0.0;
+        f.update_heading(0.0);
+        for k in 0..8 {
+            drive(f, &mut heading, (200 * k, 100), (0.01, 0.01), glitch);
+            let turn = if k % 2 == 0 { 0.006 } else { -0.006 };
+            drive(f, &mut heading, (200 * k + 100, 100), (-turn, turn), glitch);
+        }
+    }
+
+    #[test]
+    fn glitches_are_gated_and_counted_and_a_lasting_step_is_recovered() {
+        let mut clean = filter();
+        tour(&mut clean, |_| 0.0);
+        let mut noisy = filter();
+        tour(&mut noisy, |i| if i % 37 == 5 { 0.5 } else { 0.0 });
+        let g = noisy.gate_stats();
+        // 1600 steps, a glitch every 37th: 44 glitches, every one rejected, nothing else.
+        assert_eq!(g.rejected, 44, "{g:?}");
+        assert_eq!(g.resets, 0);
+        assert_eq!(g.accepted, clean.gate_stats().accepted - 44);
+        let (a, b) = (
+            clean.estimate(ScaleSource::Convention(SplitConvention::LeftNominal)).unwrap(),
+            noisy.estimate(ScaleSource::Convention(SplitConvention::LeftNominal)).unwrap(),
+        );
+        assert!((a.e_b - b.e_b).abs() < 1e-4 && (a.e_d - b.e_d).abs() < 1e-4, "{a:?} {b:?}");
+        // Without the gate the same glitches pull the estimate and the NIS far off.
+        let mut cfg = OnlineConfig::new(WheelParams::nominal(0.15, 0.39, 4096.0));
+        cfg.gate_nis = f64::INFINITY;
+        let mut ungated = OnlineEstimator::new(cfg).unwrap();
+        tour(&mut ungated, |i| if i % 37 == 5 { 0.5 } else { 0.0 });
+        assert!(ungated.nis_mean().0 > 100.0 * noisy.nis_mean().0.max(1e-3));
+
+        // A lasting step of 0.3 rad after 500 steps: 25 rejections, one reset, then accepted.
+        let mut stepped = filter();
+        tour(&mut stepped, |i| if i >= 500 { 0.3 } else { 0.0 });
+        let g = stepped.gate_stats();
+        assert_eq!((g.rejected, g.resets), (25, 1), "{g:?}");
+        let e = stepped
+            .estimate(ScaleSource::Convention(SplitConvention::LeftNominal))
+            .unwrap();
+        assert!((e.e_d - 1.01 / 0.99).abs() < 2e-3, "{e:?}");
+    }
+
+    #[test]
+    fn the_excitation_verdict_names_what_the_path_did_not_observe() {
+        let scale = ScaleSource::Convention(SplitConvention::MeanPreserving);
+        let mut heading = 0.0;
+        let mut straight = filter();
+        straight.update_heading(0.0);
+        drive(&mut straight, &mut heading, (0, 500), (0.01, 0.01), |_| 0.0);
+        let x = straight.excitation(scale).unwrap();
+        assert_eq!((x.e_b, x.e_d), (Observed::No, Observed::Yes), "{x:?}");
+        assert!(x.advice().unwrap().contains("turn"));
+
+        let mut heading = 0.0;
+        let mut spin = filter();
+        spin.update_heading(0.0);
+        drive(&mut spin, &mut heading, (0, 500), (-0.006, 0.006), |_| 0.0);
+        let x = spin.excitation(scale).unwrap();
+        assert_eq!((x.e_b, x.e_d), (Observed::Yes, Observed::No), "{x:?}");
+        assert!(x.advice().unwrap().contains("straight"));
+
+        let mut both = filter();
+        tour(&mut both, |_| 0.0);
+        let x = both.excitation(scale).unwrap();
+        assert_eq!((x.e_b, x.e_d), (Observed::Yes, Observed::Yes), "{x:?}");
+        assert_eq!(x.advice(), None);
     }
 }
