@@ -1,10 +1,17 @@
 //! Tracking sessions for the online estimator: feeding it live telemetry, recorded telemetry
 //! logs (`odocal record`) or recorded data sets, with periodic checkpoints of its estimate.
 //!
+//! Recorded input is checked for a constant clock offset between the encoder counts and the
+//! heading ([`crate::calibration::time_offset`]) before it is fed, one run at a time; an offset
+//! above [`crate::calibration::time_offset::WARN_ABOVE_S`] is corrected (the heading re-read at the shifted time)
+//! and reported in [`Tracker::time_offsets`]. Live telemetry cannot be re-read, so a live
+//! session checks its whole stream at the end ([`Tracker::check_time_offset`]) and only reports.
+//!
 //! Log format (JSON lines): the first line is a [`LogHeader`] (`"type": "header"`), every
 //! following line one [`TelemetrySample`] (`"type": "telemetry"`), counts unwrapped by the host.
 
 use crate::calibration::online::{OnlineConfig, OnlineEstimate, OnlineEstimator, ScaleSource};
+use crate::calibration::time_offset::{estimate_time_offset, shift_heading, TimeOffset};
 use crate::calibration::CalibrationError;
 use crate::dataset::OptiOdomSet;
 use crate::hal::TelemetrySample;
@@ -142,6 +149,20 @@ pub fn read_log(path: &Path) -> Result<(LogHeader, Vec<TelemetrySample>), LogErr
 /// Least driving (m) before the online filter reports an estimate.
 pub const MIN_DISTANCE_M: f64 = 0.5;
 
+/// Largest clock offset searched for (s).
+pub const MAX_TIME_OFFSET_S: f64 = 1.0;
+
+/// A time offset found in one run of recorded input.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct RunTimeOffset {
+    /// The run (file name, "log", "live").
+    pub run: String,
+    /// What was found.
+    pub offset: TimeOffset,
+    /// Whether the heading was re-read at the shifted time before it was fed.
+    pub corrected: bool,
+}
+
 /// The online estimator with checkpoints every `every_m` metres driven.
 pub struct Tracker {
     filter: OnlineEstimator,
@@ -151,6 +172,8 @@ pub struct Tracker {
     next_m: f64,
     /// Estimates taken at each checkpoint.
     pub checkpoints: Vec<OnlineEstimate>,
+    /// Clock offsets found between the encoder and heading streams, per run checked.
+    pub time_offsets: Vec<RunTimeOffset>,
 }
 
 impl Tracker {
@@ -167,6 +190,7 @@ impl Tracker {
             every_m: every_m.max(0.01),
             next_m: every_m.max(0.01),
             checkpoints: Vec::new(),
+            time_offsets: Vec::new(),
         })
     }
 
@@ -217,16 +241,116 @@ impl Tracker {
         self.maybe_checkpoint()
     }
 
+    /// Feeds a whole recorded telemetry log: checked for a clock offset first, corrected if
+    /// it is significant; returns the checkpoints passed.
+    pub fn feed_log(&mut self, samples: &[TelemetrySample]) -> Vec<OnlineEstimate> {
+        let heading: Vec<Option<f64>> = samples
+            .iter()
+            .map(|s| s.heading_valid.then_some(s.heading_rad))
+            .collect();
+        let heading = self.check_and_correct("log", samples, heading);
+        let mut out = Vec::new();
+        for (s, h) in samples.iter().zip(heading) {
+            let fed = TelemetrySample {
+                heading_rad: h.unwrap_or(f64::NAN),
+                heading_valid: h.is_some(),
+                ..*s
+            };
+            out.extend(self.feed_sample(&fed));
+        }
+        out
+    }
+
+    /// Checks a telemetry stream (live, already fed) for a clock offset and records it
+    /// uncorrected; returns it when one could be estimated.
+    pub fn check_time_offset(&mut self, run: &str, samples: &[TelemetrySample]) -> Option<TimeOffset> {
+        let (times, odo) = self.series(samples);
+        let heading: Vec<Option<f64>> = samples
+            .iter()
+            .map(|s| s.heading_valid.then_some(s.heading_rad))
+            .collect();
+        let offset = estimate_time_offset(&times, &odo, &heading, MAX_TIME_OFFSET_S)?;
+        self.time_offsets.push(RunTimeOffset {
+            run: run.into(),
+            offset,
+            corrected: false,
+        });
+        Some(offset)
+    }
+
+    /// Times and odometry turn per sample (configured parameters) of a telemetry stream.
+    fn series(&self, samples: &[TelemetrySample]) -> (Vec<f64>, Vec<f64>) {
+        let c = &self.filter.config().configured;
+        let times = samples.iter().map(|s| s.device_time_s).collect();
+        let odo = std::iter::once(0.0)
+            .chain(samples.windows(2).map(|w| {
+                let dl = (w[1].left_counts - w[0].left_counts) as f64 * c.left_m_per_count();
+                let dr = (w[1].right_counts - w[0].right_counts) as f64 * c.right_m_per_count();
+                (dr - dl) / c.wheelbase_m
+            }))
+            .take(samples.len())
+            .collect();
+        (times, odo)
+    }
+
+    fn check_and_correct(
+        &mut self,
+        run: &str,
+        samples: &[TelemetrySample],
+        heading: Vec<Option<f64>>,
+    ) -> Vec<Option<f64>> {
+        let (times, odo) = self.series(samples);
+        self.correct(run, &times, &odo, heading)
+    }
+
+    fn correct(
+        &mut self,
+        run: &str,
+        times: &[f64],
+        odo: &[f64],
+        heading: Vec<Option<f64>>,
+    ) -> Vec<Option<f64>> {
+        let Some(offset) = estimate_time_offset(times, odo, &heading, MAX_TIME_OFFSET_S) else {
+            return heading;
+        };
+        let corrected = offset.significant();
+        self.time_offsets.push(RunTimeOffset {
+            run: run.into(),
+            offset,
+            corrected,
+        });
+        if corrected {
+            shift_heading(times, &heading, offset.offset_s)
+        } else {
+            heading
+        }
+    }
+
     /// Feeds every run of a recorded set (ground-truth heading as the compass), restarting the
-    /// pose at each run; returns the checkpoints passed.
+    /// pose at each run, each run checked for a clock offset first and corrected if it is
+    /// significant; returns the checkpoints passed.
     pub fn feed_dataset(&mut self, set: &OptiOdomSet) -> Vec<OnlineEstimate> {
         let mut out = Vec::new();
+        let c = self.filter.config().configured;
         for run in &set.runs {
             self.filter.restart_pose();
             self.last_counts = None;
-            for s in &run.samples {
+            let times: Vec<f64> = run.samples.iter().map(|s| s.time_s).collect();
+            let odo: Vec<f64> = run
+                .samples
+                .iter()
+                .map(|s| {
+                    (s.right_counts * c.right_m_per_count() - s.left_counts * c.left_m_per_count())
+                        / c.wheelbase_m
+                })
+                .collect();
+            let heading = run.samples.iter().map(|s| Some(s.truth.heading_rad)).collect();
+            let heading = self.correct(&run.name, &times, &odo, heading);
+            for (s, h) in run.samples.iter().zip(heading) {
                 self.filter.predict_counts(s.left_counts, s.right_counts);
-                self.filter.update_heading(s.truth.heading_rad);
+                if let Some(h) = h {
+                    self.filter.update_heading(h);
+                }
                 out.extend(self.maybe_checkpoint());
             }
         }

@@ -115,6 +115,9 @@ pub async fn record(args: RecordArgs) -> CliResult {
     Ok(())
 }
 
+/// Live samples kept for the clock-offset check (an hour at 50 Hz).
+const LIVE_SAMPLES_KEPT: usize = 180_000;
+
 /// Arguments of `odocal track`.
 #[derive(Debug, clap::Args)]
 #[command(group(ArgGroup::new("source").required(true).args(["port", "log", "dataset"])))]
@@ -217,23 +220,28 @@ pub async fn track(args: TrackArgs) -> CliResult {
     } else if let Some(path) = &args.log {
         let (header, samples) = read_log(path)?;
         let mut t = Tracker::new(config(header.params), scale, args.every_m)?;
-        for s in &samples {
-            if let Some(e) = t.feed_sample(s) {
-                show(&e, args.json, "");
-            }
+        for e in t.feed_log(&samples) {
+            show(&e, args.json, "");
         }
         (t, header.params)
     } else if let Some(port) = &args.port {
         let (client, _) = open_port(port, args.baud).await?;
         let configured = client.get_params(ParamSource::Active).await?;
         let mut t = Tracker::new(config(configured), scale, args.every_m)?;
+        // Kept for the clock-offset check at the end; an hour at 50 Hz, then the oldest go.
+        let mut kept = std::collections::VecDeque::new();
         stream_telemetry(&client, args.period_ms, args.duration_s, |s| {
             if let Some(e) = t.feed_sample(s) {
                 show(&e, args.json, "");
             }
+            if kept.len() == LIVE_SAMPLES_KEPT {
+                kept.pop_front();
+            }
+            kept.push_back(*s);
             Ok(())
         })
         .await?;
+        t.check_time_offset("live", kept.make_contiguous());
         write_back = Some(client);
         (t, configured)
     } else {
@@ -242,6 +250,8 @@ pub async fn track(args: TrackArgs) -> CliResult {
     let last = tracker.estimate()?;
     show(&last, args.json, "final");
     let (nis, updates) = tracker.filter().nis_mean();
+    let gate = tracker.filter().gate_stats();
+    let excitation = tracker.filter().excitation(scale)?;
     let mut written = None;
     if let (true, Some(client)) = (args.write_back, &write_back) {
         if last.e_b_std < args.max_std && last.e_d_std < args.max_std {
@@ -278,11 +288,44 @@ pub async fn track(args: TrackArgs) -> CliResult {
             "estimates": estimates,
             "heading_updates": updates,
             "heading_nis_mean": nis,
+            "heading_gate": gate,
+            "excitation": excitation,
+            "time_offsets": tracker.time_offsets,
             "written": written,
         }));
     }
     println!(
-        "{updates} heading updates, mean NIS {nis:.2} (≈ 1 when the noise settings fit the robot)"
+        "{updates} heading updates, mean NIS {nis:.2} (≈ 1 when the noise settings fit the robot); \
+         {} reading(s) rejected by the gate, {} heading re-anchor(s)",
+        gate.rejected, gate.resets
     );
+    println!(
+        "observed: E_b {:?} (σ {:.0} % of prior), E_d {:?} (σ {:.0} % of prior)",
+        excitation.e_b,
+        100.0 * excitation.e_b_ratio,
+        excitation.e_d,
+        100.0 * excitation.e_d_ratio
+    );
+    if let Some(advice) = excitation.advice() {
+        println!("warning: {advice}");
+    }
+    for o in &tracker.time_offsets {
+        let what = if o.corrected {
+            "corrected"
+        } else if o.offset.significant() {
+            "NOT corrected (live); fix the clocks or the sensor delay"
+        } else {
+            "below the warning threshold"
+        };
+        let prefix = if o.offset.significant() { "warning: " } else { "" };
+        println!(
+            "{prefix}{}: heading stream {} the encoders by {:.3} s (rate correlation {:.2}, {:.2} at 0 s): {what}",
+            o.run,
+            if o.offset.offset_s >= 0.0 { "lags" } else { "leads" },
+            o.offset.offset_s.abs(),
+            o.offset.correlation,
+            o.offset.correlation_at_zero
+        );
+    }
     Ok(())
 }
