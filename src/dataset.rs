@@ -14,7 +14,9 @@
 //! did removes that execution error from the calibration. Final positions likewise are ground
 //! truth minus odometry, in the start frame.
 
-use crate::calibration::pool::{Pooled, UncertaintyKind};
+use crate::calibration::pool::{
+    pool_methods, Pooled, PooledMethods, RecordingEstimates, UncertaintyKind,
+};
 use crate::calibration::{self, Estimate, Method, RunMeasurement, SquareTest};
 use crate::kinematics::{wrap_angle, Direction, Pose, SplitConvention, WheelParams};
 use serde::Serialize;
@@ -521,43 +523,38 @@ pub fn replay(
         .map(OptiOdomSet::square_test)
         .collect::<Result<Vec<_>, _>>()?;
     let mut failures = Vec::new();
-    let mut pooled = Vec::new();
-    for method in Method::ALL {
-        let mut estimates = Vec::new();
-        for (set, test) in calibrate_on.iter().zip(&tests) {
-            if (method.needs_positions() && !test.has_positions())
-                || (method.needs_leg_headings() && !test.has_leg_headings())
-            {
-                break;
-            }
-            match calibration::estimate(method, test, convention) {
-                Ok(e) => estimates.push(e),
-                Err(e) => {
-                    failures.push((method, format!("{}: {e}", set.id)));
-                    break;
-                }
+    let mut per_set = Vec::new();
+    for (set, test) in calibrate_on.iter().zip(&tests) {
+        let mut ok = Vec::new();
+        for (method, result) in calibration::estimate_all(test, convention)? {
+            match result {
+                Ok(e) => ok.push(e),
+                Err(e) => failures.push((method, format!("{}: {e}", set.id))),
             }
         }
-        if estimates.len() != calibrate_on.len() {
-            continue;
-        }
-        let recordings: Vec<_> = calibrate_on
-            .iter()
-            .zip(&tests)
-            .zip(&estimates)
-            .map(|((set, test), e)| calibration::pool::Recording {
-                name: set.id.clone(),
-                configured: set.configured,
-                estimate: e,
-                runs_per_direction: test.cw.len().min(test.ccw.len()),
-            })
-            .collect();
-        pooled.push(calibration::pool::pool(&recordings)?);
+        per_set.push(ok);
     }
-    let estimates = pooled
+    let recordings: Vec<_> = calibrate_on
         .iter()
-        .map(|p| p.estimate_for(&first.configured, convention))
-        .collect::<Result<Vec<_>, _>>()?;
+        .zip(&tests)
+        .zip(&per_set)
+        .map(|((set, test), estimates)| RecordingEstimates {
+            name: set.id.clone(),
+            configured: set.configured,
+            estimates,
+            runs_per_direction: test.cw.len().min(test.ccw.len()),
+        })
+        .collect();
+    let pooled = pool_methods(&recordings, &first.configured, convention)?;
+    for (method, sets) in &pooled.missing {
+        failures.push((*method, format!("not estimated on {}", sets.join(", "))));
+    }
+    let PooledMethods {
+        pooled,
+        estimates,
+        uncertainty,
+        ..
+    } = pooled;
     let mut evaluations = Vec::new();
     for set in evaluate_on {
         let mut row = |method: String, params: &WheelParams| {
@@ -590,9 +587,7 @@ pub fn replay(
     Ok(Replay {
         datasets: calibrate_on.iter().map(|s| s.id.clone()).collect(),
         estimates,
-        uncertainty: pooled
-            .first()
-            .map_or(UncertaintyKind::RunToRun, Pooled::uncertainty_kind),
+        uncertainty,
         pooled,
         default_method,
         failures,

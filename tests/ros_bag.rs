@@ -114,6 +114,87 @@ fn a_bag_converted_from_a_recorded_set_calibrates_as_replay_does() {
 }
 
 #[test]
+fn bags_of_one_robot_pool_as_replay_pools_their_sets() {
+    let Some(root) = common::optiodom("square") else {
+        return;
+    };
+    let dir = scratch("bag-pool");
+    std::fs::create_dir_all(&dir).unwrap();
+    // Two sets of the June robot recorded with different configured wheelbases and diameters.
+    let ids = ["230620202042", "230620202258"];
+    let mut bags = Vec::new();
+    let mut sets = Vec::new();
+    for id in ids {
+        let set = root.join("square").join(id);
+        let bag = dir.join(format!("{id}.mcap"));
+        let (ok, _, err) = odocal(&[
+            "replay",
+            "--dataset",
+            set.to_str().unwrap(),
+            "--write-bag",
+            bag.to_str().unwrap(),
+        ]);
+        assert!(ok, "{err}");
+        bags.push(bag.to_str().unwrap().to_string());
+        sets.push(set.to_str().unwrap().to_string());
+    }
+    let mut args = vec!["bag"];
+    args.extend(bags.iter().map(String::as_str));
+    args.extend(["--min-rest-s", "1.5", "--json"]);
+    let pooled = odocal_json(&args);
+    assert_eq!(pooled["bags"].as_array().unwrap().len(), 2, "{pooled}");
+    assert_eq!(pooled["default_method"], "legs");
+    assert_eq!(
+        pooled["uncertainty"], "run-to-run-and-recording-to-recording",
+        "{pooled}"
+    );
+    let replayed = odocal_json(&[
+        "replay",
+        "--dataset",
+        &sets[0],
+        "--dataset",
+        &sets[1],
+        "--json",
+    ]);
+    assert_eq!(replayed["default_method"], "legs");
+    // Both against the first set's configuration, the default method (which reads the same
+    // samples along the legs in both) gives the same pooled robot to a tenth of its stated
+    // uncertainty. (The at-rest methods differ more: the bag reads the heading at rest as a
+    // mean, replay as one sample; the single-set test above bounds that.)
+    for name in ["legs"] {
+        let (a, b) = (method(&pooled, name), method(&replayed, name));
+        for (k, se) in [("e_b", "e_b_std_err"), ("e_d", "e_d_std_err")] {
+            let diff = (f(&a[k]) - f(&b[k])).abs();
+            assert!(
+                diff < 0.1 * f(&b[se]),
+                "{name} {k}: bags {} vs replay {} (standard error {})",
+                a[k],
+                b[k],
+                b[se]
+            );
+        }
+    }
+    // Pooling is in physical terms: the two sets' own exact E_b differ by their configured
+    // wheelbases (0.200 vs 0.205 m) and diameters, the pooled one sits between their physical
+    // values, not between the factors.
+    let single: Vec<f64> = sets
+        .iter()
+        .map(|s| f(&method(&odocal_json(&["replay", "--dataset", s, "--json"]), "exact")["e_b"]))
+        .collect();
+    assert!((single[0] - single[1]).abs() > 0.005, "{single:?}");
+    let pooled_eb = f(&method(&replayed, "exact")["e_b"]);
+    let physical_second = single[1] * 0.205 / 0.085 * 0.084 / 0.2;
+    let (lo, hi) = (
+        single[0].min(physical_second) - 1e-3,
+        single[0].max(physical_second) + 1e-3,
+    );
+    assert!(
+        (lo..=hi).contains(&pooled_eb),
+        "{pooled_eb} not within {lo}..{hi}"
+    );
+}
+
+#[test]
 fn bad_bags_and_files_are_named() {
     let dir = scratch("bag-bad");
     std::fs::create_dir_all(&dir).unwrap();
@@ -206,7 +287,9 @@ wheel_radius: 0.075\n    publish_rate: 50.0\n";
         yaml.to_str().unwrap(),
     ]);
     assert!(ok, "{err}");
-    assert!(out.contains("merged") && out.contains("exact"), "{out}");
+    // The bag's default method is the leg-aware one (a simulated bag has the IMU along the
+    // legs).
+    assert!(out.contains("merged") && out.contains("legs"), "{out}");
     let text = std::fs::read_to_string(&yaml).unwrap();
     assert!(
         text.contains("wheel_separation: 0.39  # URDF") && text.contains("update_rate: 50"),

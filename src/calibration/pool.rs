@@ -168,6 +168,77 @@ pub fn pool(recordings: &[Recording<'_>]) -> Result<Pooled, CalibrationError> {
     })
 }
 
+/// One recording's estimates by every method that succeeded on it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RecordingEstimates<'a> {
+    /// A name for reports.
+    pub name: String,
+    /// Parameters configured during the recording.
+    pub configured: WheelParams,
+    /// The estimates (any methods, any order).
+    pub estimates: &'a [Estimate],
+    /// Runs per direction (smaller of the two).
+    pub runs_per_direction: usize,
+}
+
+/// Every method pooled over recordings, expressed against one target configuration.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct PooledMethods {
+    /// Per method that every recording estimated, the pooled physical estimate.
+    pub pooled: Vec<Pooled>,
+    /// The same against the target configuration, in [`Method::ALL`] order.
+    pub estimates: Vec<Estimate>,
+    /// Methods some recording lacks, with the recordings that lack them.
+    pub missing: Vec<(Method, Vec<String>)>,
+    /// Which uncertainty the estimates' standard errors are.
+    pub uncertainty: UncertaintyKind,
+}
+
+/// Pools every method that all `recordings` estimated; the result is expressed against
+/// `target` (the parameters it would be written to).
+pub fn pool_methods(
+    recordings: &[RecordingEstimates<'_>],
+    target: &WheelParams,
+    convention: SplitConvention,
+) -> Result<PooledMethods, CalibrationError> {
+    let mut out = PooledMethods {
+        pooled: Vec::new(),
+        estimates: Vec::new(),
+        missing: Vec::new(),
+        uncertainty: if recordings.len() > 1 {
+            UncertaintyKind::RunToRunAndRecordingToRecording
+        } else {
+            UncertaintyKind::RunToRun
+        },
+    };
+    for method in Method::ALL {
+        let mut per = Vec::new();
+        let mut lacking = Vec::new();
+        for r in recordings {
+            match r.estimates.iter().find(|e| e.method == method) {
+                Some(e) => per.push(Recording {
+                    name: r.name.clone(),
+                    configured: r.configured,
+                    estimate: e,
+                    runs_per_direction: r.runs_per_direction,
+                }),
+                None => lacking.push(r.name.clone()),
+            }
+        }
+        if per.is_empty() {
+            continue;
+        }
+        if !lacking.is_empty() {
+            out.missing.push((method, lacking));
+            continue;
+        }
+        let p = pool(&per)?;
+        out.estimates.push(p.estimate_for(target, convention)?);
+        out.pooled.push(p);
+    }
+    Ok(out)
+}
+
 impl Pooled {
     /// Which uncertainty [`Pooled::estimate_for`] states.
     pub fn uncertainty_kind(&self) -> UncertaintyKind {

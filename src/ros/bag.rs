@@ -13,7 +13,10 @@
 
 use super::msg::{cdr, types, yaw_of, Header, Imu, JointState, Odometry};
 use super::yaml::RAD_PER_REV;
-use crate::calibration::online::{OnlineConfig, OnlineEstimate, OnlineEstimator, ScaleSource};
+use crate::calibration::online::{
+    Excitation, GateStats, OnlineConfig, OnlineEstimate, OnlineEstimator, ScaleSource,
+};
+use crate::calibration::time_offset::{estimate_time_offset, TimeOffset};
 use crate::calibration::{estimate_all, Estimate, Method, RunMeasurement, SquareTest};
 use crate::kinematics::{wrap_angle, Direction, SplitConvention, WheelParams};
 use serde::Serialize;
@@ -891,6 +894,22 @@ pub struct BagReport {
     pub online: Option<OnlineEstimate>,
     /// Mean heading NIS of the online filter.
     pub online_nis: Option<f64>,
+    /// What the online filter's heading gate rejected.
+    pub online_gate: Option<GateStats>,
+    /// Which parameters the bag's driving observed.
+    pub online_excitation: Option<Excitation>,
+    /// Clock offset between the joint states and the IMU, when it could be estimated
+    /// (corrected before the online filter when significant).
+    pub time_offset: Option<TimeOffset>,
+}
+
+/// The ros2_control multipliers that make `nominal` (wheel radius, separation; m) into `p`.
+pub fn multipliers(p: &WheelParams, nominal: (f64, f64)) -> super::yaml::Multipliers {
+    super::yaml::Multipliers {
+        wheel_separation_multiplier: p.wheelbase_m / nominal.1,
+        left_wheel_radius_multiplier: p.left_wheel_diameter_m / (2.0 * nominal.0),
+        right_wheel_radius_multiplier: p.right_wheel_diameter_m / (2.0 * nominal.0),
+    }
 }
 
 /// Analyses a bag: runs, every square method, the online filter. `nominal` gives the nominal
@@ -937,13 +956,7 @@ pub fn analyse(
                     Ok((e, p))
                 }) {
                     Ok((estimate, p)) => estimates.push(BagEstimate {
-                        multipliers: super::yaml::Multipliers {
-                            wheel_separation_multiplier: p.wheelbase_m / nominal.1,
-                            left_wheel_radius_multiplier: p.left_wheel_diameter_m
-                                / (2.0 * nominal.0),
-                            right_wheel_radius_multiplier: p.right_wheel_diameter_m
-                                / (2.0 * nominal.0),
-                        },
+                        multipliers: multipliers(&p, nominal),
                         estimate,
                     }),
                     Err(e) => failures.push((method, e.to_string())),
@@ -952,7 +965,7 @@ pub fn analyse(
         }
         Err(e) => failures.push((Method::Exact, e.to_string())),
     }
-    let (online, online_nis) = online_over(data, &configured, opts.convention);
+    let online = online_over(data, &configured, opts.convention);
     Ok(BagReport {
         file: path.to_path_buf(),
         messages: data.messages,
@@ -966,27 +979,87 @@ pub fn analyse(
         notes: data.notes.clone(),
         estimates,
         failures,
-        online,
-        online_nis,
+        online: online.estimate,
+        online_nis: online.nis,
+        online_gate: online.gate,
+        online_excitation: online.excitation,
+        time_offset: online.time_offset,
     })
 }
 
-/// The online filter over the whole bag: joint increments predict, IMU yaw updates.
-fn online_over(
-    data: &BagData,
-    configured: &WheelParams,
-    convention: SplitConvention,
-) -> (Option<OnlineEstimate>, Option<f64>) {
+/// What the online filter made of a bag.
+struct OnlineOver {
+    estimate: Option<OnlineEstimate>,
+    nis: Option<f64>,
+    gate: Option<GateStats>,
+    excitation: Option<Excitation>,
+    time_offset: Option<TimeOffset>,
+}
+
+/// The IMU's yaw as last read at or before each joint sample.
+fn yaw_at_joints(joints: &[JointSample], imu: &[YawSample]) -> Vec<Option<f64>> {
+    let mut k = 0;
+    let mut last = None;
+    joints
+        .iter()
+        .map(|j| {
+            while k < imu.len() && imu[k].t <= j.t {
+                last = imu[k].yaw_rad.or(last);
+                k += 1;
+            }
+            last
+        })
+        .collect()
+}
+
+/// The online filter over the whole bag: joint increments predict, IMU yaw updates. A clock
+/// offset between the two streams is looked for first and, when significant, the IMU's stamps
+/// are corrected by it.
+fn online_over(data: &BagData, configured: &WheelParams, convention: SplitConvention) -> OnlineOver {
+    let mut out = OnlineOver {
+        estimate: None,
+        nis: None,
+        gate: None,
+        excitation: None,
+        time_offset: None,
+    };
     let mut cfg = OnlineConfig::new(*configured);
     // Wheel angles are radians: quantisation of a 4096-count encoder.
     cfg.count_noise = RAD_PER_REV / 4096.0;
     let Ok(mut f) = OnlineEstimator::new(cfg) else {
-        return (None, None);
+        return out;
     };
+    let times: Vec<f64> = data.joints.iter().map(|j| j.t).collect();
+    let odo: Vec<f64> = std::iter::once(0.0)
+        .chain(data.joints.windows(2).map(|w| {
+            let dl = (w[1].left_rad - w[0].left_rad) * configured.left_m_per_count();
+            let dr = (w[1].right_rad - w[0].right_rad) * configured.right_m_per_count();
+            (dr - dl) / configured.wheelbase_m
+        }))
+        .take(times.len())
+        .collect();
+    out.time_offset = estimate_time_offset(
+        &times,
+        &odo,
+        &yaw_at_joints(&data.joints, &data.imu),
+        crate::track::MAX_TIME_OFFSET_S,
+    );
+    let shift = out
+        .time_offset
+        .filter(TimeOffset::significant)
+        .map_or(0.0, |o| o.offset_s);
+    let imu: Vec<YawSample> = data
+        .imu
+        .iter()
+        .map(|y| YawSample {
+            t: y.t - shift,
+            ..*y
+        })
+        .collect();
     let mut k = 0;
     for w in data.joints.windows(2) {
-        while k < data.imu.len() && data.imu[k].t <= w[0].t {
-            if let Some(y) = data.imu[k].yaw_rad {
+        while k < imu.len() && imu[k].t <= w[0].t {
+            if let Some(y) = imu[k].yaw_rad {
                 f.update_heading(y);
             }
             k += 1;
@@ -997,12 +1070,12 @@ fn online_over(
         );
     }
     let (nis, n) = f.nis_mean();
-    (
-        f.estimate(ScaleSource::Convention(convention))
-            .ok()
-            .filter(|_| f.distance_m() > 1.0),
-        (n > 0).then_some(nis),
-    )
+    let scale = ScaleSource::Convention(convention);
+    out.estimate = f.estimate(scale).ok().filter(|_| f.distance_m() > 1.0);
+    out.nis = (n > 0).then_some(nis);
+    out.gate = Some(f.gate_stats());
+    out.excitation = f.excitation(scale).ok();
+    out
 }
 
 #[cfg(test)]

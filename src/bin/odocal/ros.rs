@@ -55,8 +55,11 @@ impl RosArgs {
 /// Arguments of `odocal bag`.
 #[derive(Debug, clap::Args)]
 pub struct BagArgs {
-    /// The bag (MCAP, the ROS 2 default storage).
-    file: PathBuf,
+    /// The bag (MCAP, the ROS 2 default storage). Several bags of one robot are analysed one by
+    /// one and their square estimates pooled in physical terms (they may have been recorded with
+    /// different multipliers in force).
+    #[arg(required = true)]
+    files: Vec<PathBuf>,
     #[command(flatten)]
     ros: RosArgs,
     /// Explicit runs instead of finding them: START:END seconds from the bag's first message;
@@ -116,31 +119,148 @@ pub fn run(args: BagArgs) -> Result<(), Box<dyn std::error::Error>> {
             return Err(format!("--side-m must be in (0, 100] m, got {s}").into());
         }
     }
-    let data = bag::read_bag(&args.file, &opts)?;
-    let (configured, geometry, nominal) = match (&cfg, &args.ros.ros_yaml) {
-        (Some(c), Some(file)) => (
-            c.effective(),
-            GeometrySource::Yaml {
-                file: file.clone(),
-                controller: c.controller.clone(),
-            },
-            (c.wheel_radius_m, c.wheel_separation_m),
-        ),
-        _ => {
-            let g = bag::infer_geometry(&data)?;
-            (
-                g.params(),
-                GeometrySource::Inferred(g),
-                (g.wheel_radius_m, g.wheel_separation_m),
-            )
-        }
-    };
-    let report = bag::analyse(&args.file, &data, configured, geometry, nominal, &opts)?;
-    if args.json {
-        let mut v = serde_json::to_value(&report)?;
-        v["default_method"] = json!("exact");
-        return print_json(&v);
+    let mut reports = Vec::new();
+    let mut nominal_of_first = None;
+    for file in &args.files {
+        let data = bag::read_bag(file, &opts)?;
+        let (configured, geometry, nominal) = match (&cfg, &args.ros.ros_yaml) {
+            (Some(c), Some(yaml)) => (
+                c.effective(),
+                GeometrySource::Yaml {
+                    file: yaml.clone(),
+                    controller: c.controller.clone(),
+                },
+                (c.wheel_radius_m, c.wheel_separation_m),
+            ),
+            _ => {
+                let g = bag::infer_geometry(&data)?;
+                (
+                    g.params(),
+                    GeometrySource::Inferred(g),
+                    (g.wheel_radius_m, g.wheel_separation_m),
+                )
+            }
+        };
+        nominal_of_first.get_or_insert(nominal);
+        reports.push(bag::analyse(file, &data, configured, geometry, nominal, &opts)?);
     }
+    let nominal = nominal_of_first.unwrap_or((f64::NAN, f64::NAN));
+    let pooled = pool_bags(&reports, nominal, args.convention)?;
+    if args.json {
+        if let [report] = reports.as_slice() {
+            let mut v = serde_json::to_value(report)?;
+            v["default_method"] = json!(pooled.default_method);
+            return print_json(&v);
+        }
+        return print_json(&json!({
+            "bags": reports,
+            "pooled": pooled.methods,
+            "estimates": pooled.estimates,
+            "uncertainty": pooled.methods.uncertainty,
+            "default_method": pooled.default_method,
+        }));
+    }
+    for report in &reports {
+        print_bag(report, &args.ros);
+    }
+    if reports.len() > 1 {
+        println!(
+            "\npooled over {} bags, against {}'s configuration; ± is one standard error from \
+             run-to-run scatter and the bag-to-bag spread",
+            reports.len(),
+            reports[0].file.display()
+        );
+        println!(
+            "{:<14}{:>11}{:>11}{:>11}{:>11}   {:>12}{:>12}{:>12}",
+            "method", "E_b", "±", "E_d", "±", "sep_mult", "left_mult", "right_mult"
+        );
+        for e in &pooled.estimates {
+            let mark = if pooled.default_method == Some(e.estimate.method) {
+                "  (default)"
+            } else {
+                ""
+            };
+            println!(
+                "{:<14}{:>11.6}{:>11}{:>11.6}{:>11}   {:>12.6}{:>12.6}{:>12.6}{mark}",
+                e.estimate.method.name(),
+                e.estimate.e_b,
+                crate::pm(e.estimate.e_b_std_err),
+                e.estimate.e_d,
+                crate::pm(e.estimate.e_d_std_err),
+                e.multipliers.wheel_separation_multiplier,
+                e.multipliers.left_wheel_radius_multiplier,
+                e.multipliers.right_wheel_radius_multiplier
+            );
+        }
+        for (m, bags) in &pooled.methods.missing {
+            println!("{:<14}– not estimated on {}", m.name(), bags.join(", "));
+        }
+    } else if let Some(m) = pooled.default_method {
+        println!("default method (what calibrate would write): {m}");
+    }
+    Ok(())
+}
+
+/// Every bag's estimates pooled.
+struct PooledBags {
+    methods: odocal::calibration::pool::PooledMethods,
+    estimates: Vec<bag::BagEstimate>,
+    default_method: Option<odocal::calibration::Method>,
+}
+
+fn pool_bags(
+    reports: &[bag::BagReport],
+    nominal: (f64, f64),
+    convention: SplitConvention,
+) -> Result<PooledBags, Box<dyn std::error::Error>> {
+    use odocal::calibration::pool::{pool_methods, RecordingEstimates};
+    let per: Vec<Vec<_>> = reports
+        .iter()
+        .map(|r| r.estimates.iter().map(|e| e.estimate.clone()).collect())
+        .collect();
+    let recordings: Vec<_> = reports
+        .iter()
+        .zip(&per)
+        .map(|(r, estimates)| {
+            let count = |d| r.runs.iter().filter(|run| run.direction == d).count();
+            RecordingEstimates {
+                name: r.file.display().to_string(),
+                configured: r.configured,
+                estimates,
+                runs_per_direction: count(odocal::kinematics::Direction::Cw)
+                    .min(count(odocal::kinematics::Direction::Ccw)),
+            }
+        })
+        .collect();
+    let target = reports
+        .first()
+        .map(|r| r.configured)
+        .ok_or("no bag given")?;
+    let methods = pool_methods(&recordings, &target, convention)?;
+    let estimates = methods
+        .estimates
+        .iter()
+        .map(|e| {
+            Ok(bag::BagEstimate {
+                multipliers: bag::multipliers(&e.correction.apply(&target)?, nominal),
+                estimate: e.clone(),
+            })
+        })
+        .collect::<Result<Vec<_>, odocal::kinematics::KinematicsError>>()?;
+    let all_legs = reports
+        .iter()
+        .all(|r| r.runs.iter().all(|run| run.leg_heading_error_rad.is_some()));
+    let default_method = odocal::calibration::default_method(all_legs, false)
+        .filter(|m| methods.estimates.iter().any(|e| e.method == *m));
+    Ok(PooledBags {
+        methods,
+        estimates,
+        default_method,
+    })
+}
+
+fn print_bag(report: &bag::BagReport, ros: &RosArgs) {
+    println!("== {}", report.file.display());
     match &report.geometry {
         GeometrySource::Yaml { file, controller } => println!(
             "configured geometry from {} ({controller}): wheel radius {:.6} m, separation {:.6} m",
@@ -151,8 +271,8 @@ pub fn run(args: BagArgs) -> Result<(), Box<dyn std::error::Error>> {
         GeometrySource::Inferred(g) => println!(
             "configured geometry INFERRED from {} against {} (no --ros-yaml given): wheel radius \
              {:.6} m, separation {:.6} m over {} intervals",
-            args.ros.odom_topic,
-            args.ros.joint_states_topic,
+            ros.odom_topic,
+            ros.joint_states_topic,
             g.wheel_radius_m,
             g.wheel_separation_m,
             g.intervals
@@ -210,7 +330,28 @@ pub fn run(args: BagArgs) -> Result<(), Box<dyn std::error::Error>> {
             report.online_nis.unwrap_or(f64::NAN)
         );
     }
-    Ok(())
+    if let Some(g) = &report.online_gate {
+        if g.rejected > 0 {
+            println!(
+                "online: {} IMU reading(s) rejected by the gate, {} re-anchor(s)",
+                g.rejected, g.resets
+            );
+        }
+    }
+    if let Some(advice) = report.online_excitation.as_ref().and_then(|x| x.advice()) {
+        println!("online: {advice}");
+    }
+    if let Some(o) = &report.time_offset {
+        if o.significant() {
+            println!(
+                "warning: the IMU {} the joint states by {:.3} s (rate correlation {:.2}, {:.2} at 0 s); corrected for the online filter",
+                if o.offset_s >= 0.0 { "lags" } else { "leads" },
+                o.offset_s.abs(),
+                o.correlation,
+                o.correlation_at_zero
+            );
+        }
+    }
 }
 
 /// Arguments of `odocal mock-rosbridge`.
