@@ -15,8 +15,8 @@
 //!
 //! `cargo run --release --example scoreboard [-- DATA_ROOT]` (default ../shared/datasets/optiodom)
 
-use odocal::calibration::{self, Method};
-use odocal::dataset::{default_optiodom_root, replay, OptiOdomSet};
+use odocal::calibration::Method;
+use odocal::dataset::{default_optiodom_root, leave_one_recording_out, OptiOdomSet};
 use odocal::kinematics::{SplitConvention, WheelParams};
 use std::collections::BTreeMap;
 
@@ -78,18 +78,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut coverage: BTreeMap<&str, (usize, usize, Vec<f64>)> = BTreeMap::new();
     let mut held_out = 0;
     let mut default = None;
-    for (i, test_set) in sets.iter().enumerate() {
-        let others: Vec<OptiOdomSet> = sets
-            .iter()
-            .enumerate()
-            .filter(|(j, s)| *j != i && s.side_m == test_set.side_m)
-            .map(|(_, s)| s.clone())
-            .collect();
-        if others.is_empty() {
+    for h in leave_one_recording_out(&sets, convention)? {
+        let Some(test_set) = sets.iter().find(|s| s.id == h.dataset) else {
             continue;
-        }
+        };
         held_out += 1;
-        let pooled = replay(&others, std::slice::from_ref(test_set), convention)?;
+        let pooled = &h.replay;
         default = default.or(pooled.default_method);
         for row in &pooled.evaluations {
             let name = Method::ALL
@@ -111,11 +105,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         t[1].push(sys(&best_possible(test_set, |p| sys(p).1)).1);
         t[2].push(run(&best_possible(test_set, |p| run(p).0)).0.to_degrees());
         t[3].push(run(&best_possible(test_set, |p| run(p).1)).1);
-        // The held-out recording's own estimate against the pooled one, on E_b (the parameter
-        // the recordings disagree on): both against the held-out set's configuration.
-        let own = test_set.square_test()?;
+        // The held-out recording's own E_b against the pooled one (the parameter recordings
+        // disagree on), both against the held-out set's configuration.
         for p in &pooled.pooled {
-            let Ok(mine) = calibration::estimate(p.method, &own, convention) else {
+            let Some(mine) = h.own.iter().find(|e| e.method == p.method) else {
                 continue;
             };
             let theirs = p.estimate_for(&test_set.configured, convention)?;
@@ -146,7 +139,17 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     );
     println!(
         "{:<14} {:>11} {:>11} {:>11} {:>11} {:>11} {:>11} {:>11} {:>11} {:>9} {:>6}",
-        "method", "median", "worst", "median", "worst", "median", "worst", "median", "worst", "in 2σ", "max|z|"
+        "method",
+        "median",
+        "worst",
+        "median",
+        "worst",
+        "median",
+        "worst",
+        "median",
+        "worst",
+        "in 2σ",
+        "max|z|"
     );
     let order = ["uncalibrated"]
         .into_iter()

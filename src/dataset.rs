@@ -595,6 +595,51 @@ pub fn replay(
     })
 }
 
+/// One recording held out: every method calibrated on the other recordings of its robot,
+/// pooled, and evaluated on it.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct HeldOut {
+    /// The held-out set.
+    pub dataset: String,
+    /// Calibration on the others, evaluated on the held-out set.
+    pub replay: Replay,
+    /// The held-out set's own estimates (every method that succeeded on it alone).
+    pub own: Vec<Estimate>,
+}
+
+/// Leave-one-recording-out over square sets: each set is held out in turn and every method is
+/// calibrated on the other sets **of the same robot**, pooled. Sets are taken to be of one
+/// robot when they share the square side (one recording campaign each in the OptiOdom data); a
+/// set with no other of its robot is skipped.
+pub fn leave_one_recording_out(
+    sets: &[OptiOdomSet],
+    convention: SplitConvention,
+) -> Result<Vec<HeldOut>, DatasetError> {
+    let mut out = Vec::new();
+    for (i, held) in sets.iter().enumerate() {
+        let others: Vec<OptiOdomSet> = sets
+            .iter()
+            .enumerate()
+            .filter(|(j, s)| *j != i && s.side_m == held.side_m)
+            .map(|(_, s)| s.clone())
+            .collect();
+        if others.is_empty() {
+            continue;
+        }
+        let replay = replay(&others, std::slice::from_ref(held), convention)?;
+        let own = calibration::estimate_all(&held.square_test()?, convention)?
+            .into_iter()
+            .filter_map(|(_, r)| r.ok())
+            .collect();
+        out.push(HeldOut {
+            dataset: held.id.clone(),
+            replay,
+            own,
+        });
+    }
+    Ok(out)
+}
+
 /// Where the OptiOdom data set lives: `$ODOCAL_OPTIODOM`, else `../shared/datasets/optiodom`
 /// beside this crate.
 pub fn default_optiodom_root() -> PathBuf {

@@ -263,7 +263,11 @@ impl Tracker {
 
     /// Checks a telemetry stream (live, already fed) for a clock offset and records it
     /// uncorrected; returns it when one could be estimated.
-    pub fn check_time_offset(&mut self, run: &str, samples: &[TelemetrySample]) -> Option<TimeOffset> {
+    pub fn check_time_offset(
+        &mut self,
+        run: &str,
+        samples: &[TelemetrySample],
+    ) -> Option<TimeOffset> {
         let (times, odo) = self.series(samples);
         let heading: Vec<Option<f64>> = samples
             .iter()
@@ -344,7 +348,11 @@ impl Tracker {
                         / c.wheelbase_m
                 })
                 .collect();
-            let heading = run.samples.iter().map(|s| Some(s.truth.heading_rad)).collect();
+            let heading = run
+                .samples
+                .iter()
+                .map(|s| Some(s.truth.heading_rad))
+                .collect();
             let heading = self.correct(&run.name, &times, &odo, heading);
             for (s, h) in run.samples.iter().zip(heading) {
                 self.filter.predict_counts(s.left_counts, s.right_counts);

@@ -38,7 +38,12 @@ fn calibrating_on_one_set_improves_the_others() {
             .cloned()
             .collect();
         assert!(!others.is_empty());
-        let report = replay(calib, &others, SplitConvention::LeftNominal).unwrap();
+        let report = replay(
+            std::slice::from_ref(calib),
+            &others,
+            SplitConvention::LeftNominal,
+        )
+        .unwrap();
         for other in &others {
             let row = |method: &str| {
                 report
@@ -153,4 +158,59 @@ fn legs_are_found_in_every_recorded_run_and_the_leg_method_escapes_the_start_tra
         (legs - umbmark).abs() < 0.25 * (exact - umbmark).abs(),
         "legs {legs}, exact {exact}, umbmark {umbmark}"
     );
+}
+
+#[test]
+fn pooled_leave_one_recording_out_the_default_method_is_honest_and_no_worse_than_umbmark_on_position(
+) {
+    use odocal::dataset::leave_one_recording_out;
+    let Some(root) = data_root() else { return };
+    let sets = square_sets(&root);
+    let held = leave_one_recording_out(&sets, SplitConvention::LeftNominal).unwrap();
+    // Every set has two others of its robot: six held-out recordings, each pooled from two
+    // recordings (so the stated ± counts the recording-to-recording spread).
+    assert_eq!(held.len(), 6);
+    let median = |mut v: Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        0.5 * (v[2] + v[3])
+    };
+    let column = |method: &str| -> Vec<f64> {
+        held.iter()
+            .map(|h| {
+                h.replay
+                    .evaluations
+                    .iter()
+                    .find(|r| r.method == method)
+                    .unwrap_or_else(|| panic!("no {method} row for {}", h.dataset))
+                    .systematic_position_error_m
+            })
+            .collect()
+    };
+    for h in &held {
+        assert_eq!(h.replay.default_method, Some(Method::Legs), "{}", h.dataset);
+        assert_eq!(h.replay.datasets.len(), 2);
+    }
+    let (legs, umbmark) = (median(column("legs")), median(column("umbmark")));
+    assert!(legs <= 0.015, "legs held-out position median {legs} m");
+    assert!(legs <= umbmark, "legs {legs} m vs UMBmark {umbmark} m");
+    // The stated uncertainty covers another recording: each held-out recording's own E_b lies
+    // within two combined standard errors of the pooled estimate from the others.
+    for h in &held {
+        let set = sets.iter().find(|s| s.id == h.dataset).unwrap();
+        let pooled = h
+            .replay
+            .pooled
+            .iter()
+            .find(|p| p.method == Method::Legs)
+            .unwrap()
+            .estimate_for(&set.configured, SplitConvention::LeftNominal)
+            .unwrap();
+        let own = h.own.iter().find(|e| e.method == Method::Legs).unwrap();
+        let se = pooled
+            .e_b_std_err
+            .unwrap()
+            .hypot(own.e_b_std_err.unwrap_or(0.0));
+        let z = (own.e_b - pooled.e_b) / se;
+        assert!(z.abs() <= 2.0, "{}: z = {z:.2}", h.dataset);
+    }
 }

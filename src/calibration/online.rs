@@ -637,10 +637,17 @@ mod tests {
         assert_eq!(g.resets, 0);
         assert_eq!(g.accepted, clean.gate_stats().accepted - 44);
         let (a, b) = (
-            clean.estimate(ScaleSource::Convention(SplitConvention::LeftNominal)).unwrap(),
-            noisy.estimate(ScaleSource::Convention(SplitConvention::LeftNominal)).unwrap(),
+            clean
+                .estimate(ScaleSource::Convention(SplitConvention::LeftNominal))
+                .unwrap(),
+            noisy
+                .estimate(ScaleSource::Convention(SplitConvention::LeftNominal))
+                .unwrap(),
         );
-        assert!((a.e_b - b.e_b).abs() < 1e-4 && (a.e_d - b.e_d).abs() < 1e-4, "{a:?} {b:?}");
+        assert!(
+            (a.e_b - b.e_b).abs() < 1e-4 && (a.e_d - b.e_d).abs() < 1e-4,
+            "{a:?} {b:?}"
+        );
         // Without the gate the same glitches pull the estimate and the NIS far off.
         let mut cfg = OnlineConfig::new(WheelParams::nominal(0.15, 0.39, 4096.0));
         cfg.gate_nis = f64::INFINITY;

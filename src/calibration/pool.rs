@@ -125,7 +125,11 @@ fn pool_log(y: &[f64], se: &[Option<f64>], runs: &[usize]) -> PooledLog {
     let no_scatter = borrowed.is_none() && se.iter().all(Option::is_none);
     PooledLog {
         mean,
-        run_to_run_std_err: if no_scatter { f64::NAN } else { sw.sqrt().recip() },
+        run_to_run_std_err: if no_scatter {
+            f64::NAN
+        } else {
+            sw.sqrt().recip()
+        },
         recording_spread: tau2.sqrt(),
         std_err: if no_scatter && y.len() < 2 {
             f64::NAN
@@ -345,7 +349,12 @@ mod tests {
             let back = pooled
                 .estimate_for(&cfg, SplitConvention::LeftNominal)
                 .unwrap();
-            assert!((back.e_b - e.e_b).abs() < 1e-12, "{} vs {}", back.e_b, e.e_b);
+            assert!(
+                (back.e_b - e.e_b).abs() < 1e-12,
+                "{} vs {}",
+                back.e_b,
+                e.e_b
+            );
             assert!((back.e_d - e.e_d).abs() < 1e-12);
         }
         assert_eq!(
@@ -388,10 +397,7 @@ mod tests {
     #[test]
     fn a_recording_without_scatter_borrows_one_and_mixed_methods_are_refused() {
         let cfg = WheelParams::nominal(0.084, 0.2, 2796.8);
-        let (a, b) = (
-            estimate(1.00, 1.0, Some(0.004)),
-            estimate(1.01, 1.0, None),
-        );
+        let (a, b) = (estimate(1.00, 1.0, Some(0.004)), estimate(1.01, 1.0, None));
         let recs = [
             Recording {
                 name: "a".into(),

@@ -104,11 +104,18 @@ pub fn estimate_time_offset(
     dts.sort_by(f64::total_cmp);
     let period_s = *dts.get(dts.len() / 2)?;
     let (o, h) = rates(odo_turn_rad, heading_rad);
-    let turned = |v: &[f64]| v.iter().filter(|x| x.is_finite()).map(|x| x.abs()).sum::<f64>();
+    let turned = |v: &[f64]| {
+        v.iter()
+            .filter(|x| x.is_finite())
+            .map(|x| x.abs())
+            .sum::<f64>()
+    };
     if turned(&o) < MIN_TURN_RAD || turned(&h) < MIN_TURN_RAD {
         return None;
     }
-    let max_lag = (max_offset_s / period_s).ceil().clamp(1.0, o.len() as f64 / 4.0) as isize;
+    let max_lag = (max_offset_s / period_s)
+        .ceil()
+        .clamp(1.0, o.len() as f64 / 4.0) as isize;
     let c: Vec<Option<f64>> = (-max_lag..=max_lag)
         .map(|l| correlation(&o, &h, l))
         .collect();
@@ -147,7 +154,11 @@ pub fn estimate_time_offset(
 /// The heading stream corrected for `offset_s`: at each encoder time `t`, the heading read at
 /// `t + offset_s`, linearly interpolated (over the unwrapped heading) between the readings
 /// around it; `None` beyond the readings or next to a missing one.
-pub fn shift_heading(times_s: &[f64], heading_rad: &[Option<f64>], offset_s: f64) -> Vec<Option<f64>> {
+pub fn shift_heading(
+    times_s: &[f64],
+    heading_rad: &[Option<f64>],
+    offset_s: f64,
+) -> Vec<Option<f64>> {
     let n = times_s.len().min(heading_rad.len());
     // Unwrapped heading, so interpolation across ±π is right.
     let mut unwrapped: Vec<Option<f64>> = Vec::with_capacity(n);
@@ -198,14 +209,19 @@ mod tests {
     /// heading `delay_s` late and 5 % larger turns (a wrong `E_b` must not matter).
     fn series(delay_s: f64) -> (Vec<f64>, Vec<f64>, Vec<Option<f64>>) {
         // The integral of a turn rate 0.8·sin(0.7t) + 0.4·sin(1.9t) rad/s.
-        let heading = |t: f64| {
-            0.8 / 0.7 * (1.0 - (0.7 * t).cos()) + 0.4 / 1.9 * (1.0 - (1.9 * t).cos())
-        };
+        let heading =
+            |t: f64| 0.8 / 0.7 * (1.0 - (0.7 * t).cos()) + 0.4 / 1.9 * (1.0 - (1.9 * t).cos());
         let dt = 0.02;
         let times: Vec<f64> = (0..3000).map(|i| f64::from(i) * dt).collect();
         let odo: Vec<f64> = times
             .iter()
-            .map(|&t| if t == 0.0 { 0.0 } else { heading(t) - heading(t - dt) })
+            .map(|&t| {
+                if t == 0.0 {
+                    0.0
+                } else {
+                    heading(t) - heading(t - dt)
+                }
+            })
             .collect();
         let head = times
             .iter()
@@ -246,6 +262,9 @@ mod tests {
         let odo = vec![0.0; 500];
         let head = vec![Some(0.1); 500];
         assert_eq!(estimate_time_offset(&t, &odo, &head, 1.0), None);
-        assert_eq!(estimate_time_offset(&t[..2], &odo[..2], &head[..2], 1.0), None);
+        assert_eq!(
+            estimate_time_offset(&t[..2], &odo[..2], &head[..2], 1.0),
+            None
+        );
     }
 }

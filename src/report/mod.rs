@@ -59,7 +59,10 @@ pub fn markdown(report: &Report) -> String {
          write-back `{:?}`. Backup of the original parameters: `{}`.\n",
         report.config.side_m,
         report.config.runs_per_direction,
-        report.config.method,
+        report
+            .rounds
+            .first()
+            .map_or("none", |r| r.chosen.method.name()),
         report.config.split_convention().name(),
         report.config.write_back,
         report.backup_path.display()

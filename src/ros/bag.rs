@@ -1015,7 +1015,11 @@ fn yaw_at_joints(joints: &[JointSample], imu: &[YawSample]) -> Vec<Option<f64>> 
 /// The online filter over the whole bag: joint increments predict, IMU yaw updates. A clock
 /// offset between the two streams is looked for first and, when significant, the IMU's stamps
 /// are corrected by it.
-fn online_over(data: &BagData, configured: &WheelParams, convention: SplitConvention) -> OnlineOver {
+fn online_over(
+    data: &BagData,
+    configured: &WheelParams,
+    convention: SplitConvention,
+) -> OnlineOver {
     let mut out = OnlineOver {
         estimate: None,
         nis: None,

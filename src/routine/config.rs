@@ -50,8 +50,10 @@ pub struct RoutineConfig {
     pub heading_samples: usize,
     /// Pause for the base to settle before heading readings (s).
     pub settle_s: f64,
-    /// Estimator whose result is written.
-    pub method: Method,
+    /// Estimator whose result is written; `None`: chosen by the data
+    /// ([`crate::calibration::default_method`]: `legs` when the heading along the legs was
+    /// streamed in every run, else `exact`).
+    pub method: Option<Method>,
     /// Diameter split for estimation and write-back (see [`SplitConvention`]).
     pub convention: SplitConvention,
     /// Write-back policy.
@@ -90,7 +92,7 @@ impl Default for RoutineConfig {
             max_rate_rad_s: 0.5,
             heading_samples: 5,
             settle_s: 0.5,
-            method: Method::Exact,
+            method: None,
             convention: SplitConvention::LeftNominal,
             write_back: WritePolicy::Ask,
             confirm_motion: true,
@@ -258,7 +260,7 @@ mod tests {
              convention = { measured-scale = { commanded_m = 2.0, measured_m = 1.98 } }\n",
         )
         .unwrap();
-        assert_eq!(cfg.method, Method::JungChung);
+        assert_eq!(cfg.method, Some(Method::JungChung));
         assert_eq!(cfg.write_back, WritePolicy::DryRun);
         assert!(matches!(
             cfg.split_convention(),

@@ -23,7 +23,9 @@ use crate::base::transaction::Transaction;
 pub use crate::base::GroundTruth;
 use crate::base::{Base, BaseError, HeadingSample};
 use crate::calibration::uncertainty::{cramer_rao_bound, heading_error_sigma, TestDesign};
-use crate::calibration::{estimate_all, Estimate, RunMeasurement, SquareTest};
+use crate::calibration::{
+    default_method, estimate_all, Estimate, Method, RunMeasurement, SquareTest,
+};
 use crate::kinematics::{wrap_angle, Direction, WheelParams};
 use config::{RoutineConfig, WritePolicy};
 use report::{Phase, RoundReport, RunReport};
@@ -193,16 +195,31 @@ async fn body(
                 Err(e) => failures.push((method, e.to_string())),
             }
         }
+        let method = match cfg.method {
+            Some(m) => m,
+            None => {
+                let m = default_method(test.has_leg_headings(), test.has_positions())
+                    .unwrap_or(Method::Exact);
+                if m != Method::Legs {
+                    ui.event(&RoutineEvent::Warning(
+                        "the heading along the legs was not streamed in every run: estimating \
+                         from the headings at rest (exact), which counts any start transient"
+                            .into(),
+                    ));
+                }
+                m
+            }
+        };
         let chosen = estimates
             .iter()
-            .find(|e| e.method == cfg.method)
+            .find(|e| e.method == method)
             .cloned()
             .ok_or_else(|| {
-                let why = failures
-                    .iter()
-                    .find(|(m, _)| *m == cfg.method)
-                    .map_or("it needs final positions".to_string(), |(_, e)| e.clone());
-                RoutineError::Implausible(format!("method {} gave no estimate: {why}", cfg.method))
+                let why = failures.iter().find(|(m, _)| *m == method).map_or(
+                    "it needs data this run did not record".to_string(),
+                    |(_, e)| e.clone(),
+                );
+                RoutineError::Implausible(format!("method {method} gave no estimate: {why}"))
             })?;
         let crb = cramer_rao_std(cfg, &chosen, heading_noise_rad, current.wheelbase_m);
         let round_converged =
@@ -465,7 +482,7 @@ fn square_test(cfg: &RoutineConfig, params: &WheelParams, runs: &[RunReport]) ->
         let m = RunMeasurement {
             heading_error_rad: r.heading_error_rad,
             final_xy_m: r.true_final_xy_m,
-            leg_heading_error_rad: None,
+            leg_heading_error_rad: r.leg_heading_error_rad,
         };
         match r.direction {
             Direction::Cw => test.cw.push(m),

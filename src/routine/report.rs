@@ -54,6 +54,9 @@ pub struct RunReport {
     pub heading_before_rad: f64,
     /// Mean heading at rest after (rad).
     pub heading_after_rad: f64,
+    /// Heading error along the legs, middle of the first to the middle of the last (rad),
+    /// when both streams ran ([`SquareRecord::leg_heading_error`]).
+    pub leg_heading_error_rad: Option<f64>,
     /// Parameters configured during the run.
     pub params: WheelParams,
     /// True final position in the start frame (simulation only).
@@ -129,6 +132,7 @@ impl RunReport {
             heading_error_deg: rec.heading_error_rad.to_degrees(),
             heading_before_rad: rec.heading_before_rad,
             heading_after_rad: rec.heading_after_rad,
+            leg_heading_error_rad: rec.leg_heading_error(params.wheelbase_m),
             params: *params,
             true_final_xy_m,
             odometry_path: integrate(&rec.travel, params, params),

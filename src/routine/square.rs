@@ -50,6 +50,73 @@ pub struct SquareRecord {
     pub headings: Vec<HeadingSample>,
 }
 
+impl SquareRecord {
+    /// The heading error along the legs ([`crate::calibration::legs`]) from the streamed wheel
+    /// travel and headings, or `None` without both streams or without four legs.
+    ///
+    /// The two streams may run on different clocks (a drive and a separate IMU): both were
+    /// started just before the first motion, so their first samples give a coarse alignment,
+    /// refined by the turn-rate correlation of [`crate::calibration::time_offset`].
+    pub fn leg_heading_error(&self, wheelbase_m: f64) -> Option<f64> {
+        use crate::calibration::legs::{leg_heading_error, LegSample};
+        use crate::calibration::time_offset::estimate_time_offset;
+        let valid: Vec<(f64, f64)> = self
+            .headings
+            .iter()
+            .filter(|h| h.validity.is_valid() && h.heading_rad.is_finite())
+            .map(|h| (h.time_s, h.heading_rad))
+            .collect();
+        let (t_h0, t_d0) = (valid.first()?.0, self.travel.first()?.time_s);
+        // Unwrapped heading on the heading clock, relative to its first sample.
+        let mut unwrapped = Vec::with_capacity(valid.len());
+        let mut acc = 0.0;
+        for (i, (t, h)) in valid.iter().enumerate() {
+            if i > 0 {
+                acc += wrap_angle(h - valid[i - 1].1);
+            }
+            unwrapped.push((t - t_h0, acc));
+        }
+        let times: Vec<f64> = self.travel.iter().map(|t| t.time_s - t_d0).collect();
+        let odo: Vec<f64> = self
+            .travel
+            .iter()
+            .map(|t| (t.right_m - t.left_m) / wheelbase_m)
+            .collect();
+        let at = |offset_s: f64| -> Vec<Option<f64>> {
+            times
+                .iter()
+                .map(|&t| interpolate(&unwrapped, t + offset_s))
+                .collect()
+        };
+        let offset = estimate_time_offset(&times, &odo, &at(0.0), 1.0).map_or(0.0, |o| o.offset_s);
+        let heading = at(offset);
+        let mut samples = Vec::with_capacity(times.len());
+        let mut odo_turn = 0.0;
+        for ((t, tr), h) in times.iter().zip(&self.travel).zip(heading) {
+            odo_turn += (tr.right_m - tr.left_m) / wheelbase_m;
+            let Some(h) = h else { continue };
+            samples.push(LegSample {
+                t: *t,
+                ds: 0.5 * (tr.left_m + tr.right_m),
+                dth: (tr.right_m - tr.left_m) / wheelbase_m,
+                error_rad: h - odo_turn,
+            });
+        }
+        leg_heading_error(&samples, wheelbase_m)
+    }
+}
+
+/// Linear interpolation in a time-sorted series; `None` outside it.
+fn interpolate(series: &[(f64, f64)], t: f64) -> Option<f64> {
+    let i = series.partition_point(|(ts, _)| *ts <= t);
+    if i == 0 || i >= series.len() {
+        return (i >= 1 && series[i - 1].0 == t).then(|| series[i - 1].1);
+    }
+    let ((t0, a), (t1, b)) = (series[i - 1], series[i]);
+    let f = if t1 > t0 { (t - t0) / (t1 - t0) } else { 0.0 };
+    Some(a + f * (b - a))
+}
+
 fn drain<T>(stream: &mut Option<SampleStream<T>>) -> Vec<T> {
     let mut out = Vec::new();
     if let Some(rx) = stream {

@@ -167,7 +167,7 @@ pub fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
         return print_json(&json!({
             "convention": convention.name(),
             "configured": configured,
-            "default_method": "exact",
+            "default_method": calibration::default_method(test.has_leg_headings(), test.has_positions()),
             "estimates": estimates,
             "failures": failures.iter().map(|(m, e)| json!({"method": m.name(), "error": e})).collect::<Vec<_>>(),
             "cramer_rao_std": crb.map(|c| json!({"e_b": c[(0, 0)].sqrt(), "e_d": c[(1, 1)].sqrt()})),

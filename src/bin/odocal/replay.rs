@@ -96,7 +96,10 @@ pub fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
     );
     for (e, p) in report.estimates.iter().zip(&report.pooled) {
         let spread = if report.datasets.len() > 1 {
-            format!("{:.5}", p.ln_wheelbase_over_diameter.recording_spread * e.e_b)
+            format!(
+                "{:.5}",
+                p.ln_wheelbase_over_diameter.recording_spread * e.e_b
+            )
         } else {
             "-".into()
         };
@@ -120,7 +123,12 @@ pub fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
     }
     println!(
         "\n{:<16} {:<13} {:>18} {:>16} {:>18} {:>16}",
-        "evaluated on", "parameters", "|heading err| deg", "position err m", "systematic hdg deg", "systematic pos m"
+        "evaluated on",
+        "parameters",
+        "|heading err| deg",
+        "position err m",
+        "systematic hdg deg",
+        "systematic pos m"
     );
     for r in &report.evaluations {
         println!(

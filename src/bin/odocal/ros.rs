@@ -142,7 +142,9 @@ pub fn run(args: BagArgs) -> Result<(), Box<dyn std::error::Error>> {
             }
         };
         nominal_of_first.get_or_insert(nominal);
-        reports.push(bag::analyse(file, &data, configured, geometry, nominal, &opts)?);
+        reports.push(bag::analyse(
+            file, &data, configured, geometry, nominal, &opts,
+        )?);
     }
     let nominal = nominal_of_first.unwrap_or((f64::NAN, f64::NAN));
     let pooled = pool_bags(&reports, nominal, args.convention)?;

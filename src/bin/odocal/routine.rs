@@ -278,7 +278,8 @@ pub struct RoutineFlags {
     /// Heading readings averaged at rest before and after each square.
     #[arg(long)]
     heading_samples: Option<usize>,
-    /// Estimator to write: umbmark, lee, heading-only, jung-chung or exact.
+    /// Estimator to write: umbmark, lee, heading-only, jung-chung, exact or legs. Default:
+    /// legs when the heading along the legs was streamed in every run, else exact.
     #[arg(long)]
     method: Option<String>,
     /// Diameter split for estimation and write-back: left-nominal, mean-preserving or
@@ -328,7 +329,7 @@ impl RoutineFlags {
              tolerance => tolerance, max_rounds => max_rounds, settle_s => settle_s,
              heading_samples => heading_samples);
         if let Some(m) = &self.method {
-            cfg.method = m.parse::<Method>()?;
+            cfg.method = Some(m.parse::<Method>()?);
         }
         if let Some(c) = self.convention {
             cfg.convention = c;

@@ -317,7 +317,11 @@ pub async fn track(args: TrackArgs) -> CliResult {
         } else {
             "below the warning threshold"
         };
-        let prefix = if o.offset.significant() { "warning: " } else { "" };
+        let prefix = if o.offset.significant() {
+            "warning: "
+        } else {
+            ""
+        };
         println!(
             "{prefix}{}: heading stream {} the encoders by {:.3} s (rate correlation {:.2}, {:.2} at 0 s): {what}",
             o.run,
