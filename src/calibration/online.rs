@@ -221,7 +221,7 @@ impl OnlineEstimator {
                 return Err(CalibrationError::BadGeometry { name, value: v });
             }
         }
-        if !(cfg.gate_nis > 0.0) || cfg.gate_nis.is_nan() {
+        if cfg.gate_nis.is_nan() || cfg.gate_nis <= 0.0 {
             return Err(CalibrationError::BadGeometry {
                 name: "gate_nis",
                 value: cfg.gate_nis,
