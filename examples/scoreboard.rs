@@ -13,6 +13,12 @@
 //! own `E_b` lies within 2 stated standard errors of the pooled one (both ± combined) — a check
 //! that the stated ± is honest.
 //!
+//! Then the free runs: per run, the online filter (noise settings for a motion-capture heading:
+//! `odocal track --heading-sigma-deg 0.1 --slip-fraction 0.03`) against the pooled
+//! square estimates of the robot recorded closest in time (set ids are `ddmmyyyyHHMM`), with
+//! the z-score of their difference, and what each estimate leaves of the run's final heading
+//! and position error.
+//!
 //! `cargo run --release --example scoreboard [-- DATA_ROOT]` (default ../shared/datasets/optiodom)
 
 use odocal::calibration::Method;
@@ -173,6 +179,105 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             "{m:<14} {:>11.3} {:>11.3} {:>11.4} {:>11.4} {:>11.3} {:>11.3} {:>11.4} {:>11.4} {cov:>9} {zmax:>6}{mark}",
             a.0, a.1, b.0, b.1, c.0, c.1, d.0, d.1
         );
+    }
+    free_runs(&root, &sets, convention)
+}
+
+/// Heading noise of the motion-capture heading the free runs carry (deg).
+const MOCAP_HEADING_SIGMA_DEG: f64 = 0.1;
+/// Wheel slip per step on the free runs' floor (relative).
+const FREE_RUN_SLIP: f64 = 0.03;
+
+/// Days since an arbitrary epoch of an OptiOdom id `ddmmyyyyHHMM` (for "closest in time").
+fn days(id: &str) -> Option<f64> {
+    let n = |r: std::ops::Range<usize>| id.get(r)?.parse::<f64>().ok();
+    Some(n(4..8)? * 365.25 + n(2..4)? * 30.44 + n(0..2)? + n(8..10)? / 24.0)
+}
+
+fn free_runs(
+    root: &std::path::Path,
+    sets: &[OptiOdomSet],
+    convention: SplitConvention,
+) -> Result<(), Box<dyn std::error::Error>> {
+    use odocal::calibration::online::{OnlineConfig, ScaleSource};
+    use odocal::dataset::{replay, RecordedRun};
+    use odocal::track::Tracker;
+    let mut dirs: Vec<_> = std::fs::read_dir(root.join("free"))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.is_dir())
+        .collect();
+    dirs.sort();
+    println!(
+        "\nfree runs: online filter (heading σ {MOCAP_HEADING_SIGMA_DEG}°, slip {FREE_RUN_SLIP}) vs the pooled squares of the robot recorded closest in time"
+    );
+    println!(
+        "{:<26} {:>17} {:>6} {:>8} {:>9} {:>17} {:>6} {:>17} {:>6}   {:>22}",
+        "run", "online E_b", "NIS", "gated", "offset s", "squares legs E_b", "z", "squares exact E_b", "z",
+        "final hdg° legs/exact/online"
+    );
+    for dir in dirs {
+        let free = OptiOdomSet::load(&dir)?;
+        let Some(t) = days(&free.id) else { continue };
+        // The square robot closest in time.
+        let Some(side) = sets
+            .iter()
+            .filter_map(|s| Some(((days(&s.id)? - t).abs(), s.side_m)))
+            .min_by(|a, b| a.0.total_cmp(&b.0))
+            .map(|(_, side)| side)
+        else {
+            continue;
+        };
+        let robot: Vec<OptiOdomSet> = sets.iter().filter(|s| s.side_m == side).cloned().collect();
+        for run in &free.runs {
+            let one = OptiOdomSet {
+                runs: vec![RecordedRun::clone(run)],
+                ..free.clone()
+            };
+            let squares = replay(&robot, std::slice::from_ref(&one), convention)?;
+            let scale = ScaleSource::Convention(convention);
+            let mut cfg = OnlineConfig::new(one.configured);
+            cfg.heading_sigma_rad = MOCAP_HEADING_SIGMA_DEG.to_radians();
+            cfg.slip_fraction = FREE_RUN_SLIP;
+            let mut tracker = Tracker::new(cfg, scale, 1.0)?;
+            tracker.feed_dataset(&one);
+            let online = tracker.estimate()?;
+            let (nis, n) = tracker.filter().nis_mean();
+            let gate = tracker.filter().gate_stats();
+            let offset = tracker.time_offsets.first().map_or(f64::NAN, |o| o.offset.offset_s);
+            let pooled = |m: Method| {
+                squares
+                    .pooled
+                    .iter()
+                    .find(|p| p.method == m)
+                    .and_then(|p| p.estimate_for(&one.configured, convention).ok())
+            };
+            let (Some(legs), Some(exact)) = (pooled(Method::Legs), pooled(Method::Exact)) else {
+                continue;
+            };
+            let z = |e: &odocal::calibration::Estimate| {
+                (online.e_b - e.e_b) / online.e_b_std.hypot(e.e_b_std_err.unwrap_or(0.0))
+            };
+            let final_heading = |params: &WheelParams| one.evaluate(params).0.to_degrees();
+            let apply = |c: &odocal::kinematics::Correction| c.apply(&one.configured);
+            println!(
+                "{:<26} {:>8.5}±{:.5} {:>6.2} {:>8} {:>9.3} {:>8.5}±{:.5} {:>6.1} {:>8.5}±{:.5} {:>6.1}   {:>6.2} / {:>5.2} / {:>5.2}",
+                run.name,
+                online.e_b,
+                online.e_b_std,
+                nis,
+                format!("{}/{}", gate.rejected, n + gate.rejected),
+                offset,
+                legs.e_b,
+                legs.e_b_std_err.unwrap_or(f64::NAN),
+                z(&legs),
+                exact.e_b,
+                exact.e_b_std_err.unwrap_or(f64::NAN),
+                z(&exact),
+                final_heading(&apply(&legs.correction)?),
+                final_heading(&apply(&exact.correction)?),
+                final_heading(&apply(&online.correction)?),
+            );
+        }
     }
     Ok(())
 }
