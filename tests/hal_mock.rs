@@ -222,8 +222,10 @@ async fn a_device_that_vanishes_mid_move_gives_a_typed_error_and_stops() {
         ..FaultConfig::default()
     };
     let (stream, task) = spawn_duplex(dev.clone(), TimeMode::RealTime { scale: 1.0 }, faults);
+    // Three attempts and no time budget: the vanished device is noticed at once.
     let config = LinkConfig {
         retries: 2,
+        retry_budget: Duration::ZERO,
         ..fast_link()
     };
     let (client, _) = Client::connect(stream, config).await.unwrap();
@@ -231,13 +233,14 @@ async fn a_device_that_vanishes_mid_move_gives_a_typed_error_and_stops() {
         .configure_watchdog(Some(Duration::from_millis(150)))
         .await
         .unwrap();
+    let mut done = client.subscribe_motion_done();
     let accepted = client
         .move_straight(2.0, 0.2, MotionMode::Replace)
         .await
         .unwrap();
     let started = Instant::now();
     let err = client
-        .wait_motion(accepted.motion_id, 1, Duration::from_secs(20))
+        .wait_motion(accepted.motion_id, 1, Duration::from_secs(20), &mut done)
         .await
         .unwrap_err();
     let took = started.elapsed();
@@ -248,7 +251,7 @@ async fn a_device_that_vanishes_mid_move_gives_a_typed_error_and_stops() {
         ),
         "{err:?}"
     );
-    // Two polls answered (~10 ms), then one request's three attempts at ~15 ms each.
+    // A heartbeat or poll answered, then one request's three attempts at ~15 ms each.
     assert!(took < Duration::from_millis(500), "error took {took:?}");
     assert_eq!(task.await.unwrap().unwrap(), ServeEnd::Disconnected);
     let d = lock(&dev);

@@ -10,6 +10,8 @@ use odocal::hal::Client;
 use odocal::kinematics::WheelParams;
 use odocal::mock::{lock, spawn_duplex, FaultConfig, MockConfig, MockDevice, TimeMode};
 use odocal::routine::config::{RoutineConfig, WritePolicy};
+use odocal::calibration::Method;
+use odocal::routine::report::Report;
 use odocal::routine::{run, RoutineError, RoutineEvent, RoutineUi, Unattended};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
@@ -341,4 +343,97 @@ async fn a_clockwise_compass_is_caught_before_anything_is_written() {
         lock(&device).active_params(),
         WheelParams::nominal(0.15, 0.39, 4096.0)
     );
+}
+
+/// The whole routine on a link that corrupts 1 % of bytes and loses 5 % of frames in both
+/// directions, with the default link settings: 20 seeds, every one completes with the clean
+/// link's estimates, and no motion runs twice.
+///
+/// "The same estimates": the routine writes `exact` here, whose headings at rest are request and
+/// answer, so every round, estimate and written parameter is the clean link's exactly. The leg
+/// method reads the telemetry stream, of which the lossy link drops some samples (and with them
+/// some compass noise), so it is only required to be there in every round.
+///
+/// Virtual time: the mock completes motions as they are accepted and tokio's clock is paused,
+/// so retries and deadlines cost no wall-clock time.
+#[tokio::test(start_paused = true)]
+async fn calibrate_completes_on_a_lossy_link_twenty_seeds_out_of_twenty() {
+    async fn calibrate(
+        faults: FaultConfig,
+        name: &str,
+    ) -> (
+        Report,
+        odocal::mock::DeviceCounters,
+        odocal::hal::LinkStatsSnapshot,
+    ) {
+        let device = real_time_device(false);
+        let (stream, _task) = spawn_duplex(device.clone(), TimeMode::Virtual, faults);
+        let (client, _) = Client::connect(stream, LinkConfig::default())
+            .await
+            .unwrap_or_else(|e| panic!("{name}: connect: {e}"));
+        let truth = MockTruth(device.clone());
+        let link = client.clone();
+        let report = run(
+            &Base::single(client),
+            &RoutineConfig {
+                method: Some(Method::Exact),
+                ..quick_routine(name)
+            },
+            Some(&truth),
+            &mut Unattended,
+            &CancellationToken::new(),
+        )
+        .await
+        .unwrap_or_else(|e| panic!("{name}: {e}"));
+        let counters = lock(&device).counters();
+        (report, counters, link.stats())
+    }
+    let (clean, clean_counters, _) = calibrate(FaultConfig::default(), "lossy-clean").await;
+    assert_eq!(
+        clean_counters.motions_accepted,
+        clean_counters.motions_completed
+    );
+    let mut completed = 0;
+    for seed in 0..20 {
+        let faults = FaultConfig {
+            corrupt_byte_rate: 0.01,
+            drop_frame_rate: 0.05,
+            seed,
+            ..FaultConfig::default()
+        };
+        let (report, counters, stats) = calibrate(faults, &format!("lossy-{seed}")).await;
+        // The faults bite: hundreds of frames lost or corrupted and retried.
+        assert!(
+            stats.retries > 50 && stats.decoder_dropped_bytes > 0 && stats.telemetry_dropped > 0,
+            "seed {seed}: {stats:?}"
+        );
+        assert!(report.converged, "seed {seed}");
+        let without_legs = |r: &Report| -> Vec<Vec<odocal::calibration::Estimate>> {
+            r.rounds
+                .iter()
+                .map(|round| {
+                    assert!(round.estimates.iter().any(|e| e.method == Method::Legs));
+                    round
+                        .estimates
+                        .iter()
+                        .filter(|e| e.method != Method::Legs)
+                        .cloned()
+                        .collect()
+                })
+                .collect()
+        };
+        assert_eq!(without_legs(&report), without_legs(&clean), "seed {seed}");
+        assert_eq!(report.final_params, clean.final_params, "seed {seed}");
+        // Every motion the routine commanded ran exactly once: as many as squares × 8.
+        let squares: usize = report.rounds.iter().map(|r| r.runs.len()).sum::<usize>()
+            + report.verification.len();
+        assert_eq!(
+            counters.motions_accepted,
+            8 * squares as u64,
+            "seed {seed}: {counters:?}"
+        );
+        assert_eq!(counters.motions_completed, counters.motions_accepted);
+        completed += 1;
+    }
+    assert_eq!(completed, 20);
 }

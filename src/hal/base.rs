@@ -54,11 +54,13 @@ impl Client {
     ) -> Result<(), BaseError> {
         let map = to_base("drive", what);
         let completed = self.status().await.map_err(&map)?.completed_motions;
+        let mut done = self.subscribe_motion_done();
         let accepted = start.await.map_err(&map)?;
         self.wait_motion(
             accepted.motion_id,
             completed.wrapping_add(1),
             motion_limit(expected_s),
+            &mut done,
         )
         .await
         .map_err(&map)

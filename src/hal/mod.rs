@@ -18,7 +18,8 @@ pub use error::{HalError, LinkError};
 use crate::kinematics::{wrap_angle, WheelParams};
 use crate::protocol::frame::{MAJOR, VERSION};
 use crate::protocol::message::{
-    DeviceInfo, Encoders, FirmwareId, GetParamsRequest, HelloRequest, MotionAccepted, MotionMode,
+    DeviceInfo, Encoders, FirmwareId, GetParamsRequest, HelloRequest, MotionAccepted, MotionDone,
+    MotionMode,
     MotionState, MoveStraightRequest, NackCode, ParamSource, ParamsBlock, RestoreDefaultsRequest,
     RestoreTarget, Status, TelemetryPeriod, TurnInPlaceRequest, WatchdogState, WatchdogTimeout,
     WheelSpeedRequest,
@@ -32,6 +33,14 @@ use std::sync::Arc;
 use std::time::Duration;
 use tokio::io::{AsyncRead, AsyncWrite};
 use tokio::sync::{broadcast, mpsc, oneshot};
+
+/// How often [`Client::wait_motion`] polls the status while a motion runs (its end normally
+/// arrives as a MOTION_DONE event).
+pub const STATUS_POLL: Duration = Duration::from_millis(250);
+
+/// How often [`Client::wait_motion`] feeds the watchdog while a motion runs: a third of the
+/// shortest timeout the routine arms (SPEC.md: hosts feed it every `timeout_ms / 3`).
+pub const HEARTBEAT_EVERY: Duration = Duration::from_millis(100);
 
 /// Counters of the link's health.
 #[derive(Debug, Default)]
@@ -54,6 +63,8 @@ pub struct LinkStats {
     pub telemetry_received: AtomicU64,
     /// Telemetry samples lost (gaps in the sample index).
     pub telemetry_dropped: AtomicU64,
+    /// Valid frames received of any kind (a sign of life of the device).
+    pub frames_received: AtomicU64,
 }
 
 /// A snapshot of [`LinkStats`].
@@ -77,6 +88,8 @@ pub struct LinkStatsSnapshot {
     pub telemetry_received: u64,
     /// See [`LinkStats::telemetry_dropped`].
     pub telemetry_dropped: u64,
+    /// See [`LinkStats::frames_received`].
+    pub frames_received: u64,
 }
 
 impl LinkStats {
@@ -92,6 +105,7 @@ impl LinkStats {
             decoder_dropped_bytes: g(&self.decoder_dropped_bytes),
             telemetry_received: g(&self.telemetry_received),
             telemetry_dropped: g(&self.telemetry_dropped),
+            frames_received: g(&self.frames_received),
         }
     }
 }
@@ -137,6 +151,7 @@ pub struct HeadingReading {
 pub struct Client {
     commands: mpsc::UnboundedSender<Command>,
     events: broadcast::Sender<TelemetrySample>,
+    motion_done: broadcast::Sender<MotionDone>,
     stats: Arc<LinkStats>,
     config: LinkConfig,
     info: DeviceInfo,
@@ -186,11 +201,13 @@ impl Client {
     {
         let (tx, rx) = mpsc::unbounded_channel();
         let (events, _) = broadcast::channel(1 << 16);
+        let (motion_done, _) = broadcast::channel(64);
         let stats = Arc::new(LinkStats::default());
         let link = Link {
             config,
             stats: stats.clone(),
             events: events.clone(),
+            motion_done: motion_done.clone(),
         };
         tokio::spawn(link.run(stream, rx));
         let placeholder = DeviceInfo {
@@ -206,6 +223,7 @@ impl Client {
         let mut client = Client {
             commands: tx,
             events,
+            motion_done,
             stats,
             config,
             info: placeholder,
@@ -278,6 +296,12 @@ impl Client {
     /// A receiver of every telemetry sample from now on.
     pub fn subscribe(&self) -> broadcast::Receiver<TelemetrySample> {
         self.events.subscribe()
+    }
+
+    /// A receiver of every MOTION_DONE event from now on (subscribe before starting a motion
+    /// to be sure to see its end).
+    pub fn subscribe_motion_done(&self) -> broadcast::Receiver<MotionDone> {
+        self.motion_done.subscribe()
     }
 
     /// Sends any request and waits for its answer (with retries and deadlines).
@@ -433,24 +457,65 @@ impl Client {
             Response::ConfigureWatchdog(t) => Duration::from_millis(u64::from(t.timeout_ms)))
     }
 
-    /// Polls the status until `completed` motions are done and the base is idle, failing if
-    /// that takes longer than `limit` or the watchdog stops the base.
+    /// Waits until `completed` motions are done and the base is idle, failing if that takes
+    /// longer than `limit` or the watchdog stops the base.
+    ///
+    /// The end of a motion is taken from its MOTION_DONE event (`done`, subscribed before the
+    /// motion started). Events can be lost, so the status is also polled, but slowly
+    /// ([`STATUS_POLL`]), and the watchdog is fed with HEARTBEAT in between
+    /// ([`HEARTBEAT_EVERY`]). While the motion is known to run, a poll or heartbeat that gets no
+    /// answer is not an error: the motion's own deadline is what ends the wait.
     pub async fn wait_motion(
         &self,
         motion_id: u16,
         completed: u32,
         limit: Duration,
+        done: &mut broadcast::Receiver<MotionDone>,
     ) -> Result<(), HalError> {
         let start = tokio::time::Instant::now();
+        let reached = |count: u32| count.wrapping_sub(completed) < u32::MAX / 2;
+        let mut tick = tokio::time::interval(HEARTBEAT_EVERY);
+        tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+        let mut last_poll = start;
         loop {
-            let s = self.status().await?;
-            if s.motion_state == MotionState::Idle
-                && s.completed_motions.wrapping_sub(completed) < u32::MAX / 2
-            {
-                return Ok(());
-            }
-            if s.watchdog_state == WatchdogState::Tripped {
-                return Err(HalError::WatchdogTripped);
+            tokio::select! {
+                ev = done.recv() => match ev {
+                    Ok(d) if d.motion_id == motion_id || reached(d.completed_motions) => {
+                        return Ok(());
+                    }
+                    Ok(_) | Err(broadcast::error::RecvError::Lagged(_)) => continue,
+                    // The link is gone: the next request says why.
+                    Err(broadcast::error::RecvError::Closed) => {
+                        self.status().await?;
+                    }
+                },
+                _ = tick.tick() => {
+                    let heard_before = self.stats.frames_received.load(Ordering::Relaxed);
+                    // A request that got no answer is tolerated only if the device was heard
+                    // from meanwhile (a bad line); a silent device has gone away.
+                    let alive = || self.stats.frames_received.load(Ordering::Relaxed) > heard_before;
+                    if last_poll.elapsed() >= STATUS_POLL {
+                        last_poll = tokio::time::Instant::now();
+                        match self.status().await {
+                            Ok(s) => {
+                                if s.motion_state == MotionState::Idle && reached(s.completed_motions) {
+                                    return Ok(());
+                                }
+                                if s.watchdog_state == WatchdogState::Tripped {
+                                    return Err(HalError::WatchdogTripped);
+                                }
+                            }
+                            Err(HalError::Link(LinkError::Timeout { .. })) if alive() => {}
+                            Err(e) => return Err(e),
+                        }
+                    } else {
+                        match self.heartbeat().await {
+                            Ok(()) => {}
+                            Err(HalError::Link(LinkError::Timeout { .. })) if alive() => {}
+                            Err(e) => return Err(e),
+                        }
+                    }
+                }
             }
             if start.elapsed() > limit {
                 return Err(HalError::MotionTimeout {
@@ -458,7 +523,6 @@ impl Client {
                     after: limit,
                 });
             }
-            tokio::time::sleep(Duration::from_millis(5)).await;
         }
     }
 
