@@ -212,7 +212,15 @@ fn free_runs(
     );
     println!(
         "{:<26} {:>17} {:>6} {:>8} {:>9} {:>17} {:>6} {:>17} {:>6}   {:>22}",
-        "run", "online E_b", "NIS", "gated", "offset s", "squares legs E_b", "z", "squares exact E_b", "z",
+        "run",
+        "online E_b",
+        "NIS",
+        "gated",
+        "offset s",
+        "squares legs E_b",
+        "z",
+        "squares exact E_b",
+        "z",
         "final hdg° legs/exact/online"
     );
     for dir in dirs {
@@ -243,7 +251,10 @@ fn free_runs(
             let online = tracker.estimate()?;
             let (nis, n) = tracker.filter().nis_mean();
             let gate = tracker.filter().gate_stats();
-            let offset = tracker.time_offsets.first().map_or(f64::NAN, |o| o.offset.offset_s);
+            let offset = tracker
+                .time_offsets
+                .first()
+                .map_or(f64::NAN, |o| o.offset.offset_s);
             let pooled = |m: Method| {
                 squares
                     .pooled

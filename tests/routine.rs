@@ -4,13 +4,13 @@
 mod common;
 
 use odocal::base::Base;
+use odocal::calibration::Method;
 use odocal::demo::{run_demo, DemoError, DemoOptions, MockTruth};
 use odocal::hal::link::LinkConfig;
 use odocal::hal::Client;
 use odocal::kinematics::WheelParams;
 use odocal::mock::{lock, spawn_duplex, FaultConfig, MockConfig, MockDevice, TimeMode};
 use odocal::routine::config::{RoutineConfig, WritePolicy};
-use odocal::calibration::Method;
 use odocal::routine::report::Report;
 use odocal::routine::{run, RoutineError, RoutineEvent, RoutineUi, Unattended};
 use std::sync::{Arc, Mutex};
@@ -425,8 +425,8 @@ async fn calibrate_completes_on_a_lossy_link_twenty_seeds_out_of_twenty() {
         assert_eq!(without_legs(&report), without_legs(&clean), "seed {seed}");
         assert_eq!(report.final_params, clean.final_params, "seed {seed}");
         // Every motion the routine commanded ran exactly once: as many as squares × 8.
-        let squares: usize = report.rounds.iter().map(|r| r.runs.len()).sum::<usize>()
-            + report.verification.len();
+        let squares: usize =
+            report.rounds.iter().map(|r| r.runs.len()).sum::<usize>() + report.verification.len();
         assert_eq!(
             counters.motions_accepted,
             8 * squares as u64,

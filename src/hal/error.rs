@@ -90,6 +90,13 @@ pub enum HalError {
     /// The device's watchdog stopped the base.
     #[error("the device watchdog stopped the base")]
     WatchdogTripped,
+    /// The device went idle without completing the motion (a STOP, a fault, a trip already
+    /// acknowledged).
+    #[error("motion {motion_id} was stopped before it completed")]
+    MotionStopped {
+        /// The motion.
+        motion_id: u16,
+    },
 }
 
 impl HalError {

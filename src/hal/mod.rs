@@ -18,11 +18,10 @@ pub use error::{HalError, LinkError};
 use crate::kinematics::{wrap_angle, WheelParams};
 use crate::protocol::frame::{MAJOR, VERSION};
 use crate::protocol::message::{
-    DeviceInfo, Encoders, FirmwareId, GetParamsRequest, HelloRequest, MotionAccepted, MotionDone,
-    MotionMode,
-    MotionState, MoveStraightRequest, NackCode, ParamSource, ParamsBlock, RestoreDefaultsRequest,
-    RestoreTarget, Status, TelemetryPeriod, TurnInPlaceRequest, WatchdogState, WatchdogTimeout,
-    WheelSpeedRequest,
+    fault, DeviceInfo, Encoders, FirmwareId, GetParamsRequest, HelloRequest, MotionAccepted,
+    MotionDone, MotionMode, MotionState, MoveStraightRequest, NackCode, ParamSource, ParamsBlock,
+    RestoreDefaultsRequest, RestoreTarget, Status, TelemetryPeriod, TurnInPlaceRequest,
+    WatchdogState, WatchdogTimeout, WheelSpeedRequest,
 };
 use crate::protocol::units::{self, UnitError};
 use crate::protocol::{Request, Response};
@@ -498,8 +497,19 @@ impl Client {
                         last_poll = tokio::time::Instant::now();
                         match self.status().await {
                             Ok(s) => {
-                                if s.motion_state == MotionState::Idle && reached(s.completed_motions) {
-                                    return Ok(());
+                                if s.motion_state == MotionState::Idle {
+                                    if reached(s.completed_motions) {
+                                        return Ok(());
+                                    }
+                                    // Idle and the motion not completed: something stopped it.
+                                    // (A heartbeat may have acknowledged a watchdog trip already,
+                                    // so the watchdog state alone cannot be relied on.)
+                                    if s.watchdog_state == WatchdogState::Tripped
+                                        || s.fault_flags & fault::WATCHDOG_TRIPPED != 0
+                                    {
+                                        return Err(HalError::WatchdogTripped);
+                                    }
+                                    return Err(HalError::MotionStopped { motion_id });
                                 }
                                 if s.watchdog_state == WatchdogState::Tripped {
                                     return Err(HalError::WatchdogTripped);

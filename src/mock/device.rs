@@ -146,6 +146,9 @@ pub struct MockDevice {
     sample_index: u32,
     event_seq: u8,
     watchdog_timeout_us: u64,
+    /// Wall-clock seconds per device second of the host watching this device (see
+    /// [`MockDevice::set_host_time_scale`]).
+    host_time_scale: f64,
     watchdog_state: WatchdogState,
     last_request_us: u64,
     fault_flags: u16,
@@ -202,6 +205,7 @@ impl MockDevice {
             sample_index: 0,
             event_seq: 0,
             watchdog_timeout_us: 0,
+            host_time_scale: 1.0,
             watchdog_state: WatchdogState::Disabled,
             last_request_us: 0,
             fault_flags: 0,
@@ -344,6 +348,15 @@ impl MockDevice {
             });
         }
         vec![answer]
+    }
+
+    /// Tells the device that its time runs `scale` times faster than the host's (the mock
+    /// served in sped-up real time): watchdog timeouts, which measure host silence, are
+    /// stretched by it. Ignored unless finite and positive.
+    pub fn set_host_time_scale(&mut self, scale: f64) {
+        if scale.is_finite() && scale > 0.0 {
+            self.host_time_scale = scale;
+        }
     }
 
     /// Answers a NACK BUSY to `frame` without executing it (fault injection), remembering
@@ -564,7 +577,10 @@ impl MockDevice {
                 if timeout_ms != 0 && !(50..=10_000).contains(&timeout_ms) {
                     return nack(NackCode::OutOfRange, 0);
                 }
-                self.watchdog_timeout_us = u64::from(timeout_ms) * 1000;
+                // The watchdog watches the host, whose clock is the wall clock: when device time
+                // runs `scale` times faster, its timeout spans as much more device time.
+                self.watchdog_timeout_us =
+                    (f64::from(timeout_ms) * 1000.0 * self.host_time_scale).round() as u64;
                 self.watchdog_state = if timeout_ms == 0 {
                     WatchdogState::Disabled
                 } else {

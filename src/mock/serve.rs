@@ -112,6 +112,9 @@ where
     S: AsyncRead + AsyncWrite + Unpin,
 {
     let (mut rd, mut wr) = tokio::io::split(stream);
+    if let TimeMode::RealTime { scale } = time {
+        lock(&device).set_host_time_scale(scale);
+    }
     let mut faults = Faults {
         cfg: faults,
         rng: ChaCha8Rng::seed_from_u64(faults.seed),
