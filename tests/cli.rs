@@ -303,3 +303,41 @@ fn ports_lists_serial_ports_as_json() {
         assert!(p["type"].is_string(), "{p}");
     }
 }
+
+#[test]
+fn a_closed_pipe_ends_the_program_quietly_and_negative_values_reach_validation() {
+    use std::io::Read;
+    use std::process::{Command, Stdio};
+    // `odocal track … | head -c 10` over ~200 kB of output (more than a pipe holds): the
+    // reader goes away after a few bytes.
+    let Some(root) = common::optiodom("free") else {
+        return;
+    };
+    let set = root.join("free/020120212354");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_odocal"))
+        .args(["track", "--dataset", set.to_str().unwrap(), "--every-m", "0.005"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut first = [0u8; 10];
+    child.stdout.take().unwrap().read_exact(&mut first).unwrap();
+    // stdout is dropped here: the pipe is closed.
+    let out = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!err.contains("panicked"), "{err}");
+    // A negative number is a value to check, not an unknown flag.
+    let (ok, _, err) = common::odocal(&[
+        "estimate",
+        "--side-m",
+        "-4",
+        "--wheelbase-m",
+        "0.39",
+        "--cw-heading-deg",
+        "-1",
+        "--ccw-heading-deg",
+        "1",
+    ]);
+    assert!(!ok);
+    assert!(err.contains("side_m must be finite and > 0, got -4"), "{err}");
+}

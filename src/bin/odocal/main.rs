@@ -10,7 +10,7 @@ mod serial_bases;
 mod simulate;
 mod track;
 
-use clap::{Parser, Subcommand};
+use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
 use odocal::kinematics::SplitConvention;
 use std::process::ExitCode;
 
@@ -129,8 +129,27 @@ fn block_on(
     tokio::runtime::Runtime::new()?.block_on(fut)
 }
 
+/// The command line with negative numbers accepted as values everywhere (`--side-m -4` is a
+/// value to validate, not an unknown flag).
+fn command() -> clap::Command {
+    fn negatives(c: clap::Command) -> clap::Command {
+        c.allow_negative_numbers(true).mut_subcommands(negatives)
+    }
+    negatives(Cli::command())
+}
+
 fn main() -> ExitCode {
-    let cli = Cli::parse();
+    // Like every Unix filter: a closed pipe (`odocal … | head`) ends the program quietly
+    // instead of failing a print (Rust ignores SIGPIPE by default, so println! would panic).
+    #[cfg(unix)]
+    // SAFETY: restoring the default disposition of one signal before any thread is started.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
+    let cli = match Cli::from_arg_matches(&command().get_matches()) {
+        Ok(cli) => cli,
+        Err(e) => e.exit(),
+    };
     let result = match cli.command {
         Command::Demo(args) => block_on(routine::demo(args)),
         Command::Calibrate(args) => block_on(routine::calibrate(args)),
