@@ -156,3 +156,19 @@ async fn a_dry_run_moves_but_writes_nothing() {
     assert_eq!(sim.counters().writes, 0);
     assert_eq!(sim.committed(), Some(nominal()));
 }
+
+#[tokio::test]
+async fn a_report_without_ground_truth_has_no_empty_rows_and_reads_as_words() {
+    let sim = robot(0.37);
+    let report = run_faulty(&sim, SimFaults::default(), "no-truth").await.unwrap();
+    assert!(report.e_max_sys_before_m.is_none());
+    let md = odocal::report::markdown(&report);
+    // No row of dashes for what only a simulation can know, no enum names.
+    assert!(!md.contains("E_max,sys"), "{md}");
+    assert!(md.contains("write-back without asking"), "{md}");
+    assert!(!md.contains("`Yes`"), "{md}");
+    // The heading along the legs is reported beside the one at rest.
+    assert!(md.contains("along the legs"), "{md}");
+    let summary = odocal::report::summary_table(&report);
+    assert!(!summary.contains("E_max,sys"), "{summary}");
+}

@@ -16,13 +16,16 @@ pub fn summary_table(report: &Report) -> String {
     let opt =
         |v: Option<f64>, unit: &str| v.map_or("–".to_string(), |v| format!("{v:.4} {unit}"));
     let _ = writeln!(s, "{:<34} {:>14} {:>14}", "", "before", "after");
-    let _ = writeln!(
-        s,
-        "{:<34} {:>14} {:>14}",
-        "E_max,sys (true end points)",
-        opt(report.e_max_sys_before_m, "m"),
-        opt(report.e_max_sys_after_m, "m")
-    );
+    // Only a simulated robot has true end points; a real one's report has no such row.
+    if report.e_max_sys_before_m.is_some() || report.e_max_sys_after_m.is_some() {
+        let _ = writeln!(
+            s,
+            "{:<34} {:>14} {:>14}",
+            "E_max,sys (true end points)",
+            opt(report.e_max_sys_before_m, "m"),
+            opt(report.e_max_sys_after_m, "m")
+        );
+    }
     let _ = writeln!(
         s,
         "{:<34} {:>14} {:>14}",
@@ -56,7 +59,7 @@ pub fn markdown(report: &Report) -> String {
     let _ = writeln!(
         s,
         "Squares of {} m, {} per direction per round, method `{}`, convention `{}`, \
-         write-back `{:?}`. Backup of the original parameters: `{}`.\n",
+         write-back {}. Backup of the original parameters: `{}`.\n",
         report.config.side_m,
         report.config.runs_per_direction,
         report
@@ -64,7 +67,7 @@ pub fn markdown(report: &Report) -> String {
             .first()
             .map_or("none", |r| r.chosen.method.name()),
         report.config.split_convention().name(),
-        report.config.write_back,
+        report.config.write_back.describe(),
         report.backup_path.display()
     );
     let _ = writeln!(
@@ -81,14 +84,19 @@ pub fn markdown(report: &Report) -> String {
     );
     for r in &report.rounds {
         let _ = writeln!(s, "## Round {}\n", r.round);
-        let _ = writeln!(s, "| run | direction | heading error (°) |\n|---|---|---|");
+        let _ = writeln!(
+            s,
+            "| run | direction | heading error at rest (°) | along the legs (°) |\n|---|---|---|---|"
+        );
         for (i, run) in r.runs.iter().enumerate() {
             let _ = writeln!(
                 s,
-                "| {} | {} | {:+.3} |",
+                "| {} | {} | {:+.3} | {} |",
                 i + 1,
                 run.direction,
-                run.heading_error_deg
+                run.heading_error_deg,
+                run.leg_heading_error_rad
+                    .map_or("–".into(), |v| format!("{:+.3}", v.to_degrees()))
             );
         }
         let _ = writeln!(s, "\n| method | E_b | ± | E_d | ± |\n|---|---|---|---|---|");

@@ -22,6 +22,17 @@ pub enum WritePolicy {
     Yes,
 }
 
+impl WritePolicy {
+    /// What the policy does, in words for reports.
+    pub fn describe(self) -> &'static str {
+        match self {
+            WritePolicy::DryRun => "none (dry run)",
+            WritePolicy::Ask => "after confirmation",
+            WritePolicy::Yes => "without asking",
+        }
+    }
+}
+
 /// Everything the recalibration routine needs to know.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
