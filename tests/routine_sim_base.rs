@@ -171,4 +171,23 @@ async fn a_report_without_ground_truth_has_no_empty_rows_and_reads_as_words() {
     assert!(md.contains("along the legs"), "{md}");
     let summary = odocal::report::summary_table(&report);
     assert!(!summary.contains("E_max,sys"), "{summary}");
+    // The plots: no "true path" without a truth, whole-number ticks without ".0".
+    let dir = common::scratch("no-truth-plots");
+    std::fs::create_dir_all(&dir).unwrap();
+    let written = odocal::report::plots::write_all(&report, &dir).unwrap();
+    assert!(!written.is_empty());
+    for file in written {
+        let svg = std::fs::read_to_string(&file).unwrap();
+        assert!(!svg.contains("true path"), "{}", file.display());
+        let whole_with_point = svg
+            .split('>')
+            .filter_map(|t| t.split('<').next())
+            .filter(|t| {
+                let t = t.trim();
+                t.ends_with(".0") && t[..t.len() - 2].parse::<i64>().is_ok()
+            })
+            .count();
+        assert_eq!(whole_with_point, 0, "{}", file.display());
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -53,10 +53,21 @@ fn draw_chart(
         .x_label_area_size(40)
         .y_label_area_size(55)
         .build_cartesian_2d(x, y)?;
+    // Whole numbers without a trailing ".0" (run 5, not 5.0), others with what they need.
+    let tick = |v: &f64| {
+        if (v - v.round()).abs() < 1e-9 {
+            format!("{v:.0}")
+        } else {
+            let s = format!("{v:.3}");
+            s.trim_end_matches('0').to_string()
+        }
+    };
     chart
         .configure_mesh()
         .x_desc(x_desc)
         .y_desc(y_desc)
+        .x_label_formatter(&tick)
+        .y_label_formatter(&tick)
         .draw()?;
     body(&mut chart)?;
     chart
@@ -126,15 +137,27 @@ fn paths_plot(report: &Report, file: &Path) -> PlotResult<bool> {
     if series.is_empty() {
         return Ok(false);
     }
+    let has_truth = series.iter().any(|s| s.0.contains("true"));
     let (x0, x1, y0, y1) = bounds(series.iter().flat_map(|s| s.1.iter()));
     // Room on the right for the legend, so it never hides data.
     let x1 = x1 + 0.5 * (x1 - x0);
+    // Equal scales on both axes (a square must look square): widen the narrower range to the
+    // plotting area's aspect (1100 × 800 less margins, caption and label areas).
+    let (w_px, h_px) = (1100.0 - 30.0 - 55.0, 800.0 - 30.0 - 40.0 - 35.0);
+    let per_px = ((x1 - x0) / w_px).max((y1 - y0) / h_px);
+    let (cx, cy) = (0.5 * (x0 + x1), 0.5 * (y0 + y1));
+    let (x0, x1) = (cx - 0.5 * per_px * w_px, cx + 0.5 * per_px * w_px);
+    let (y0, y1) = (cy - 0.5 * per_px * h_px, cy + 0.5 * per_px * h_px);
     // True paths first (thick), odometry on top (thin), so both stay visible where they agree.
     series.sort_by_key(|s| !s.0.contains("true"));
     draw_chart(
         file,
         (1100, 800),
-        "Square runs: odometry vs true path",
+        if has_truth {
+            "Square runs: odometry vs true path"
+        } else {
+            "Square runs as the odometry saw them (no ground truth on a real robot)"
+        },
         x0..x1,
         y0..y1,
         "x (m), first leg",
