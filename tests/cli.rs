@@ -315,7 +315,13 @@ fn a_closed_pipe_ends_the_program_quietly_and_negative_values_reach_validation()
     };
     let set = root.join("free/020120212354");
     let mut child = Command::new(env!("CARGO_BIN_EXE_odocal"))
-        .args(["track", "--dataset", set.to_str().unwrap(), "--every-m", "0.005"])
+        .args([
+            "track",
+            "--dataset",
+            set.to_str().unwrap(),
+            "--every-m",
+            "0.005",
+        ])
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()
@@ -339,5 +345,51 @@ fn a_closed_pipe_ends_the_program_quietly_and_negative_values_reach_validation()
         "1",
     ]);
     assert!(!ok);
-    assert!(err.contains("side_m must be finite and > 0, got -4"), "{err}");
+    assert!(
+        err.contains("side_m must be finite and > 0, got -4"),
+        "{err}"
+    );
+}
+
+#[test]
+fn record_says_why_nothing_was_recorded_and_records_from_a_real_time_mock() {
+    let dir = scratch("record");
+    std::fs::create_dir_all(&dir).unwrap();
+    let out = dir.join("log.jsonl");
+    // The mock in virtual time: nothing moves, nothing streams.
+    let (mut mock, path) = spawn_mock(&[]);
+    let (ok, _, err) = odocal(&[
+        "record",
+        "--port",
+        &path,
+        "--out",
+        out.to_str().unwrap(),
+        "--duration-s",
+        "0.5",
+    ]);
+    drop(mock.stdin.take());
+    let _ = mock.wait();
+    assert!(!ok);
+    assert!(
+        err.contains("no telemetry arrived") && err.contains("--real-time 1"),
+        "{err}"
+    );
+    // In real time it streams at rest, and the log reads back.
+    let out2 = dir.join("log2.jsonl");
+    let (mut mock, path) = spawn_mock(&["--real-time", "1"]);
+    let (ok, stdout, err) = odocal(&[
+        "record",
+        "--port",
+        &path,
+        "--out",
+        out2.to_str().unwrap(),
+        "--duration-s",
+        "0.5",
+    ]);
+    drop(mock.stdin.take());
+    let _ = mock.wait();
+    assert!(ok, "{err}");
+    let (_, samples) = odocal::track::read_log(&out2).unwrap();
+    assert!(samples.len() > 5, "{stdout}");
+    std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -160,7 +160,9 @@ async fn a_dry_run_moves_but_writes_nothing() {
 #[tokio::test]
 async fn a_report_without_ground_truth_has_no_empty_rows_and_reads_as_words() {
     let sim = robot(0.37);
-    let report = run_faulty(&sim, SimFaults::default(), "no-truth").await.unwrap();
+    let report = run_faulty(&sim, SimFaults::default(), "no-truth")
+        .await
+        .unwrap();
     assert!(report.e_max_sys_before_m.is_none());
     let md = odocal::report::markdown(&report);
     // No row of dashes for what only a simulation can know, no enum names.

@@ -107,6 +107,17 @@ pub async fn record(args: RecordArgs) -> CliResult {
     .await?;
     log.flush()?;
     let stats = client.stats();
+    if n == 0 {
+        return Err(format!(
+            "no telemetry arrived in {:.1} s ({} written with its header only). The device \
+             answers but sends no samples: a controller may stream only while the robot moves \
+             (drive it while recording), and `odocal mock-device` in virtual time (the default) \
+             never advances while idle: start it with --real-time 1 to record from it",
+            args.duration_s.unwrap_or(f64::NAN),
+            args.out.display()
+        )
+        .into());
+    }
     println!(
         "recorded {n} samples to {} ({} lost on the link)",
         args.out.display(),
