@@ -393,3 +393,51 @@ fn record_says_why_nothing_was_recorded_and_records_from_a_real_time_mock() {
     assert!(samples.len() > 5, "{stdout}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// `status` on a pseudo-terminal that sends random bytes (another device, a wrong baud rate) and
+/// on one that sends nothing: each is diagnosed, within 3 s, in words.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_port_with_garbage_or_silence_is_diagnosed_within_three_seconds() {
+    use tokio::io::AsyncWriteExt;
+    use tokio_serial::SerialPort;
+    for garbage in [true, false] {
+        let (mut master, slave) = tokio_serial::SerialStream::pair().unwrap();
+        let path = slave.name().unwrap();
+        let writer = tokio::spawn(async move {
+            let mut x: u32 = 12345;
+            loop {
+                if garbage {
+                    let mut chunk = [0u8; 64];
+                    for b in &mut chunk {
+                        // A small LCG: any bytes that are not frames.
+                        x = x.wrapping_mul(1_103_515_245).wrapping_add(12_345);
+                        *b = (x >> 16) as u8;
+                    }
+                    if master.write_all(&chunk).await.is_err() {
+                        tokio::time::sleep(std::time::Duration::from_millis(5)).await;
+                    }
+                }
+                tokio::time::sleep(std::time::Duration::from_millis(10)).await;
+            }
+        });
+        let started = std::time::Instant::now();
+        let (ok, _, err) =
+            tokio::task::spawn_blocking(move || common::odocal(&["status", "--port", &path]))
+                .await
+                .unwrap();
+        let took = started.elapsed();
+        writer.abort();
+        drop(slave);
+        assert!(!ok);
+        if garbage {
+            assert!(err.contains("none forms an odocal frame"), "{err}");
+            assert!(err.contains("baud"), "{err}");
+        } else {
+            assert!(err.contains("nothing arrived"), "{err}");
+        }
+        assert!(
+            took < std::time::Duration::from_secs(3),
+            "took {took:?}: {err}"
+        );
+    }
+}

@@ -413,6 +413,30 @@ async fn an_incompatible_host_version_is_refused() {
         .await
         .unwrap_err();
     assert_eq!(err.nack_code(), Some(NackCode::VersionMismatch));
+    // SPEC 1.1: the NACK says which version the device speaks.
+    match &err {
+        HalError::Nack { nack, .. } => assert_eq!(nack.detail, 0x10),
+        other => panic!("{other:?}"),
+    }
+    // And the host turns that into words naming both versions (or saying a 1.0 device did
+    // not tell).
+    let told = LinkError::VersionMismatch {
+        device: Some((2, 3)),
+        host: 1,
+    };
+    assert!(
+        told.to_string()
+            .contains("speaks protocol 2.3, this host speaks 1.x"),
+        "{told}"
+    );
+    let untold = LinkError::VersionMismatch {
+        device: None,
+        host: 1,
+    };
+    assert!(
+        untold.to_string().contains("does not say which"),
+        "{untold}"
+    );
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

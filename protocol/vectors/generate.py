@@ -133,6 +133,10 @@ add("NACK out of range on field 1 of MOVE_STRAIGHT", "nack", 8, 0x30, bytes([0x0
     {"msg": 0x30, "nack": {"code": "OUT_OF_RANGE", "detail": 1}})
 add("NACK invalid state on SAVE_PARAMS", "nack", 4, 0x12, bytes([0x04, 0xFF]),
     {"msg": 0x12, "nack": {"code": "INVALID_STATE", "detail": 255}})
+# SPEC 1.1: a VERSION_MISMATCH NACK to HELLO carries the device's own VER byte as its detail
+# (here a 2.3 device); it travels, like every HELLO answer, in a frame with VER = 0x10.
+add("NACK version mismatch on HELLO from a device speaking 2.3", "nack", 1, 0x01,
+    bytes([0x07, 0x23]), {"msg": 0x01, "nack": {"code": "VERSION_MISMATCH", "detail": 0x23}})
 add("TELEMETRY event", "event", 200, 0x51,
     struct.pack("<IIiiiBBB", 70_000, 350_000_000, 10_240, -512, 1_570_796, 1, 1, 2),
     {"event": {"message": "TELEMETRY", "sample_index": 70_000, "timestamp_us": 350_000_000,

@@ -33,14 +33,33 @@ pub enum LinkError {
     #[error("protocol violation: {0}")]
     Protocol(String),
     /// The device speaks another major protocol version.
-    #[error("device speaks protocol {major}.{minor}, this host speaks {host}.x")]
+    #[error("{}, this host speaks {host}.x: use an odocal of the device's major version", match device {
+        Some((major, minor)) => format!("the device speaks protocol {major}.{minor}"),
+        None => "the device speaks another protocol version (a 1.0 device does not say which)".to_string(),
+    })]
     VersionMismatch {
-        /// Device's major.
-        major: u8,
-        /// Device's minor.
-        minor: u8,
+        /// The device's (major, minor), when it said.
+        device: Option<(u8, u8)>,
         /// Host's major.
         host: u8,
+    },
+    /// Bytes arrive but none forms a frame of this protocol.
+    #[error("{bytes} bytes arrived in {after:.1?} but none forms an odocal frame: wrong baud rate (this link runs at {baud}; try --baud), or not an odocal device on this port")]
+    NotOdocal {
+        /// Bytes received and skipped.
+        bytes: u64,
+        /// Time the handshake was tried.
+        after: Duration,
+        /// The baud rate used.
+        baud: u32,
+    },
+    /// Nothing at all arrives.
+    #[error("nothing arrived in {after:.1?} at {baud} baud: is the device powered, on this port, and does it speak the odocal protocol?")]
+    Silent {
+        /// Time the handshake was tried.
+        after: Duration,
+        /// The baud rate used.
+        baud: u32,
     },
     /// An emergency stop abandoned the request.
     #[error("cancelled by an emergency stop")]

@@ -80,11 +80,20 @@ pub(super) enum Command {
     /// Send a request and report its answer.
     Request {
         request: Request,
+        /// Retry budget for this request instead of the configured one.
+        budget: Option<Duration>,
         reply: oneshot::Sender<Result<Response, HalError>>,
     },
     /// Abandon everything pending and send STOP at once (guards, Ctrl-C).
     EmergencyStop,
 }
+
+/// A request waiting its turn: the request, its retry budget override, where its answer goes.
+type Queued = (
+    Request,
+    Option<Duration>,
+    oneshot::Sender<Result<Response, HalError>>,
+);
 
 struct Pending {
     request: Request,
@@ -92,6 +101,7 @@ struct Pending {
     bytes: Vec<u8>,
     deadline: Instant,
     first_sent: Instant,
+    budget: Duration,
     attempts: u32,
     busy_left: u32,
     /// Set after BUSY: at the deadline, resend with a new sequence number.
@@ -125,15 +135,14 @@ impl Link {
         let mut buf = BytesMut::new();
         let mut chunk = [0u8; 1024];
         let mut seq: u8 = 0;
-        let mut queue: VecDeque<(Request, oneshot::Sender<Result<Response, HalError>>)> =
-            VecDeque::new();
+        let mut queue: VecDeque<Queued> = VecDeque::new();
         let mut pending: Option<Pending> = None;
         let mut unwrap = Unwrap::default();
         let mut closed: Option<LinkError> = None;
         let mut moved = false;
         loop {
             if pending.is_none() && closed.is_none() {
-                if let Some((request, reply)) = queue.pop_front() {
+                if let Some((request, budget, reply)) = queue.pop_front() {
                     moved |= request.moves_robot();
                     seq = seq.wrapping_add(1);
                     let busy_left = self.config.busy_retries;
@@ -141,7 +150,12 @@ impl Link {
                         .start(&mut wr, request, seq, busy_left, Some(reply))
                         .await
                     {
-                        Ok(p) => pending = Some(p),
+                        Ok(mut p) => {
+                            if let Some(b) = budget {
+                                p.budget = b;
+                            }
+                            pending = Some(p);
+                        }
                         Err(e) => closed = Some(e),
                     }
                 }
@@ -151,7 +165,7 @@ impl Link {
                 if let Some(p) = pending.take() {
                     fail(p.reply, err.clone());
                 }
-                for (_, reply) in queue.drain(..) {
+                for (_, _, reply) in queue.drain(..) {
                     let _ = reply.send(Err(HalError::Link(err.clone())));
                 }
                 match commands.recv().await {
@@ -174,12 +188,14 @@ impl Link {
                         }
                         return;
                     }
-                    Some(Command::Request { request, reply }) => queue.push_back((request, reply)),
+                    Some(Command::Request { request, budget, reply }) => {
+                        queue.push_back((request, budget, reply));
+                    }
                     Some(Command::EmergencyStop) => {
                         if let Some(p) = pending.take() {
                             fail(p.reply, LinkError::Cancelled);
                         }
-                        for (_, reply) in queue.drain(..) {
+                        for (_, _, reply) in queue.drain(..) {
                             let _ = reply.send(Err(HalError::Link(LinkError::Cancelled)));
                         }
                         seq = seq.wrapping_add(1);
@@ -210,7 +226,7 @@ impl Link {
                                 Err(e) => closed = Some(e),
                             }
                         } else if p.attempts <= self.config.retries
-                            || p.first_sent.elapsed() < self.config.retry_budget
+                            || p.first_sent.elapsed() < p.budget
                         {
                             self.stats.retries.fetch_add(1, Ordering::Relaxed);
                             p.attempts += 1;
@@ -249,6 +265,7 @@ impl Link {
         Ok(Pending {
             deadline: now + self.config.deadline(&request),
             first_sent: now,
+            budget: self.config.retry_budget,
             request,
             seq,
             bytes,

@@ -33,6 +33,9 @@ use std::time::Duration;
 use tokio::io::{AsyncRead, AsyncWrite};
 use tokio::sync::{broadcast, mpsc, oneshot};
 
+/// How long the HELLO handshake is retried before the port is diagnosed (see [`Client::connect`]).
+pub const HELLO_BUDGET: Duration = Duration::from_millis(2500);
+
 /// How often [`Client::wait_motion`] polls the status while a motion runs (its end normally
 /// arrives as a MOTION_DONE event).
 pub const STATUS_POLL: Duration = Duration::from_millis(250);
@@ -229,11 +232,16 @@ impl Client {
             label: Arc::from("stream"),
             geometry: Arc::default(),
         };
+        // HELLO is retried for HELLO_BUDGET: long enough for a board that resets when its port
+        // opens (Arduino-style bootloaders take 1–2 s), short enough to diagnose a wrong port.
         let hello = client
-            .request(Request::Hello(HelloRequest {
-                host_major: MAJOR,
-                host_min_minor: 0,
-            }))
+            .request_within(
+                Request::Hello(HelloRequest {
+                    host_major: MAJOR,
+                    host_min_minor: 0,
+                }),
+                Some(HELLO_BUDGET),
+            )
             .await;
         let info = match hello {
             Ok(Response::Hello(info)) => info,
@@ -241,19 +249,34 @@ impl Client {
                 return Err(LinkError::Protocol(format!("HELLO answered with {other:?}")).into())
             }
             Err(HalError::Nack { nack, .. }) if nack.code == NackCode::VersionMismatch => {
+                // SPEC 1.1: the detail is the device's own VER byte; 0xFF from a 1.0 device.
                 return Err(LinkError::VersionMismatch {
-                    major: 0,
-                    minor: 0,
+                    device: (nack.detail != 0xFF).then_some((nack.detail >> 4, nack.detail & 0x0F)),
                     host: MAJOR,
                 }
-                .into())
+                .into());
+            }
+            Err(HalError::Link(LinkError::Timeout { after, .. })) => {
+                let snapshot = client.stats();
+                let err = if snapshot.frames_received == 0 && snapshot.decoder_dropped_bytes > 0 {
+                    LinkError::NotOdocal {
+                        bytes: snapshot.decoder_dropped_bytes,
+                        after,
+                        baud: config.baud,
+                    }
+                } else {
+                    LinkError::Silent {
+                        after,
+                        baud: config.baud,
+                    }
+                };
+                return Err(err.into());
             }
             Err(e) => return Err(e),
         };
         if info.major != MAJOR {
             return Err(LinkError::VersionMismatch {
-                major: info.major,
-                minor: info.minor,
+                device: Some((info.major, info.minor)),
                 host: VERSION >> 4,
             }
             .into());
@@ -305,9 +328,22 @@ impl Client {
 
     /// Sends any request and waits for its answer (with retries and deadlines).
     pub async fn request(&self, request: Request) -> Result<Response, HalError> {
+        self.request_within(request, None).await
+    }
+
+    /// [`Client::request`] retried for `budget` instead of the configured retry budget.
+    async fn request_within(
+        &self,
+        request: Request,
+        budget: Option<Duration>,
+    ) -> Result<Response, HalError> {
         let (reply, rx) = oneshot::channel();
         self.commands
-            .send(Command::Request { request, reply })
+            .send(Command::Request {
+                request,
+                budget,
+                reply,
+            })
             .map_err(|_| LinkError::Closed)?;
         rx.await.map_err(|_| LinkError::Closed)?
     }

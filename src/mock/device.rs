@@ -381,7 +381,8 @@ impl MockDevice {
                 host_min_minor,
             }) => {
                 if host_major != MAJOR || (VERSION & 0x0F) < host_min_minor {
-                    return nack(NackCode::VersionMismatch, 0xFF);
+                    // SPEC 1.1: the detail tells the host which version this device speaks.
+                    return nack(NackCode::VersionMismatch, VERSION);
                 }
                 Ok(Response::Hello(DeviceInfo {
                     major: MAJOR,
