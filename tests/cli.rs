@@ -441,3 +441,71 @@ async fn a_port_with_garbage_or_silence_is_diagnosed_within_three_seconds() {
         );
     }
 }
+
+#[test]
+fn backups_never_overwrite_and_restore_from_a_backup_shows_the_change_first() {
+    let dir = scratch("restore-from");
+    std::fs::create_dir_all(&dir).unwrap();
+    let (mut mock, path) = spawn_mock(&[]);
+    let d = dir.to_str().unwrap();
+    let get = |path: &str| {
+        odocal_json(&["params", "get", "--port", path, "--json"])["wheelbase_m"]
+            .as_f64()
+            .unwrap()
+    };
+    let original = get(&path);
+    // Two changes in quick succession: two backups, the first still holding the original.
+    for wheelbase in ["0.41", "0.42"] {
+        let (ok, _, err) = odocal(&[
+            "params", "set", "--port", &path, "--wheelbase-m", wheelbase, "--backup-dir", d,
+        ]);
+        assert!(ok, "{err}");
+    }
+    let mut backups: Vec<_> = std::fs::read_dir(&dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .collect();
+    backups.sort();
+    assert_eq!(backups.len(), 2, "{backups:?}");
+    let first = backups
+        .iter()
+        .find(|b| {
+            odocal::base::transaction::read_backup(b).unwrap().active.wheelbase_m == original
+        })
+        .expect("a backup of the original parameters")
+        .clone();
+    // Declined (stdin is empty): nothing written, the change was shown.
+    let (ok, _, err) = odocal(&[
+        "params", "restore", "--port", &path, "--from", first.to_str().unwrap(), "--backup-dir", d,
+    ]);
+    assert!(!ok && err.contains("declined"), "{err}");
+    assert!(err.contains("wheelbase"), "the diff is shown first: {err}");
+    assert_eq!(get(&path), 0.42);
+    // With --yes: restored, after a third backup of what was there.
+    let (ok, _, err) = odocal(&[
+        "params", "restore", "--port", &path, "--from", first.to_str().unwrap(), "--backup-dir", d,
+        "--yes",
+    ]);
+    assert!(ok, "{err}");
+    assert_eq!(get(&path), original);
+    assert_eq!(std::fs::read_dir(&dir).unwrap().count(), 3);
+    // A file that is not a backup is refused with its name, and nothing changes.
+    let junk = dir.join("junk.json");
+    std::fs::write(&junk, "{\"active\": 3}").unwrap();
+    let (ok, _, err) = odocal(&[
+        "params", "restore", "--port", &path, "--from", junk.to_str().unwrap(), "--yes",
+    ]);
+    assert!(!ok && err.contains("junk.json"), "{err}");
+    // A backup of another device is refused unless asked for.
+    let mut other = odocal::base::transaction::read_backup(&first).unwrap();
+    other.store.id = "someone-else-1234".into();
+    let foreign = dir.join("foreign.json");
+    std::fs::write(&foreign, serde_json::to_string(&other).unwrap()).unwrap();
+    let (ok, _, err) = odocal(&[
+        "params", "restore", "--port", &path, "--from", foreign.to_str().unwrap(), "--yes",
+    ]);
+    assert!(!ok && err.contains("--any-device"), "{err}");
+    drop(mock.stdin.take());
+    let _ = mock.wait();
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -194,10 +194,21 @@ pub enum ParamsCommand {
         #[command(flatten)]
         port: PortArgs,
     },
-    /// Restore factory defaults (RAM only, or also storage with --stored). Backs up first.
+    /// Restore factory defaults, or with --from the parameters of a backup file (RAM only, or
+    /// also storage with --stored). Shows old → new, asks first (unless --yes), backs up first.
     Restore {
         #[command(flatten)]
         port: PortArgs,
+        /// A backup file written by odocal (`odocal-backup-….json`): restore what was in use when
+        /// it was taken, instead of the factory defaults.
+        #[arg(long)]
+        from: Option<PathBuf>,
+        /// Restore a backup taken from another device (a different firmware id or serial).
+        #[arg(long, requires = "from")]
+        any_device: bool,
+        /// Do not ask before writing.
+        #[arg(long)]
+        yes: bool,
         /// Also overwrite the stored copy.
         #[arg(long)]
         stored: bool,
@@ -281,8 +292,17 @@ pub async fn params(cmd: ParamsCommand) -> CliResult {
         }
         ParamsCommand::Restore {
             port,
+            from: Some(file),
+            any_device,
+            yes,
             stored,
             backup_dir,
+        } => restore_from(&port, &file, any_device, yes, stored, &backup_dir).await,
+        ParamsCommand::Restore {
+            port,
+            stored,
+            backup_dir,
+            ..
         } => {
             let client = port.connect().await?;
             let saved_to = backup(&client, &backup_dir).await?;
@@ -295,6 +315,90 @@ pub async fn params(cmd: ParamsCommand) -> CliResult {
             print_params(&p, port.json, json!({ "backup": saved_to }))
         }
     }
+}
+
+/// `params restore --from FILE`: the backup is read and validated first, then compared with what
+/// the device holds; nothing is written unless they differ and the user agrees.
+async fn restore_from(
+    port: &PortArgs,
+    file: &std::path::Path,
+    any_device: bool,
+    yes: bool,
+    stored: bool,
+    backup_dir: &std::path::Path,
+) -> CliResult {
+    use odocal::base::ParamStore;
+    let from_file = odocal::base::transaction::read_backup(file)?;
+    let client = port.connect().await?;
+    let here = ParamStore::info(&client);
+    if from_file.store.kind != here.kind || from_file.store.id != here.id {
+        if !any_device {
+            return Err(format!(
+                "{} was taken from {} `{}`, this is {} `{}`: not restored (--any-device to \
+                 restore it anyway)",
+                file.display(),
+                from_file.store.kind,
+                from_file.store.id,
+                here.kind,
+                here.id
+            )
+            .into());
+        }
+        eprintln!(
+            "warning: restoring a backup of {} `{}` onto `{}`",
+            from_file.store.kind, from_file.store.id, here.id
+        );
+    }
+    let current = client.get_params(ParamSource::Active).await?;
+    eprintln!(
+        "{} (taken by odocal {}):\n{}",
+        file.display(),
+        from_file.odocal_version,
+        odocal::routine::report::params_table(&current, &from_file.active)
+    );
+    if current == from_file.active && !stored {
+        eprintln!("the device already holds these parameters: nothing to write");
+        return print_params(&current, port.json, json!({ "written": false }));
+    }
+    if !yes {
+        eprint!(
+            "write them to the device{}? [y/N] ",
+            if stored { " and its storage" } else { "" }
+        );
+        let mut line = String::new();
+        std::io::stdin().read_line(&mut line)?;
+        if !matches!(line.trim(), "y" | "Y" | "yes") {
+            return Err("not restored: declined".into());
+        }
+    }
+    // Either way the current parameters are backed up first, into a new file.
+    let (applied, saved_to) = if stored {
+        // Write, read back, save, read back the stored copy; rolled back on any failure.
+        let mut tx = odocal::base::transaction::Transaction::begin(
+            std::sync::Arc::new(client.clone()),
+            backup_dir,
+        )
+        .await?;
+        eprintln!("backed up the current parameters to {}", tx.backup_path().display());
+        let applied = tx.apply(&from_file.active).await?;
+        (applied, tx.backup_path().to_path_buf())
+    } else {
+        let saved_to = backup(&client, backup_dir).await?;
+        (client.set_params(&from_file.active).await?, saved_to)
+    };
+    eprintln!(
+        "restored{}",
+        if stored {
+            " and saved"
+        } else {
+            " to RAM; run `odocal params save` to keep them across power cycles"
+        }
+    );
+    print_params(
+        &applied,
+        port.json,
+        json!({ "backup": saved_to, "restored_from": file, "written": true }),
+    )
 }
 
 /// Runs `odocal status`.
