@@ -509,3 +509,28 @@ fn backups_never_overwrite_and_restore_from_a_backup_shows_the_change_first() {
     let _ = mock.wait();
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn heading_errors_up_to_180_degrees_are_estimated_with_a_warning() {
+    let args = |cw: &str, ccw: &str| {
+        odocal(&[
+            "estimate",
+            "--side-m",
+            "4",
+            "--wheelbase-m",
+            "0.39",
+            &format!("--cw-heading-deg={cw}"),
+            &format!("--ccw-heading-deg={ccw}"),
+            "--method",
+            "exact",
+        ])
+    };
+    // A skid-steer-like robot: 100° short on every square.
+    let (ok, out, err) = args("-100,-101", "95,96");
+    assert!(ok, "{err}");
+    assert!(out.contains("exact"), "{out}");
+    assert!(err.contains("90° or more"), "{err}");
+    // Beyond 180° an error cannot be a wrapped heading: refused, naming the units.
+    let (ok, _, err) = args("-200", "95");
+    assert!(!ok && err.contains("degrees vs radians"), "{err}");
+}

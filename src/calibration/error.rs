@@ -20,8 +20,8 @@ pub enum CalibrationError {
         /// 0-based run index.
         index: usize,
     },
-    /// A heading error of 90° or more cannot come from a square of 90° turns.
-    #[error("{direction} run {}: heading error {degrees:.2}° is 90° or more in size; check the sign convention and the units (degrees vs radians)", index + 1)]
+    /// A heading error beyond 180° was not wrapped: a unit or sign mistake.
+    #[error("{direction} run {}: heading error {degrees:.2}° is beyond ±180°; heading errors are wrapped: check the units (degrees vs radians)", index + 1)]
     HeadingTooLarge {
         /// Direction of the run.
         direction: Direction,

@@ -38,7 +38,7 @@ pub use error::CalibrationError;
 use crate::kinematics::{Correction, Direction, SplitConvention};
 use nalgebra::{SMatrix, SVector};
 use serde::{Deserialize, Serialize};
-use std::f64::consts::FRAC_PI_2;
+use std::f64::consts::{FRAC_PI_2, PI};
 use std::fmt;
 use std::str::FromStr;
 
@@ -77,6 +77,27 @@ impl SquareTest {
         self
     }
 
+    /// Warnings for runs whose heading error is 90° or more in size: the exact inversion is
+    /// still valid there (up to 180°), but the paper's small-angle methods are not, an error of
+    /// that size more often means a sign or unit mistake, and beyond 180° it would wrap.
+    pub fn large_heading_warnings(&self) -> Vec<String> {
+        let mut out = Vec::new();
+        for (direction, runs) in [(Direction::Cw, &self.cw), (Direction::Ccw, &self.ccw)] {
+            for (i, r) in runs.iter().enumerate() {
+                if r.heading_error_rad.abs() >= FRAC_PI_2 {
+                    out.push(format!(
+                        "{direction} run {}: heading error {:.1}° is 90° or more: check the sign \
+                         convention and units; trust `exact` only (the paper's methods assume \
+                         small errors), and an error beyond 180° would have wrapped",
+                        i + 1,
+                        r.heading_error_rad.to_degrees()
+                    ));
+                }
+            }
+        }
+        out
+    }
+
     /// Rejects input no real square test can produce.
     pub fn validate(&self) -> Result<(), CalibrationError> {
         for (name, value) in [("side_m", self.side_m), ("wheelbase_m", self.wheelbase_m)] {
@@ -97,7 +118,10 @@ impl SquareTest {
                         index,
                     });
                 }
-                if r.heading_error_rad.abs() >= FRAC_PI_2 {
+                // Wrapped errors lie in (−π, π]; anything larger was not wrapped (or is in
+                // degrees). The exact inversion holds up to 180°: larger-than-90° errors are
+                // accepted, with [`SquareTest::large_heading_warnings`].
+                if r.heading_error_rad.abs() > PI {
                     return Err(CalibrationError::HeadingTooLarge {
                         direction,
                         index,
@@ -510,12 +534,17 @@ mod tests {
             Err(CalibrationError::NonFinite { index: 1, .. })
         ));
         assert!(matches!(
-            test_with(&[0.01], &[-1.6]).validate(),
+            test_with(&[0.01], &[-3.2]).validate(),
             Err(CalibrationError::HeadingTooLarge {
                 direction: Direction::Ccw,
                 ..
             })
         ));
+        // 90°–180°: accepted, with a warning naming the run.
+        let big = test_with(&[0.01], &[-1.6]);
+        assert_eq!(big.validate(), Ok(()));
+        let w = big.large_heading_warnings();
+        assert!(w.len() == 1 && w[0].contains("counter-clockwise run 1"), "{w:?}");
         let mut t = test_with(&[0.01, 0.02], &[0.01]);
         t.cw[0].final_xy_m = Some([0.1, 0.2]);
         assert_eq!(

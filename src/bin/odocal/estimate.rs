@@ -145,6 +145,10 @@ pub fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
             Err(err) => failures.push((*method, err.to_string())),
         }
     }
+    let warnings = test.large_heading_warnings();
+    for w in &warnings {
+        eprintln!("warning: {w}");
+    }
     if args.json {
         let estimates: Vec<_> = rows
             .iter()
@@ -168,6 +172,7 @@ pub fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
             "convention": convention.name(),
             "configured": configured,
             "default_method": calibration::default_method(test.has_leg_headings(), test.has_positions()),
+            "warnings": warnings,
             "estimates": estimates,
             "failures": failures.iter().map(|(m, e)| json!({"method": m.name(), "error": e})).collect::<Vec<_>>(),
             "cramer_rao_std": crb.map(|c| json!({"e_b": c[(0, 0)].sqrt(), "e_d": c[(1, 1)].sqrt()})),
