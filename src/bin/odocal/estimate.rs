@@ -107,6 +107,8 @@ pub fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
     };
     let convention = args.convention.convention();
     let results: Vec<(Method, Result<Estimate, _>)> = if args.method == "all" {
+        // Input no square test can produce is refused before anything is estimated.
+        test.validate()?;
         calibration::estimate_all(&test, convention)?
     } else {
         let m: Method = args.method.parse()?;
@@ -144,6 +146,10 @@ pub fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
             }
             Err(err) => failures.push((*method, err.to_string())),
         }
+    }
+    if rows.is_empty() {
+        let why: Vec<String> = failures.iter().map(|(m, e)| format!("{m}: {e}")).collect();
+        return Err(format!("no method produced an estimate ({})", why.join("; ")).into());
     }
     let warnings = test.large_heading_warnings();
     for w in &warnings {
