@@ -457,7 +457,14 @@ fn backups_never_overwrite_and_restore_from_a_backup_shows_the_change_first() {
     // Two changes in quick succession: two backups, the first still holding the original.
     for wheelbase in ["0.41", "0.42"] {
         let (ok, _, err) = odocal(&[
-            "params", "set", "--port", &path, "--wheelbase-m", wheelbase, "--backup-dir", d,
+            "params",
+            "set",
+            "--port",
+            &path,
+            "--wheelbase-m",
+            wheelbase,
+            "--backup-dir",
+            d,
         ]);
         assert!(ok, "{err}");
     }
@@ -470,20 +477,38 @@ fn backups_never_overwrite_and_restore_from_a_backup_shows_the_change_first() {
     let first = backups
         .iter()
         .find(|b| {
-            odocal::base::transaction::read_backup(b).unwrap().active.wheelbase_m == original
+            odocal::base::transaction::read_backup(b)
+                .unwrap()
+                .active
+                .wheelbase_m
+                == original
         })
         .expect("a backup of the original parameters")
         .clone();
     // Declined (stdin is empty): nothing written, the change was shown.
     let (ok, _, err) = odocal(&[
-        "params", "restore", "--port", &path, "--from", first.to_str().unwrap(), "--backup-dir", d,
+        "params",
+        "restore",
+        "--port",
+        &path,
+        "--from",
+        first.to_str().unwrap(),
+        "--backup-dir",
+        d,
     ]);
     assert!(!ok && err.contains("declined"), "{err}");
     assert!(err.contains("wheelbase"), "the diff is shown first: {err}");
     assert_eq!(get(&path), 0.42);
     // With --yes: restored, after a third backup of what was there.
     let (ok, _, err) = odocal(&[
-        "params", "restore", "--port", &path, "--from", first.to_str().unwrap(), "--backup-dir", d,
+        "params",
+        "restore",
+        "--port",
+        &path,
+        "--from",
+        first.to_str().unwrap(),
+        "--backup-dir",
+        d,
         "--yes",
     ]);
     assert!(ok, "{err}");
@@ -493,7 +518,13 @@ fn backups_never_overwrite_and_restore_from_a_backup_shows_the_change_first() {
     let junk = dir.join("junk.json");
     std::fs::write(&junk, "{\"active\": 3}").unwrap();
     let (ok, _, err) = odocal(&[
-        "params", "restore", "--port", &path, "--from", junk.to_str().unwrap(), "--yes",
+        "params",
+        "restore",
+        "--port",
+        &path,
+        "--from",
+        junk.to_str().unwrap(),
+        "--yes",
     ]);
     assert!(!ok && err.contains("junk.json"), "{err}");
     // A backup of another device is refused unless asked for.
@@ -502,7 +533,13 @@ fn backups_never_overwrite_and_restore_from_a_backup_shows_the_change_first() {
     let foreign = dir.join("foreign.json");
     std::fs::write(&foreign, serde_json::to_string(&other).unwrap()).unwrap();
     let (ok, _, err) = odocal(&[
-        "params", "restore", "--port", &path, "--from", foreign.to_str().unwrap(), "--yes",
+        "params",
+        "restore",
+        "--port",
+        &path,
+        "--from",
+        foreign.to_str().unwrap(),
+        "--yes",
     ]);
     assert!(!ok && err.contains("--any-device"), "{err}");
     drop(mock.stdin.take());
@@ -533,4 +570,52 @@ fn heading_errors_up_to_180_degrees_are_estimated_with_a_warning() {
     // Beyond 180° an error cannot be a wrapped heading: refused, naming the units.
     let (ok, _, err) = args("-200", "95");
     assert!(!ok && err.contains("degrees vs radians"), "{err}");
+}
+
+#[test]
+fn a_skid_steer_sized_change_needs_allow_large_change_and_then_calibrates() {
+    let dir = scratch("large-change");
+    let d = dir.to_str().unwrap();
+    // A simulated robot whose effective wheelbase is 1.5 × the configured one.
+    let (ok, _, err) = odocal(&["demo", "--true-eb", "1.5", "--report-dir", d]);
+    assert!(!ok);
+    assert!(
+        err.contains("+50.0 %") && err.contains("--allow-large-change"),
+        "{err}"
+    );
+    let (ok, out, err) = odocal(&[
+        "demo",
+        "--true-eb",
+        "1.5",
+        "--allow-large-change",
+        "--report-dir",
+        d,
+        "--json",
+    ]);
+    assert!(ok, "{err}");
+    let v: Value = serde_json::from_str(&out).unwrap();
+    let report = if v.get("report").is_some() {
+        &v["report"]
+    } else {
+        &v
+    };
+    assert_eq!(report["converged"], true);
+    let b = report["final_params"]["wheelbase_m"].as_f64().unwrap();
+    assert!((b / (0.39 * 1.5) - 1.0).abs() < 1e-3, "wheelbase {b}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn routine_files_refuse_large_changes_unless_allowed() {
+    use odocal::routine::config::RoutineConfig;
+    let mut cfg = RoutineConfig {
+        max_change: 0.9,
+        ..RoutineConfig::default()
+    };
+    let err = cfg.validate().unwrap_err().to_string();
+    assert!(err.contains("allow_large_change"), "{err}");
+    cfg.allow_large_change = true;
+    assert!(cfg.validate().is_ok());
+    cfg.max_change = 1.5;
+    assert!(cfg.validate().is_err());
 }

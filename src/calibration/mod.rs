@@ -544,7 +544,10 @@ mod tests {
         let big = test_with(&[0.01], &[-1.6]);
         assert_eq!(big.validate(), Ok(()));
         let w = big.large_heading_warnings();
-        assert!(w.len() == 1 && w[0].contains("counter-clockwise run 1"), "{w:?}");
+        assert!(
+            w.len() == 1 && w[0].contains("counter-clockwise run 1"),
+            "{w:?}"
+        );
         let mut t = test_with(&[0.01, 0.02], &[0.01]);
         t.cw[0].final_xy_m = Some([0.1, 0.2]);
         assert_eq!(

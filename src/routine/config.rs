@@ -79,6 +79,9 @@ pub struct RoutineConfig {
     pub max_rounds: usize,
     /// Refuse to write any parameter changed by more than this fraction from the backup.
     pub max_change: f64,
+    /// Allow `max_change` beyond 25 % (up to 100 %): skid-steer robots need wheelbase
+    /// multipliers of 1.5–1.9.
+    pub allow_large_change: bool,
     /// Device watchdog timeout (ms).
     pub watchdog_ms: u64,
     /// Telemetry period (ms), 0 for none (no odometry traces, no compass-sign check).
@@ -111,6 +114,7 @@ impl Default for RoutineConfig {
             tolerance: 0.001,
             max_rounds: 3,
             max_change: 0.1,
+            allow_large_change: false,
             watchdog_ms: 500,
             telemetry_ms: 20,
             backup_dir: PathBuf::from("."),
@@ -220,10 +224,20 @@ impl RoutineConfig {
                 format!("must be 1..=10, got {}", self.max_rounds),
             );
         }
-        if !(positive(self.max_change) && self.max_change <= 0.25) {
+        let limit = if self.allow_large_change { 1.0 } else { 0.25 };
+        if !(positive(self.max_change) && self.max_change <= limit) {
             return bad(
                 "max_change",
-                format!("must be in (0, 0.25], got {}", self.max_change),
+                format!(
+                    "must be in (0, {limit}], got {}{}",
+                    self.max_change,
+                    if self.allow_large_change || self.max_change > 1.0 {
+                        ""
+                    } else {
+                        " (up to 1.0 with allow_large_change / --allow-large-change, for \
+                         skid-steer robots)"
+                    }
+                ),
             );
         }
         if !(50..=10_000).contains(&self.watchdog_ms) {

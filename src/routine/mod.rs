@@ -533,9 +533,14 @@ fn check_bounds(
         if change.abs() > max_change {
             return Err(RoutineError::OutOfBounds(format!(
                 "{name} would change by {:+.1} % ({old:.6} → {new:.6} m), more than the \
-                 allowed ±{:.1} %",
+                 allowed ±{:.1} %{}",
                 change * 100.0,
-                max_change * 100.0
+                max_change * 100.0,
+                if max_change < 1.0 && change.abs() <= 1.0 {
+                    " (a skid-steer robot needs this: --allow-large-change)"
+                } else {
+                    ""
+                }
             )));
         }
     }

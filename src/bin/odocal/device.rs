@@ -379,7 +379,10 @@ async fn restore_from(
             backup_dir,
         )
         .await?;
-        eprintln!("backed up the current parameters to {}", tx.backup_path().display());
+        eprintln!(
+            "backed up the current parameters to {}",
+            tx.backup_path().display()
+        );
         let applied = tx.apply(&from_file.active).await?;
         (applied, tx.backup_path().to_path_buf())
     } else {

@@ -222,6 +222,9 @@ pub struct DemoArgs {
     /// Print the whole report as one JSON object.
     #[arg(long)]
     json: bool,
+    /// Allow parameter changes of up to 100 % (a simulated skid-steer robot, --true-eb 1.5).
+    #[arg(long)]
+    allow_large_change: bool,
 }
 
 /// Runs `odocal demo`.
@@ -239,6 +242,10 @@ pub async fn demo(args: DemoArgs) -> CliResult {
     opts.faults.seed = args.seed;
     opts.routine.backup_dir = args.report_dir.clone();
     opts.routine.report_dir = Some(args.report_dir.clone());
+    if args.allow_large_change {
+        opts.routine.allow_large_change = true;
+        opts.routine.max_change = 1.0;
+    }
     if !args.json {
         eprintln!(
             "odocal demo: a simulated robot (E_b {}, E_d {}, D {} m, b {} m, compass σ {}°) on a \
@@ -308,6 +315,14 @@ pub struct RoutineFlags {
     /// Answer yes to every question: move, and write unless --dry-run.
     #[arg(long)]
     yes: bool,
+    /// Refuse to write any parameter changed by more than this fraction (default 0.1; at most
+    /// 0.25 unless --allow-large-change).
+    #[arg(long)]
+    max_change: Option<f64>,
+    /// Allow changes of up to 100 % (skid-steer robots need wheelbase multipliers of 1.5–1.9);
+    /// asks you to type LARGE unless --yes. Default --max-change then 1.0.
+    #[arg(long)]
+    allow_large_change: bool,
     /// Where to write the backup (default: the report directory, or here).
     #[arg(long)]
     backup_dir: Option<PathBuf>,
@@ -330,6 +345,24 @@ impl RoutineFlags {
              heading_samples => heading_samples);
         if let Some(m) = &self.method {
             cfg.method = Some(m.parse::<Method>()?);
+        }
+        if self.allow_large_change {
+            cfg.allow_large_change = true;
+            cfg.max_change = self.max_change.unwrap_or(1.0);
+            if !self.yes {
+                eprint!(
+                    "--allow-large-change lets odocal write parameters up to {:.0} % away from \
+                     what the robot holds now. Type LARGE to allow it: ",
+                    100.0 * cfg.max_change
+                );
+                let mut line = String::new();
+                std::io::stdin().read_line(&mut line)?;
+                if line.trim() != "LARGE" {
+                    return Err("large changes not confirmed (type LARGE, or give --yes)".into());
+                }
+            }
+        } else if let Some(m) = self.max_change {
+            cfg.max_change = m;
         }
         if let Some(c) = self.convention {
             cfg.convention = c;
