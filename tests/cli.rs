@@ -166,7 +166,15 @@ fn mock_device_serves_a_pty_that_params_get_can_open() {
 #[test]
 fn demo_json_reports_a_tenfold_improvement_and_writes_files() {
     let dir = scratch("demo");
-    let v = json(&["demo", "--json", "--report-dir", dir.to_str().unwrap()]);
+    let (ok, out, err) = odocal(&["demo", "--json", "--report-dir", dir.to_str().unwrap()]);
+    assert!(ok, "{err}");
+    // Stdout carries the result, not the paths (they are in report.json): tens of kB, not MB.
+    assert!(out.len() < 100_000, "demo --json printed {} bytes", out.len());
+    let v: Value = serde_json::from_str(&out).unwrap();
+    assert!(v["rounds"][0]["runs"][0].get("odometry_path").is_none());
+    let on_disk: Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("report.json")).unwrap()).unwrap();
+    assert!(on_disk["rounds"][0]["runs"][0]["odometry_path"].is_array());
     let before = v["e_max_sys_before_m"].as_f64().unwrap();
     let after = v["e_max_sys_after_m"].as_f64().unwrap();
     assert!(after * 10.0 < before, "{before} → {after}");

@@ -133,8 +133,28 @@ fn ctrl_c_token() -> CancellationToken {
 fn print_outcome(report: &Report, json_out: bool, files: &[PathBuf]) -> CliResult {
     if json_out {
         let mut v = serde_json::to_value(report)?;
+        // The paths (hundreds of points per run, most of the report's size) stay in the report
+        // directory's report.json; stdout gets everything else.
+        let strip = |runs: Option<&mut serde_json::Value>| {
+            for run in runs.and_then(|r| r.as_array_mut()).into_iter().flatten() {
+                if let Some(obj) = run.as_object_mut() {
+                    obj.remove("odometry_path");
+                    obj.remove("true_path");
+                }
+            }
+        };
+        if let Some(rounds) = v.get_mut("rounds").and_then(|r| r.as_array_mut()) {
+            for round in rounds {
+                strip(round.get_mut("runs"));
+            }
+        }
+        strip(v.get_mut("verification"));
         if let Some(obj) = v.as_object_mut() {
             obj.insert("report_files".into(), json!(files));
+            obj.insert(
+                "paths".into(),
+                json!("odometry_path and true_path of each run are in report.json"),
+            );
         }
         return print_json(&v);
     }
