@@ -171,7 +171,11 @@ fn demo_json_reports_a_tenfold_improvement_and_writes_files() {
     let (ok, out, err) = odocal(&["demo", "--json", "--report-dir", dir.to_str().unwrap()]);
     assert!(ok, "{err}");
     // Stdout carries the result, not the paths (they are in report.json): tens of kB, not MB.
-    assert!(out.len() < 100_000, "demo --json printed {} bytes", out.len());
+    assert!(
+        out.len() < 100_000,
+        "demo --json printed {} bytes",
+        out.len()
+    );
     let v: Value = serde_json::from_str(&out).unwrap();
     assert!(v["rounds"][0]["runs"][0].get("odometry_path").is_none());
     let on_disk: Value =
@@ -188,12 +192,31 @@ fn demo_json_reports_a_tenfold_improvement_and_writes_files() {
     for f in [
         "report.json",
         "report.md",
+        "report.html",
         "paths.svg",
         "heading_errors.svg",
         "end_points.svg",
     ] {
         assert!(dir.join(f).is_file(), "{f} not written");
     }
+    // report.html stands alone: plots inline, nothing fetched, tags balanced (checked by
+    // structure; no headless browser on these machines).
+    let html = std::fs::read_to_string(dir.join("report.html")).unwrap();
+    assert!(html.starts_with("<!DOCTYPE html>"), "{}", &html[..50]);
+    assert_eq!(
+        html.matches("<figure><svg").count(),
+        3,
+        "three plots inline"
+    );
+    assert!(!html.contains("<img") && !html.contains(" src=") && !html.contains("<?xml"));
+    for tag in ["table", "figure", "ul", "pre", "h2", "svg", "html", "body"] {
+        assert_eq!(
+            html.matches(&format!("<{tag}")).count(),
+            html.matches(&format!("</{tag}>")).count(),
+            "<{tag}> balanced"
+        );
+    }
+    assert!(html.contains("<th>method</th>") && html.contains("(chosen)"));
     // The report exports for ros2_control.
     let yaml = dir.join("diff_drive.yaml");
     let (ok, _, err) = odocal(&[

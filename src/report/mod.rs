@@ -163,8 +163,106 @@ pub fn markdown(report: &Report) -> String {
     s
 }
 
-/// Writes `report.json`, `report.md` and (with the `plots` feature) the SVG plots into `dir`
-/// (created if needed).
+/// Escapes text for HTML.
+fn escape(text: &str) -> String {
+    text.replace('&', "&amp;")
+        .replace('<', "&lt;")
+        .replace('>', "&gt;")
+        .replace('"', "&quot;")
+}
+
+/// Inline Markdown of one line: `code` spans (escaped text otherwise).
+fn inline(text: &str) -> String {
+    let mut out = String::new();
+    for (i, part) in text.split('`').enumerate() {
+        if i % 2 == 1 {
+            let _ = write!(out, "<code>{}</code>", escape(part));
+        } else {
+            out.push_str(&escape(part));
+        }
+    }
+    out
+}
+
+/// The report as one self-contained HTML page: the Markdown report's content, with the plots
+/// (`(file name, SVG text)`) inline instead of linked, so the page opens from a file, mailed or
+/// copied alone. Only the constructs [`markdown`] emits are converted.
+pub fn html(report: &Report, svgs: &[(String, String)]) -> String {
+    let md = markdown(report);
+    let mut body = String::new();
+    let mut lines = md.lines().peekable();
+    while let Some(line) = lines.next() {
+        if let Some(h) = line.strip_prefix("## ") {
+            let _ = writeln!(body, "<h2>{}</h2>", inline(h));
+        } else if let Some(h) = line.strip_prefix("# ") {
+            let _ = writeln!(body, "<h1>{}</h1>", inline(h));
+        } else if line.starts_with("```") {
+            body.push_str("<pre>");
+            for code in lines.by_ref() {
+                if code.starts_with("```") {
+                    break;
+                }
+                let _ = writeln!(body, "{}", escape(code));
+            }
+            body.push_str("</pre>\n");
+        } else if line.starts_with('|') {
+            body.push_str("<table>\n");
+            let mut row = Some(line);
+            let mut header = true;
+            while let Some(r) = row {
+                let cells: Vec<&str> = r
+                    .trim()
+                    .trim_matches('|')
+                    .split('|')
+                    .map(str::trim)
+                    .collect();
+                if !cells.iter().all(|c| c.chars().all(|ch| ch == '-')) {
+                    let tag = if header { "th" } else { "td" };
+                    body.push_str("<tr>");
+                    for c in cells {
+                        let _ = write!(body, "<{tag}>{}</{tag}>", inline(c));
+                    }
+                    body.push_str("</tr>\n");
+                    header = false;
+                }
+                row = lines.next_if(|l| l.starts_with('|'));
+            }
+            body.push_str("</table>\n");
+        } else if let Some(item) = line.strip_prefix("- ") {
+            let _ = write!(body, "<ul><li>{}</li>", inline(item));
+            while let Some(more) = lines.next_if(|l| l.starts_with("- ")) {
+                let _ = write!(body, "<li>{}</li>", inline(&more[2..]));
+            }
+            body.push_str("</ul>\n");
+        } else if let Some(rest) = line.strip_prefix("![") {
+            // An image line: inline its SVG when it was drawn, else leave it out.
+            let file = rest
+                .split_once("](")
+                .map(|(_, f)| f.trim_end_matches(')'))
+                .unwrap_or("");
+            if let Some((_, svg)) = svgs.iter().find(|(name, _)| name == file) {
+                // The SVG's own XML declaration is not valid inside HTML.
+                let start = svg.find("<svg").unwrap_or(0);
+                let _ = writeln!(body, "<figure>{}</figure>", &svg[start..]);
+            }
+        } else if !line.trim().is_empty() {
+            let _ = writeln!(body, "<p>{}</p>", inline(line));
+        }
+    }
+    format!(
+        "<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n\
+         <title>odocal recalibration report</title>\n<style>\n\
+         body {{ font-family: sans-serif; max-width: 1100px; margin: 2em auto; padding: 0 1em; }}\n\
+         table {{ border-collapse: collapse; margin: 1em 0; }}\n\
+         th, td {{ border: 1px solid #999; padding: 0.2em 0.6em; text-align: right; }}\n\
+         pre {{ background: #f4f4f4; padding: 0.8em; overflow-x: auto; }}\n\
+         figure {{ margin: 1em 0; }} figure svg {{ max-width: 100%; height: auto; }}\n\
+         </style>\n</head>\n<body>\n{body}</body>\n</html>\n"
+    )
+}
+
+/// Writes `report.json`, `report.md`, (with the `plots` feature) the SVG plots and
+/// `report.html` (the report with the plots inline) into `dir` (created if needed).
 pub fn write_dir(report: &Report, dir: &Path) -> std::io::Result<Vec<PathBuf>> {
     std::fs::create_dir_all(dir)?;
     let json = dir.join("report.json");
@@ -178,5 +276,16 @@ pub fn write_dir(report: &Report, dir: &Path) -> std::io::Result<Vec<PathBuf>> {
     let mut written = vec![json, md];
     #[cfg(feature = "plots")]
     written.extend(plots::write_all(report, dir)?);
+    let mut svgs = Vec::new();
+    for path in &written {
+        if path.extension().is_some_and(|e| e == "svg") {
+            if let Some(name) = path.file_name().and_then(|n| n.to_str()) {
+                svgs.push((name.to_string(), std::fs::read_to_string(path)?));
+            }
+        }
+    }
+    let page = dir.join("report.html");
+    std::fs::write(&page, html(report, &svgs))?;
+    written.push(page);
     Ok(written)
 }
