@@ -415,7 +415,7 @@ async fn an_incompatible_host_version_is_refused() {
     assert_eq!(err.nack_code(), Some(NackCode::VersionMismatch));
     // SPEC 1.1: the NACK says which version the device speaks.
     match &err {
-        HalError::Nack { nack, .. } => assert_eq!(nack.detail, 0x10),
+        HalError::Nack { nack, .. } => assert_eq!(nack.detail, 0x11),
         other => panic!("{other:?}"),
     }
     // And the host turns that into words naming both versions (or saying a 1.0 device did

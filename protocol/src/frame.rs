@@ -20,10 +20,13 @@ pub const HEADER_LEN: usize = 7;
 pub const OVERHEAD: usize = HEADER_LEN + 2;
 /// Largest frame on the wire (bytes).
 pub const MAX_FRAME: usize = OVERHEAD + MAX_PAYLOAD;
-/// The VER byte this implementation sends: major 1, minor 0.
+/// The VER byte this implementation sends: major 1, minor 0. Every 1.x frame carries 0x10 (the
+/// frame format is 1.0's; SPEC.md §6); the minor a device follows is reported by HELLO.
 pub const VERSION: u8 = 0x10;
 /// The major version this implementation speaks.
 pub const MAJOR: u8 = VERSION >> 4;
+/// The minor version of SPEC.md this implementation follows (1.1: the rules of §7).
+pub const MINOR: u8 = 1;
 
 /// CRC-16/IBM-3740 (poly 0x1021, init 0xFFFF, no reflection; check `"123456789"` → 0x29B1),
 /// over LEN..payload.

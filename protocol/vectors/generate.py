@@ -183,13 +183,59 @@ payload_errors = [
      "nack": {"code": "OUT_OF_RANGE", "detail": 0}},
 ]
 
+# Device rules (SPEC.md §7, 1.1): request sequences sent to a freshly powered-up device in
+# virtual time (a motion completes as it is accepted), with the answer each must get. A device
+# implementation checks itself by replaying them (odocal's mock does, in tests/spec_rules.rs).
+def req(seq, msg, payload=b""):
+    return hexs(frame("request", seq, msg, payload))
+
+
+def ok(msg):
+    return {"kind": "response", "msg": msg}
+
+
+def refused(msg, code, detail):
+    return {"kind": "nack", "msg": msg, "code": code, "detail": detail}
+
+
+FOUR_PI_URAD = 12_566_370  # floor(4π · 10^6): the largest angle a turn may ask for
+device_rules = [
+    {"name": "7.1 a host of another major gets VERSION_MISMATCH with the device's version",
+     "steps": [[req(1, 0x01, bytes([2, 0])), refused(0x01, "VERSION_MISMATCH", 0x11)]]},
+    {"name": "7.2 a retried request gets the remembered NACK again",
+     "steps": [[req(2, 0x30, struct.pack("<iHB", 1000, 0, 0)), refused(0x30, "OUT_OF_RANGE", 1)],
+               [req(2, 0x30, struct.pack("<iHB", 1000, 0, 0)), refused(0x30, "OUT_OF_RANGE", 1)]]},
+    {"name": "7.5 fields are checked in payload order: the first offending field is named",
+     "steps": [[req(3, 0x30, struct.pack("<iHB", 0, 0, 0)), refused(0x30, "OUT_OF_RANGE", 0)]]},
+    {"name": "7.6 a turn of exactly floor(4π·10^6) µrad is accepted, one more is refused",
+     "steps": [[req(4, 0x31, struct.pack("<iHB", FOUR_PI_URAD, 1000, 0)), ok(0x31)],
+               [req(5, 0x31, struct.pack("<iHB", FOUR_PI_URAD + 1, 1000, 0)),
+                refused(0x31, "OUT_OF_RANGE", 0)],
+               [req(6, 0x31, struct.pack("<iHB", -FOUR_PI_URAD - 1, 1000, 0)),
+                refused(0x31, "OUT_OF_RANGE", 0)]]},
+    {"name": "7.8 telemetry and watchdog settings out of range are refused, not clamped",
+     "steps": [[req(7, 0x50, struct.pack("<H", 4)), refused(0x50, "OUT_OF_RANGE", 0)],
+               [req(8, 0x50, struct.pack("<H", 1001)), refused(0x50, "OUT_OF_RANGE", 0)],
+               [req(9, 0x50, struct.pack("<H", 5)), ok(0x50)],
+               [req(10, 0x60, struct.pack("<H", 49)), refused(0x60, "OUT_OF_RANGE", 0)],
+               [req(11, 0x60, struct.pack("<H", 10_001)), refused(0x60, "OUT_OF_RANGE", 0)],
+               [req(12, 0x60, struct.pack("<H", 0)), ok(0x60)]]},
+    {"name": "7.9 with nothing ever saved, GET_PARAMS stored is STORAGE_FAILURE and LOAD loads "
+             "the factory defaults",
+     "steps": [[req(13, 0x10, b"\x01"), refused(0x10, "STORAGE_FAILURE", 0)],
+               [req(14, 0x14), ok(0x14)]]},
+    {"name": "7.11 HELLO is not remembered: a repeated HELLO is answered afresh",
+     "steps": [[req(15, 0x01, bytes([1, 0])), ok(0x01)], [req(15, 0x01, bytes([1, 0])), ok(0x01)]]},
+]
+
 out = {
-    "spec": "odocal serial protocol 1.0",
+    "spec": "odocal serial protocol 1.1",
     "crc": {"name": "CRC-16/IBM-3740", "poly": "0x1021", "init": "0xFFFF", "refin": False,
             "refout": False, "xorout": "0x0000", "check": "0x29B1"},
     "frames": vectors,
     "streams": streams,
     "payload_errors": payload_errors,
+    "device_rules": device_rules,
 }
 path = os.path.join(os.path.dirname(os.path.abspath(__file__)), "vectors.json")
 with open(path, "w") as f:

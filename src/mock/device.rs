@@ -7,7 +7,7 @@
 
 pub use super::error::MockError;
 use crate::kinematics::{wrap_angle, WheelParams};
-use crate::protocol::frame::{Frame, FrameKind, CRC16, MAJOR, VERSION};
+use crate::protocol::frame::{Frame, FrameKind, CRC16, MAJOR, MINOR};
 use crate::protocol::message::{
     capability, fault, DeviceInfo, Encoders, Event, FirmwareId, GetParamsRequest, Heading,
     HelloRequest, MotionAccepted, MotionDone, MotionMode, MotionState, MoveStraightRequest, Nack,
@@ -380,13 +380,13 @@ impl MockDevice {
                 host_major,
                 host_min_minor,
             }) => {
-                if host_major != MAJOR || (VERSION & 0x0F) < host_min_minor {
+                if host_major != MAJOR || MINOR < host_min_minor {
                     // SPEC 1.1: the detail tells the host which version this device speaks.
-                    return nack(NackCode::VersionMismatch, VERSION);
+                    return nack(NackCode::VersionMismatch, (MAJOR << 4) | MINOR);
                 }
                 Ok(Response::Hello(DeviceInfo {
                     major: MAJOR,
-                    minor: VERSION & 0x0F,
+                    minor: MINOR,
                     firmware_id: FirmwareId::new("odocal-mock").unwrap_or_else(|_| unreachable!()),
                     firmware_version: (env!("CARGO_PKG_VERSION_MAJOR").parse::<u32>().unwrap_or(0)
                         << 16)
