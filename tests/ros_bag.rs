@@ -279,12 +279,23 @@ fn export_takes_any_result_and_merges_into_the_controller_yaml() {
 diff_drive_controller:\n  ros__parameters:\n    wheel_separation: 0.39  # URDF\n    \
 wheel_radius: 0.075\n    publish_rate: 50.0\n";
     std::fs::write(&yaml, original).unwrap();
+    // Without --force an existing file is left alone, and the message says how to merge.
+    let (ok, _, err) = odocal(&[
+        "export",
+        "--from",
+        result.to_str().unwrap(),
+        "--ros2",
+        yaml.to_str().unwrap(),
+    ]);
+    assert!(!ok && err.contains("--force"), "{err}");
+    assert_eq!(std::fs::read_to_string(&yaml).unwrap(), original);
     let (ok, out, err) = odocal(&[
         "export",
         "--from",
         result.to_str().unwrap(),
         "--ros2",
         yaml.to_str().unwrap(),
+        "--force",
     ]);
     assert!(ok, "{err}");
     // The bag's default method is the leg-aware one (a simulated bag has the IMU along the

@@ -733,6 +733,10 @@ pub struct ExportArgs {
     /// Which estimate to export (default: the result's default method, else exact).
     #[arg(long)]
     method: Option<String>,
+    /// Merge into an existing --ros2 file (its multipliers change; the original is kept beside
+    /// it as a backup). Without it an existing file is left alone.
+    #[arg(long)]
+    force: bool,
 }
 
 /// Runs `odocal export`.
@@ -754,6 +758,15 @@ pub fn export(args: ExportArgs) -> CliResult {
         .map_err(|e| format!("{}: not JSON ({e})", args.from.display()))?;
     let cal = calibration_of(&v, args.method.as_deref())
         .map_err(|e| format!("{}: {e}", args.from.display()))?;
+    if args.ros2.exists() && !args.force {
+        return Err(format!(
+            "{} exists: not changed. --force merges the {} calibration's multipliers into it \
+             (everything else stays, the original is kept beside it as a backup)",
+            args.ros2.display(),
+            cal.method
+        )
+        .into());
+    }
     match export(&args.ros2, &args.controller, &cal)? {
         Exported::Created => println!("wrote {} ({} calibration)", args.ros2.display(), cal.method),
         Exported::Merged { backup } => println!(
