@@ -652,3 +652,47 @@ fn routine_files_refuse_large_changes_unless_allowed() {
     cfg.max_change = 1.5;
     assert!(cfg.validate().is_err());
 }
+
+#[test]
+fn numeric_flags_outside_their_physical_range_are_refused_before_anything_runs() {
+    for (args, want) in [
+        (
+            vec!["simulate", "--runs", "1000000000"],
+            "--runs must be in [1, 1000]",
+        ),
+        (vec!["simulate", "--side-m", "1e308"], "--side-m must be in"),
+        (
+            vec![
+                "estimate",
+                "--side-m",
+                "1e308",
+                "--wheelbase-m",
+                "0.39",
+                "--cw-heading-deg",
+                "1",
+                "--ccw-heading-deg",
+                "1",
+            ],
+            "--side-m must be at most 100 m",
+        ),
+        (
+            vec!["mock-device", "--faults", "latency-ms=-5"],
+            "latency-ms must be in [0, 10000]",
+        ),
+        (
+            vec!["mock-device", "--faults", "latency-ms=NaN"],
+            "latency-ms must be in [0, 10000]",
+        ),
+        (
+            vec!["status", "--port", "/dev/null", "--baud", "0"],
+            "baud rate 0 is outside",
+        ),
+    ] {
+        let started = std::time::Instant::now();
+        let (ok, _, err) = odocal(&args);
+        assert!(!ok, "{args:?} must fail");
+        assert!(err.contains(want), "{args:?}: {err}");
+        assert!(!err.contains("panicked"), "{args:?}: {err}");
+        assert!(started.elapsed() < std::time::Duration::from_secs(5), "{args:?}");
+    }
+}

@@ -56,11 +56,22 @@ fn the_mock_device_follows_every_device_rule_of_the_spec() {
             // Every answer to HELLO, and every other, goes out in a VER 0x10 frame.
             assert_eq!(answer.to_bytes()[3], 0x10, "{name} step {i}: VER");
             let want = &step[1];
-            assert_eq!(u64::from(answer.msg), want["msg"].as_u64().unwrap(), "{name} step {i}");
-            match (Packet::from_frame(answer).unwrap().body, want["kind"].as_str().unwrap()) {
+            assert_eq!(
+                u64::from(answer.msg),
+                want["msg"].as_u64().unwrap(),
+                "{name} step {i}"
+            );
+            match (
+                Packet::from_frame(answer).unwrap().body,
+                want["kind"].as_str().unwrap(),
+            ) {
                 (Body::Response { .. }, "response") => {}
                 (Body::Nack { nack, .. }, "nack") => {
-                    assert_eq!(nack.code, code(want["code"].as_str().unwrap()), "{name} step {i}");
+                    assert_eq!(
+                        nack.code,
+                        code(want["code"].as_str().unwrap()),
+                        "{name} step {i}"
+                    );
                     assert_eq!(
                         u64::from(nack.detail),
                         want["detail"].as_u64().unwrap(),

@@ -33,6 +33,9 @@ use std::time::Duration;
 use tokio::io::{AsyncRead, AsyncWrite};
 use tokio::sync::{broadcast, mpsc, oneshot};
 
+/// Baud rates a serial link may be opened at.
+pub const BAUD_RANGE: std::ops::RangeInclusive<u32> = 300..=4_000_000;
+
 /// How long the HELLO handshake is retried before the port is diagnosed (see [`Client::connect`]).
 pub const HELLO_BUDGET: Duration = Duration::from_millis(2500);
 
@@ -165,6 +168,14 @@ pub struct Client {
 
 /// Opens a serial port by path (the only place that names `tokio_serial`) and connects.
 pub async fn open_port(path: &str, baud: u32) -> Result<(Client, DeviceInfo), HalError> {
+    // Deadlines are computed from the baud rate: 0 (or a typo) would make them hours long.
+    if !BAUD_RANGE.contains(&baud) {
+        return Err(HalError::InvalidArgument(format!(
+            "baud rate {baud} is outside {}..={} (SPEC.md §1: 115200 unless configured)",
+            BAUD_RANGE.start(),
+            BAUD_RANGE.end()
+        )));
+    }
     use tokio_serial::SerialPortBuilderExt;
     let port = tokio_serial::new(path, baud)
         .open_native_async()

@@ -73,7 +73,15 @@ pub fn parse_faults(s: &str) -> Result<FaultConfig, String> {
         match k.trim() {
             "corrupt" => f.corrupt_byte_rate = num(v)?,
             "drop" => f.drop_frame_rate = num(v)?,
-            "latency-ms" => f.latency = Duration::from_secs_f64(num(v)? / 1e3),
+            "latency-ms" => {
+                let ms = num(v)?;
+                // A device answers within 50 ms (SPEC.md §3); a mock may be slower, but not
+                // negative, not NaN and not for ever.
+                if !(0.0..=10_000.0).contains(&ms) {
+                    return Err(format!("latency-ms must be in [0, 10000], got {v}"));
+                }
+                f.latency = Duration::from_secs_f64(ms / 1e3);
+            }
             "disconnect-after" => f.disconnect_after_frames = Some(int(v)?),
             "busy-every" => f.busy_every = Some(int(v)?),
             "seed" => f.seed = int(v)?,

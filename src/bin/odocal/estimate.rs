@@ -99,6 +99,16 @@ fn runs(headings_deg: &[f64], xy: Option<&XyList>) -> Result<Vec<RunMeasurement>
 
 /// Runs `odocal estimate`.
 pub fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
+    // Upper bounds of a square test a robot can drive; NaN, zero and negative values are the
+    // calibration's own checks (SquareTest::validate) and get its message.
+    for (flag, v, hi) in [
+        ("--side-m", args.side_m, 100.0),
+        ("--wheelbase-m", args.wheelbase_m, 10.0),
+    ] {
+        if v > hi {
+            return Err(format!("{flag} must be at most {hi} m, got {v}").into());
+        }
+    }
     let test = SquareTest {
         side_m: args.side_m,
         wheelbase_m: args.wheelbase_m,

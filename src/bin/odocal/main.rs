@@ -101,6 +101,15 @@ pub fn print_json(value: &serde_json::Value) -> Result<(), Box<dyn std::error::E
     Ok(())
 }
 
+/// Checks a numeric flag against its documented physical range (inclusive), naming the flag.
+pub fn in_range(flag: &str, value: f64, lo: f64, hi: f64) -> Result<(), String> {
+    if value.is_finite() && (lo..=hi).contains(&value) {
+        Ok(())
+    } else {
+        Err(format!("{flag} must be in [{lo}, {hi}], got {value}"))
+    }
+}
+
 /// Formats an optional standard error as `± x` or blank.
 pub fn pm(std_err: Option<f64>) -> String {
     std_err.map_or_else(String::new, |s| format!("± {s:.5}"))

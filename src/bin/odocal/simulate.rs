@@ -111,6 +111,21 @@ fn write_bag(args: &Args, path: &std::path::Path) -> Result<(), Box<dyn std::err
 
 /// Runs `odocal simulate`.
 pub fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
+    use crate::in_range;
+    // Bounds before anything is simulated: memory and time grow with runs × trials.
+    in_range("--runs", args.runs as f64, 1.0, 1000.0)?;
+    in_range("--trials", args.trials as f64, 1.0, 100_000.0)?;
+    in_range("--side-m", args.side_m, 0.01, 100.0)?;
+    in_range("--lee-side-m", args.lee_side_m, 0.01, 100.0)?;
+    in_range("--wheelbase-m", args.wheelbase_m, 0.01, 10.0)?;
+    in_range("--wheel-diameter-m", args.wheel_diameter_m, 0.001, 5.0)?;
+    in_range("--counts-per-rev", args.counts_per_rev, 1.0, 1e9)?;
+    in_range("--true-eb", args.true_eb, 0.2, 5.0)?;
+    in_range("--true-ed", args.true_ed, 0.5, 2.0)?;
+    in_range("--compass-sigma-deg", args.compass_sigma_deg, 0.0, 45.0)?;
+    in_range("--compass-bias-deg", args.compass_bias_deg, -180.0, 180.0)?;
+    in_range("--slip-sigma", args.slip_sigma, 0.0, 0.5)?;
+    in_range("--position-sigma-m", args.position_sigma_m, 0.0, 10.0)?;
     if let Some(path) = &args.bag {
         return write_bag(&args, path);
     }
