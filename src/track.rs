@@ -111,6 +111,55 @@ impl LogWriter {
     }
 }
 
+/// Fastest a wheel of a robot this tool calibrates can travel (m/s): counts beyond it in one
+/// sample are a corrupt line, not a wheel.
+pub const MAX_WHEEL_SPEED_M_S: f64 = 20.0;
+
+/// Checks one logged sample against the one before: time goes forward, the sample index
+/// increases, and neither wheel turned further than [`MAX_WHEEL_SPEED_M_S`] allows.
+fn check_step(
+    prev: &TelemetrySample,
+    s: &TelemetrySample,
+    params: &WheelParams,
+) -> Result<(), String> {
+    let dt = s.device_time_s - prev.device_time_s;
+    if !(dt.is_finite() && dt > 0.0) {
+        return Err(format!(
+            "device time {} s does not follow {} s (time must go forward; a reordered or \
+             duplicated line?)",
+            s.device_time_s, prev.device_time_s
+        ));
+    }
+    if s.sample_index <= prev.sample_index
+        && s.sample_index.wrapping_sub(prev.sample_index) > 1 << 31
+    {
+        return Err(format!(
+            "sample index {} after {} (a reordered or duplicated line?)",
+            s.sample_index, prev.sample_index
+        ));
+    }
+    for (wheel, d, per_count) in [
+        (
+            "left",
+            s.left_counts - prev.left_counts,
+            params.left_m_per_count(),
+        ),
+        (
+            "right",
+            s.right_counts - prev.right_counts,
+            params.right_m_per_count(),
+        ),
+    ] {
+        let limit = MAX_WHEEL_SPEED_M_S * dt / per_count + 2.0;
+        if (d as f64).abs() > limit {
+            return Err(format!(
+                "{wheel} wheel jumped {d} counts in {dt:.3} s, more than a wheel at {MAX_WHEEL_SPEED_M_S} m/s turns ({limit:.0})"
+            ));
+        }
+    }
+    Ok(())
+}
+
 /// Reads a telemetry log.
 pub fn read_log(path: &Path) -> Result<(LogHeader, Vec<TelemetrySample>), LogError> {
     let file = std::fs::File::open(path).map_err(|source| LogError::Io {
@@ -135,7 +184,17 @@ pub fn read_log(path: &Path) -> Result<(LogHeader, Vec<TelemetrySample>), LogErr
             LogLine::Telemetry(_) if header.is_none() => {
                 return Err(bad("telemetry before the header line".into()))
             }
-            LogLine::Telemetry(s) => samples.push(s),
+            LogLine::Telemetry(s) => {
+                if let (Some(prev), Some(h)) = (samples.last(), header.as_ref()) {
+                    check_step(prev, &s, &h.params).map_err(bad)?;
+                } else if !s.device_time_s.is_finite() {
+                    return Err(bad(format!(
+                        "device time {} is not a time",
+                        s.device_time_s
+                    )));
+                }
+                samples.push(s);
+            }
         }
     }
     let header = header.ok_or_else(|| LogError::Malformed {
@@ -411,6 +470,58 @@ mod tests {
             read_log(&path),
             Err(LogError::Malformed { line: 1, .. })
         ));
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn time_going_backwards_duplicates_and_impossible_jumps_are_named_by_line() {
+        let dir = std::env::temp_dir().join(format!("odocal-log-bad-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("t.jsonl");
+        let header = LogHeader {
+            odocal_version: "x".into(),
+            device: None,
+            params: WheelParams::nominal(0.15, 0.39, 4096.0),
+            period_ms: 20,
+        };
+        let sample = |i: u32, t: f64, l: i64| TelemetrySample {
+            sample_index: i,
+            device_time_s: t,
+            left_counts: l,
+            right_counts: l,
+            heading_rad: 0.0,
+            heading_valid: true,
+            motion_state: MotionState::Moving,
+            queue_depth: 0,
+            dropped_before: 0,
+        };
+        let write = |samples: &[TelemetrySample]| {
+            let mut w = LogWriter::create(&path, header.clone()).unwrap();
+            for s in samples {
+                w.sample(s).unwrap();
+            }
+            w.flush().unwrap();
+        };
+        let line_of = |r: Result<(LogHeader, Vec<TelemetrySample>), LogError>| match r {
+            Err(LogError::Malformed { line, reason, .. }) => (line, reason),
+            other => panic!("expected a malformed line, got {other:?}"),
+        };
+        // 0.5 m/s for 20 ms is ~87 counts: fine. Then time goes back on line 4.
+        write(&[
+            sample(1, 0.02, 0),
+            sample(2, 0.04, 87),
+            sample(3, 0.03, 174),
+        ]);
+        let (line, reason) = line_of(read_log(&path));
+        assert_eq!(line, 4, "{reason}");
+        assert!(reason.contains("time must go forward"), "{reason}");
+        // A duplicated line.
+        write(&[sample(1, 0.02, 0), sample(1, 0.02, 0)]);
+        assert_eq!(line_of(read_log(&path)).0, 3);
+        // A jump of 10^17 counts in one sample.
+        write(&[sample(1, 0.02, 0), sample(2, 0.04, 100_000_000_000_000_000)]);
+        let (line, reason) = line_of(read_log(&path));
+        assert!(line == 3 && reason.contains("jumped"), "{line}: {reason}");
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }

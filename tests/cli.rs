@@ -693,6 +693,9 @@ fn numeric_flags_outside_their_physical_range_are_refused_before_anything_runs()
         assert!(!ok, "{args:?} must fail");
         assert!(err.contains(want), "{args:?}: {err}");
         assert!(!err.contains("panicked"), "{args:?}: {err}");
-        assert!(started.elapsed() < std::time::Duration::from_secs(5), "{args:?}");
+        assert!(
+            started.elapsed() < std::time::Duration::from_secs(5),
+            "{args:?}"
+        );
     }
 }
