@@ -193,3 +193,62 @@ async fn a_report_without_ground_truth_has_no_empty_rows_and_reads_as_words() {
     }
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// "Never worse": with a compass too noisy to calibrate from (σ 25° per reading, one square each
+/// way), the verification cannot show the written parameters clearly better, so they are
+/// restored and the routine fails with the numbers; `keep_worse` keeps them, with a warning.
+#[tokio::test]
+async fn parameters_that_are_not_clearly_better_are_restored_unless_kept() {
+    let noisy = |name: &str| RoutineConfig {
+        runs_per_direction: 1,
+        verification_runs: 1,
+        max_rounds: 1,
+        max_change: 0.25,
+        method: Some(odocal::calibration::Method::Exact),
+        ..routine(name)
+    };
+    let sim = robot(25.0);
+    let err = run(
+        &Base::single(sim.clone()),
+        &noisy("not-better"),
+        None,
+        &mut Unattended,
+        &CancellationToken::new(),
+    )
+    .await
+    .unwrap_err();
+    match &err {
+        RoutineError::Restored { source, committed } => {
+            assert!(matches!(**source, RoutineError::NotBetter(_)), "{err}");
+            assert!(*committed);
+            assert!(err.to_string().contains("before"), "{err}");
+        }
+        other => panic!("expected the parameters restored, got {other}"),
+    }
+    assert_eq!(sim.configured(), nominal());
+    assert_eq!(sim.committed(), Some(nominal()));
+    // The same robot and seed with keep_worse: written, with the verdict as a warning.
+    let sim = robot(25.0);
+    let report = run(
+        &Base::single(sim.clone()),
+        &RoutineConfig {
+            keep_worse: true,
+            ..noisy("keep-worse")
+        },
+        None,
+        &mut Unattended,
+        &CancellationToken::new(),
+    )
+    .await
+    .unwrap();
+    assert!(report.written);
+    assert!(
+        report
+            .warnings
+            .iter()
+            .any(|w| w.contains("no clear improvement")),
+        "{:?}",
+        report.warnings
+    );
+    assert_ne!(sim.configured(), nominal());
+}

@@ -82,6 +82,9 @@ pub struct RoutineConfig {
     /// Allow `max_change` beyond 25 % (up to 100 %): skid-steer robots need wheelbase
     /// multipliers of 1.5–1.9.
     pub allow_large_change: bool,
+    /// Keep written parameters even when the verification does not show them clearly better
+    /// (normally they are restored and the routine fails; see `routine::judge`).
+    pub keep_worse: bool,
     /// Device watchdog timeout (ms).
     pub watchdog_ms: u64,
     /// Telemetry period (ms), 0 for none (no odometry traces, no compass-sign check).
@@ -115,6 +118,7 @@ impl Default for RoutineConfig {
             max_rounds: 3,
             max_change: 0.1,
             allow_large_change: false,
+            keep_worse: false,
             watchdog_ms: 500,
             telemetry_ms: 20,
             backup_dir: PathBuf::from("."),

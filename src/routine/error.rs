@@ -37,6 +37,9 @@ pub enum RoutineError {
     /// Ctrl-C or the caller cancelled.
     #[error("cancelled")]
     Cancelled,
+    /// The written parameters did not clearly help (or the rounds diverged).
+    #[error("the new parameters are not clearly better: {0} (--keep-worse keeps them anyway)")]
+    NotBetter(String),
     /// An error happened after parameters were written; the backup was put back.
     #[error("{source} (the original parameters were restored{})", if *.committed { " and committed" } else { "" })]
     Restored {

@@ -293,6 +293,25 @@ async fn body(
     } else {
         Vec::new()
     };
+    if tx.written() && !verification.is_empty() {
+        let abs_deg = |runs: &[RunReport]| -> Vec<f64> {
+            runs.iter().map(|r| r.heading_error_deg.abs()).collect()
+        };
+        let before = rounds.first().map(|r| abs_deg(&r.runs)).unwrap_or_default();
+        let distance: Vec<f64> = rounds
+            .iter()
+            .map(|r| (r.chosen.e_b - 1.0).abs() + (r.chosen.e_d - 1.0).abs())
+            .collect();
+        if let Err(why) = judge(&before, &abs_deg(&verification), &distance) {
+            if !cfg.keep_worse {
+                return Err(RoutineError::NotBetter(why));
+            }
+            ui.event(&RoutineEvent::Warning(format!(
+                "{why}; kept because of --keep-worse"
+            )));
+            warnings.push(why);
+        }
+    }
     Ok(Report::assemble(
         base,
         cfg,
@@ -306,6 +325,44 @@ async fn body(
         tx.written(),
         warnings,
     ))
+}
+
+/// Whether written parameters clearly helped ("never worse"): `Err` with the numbers when the
+/// rounds diverged (the last round's estimate is no nearer 1 than the first's,
+/// `round_distance` being `|E_b − 1| + |E_d − 1|` per round) or when the verification's mean
+/// |heading error| is not below the first round's by two of its standard errors (the two
+/// means' standard errors combined; an error of a run set with fewer than two runs counts its
+/// spread as 0).
+pub fn judge(before_deg: &[f64], after_deg: &[f64], round_distance: &[f64]) -> Result<(), String> {
+    if let (Some(first), Some(last)) = (round_distance.first(), round_distance.last()) {
+        if round_distance.len() >= 2 && last >= first {
+            return Err(format!(
+                "the rounds diverged: |E_b − 1| + |E_d − 1| went from {first:.5} to {last:.5} \
+                 over {} rounds",
+                round_distance.len()
+            ));
+        }
+    }
+    let stats = |v: &[f64]| {
+        let n = v.len().max(1) as f64;
+        let mean = v.iter().sum::<f64>() / n;
+        let var = if v.len() > 1 {
+            v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0)
+        } else {
+            0.0
+        };
+        (mean, (var / n).sqrt())
+    };
+    let ((b, sb), (a, sa)) = (stats(before_deg), stats(after_deg));
+    let margin = 2.0 * sb.hypot(sa);
+    if !(a < b - margin) {
+        return Err(format!(
+            "mean |heading error| {b:.3}° before, {a:.3}° after (± {:.3}° at 2σ): no clear \
+             improvement; the original parameters were restored",
+            margin
+        ));
+    }
+    Ok(())
 }
 
 async fn preflight(
@@ -578,5 +635,27 @@ pub async fn write_parameters(
     match cancellable(cancel, tx.apply(new)).await {
         Ok(applied) => Ok((applied, tx.backup_path().to_path_buf())),
         Err(e) => Err(undo(&mut tx, e).await),
+    }
+}
+
+#[cfg(test)]
+mod judge_tests {
+    use super::judge;
+
+    #[test]
+    fn only_a_clear_improvement_that_converges_passes() {
+        // 5° → 0.1°, rounds converging: better.
+        assert_eq!(
+            judge(&[5.0, 5.2, 4.9], &[0.1, 0.12], &[0.03, 0.0005]),
+            Ok(())
+        );
+        // The rounds oscillate (the last no nearer than the first): refused, with the numbers.
+        let e = judge(&[37.7, 37.8], &[38.6, 38.5], &[0.5, 0.2, 0.5]).unwrap_err();
+        assert!(e.contains("diverged") && e.contains("0.50000"), "{e}");
+        // Worse after than before.
+        let e = judge(&[1.0, 1.1], &[1.3, 1.2], &[0.02]).unwrap_err();
+        assert!(e.contains("1.050° before, 1.250° after"), "{e}");
+        // Better, but within the scatter: not clearly better.
+        assert!(judge(&[0.30, 0.10, 0.50], &[0.25, 0.05, 0.45], &[0.001]).is_err());
     }
 }

@@ -339,6 +339,10 @@ pub struct RoutineFlags {
     /// 0.25 unless --allow-large-change).
     #[arg(long)]
     max_change: Option<f64>,
+    /// Keep the written parameters even when verification does not show them clearly better
+    /// (by default they are restored and odocal exits non-zero).
+    #[arg(long)]
+    keep_worse: bool,
     /// Allow changes of up to 100 % (skid-steer robots need wheelbase multipliers of 1.5–1.9);
     /// asks you to type LARGE unless --yes. Default --max-change then 1.0.
     #[arg(long)]
@@ -366,6 +370,7 @@ impl RoutineFlags {
         if let Some(m) = &self.method {
             cfg.method = Some(m.parse::<Method>()?);
         }
+        cfg.keep_worse |= self.keep_worse;
         if self.allow_large_change {
             cfg.allow_large_change = true;
             cfg.max_change = self.max_change.unwrap_or(1.0);
