@@ -252,3 +252,35 @@ async fn parameters_that_are_not_clearly_better_are_restored_unless_kept() {
     );
     assert_ne!(sim.configured(), nominal());
 }
+
+/// A report directory that is a file (or any output that cannot be written) stops the routine
+/// before the robot moves or a parameter changes.
+#[tokio::test]
+async fn an_unwritable_report_location_is_refused_before_anything_moves() {
+    let dir = common::scratch("unwritable-report");
+    std::fs::create_dir_all(&dir).unwrap();
+    let file = dir.join("not-a-dir");
+    std::fs::write(&file, "x").unwrap();
+    let sim = robot(0.37);
+    let err = run(
+        &Base::single(sim.clone()),
+        &RoutineConfig {
+            report_dir: Some(file.clone()),
+            ..routine("report-file")
+        },
+        None,
+        &mut Unattended,
+        &CancellationToken::new(),
+    )
+    .await
+    .unwrap_err();
+    assert!(
+        matches!(&err, RoutineError::Output { path, .. } if *path == file),
+        "{err}"
+    );
+    assert!(err.to_string().contains("not a directory"), "{err}");
+    let c = sim.counters();
+    assert_eq!((c.motions, c.writes, c.commits), (0, 0, 0), "{c:?}");
+    assert_eq!(sim.configured(), nominal());
+    std::fs::remove_dir_all(&dir).unwrap();
+}

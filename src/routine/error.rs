@@ -37,6 +37,15 @@ pub enum RoutineError {
     /// Ctrl-C or the caller cancelled.
     #[error("cancelled")]
     Cancelled,
+    /// An output location (report or backup directory) cannot be written; checked before the
+    /// robot moves or anything is written.
+    #[error("cannot write to {}: {reason}", path.display())]
+    Output {
+        /// The location.
+        path: PathBuf,
+        /// Why.
+        reason: String,
+    },
     /// The written parameters did not clearly help (or the rounds diverged).
     #[error("the new parameters are not clearly better: {0} (--keep-worse keeps them anyway)")]
     NotBetter(String),

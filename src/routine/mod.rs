@@ -109,6 +109,13 @@ pub async fn run(
     cancel: &CancellationToken,
 ) -> Result<Report, RoutineError> {
     cfg.validate()?;
+    // Every place the run will write must take a file before the robot moves or a parameter
+    // changes: a report that cannot be written after a write-back would leave the user
+    // without the record of what was done.
+    check_output_dir(&cfg.backup_dir)?;
+    if let Some(dir) = &cfg.report_dir {
+        check_output_dir(dir)?;
+    }
     ui.event(&RoutineEvent::Stage(
         "reading and backing up the robot's parameters".into(),
     ));
@@ -127,6 +134,26 @@ pub async fn run(
             Err(undo(&mut tx, err).await)
         }
     }
+}
+
+/// Creates `dir` if needed and proves a new file can be created in it (and removed again).
+pub fn check_output_dir(dir: &std::path::Path) -> Result<(), RoutineError> {
+    let fail = |reason: String| RoutineError::Output {
+        path: dir.to_path_buf(),
+        reason,
+    };
+    if dir.exists() && !dir.is_dir() {
+        return Err(fail("it exists and is not a directory".into()));
+    }
+    std::fs::create_dir_all(dir).map_err(|e| fail(e.to_string()))?;
+    let probe = dir.join(format!(".odocal-write-check-{}", std::process::id()));
+    std::fs::OpenOptions::new()
+        .write(true)
+        .create_new(true)
+        .open(&probe)
+        .map_err(|e| fail(format!("a new file cannot be created there ({e})")))?;
+    let _ = std::fs::remove_file(&probe);
+    Ok(())
 }
 
 /// Rolls back `tx` after `err` and says what became of the parameters.
