@@ -382,7 +382,7 @@ pub fn judge(before_deg: &[f64], after_deg: &[f64], round_distance: &[f64]) -> R
     };
     let ((b, sb), (a, sa)) = (stats(before_deg), stats(after_deg));
     let margin = 2.0 * sb.hypot(sa);
-    if !(a < b - margin) {
+    if a.is_nan() || b.is_nan() || a >= b - margin {
         return Err(format!(
             "mean |heading error| {b:.3}° before, {a:.3}° after (± {:.3}° at 2σ): no clear \
              improvement; the original parameters were restored",
