@@ -284,3 +284,37 @@ async fn an_unwritable_report_location_is_refused_before_anything_moves() {
     assert_eq!(sim.configured(), nominal());
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// Reports never replace an earlier report and never follow a planted link: a second report
+/// into the same directory goes to `DIR-2`; a directory holding a link named report.json is
+/// left alone, and the link's target is untouched.
+#[tokio::test]
+async fn reports_never_overwrite_or_follow_links() {
+    let sim = robot(0.37);
+    let report = run_faulty(&sim, SimFaults::default(), "reports-safe")
+        .await
+        .unwrap();
+    let root = common::scratch("reports-safe-files");
+    std::fs::create_dir_all(&root).unwrap();
+    let dir = root.join("report");
+    let first = odocal::report::write_dir(&report, &dir).unwrap();
+    assert!(first.iter().all(|f| f.starts_with(&dir)), "{first:?}");
+    let second = odocal::report::write_dir(&report, &dir).unwrap();
+    let dir2 = root.join("report-2");
+    assert!(second.iter().all(|f| f.starts_with(&dir2)), "{second:?}");
+    #[cfg(unix)]
+    {
+        let victim = root.join("victim.txt");
+        std::fs::write(&victim, "keep me").unwrap();
+        let planted = root.join("planted");
+        std::fs::create_dir_all(&planted).unwrap();
+        std::os::unix::fs::symlink(&victim, planted.join("report.json")).unwrap();
+        let third = odocal::report::write_dir(&report, &planted).unwrap();
+        assert!(
+            third.iter().all(|f| f.starts_with(root.join("planted-2"))),
+            "{third:?}"
+        );
+        assert_eq!(std::fs::read_to_string(&victim).unwrap(), "keep me");
+    }
+    std::fs::remove_dir_all(&root).unwrap();
+}

@@ -261,17 +261,74 @@ pub fn html(report: &Report, svgs: &[(String, String)]) -> String {
     )
 }
 
+/// Every file a report directory receives.
+pub const REPORT_FILES: [&str; 6] = [
+    "report.json",
+    "report.md",
+    "report.html",
+    "paths.svg",
+    "heading_errors.svg",
+    "end_points.svg",
+];
+
+/// Where a report goes: `dir` when it holds none of [`REPORT_FILES`] (not even as a link),
+/// else the first of `dir-2`, `dir-3`, … that can be created new. An earlier report is never
+/// replaced and a planted link is never followed.
+pub fn fresh_report_dir(dir: &Path) -> std::io::Result<PathBuf> {
+    let taken = |d: &Path| {
+        REPORT_FILES
+            .iter()
+            .any(|f| std::fs::symlink_metadata(d.join(f)).is_ok())
+    };
+    if !dir.exists() {
+        std::fs::create_dir_all(dir)?;
+        return Ok(dir.to_path_buf());
+    }
+    if dir.is_dir() && !taken(dir) {
+        return Ok(dir.to_path_buf());
+    }
+    let name = dir
+        .file_name()
+        .map_or_else(|| "report".into(), |n| n.to_string_lossy().into_owned());
+    for n in 2..10_000 {
+        let candidate = dir.with_file_name(format!("{name}-{n}"));
+        match std::fs::create_dir(&candidate) {
+            Ok(()) => return Ok(candidate),
+            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => continue,
+            Err(e) => return Err(e),
+        }
+    }
+    Err(std::io::Error::new(
+        std::io::ErrorKind::AlreadyExists,
+        format!("{}: no free report directory name", dir.display()),
+    ))
+}
+
+/// Creates `path` new (never replacing a file, never following a link) with `text`.
+fn create_new(path: &Path, text: &str) -> std::io::Result<()> {
+    use std::io::Write as _;
+    let mut f = std::fs::OpenOptions::new()
+        .write(true)
+        .create_new(true)
+        .open(path)?;
+    f.write_all(text.as_bytes())?;
+    f.sync_all()
+}
+
 /// Writes `report.json`, `report.md`, (with the `plots` feature) the SVG plots and
-/// `report.html` (the report with the plots inline) into `dir` (created if needed).
+/// `report.html` (the report with the plots inline) into a fresh report directory
+/// ([`fresh_report_dir`]: `dir`, or `dir-N` when `dir` already holds a report). Every file is
+/// created new with the process's default permissions (umask); nothing is replaced.
 pub fn write_dir(report: &Report, dir: &Path) -> std::io::Result<Vec<PathBuf>> {
-    std::fs::create_dir_all(dir)?;
+    let dir = fresh_report_dir(dir)?;
+    let dir = dir.as_path();
     let json = dir.join("report.json");
-    std::fs::write(
+    create_new(
         &json,
-        serde_json::to_string_pretty(report).map_err(std::io::Error::other)?,
+        &serde_json::to_string_pretty(report).map_err(std::io::Error::other)?,
     )?;
     let md = dir.join("report.md");
-    std::fs::write(&md, markdown(report))?;
+    create_new(&md, &markdown(report))?;
     #[allow(unused_mut)]
     let mut written = vec![json, md];
     #[cfg(feature = "plots")]
@@ -285,7 +342,7 @@ pub fn write_dir(report: &Report, dir: &Path) -> std::io::Result<Vec<PathBuf>> {
         }
     }
     let page = dir.join("report.html");
-    std::fs::write(&page, html(report, &svgs))?;
+    create_new(&page, &html(report, &svgs))?;
     written.push(page);
     Ok(written)
 }
