@@ -555,3 +555,29 @@ async fn wheel_speed_commands_drive_until_their_duration_or_stop() {
     let x = d.sim().pose().x_m;
     assert!(x > 0.01 && x < 0.1, "{x}");
 }
+
+#[test]
+fn a_corrupt_stored_copy_is_discarded_and_said_a_missing_one_is_not() {
+    let dir = common::scratch("mock-nv");
+    std::fs::create_dir_all(&dir).unwrap();
+    let with_storage = |path: &std::path::Path| {
+        let mut cfg = MockConfig::with_ratios(nominal(), 0.976, 0.992).unwrap();
+        cfg.storage_path = Some(path.to_path_buf());
+        MockDevice::new(cfg).unwrap()
+    };
+    // Never saved: no file, nothing to say.
+    let missing = with_storage(&dir.join("none.json"));
+    assert_eq!(missing.storage_discarded(), None);
+    // Garbage: discarded, factory defaults, and the reason names the file.
+    let bad = dir.join("bad.json");
+    std::fs::write(&bad, "{ not json").unwrap();
+    let d = with_storage(&bad);
+    let why = d.storage_discarded().expect("a discarded copy is reported");
+    assert!(
+        why.contains("bad.json") && why.contains("not a parameter block"),
+        "{why}"
+    );
+    assert!(d.stored_params().is_none());
+    assert_eq!(d.active_params(), nominal());
+    std::fs::remove_dir_all(&dir).unwrap();
+}

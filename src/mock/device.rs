@@ -137,6 +137,8 @@ pub struct MockDevice {
     sim: Simulator,
     rng: ChaCha8Rng,
     stored: Option<ParamsBlock>,
+    /// Why the non-volatile file was discarded at power-up, if it was.
+    storage_discarded: Option<String>,
     queue: VecDeque<ActiveMotion>,
     next_motion_id: u16,
     completed_motions: u32,
@@ -184,18 +186,41 @@ impl MockDevice {
         if !ParamsBlock::try_from(&config.factory).is_ok_and(|b| b.validate().is_ok()) {
             return Err(MockError::FactoryOutOfRange(config.factory));
         }
-        let stored = config
-            .storage_path
-            .as_ref()
-            .and_then(|p| std::fs::read_to_string(p).ok())
-            .and_then(|s| serde_json::from_str::<ParamsBlock>(&s).ok())
-            .filter(|b| b.validate().is_ok());
+        // A missing file means "never saved"; an unreadable or invalid one is discarded like a
+        // copy failing its CRC (SPEC.md §7.9), but said, not silently.
+        let mut storage_discarded = None;
+        let stored = match config.storage_path.as_ref() {
+            None => None,
+            Some(p) => match std::fs::read_to_string(p) {
+                Err(e) if e.kind() == std::io::ErrorKind::NotFound => None,
+                Err(e) => {
+                    storage_discarded = Some(format!("{}: {e}", p.display()));
+                    None
+                }
+                Ok(text) => match serde_json::from_str::<ParamsBlock>(&text) {
+                    Err(e) => {
+                        storage_discarded =
+                            Some(format!("{}: not a parameter block ({e})", p.display()));
+                        None
+                    }
+                    Ok(b) => match b.validate() {
+                        Ok(()) => Some(b),
+                        Err(field) => {
+                            storage_discarded =
+                                Some(format!("{}: field {field} out of range", p.display()));
+                            None
+                        }
+                    },
+                },
+            },
+        };
         let active = stored.map_or(config.factory, |b| WheelParams::from(&b));
         let sim = Simulator::new(config.truth, active, config.noise, config.seed)?;
         Ok(MockDevice {
             rng: ChaCha8Rng::seed_from_u64(config.seed ^ 0x7E1E_3E7F),
             sim,
             stored,
+            storage_discarded,
             queue: VecDeque::new(),
             next_motion_id: 1,
             completed_motions: 0,
@@ -348,6 +373,12 @@ impl MockDevice {
             });
         }
         vec![answer]
+    }
+
+    /// Why the non-volatile copy was discarded at power-up (unreadable, not a parameter block,
+    /// out of range), if it was: the device then started from its factory defaults.
+    pub fn storage_discarded(&self) -> Option<&str> {
+        self.storage_discarded.as_deref()
     }
 
     /// Tells the device that its time runs `scale` times faster than the host's (the mock

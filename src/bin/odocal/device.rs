@@ -116,7 +116,14 @@ pub async fn mock_device(args: MockArgs) -> CliResult {
         Some(scale) => return Err(format!("--real-time must be > 0, got {scale}").into()),
         None => TimeMode::Virtual,
     };
-    let device = Arc::new(Mutex::new(MockDevice::new(cfg)?));
+    let device = MockDevice::new(cfg)?;
+    if let Some(why) = device.storage_discarded() {
+        eprintln!(
+            "warning: the stored parameter copy was discarded and the device starts from its \
+             factory defaults: {why}"
+        );
+    }
+    let device = Arc::new(Mutex::new(device));
     let server = spawn_pty(device.clone(), time, args.faults.unwrap_or_default())?;
     println!("{}", server.path);
     if let Some(link) = &args.link {
