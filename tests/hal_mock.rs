@@ -581,3 +581,36 @@ fn a_corrupt_stored_copy_is_discarded_and_said_a_missing_one_is_not() {
     assert_eq!(d.active_params(), nominal());
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn telemetry_from_one_long_virtual_motion_stays_bounded() {
+    use odocal::mock::MAX_EVENTS_PER_STEP;
+    use odocal::protocol::message::{MoveStraightRequest, TelemetryPeriod};
+    use odocal::protocol::Packet;
+    let dev = device(0.0, 11);
+    let mut d = lock(&dev);
+    let send = |d: &mut MockDevice, seq: u8, r: Request| {
+        let mut out = d.handle(&Packet::request(seq, r).to_frame());
+        out.extend(d.run_until_idle());
+        out
+    };
+    send(
+        &mut d,
+        1,
+        Request::ConfigureTelemetry(TelemetryPeriod { period_ms: 5 }),
+    );
+    // 100 m at 1 mm/s: 10^5 s of device time, 2·10^7 samples at 5 ms.
+    let out = send(
+        &mut d,
+        2,
+        Request::MoveStraight(MoveStraightRequest {
+            distance_um: 100_000_000,
+            max_speed_mm_s: 1,
+            mode: MotionMode::Replace,
+        }),
+    );
+    assert!(out.len() <= MAX_EVENTS_PER_STEP + 2, "{} frames", out.len());
+    let c = d.counters();
+    assert!(c.telemetry_over_bound > 19_000_000, "{c:?}");
+    assert_eq!(c.motions_completed, 1);
+}

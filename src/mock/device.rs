@@ -128,7 +128,14 @@ pub struct DeviceCounters {
     pub stops: u64,
     /// Telemetry samples taken.
     pub telemetry_samples: u64,
+    /// Telemetry samples not sent because one step of device time produced more than
+    /// [`MAX_EVENTS_PER_STEP`] events (the host sees them as lost).
+    pub telemetry_over_bound: u64,
 }
+
+/// Most events one step of device time ([`MockDevice::advance`]) returns; telemetry beyond it
+/// is skipped and counted.
+pub const MAX_EVENTS_PER_STEP: usize = 50_000;
 
 /// The mock device's state.
 #[derive(Debug)]
@@ -718,7 +725,7 @@ impl MockDevice {
         while self.now_us < end_us {
             if self.telemetry_period_us > 0 && self.now_us >= self.next_telemetry_us {
                 self.next_telemetry_us += self.telemetry_period_us;
-                events.extend(self.telemetry_frame());
+                self.emit_telemetry(&mut events);
                 continue;
             }
             // Step to the next thing that happens: a telemetry sample, the end of a motion,
@@ -771,7 +778,7 @@ impl MockDevice {
             }
             if self.telemetry_period_us > 0 && self.now_us >= self.next_telemetry_us {
                 self.next_telemetry_us += self.telemetry_period_us;
-                events.extend(self.telemetry_frame());
+                self.emit_telemetry(&mut events);
             }
         }
         events
@@ -794,6 +801,19 @@ impl MockDevice {
             self.last_request_us = self.now_us;
         }
         events
+    }
+
+    /// Appends a telemetry sample to `events`, unless the step already holds
+    /// [`MAX_EVENTS_PER_STEP`]: a valid request sequence (5 ms telemetry, a 100 m move at
+    /// 1 mm/s) asks for 2·10⁷ samples at once in virtual time. Beyond the bound a sample is
+    /// skipped as a link would lose it (its index is used up, so the host counts it lost).
+    fn emit_telemetry(&mut self, events: &mut Vec<Frame>) {
+        if events.len() < MAX_EVENTS_PER_STEP {
+            events.extend(self.telemetry_frame());
+        } else {
+            self.sample_index = self.sample_index.wrapping_add(1);
+            self.counters.telemetry_over_bound += 1;
+        }
     }
 
     fn telemetry_frame(&mut self) -> Option<Frame> {

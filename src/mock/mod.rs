@@ -15,7 +15,9 @@ pub mod sim_base;
 
 pub use sim_base::{SimBase, SimCounters, SimFaults};
 
-pub use device::{CompassConvention, DeviceCounters, MockConfig, MockDevice, MockError};
+pub use device::{
+    CompassConvention, DeviceCounters, MockConfig, MockDevice, MockError, MAX_EVENTS_PER_STEP,
+};
 pub use serve::{
     lock, serve, spawn_duplex, spawn_pty, FaultConfig, PtyServer, ServeEnd, SharedDevice, TimeMode,
 };
