@@ -318,3 +318,42 @@ async fn reports_never_overwrite_or_follow_links() {
     }
     std::fs::remove_dir_all(&root).unwrap();
 }
+
+/// A run that fails mid-way keeps what it measured: a partial report beside the backup with
+/// every square driven so far, the phase it stopped in and the error.
+#[tokio::test]
+async fn a_failed_run_leaves_a_partial_report_with_every_square_measured() {
+    let sim = robot(0.37);
+    let cfg = routine("partial");
+    sim.set_faults(SimFaults {
+        // Three whole squares (8 motions each), then the drive vanishes in the fourth.
+        fail_after_motions: Some(8 * 3 + 2),
+        ..SimFaults::default()
+    });
+    let err = run(
+        &Base::single(sim.clone()),
+        &cfg,
+        None,
+        &mut Unattended,
+        &CancellationToken::new(),
+    )
+    .await
+    .unwrap_err();
+    let partial: Vec<_> = std::fs::read_dir(&cfg.backup_dir)
+        .unwrap()
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| {
+            p.file_name()
+                .is_some_and(|n| n.to_string_lossy().starts_with("partial-report-"))
+        })
+        .collect();
+    assert_eq!(partial.len(), 1, "{partial:?}");
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&partial[0]).unwrap()).unwrap();
+    assert_eq!(v["runs"].as_array().unwrap().len(), 3, "{v}");
+    assert_eq!(v["phase"], "round 1");
+    assert_eq!(v["error"], err.to_string());
+    assert_eq!(v["base"]["drive"]["kind"], "simulated");
+    // The measured squares are usable: each has its heading error.
+    assert!(v["runs"][0]["heading_error_rad"].as_f64().is_some());
+}

@@ -124,16 +124,92 @@ pub async fn run(
         Transaction::begin(base.store.clone(), &cfg.backup_dir),
     )
     .await?;
-    let result = body(base, cfg, truth, ui, cancel, &mut tx).await;
+    let mut progress = Progress::default();
+    let result = body(base, cfg, truth, ui, cancel, &mut tx, &mut progress).await;
     match result {
         Ok(report) => Ok(report),
         Err(err) => {
             // Stop first (the guard in run_square has already asked for a stop if a square was
             // cut short; this covers everything else), then undo any write.
             let _ = tokio::time::timeout(Duration::from_secs(2), base.drive.stop()).await;
-            Err(undo(&mut tx, err).await)
+            let err = undo(&mut tx, err).await;
+            // Nothing measured is thrown away: the squares driven so far, where it stopped
+            // and why, beside the backup or in the report directory.
+            let dir = cfg.report_dir.as_ref().unwrap_or(&cfg.backup_dir);
+            match write_partial(base, cfg, &progress, &err, dir) {
+                Ok(path) => ui.event(&RoutineEvent::Warning(format!(
+                    "{} square(s) measured before the failure ({}) are in {}",
+                    progress.runs.len(),
+                    progress.phase,
+                    path.display()
+                ))),
+                Err(e) => ui.event(&RoutineEvent::Warning(format!(
+                    "the partial report could not be written to {}: {e}",
+                    dir.display()
+                ))),
+            }
+            Err(err)
         }
     }
+}
+
+/// Where a run got to: the phase and every square measured so far.
+#[derive(Debug, Clone, Default, serde::Serialize)]
+pub struct Progress {
+    /// The phase the run was in (pre-flight, round N, write-back, verification).
+    pub phase: String,
+    /// Every square measured, in order.
+    pub runs: Vec<RunReport>,
+}
+
+/// Writes `partial-report-<ms>.json` (created new) into `dir`: the phase, the error, the base
+/// (its port) and its link diagnostics (requests, retries, what failed), the settings and every
+/// square measured, so the run can be estimated from or understood.
+fn write_partial(
+    base: &Base,
+    cfg: &RoutineConfig,
+    progress: &Progress,
+    err: &RoutineError,
+    dir: &std::path::Path,
+) -> std::io::Result<std::path::PathBuf> {
+    use std::io::Write as _;
+    let stamp = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_millis());
+    let value = serde_json::json!({
+        "odocal_version": env!("CARGO_PKG_VERSION"),
+        "error": err.to_string(),
+        "phase": progress.phase,
+        "base": base.info(),
+        "diagnostics": base.drive.diagnostics(),
+        "config": cfg,
+        "runs": progress.runs,
+    });
+    let text = serde_json::to_string_pretty(&value).map_err(std::io::Error::other)?;
+    std::fs::create_dir_all(dir)?;
+    for n in 0..1000u32 {
+        let path = dir.join(if n == 0 {
+            format!("partial-report-{stamp}.json")
+        } else {
+            format!("partial-report-{stamp}-{n}.json")
+        });
+        match std::fs::OpenOptions::new()
+            .write(true)
+            .create_new(true)
+            .open(&path)
+        {
+            Ok(mut f) => {
+                f.write_all(text.as_bytes())?;
+                return Ok(path);
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => continue,
+            Err(e) => return Err(e),
+        }
+    }
+    Err(std::io::Error::new(
+        std::io::ErrorKind::AlreadyExists,
+        "no free partial report name",
+    ))
 }
 
 /// Creates `dir` if needed and proves a new file can be created in it (and removed again).
@@ -180,7 +256,9 @@ async fn body(
     ui: &mut dyn RoutineUi,
     cancel: &CancellationToken,
     tx: &mut Transaction,
+    progress: &mut Progress,
 ) -> Result<Report, RoutineError> {
+    progress.phase = "pre-flight".into();
     let (heading_noise_rad, mut warnings) = preflight(base, cfg, ui, cancel).await?;
     let total_runs = cfg.runs_per_direction * 2;
     if cfg.confirm_motion
@@ -208,6 +286,7 @@ async fn body(
             Phase::Calibration { round },
             cfg.runs_per_direction,
             &current,
+            progress,
         )
         .await?;
         for r in &runs {
@@ -292,6 +371,7 @@ async fn body(
             break;
         }
         // From here on, the parameters are what the store reports (rounded to its resolution).
+        progress.phase = format!("write-back after round {round}");
         current = cancellable(cancel, tx.apply(&proposed)).await?;
         rr.written = true;
         rounds.push(rr);
@@ -315,6 +395,7 @@ async fn body(
             Phase::Verification,
             cfg.verification_runs,
             &current,
+            progress,
         )
         .await?
     } else {
@@ -446,7 +527,9 @@ async fn drive_runs(
     phase: Phase,
     per_direction: usize,
     params: &WheelParams,
+    progress: &mut Progress,
 ) -> Result<Vec<RunReport>, RoutineError> {
+    progress.phase = phase.label();
     let of = per_direction * 2;
     ui.event(&RoutineEvent::Plan {
         motions: of as u64 * 8,
@@ -482,6 +565,8 @@ async fn drive_runs(
                 cancellable(cancel, run_square(base, &cmd, on_motion)).await?
             };
             let run = RunReport::new(phase, &rec, params, start, truth);
+            // Measured is kept, even a square the next check refuses.
+            progress.runs.push(run.clone());
             check_plausible(&rec, &run, params, ui)?;
             ui.event(&RoutineEvent::RunDone {
                 heading_error_deg: run.heading_error_deg,
