@@ -115,9 +115,27 @@ async fn a_commit_of_unknown_outcome_is_rolled_back_and_reported() {
         ..SimFaults::default()
     };
     let err = run_faulty(&sim, faults, "commit").await.unwrap_err();
-    // The rollback's own commit fails too: the error says so and names the backup.
+    // The rollback's own commit fails too: the error says so, names the backup, and says what
+    // the store was found to hold when read back instead of one fixed message. Here the lost
+    // commits never landed, so both copies hold the original: nothing to restore.
     match &err {
-        RoutineError::RestoreFailed { backup, .. } => assert!(backup.is_file()),
+        RoutineError::RestoreFailed {
+            backup,
+            active,
+            committed,
+            ..
+        } => {
+            assert!(backup.is_file());
+            assert_eq!(*active, odocal::base::transaction::Holds::Original, "{err}");
+            assert_eq!(
+                *committed,
+                odocal::base::transaction::Holds::Original,
+                "{err}"
+            );
+            let text = err.to_string();
+            assert!(text.contains("in use the original parameters"), "{text}");
+            assert!(text.contains("nothing to restore"), "{text}");
+        }
         other => panic!("expected a failed rollback, got {other}"),
     }
     // What is in use is the original again even though nothing could be committed.

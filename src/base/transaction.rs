@@ -49,6 +49,32 @@ pub struct Transaction {
     backup_path: PathBuf,
     written: bool,
     committed: bool,
+    last_written: Option<WheelParams>,
+}
+
+/// What one copy of the parameters was found to hold after a failed rollback.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+#[serde(rename_all = "snake_case", tag = "state", content = "detail")]
+pub enum Holds {
+    /// The parameters of the backup.
+    Original,
+    /// The parameters that were being written.
+    New,
+    /// Something else (shown).
+    Other(WheelParams),
+    /// The copy could not be read (why).
+    Unknown(String),
+}
+
+impl std::fmt::Display for Holds {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Holds::Original => f.write_str("the original parameters"),
+            Holds::New => f.write_str("the new parameters"),
+            Holds::Other(p) => write!(f, "other parameters ({p:?})"),
+            Holds::Unknown(why) => write!(f, "unknown ({why})"),
+        }
+    }
 }
 
 impl Transaction {
@@ -66,6 +92,7 @@ impl Transaction {
             backup_path,
             written: false,
             committed: false,
+            last_written: None,
         })
     }
 
@@ -90,6 +117,7 @@ impl Transaction {
         let resolution = self.store.resolution();
         // Marked before the call: a cancelled or failed write may still have landed.
         self.written = true;
+        self.last_written = Some(*params);
         let applied = self.store.write(params).await?;
         let read = self.store.read().await?;
         if !same_within(&applied, params, &resolution) || !same_within(&read, params, &resolution) {
@@ -119,6 +147,38 @@ impl Transaction {
                 read: other,
             }),
         }
+    }
+
+    /// Reads what the store holds now, in use and committed, and says for each whether it is the
+    /// original, the new parameters, something else, or unknown (after a failed rollback: the
+    /// link may have come back, or the file may be readable).
+    pub async fn what_the_store_holds(&self) -> (Holds, Holds) {
+        let resolution = self.store.resolution();
+        let classify = |p: &WheelParams| {
+            if same_within(p, &self.original, &resolution) {
+                Holds::Original
+            } else if self
+                .last_written
+                .is_some_and(|w| same_within(p, &w, &resolution))
+            {
+                Holds::New
+            } else {
+                Holds::Other(*p)
+            }
+        };
+        let active = match tokio::time::timeout(ROLLBACK_TIMEOUT, self.store.read()).await {
+            Ok(Ok(p)) => classify(&p),
+            Ok(Err(e)) => Holds::Unknown(e.to_string()),
+            Err(_) => Holds::Unknown(format!("no answer in {ROLLBACK_TIMEOUT:?}")),
+        };
+        let committed =
+            match tokio::time::timeout(ROLLBACK_TIMEOUT, self.store.read_committed()).await {
+                Ok(Ok(Some(p))) => classify(&p),
+                Ok(Ok(None)) => Holds::Unknown("the store has no committed copy".into()),
+                Ok(Err(e)) => Holds::Unknown(e.to_string()),
+                Err(_) => Holds::Unknown(format!("no answer in {ROLLBACK_TIMEOUT:?}")),
+            };
+        (active, committed)
     }
 
     /// Puts the original parameters back: in use, and committed if a commit may have happened.

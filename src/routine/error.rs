@@ -2,6 +2,7 @@
 //! written were rolled back, or the error says that this failed and where the backup is.
 
 use super::config::ConfigError;
+use crate::base::transaction::Holds;
 use crate::base::BaseError;
 use crate::calibration::CalibrationError;
 use crate::kinematics::KinematicsError;
@@ -57,8 +58,9 @@ pub enum RoutineError {
         /// Whether the committed copy was restored too.
         committed: bool,
     },
-    /// An error happened after parameters were written and restoring them failed too.
-    #[error("{source}; RESTORING THE BACKUP FAILED ({restore_error}): restore {} by hand", backup.display())]
+    /// An error happened after parameters were written and restoring them failed too; what
+    /// the store holds was read back afterwards.
+    #[error("{source}; restoring the backup failed ({restore_error}). Read back since: in use {active}, committed {committed}. {}", restore_advice(active, committed, backup))]
     RestoreFailed {
         /// The error.
         source: Box<RoutineError>,
@@ -66,5 +68,45 @@ pub enum RoutineError {
         restore_error: Box<BaseError>,
         /// The backup file to restore from.
         backup: PathBuf,
+        /// What the copy in use holds now.
+        active: Holds,
+        /// What the committed copy holds now.
+        committed: Holds,
     },
+}
+
+/// What to do after a failed rollback, from what the store was found to hold.
+fn restore_advice(active: &Holds, committed: &Holds, backup: &std::path::Path) -> String {
+    match (active, committed) {
+        (Holds::Original, Holds::Original) => {
+            "The robot holds its original parameters: nothing to restore.".into()
+        }
+        _ => format!(
+            "Restore them with `odocal params restore --from {} --stored` (or by hand).",
+            backup.display()
+        ),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_failed_rollback_says_what_the_store_holds_and_what_to_do() {
+        let err = RoutineError::RestoreFailed {
+            source: Box::new(RoutineError::Cancelled),
+            restore_error: Box::new(BaseError::WatchdogTripped),
+            backup: PathBuf::from("/tmp/odocal-backup-x.json"),
+            active: Holds::New,
+            committed: Holds::Unknown("no answer".into()),
+        };
+        let text = err.to_string();
+        assert!(text.contains("in use the new parameters"), "{text}");
+        assert!(text.contains("committed unknown (no answer)"), "{text}");
+        assert!(
+            text.contains("odocal params restore --from /tmp/odocal-backup-x.json --stored"),
+            "{text}"
+        );
+    }
 }

@@ -241,11 +241,16 @@ async fn undo(tx: &mut Transaction, err: RoutineError) -> RoutineError {
             source: Box::new(err),
             committed: outcome == Rollback::RestoredAndCommitted,
         },
-        Err(e) => RoutineError::RestoreFailed {
-            source: Box::new(err),
-            restore_error: Box::new(e),
-            backup: tx.backup_path().to_path_buf(),
-        },
+        Err(e) => {
+            let (active, committed) = tx.what_the_store_holds().await;
+            RoutineError::RestoreFailed {
+                source: Box::new(err),
+                restore_error: Box::new(e),
+                backup: tx.backup_path().to_path_buf(),
+                active,
+                committed,
+            }
+        }
     }
 }
 
