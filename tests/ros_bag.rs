@@ -365,3 +365,35 @@ wheel_radius: 0.075\n    publish_rate: 50.0\n";
         "{err}"
     );
 }
+
+#[test]
+fn an_absurd_result_is_not_exported() {
+    let dir = scratch("export-absurd");
+    std::fs::create_dir_all(&dir).unwrap();
+    // A result whose estimate would make the wheelbase 10^300 times larger.
+    let result = dir.join("absurd.json");
+    std::fs::write(
+        &result,
+        r#"{"configured": {"left_wheel_diameter_m": 0.15, "right_wheel_diameter_m": 0.15,
+            "wheelbase_m": 0.39, "counts_per_wheel_rev": 4096.0},
+           "estimates": [{"method": "exact", "e_b": 1e300, "e_d": 1.0,
+            "correction": {"left_diameter_scale": 1.0, "right_diameter_scale": 1.0,
+                           "wheelbase_scale": 1e300}}]}"#,
+    )
+    .unwrap();
+    let yaml = dir.join("out.yaml");
+    let (ok, _, err) = odocal(&[
+        "export",
+        "--from",
+        result.to_str().unwrap(),
+        "--ros2",
+        yaml.to_str().unwrap(),
+    ]);
+    assert!(!ok, "exported an absurd multiplier");
+    assert!(
+        err.contains("wheelbase") && (err.contains("not exported") || err.contains("finite")),
+        "{err}"
+    );
+    assert!(!yaml.exists(), "nothing written");
+    std::fs::remove_dir_all(&dir).unwrap();
+}

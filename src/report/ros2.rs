@@ -28,6 +28,15 @@ pub enum ExportError {
     /// The parameters are not a robot.
     #[error(transparent)]
     Kinematics(#[from] crate::kinematics::KinematicsError),
+    /// The calibration would scale a parameter beyond [`MAX_FACTOR`] either way: not a
+    /// calibration (a corrupt result, or the wrong robot).
+    #[error("{name} would change by a factor of {factor}, beyond 1/{MAX_FACTOR}..{MAX_FACTOR}: not exported")]
+    Implausible {
+        /// The parameter.
+        name: &'static str,
+        /// calibrated / configured.
+        factor: f64,
+    },
     /// The target YAML is unusable.
     #[error(transparent)]
     Yaml(#[from] crate::ros::yaml::YamlError),
@@ -126,9 +135,44 @@ pub enum Exported {
     },
 }
 
+/// Largest factor between a calibrated and a configured parameter an export accepts (skid-steer
+/// wheelbase multipliers reach about 2).
+pub const MAX_FACTOR: f64 = 10.0;
+
+/// Refuses calibrations that scale a parameter by more than [`MAX_FACTOR`] or by a non-number.
+fn check_plausible(cal: &Calibration) -> Result<(), ExportError> {
+    cal.calibrated.validate()?;
+    cal.configured.validate()?;
+    for (name, new, old) in [
+        (
+            "left wheel diameter",
+            cal.calibrated.left_wheel_diameter_m,
+            cal.configured.left_wheel_diameter_m,
+        ),
+        (
+            "right wheel diameter",
+            cal.calibrated.right_wheel_diameter_m,
+            cal.configured.right_wheel_diameter_m,
+        ),
+        (
+            "wheelbase",
+            cal.calibrated.wheelbase_m,
+            cal.configured.wheelbase_m,
+        ),
+    ] {
+        let factor = new / old;
+        if !(factor.is_finite() && (1.0 / MAX_FACTOR..=MAX_FACTOR).contains(&factor)) {
+            return Err(ExportError::Implausible { name, factor });
+        }
+    }
+    Ok(())
+}
+
 /// Writes `cal` for `controller` into `path`: merged into an existing YAML (multipliers only,
-/// backup beside, atomic replace) or a new file (never replacing anything).
+/// backup beside, atomic replace) or a new file (never replacing anything). A
+/// calibration that scales a parameter beyond [`MAX_FACTOR`] is refused.
 pub fn export(path: &Path, controller: &str, cal: &Calibration) -> Result<Exported, ExportError> {
+    check_plausible(cal)?;
     let io = |source| ExportError::Io {
         path: path.to_path_buf(),
         source,
