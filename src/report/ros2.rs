@@ -30,7 +30,7 @@ pub enum ExportError {
     Kinematics(#[from] crate::kinematics::KinematicsError),
     /// The calibration would scale a parameter beyond [`MAX_FACTOR`] either way: not a
     /// calibration (a corrupt result, or the wrong robot).
-    #[error("{name} would change by a factor of {factor}, beyond 1/{MAX_FACTOR}..{MAX_FACTOR}: not exported")]
+    #[error("{name} would change by a factor of {factor:.3e}, beyond 1/{MAX_FACTOR}..{MAX_FACTOR}: not exported")]
     Implausible {
         /// The parameter.
         name: &'static str,
