@@ -271,8 +271,15 @@ fn meta_one(
         })
 }
 
-fn read_run(path: &Path) -> Result<RecordedRun, DatasetError> {
-    let mut samples = Vec::new();
+/// Fastest a wheel of the recorded robots can travel (m/s): tick counts beyond it in one cycle
+/// are corrupt data, not a wheel.
+pub const MAX_WHEEL_SPEED_M_S: f64 = 20.0;
+
+/// The nominal cycle of the data set (s), for the first row, which has no previous time.
+const CYCLE_S: f64 = 0.05;
+
+fn read_run(path: &Path, max_counts_per_s: f64) -> Result<RecordedRun, DatasetError> {
+    let mut samples: Vec<Sample> = Vec::new();
     for (i, rec) in reader(path)?.records().enumerate() {
         let line = i as u64 + 1;
         let rec = rec.map_err(|e| malformed(path, line, e.to_string()))?;
@@ -297,6 +304,33 @@ fn read_run(path: &Path) -> Result<RecordedRun, DatasetError> {
                         format!("column {}: {field:?} is not a number", k + 1),
                     )
                 })?;
+        }
+        let dt = match samples.last() {
+            Some(prev) if v[0] > prev.time_s => v[0] - prev.time_s,
+            Some(prev) => {
+                return Err(malformed(
+                    path,
+                    line,
+                    format!(
+                        "time {} s does not follow {} s (time must go forward)",
+                        v[0], prev.time_s
+                    ),
+                ))
+            }
+            None => CYCLE_S,
+        };
+        let limit = max_counts_per_s * dt + 2.0;
+        for (col, ticks) in [(5, v[4]), (6, v[5])] {
+            if ticks.abs() > limit {
+                return Err(malformed(
+                    path,
+                    line,
+                    format!(
+                        "column {col}: {ticks} ticks in {dt:.3} s is more than a wheel at \
+                         {MAX_WHEEL_SPEED_M_S} m/s turns ({limit:.0})"
+                    ),
+                ));
+            }
         }
         samples.push(Sample {
             time_s: v[0],
@@ -362,9 +396,28 @@ impl OptiOdomSet {
         let side_m = meta_values(&meta, &meta_path, "L")
             .ok()
             .and_then(|v| v.first().copied());
+        // Physical ranges before anything is computed from them (a 1e300 diameter or 1e18
+        // ticks would otherwise make every later loop meaningless or endless).
+        for (key, value, lo, hi) in [
+            ("Di", left.min(right), 1e-3, 5.0),
+            ("Di", left.max(right), 1e-3, 5.0),
+            ("Li", wheelbase_m, 1e-2, 10.0),
+            ("encRes", counts_per_wheel_rev, 1.0, 1e9),
+            ("L", side_m.unwrap_or(1.0), 1e-2, 100.0),
+        ] {
+            if !(value.is_finite() && (lo..=hi).contains(&value)) {
+                return Err(DatasetError::Metadata {
+                    path: meta_path.clone(),
+                    key,
+                    reason: format!("{value} is outside [{lo}, {hi}]"),
+                });
+            }
+        }
+        let max_counts_per_s =
+            MAX_WHEEL_SPEED_M_S * counts_per_wheel_rev / (std::f64::consts::PI * left.min(right));
         let runs = run_paths
             .iter()
-            .map(|p| read_run(p))
+            .map(|p| read_run(p, max_counts_per_s))
             .collect::<Result<Vec<_>, _>>()?;
         Ok(OptiOdomSet {
             id: dir

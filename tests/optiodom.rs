@@ -214,3 +214,41 @@ fn pooled_leave_one_recording_out_the_default_method_is_honest_and_no_worse_than
         assert!(z.abs() <= 2.0, "{}: z = {z:.2}", h.dataset);
     }
 }
+
+#[test]
+fn impossible_ticks_backward_time_and_absurd_geometry_are_named() {
+    let dir = common::scratch("bad-set-bounds");
+    std::fs::create_dir_all(&dir).unwrap();
+    let meta = |d: &str| format!("ngear,43.7,\nencRes,64,\nLi,0.2,\nDi,{d},{d}\nL,1.7,\n");
+    let run = dir.join("x_run-01.csv");
+    std::fs::write(dir.join("x_metadata.csv"), meta("0.084")).unwrap();
+    // 10^18 ticks in one 0.05 s cycle.
+    std::fs::write(&run, "0,0,0,0,0,0\n0.05,0.1,0,0,1e18,4\n").unwrap();
+    match OptiOdomSet::load(&dir) {
+        Err(DatasetError::Malformed { line, reason, .. }) => {
+            assert_eq!(line, 2);
+            assert!(
+                reason.contains("column 5") && reason.contains("m/s"),
+                "{reason}"
+            );
+        }
+        other => panic!("expected impossible ticks to be refused, got {other:?}"),
+    }
+    // Time going backwards.
+    std::fs::write(&run, "0,0,0,0,0,0\n0.05,0,0,0,3,4\n0.04,0,0,0,3,4\n").unwrap();
+    match OptiOdomSet::load(&dir) {
+        Err(DatasetError::Malformed { line, reason, .. }) => {
+            assert_eq!(line, 3);
+            assert!(reason.contains("time must go forward"), "{reason}");
+        }
+        other => panic!("expected backward time to be refused, got {other:?}"),
+    }
+    // A wheel diameter of 10^300 m.
+    std::fs::write(&run, "0,0,0,0,0,0\n0.05,0,0,0,3,4\n").unwrap();
+    std::fs::write(dir.join("x_metadata.csv"), meta("1e300")).unwrap();
+    assert!(matches!(
+        OptiOdomSet::load(&dir),
+        Err(DatasetError::Metadata { key: "Di", .. })
+    ));
+    std::fs::remove_dir_all(&dir).unwrap();
+}
