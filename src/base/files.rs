@@ -36,38 +36,58 @@ pub fn replace_atomically(path: &Path, text: &str) -> std::io::Result<()> {
     result
 }
 
-/// Copies `path` to a new `<path>.odocal-backup-<ms>[-n]` beside it, never overwriting.
-pub fn backup_beside(path: &Path) -> std::io::Result<PathBuf> {
-    let stamp = std::time::SystemTime::now()
+/// Milliseconds since the Unix epoch, for file names that sort by time.
+pub fn stamp_ms() -> u128 {
+    std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0, |d| d.as_millis());
-    let text = std::fs::read(path)?;
+        .map_or(0, |d| d.as_millis())
+}
+
+/// Creates `path` new with `bytes`, synced: never replaces a file and never follows a link
+/// (`O_CREAT | O_EXCL`).
+pub fn create_new(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+    let mut f = std::fs::OpenOptions::new()
+        .write(true)
+        .create_new(true)
+        .open(path)?;
+    f.write_all(bytes)?;
+    f.sync_all()
+}
+
+/// Creates the first free one of `name(0)`, `name(1)`, … (up to 1000) with `bytes`
+/// ([`create_new`]); returns its path. For backups and reports that must never overwrite one
+/// another, even when two are made in the same millisecond.
+pub fn create_unique(name: impl Fn(u32) -> PathBuf, bytes: &[u8]) -> std::io::Result<PathBuf> {
     for n in 0..1000 {
-        let mut name = path.as_os_str().to_owned();
-        name.push(if n == 0 {
-            format!(".odocal-backup-{stamp}")
-        } else {
-            format!(".odocal-backup-{stamp}-{n}")
-        });
-        let candidate = PathBuf::from(name);
-        match std::fs::OpenOptions::new()
-            .write(true)
-            .create_new(true)
-            .open(&candidate)
-        {
-            Ok(mut f) => {
-                f.write_all(&text)?;
-                f.sync_all()?;
-                return Ok(candidate);
-            }
+        let candidate = name(n);
+        match create_new(&candidate, bytes) {
+            Ok(()) => return Ok(candidate),
             Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => continue,
             Err(e) => return Err(e),
         }
     }
     Err(std::io::Error::new(
         std::io::ErrorKind::AlreadyExists,
-        "1000 backups with one time stamp",
+        "1000 files with one time stamp",
     ))
+}
+
+/// Copies `path` to a new `<path>.odocal-backup-<ms>[-n]` beside it, never overwriting.
+pub fn backup_beside(path: &Path) -> std::io::Result<PathBuf> {
+    let stamp = stamp_ms();
+    let text = std::fs::read(path)?;
+    create_unique(
+        |n| {
+            let mut name = path.as_os_str().to_owned();
+            name.push(if n == 0 {
+                format!(".odocal-backup-{stamp}")
+            } else {
+                format!(".odocal-backup-{stamp}-{n}")
+            });
+            PathBuf::from(name)
+        },
+        &text,
+    )
 }
 
 /// Reads a text file of at most `max_bytes` (configuration files are small; a device node or a

@@ -10,7 +10,6 @@
 use super::{same_within, BaseError, ComponentInfo, ParamStore};
 use crate::kinematics::WheelParams;
 use serde::{Deserialize, Serialize};
-use std::io::Write as _;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Duration;
@@ -249,10 +248,11 @@ fn sanitise(id: &str) -> String {
 
 /// Creates a new backup file in `dir`; never replaces an existing file or follows a link.
 fn write_backup(dir: &Path, backup: &BackupFile) -> Result<PathBuf, BaseError> {
-    let stamp = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0, |d| d.as_millis());
-    let stem = format!("odocal-backup-{}-{stamp}", sanitise(&backup.store.id));
+    let stem = format!(
+        "odocal-backup-{}-{}",
+        sanitise(&backup.store.id),
+        super::files::stamp_ms()
+    );
     let err = |path: &Path, source: std::io::Error| BaseError::Backup {
         path: path.to_path_buf(),
         source,
@@ -260,34 +260,17 @@ fn write_backup(dir: &Path, backup: &BackupFile) -> Result<PathBuf, BaseError> {
     std::fs::create_dir_all(dir).map_err(|e| err(dir, e))?;
     let text =
         serde_json::to_string_pretty(backup).map_err(|e| err(dir, std::io::Error::other(e)))?;
-    for n in 0..1000u32 {
-        let path = if n == 0 {
-            dir.join(format!("{stem}.json"))
-        } else {
-            dir.join(format!("{stem}-{n}.json"))
-        };
-        match std::fs::OpenOptions::new()
-            .write(true)
-            .create_new(true)
-            .open(&path)
-        {
-            Ok(mut f) => {
-                f.write_all(text.as_bytes())
-                    .and_then(|()| f.sync_all())
-                    .map_err(|e| err(&path, e))?;
-                return Ok(path);
+    super::files::create_unique(
+        |n| {
+            if n == 0 {
+                dir.join(format!("{stem}.json"))
+            } else {
+                dir.join(format!("{stem}-{n}.json"))
             }
-            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => continue,
-            Err(e) => return Err(err(&path, e)),
-        }
-    }
-    Err(err(
-        dir,
-        std::io::Error::new(
-            std::io::ErrorKind::AlreadyExists,
-            "1000 backups with the same time stamp",
-        ),
-    ))
+        },
+        text.as_bytes(),
+    )
+    .map_err(|e| err(dir, e))
 }
 
 /// Reads a backup file written by [`Transaction::begin`].

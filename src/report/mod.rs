@@ -6,6 +6,7 @@
 pub mod plots;
 pub mod ros2;
 
+use crate::base::files::create_new;
 use crate::routine::report::{params_table, Report};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -304,17 +305,6 @@ pub fn fresh_report_dir(dir: &Path) -> std::io::Result<PathBuf> {
     ))
 }
 
-/// Creates `path` new (never replacing a file, never following a link) with `text`.
-fn create_new(path: &Path, text: &str) -> std::io::Result<()> {
-    use std::io::Write as _;
-    let mut f = std::fs::OpenOptions::new()
-        .write(true)
-        .create_new(true)
-        .open(path)?;
-    f.write_all(text.as_bytes())?;
-    f.sync_all()
-}
-
 /// Writes `report.json`, `report.md`, (with the `plots` feature) the SVG plots and
 /// `report.html` (the report with the plots inline) into a fresh report directory
 /// ([`fresh_report_dir`]: `dir`, or `dir-N` when `dir` already holds a report). Every file is
@@ -325,10 +315,12 @@ pub fn write_dir(report: &Report, dir: &Path) -> std::io::Result<Vec<PathBuf>> {
     let json = dir.join("report.json");
     create_new(
         &json,
-        &serde_json::to_string_pretty(report).map_err(std::io::Error::other)?,
+        serde_json::to_string_pretty(report)
+            .map_err(std::io::Error::other)?
+            .as_bytes(),
     )?;
     let md = dir.join("report.md");
-    create_new(&md, &markdown(report))?;
+    create_new(&md, markdown(report).as_bytes())?;
     #[allow(unused_mut)]
     let mut written = vec![json, md];
     #[cfg(feature = "plots")]
@@ -342,7 +334,7 @@ pub fn write_dir(report: &Report, dir: &Path) -> std::io::Result<Vec<PathBuf>> {
         }
     }
     let page = dir.join("report.html");
-    create_new(&page, &html(report, &svgs))?;
+    create_new(&page, html(report, &svgs).as_bytes())?;
     written.push(page);
     Ok(written)
 }

@@ -172,10 +172,7 @@ fn write_partial(
     err: &RoutineError,
     dir: &std::path::Path,
 ) -> std::io::Result<std::path::PathBuf> {
-    use std::io::Write as _;
-    let stamp = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0, |d| d.as_millis());
+    let stamp = crate::base::files::stamp_ms();
     let value = serde_json::json!({
         "odocal_version": env!("CARGO_PKG_VERSION"),
         "error": err.to_string(),
@@ -187,29 +184,16 @@ fn write_partial(
     });
     let text = serde_json::to_string_pretty(&value).map_err(std::io::Error::other)?;
     std::fs::create_dir_all(dir)?;
-    for n in 0..1000u32 {
-        let path = dir.join(if n == 0 {
-            format!("partial-report-{stamp}.json")
-        } else {
-            format!("partial-report-{stamp}-{n}.json")
-        });
-        match std::fs::OpenOptions::new()
-            .write(true)
-            .create_new(true)
-            .open(&path)
-        {
-            Ok(mut f) => {
-                f.write_all(text.as_bytes())?;
-                return Ok(path);
-            }
-            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => continue,
-            Err(e) => return Err(e),
-        }
-    }
-    Err(std::io::Error::new(
-        std::io::ErrorKind::AlreadyExists,
-        "no free partial report name",
-    ))
+    crate::base::files::create_unique(
+        |n| {
+            dir.join(if n == 0 {
+                format!("partial-report-{stamp}.json")
+            } else {
+                format!("partial-report-{stamp}-{n}.json")
+            })
+        },
+        text.as_bytes(),
+    )
 }
 
 /// Creates `dir` if needed and proves a new file can be created in it (and removed again).
