@@ -151,19 +151,19 @@ pub fn estimate_time_offset(
     })
 }
 
-/// The heading stream corrected for `offset_s`: at each encoder time `t`, the heading read at
-/// `t + offset_s`, linearly interpolated (over the unwrapped heading) between the readings
-/// around it; `None` beyond the readings or next to a missing one.
-pub fn shift_heading(
-    times_s: &[f64],
-    heading_rad: &[Option<f64>],
-    offset_s: f64,
+/// The heading at each of the times `at`, read from readings `heading` taken at `times`
+/// (sorted): linearly interpolated over the **unwrapped** heading (so interpolation across ±π
+/// is right, and a turn of several revolutions stays continuous), starting from the first
+/// reading's value. `None` before the first reading, after the last, or next to a missing one.
+pub fn unwrapped_heading_at(
+    times: &[f64],
+    heading: &[Option<f64>],
+    at: &[f64],
 ) -> Vec<Option<f64>> {
-    let n = times_s.len().min(heading_rad.len());
-    // Unwrapped heading, so interpolation across ±π is right.
+    let n = times.len().min(heading.len());
     let mut unwrapped: Vec<Option<f64>> = Vec::with_capacity(n);
     let mut prev: Option<(f64, f64)> = None; // (wrapped, unwrapped)
-    for h in heading_rad.iter().take(n) {
+    for h in heading.iter().take(n) {
         let u = h.filter(|v| v.is_finite()).map(|v| match prev {
             Some((pw, pu)) => pu + wrap_angle(v - pw),
             None => v,
@@ -173,32 +173,38 @@ pub fn shift_heading(
         }
         unwrapped.push(u);
     }
-    let mut out = Vec::with_capacity(n);
-    let mut j = 0usize;
-    for &t in times_s.iter().take(n) {
-        let target = t + offset_s;
-        while j + 1 < n && times_s[j + 1] < target {
-            j += 1;
-        }
-        let value = if j + 1 < n && times_s[j] <= target {
-            match (unwrapped[j], unwrapped[j + 1]) {
-                (Some(a), Some(b)) => {
-                    let span = times_s[j + 1] - times_s[j];
-                    let f = if span > 0.0 {
-                        (target - times_s[j]) / span
-                    } else {
-                        0.0
-                    };
-                    Some(wrap_angle(a + f * (b - a)))
-                }
-                _ => None,
+    let times = &times[..n];
+    at.iter()
+        .map(|&t| {
+            let i = times.partition_point(|&ts| ts <= t);
+            if i == 0 {
+                return None;
             }
-        } else {
-            None
-        };
-        out.push(value);
-    }
-    out
+            if i == n {
+                // Exactly on the last reading, or beyond it.
+                return (times[n - 1] == t).then(|| unwrapped[n - 1]).flatten();
+            }
+            let (t0, t1) = (times[i - 1], times[i]);
+            let (a, b) = (unwrapped[i - 1]?, unwrapped[i]?);
+            let f = if t1 > t0 { (t - t0) / (t1 - t0) } else { 0.0 };
+            Some(a + f * (b - a))
+        })
+        .collect()
+}
+
+/// The heading stream corrected for `offset_s`: at each encoder time `t`, the heading read at
+/// `t + offset_s` ([`unwrapped_heading_at`], wrapped again); `None` beyond the readings or
+/// next to a missing one.
+pub fn shift_heading(
+    times_s: &[f64],
+    heading_rad: &[Option<f64>],
+    offset_s: f64,
+) -> Vec<Option<f64>> {
+    let at: Vec<f64> = times_s.iter().map(|t| t + offset_s).collect();
+    unwrapped_heading_at(times_s, heading_rad, &at)
+        .into_iter()
+        .map(|h| h.map(wrap_angle))
+        .collect()
 }
 
 #[cfg(test)]

@@ -59,23 +59,16 @@ impl SquareRecord {
     /// refined by the turn-rate correlation of [`crate::calibration::time_offset`].
     pub fn leg_heading_error(&self, wheelbase_m: f64) -> Option<f64> {
         use crate::calibration::legs::{leg_heading_error, LegSample};
-        use crate::calibration::time_offset::estimate_time_offset;
-        let valid: Vec<(f64, f64)> = self
+        use crate::calibration::time_offset::{estimate_time_offset, unwrapped_heading_at};
+        let (h_times, h_values): (Vec<f64>, Vec<Option<f64>>) = self
             .headings
             .iter()
             .filter(|h| h.validity.is_valid() && h.heading_rad.is_finite())
-            .map(|h| (h.time_s, h.heading_rad))
-            .collect();
-        let (t_h0, t_d0) = (valid.first()?.0, self.travel.first()?.time_s);
-        // Unwrapped heading on the heading clock, relative to its first sample.
-        let mut unwrapped = Vec::with_capacity(valid.len());
-        let mut acc = 0.0;
-        for (i, (t, h)) in valid.iter().enumerate() {
-            if i > 0 {
-                acc += wrap_angle(h - valid[i - 1].1);
-            }
-            unwrapped.push((t - t_h0, acc));
-        }
+            .map(|h| (h.time_s, Some(h.heading_rad)))
+            .unzip();
+        let (t_h0, t_d0) = (*h_times.first()?, self.travel.first()?.time_s);
+        // Both clocks from their stream's first sample (see above).
+        let h_times: Vec<f64> = h_times.iter().map(|t| t - t_h0).collect();
         let times: Vec<f64> = self.travel.iter().map(|t| t.time_s - t_d0).collect();
         let odo: Vec<f64> = self
             .travel
@@ -83,10 +76,8 @@ impl SquareRecord {
             .map(|t| (t.right_m - t.left_m) / wheelbase_m)
             .collect();
         let at = |offset_s: f64| -> Vec<Option<f64>> {
-            times
-                .iter()
-                .map(|&t| interpolate(&unwrapped, t + offset_s))
-                .collect()
+            let shifted: Vec<f64> = times.iter().map(|t| t + offset_s).collect();
+            unwrapped_heading_at(&h_times, &h_values, &shifted)
         };
         let offset = estimate_time_offset(&times, &odo, &at(0.0), 1.0).map_or(0.0, |o| o.offset_s);
         let heading = at(offset);
@@ -104,17 +95,6 @@ impl SquareRecord {
         }
         leg_heading_error(&samples, wheelbase_m)
     }
-}
-
-/// Linear interpolation in a time-sorted series; `None` outside it.
-fn interpolate(series: &[(f64, f64)], t: f64) -> Option<f64> {
-    let i = series.partition_point(|(ts, _)| *ts <= t);
-    if i == 0 || i >= series.len() {
-        return (i >= 1 && series[i - 1].0 == t).then(|| series[i - 1].1);
-    }
-    let ((t0, a), (t1, b)) = (series[i - 1], series[i]);
-    let f = if t1 > t0 { (t - t0) / (t1 - t0) } else { 0.0 };
-    Some(a + f * (b - a))
 }
 
 fn drain<T>(stream: &mut Option<SampleStream<T>>) -> Vec<T> {
