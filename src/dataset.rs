@@ -18,7 +18,9 @@ use crate::calibration::pool::{
     pool_methods, Pooled, PooledMethods, RecordingEstimates, UncertaintyKind,
 };
 use crate::calibration::{self, Estimate, Method, RunMeasurement, SquareTest};
-use crate::kinematics::{wrap_angle, Direction, Pose, SplitConvention, WheelParams};
+use crate::kinematics::{
+    wrap_angle, Direction, Pose, SplitConvention, WheelParams, MAX_WHEEL_SPEED_M_S,
+};
 use serde::Serialize;
 use std::f64::consts::PI;
 use std::path::{Path, PathBuf};
@@ -270,10 +272,6 @@ fn meta_one(
             reason: "has no value".into(),
         })
 }
-
-/// Fastest a wheel of the recorded robots can travel (m/s): tick counts beyond it in one cycle
-/// are corrupt data, not a wheel.
-pub const MAX_WHEEL_SPEED_M_S: f64 = 20.0;
 
 /// The nominal cycle of the data set (s), for the first row, which has no previous time.
 const CYCLE_S: f64 = 0.05;

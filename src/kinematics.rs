@@ -258,6 +258,10 @@ impl Correction {
     }
 }
 
+/// Fastest a wheel of a robot this tool calibrates can travel (m/s). Recorded counts beyond it
+/// between two samples are corrupt data, not a wheel (telemetry logs, recorded sets).
+pub const MAX_WHEEL_SPEED_M_S: f64 = 20.0;
+
 /// How a wheel-*ratio* estimate is split into two absolute wheel diameters.
 ///
 /// Heading errors only observe `D_R/(D·E_b)` and `D_L/(D·E_b)`; the absolute wheel scale is

@@ -15,7 +15,7 @@ use crate::calibration::time_offset::{estimate_time_offset, shift_heading, TimeO
 use crate::calibration::CalibrationError;
 use crate::dataset::OptiOdomSet;
 use crate::hal::TelemetrySample;
-use crate::kinematics::WheelParams;
+use crate::kinematics::{WheelParams, MAX_WHEEL_SPEED_M_S};
 use crate::protocol::message::DeviceInfo;
 use serde::{Deserialize, Serialize};
 use std::io::{BufRead, Write};
@@ -110,10 +110,6 @@ impl LogWriter {
         })
     }
 }
-
-/// Fastest a wheel of a robot this tool calibrates can travel (m/s): counts beyond it in one
-/// sample are a corrupt line, not a wheel.
-pub const MAX_WHEEL_SPEED_M_S: f64 = 20.0;
 
 /// Checks one logged sample against the one before: time goes forward, the sample index
 /// increases, and neither wheel turned further than [`MAX_WHEEL_SPEED_M_S`] allows.
@@ -307,7 +303,8 @@ impl Tracker {
             .iter()
             .map(|s| s.heading_valid.then_some(s.heading_rad))
             .collect();
-        let heading = self.check_and_correct("log", samples, heading);
+        let (times, odo) = self.series(samples);
+        let heading = self.correct("log", &times, &odo, heading);
         let mut out = Vec::new();
         for (s, h) in samples.iter().zip(heading) {
             let fed = TelemetrySample {
@@ -354,16 +351,6 @@ impl Tracker {
             .take(samples.len())
             .collect();
         (times, odo)
-    }
-
-    fn check_and_correct(
-        &mut self,
-        run: &str,
-        samples: &[TelemetrySample],
-        heading: Vec<Option<f64>>,
-    ) -> Vec<Option<f64>> {
-        let (times, odo) = self.series(samples);
-        self.correct(run, &times, &odo, heading)
     }
 
     fn correct(

@@ -209,11 +209,7 @@ pub fn pool_methods(
         pooled: Vec::new(),
         estimates: Vec::new(),
         missing: Vec::new(),
-        uncertainty: if recordings.len() > 1 {
-            UncertaintyKind::RunToRunAndRecordingToRecording
-        } else {
-            UncertaintyKind::RunToRun
-        },
+        uncertainty: UncertaintyKind::of(recordings.len()),
     };
     for method in Method::ALL {
         let mut per = Vec::new();
@@ -243,14 +239,21 @@ pub fn pool_methods(
     Ok(out)
 }
 
-impl Pooled {
-    /// Which uncertainty [`Pooled::estimate_for`] states.
-    pub fn uncertainty_kind(&self) -> UncertaintyKind {
-        if self.recordings.len() > 1 {
+impl UncertaintyKind {
+    /// What a pool of `recordings` recordings can state.
+    pub fn of(recordings: usize) -> Self {
+        if recordings > 1 {
             UncertaintyKind::RunToRunAndRecordingToRecording
         } else {
             UncertaintyKind::RunToRun
         }
+    }
+}
+
+impl Pooled {
+    /// Which uncertainty [`Pooled::estimate_for`] states.
+    pub fn uncertainty_kind(&self) -> UncertaintyKind {
+        UncertaintyKind::of(self.recordings.len())
     }
 
     /// The pooled robot as an estimate against `configured` (the parameters it will be written

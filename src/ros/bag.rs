@@ -1034,12 +1034,13 @@ fn online_over(
         return out;
     };
     let times: Vec<f64> = data.joints.iter().map(|j| j.t).collect();
+    // The turn over each joint interval, at the sample that ends it.
     let odo: Vec<f64> = std::iter::once(0.0)
-        .chain(data.joints.windows(2).map(|w| {
-            let dl = (w[1].left_rad - w[0].left_rad) * configured.left_m_per_count();
-            let dr = (w[1].right_rad - w[0].right_rad) * configured.right_m_per_count();
-            (dr - dl) / configured.wheelbase_m
-        }))
+        .chain(
+            increments(&data.joints, configured)
+                .into_iter()
+                .map(|i| i.3),
+        )
         .take(times.len())
         .collect();
     out.time_offset = estimate_time_offset(
