@@ -614,3 +614,42 @@ fn telemetry_from_one_long_virtual_motion_stays_bounded() {
     assert!(c.telemetry_over_bound > 19_000_000, "{c:?}");
     assert_eq!(c.motions_completed, 1);
 }
+
+/// A motion that the device ends without completing it (a STOP from elsewhere, a fault, a
+/// watchdog trip already acknowledged) is reported at once as stopped, not waited out until
+/// the motion's deadline.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_motion_stopped_by_the_device_is_reported_at_once() {
+    let dev = device(0.0, 12);
+    let (stream, _task) = spawn_duplex(
+        dev.clone(),
+        TimeMode::RealTime { scale: 1.0 },
+        FaultConfig::default(),
+    );
+    let (client, _) = Client::connect(stream, fast_link()).await.unwrap();
+    let mut done = client.subscribe_motion_done();
+    // 2 m at 0.2 m/s: ten seconds of driving.
+    let accepted = client
+        .move_straight(2.0, 0.2, MotionMode::Replace)
+        .await
+        .unwrap();
+    let stopper = dev.clone();
+    tokio::spawn(async move {
+        tokio::time::sleep(Duration::from_millis(100)).await;
+        lock(&stopper).stop();
+    });
+    let started = Instant::now();
+    let err = client
+        .wait_motion(accepted.motion_id, 1, Duration::from_secs(20), &mut done)
+        .await
+        .unwrap_err();
+    assert!(
+        matches!(err, HalError::MotionStopped { motion_id } if motion_id == accepted.motion_id),
+        "{err:?}"
+    );
+    assert!(
+        started.elapsed() < Duration::from_secs(2),
+        "took {:?}",
+        started.elapsed()
+    );
+}
