@@ -525,9 +525,13 @@ async fn wheel_speed_commands_drive_until_their_duration_or_stop() {
         .wheel_speed(0.2, 0.2, Some(Duration::from_millis(2000)))
         .await
         .unwrap();
-    // 2 s at 0.2 m/s by the configured wheels: 0.4 m of configured travel per wheel, which the
-    // true robot (right wheel 0.992, base 0.976 × 0.39 m) turns into a slight right arc.
-    let expected = odocal::kinematics::Pose::default().advance(0.4, 0.4 * 0.992, 0.39 * 0.976);
+    // 2 s at 0.2 m/s by the configured wheels: 0.4 m of configured travel per wheel, in whole
+    // encoder counts (SPEC.md §7.6), which the true robot (right wheel 0.992, base 0.976 ×
+    // 0.39 m) turns into a slight right arc.
+    let per_count = std::f64::consts::PI * 0.15 / 4096.0;
+    let travel = (0.4 / per_count).round() * per_count;
+    let expected =
+        odocal::kinematics::Pose::default().advance(travel, travel * 0.992, 0.39 * 0.976);
     let p = lock(&dev).sim().pose();
     assert!(
         (p.x_m - expected.x_m).abs() < 1e-9 && (p.y_m - expected.y_m).abs() < 1e-9,

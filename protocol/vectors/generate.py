@@ -6,6 +6,7 @@ a bit-by-bit CRC), so the Rust codec is checked against the spec rather than aga
 Run it from anywhere: `python3 protocol/vectors/generate.py`. The output is committed.
 """
 import json
+import math
 import os
 import struct
 
@@ -183,28 +184,133 @@ payload_errors = [
      "nack": {"code": "OUT_OF_RANGE", "detail": 0}},
 ]
 
-# Device rules (SPEC.md §7, 1.1): request sequences sent to a freshly powered-up device in
-# virtual time (a motion completes as it is accepted), with the answer each must get. A device
-# implementation checks itself by replaying them (odocal's mock does, in tests/spec_rules.rs).
+# Device rules (SPEC.md §7, 1.1): request sequences sent to a freshly powered-up device, with the
+# answer each must get. A device implementation checks itself by replaying them (odocal's mock
+# does, in tests/spec_rules.rs). A step is one of:
+#   [request, answer]                   send; then device time runs until the base is idle
+#                                       (virtual time: queued motions complete)
+#   {"send": request, "answer": a}      send; no device time passes (motions keep running)
+#   {"advance_ms": n}                   n ms of device time pass with the host silent
+#   {"repeat": n, "send_cycle": [r...], "answer": a}
+#                                       n requests, taken from the cycle in turn, each as
+#                                       [request, answer]
+# An answer may hold "fields": response fields that must have these values (names and enum
+# spellings as in the frame vectors' "packet"). A step may hold "motion_done": the MOTION_DONE
+# events, as [motion_id, completed_motions], that the device emits during the step (its answer
+# and the time that passes), exactly and in order.
 def req(seq, msg, payload=b""):
     return hexs(frame("request", seq, msg, payload))
 
 
-def ok(msg):
-    return {"kind": "response", "msg": msg}
+def ok(msg, **fields):
+    answer = {"kind": "response", "msg": msg}
+    if fields:
+        answer["fields"] = fields
+    return answer
 
 
 def refused(msg, code, detail):
     return {"kind": "nack", "msg": msg, "code": code, "detail": detail}
 
 
+def hold(request, answer, **extra):
+    step = {"send": request, "answer": answer}
+    step.update(extra)
+    return step
+
+
+def wait(ms, **extra):
+    step = {"advance_ms": ms}
+    step.update(extra)
+    return step
+
+
+def move(seq, distance_um, mode, speed_mm_s=100):
+    return req(seq, 0x30, struct.pack("<iHB", distance_um, speed_mm_s, mode))
+
+
+def turn(seq, angle_urad, mode=1, rate_mrad_s=500):
+    return req(seq, 0x31, struct.pack("<iHB", angle_urad, rate_mrad_s, mode))
+
+
+def round_half_away(x):
+    return int(math.floor(abs(x) + 0.5)) * (1 if x >= 0 else -1)
+
+
+def counts(arc_m, diameter_nm):
+    """A wheel's target in counts for `arc_m` of travel with PARAMS (SPEC.md §5 MOVE_STRAIGHT),
+    rounded as §7.6 says."""
+    cpr = PARAMS["counts_per_wheel_rev_micro"] / 1e6
+    return round_half_away(arc_m / (math.pi * diameter_nm / 1e9) * cpr)
+
+
+QUEUE, REPLACE = 1, 0
+TEN_M = 10_000_000  # 100 s at 0.1 m/s: still running whenever the rules look
+STATUS = 0x40
 FOUR_PI_URAD = 12_566_370  # floor(4π · 10^6): the largest angle a turn may ask for
+# 0.114695 m: 680.714 counts on the 0.150 m left wheel, 685.283 on the 0.149 m right one, so
+# two moves end 2·681 and 2·685 counts on (unrounded targets would drift to 1361 and 1371).
+ROUNDING_UM = 114_695
+ROUNDING_URAD = 588_179  # a turn whose wheel targets fall likewise
+left_move = counts(ROUNDING_UM / 1e6, PARAMS["left_wheel_diameter_nm"])
+right_move = counts(ROUNDING_UM / 1e6, PARAMS["right_wheel_diameter_nm"])
+turn_arc = ROUNDING_URAD / 1e6 * PARAMS["wheelbase_nm"] / 1e9 / 2
+left_turn = counts(-turn_arc, PARAMS["left_wheel_diameter_nm"])
+right_turn = counts(turn_arc, PARAMS["right_wheel_diameter_nm"])
+assert (left_move, right_move, left_turn, right_turn) == (681, 685, -681, 685)
+idle = dict(motion_state="idle", queue_depth=0, current_motion_id=0)
+
 device_rules = [
     {"name": "7.1 a host of another major gets VERSION_MISMATCH with the device's version",
      "steps": [[req(1, 0x01, bytes([2, 0])), refused(0x01, "VERSION_MISMATCH", 0x11)]]},
     {"name": "7.2 a retried request gets the remembered NACK again",
      "steps": [[req(2, 0x30, struct.pack("<iHB", 1000, 0, 0)), refused(0x30, "OUT_OF_RANGE", 1)],
                [req(2, 0x30, struct.pack("<iHB", 1000, 0, 0)), refused(0x30, "OUT_OF_RANGE", 1)]]},
+    {"name": "7.3 queue_depth counts the running motion, ids count from 1, at least 4 are queued",
+     "steps": [hold(move(1, TEN_M, QUEUE), ok(0x30, queue_depth=1, motion_id=1)),
+               hold(move(2, TEN_M, QUEUE), ok(0x30, queue_depth=2, motion_id=2)),
+               hold(move(3, TEN_M, QUEUE), ok(0x30, queue_depth=3, motion_id=3)),
+               hold(move(4, TEN_M, QUEUE), ok(0x30, queue_depth=4, motion_id=4)),
+               hold(req(5, STATUS), ok(STATUS, motion_state="moving", queue_depth=4,
+                                       current_motion_id=1, completed_motions=0)),
+               hold(req(6, 0x33), ok(0x33), motion_done=[]),
+               wait(2000, motion_done=[]),
+               hold(req(7, STATUS), ok(STATUS, completed_motions=0, **idle))]},
+    {"name": "7.3 motion_id wraps from 65535 to 1, never to the reserved 0",
+     "steps": [{"repeat": 65534, "send_cycle": [move(1, 1000, QUEUE, 1000),
+                                                move(2, 1000, QUEUE, 1000)],
+                "answer": ok(0x30)},
+               [move(3, 1000, QUEUE, 1000), ok(0x30, queue_depth=1, motion_id=65535)],
+               [move(4, 1000, QUEUE, 1000), ok(0x30, queue_depth=1, motion_id=1)],
+               [req(5, STATUS), ok(STATUS, completed_motions=65536, **idle)]]},
+    {"name": "7.4 only a motion that reaches its targets completes: a replaced or stopped one "
+             "counts nothing and emits nothing",
+     "steps": [hold(move(1, TEN_M, QUEUE), ok(0x30, queue_depth=1, motion_id=1)),
+               wait(1000, motion_done=[]),
+               hold(move(2, 100_000, REPLACE), ok(0x30, queue_depth=1, motion_id=2)),
+               wait(5000, motion_done=[[2, 1]]),
+               hold(req(3, STATUS), ok(STATUS, completed_motions=1, **idle)),
+               hold(move(4, TEN_M, QUEUE), ok(0x30, queue_depth=1, motion_id=3)),
+               wait(500),
+               hold(req(5, 0x33), ok(0x33), motion_done=[]),
+               wait(2000, motion_done=[]),
+               hold(req(6, STATUS), ok(STATUS, completed_motions=1, **idle))]},
+    {"name": "7.4 WHEEL_SPEED is a motion: it replaces the queue, takes the next id and completes "
+             "when its duration runs out; with duration 0 it never completes",
+     "steps": [hold(move(1, TEN_M, QUEUE), ok(0x30, motion_id=1)),
+               hold(move(2, TEN_M, QUEUE), ok(0x30, motion_id=2)),
+               hold(req(3, 0x32, struct.pack("<hhH", 100, 100, 1000)), ok(0x32)),
+               hold(req(4, STATUS), ok(STATUS, motion_state="moving", queue_depth=1,
+                                       current_motion_id=3, completed_motions=0)),
+               wait(3000, motion_done=[[3, 1]]),
+               hold(req(5, STATUS), ok(STATUS, completed_motions=1, **idle)),
+               hold(req(6, 0x32, struct.pack("<hhH", 100, -100, 0)), ok(0x32)),
+               wait(5000, motion_done=[]),
+               hold(req(7, STATUS), ok(STATUS, motion_state="moving", current_motion_id=4,
+                                       completed_motions=1)),
+               hold(req(8, 0x33), ok(0x33)),
+               wait(2000, motion_done=[]),
+               hold(req(9, STATUS), ok(STATUS, completed_motions=1, **idle))]},
     {"name": "7.5 fields are checked in payload order: the first offending field is named",
      "steps": [[req(3, 0x30, struct.pack("<iHB", 0, 0, 0)), refused(0x30, "OUT_OF_RANGE", 0)]]},
     {"name": "7.6 a turn of exactly floor(4π·10^6) µrad is accepted, one more is refused",
@@ -213,6 +319,45 @@ device_rules = [
                 refused(0x31, "OUT_OF_RANGE", 0)],
                [req(6, 0x31, struct.pack("<iHB", -FOUR_PI_URAD - 1, 1000, 0)),
                 refused(0x31, "OUT_OF_RANGE", 0)]]},
+    {"name": "7.6 wheel targets are rounded to whole counts, halves away from zero, and wheels "
+             "stop on them: two moves end twice one move's rounded target",
+     "steps": [[req(1, 0x11, params_bytes(PARAMS)), ok(0x11)],
+               [req(2, 0x20), ok(0x20)],
+               [move(3, ROUNDING_UM, QUEUE), ok(0x30)],
+               [move(4, ROUNDING_UM, QUEUE), ok(0x30)],
+               [req(5, 0x41), ok(0x41, left_counts=2 * left_move, right_counts=2 * right_move)],
+               [req(6, 0x20), ok(0x20)],
+               [move(7, -ROUNDING_UM, QUEUE), ok(0x30)],
+               [move(8, -ROUNDING_UM, QUEUE), ok(0x30)],
+               [req(9, 0x41), ok(0x41, left_counts=-2 * left_move, right_counts=-2 * right_move)],
+               [req(10, 0x20), ok(0x20)],
+               [turn(11, ROUNDING_URAD), ok(0x31)],
+               [turn(12, ROUNDING_URAD), ok(0x31)],
+               [req(13, 0x41), ok(0x41, left_counts=2 * left_turn, right_counts=2 * right_turn)]]},
+    {"name": "7.7 a watchdog trip stops the base: idle, fault bit 3, watchdog tripped; motions "
+             "are refused until HEARTBEAT acknowledges it, and the stopped motion does not resume",
+     "steps": [hold(req(1, 0x60, struct.pack("<H", 100)), ok(0x60, timeout_ms=100)),
+               hold(move(2, TEN_M, QUEUE), ok(0x30, motion_id=1)),
+               wait(3000, motion_done=[]),
+               hold(req(3, STATUS), ok(STATUS, completed_motions=0, fault_flags=8,
+                                       watchdog_state="tripped", **idle)),
+               hold(turn(4, 1_000_000), refused(0x31, "INVALID_STATE", 0xFF)),
+               hold(move(5, 0, QUEUE), refused(0x30, "OUT_OF_RANGE", 0)),
+               hold(req(6, 0x61), ok(0x61)),
+               hold(req(7, STATUS), ok(STATUS, completed_motions=0, fault_flags=0,
+                                       watchdog_state="armed", **idle)),
+               hold(req(8, 0x61), ok(0x61), motion_done=[]),
+               hold(req(9, STATUS), ok(STATUS, completed_motions=0, **idle))]},
+    {"name": "7.7 CONFIGURE_WATCHDOG acknowledges a trip too, and 0 leaves the watchdog disabled",
+     "steps": [hold(req(1, 0x60, struct.pack("<H", 100)), ok(0x60)),
+               hold(move(2, TEN_M, QUEUE), ok(0x30)),
+               wait(3000),
+               hold(req(3, STATUS), ok(STATUS, fault_flags=8, watchdog_state="tripped")),
+               hold(req(4, 0x60, struct.pack("<H", 0)), ok(0x60, timeout_ms=0)),
+               hold(req(5, STATUS), ok(STATUS, fault_flags=0, watchdog_state="disabled",
+                                       **idle)),
+               [move(6, 1000, QUEUE), ok(0x30, motion_id=2), ],
+               [req(7, STATUS), ok(STATUS, completed_motions=1, **idle)]]},
     {"name": "7.8 telemetry and watchdog settings out of range are refused, not clamped",
      "steps": [[req(7, 0x50, struct.pack("<H", 4)), refused(0x50, "OUT_OF_RANGE", 0)],
                [req(8, 0x50, struct.pack("<H", 1001)), refused(0x50, "OUT_OF_RANGE", 0)],
@@ -224,6 +369,28 @@ device_rules = [
              "the factory defaults",
      "steps": [[req(13, 0x10, b"\x01"), refused(0x10, "STORAGE_FAILURE", 0)],
                [req(14, 0x14), ok(0x14)]]},
+    {"name": "7.10 while moving, parameter changes and RESET_ODOMETRY are refused INVALID_STATE "
+             "(after the field checks); everything else is accepted",
+     "steps": [hold(move(1, TEN_M, QUEUE), ok(0x30, motion_id=1)),
+               hold(req(2, 0x11, params_bytes(PARAMS)), refused(0x11, "INVALID_STATE", 0xFF)),
+               hold(req(3, 0x12), refused(0x12, "INVALID_STATE", 0xFF)),
+               hold(req(4, 0x13, bytes([0])), refused(0x13, "INVALID_STATE", 0xFF)),
+               hold(req(5, 0x14), refused(0x14, "INVALID_STATE", 0xFF)),
+               hold(req(6, 0x20), refused(0x20, "INVALID_STATE", 0xFF)),
+               hold(req(7, 0x11, params_bytes(dict(PARAMS, left_wheel_diameter_nm=1))),
+                    refused(0x11, "OUT_OF_RANGE", 0)),
+               hold(req(8, 0x10, bytes([0])), ok(0x10)),
+               hold(req(9, 0x41), ok(0x41)),
+               hold(req(10, 0x42), ok(0x42)),
+               hold(req(11, 0x50, struct.pack("<H", 0)), ok(0x50)),
+               hold(req(12, 0x60, struct.pack("<H", 0)), ok(0x60)),
+               hold(req(13, 0x61), ok(0x61)),
+               hold(req(14, 0x01, bytes([1, 0])), ok(0x01)),
+               hold(move(15, TEN_M, QUEUE), ok(0x30, queue_depth=2, motion_id=2)),
+               hold(req(16, STATUS), ok(STATUS, motion_state="moving", queue_depth=2)),
+               hold(req(17, 0x33), ok(0x33)),
+               wait(2000),
+               hold(req(18, 0x11, params_bytes(PARAMS)), ok(0x11))]},
     {"name": "7.11 HELLO is not remembered: a repeated HELLO is answered afresh",
      "steps": [[req(15, 0x01, bytes([1, 0])), ok(0x01)], [req(15, 0x01, bytes([1, 0])), ok(0x01)]]},
 ]

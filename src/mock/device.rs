@@ -222,7 +222,13 @@ impl MockDevice {
             },
         };
         let active = stored.map_or(config.factory, |b| WheelParams::from(&b));
-        let sim = Simulator::new(config.truth, active, config.noise, config.seed)?;
+        // The firmware counts whole encoder counts: targets are rounded (SPEC.md §7.6),
+        // whatever the noise model says.
+        let noise = NoiseModel {
+            quantise_encoders: true,
+            ..config.noise
+        };
+        let sim = Simulator::new(config.truth, active, noise, config.seed)?;
         Ok(MockDevice {
             rng: ChaCha8Rng::seed_from_u64(config.seed ^ 0x7E1E_3E7F),
             sim,
