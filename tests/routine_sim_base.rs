@@ -96,7 +96,9 @@ async fn a_drive_that_vanishes_after_a_write_rolls_back_in_use_and_committed() {
     };
     let err = run_faulty(&sim, faults, "vanish").await.unwrap_err();
     match &err {
-        RoutineError::Restored { source, committed } => {
+        RoutineError::Restored {
+            source, committed, ..
+        } => {
             assert!(*committed, "the committed copy is put back too");
             assert!(source.to_string().contains("vanished"), "{source}");
         }
@@ -209,6 +211,40 @@ async fn a_report_without_ground_truth_has_no_empty_rows_and_reads_as_words() {
             .count();
         assert_eq!(whole_with_point, 0, "{}", file.display());
     }
+    // Equal scales on the paths plot: the first line drawn is round 1's first CW square as the
+    // odometry saw it, and a metre spans as many pixels across as up.
+    let svg = std::fs::read_to_string(dir.join("paths.svg")).unwrap();
+    let pixels: Vec<[f64; 2]> = svg
+        .split("points=\"")
+        .skip(1)
+        .map(|rest| {
+            rest.split('"')
+                .next()
+                .unwrap()
+                .split_whitespace()
+                .map(|xy| {
+                    let (x, y) = xy.split_once(',').unwrap();
+                    [x.parse().unwrap(), y.parse().unwrap()]
+                })
+                .collect::<Vec<[f64; 2]>>()
+        })
+        .find(|line| line.len() > 2)
+        .expect("a path is drawn");
+    let metres = &report.rounds[0].runs[0].odometry_path;
+    let span = |pts: &[[f64; 2]], i: usize| {
+        let (lo, hi) = pts.iter().fold((f64::MAX, f64::MIN), |(lo, hi), p| {
+            (lo.min(p[i]), hi.max(p[i]))
+        });
+        hi - lo
+    };
+    let (x_scale, y_scale) = (
+        span(&pixels, 0) / span(metres, 0),
+        span(&pixels, 1) / span(metres, 1),
+    );
+    assert!(
+        (x_scale / y_scale - 1.0).abs() < 0.02,
+        "{x_scale:.1} px/m across, {y_scale:.1} px/m up: the square is drawn out of shape"
+    );
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
@@ -236,7 +272,9 @@ async fn parameters_that_are_not_clearly_better_are_restored_unless_kept() {
     .await
     .unwrap_err();
     match &err {
-        RoutineError::Restored { source, committed } => {
+        RoutineError::Restored {
+            source, committed, ..
+        } => {
             assert!(matches!(**source, RoutineError::NotBetter(_)), "{err}");
             assert!(*committed);
             assert!(err.to_string().contains("before"), "{err}");

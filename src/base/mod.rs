@@ -213,6 +213,16 @@ pub trait GroundTruth: Send + Sync {
     fn true_params(&self) -> WheelParams;
 }
 
+/// Opens the parameter store afresh after the link to it was lost (a device that reset or
+/// vanished, a cable re-plugged): the routine calls it once when a rollback failed, so that
+/// it can restore the backup, or at least say truthfully what the store holds.
+pub type Reconnect = Arc<
+    dyn Fn() -> std::pin::Pin<
+            Box<dyn std::future::Future<Output = Result<Arc<dyn ParamStore>, BaseError>> + Send>,
+        > + Send
+        + Sync,
+>;
+
 /// A robot as the routine sees it: one drive, one heading source, one parameter store.
 #[derive(Clone)]
 pub struct Base {
@@ -222,6 +232,8 @@ pub struct Base {
     pub heading: Arc<dyn HeadingSource>,
     /// Where the parameters live.
     pub store: Arc<dyn ParamStore>,
+    /// How to reach the store again after its link was lost, when the backend can.
+    pub reconnect: Option<Reconnect>,
 }
 
 /// The three components' descriptions.
@@ -246,7 +258,14 @@ impl Base {
             drive,
             heading,
             store,
+            reconnect: None,
         }
+    }
+
+    /// The same base, able to reopen its store after the link was lost (see [`Reconnect`]).
+    pub fn with_reconnect(mut self, reconnect: Reconnect) -> Self {
+        self.reconnect = Some(reconnect);
+        self
     }
 
     /// A base whose one device is drive, heading source and store at once.
@@ -259,6 +278,7 @@ impl Base {
             drive: d.clone(),
             heading: d.clone(),
             store: d,
+            reconnect: None,
         }
     }
 

@@ -105,6 +105,12 @@ impl Transaction {
         &self.backup_path
     }
 
+    /// Continues with `store`, a fresh connection to the same store (after the link to the
+    /// first was lost): the backup, the original and what may have been written are kept.
+    pub fn reattach(&mut self, store: Arc<dyn ParamStore>) {
+        self.store = store;
+    }
+
     /// Whether anything may have been written.
     pub fn written(&self) -> bool {
         self.written

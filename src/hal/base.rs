@@ -214,8 +214,28 @@ impl Drive for Client {
     }
 
     fn diagnostics(&self) -> serde_json::Value {
-        serde_json::to_value(self.stats()).unwrap_or_default()
+        let mut v = serde_json::to_value(self.stats()).unwrap_or_default();
+        if let (Some(map), Some(last)) = (v.as_object_mut(), self.last_request()) {
+            map.insert("last_request".into(), format!("{last:?}").into());
+        }
+        v
     }
+}
+
+/// A [`crate::base::Reconnect`] for a device on a serial port: closes `old`'s link (a port
+/// held open by a link whose device stopped answering cannot be reopened) and opens `path`
+/// again at `baud`, with the handshake. For a device that reset or was re-plugged mid-run.
+pub fn reconnect_port(old: Client, path: String, baud: u32) -> crate::base::Reconnect {
+    std::sync::Arc::new(move || {
+        old.close();
+        let path = path.clone();
+        Box::pin(async move {
+            let (client, _) = super::open_port(&path, baud)
+                .await
+                .map_err(|e| BaseError::backend("store", e))?;
+            Ok(std::sync::Arc::new(client) as std::sync::Arc<dyn ParamStore>)
+        })
+    })
 }
 
 /// Real hardware ramps and the mock may run slower than real time: allow 3× + 2 s.

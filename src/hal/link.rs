@@ -86,6 +86,9 @@ pub(super) enum Command {
     },
     /// Abandon everything pending and send STOP at once (guards, Ctrl-C).
     EmergencyStop,
+    /// Send STOP (if this host moved the base) and let go of the stream, so the port can be
+    /// opened again: a reconnection after the device stopped answering.
+    Close,
 }
 
 /// A request waiting its turn: the request, its retry budget override, where its answer goes.
@@ -174,15 +177,21 @@ impl Link {
                         continue;
                     }
                     Some(Command::EmergencyStop) => continue,
-                    None => return,
+                    Some(Command::Close) | None => return,
                 }
             }
             let deadline = pending.as_ref().map(|p| p.deadline);
             tokio::select! {
                 cmd = commands.recv() => match cmd {
-                    None => {
-                        // Every client handle is gone: if this host moved the base, stop it
-                        // before letting go (read-only sessions leave the base alone).
+                    Some(Command::Close) | None => {
+                        for (_, _, reply) in queue.drain(..) {
+                            let _ = reply.send(Err(HalError::Link(LinkError::Closed)));
+                        }
+                        if let Some(p) = pending.take() {
+                            fail(p.reply, LinkError::Closed);
+                        }
+                        // Every client handle is gone, or one asked to let go: if this host moved
+                        // the base, stop it before letting go (read-only sessions leave it alone).
                         if moved {
                             let _ = self.start(&mut wr, Request::Stop, seq.wrapping_add(1), 0, None).await;
                         }

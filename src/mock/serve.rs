@@ -48,6 +48,11 @@ pub struct FaultConfig {
     pub disconnect_after_frames: Option<u64>,
     /// Every n-th request is answered NACK BUSY without being executed.
     pub busy_every: Option<u64>,
+    /// The device vanishes right after executing the first request with this message id,
+    /// its answer unsent: a device killed at the worst moment (a SAVE_PARAMS that landed but
+    /// was never acknowledged).
+    #[serde(default)]
+    pub vanish_after_executing: Option<u8>,
     /// Seed of the fault draws (independent of the simulator's).
     pub seed: u64,
 }
@@ -211,6 +216,11 @@ where
                     last = now;
                 }
                 out.extend(d.handle(&frame));
+                if frame.kind == FrameKind::Request
+                    && faults.cfg.vanish_after_executing == Some(frame.msg)
+                {
+                    return Ok(ServeEnd::Disconnected);
+                }
                 if time == TimeMode::Virtual {
                     out.extend(d.run_until_idle());
                 }

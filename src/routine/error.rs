@@ -51,21 +51,25 @@ pub enum RoutineError {
     #[error("the new parameters are not clearly better: {0} (--keep-worse keeps them anyway)")]
     NotBetter(String),
     /// An error happened after parameters were written; the backup was put back.
-    #[error("{source} (the original parameters were restored{})", if *.committed { " and committed" } else { "" })]
+    #[error("{source} (the original parameters were restored{}{})", if *.committed { " and committed" } else { "" }, if *.reconnected { " after reconnecting" } else { "" })]
     Restored {
         /// The error.
         source: Box<RoutineError>,
         /// Whether the committed copy was restored too.
         committed: bool,
+        /// Whether restoring needed a new connection (the first link was lost).
+        reconnected: bool,
     },
     /// An error happened after parameters were written and restoring them failed too; what
     /// the store holds was read back afterwards.
-    #[error("{source}; restoring the backup failed ({restore_error}). Read back since: in use {active}, committed {committed}. {}", restore_advice(active, committed, backup))]
+    #[error("{source}; restoring the backup failed ({restore_error}{}). Read back since: in use {active}, committed {committed}. {}", reconnect_error.as_ref().map(|e| format!("; reconnecting failed: {e}")).unwrap_or_default(), restore_advice(active, committed, backup))]
     RestoreFailed {
         /// The error.
         source: Box<RoutineError>,
         /// Why restoring failed.
         restore_error: Box<BaseError>,
+        /// Why reconnecting failed, when the base could try.
+        reconnect_error: Option<String>,
         /// The backup file to restore from.
         backup: PathBuf,
         /// What the copy in use holds now.
@@ -97,6 +101,7 @@ mod tests {
         let err = RoutineError::RestoreFailed {
             source: Box::new(RoutineError::Cancelled),
             restore_error: Box::new(BaseError::WatchdogTripped),
+            reconnect_error: None,
             backup: PathBuf::from("/tmp/odocal-backup-x.json"),
             active: Holds::New,
             committed: Holds::Unknown("no answer".into()),

@@ -132,11 +132,11 @@ pub async fn run(
             // Stop first (the guard in run_square has already asked for a stop if a square was
             // cut short; this covers everything else), then undo any write.
             let _ = tokio::time::timeout(Duration::from_secs(2), base.drive.stop()).await;
-            let err = undo(&mut tx, err).await;
+            let err = undo(base, &mut tx, err).await;
             // Nothing measured is thrown away: the squares driven so far, where it stopped
             // and why, beside the backup or in the report directory.
             let dir = cfg.report_dir.as_ref().unwrap_or(&cfg.backup_dir);
-            match write_partial(base, cfg, &progress, &err, dir) {
+            match write_partial(base, cfg, &progress, &err, dir, tx.backup_path()) {
                 Ok(path) => ui.event(&RoutineEvent::Warning(format!(
                     "{} square(s) measured before the failure ({}) are in {}",
                     progress.runs.len(),
@@ -162,21 +162,25 @@ pub struct Progress {
     pub runs: Vec<RunReport>,
 }
 
-/// Writes `partial-report-<ms>.json` (created new) into `dir`: the phase, the error, the base
-/// (its port) and its link diagnostics (requests, retries, what failed), the settings and every
-/// square measured, so the run can be estimated from or understood.
+/// Writes `partial-report-<ms>.json` (created new) into `dir`: the phase, the error, what the
+/// robot's parameters are now ([`ParamsAfterFailure`]) and the backup, the base (its port) and
+/// its link diagnostics (requests, retries, the last request), the settings and every square
+/// measured, so the run can be estimated from or understood.
 fn write_partial(
     base: &Base,
     cfg: &RoutineConfig,
     progress: &Progress,
     err: &RoutineError,
     dir: &std::path::Path,
+    backup: &std::path::Path,
 ) -> std::io::Result<std::path::PathBuf> {
     let stamp = crate::base::files::stamp_ms();
     let value = serde_json::json!({
         "odocal_version": env!("CARGO_PKG_VERSION"),
         "error": err.to_string(),
         "phase": progress.phase,
+        "parameters": ParamsAfterFailure::of(err),
+        "backup": backup,
         "base": base.info(),
         "diagnostics": base.drive.diagnostics(),
         "config": cfg,
@@ -216,24 +220,97 @@ pub fn check_output_dir(dir: &std::path::Path) -> Result<(), RoutineError> {
     Ok(())
 }
 
-/// Rolls back `tx` after `err` and says what became of the parameters.
-async fn undo(tx: &mut Transaction, err: RoutineError) -> RoutineError {
+/// How long reopening a store after its link was lost may take (a board that resets when its
+/// port opens needs about 2 s, a USB adapter re-enumerating a few more).
+pub const RECONNECT_TIMEOUT: Duration = Duration::from_secs(10);
+
+/// Rolls back `tx` after `err` and says what became of the parameters. When the rollback
+/// fails (the device vanished or reset mid-run) and the base can reconnect, it reconnects once
+/// and tries again; if that fails too, it reads back what each copy holds, so the error states
+/// what is true rather than what is feared.
+async fn undo(base: &Base, tx: &mut Transaction, err: RoutineError) -> RoutineError {
     use crate::base::transaction::Rollback;
-    match tx.rollback().await {
+    let mut outcome = tx.rollback().await;
+    let mut reconnected = false;
+    let mut reconnect_error = None;
+    if outcome.is_err() {
+        if let Some(reconnect) = &base.reconnect {
+            match tokio::time::timeout(RECONNECT_TIMEOUT, reconnect()).await {
+                Ok(Ok(store)) => {
+                    tx.reattach(store);
+                    reconnected = true;
+                    outcome = tx.rollback().await;
+                }
+                Ok(Err(e)) => reconnect_error = Some(e.to_string()),
+                Err(_) => {
+                    reconnect_error = Some(format!("no connection within {RECONNECT_TIMEOUT:?}"))
+                }
+            }
+        }
+    }
+    match outcome {
         Ok(Rollback::NothingWritten) => err,
         Ok(outcome) => RoutineError::Restored {
             source: Box::new(err),
             committed: outcome == Rollback::RestoredAndCommitted,
+            reconnected,
         },
         Err(e) => {
             let (active, committed) = tx.what_the_store_holds().await;
             RoutineError::RestoreFailed {
                 source: Box::new(err),
                 restore_error: Box::new(e),
+                reconnect_error,
                 backup: tx.backup_path().to_path_buf(),
                 active,
                 committed,
             }
+        }
+    }
+}
+
+/// What the host knows of the robot's parameters after a failed run: the statement a partial
+/// report makes, read from the error [`undo`] returned.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+#[serde(rename_all = "snake_case", tag = "outcome")]
+pub enum ParamsAfterFailure {
+    /// Nothing was written: the robot holds what the backup holds.
+    Untouched,
+    /// Parameters had been written and the backup was put back.
+    Restored {
+        /// Whether the committed copy was restored too (a commit may have happened).
+        committed: bool,
+        /// Whether it took a new connection (the first link was lost).
+        reconnected: bool,
+    },
+    /// Restoring failed; what each copy was read back to hold since.
+    RestoreFailed {
+        /// The copy in use.
+        active: crate::base::transaction::Holds,
+        /// The committed copy.
+        committed: crate::base::transaction::Holds,
+    },
+}
+
+impl ParamsAfterFailure {
+    /// The statement for an error returned by the routine after its rollback.
+    pub fn of(err: &RoutineError) -> Self {
+        match err {
+            RoutineError::Restored {
+                committed,
+                reconnected,
+                ..
+            } => ParamsAfterFailure::Restored {
+                committed: *committed,
+                reconnected: *reconnected,
+            },
+            RoutineError::RestoreFailed {
+                active, committed, ..
+            } => ParamsAfterFailure::RestoreFailed {
+                active: active.clone(),
+                committed: committed.clone(),
+            },
+            _ => ParamsAfterFailure::Untouched,
         }
     }
 }
@@ -735,7 +812,7 @@ pub async fn write_parameters(
     }
     match cancellable(cancel, tx.apply(new)).await {
         Ok(applied) => Ok((applied, tx.backup_path().to_path_buf())),
-        Err(e) => Err(undo(&mut tx, e).await),
+        Err(e) => Err(undo(base, &mut tx, e).await),
     }
 }
 

@@ -575,7 +575,10 @@ async fn run_on(mut cfg: RoutineConfig, target: Target<'_>, flags: &RoutineFlags
                     info.firmware_id, info.major, info.minor, info.serial_number
                 );
             }
-            Base::single(client)
+            // A device that resets or is re-plugged mid-run is reopened to restore the backup.
+            let reconnect =
+                odocal::hal::base::reconnect_port(client.clone(), path.to_string(), baud);
+            Base::single(client).with_reconnect(reconnect)
         }
         Target::RoboClaw {
             drive,

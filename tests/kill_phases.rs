@@ -1,0 +1,330 @@
+//! The mock device killed at each phase of a calibration (pre-flight, round 1, the write-back,
+//! round 2, verification), then powered up again from its non-volatile storage: every run
+//! leaves a partial report, and what the host states about the robot's parameters is what the
+//! device's storage really holds afterwards. A run whose report directory cannot be written
+//! fails before anything is sent beyond the handshake.
+
+mod common;
+
+use odocal::base::transaction::Holds;
+use odocal::base::{Base, ParamStore, Reconnect};
+use odocal::calibration::Method;
+use odocal::hal::link::LinkConfig;
+use odocal::hal::Client;
+use odocal::kinematics::WheelParams;
+use odocal::mock::{
+    lock, spawn_duplex, FaultConfig, MockConfig, MockDevice, SharedDevice, TimeMode,
+};
+use odocal::protocol::message::{id, ParamsBlock};
+use odocal::routine::config::{RoutineConfig, WritePolicy};
+use odocal::routine::{run, ParamsAfterFailure, RoutineError, RoutineEvent, RoutineUi};
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex};
+use tokio::task::AbortHandle;
+use tokio_util::sync::CancellationToken;
+
+/// When the test kills the device.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Kill {
+    /// As the pre-flight checks start.
+    Preflight,
+    /// After this motion (1..=8) of this run of this phase ("round 1", "verification").
+    AfterMotion(&'static str, usize, usize),
+    /// The device dies right after executing its first SAVE_PARAMS, the answer unsent.
+    OnSave,
+}
+
+/// A UI that kills the device at its moment.
+struct Killer {
+    kill: Kill,
+    server: Arc<Mutex<Option<AbortHandle>>>,
+}
+
+impl Killer {
+    fn now(&self) {
+        if let Some(h) = self.server.lock().unwrap().take() {
+            h.abort();
+        }
+    }
+}
+
+impl RoutineUi for Killer {
+    fn confirm(&mut self, _question: &str) -> bool {
+        true
+    }
+    fn event(&mut self, event: &RoutineEvent) {
+        match (self.kill, event) {
+            (Kill::Preflight, RoutineEvent::Stage(s)) if s.starts_with("pre-flight") => self.now(),
+            (
+                Kill::AfterMotion(phase, run, motion),
+                RoutineEvent::Motion {
+                    phase: p,
+                    run: r,
+                    motion: m,
+                    ..
+                },
+            ) if p == phase && *r == run && *m == motion => self.now(),
+            _ => {}
+        }
+    }
+}
+
+fn config(storage: &Path) -> MockConfig {
+    let mut cfg = MockConfig::with_ratios(common::nominal(), common::TRUE_E_B, common::TRUE_E_D)
+        .expect("valid robot");
+    cfg.noise.compass_sigma_rad = 0.0;
+    cfg.storage_path = Some(storage.to_path_buf());
+    cfg
+}
+
+/// The parameters in the device's non-volatile file, as a power-up would load them.
+fn stored(storage: &Path) -> WheelParams {
+    let block: ParamsBlock =
+        serde_json::from_str(&std::fs::read_to_string(storage).expect("stored copy")).unwrap();
+    WheelParams::from(&block)
+}
+
+/// Powers the device up from its storage and serves it on a new in-memory link.
+async fn power_up(
+    storage: &Path,
+    faults: FaultConfig,
+) -> (
+    SharedDevice,
+    Client,
+    tokio::task::JoinHandle<std::io::Result<odocal::mock::ServeEnd>>,
+) {
+    let device: SharedDevice = Arc::new(Mutex::new(MockDevice::new(config(storage)).unwrap()));
+    let (stream, task) = spawn_duplex(device.clone(), TimeMode::Virtual, faults);
+    let (client, _) = Client::connect(stream, LinkConfig::default())
+        .await
+        .unwrap();
+    (device, client, task)
+}
+
+fn routine(dir: &Path) -> RoutineConfig {
+    RoutineConfig {
+        side_m: 1.0,
+        runs_per_direction: 2,
+        max_speed_m_s: 1.0,
+        max_rate_rad_s: 3.0,
+        settle_s: 0.0,
+        write_back: WritePolicy::Yes,
+        verification_runs: 1,
+        method: Some(Method::Exact),
+        backup_dir: dir.join("backups"),
+        report_dir: Some(dir.join("report")),
+        ..RoutineConfig::default()
+    }
+}
+
+struct Outcome {
+    err: RoutineError,
+    partial: serde_json::Value,
+    after_power_up: WheelParams,
+    reconnected_device: Option<SharedDevice>,
+}
+
+async fn calibrate_and_kill(name: &str, kill: Kill) -> Outcome {
+    let dir = common::scratch(&format!("kill-{name}"));
+    std::fs::create_dir_all(&dir).unwrap();
+    let storage = dir.join("nv.json");
+    // The robot holds its factory parameters, saved.
+    let original = common::nominal();
+    std::fs::write(
+        &storage,
+        serde_json::to_string(&ParamsBlock::try_from(&original).unwrap()).unwrap(),
+    )
+    .unwrap();
+    let faults = FaultConfig {
+        vanish_after_executing: (kill == Kill::OnSave).then_some(id::SAVE_PARAMS),
+        ..FaultConfig::default()
+    };
+    let (_device, client, task) = power_up(&storage, faults).await;
+    let server = Arc::new(Mutex::new(Some(task.abort_handle())));
+    // Reconnecting powers the device up again from what its storage holds then.
+    let reconnected: Arc<Mutex<Option<SharedDevice>>> = Arc::default();
+    let reconnect: Reconnect = {
+        let (storage, reconnected) = (storage.clone(), reconnected.clone());
+        Arc::new(move || {
+            let (storage, reconnected) = (storage.clone(), reconnected.clone());
+            Box::pin(async move {
+                let (device, client, _task) = power_up(&storage, FaultConfig::default()).await;
+                *reconnected.lock().unwrap() = Some(device);
+                Ok(Arc::new(client) as Arc<dyn ParamStore>)
+            })
+        })
+    };
+    let cfg = routine(&dir);
+    let err = run(
+        &Base::single(client).with_reconnect(reconnect),
+        &cfg,
+        None,
+        &mut Killer { kill, server },
+        &CancellationToken::new(),
+    )
+    .await
+    .expect_err(name);
+    let partials: Vec<PathBuf> = std::fs::read_dir(dir.join("report"))
+        .unwrap_or_else(|e| panic!("{name}: no report directory ({e}): {err}"))
+        .map(|e| e.unwrap().path())
+        .filter(|p| {
+            p.file_name()
+                .unwrap()
+                .to_string_lossy()
+                .starts_with("partial-report-")
+        })
+        .collect();
+    assert_eq!(partials.len(), 1, "{name}: one partial report: {err}");
+    let partial = serde_json::from_str(&std::fs::read_to_string(&partials[0]).unwrap()).unwrap();
+    let reconnected_device = reconnected.lock().unwrap().take();
+    Outcome {
+        err,
+        partial,
+        after_power_up: stored(&storage),
+        reconnected_device,
+    }
+}
+
+/// Checks the host's statement against the device's storage, and the partial report.
+fn check(name: &str, o: &Outcome, phase: &str, runs_measured: usize) {
+    let original = common::nominal();
+    let statement = ParamsAfterFailure::of(&o.err);
+    assert_eq!(
+        o.partial["parameters"],
+        serde_json::to_value(&statement).unwrap(),
+        "{name}: the partial report states what the error states"
+    );
+    assert_eq!(o.partial["phase"], phase, "{name}: {}", o.err);
+    assert_eq!(
+        o.partial["runs"].as_array().unwrap().len(),
+        runs_measured,
+        "{name}: every square measured before the kill is kept"
+    );
+    assert!(
+        o.partial["diagnostics"]["last_request"].is_string(),
+        "{name}: the last request is named: {}",
+        o.partial["diagnostics"]
+    );
+    assert!(
+        o.partial["error"].as_str().unwrap().contains("closed"),
+        "{name}: {}",
+        o.partial["error"]
+    );
+    match statement {
+        ParamsAfterFailure::Untouched => {
+            assert_eq!(o.after_power_up, original, "{name}: untouched, and it is")
+        }
+        ParamsAfterFailure::Restored { committed, .. } => {
+            assert!(
+                committed,
+                "{name}: a commit may have landed, so it is undone"
+            );
+            assert!(
+                odocal::base::same_within(
+                    &o.after_power_up,
+                    &original,
+                    &WheelParams {
+                        left_wheel_diameter_m: 1e-9,
+                        right_wheel_diameter_m: 1e-9,
+                        wheelbase_m: 1e-9,
+                        counts_per_wheel_rev: 1e-6,
+                    }
+                ),
+                "{name}: said restored, storage holds {:?}",
+                o.after_power_up
+            );
+            let d = o
+                .reconnected_device
+                .as_ref()
+                .expect("restored over a new link");
+            assert_eq!(lock(d).active_params(), o.after_power_up, "{name}");
+        }
+        ParamsAfterFailure::RestoreFailed { committed, .. } => match committed {
+            Holds::Original => assert_eq!(o.after_power_up, original, "{name}"),
+            other => panic!("{name}: restore failed with the committed copy {other}"),
+        },
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_device_killed_in_any_phase_leaves_a_partial_report_and_a_true_statement() {
+    let o = calibrate_and_kill("preflight", Kill::Preflight).await;
+    check("preflight", &o, "pre-flight", 0);
+    assert_eq!(
+        ParamsAfterFailure::of(&o.err),
+        ParamsAfterFailure::Untouched
+    );
+
+    let o = calibrate_and_kill("round1", Kill::AfterMotion("round 1", 2, 3)).await;
+    check("round 1", &o, "round 1", 1);
+    assert_eq!(
+        ParamsAfterFailure::of(&o.err),
+        ParamsAfterFailure::Untouched
+    );
+
+    // SAVE_PARAMS landed (the storage held the new parameters) but was never acknowledged.
+    let o = calibrate_and_kill("write-back", Kill::OnSave).await;
+    check("write-back", &o, "write-back after round 1", 4);
+    assert_eq!(
+        ParamsAfterFailure::of(&o.err),
+        ParamsAfterFailure::Restored {
+            committed: true,
+            reconnected: true
+        }
+    );
+
+    let o = calibrate_and_kill("round2", Kill::AfterMotion("round 2", 1, 5)).await;
+    check("round 2", &o, "round 2", 4);
+    assert!(matches!(
+        ParamsAfterFailure::of(&o.err),
+        ParamsAfterFailure::Restored {
+            reconnected: true,
+            ..
+        }
+    ));
+
+    let o = calibrate_and_kill("verification", Kill::AfterMotion("verification", 1, 2)).await;
+    check("verification", &o, "verification", 8);
+    assert!(matches!(
+        ParamsAfterFailure::of(&o.err),
+        ParamsAfterFailure::Restored {
+            reconnected: true,
+            ..
+        }
+    ));
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn nothing_is_sent_before_the_output_locations_are_checked() {
+    let dir = common::scratch("kill-output-first");
+    std::fs::create_dir_all(&dir).unwrap();
+    let storage = dir.join("nv.json");
+    let (device, client, _task) = power_up(&storage, FaultConfig::default()).await;
+    let not_a_dir = dir.join("report-is-a-file");
+    std::fs::write(&not_a_dir, "x").unwrap();
+    let cfg = RoutineConfig {
+        report_dir: Some(not_a_dir),
+        ..routine(&dir)
+    };
+    let err = run(
+        &Base::single(client),
+        &cfg,
+        None,
+        &mut Killer {
+            kill: Kill::Preflight,
+            server: Arc::default(),
+        },
+        &CancellationToken::new(),
+    )
+    .await
+    .unwrap_err();
+    assert!(matches!(err, RoutineError::Output { .. }), "{err}");
+    let counters = lock(&device).counters();
+    assert_eq!(
+        counters.executed_requests, 1,
+        "only the handshake: {counters:?}"
+    );
+    let backups = std::fs::read_dir(dir.join("backups")).map_or(0, |d| d.count());
+    assert_eq!(backups, 0, "no backup was taken either");
+    assert!(!storage.exists(), "nothing was saved");
+}
