@@ -197,8 +197,9 @@ fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> DatasetError + '_ {
     }
 }
 
-fn reader(path: &Path) -> Result<csv::Reader<std::fs::File>, DatasetError> {
-    let file = std::fs::File::open(path).map_err(io_err(path))?;
+fn reader(path: &Path) -> Result<csv::Reader<std::io::Take<std::fs::File>>, DatasetError> {
+    let file = crate::base::files::open_bounded(path, crate::base::files::MAX_DATA_FILE)
+        .map_err(io_err(path))?;
     Ok(csv::ReaderBuilder::new()
         .has_headers(false)
         .flexible(true)

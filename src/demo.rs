@@ -103,6 +103,18 @@ pub async fn run_demo(
     cancel: &CancellationToken,
 ) -> Result<(Report, SharedDevice), DemoError> {
     let device = demo_device(opts)?;
+    let report = run_demo_on(&device, opts, ui, cancel).await?;
+    Ok((report, device))
+}
+
+/// [`run_demo`] on a device the caller built (and can inspect afterwards, whether the run
+/// succeeded or not).
+pub async fn run_demo_on(
+    device: &SharedDevice,
+    opts: &DemoOptions,
+    ui: &mut dyn RoutineUi,
+    cancel: &CancellationToken,
+) -> Result<Report, DemoError> {
     let server =
         spawn_pty(device.clone(), TimeMode::Virtual, opts.faults).map_err(DemoError::Pty)?;
     let (client, _) = open_port(&server.path, opts.routine.baud).await?;
@@ -115,5 +127,5 @@ pub async fn run_demo(
         cancel,
     )
     .await?;
-    Ok((report, device))
+    Ok(report)
 }

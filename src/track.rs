@@ -158,10 +158,12 @@ fn check_step(
 
 /// Reads a telemetry log.
 pub fn read_log(path: &Path) -> Result<(LogHeader, Vec<TelemetrySample>), LogError> {
-    let file = std::fs::File::open(path).map_err(|source| LogError::Io {
-        path: path.to_path_buf(),
-        source,
-    })?;
+    let file = crate::base::files::open_bounded(path, crate::base::files::MAX_DATA_FILE).map_err(
+        |source| LogError::Io {
+            path: path.to_path_buf(),
+            source,
+        },
+    )?;
     let mut header = None;
     let mut samples = Vec::new();
     for (i, line) in std::io::BufReader::new(file).lines().enumerate() {

@@ -4,6 +4,7 @@ mod common;
 
 use common::{odocal, odocal_json, scratch, spawn_mock};
 use serde_json::Value;
+use std::process::{Command, Stdio};
 
 fn json(args: &[&str]) -> Value {
     odocal_json(args)
@@ -340,7 +341,6 @@ fn ports_lists_serial_ports_as_json() {
 #[test]
 fn a_closed_pipe_ends_the_program_quietly_and_negative_values_reach_validation() {
     use std::io::Read;
-    use std::process::{Command, Stdio};
     // `odocal track … | head -c 10` over ~200 kB of output (more than a pipe holds): the
     // reader goes away after a few bytes.
     let Some(root) = common::optiodom("free") else {
@@ -698,4 +698,127 @@ fn numeric_flags_outside_their_physical_range_are_refused_before_anything_runs()
             "{args:?}"
         );
     }
+}
+
+#[test]
+fn parameters_outside_the_spec_are_refused_by_the_host_before_anything_is_sent() {
+    let dir = scratch("host-range");
+    std::fs::create_dir_all(&dir).unwrap();
+    let (mut mock, path) = spawn_mock(&[]);
+    let d = dir.to_str().unwrap();
+    // 2.5 m fits the wire's u32 but not SPEC.md §4.1; 5 m does not even fit the wire (it was
+    // a debug dump); a 0.5 right/left diameter ratio breaks the ratio rule.
+    for (flag, value, says) in [
+        (
+            "--wheelbase-m",
+            "2.5",
+            "wheelbase 2.5 m is outside 0.02..=2 m",
+        ),
+        ("--wheelbase-m", "5", "wheelbase 5 m is outside 0.02..=2 m"),
+        (
+            "--right-wheel-diameter-m",
+            "0.075",
+            "ratio 0.5000 is outside 0.8..=1.25",
+        ),
+    ] {
+        let (ok, _, err) = odocal(&[
+            "params",
+            "set",
+            "--port",
+            &path,
+            flag,
+            value,
+            "--backup-dir",
+            d,
+        ]);
+        assert!(!ok, "{flag} {value}");
+        assert!(err.contains(says) && err.contains("not sent"), "{err}");
+        assert!(!err.contains("UnitError"), "{err}");
+    }
+    let backups = std::fs::read_dir(&dir).map_or(0, |r| r.count());
+    assert_eq!(backups, 0, "no backup for a change that was never sent");
+    assert_eq!(
+        odocal_json(&["params", "get", "--port", &path, "--json"])["wheelbase_m"],
+        0.39
+    );
+    drop(mock.stdin.take());
+    let _ = mock.wait();
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Runs the binary, which must finish within `secs` (it is killed and the test fails if not).
+fn odocal_within(args: &[&str], secs: u64) -> (bool, String) {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_odocal"))
+        .args(args)
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let start = std::time::Instant::now();
+    loop {
+        if let Some(status) = child.try_wait().unwrap() {
+            let mut err = String::new();
+            std::io::Read::read_to_string(&mut child.stderr.take().unwrap(), &mut err).unwrap();
+            return (status.success(), err);
+        }
+        if start.elapsed() > std::time::Duration::from_secs(secs) {
+            let _ = child.kill();
+            panic!("odocal {args:?} still running after {secs} s");
+        }
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+}
+
+/// Files linked to endless devices (or a FIFO nobody writes) were read until the kernel killed
+/// odocal: every file it reads is now judged first, refused with the reason, at once.
+#[test]
+fn endless_and_special_files_are_refused_not_read_forever() {
+    let dir = scratch("endless");
+    std::fs::create_dir_all(&dir).unwrap();
+    let zero = |name: &str| {
+        let p = dir.join(name);
+        std::os::unix::fs::symlink("/dev/zero", &p).unwrap();
+        p.to_str().unwrap().to_string()
+    };
+    let fifo = dir.join("fifo.toml");
+    assert!(Command::new("mkfifo")
+        .arg(&fifo)
+        .status()
+        .unwrap()
+        .success());
+    let fifo = fifo.to_str().unwrap().to_string();
+    let routine = zero("routine.toml");
+    let log = zero("telemetry.log");
+    let bag = zero("run.mcap");
+    let backup = zero("backup.json");
+    for args in [
+        vec!["run", routine.as_str()],
+        vec!["run", fifo.as_str()],
+        vec!["track", "--log", log.as_str()],
+        vec!["bag", bag.as_str()],
+        vec!["export", "--from", backup.as_str(), "--ros2", "out.yaml"],
+    ] {
+        let (ok, err) = odocal_within(&args, 10);
+        assert!(!ok, "{args:?}");
+        assert!(err.contains("not a regular file"), "{args:?}: {err}");
+    }
+    // A recorded set whose run file is a link to /dev/zero.
+    if let Some(root) = common::optiodom("square") {
+        let real = root.join("square/230620202042");
+        let set = dir.join("230620202042");
+        std::fs::create_dir_all(&set).unwrap();
+        for entry in std::fs::read_dir(&real).unwrap() {
+            let p = entry.unwrap().path();
+            let name = p.file_name().unwrap().to_owned();
+            if name.to_string_lossy().ends_with("run-01.csv") {
+                std::os::unix::fs::symlink("/dev/zero", set.join(&name)).unwrap();
+            } else {
+                std::fs::copy(&p, set.join(&name)).unwrap();
+            }
+        }
+        let (ok, err) = odocal_within(&["replay", "--dataset", set.to_str().unwrap()], 10);
+        assert!(!ok);
+        assert!(err.contains("not a regular file"), "{err}");
+    }
+    let _ = std::fs::remove_dir_all(&dir);
 }

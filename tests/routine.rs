@@ -220,6 +220,7 @@ async fn a_nack_on_save_restores_the_backup() {
         RoutineError::Restored {
             source,
             committed: saved,
+            ..
         } => {
             assert!(!saved, "a refused save leaves the stored copy alone");
             assert!(source.to_string().contains("StorageFailure"), "{source}");
@@ -301,6 +302,7 @@ async fn cancelling_after_a_write_restores_ram_and_storage() {
         RoutineError::Restored {
             source,
             committed: saved,
+            ..
         } => {
             assert!(matches!(*source, RoutineError::Cancelled));
             assert!(saved);
@@ -436,4 +438,43 @@ async fn calibrate_completes_on_a_lossy_link_twenty_seeds_out_of_twenty() {
         completed += 1;
     }
     assert_eq!(completed, 20);
+}
+
+/// `demo --true-eb 0.5` once oscillated through three rounds, left the robot worse and said
+/// "parameters written and saved" with exit 0. Now it fails, and the simulated robot's
+/// parameters, in use and stored, are what they were before the run.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_robot_the_routine_cannot_fix_fails_and_keeps_its_parameters() {
+    for allow_large_change in [false, true] {
+        let mut opts = demo_options(&format!("half-eb-{allow_large_change}"));
+        opts.true_e_b = 0.5;
+        if allow_large_change {
+            opts.routine.max_change = 1.0;
+            opts.routine.allow_large_change = true;
+        }
+        let device = odocal::demo::demo_device(&opts).unwrap();
+        let before = {
+            let d = lock(&device);
+            (d.active_params(), d.stored_params())
+        };
+        let result =
+            odocal::demo::run_demo_on(&device, &opts, &mut Unattended, &CancellationToken::new())
+                .await;
+        let d = lock(&device);
+        match result {
+            Err(err) => assert_eq!(
+                (d.active_params(), d.stored_params()),
+                before,
+                "large change allowed: {allow_large_change}: {err}"
+            ),
+            // Succeeding is allowed only as a real fix: converged and clearly better.
+            Ok(report) => {
+                assert!(allow_large_change && report.converged);
+                assert!(
+                    report.mean_abs_heading_error_after_deg.unwrap() * 10.0
+                        < report.mean_abs_heading_error_before_deg
+                );
+            }
+        }
+    }
 }

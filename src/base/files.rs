@@ -75,7 +75,8 @@ pub fn create_unique(name: impl Fn(u32) -> PathBuf, bytes: &[u8]) -> std::io::Re
 /// Copies `path` to a new `<path>.odocal-backup-<ms>[-n]` beside it, never overwriting.
 pub fn backup_beside(path: &Path) -> std::io::Result<PathBuf> {
     let stamp = stamp_ms();
-    let text = std::fs::read(path)?;
+    let mut text = Vec::new();
+    std::io::Read::read_to_end(&mut open_bounded(path, MAX_TEXT_FILE)?, &mut text)?;
     create_unique(
         |n| {
             let mut name = path.as_os_str().to_owned();
@@ -90,23 +91,44 @@ pub fn backup_beside(path: &Path) -> std::io::Result<PathBuf> {
     )
 }
 
-/// Reads a text file of at most `max_bytes` (configuration files are small; a device node or a
-/// huge file is refused rather than read until memory runs out).
-pub fn read_bounded(path: &Path, max_bytes: u64) -> std::io::Result<String> {
-    let len = std::fs::metadata(path)?.len();
-    if len > max_bytes {
+/// Opens a file to read at most `max_bytes` of it: only a regular file (a device node such as
+/// `/dev/zero`, or a pipe, never ends; a symlink is followed to what it names and judged by
+/// that) no larger than the bound, and reading stops at the bound even if the file grows.
+pub fn open_bounded(path: &Path, max_bytes: u64) -> std::io::Result<std::io::Take<std::fs::File>> {
+    // Judged before opening: opening a FIFO would block until a writer came.
+    let meta = std::fs::metadata(path)?;
+    if !meta.is_file() {
         return Err(std::io::Error::new(
-            std::io::ErrorKind::InvalidData,
-            format!("{len} bytes is more than the {max_bytes} a configuration file may have"),
+            std::io::ErrorKind::InvalidInput,
+            "not a regular file (a device or a pipe may never end)",
         ));
     }
+    if meta.len() > max_bytes {
+        return Err(std::io::Error::new(
+            std::io::ErrorKind::InvalidData,
+            format!(
+                "{} bytes is more than the {max_bytes} this file may have",
+                meta.len()
+            ),
+        ));
+    }
+    Ok(std::io::Read::take(std::fs::File::open(path)?, max_bytes))
+}
+
+/// Reads a text file of at most `max_bytes` ([`open_bounded`]): configuration files, backups
+/// and reports are small, and a device node or a huge file is refused rather than read until
+/// memory runs out.
+pub fn read_bounded(path: &Path, max_bytes: u64) -> std::io::Result<String> {
     let mut text = String::new();
-    std::io::Read::read_to_string(
-        &mut std::io::Read::take(std::fs::File::open(path)?, max_bytes + 1),
-        &mut text,
-    )?;
+    std::io::Read::read_to_string(&mut open_bounded(path, max_bytes)?, &mut text)?;
     Ok(text)
 }
+
+/// Most bytes odocal reads of a configuration, backup, routine or report file.
+pub const MAX_TEXT_FILE: u64 = 16 << 20;
+
+/// Most bytes odocal reads of one recorded run or telemetry log (hours of 200 Hz samples).
+pub const MAX_DATA_FILE: u64 = 1 << 30;
 
 /// What a file store written with odocal's text formats resolves: values are written with
 /// at least ten significant decimals, far below a nanometre at robot sizes.

@@ -285,7 +285,7 @@ pub fn read_backup(path: &Path) -> Result<BackupFile, BaseError> {
         path: path.to_path_buf(),
         source,
     };
-    let text = std::fs::read_to_string(path).map_err(err)?;
+    let text = super::files::read_bounded(path, super::files::MAX_TEXT_FILE).map_err(err)?;
     let backup: BackupFile = serde_json::from_str(&text)
         .map_err(|e| err(std::io::Error::new(std::io::ErrorKind::InvalidData, e)))?;
     backup

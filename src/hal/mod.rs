@@ -164,6 +164,8 @@ pub struct Client {
     label: Arc<str>,
     /// The active parameters as last read or written, to turn counts into metres.
     geometry: Arc<std::sync::Mutex<Option<WheelParams>>>,
+    /// The last request handed to the link, for a report of where a failed run stopped.
+    last_request: Arc<std::sync::Mutex<Option<Request>>>,
 }
 
 /// Opens a serial port by path (the only place that names `tokio_serial`) and connects.
@@ -242,6 +244,7 @@ impl Client {
             info: placeholder,
             label: Arc::from("stream"),
             geometry: Arc::default(),
+            last_request: Arc::default(),
         };
         // HELLO is retried for HELLO_BUDGET: long enough for a board that resets when its port
         // opens (Arduino-style bootloaders take 1–2 s), short enough to diagnose a wrong port.
@@ -349,6 +352,9 @@ impl Client {
         budget: Option<Duration>,
     ) -> Result<Response, HalError> {
         let (reply, rx) = oneshot::channel();
+        if let Ok(mut last) = self.last_request.lock() {
+            *last = Some(request);
+        }
         self.commands
             .send(Command::Request {
                 request,
@@ -357,6 +363,17 @@ impl Client {
             })
             .map_err(|_| LinkError::Closed)?;
         rx.await.map_err(|_| LinkError::Closed)?
+    }
+
+    /// The last request handed to the link (answered or not).
+    pub fn last_request(&self) -> Option<Request> {
+        self.last_request.lock().ok().and_then(|l| *l)
+    }
+
+    /// Lets go of the link: pending requests fail, STOP is sent if this host moved the base,
+    /// and the port is closed once every task has seen it, so it can be opened again.
+    pub fn close(&self) {
+        let _ = self.commands.send(Command::Close);
     }
 
     /// Abandons pending requests and sends STOP at once, without waiting. Safe from `Drop`.
@@ -376,7 +393,8 @@ impl Client {
 
     /// Writes the active (RAM) parameters; returns them as the device applied them.
     pub async fn set_params(&self, params: &WheelParams) -> Result<WheelParams, HalError> {
-        let block = ParamsBlock::try_from(params).map_err(invalid)?;
+        // Checked here, before anything is sent, rather than left to the device's NACK.
+        let block = wire_params(params)?;
         expect!(self.request(Request::SetParams(block)).await?,
             Response::SetParams(b) => self.remember(WheelParams::from(&b)))
     }
@@ -587,6 +605,54 @@ impl Client {
     pub async fn heartbeat(&self) -> Result<(), HalError> {
         expect!(self.request(Request::Heartbeat).await?, Response::Heartbeat => ())
     }
+}
+
+/// `params` as the wire carries them, if SPEC.md §4.1 allows them: the host's own range check,
+/// so nothing out of range is sent (or backed up for) and the refusal names the field.
+pub fn wire_params(params: &WheelParams) -> Result<ParamsBlock, HalError> {
+    let block = ParamsBlock::try_from(params).map_err(|_| {
+        // Does not fit the wire at all: find the field the range check names.
+        let field = [
+            params.left_wheel_diameter_m,
+            params.right_wheel_diameter_m,
+            params.wheelbase_m,
+        ]
+        .iter()
+        .position(|v| !(v.is_finite() && *v > 0.0 && *v < 4.0))
+        .unwrap_or(3) as u8;
+        out_of_spec(params, field)
+    })?;
+    block
+        .validate()
+        .map_err(|field| out_of_spec(params, field))?;
+    Ok(block)
+}
+
+/// A parameter block SPEC.md §4.1 does not allow, named in words.
+fn out_of_spec(p: &WheelParams, field: u8) -> HalError {
+    let ratio = p.right_wheel_diameter_m / p.left_wheel_diameter_m;
+    HalError::InvalidArgument(match field {
+        0 => format!(
+            "left wheel diameter {} m is outside 0.01..=1 m (SPEC.md §4.1): not sent",
+            p.left_wheel_diameter_m
+        ),
+        1 if (0.8..=1.25).contains(&ratio) || !ratio.is_finite() => format!(
+            "right wheel diameter {} m is outside 0.01..=1 m (SPEC.md §4.1): not sent",
+            p.right_wheel_diameter_m
+        ),
+        1 => format!(
+            "right/left wheel diameter ratio {ratio:.4} is outside 0.8..=1.25 (SPEC.md §4.1): \
+             not sent"
+        ),
+        2 => format!(
+            "wheelbase {} m is outside 0.02..=2 m (SPEC.md §4.1): not sent",
+            p.wheelbase_m
+        ),
+        _ => format!(
+            "{} counts per wheel revolution is outside 1..=1e7 (SPEC.md §4.1): not sent",
+            p.counts_per_wheel_rev
+        ),
+    })
 }
 
 fn invalid(e: UnitError) -> HalError {

@@ -178,7 +178,8 @@ pub fn export(path: &Path, controller: &str, cal: &Calibration) -> Result<Export
         source,
     };
     if path.exists() {
-        let text = std::fs::read_to_string(path).map_err(io)?;
+        let text = crate::base::files::read_bounded(path, crate::base::files::MAX_TEXT_FILE)
+            .map_err(io)?;
         let cfg = DiffDriveConfig::parse(&text, controller, path)?;
         let merged = merge_multipliers(
             &text,

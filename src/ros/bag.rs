@@ -254,14 +254,12 @@ pub fn read_bag(path: &Path, opts: &BagOptions) -> Result<BagData, BagError> {
         path: path.to_path_buf(),
         source,
     };
-    let len = std::fs::metadata(path).map_err(io)?.len();
-    if len > MAX_BAG_BYTES {
-        return Err(io(std::io::Error::new(
-            std::io::ErrorKind::InvalidData,
-            format!("{len} bytes is more than the {MAX_BAG_BYTES} odocal reads at once"),
-        )));
-    }
-    let bytes = std::fs::read(path).map_err(io)?;
+    let mut bytes = Vec::new();
+    std::io::Read::read_to_end(
+        &mut crate::base::files::open_bounded(path, MAX_BAG_BYTES).map_err(io)?,
+        &mut bytes,
+    )
+    .map_err(io)?;
     read_bag_bytes(&bytes, path, opts)
 }
 

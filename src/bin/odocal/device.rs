@@ -290,6 +290,7 @@ pub async fn params(cmd: ParamsCommand) -> CliResult {
                 counts_per_wheel_rev: counts_per_rev.unwrap_or(current.counts_per_wheel_rev),
             };
             wanted.validate()?;
+            odocal::hal::wire_params(&wanted)?;
             let saved_to = backup(&client, &backup_dir).await?;
             let applied = client.set_params(&wanted).await?;
             eprintln!("written to RAM; run `odocal params save` to keep them across power cycles");

@@ -446,7 +446,7 @@ pub struct CalibrateArgs {
 }
 
 fn read_config(path: &PathBuf) -> Result<RoutineConfig, Box<dyn std::error::Error>> {
-    let text = std::fs::read_to_string(path)
+    let text = odocal::base::files::read_bounded(path, odocal::base::files::MAX_TEXT_FILE)
         .map_err(|e| format!("cannot read {}: {e}", path.display()))?;
     RoutineConfig::from_toml(&text).map_err(|e| format!("{}: {e}", path.display()).into())
 }
@@ -760,7 +760,7 @@ pub fn export(args: ExportArgs) -> CliResult {
         )
         .into());
     }
-    let text = std::fs::read_to_string(&args.from)
+    let text = odocal::base::files::read_bounded(&args.from, odocal::base::files::MAX_TEXT_FILE)
         .map_err(|e| format!("cannot read {}: {e}", args.from.display()))?;
     let v: serde_json::Value = serde_json::from_str(&text)
         .map_err(|e| format!("{}: not JSON ({e})", args.from.display()))?;
