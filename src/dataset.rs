@@ -397,12 +397,15 @@ impl OptiOdomSet {
             .and_then(|v| v.first().copied());
         // Physical ranges before anything is computed from them (a 1e300 diameter or 1e18
         // ticks would otherwise make every later loop meaningless or endless).
-        for (key, value, lo, hi) in [
-            ("Di", left.min(right), 1e-3, 5.0),
-            ("Di", left.max(right), 1e-3, 5.0),
-            ("Li", wheelbase_m, 1e-2, 10.0),
-            ("encRes", counts_per_wheel_rev, 1.0, 1e9),
-            ("L", side_m.unwrap_or(1.0), 1e-2, 100.0),
+        use crate::kinematics::{
+            PHYSICAL_COUNTS_PER_REV, PHYSICAL_DIAMETER_M, PHYSICAL_WHEELBASE_M,
+        };
+        for (key, value, (lo, hi)) in [
+            ("Di", left.min(right), PHYSICAL_DIAMETER_M),
+            ("Di", left.max(right), PHYSICAL_DIAMETER_M),
+            ("Li", wheelbase_m, PHYSICAL_WHEELBASE_M),
+            ("encRes", counts_per_wheel_rev, PHYSICAL_COUNTS_PER_REV),
+            ("L", side_m.unwrap_or(1.0), (1e-2, 100.0)),
         ] {
             if !(value.is_finite() && (lo..=hi).contains(&value)) {
                 return Err(DatasetError::Metadata {

@@ -28,7 +28,26 @@ pub enum KinematicsError {
     /// A straight-line distance check cannot fix the wheel scale (e.g. zero distance measured).
     #[error("straight-line scale check is unusable: {0}")]
     BadScaleCheck(String),
+    /// A parameter outside the physical range of any robot odocal calibrates.
+    #[error("{name} {value} is outside [{lo}, {hi}]")]
+    Unphysical {
+        /// Which parameter.
+        name: &'static str,
+        /// The offending value.
+        value: f64,
+        /// Smallest allowed.
+        lo: f64,
+        /// Largest allowed.
+        hi: f64,
+    },
 }
+
+/// Wheel diameters odocal accepts from files and streams (m): 1 mm to 5 m.
+pub const PHYSICAL_DIAMETER_M: (f64, f64) = (1e-3, 5.0);
+/// Wheelbases odocal accepts from files and streams (m): 1 cm to 10 m.
+pub const PHYSICAL_WHEELBASE_M: (f64, f64) = (1e-2, 10.0);
+/// Encoder counts per wheel revolution odocal accepts: 1 to 10⁹.
+pub const PHYSICAL_COUNTS_PER_REV: (f64, f64) = (1.0, 1e9);
 
 /// Wraps an angle to `(-π, π]`.
 pub fn wrap_angle(angle_rad: f64) -> f64 {
@@ -102,6 +121,41 @@ impl WheelParams {
         check_positive("right_wheel_diameter_m", self.right_wheel_diameter_m)?;
         check_positive("wheelbase_m", self.wheelbase_m)?;
         check_positive("counts_per_wheel_rev", self.counts_per_wheel_rev)
+    }
+
+    /// Checks the parameters lie in the physical ranges ([`PHYSICAL_DIAMETER_M`],
+    /// [`PHYSICAL_WHEELBASE_M`], [`PHYSICAL_COUNTS_PER_REV`]) that input from files and
+    /// streams must meet before anything is computed from it (a 1e300 diameter would make
+    /// every later bound meaningless).
+    pub fn check_physical(&self) -> Result<(), KinematicsError> {
+        for (name, value, (lo, hi)) in [
+            (
+                "left_wheel_diameter_m",
+                self.left_wheel_diameter_m,
+                PHYSICAL_DIAMETER_M,
+            ),
+            (
+                "right_wheel_diameter_m",
+                self.right_wheel_diameter_m,
+                PHYSICAL_DIAMETER_M,
+            ),
+            ("wheelbase_m", self.wheelbase_m, PHYSICAL_WHEELBASE_M),
+            (
+                "counts_per_wheel_rev",
+                self.counts_per_wheel_rev,
+                PHYSICAL_COUNTS_PER_REV,
+            ),
+        ] {
+            if !(value.is_finite() && (lo..=hi).contains(&value)) {
+                return Err(KinematicsError::Unphysical {
+                    name,
+                    value,
+                    lo,
+                    hi,
+                });
+            }
+        }
+        Ok(())
     }
 
     /// `E_d = D_R / D_L` of these parameters.

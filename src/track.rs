@@ -137,12 +137,12 @@ fn check_step(
     for (wheel, d, per_count) in [
         (
             "left",
-            s.left_counts - prev.left_counts,
+            i128::from(s.left_counts) - i128::from(prev.left_counts),
             params.left_m_per_count(),
         ),
         (
             "right",
-            s.right_counts - prev.right_counts,
+            i128::from(s.right_counts) - i128::from(prev.right_counts),
             params.right_m_per_count(),
         ),
     ] {
@@ -177,7 +177,12 @@ pub fn read_log(path: &Path) -> Result<(LogHeader, Vec<TelemetrySample>), LogErr
             continue;
         }
         match serde_json::from_str::<LogLine>(&line).map_err(|e| bad(e.to_string()))? {
-            LogLine::Header(h) if i == 0 => header = Some(h),
+            LogLine::Header(h) if i == 0 => {
+                h.params
+                    .check_physical()
+                    .map_err(|e| bad(format!("header parameters: {e}")))?;
+                header = Some(h)
+            }
             LogLine::Header(_) => return Err(bad("a second header".into())),
             LogLine::Telemetry(_) if header.is_none() => {
                 return Err(bad("telemetry before the header line".into()))
@@ -274,8 +279,12 @@ impl Tracker {
 
     fn maybe_checkpoint(&mut self) -> Option<OnlineEstimate> {
         if self.filter.distance_m() >= self.next_m {
-            while self.next_m <= self.filter.distance_m() {
-                self.next_m += self.every_m;
+            // The next multiple of `every_m` past the distance, in one step: a loop adding
+            // `every_m` would run for ever once the distance is beyond float resolution.
+            let d = self.filter.distance_m();
+            self.next_m = ((d / self.every_m).floor() + 1.0) * self.every_m;
+            if self.next_m.partial_cmp(&d) != Some(std::cmp::Ordering::Greater) {
+                self.next_m = f64::INFINITY;
             }
             if let Ok(e) = self.estimate() {
                 self.checkpoints.push(e);

@@ -60,7 +60,7 @@ pub enum Holds {
     /// The parameters that were being written.
     New,
     /// Something else (shown).
-    Other(WheelParams),
+    Other(Box<WheelParams>),
     /// The copy could not be read (why).
     Unknown(String),
 }
@@ -168,7 +168,7 @@ impl Transaction {
             {
                 Holds::New
             } else {
-                Holds::Other(*p)
+                Holds::Other(Box::new(*p))
             }
         };
         let active = match tokio::time::timeout(ROLLBACK_TIMEOUT, self.store.read()).await {

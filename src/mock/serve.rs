@@ -57,6 +57,54 @@ pub struct FaultConfig {
     pub seed: u64,
 }
 
+impl std::str::FromStr for FaultConfig {
+    type Err = super::MockError;
+
+    /// Parses `corrupt=0.01,drop=0.05,latency-ms=5,disconnect-after=200,busy-every=7,seed=3`
+    /// (any subset, any order): probabilities in [0, 1], a latency in [0, 10 000] ms, counts
+    /// as whole numbers. Anything else is refused with the key it concerns.
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        parse_faults(s).map_err(super::MockError::Faults)
+    }
+}
+
+fn parse_faults(s: &str) -> Result<FaultConfig, String> {
+    let mut f = FaultConfig::default();
+    for item in s.split(',').filter(|i| !i.trim().is_empty()) {
+        let (k, v) = item
+            .split_once('=')
+            .ok_or_else(|| format!("{item:?} is not key=value"))?;
+        let num = |v: &str| v.trim().parse::<f64>().map_err(|e| format!("{k}: {e}"));
+        let int = |v: &str| v.trim().parse::<u64>().map_err(|e| format!("{k}: {e}"));
+        match k.trim() {
+            "corrupt" => f.corrupt_byte_rate = num(v)?,
+            "drop" => f.drop_frame_rate = num(v)?,
+            "latency-ms" => {
+                let ms = num(v)?;
+                // A device answers within 50 ms (SPEC.md §3); a mock may be slower, but not
+                // negative, not NaN and not for ever.
+                if !(0.0..=10_000.0).contains(&ms) {
+                    return Err(format!("latency-ms must be in [0, 10000], got {v}"));
+                }
+                f.latency = Duration::from_secs_f64(ms / 1e3);
+            }
+            "disconnect-after" => f.disconnect_after_frames = Some(int(v)?),
+            "busy-every" => f.busy_every = Some(int(v)?),
+            "seed" => f.seed = int(v)?,
+            other => return Err(format!("unknown fault {other:?}")),
+        }
+    }
+    for (name, p) in [
+        ("corrupt", f.corrupt_byte_rate),
+        ("drop", f.drop_frame_rate),
+    ] {
+        if !(0.0..=1.0).contains(&p) {
+            return Err(format!("{name} must be a probability in [0, 1], got {p}"));
+        }
+    }
+    Ok(f)
+}
+
 /// Why a server stopped.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum ServeEnd {

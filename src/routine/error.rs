@@ -69,9 +69,9 @@ pub enum RoutineError {
         /// Why restoring failed.
         restore_error: Box<BaseError>,
         /// Why reconnecting failed, when the base could try.
-        reconnect_error: Option<String>,
+        reconnect_error: Option<Box<str>>,
         /// The backup file to restore from.
-        backup: PathBuf,
+        backup: Box<std::path::Path>,
         /// What the copy in use holds now.
         active: Holds,
         /// What the committed copy holds now.
@@ -102,7 +102,7 @@ mod tests {
             source: Box::new(RoutineError::Cancelled),
             restore_error: Box::new(BaseError::WatchdogTripped),
             reconnect_error: None,
-            backup: PathBuf::from("/tmp/odocal-backup-x.json"),
+            backup: std::path::Path::new("/tmp/odocal-backup-x.json").into(),
             active: Holds::New,
             committed: Holds::Unknown("no answer".into()),
         };

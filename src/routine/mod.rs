@@ -241,9 +241,10 @@ async fn undo(base: &Base, tx: &mut Transaction, err: RoutineError) -> RoutineEr
                     reconnected = true;
                     outcome = tx.rollback().await;
                 }
-                Ok(Err(e)) => reconnect_error = Some(e.to_string()),
+                Ok(Err(e)) => reconnect_error = Some(e.to_string().into()),
                 Err(_) => {
-                    reconnect_error = Some(format!("no connection within {RECONNECT_TIMEOUT:?}"))
+                    reconnect_error =
+                        Some(format!("no connection within {RECONNECT_TIMEOUT:?}").into())
                 }
             }
         }
@@ -261,7 +262,7 @@ async fn undo(base: &Base, tx: &mut Transaction, err: RoutineError) -> RoutineEr
                 source: Box::new(err),
                 restore_error: Box::new(e),
                 reconnect_error,
-                backup: tx.backup_path().to_path_buf(),
+                backup: tx.backup_path().into(),
                 active,
                 committed,
             }

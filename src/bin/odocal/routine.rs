@@ -445,7 +445,7 @@ pub struct CalibrateArgs {
     flags: RoutineFlags,
 }
 
-fn read_config(path: &PathBuf) -> Result<RoutineConfig, Box<dyn std::error::Error>> {
+fn read_config(path: &std::path::Path) -> Result<RoutineConfig, Box<dyn std::error::Error>> {
     let text = odocal::base::files::read_bounded(path, odocal::base::files::MAX_TEXT_FILE)
         .map_err(|e| format!("cannot read {}: {e}", path.display()))?;
     RoutineConfig::from_toml(&text).map_err(|e| format!("{}: {e}", path.display()).into())
