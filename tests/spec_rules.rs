@@ -7,7 +7,7 @@ mod common;
 
 use bytes::BytesMut;
 use odocal::mock::{lock, SharedDevice};
-use odocal::protocol::message::{Event, NackCode};
+use odocal::protocol::message::{id, Event, NackCode};
 use odocal::protocol::{Body, Frame, FrameCodec, FrameKind, Packet};
 use serde_json::Value;
 
@@ -135,6 +135,16 @@ fn the_mock_device_follows_every_device_rule_of_the_spec() {
             } else if let Some(ms) = step["advance_ms"].as_u64() {
                 let events = lock(&device).advance(ms as f64 / 1e3);
                 check_motion_done(&motion_done_of(&events), step, &name);
+                if let Some(min) = step["telemetry_min"].as_u64() {
+                    let telemetry = events
+                        .iter()
+                        .filter(|f| f.kind == FrameKind::Event && f.msg == id::TELEMETRY)
+                        .count();
+                    assert!(
+                        telemetry as u64 >= min,
+                        "{name}: {telemetry} TELEMETRY events"
+                    );
+                }
             } else if let Some(n) = step["repeat"].as_u64() {
                 let cycle = step["send_cycle"].as_array().unwrap();
                 for k in 0..n as usize {

@@ -197,7 +197,8 @@ payload_errors = [
 # An answer may hold "fields": response fields that must have these values (names and enum
 # spellings as in the frame vectors' "packet"). A step may hold "motion_done": the MOTION_DONE
 # events, as [motion_id, completed_motions], that the device emits during the step (its answer
-# and the time that passes), exactly and in order.
+# and the time that passes), exactly and in order; "telemetry_min" the fewest TELEMETRY events
+# it emits in that time.
 def req(seq, msg, payload=b""):
     return hexs(frame("request", seq, msg, payload))
 
@@ -393,6 +394,14 @@ device_rules = [
                hold(req(18, 0x11, params_bytes(PARAMS)), ok(0x11))]},
     {"name": "7.11 HELLO is not remembered: a repeated HELLO is answered afresh",
      "steps": [[req(15, 0x01, bytes([1, 0])), ok(0x01)], [req(15, 0x01, bytes([1, 0])), ok(0x01)]]},
+    {"name": "7.11 HELLO changes no state: parameters, watchdog and telemetry carry on",
+     "steps": [hold(req(1, 0x11, params_bytes(PARAMS)), ok(0x11)),
+               hold(req(2, 0x60, struct.pack("<H", 1000)), ok(0x60)),
+               hold(req(3, 0x50, struct.pack("<H", 100)), ok(0x50)),
+               hold(req(4, 0x01, bytes([1, 0])), ok(0x01)),
+               hold(req(5, 0x10, bytes([0])), ok(0x10, source="active", params=PARAMS)),
+               hold(req(6, STATUS), ok(STATUS, watchdog_state="armed")),
+               wait(1000, telemetry_min=9)]},
 ]
 
 out = {
