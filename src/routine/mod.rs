@@ -271,7 +271,7 @@ async fn undo(base: &Base, tx: &mut Transaction, err: RoutineError) -> RoutineEr
 }
 
 /// What the host knows of the robot's parameters after a failed run: the statement a partial
-/// report makes, read from the error [`undo`] returned.
+/// report makes, read from the error [`run`] returned after its rollback.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 #[serde(rename_all = "snake_case", tag = "outcome")]
 pub enum ParamsAfterFailure {
