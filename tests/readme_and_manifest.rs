@@ -126,18 +126,23 @@ fn paragraphs(readme: &str) -> Vec<String> {
 fn every_speed_figure_in_the_readme_names_its_command_and_machine() {
     let readme =
         std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/README.md")).unwrap();
+    // A rate, a latency, or a median time in seconds ("median 0.65–0.67 s").
     let is_figure = |p: &str| {
         ["MiB/s", "frames/s", "per second", "µs"]
             .iter()
             .any(|u| p.contains(u))
             || p.split("median").skip(1).any(|after| {
                 let mut words = after.split_whitespace();
-                words.next().is_some_and(|n| n.parse::<f64>().is_ok())
-                    && words.next().is_some_and(|u| u.starts_with('s'))
+                words.next().is_some_and(|n| {
+                    n.split('–')
+                        .next()
+                        .is_some_and(|n| n.parse::<f64>().is_ok())
+                }) && words.next().is_some_and(|u| u.starts_with('s'))
             })
     };
     let figures: Vec<String> = paragraphs(&readme)
         .into_iter()
+        .map(|p| p.split_whitespace().collect::<Vec<_>>().join(" "))
         .filter(|p| is_figure(p))
         .collect();
     assert!(
