@@ -4,6 +4,7 @@ mod common;
 
 use common::{odocal, odocal_json, scratch, spawn_mock};
 use serde_json::Value;
+use std::path::PathBuf;
 use std::process::{Command, Stdio};
 
 fn json(args: &[&str]) -> Value {
@@ -201,7 +202,7 @@ fn demo_json_reports_a_tenfold_improvement_and_writes_files() {
         assert!(dir.join(f).is_file(), "{f} not written");
     }
     // report.html stands alone: plots inline, nothing fetched, tags balanced (checked by
-    // structure; no headless browser on these machines).
+    // structure here, and in a headless browser when one is installed: see below).
     let html = std::fs::read_to_string(dir.join("report.html")).unwrap();
     assert!(html.starts_with("<!DOCTYPE html>"), "{}", &html[..50]);
     assert_eq!(
@@ -218,6 +219,7 @@ fn demo_json_reports_a_tenfold_improvement_and_writes_files() {
         );
     }
     assert!(html.contains("<th>method</th>") && html.contains("(chosen)"));
+    opens_in_a_browser_with_its_plots_and_fetches_nothing(&dir.join("report.html"));
     // The report exports for ros2_control.
     let yaml = dir.join("diff_drive.yaml");
     let (ok, _, err) = odocal(&[
@@ -821,4 +823,71 @@ fn endless_and_special_files_are_refused_not_read_forever() {
         assert!(err.contains("not a regular file"), "{err}");
     }
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// The headless Chromium `.ci/run` installs, if it is there.
+fn chromium() -> Option<PathBuf> {
+    ["/usr/bin/chromium", "/usr/bin/chromium-browser"]
+        .iter()
+        .map(PathBuf::from)
+        .find(|p| p.is_file())
+}
+
+/// Opens `page` in headless Chromium (with no network: nothing may be fetched) and reads back
+/// what the page itself saw once loaded: how many plots, how many drawn at a real size, how
+/// many resources were fetched. Skipped, with a notice, where no browser is installed.
+fn opens_in_a_browser_with_its_plots_and_fetches_nothing(page: &std::path::Path) {
+    let Some(browser) = chromium() else {
+        eprintln!("NOTICE: no headless Chromium; report.html checked by structure only");
+        return;
+    };
+    let html = std::fs::read_to_string(page).unwrap();
+    let probe = page.with_file_name("browser-probe.html");
+    std::fs::write(
+        &probe,
+        html.replace(
+            "</body>",
+            "<script>window.addEventListener('load', () => { \
+             const svgs = [...document.querySelectorAll('svg')]; \
+             const drawn = svgs.filter(s => { const r = s.getBoundingClientRect(); \
+               return r.width > 200 && r.height > 150; }).length; \
+             document.body.setAttribute('data-probe', \
+               `svgs=${svgs.length} drawn=${drawn} \
+                fetched=${performance.getEntriesByType('resource').length}`); \
+             });</script></body>",
+        ),
+    )
+    .unwrap();
+    let profile = probe.with_file_name("browser-profile");
+    let out = Command::new(browser)
+        .args([
+            "--headless",
+            "--no-sandbox",
+            "--disable-gpu",
+            "--disable-quic",
+            "--no-first-run",
+            "--disable-background-networking",
+            "--disable-component-update",
+            "--disable-sync",
+            "--virtual-time-budget=5000",
+            "--dump-dom",
+        ])
+        .arg(format!("--user-data-dir={}", profile.display()))
+        .arg(format!("file://{}", probe.display()))
+        .output()
+        .expect("chromium runs");
+    let dom = String::from_utf8_lossy(&out.stdout);
+    let seen = dom
+        .split("data-probe=\"")
+        .nth(1)
+        .and_then(|rest| rest.split('"').next())
+        .unwrap_or_else(|| {
+            panic!(
+                "the page reported nothing: {}",
+                String::from_utf8_lossy(&out.stderr)
+            )
+        });
+    assert_eq!(seen, "svgs=3 drawn=3 fetched=0", "report.html in Chromium");
+    let _ = std::fs::remove_file(&probe);
+    let _ = std::fs::remove_dir_all(&profile);
 }
