@@ -657,3 +657,33 @@ async fn a_motion_stopped_by_the_device_is_reported_at_once() {
         started.elapsed()
     );
 }
+
+/// A serial port is opened exclusively: while a link whose device stopped answering still
+/// holds it, it cannot be opened again. The reconnection closes that link, waits until the port
+/// is free, and opens it again with the handshake; the old handle then fails as closed.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn reconnecting_a_port_frees_it_from_the_old_link_and_reopens_the_device() {
+    let dev = device(0.0, 21);
+    let server = spawn_pty(dev.clone(), TimeMode::Virtual, FaultConfig::default()).unwrap();
+    let (old, _) = open_port(&server.path, 115_200).await.unwrap();
+    let busy = open_port(&server.path, 115_200).await.err();
+    assert!(
+        matches!(busy, Some(HalError::Open { .. })),
+        "the port is held: {busy:?}"
+    );
+    let reconnect = odocal::hal::base::reconnect_port(old.clone(), server.path.clone(), 115_200);
+    let store = reconnect().await.expect("reopened");
+    assert_eq!(store.read().await.unwrap(), nominal());
+    // Closing a link that has already let go returns at once.
+    let t = Instant::now();
+    old.close().await;
+    assert!(
+        t.elapsed() < Duration::from_millis(500),
+        "{:?}",
+        t.elapsed()
+    );
+    assert!(
+        matches!(old.status().await, Err(HalError::Link(LinkError::Closed))),
+        "the old link is closed"
+    );
+}

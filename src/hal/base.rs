@@ -227,9 +227,9 @@ impl Drive for Client {
 /// again at `baud`, with the handshake. For a device that reset or was re-plugged mid-run.
 pub fn reconnect_port(old: Client, path: String, baud: u32) -> crate::base::Reconnect {
     std::sync::Arc::new(move || {
-        old.close();
-        let path = path.clone();
+        let (old, path) = (old.clone(), path.clone());
         Box::pin(async move {
+            old.close().await;
             let (client, _) = super::open_port(&path, baud)
                 .await
                 .map_err(|e| BaseError::backend("store", e))?;

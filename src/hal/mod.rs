@@ -31,13 +31,16 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
 use tokio::io::{AsyncRead, AsyncWrite};
-use tokio::sync::{broadcast, mpsc, oneshot};
+use tokio::sync::{broadcast, mpsc, oneshot, watch};
 
 /// Baud rates a serial link may be opened at.
 pub const BAUD_RANGE: std::ops::RangeInclusive<u32> = 300..=4_000_000;
 
 /// How long the HELLO handshake is retried before the port is diagnosed (see [`Client::connect`]).
 pub const HELLO_BUDGET: Duration = Duration::from_millis(2500);
+
+/// Longest [`Client::close`] waits for the link to let go of its port.
+pub const CLOSE_TIMEOUT: Duration = Duration::from_secs(2);
 
 /// How often [`Client::wait_motion`] polls the status while a motion runs (its end normally
 /// arrives as a MOTION_DONE event).
@@ -166,6 +169,8 @@ pub struct Client {
     geometry: Arc<std::sync::Mutex<Option<WheelParams>>>,
     /// The last request handed to the link, for a report of where a failed run stopped.
     last_request: Arc<std::sync::Mutex<Option<Request>>>,
+    /// Becomes `true` once the link task has ended and dropped its stream (the port is free).
+    released: watch::Receiver<bool>,
 }
 
 /// Opens a serial port by path (the only place that names `tokio_serial`) and connects.
@@ -224,7 +229,12 @@ impl Client {
             events: events.clone(),
             motion_done: motion_done.clone(),
         };
-        tokio::spawn(link.run(stream, rx));
+        let (released_tx, released) = watch::channel(false);
+        tokio::spawn(async move {
+            // `run` drops the stream before it returns, so the port is free when this fires.
+            link.run(stream, rx).await;
+            let _ = released_tx.send(true);
+        });
         let placeholder = DeviceInfo {
             major: 0,
             minor: 0,
@@ -245,6 +255,7 @@ impl Client {
             label: Arc::from("stream"),
             geometry: Arc::default(),
             last_request: Arc::default(),
+            released,
         };
         // HELLO is retried for HELLO_BUDGET: long enough for a board that resets when its port
         // opens (Arduino-style bootloaders take 1–2 s), short enough to diagnose a wrong port.
@@ -371,9 +382,12 @@ impl Client {
     }
 
     /// Lets go of the link: pending requests fail, STOP is sent if this host moved the base,
-    /// and the port is closed once every task has seen it, so it can be opened again.
-    pub fn close(&self) {
+    /// and the stream is dropped. Returns once the port is free to be opened again, or after
+    /// [`CLOSE_TIMEOUT`] (a STOP written to a port nobody reads may block).
+    pub async fn close(&self) {
         let _ = self.commands.send(Command::Close);
+        let mut released = self.released.clone();
+        let _ = tokio::time::timeout(CLOSE_TIMEOUT, released.wait_for(|r| *r)).await;
     }
 
     /// Abandons pending requests and sends STOP at once, without waiting. Safe from `Drop`.
