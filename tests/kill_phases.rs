@@ -124,7 +124,9 @@ struct Outcome {
     reconnected_device: Option<SharedDevice>,
 }
 
-async fn calibrate_and_kill(name: &str, kill: Kill) -> Outcome {
+/// Calibrates, kills the device at `kill`, and on reconnection powers it up again from its
+/// storage, or, unless `comes_back`, finds nothing there.
+async fn calibrate_and_kill(name: &str, kill: Kill, comes_back: bool) -> Outcome {
     let dir = common::scratch(&format!("kill-{name}"));
     std::fs::create_dir_all(&dir).unwrap();
     let storage = dir.join("nv.json");
@@ -148,6 +150,12 @@ async fn calibrate_and_kill(name: &str, kill: Kill) -> Outcome {
         Arc::new(move || {
             let (storage, reconnected) = (storage.clone(), reconnected.clone());
             Box::pin(async move {
+                if !comes_back {
+                    return Err(odocal::base::BaseError::backend(
+                        "store",
+                        std::io::Error::other("no device on the port"),
+                    ));
+                }
                 let (device, client, _task) = power_up(&storage, FaultConfig::default()).await;
                 *reconnected.lock().unwrap() = Some(device);
                 Ok(Arc::new(client) as Arc<dyn ParamStore>)
@@ -241,6 +249,8 @@ fn check(name: &str, o: &Outcome, phase: &str, runs_measured: usize) {
         }
         ParamsAfterFailure::RestoreFailed { committed, .. } => match committed {
             Holds::Original => assert_eq!(o.after_power_up, original, "{name}"),
+            // Unknown claims nothing, which is true of a device that is gone.
+            Holds::Unknown(_) => {}
             other => panic!("{name}: restore failed with the committed copy {other}"),
         },
     }
@@ -248,50 +258,75 @@ fn check(name: &str, o: &Outcome, phase: &str, runs_measured: usize) {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_device_killed_in_any_phase_leaves_a_partial_report_and_a_true_statement() {
-    let o = calibrate_and_kill("preflight", Kill::Preflight).await;
-    check("preflight", &o, "pre-flight", 0);
-    assert_eq!(
-        ParamsAfterFailure::of(&o.err),
-        ParamsAfterFailure::Untouched
+    let restored = ParamsAfterFailure::Restored {
+        committed: true,
+        reconnected: true,
+    };
+    for (name, kill, phase, runs_measured, statement) in [
+        (
+            "preflight",
+            Kill::Preflight,
+            "pre-flight",
+            0,
+            ParamsAfterFailure::Untouched,
+        ),
+        (
+            "round1",
+            Kill::AfterMotion("round 1", 2, 3),
+            "round 1",
+            1,
+            ParamsAfterFailure::Untouched,
+        ),
+        // SAVE_PARAMS landed (the storage held the new parameters) but was never acknowledged.
+        (
+            "write-back",
+            Kill::OnSave,
+            "write-back after round 1",
+            4,
+            restored.clone(),
+        ),
+        (
+            "round2",
+            Kill::AfterMotion("round 2", 1, 5),
+            "round 2",
+            4,
+            restored.clone(),
+        ),
+        (
+            "verification",
+            Kill::AfterMotion("verification", 1, 2),
+            "verification",
+            8,
+            restored.clone(),
+        ),
+    ] {
+        let o = calibrate_and_kill(name, kill, true).await;
+        check(name, &o, phase, runs_measured);
+        assert_eq!(ParamsAfterFailure::of(&o.err), statement, "{name}");
+    }
+}
+
+/// Killed after a SAVE that landed, and gone for good: the host cannot restore, says that it
+/// does not know what either copy holds (rather than guessing), why reconnecting failed, and
+/// what to run once the device is back; the storage indeed holds the new parameters.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_device_that_does_not_come_back_is_reported_as_unknown_with_the_way_back() {
+    let o = calibrate_and_kill("gone", Kill::OnSave, false).await;
+    check("gone", &o, "write-back after round 1", 4);
+    match ParamsAfterFailure::of(&o.err) {
+        ParamsAfterFailure::RestoreFailed {
+            active: Holds::Unknown(_),
+            committed: Holds::Unknown(_),
+        } => {}
+        other => panic!("expected both copies unknown, got {other:?}: {}", o.err),
+    }
+    let text = o.err.to_string();
+    assert!(
+        text.contains("reconnecting failed") && text.contains("no device on the port"),
+        "{text}"
     );
-
-    let o = calibrate_and_kill("round1", Kill::AfterMotion("round 1", 2, 3)).await;
-    check("round 1", &o, "round 1", 1);
-    assert_eq!(
-        ParamsAfterFailure::of(&o.err),
-        ParamsAfterFailure::Untouched
-    );
-
-    // SAVE_PARAMS landed (the storage held the new parameters) but was never acknowledged.
-    let o = calibrate_and_kill("write-back", Kill::OnSave).await;
-    check("write-back", &o, "write-back after round 1", 4);
-    assert_eq!(
-        ParamsAfterFailure::of(&o.err),
-        ParamsAfterFailure::Restored {
-            committed: true,
-            reconnected: true
-        }
-    );
-
-    let o = calibrate_and_kill("round2", Kill::AfterMotion("round 2", 1, 5)).await;
-    check("round 2", &o, "round 2", 4);
-    assert!(matches!(
-        ParamsAfterFailure::of(&o.err),
-        ParamsAfterFailure::Restored {
-            reconnected: true,
-            ..
-        }
-    ));
-
-    let o = calibrate_and_kill("verification", Kill::AfterMotion("verification", 1, 2)).await;
-    check("verification", &o, "verification", 8);
-    assert!(matches!(
-        ParamsAfterFailure::of(&o.err),
-        ParamsAfterFailure::Restored {
-            reconnected: true,
-            ..
-        }
-    ));
+    assert!(text.contains("odocal params restore --from"), "{text}");
+    assert_ne!(o.after_power_up, common::nominal(), "the SAVE had landed");
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
