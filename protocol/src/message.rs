@@ -297,28 +297,71 @@ wire_struct!(
     }
 );
 
+/// One field of the parameter block as SPEC.md §4.1 defines it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ParamsField {
+    /// What it is ("wheelbase").
+    pub name: &'static str,
+    /// Its SI unit ("m"; empty for a count).
+    pub unit: &'static str,
+    /// Wire units per SI unit (1e9 nm per m, 1e6 millionths per count).
+    pub per_si: f64,
+    /// Smallest allowed value, in wire units.
+    pub min: u64,
+    /// Largest allowed value, in wire units.
+    pub max: u64,
+}
+
 impl ParamsBlock {
-    /// Checks SPEC.md §4.1's ranges; the error is the index of the first bad field
-    /// (a diameter ratio outside [0.8, 1.25] reports field 1).
+    /// SPEC.md §4.1's fields in payload order, with their ranges: the one table
+    /// [`ParamsBlock::validate`] checks and hosts describe refusals from.
+    pub const FIELDS: [ParamsField; 4] = [
+        ParamsField {
+            name: "left wheel diameter",
+            unit: "m",
+            per_si: 1e9,
+            min: 10_000_000,
+            max: 1_000_000_000,
+        },
+        ParamsField {
+            name: "right wheel diameter",
+            unit: "m",
+            per_si: 1e9,
+            min: 10_000_000,
+            max: 1_000_000_000,
+        },
+        ParamsField {
+            name: "wheelbase",
+            unit: "m",
+            per_si: 1e9,
+            min: 20_000_000,
+            max: 2_000_000_000,
+        },
+        ParamsField {
+            name: "counts per wheel revolution",
+            unit: "",
+            per_si: 1e6,
+            min: 1_000_000,
+            max: 10_000_000_000_000,
+        },
+    ];
+
+    /// Checks SPEC.md §4.1's ranges ([`ParamsBlock::FIELDS`]); the error is the index of the
+    /// first bad field (a diameter ratio outside [0.8, 1.25] reports field 1).
     pub fn validate(&self) -> Result<(), u8> {
-        const D: core::ops::RangeInclusive<u32> = 10_000_000..=1_000_000_000;
-        if !D.contains(&self.left_wheel_diameter_nm) {
-            return Err(0);
-        }
-        if !D.contains(&self.right_wheel_diameter_nm) {
-            return Err(1);
-        }
-        if !(20_000_000..=2_000_000_000).contains(&self.wheelbase_nm) {
-            return Err(2);
-        }
-        if !(1_000_000..=10_000_000_000_000).contains(&self.counts_per_wheel_rev_micro) {
-            return Err(3);
-        }
-        // In integers: 0.8 ≤ R/L ≤ 1.25 ⇔ 4L ≤ 5R and 4R ≤ 5L.
-        let (l, r) = (
+        let values = [
             u64::from(self.left_wheel_diameter_nm),
             u64::from(self.right_wheel_diameter_nm),
-        );
+            u64::from(self.wheelbase_nm),
+            self.counts_per_wheel_rev_micro,
+        ];
+        for (i, (v, f)) in values.iter().zip(Self::FIELDS.iter()).enumerate() {
+            if !(f.min..=f.max).contains(v) {
+                return Err(i as u8);
+            }
+        }
+        // In integers: 0.8 ≤ R/L ≤ 1.25 ⇔ 4L ≤ 5R and 4R ≤ 5L.
+        let (l, r) = (values[0], values[1]);
         if 4 * l > 5 * r || 4 * r > 5 * l {
             return Err(1);
         }

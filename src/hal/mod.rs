@@ -624,51 +624,85 @@ impl Client {
 /// `params` as the wire carries them, if SPEC.md §4.1 allows them: the host's own range check,
 /// so nothing out of range is sent (or backed up for) and the refusal names the field.
 pub fn wire_params(params: &WheelParams) -> Result<ParamsBlock, HalError> {
+    let si = [
+        params.left_wheel_diameter_m,
+        params.right_wheel_diameter_m,
+        params.wheelbase_m,
+        params.counts_per_wheel_rev,
+    ];
+    let refuse = |field: u8| {
+        let i = usize::from(field).min(3);
+        let f = ParamsBlock::FIELDS[i];
+        let ratio = si[1] / si[0];
+        let why = if i == 1 && ratio.is_finite() && !(0.8..=1.25).contains(&ratio) {
+            format!("right/left wheel diameter ratio {ratio:.4} is outside 0.8..=1.25")
+        } else {
+            let unit = if f.unit.is_empty() {
+                String::new()
+            } else {
+                format!(" {}", f.unit)
+            };
+            format!(
+                "{} {}{unit} is outside {}..={}{unit}",
+                f.name,
+                si[i],
+                f.min as f64 / f.per_si,
+                f.max as f64 / f.per_si
+            )
+        };
+        HalError::InvalidArgument(format!("{why} (SPEC.md §4.1): not sent"))
+    };
+    // A value too large for the wire's integer is out of range too: name the first such field.
     let block = ParamsBlock::try_from(params).map_err(|_| {
-        // Does not fit the wire at all: find the field the range check names.
-        let field = [
-            params.left_wheel_diameter_m,
-            params.right_wheel_diameter_m,
-            params.wheelbase_m,
-        ]
-        .iter()
-        .position(|v| !(v.is_finite() && *v > 0.0 && *v < 4.0))
-        .unwrap_or(3) as u8;
-        out_of_spec(params, field)
+        let first = ParamsBlock::FIELDS.iter().zip(si).position(|(f, v)| {
+            let wire = v * f.per_si;
+            !(wire.is_finite() && wire >= f.min as f64 && wire <= f.max as f64)
+        });
+        refuse(first.unwrap_or(3) as u8)
     })?;
-    block
-        .validate()
-        .map_err(|field| out_of_spec(params, field))?;
+    block.validate().map_err(refuse)?;
     Ok(block)
-}
-
-/// A parameter block SPEC.md §4.1 does not allow, named in words.
-fn out_of_spec(p: &WheelParams, field: u8) -> HalError {
-    let ratio = p.right_wheel_diameter_m / p.left_wheel_diameter_m;
-    HalError::InvalidArgument(match field {
-        0 => format!(
-            "left wheel diameter {} m is outside 0.01..=1 m (SPEC.md §4.1): not sent",
-            p.left_wheel_diameter_m
-        ),
-        1 if (0.8..=1.25).contains(&ratio) || !ratio.is_finite() => format!(
-            "right wheel diameter {} m is outside 0.01..=1 m (SPEC.md §4.1): not sent",
-            p.right_wheel_diameter_m
-        ),
-        1 => format!(
-            "right/left wheel diameter ratio {ratio:.4} is outside 0.8..=1.25 (SPEC.md §4.1): \
-             not sent"
-        ),
-        2 => format!(
-            "wheelbase {} m is outside 0.02..=2 m (SPEC.md §4.1): not sent",
-            p.wheelbase_m
-        ),
-        _ => format!(
-            "{} counts per wheel revolution is outside 1..=1e7 (SPEC.md §4.1): not sent",
-            p.counts_per_wheel_rev
-        ),
-    })
 }
 
 fn invalid(e: UnitError) -> HalError {
     HalError::InvalidArgument(e.to_string())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn parameters_outside_the_spec_are_named_in_si_from_the_protocol_table() {
+        let ok = WheelParams::nominal(0.15, 0.39, 4096.0);
+        assert!(wire_params(&ok).is_ok());
+        let refused = |p: WheelParams| match wire_params(&p) {
+            Err(HalError::InvalidArgument(why)) => why,
+            other => panic!("{p:?} accepted: {other:?}"),
+        };
+        let why = refused(WheelParams {
+            left_wheel_diameter_m: f64::NAN,
+            ..ok
+        });
+        assert!(
+            why.starts_with("left wheel diameter NaN m is outside 0.01..=1 m"),
+            "{why}"
+        );
+        let why = refused(WheelParams {
+            counts_per_wheel_rev: 1e20,
+            ..ok
+        });
+        assert!(
+            why.contains("counts per wheel revolution") && why.contains("..=10000000 ("),
+            "{why}"
+        );
+        let why = refused(WheelParams {
+            wheelbase_m: 0.01,
+            ..ok
+        });
+        assert!(
+            why.starts_with("wheelbase 0.01 m is outside 0.02..=2 m"),
+            "{why}"
+        );
+    }
 }
