@@ -75,8 +75,7 @@ pub fn create_unique(name: impl Fn(u32) -> PathBuf, bytes: &[u8]) -> std::io::Re
 /// Copies `path` to a new `<path>.odocal-backup-<ms>[-n]` beside it, never overwriting.
 pub fn backup_beside(path: &Path) -> std::io::Result<PathBuf> {
     let stamp = stamp_ms();
-    let mut text = Vec::new();
-    std::io::Read::read_to_end(&mut open_bounded(path, MAX_TEXT_FILE)?, &mut text)?;
+    let text = read_bounded_bytes(path, MAX_TEXT_FILE)?;
     create_unique(
         |n| {
             let mut name = path.as_os_str().to_owned();
@@ -115,13 +114,19 @@ pub fn open_bounded(path: &Path, max_bytes: u64) -> std::io::Result<std::io::Tak
     Ok(std::io::Read::take(std::fs::File::open(path)?, max_bytes))
 }
 
-/// Reads a text file of at most `max_bytes` ([`open_bounded`]): configuration files, backups
-/// and reports are small, and a device node or a huge file is refused rather than read until
-/// memory runs out.
+/// Reads a file of at most `max_bytes` ([`open_bounded`]): a device node or a huge file is
+/// refused rather than read until memory runs out.
+pub fn read_bounded_bytes(path: &Path, max_bytes: u64) -> std::io::Result<Vec<u8>> {
+    let mut bytes = Vec::new();
+    std::io::Read::read_to_end(&mut open_bounded(path, max_bytes)?, &mut bytes)?;
+    Ok(bytes)
+}
+
+/// [`read_bounded_bytes`] for a text file (configuration files, backups and reports are
+/// small); text that is not UTF-8 is an `InvalidData` error.
 pub fn read_bounded(path: &Path, max_bytes: u64) -> std::io::Result<String> {
-    let mut text = String::new();
-    std::io::Read::read_to_string(&mut open_bounded(path, max_bytes)?, &mut text)?;
-    Ok(text)
+    String::from_utf8(read_bounded_bytes(path, max_bytes)?)
+        .map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidData, e))
 }
 
 /// Most bytes odocal reads of a configuration, backup, routine or report file.

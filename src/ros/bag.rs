@@ -254,12 +254,7 @@ pub fn read_bag(path: &Path, opts: &BagOptions) -> Result<BagData, BagError> {
         path: path.to_path_buf(),
         source,
     };
-    let mut bytes = Vec::new();
-    std::io::Read::read_to_end(
-        &mut crate::base::files::open_bounded(path, MAX_BAG_BYTES).map_err(io)?,
-        &mut bytes,
-    )
-    .map_err(io)?;
+    let bytes = crate::base::files::read_bounded_bytes(path, MAX_BAG_BYTES).map_err(io)?;
     read_bag_bytes(&bytes, path, opts)
 }
 

@@ -54,15 +54,11 @@ pub struct MockArgs {
     #[arg(long)]
     link: Option<PathBuf>,
     /// Faults, e.g. "corrupt=0.01,drop=0.05,latency-ms=5,disconnect-after=200,busy-every=7".
-    #[arg(long, value_parser = parse_faults)]
+    #[arg(long)]
     faults: Option<FaultConfig>,
     /// Serve until Ctrl-C only (by default closing stdin also stops the device).
     #[arg(long)]
     ignore_stdin: bool,
-}
-
-pub fn parse_faults(s: &str) -> Result<FaultConfig, String> {
-    s.parse::<FaultConfig>().map_err(|e| e.to_string())
 }
 
 /// Runs `odocal mock-device`.

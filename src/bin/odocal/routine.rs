@@ -257,7 +257,7 @@ pub async fn demo(args: DemoArgs) -> CliResult {
         ..DemoOptions::default()
     };
     if let Some(f) = &args.faults {
-        opts.faults = crate::device::parse_faults(f)?;
+        opts.faults = f.parse::<odocal::mock::FaultConfig>()?;
     }
     opts.faults.seed = args.seed;
     opts.routine.backup_dir = args.report_dir.clone();
