@@ -16,7 +16,7 @@ use odocal::mock::{
     lock, spawn_duplex, FaultConfig, MockConfig, MockDevice, SharedDevice, TimeMode,
 };
 use odocal::protocol::message::{id, ParamsBlock};
-use odocal::routine::config::{RoutineConfig, WritePolicy};
+use odocal::routine::config::RoutineConfig;
 use odocal::routine::{run, ParamsAfterFailure, RoutineError, RoutineEvent, RoutineUi};
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
@@ -103,17 +103,9 @@ async fn power_up(
 
 fn routine(dir: &Path) -> RoutineConfig {
     RoutineConfig {
-        side_m: 1.0,
-        runs_per_direction: 2,
-        max_speed_m_s: 1.0,
-        max_rate_rad_s: 3.0,
-        settle_s: 0.0,
-        write_back: WritePolicy::Yes,
-        verification_runs: 1,
         method: Some(Method::Exact),
-        backup_dir: dir.join("backups"),
         report_dir: Some(dir.join("report")),
-        ..RoutineConfig::default()
+        ..common::virtual_routine(dir.join("backups"))
     }
 }
 

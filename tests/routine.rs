@@ -186,17 +186,7 @@ fn real_time_device(storage_fails: bool) -> Arc<Mutex<MockDevice>> {
 }
 
 fn quick_routine(name: &str) -> RoutineConfig {
-    RoutineConfig {
-        side_m: 1.0,
-        runs_per_direction: 2,
-        max_speed_m_s: 1.0,
-        max_rate_rad_s: 3.0,
-        settle_s: 0.0,
-        write_back: WritePolicy::Yes,
-        verification_runs: 1,
-        backup_dir: temp_dir(name),
-        ..RoutineConfig::default()
-    }
+    common::virtual_routine(temp_dir(name))
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

@@ -198,7 +198,8 @@ impl MockDevice {
         let mut storage_discarded = None;
         let stored = match config.storage_path.as_ref() {
             None => None,
-            Some(p) => match crate::base::files::read_bounded(p, crate::base::files::MAX_TEXT_FILE) {
+            Some(p) => match crate::base::files::read_bounded(p, crate::base::files::MAX_TEXT_FILE)
+            {
                 Err(e) if e.kind() == std::io::ErrorKind::NotFound => None,
                 Err(e) => {
                     storage_discarded = Some(format!("{}: {e}", p.display()));

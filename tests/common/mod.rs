@@ -164,6 +164,23 @@ pub fn quick_routine(dir: &std::path::Path) -> odocal::routine::config::RoutineC
     }
 }
 
+/// A short routine for virtual-time mocks: 1 m squares, 2 per direction at up to 1 m/s and
+/// 3 rad/s, no settling, one verification run each way, written without asking; backups in
+/// `backup_dir`.
+pub fn virtual_routine(backup_dir: PathBuf) -> odocal::routine::config::RoutineConfig {
+    odocal::routine::config::RoutineConfig {
+        side_m: 1.0,
+        runs_per_direction: 2,
+        max_speed_m_s: 1.0,
+        max_rate_rad_s: 3.0,
+        settle_s: 0.0,
+        write_back: odocal::routine::config::WritePolicy::Yes,
+        verification_runs: 1,
+        backup_dir,
+        ..odocal::routine::config::RoutineConfig::default()
+    }
+}
+
 /// The `calibrate` flags of [`quick_routine`], for CLI tests.
 pub const QUICK_FLAGS: [&str; 15] = [
     "--yes",
