@@ -8,7 +8,7 @@
 //! their spread is zero and only their bias shows.
 
 use odocal::calibration::Method;
-use odocal::study::{accuracy_study, StudyConfig};
+use odocal::offline::study::{accuracy_study, StudyConfig};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let trials: usize = std::env::args()

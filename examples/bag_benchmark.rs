@@ -4,8 +4,8 @@
 //! `cargo run --release --example bag_benchmark` (target: ≥ 1 million messages per second)
 
 use odocal::kinematics::{SplitConvention, WheelParams};
+use odocal::ros::bag::writer::{write_simulated_bag, SimulatedBag};
 use odocal::ros::bag::{analyse, infer_geometry, read_bag, BagOptions, GeometrySource, RosTopics};
-use odocal::ros::bag_writer::{write_simulated_bag, SimulatedBag};
 use odocal::ros::yaml::RAD_PER_REV;
 use odocal::sim::{NoiseModel, Simulator};
 use std::time::Instant;

@@ -22,8 +22,8 @@
 //! `cargo run --release --example scoreboard [-- DATA_ROOT]` (default ../shared/datasets/optiodom)
 
 use odocal::calibration::Method;
-use odocal::dataset::{default_optiodom_root, leave_one_recording_out, OptiOdomSet};
 use odocal::kinematics::{SplitConvention, WheelParams};
+use odocal::offline::dataset::{default_optiodom_root, leave_one_recording_out, OptiOdomSet};
 use std::collections::BTreeMap;
 
 fn median_max(v: &mut [f64]) -> (f64, f64) {
@@ -200,8 +200,8 @@ fn free_runs(
     convention: SplitConvention,
 ) -> Result<(), Box<dyn std::error::Error>> {
     use odocal::calibration::online::{OnlineConfig, ScaleSource};
-    use odocal::dataset::{replay, RecordedRun};
-    use odocal::track::Tracker;
+    use odocal::calibration::tracker::Tracker;
+    use odocal::offline::dataset::{replay, RecordedRun};
     let mut dirs: Vec<_> = std::fs::read_dir(root.join("free"))?
         .filter_map(|e| e.ok().map(|e| e.path()))
         .filter(|p| p.is_dir())
@@ -247,7 +247,7 @@ fn free_runs(
             cfg.heading_sigma_rad = MOCAP_HEADING_SIGMA_DEG.to_radians();
             cfg.slip_fraction = FREE_RUN_SLIP;
             let mut tracker = Tracker::new(cfg, scale, 1.0)?;
-            tracker.feed_dataset(&one);
+            one.feed(&mut tracker);
             let online = tracker.estimate()?;
             let (nis, n) = tracker.filter().nis_mean();
             let gate = tracker.filter().gate_stats();

@@ -1,13 +1,14 @@
 //! The recalibration routine from code: a routine configuration, a UI that prints, and the
-//! simulated robot (or a real port given as the first argument).
+//! simulated robot (or a real robot given as the first argument: any drive spec, e.g. a
+//! serial port of an odocal-protocol controller; a second argument names a heading source such
+//! as `nmea:/dev/ttyUSB1`).
 //!
-//! `cargo run --release --example scripted_recalibration [-- /dev/ttyUSB0]`
+//! `cargo run --release --example scripted_recalibration [-- /dev/ttyUSB0 [nmea:/dev/ttyUSB1]]`
 
-use odocal::base::Base;
 use odocal::demo::{run_demo, DemoOptions};
-use odocal::hal::open_port;
 use odocal::routine::config::{RoutineConfig, WritePolicy};
 use odocal::routine::{run, RoutineEvent, RoutineUi};
+use odocal::spec::RobotSection;
 use tokio_util::sync::CancellationToken;
 
 /// Prints stages and warnings; asks nothing (the policy below decides).
@@ -42,9 +43,14 @@ async fn main() -> Result<(), Box<dyn std::error::Error>> {
     };
     let cancel = CancellationToken::new();
     let report = match std::env::args().nth(1) {
-        Some(port) => {
-            let (client, _) = open_port(&port, cfg.baud).await?;
-            run(&Base::single(client), &cfg, None, &mut Printer, &cancel).await?
+        Some(drive) => {
+            let robot = RobotSection {
+                drive: Some(drive),
+                heading: std::env::args().nth(2),
+                ..RobotSection::default()
+            };
+            let base = robot.spec()?.open().await?;
+            run(&base, &cfg, None, &mut Printer, &cancel).await?
         }
         None => {
             let opts = DemoOptions {

@@ -49,6 +49,8 @@ pub struct DemoOptions {
     pub seed: u64,
     /// Link faults.
     pub faults: FaultConfig,
+    /// How the robot's heading sensor errs.
+    pub heading_model: crate::sim::sensor::HeadingModel,
     /// The routine's settings.
     pub routine: RoutineConfig,
 }
@@ -62,8 +64,8 @@ impl Default for DemoOptions {
             compass_sigma_deg: 0.37,
             seed: 1,
             faults: FaultConfig::default(),
+            heading_model: Default::default(),
             routine: RoutineConfig {
-                port: Some("mock".into()),
                 write_back: WritePolicy::Yes,
                 confirm_motion: false,
                 settle_s: 0.0,
@@ -91,6 +93,7 @@ pub fn demo_device(opts: &DemoOptions) -> Result<SharedDevice, DemoError> {
     let mut cfg = MockConfig::with_ratios(opts.nominal, opts.true_e_b, opts.true_e_d)?;
     cfg.noise.compass_sigma_rad = opts.compass_sigma_deg.to_radians();
     cfg.seed = opts.seed;
+    cfg.heading_model = opts.heading_model;
     let device = MockDevice::new(cfg)?;
     Ok(Arc::new(Mutex::new(device)))
 }
@@ -117,15 +120,15 @@ pub async fn run_demo_on(
 ) -> Result<Report, DemoError> {
     let server =
         spawn_pty(device.clone(), TimeMode::Virtual, opts.faults).map_err(DemoError::Pty)?;
-    let (client, _) = open_port(&server.path, opts.routine.baud).await?;
+    let (client, _) = open_port(&server.path, crate::hal::DEFAULT_BAUD).await?;
     let truth = MockTruth(device.clone());
-    let report = run(
-        &Base::single(client),
-        &opts.routine,
-        Some(&truth),
-        ui,
-        cancel,
-    )
-    .await?;
+    // The simulated robot's sensor is known: said, as a user says it with --heading-kind.
+    let mut base = Base::single(client);
+    base.heading = std::sync::Arc::new(crate::base::adjusted::Adjusted::new(
+        base.heading.clone(),
+        Some(crate::mock::heading_kind(&opts.heading_model)),
+        Default::default(),
+    ));
+    let report = run(&base, &opts.routine, Some(&truth), ui, cancel).await?;
     Ok(report)
 }

@@ -13,6 +13,7 @@
 
 use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;
+use std::str::FromStr;
 
 /// Errors of the kinematics layer: parameters no robot can have.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -69,6 +70,42 @@ pub fn sinc(x: f64) -> f64 {
         1.0 - x2 / 6.0 + x2 * x2 / 120.0
     } else {
         x.sin() / x
+    }
+}
+
+/// What the odometry makes of one interval of wheel travel: how far the robot's centre went
+/// forward and how far it turned.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct Displacement {
+    /// Forward travel of the centre between the wheels (m): the mean of the wheel arcs.
+    pub distance_m: f64,
+    /// Turn (rad, counter-clockwise positive, not wrapped).
+    pub turn_rad: f64,
+}
+
+impl Displacement {
+    /// The displacement of wheel arcs `left_m`, `right_m` (m, forward positive) on a
+    /// `wheelbase_m` base: the one place the crate writes the turn `(s_R − s_L)/b`.
+    pub fn of_wheels(left_m: f64, right_m: f64, wheelbase_m: f64) -> Self {
+        Displacement {
+            distance_m: 0.5 * (left_m + right_m),
+            turn_rad: (right_m - left_m) / wheelbase_m,
+        }
+    }
+
+    /// The wheel arcs (left, right; m) that make this displacement on a `wheelbase_m` base:
+    /// the inverse of [`Displacement::of_wheels`].
+    pub fn wheels(&self, wheelbase_m: f64) -> (f64, f64) {
+        let half = 0.5 * self.turn_rad * wheelbase_m;
+        (self.distance_m - half, self.distance_m + half)
+    }
+
+    /// The sum of two displacements.
+    pub fn plus(&self, other: &Displacement) -> Self {
+        Displacement {
+            distance_m: self.distance_m + other.distance_m,
+            turn_rad: self.turn_rad + other.turn_rad,
+        }
     }
 }
 
@@ -178,13 +215,24 @@ impl WheelParams {
         PI * self.right_wheel_diameter_m / self.counts_per_wheel_rev
     }
 
-    /// Pose change for encoder count increments interpreted with these parameters.
-    pub fn odometry_step(&self, pose: &Pose, left_counts: f64, right_counts: f64) -> Pose {
-        pose.advance(
+    /// Wheel travel (left, right; m) of encoder count increments under these parameters.
+    pub fn travel_m(&self, left_counts: f64, right_counts: f64) -> (f64, f64) {
+        (
             left_counts * self.left_m_per_count(),
             right_counts * self.right_m_per_count(),
-            self.wheelbase_m,
         )
+    }
+
+    /// The odometry's displacement for encoder count increments under these parameters.
+    pub fn displacement(&self, left_counts: f64, right_counts: f64) -> Displacement {
+        let (l, r) = self.travel_m(left_counts, right_counts);
+        Displacement::of_wheels(l, r, self.wheelbase_m)
+    }
+
+    /// Pose change for encoder count increments interpreted with these parameters.
+    pub fn odometry_step(&self, pose: &Pose, left_counts: f64, right_counts: f64) -> Pose {
+        let (l, r) = self.travel_m(left_counts, right_counts);
+        pose.advance(l, r, self.wheelbase_m)
     }
 }
 
@@ -245,8 +293,10 @@ impl Pose {
     /// direction `θ + Δθ/2`; written this way one formula is exact and well-conditioned for every
     /// `Δθ`, including the straight-line limit.
     pub fn advance(&self, left_arc_m: f64, right_arc_m: f64, wheelbase_m: f64) -> Pose {
-        let dtheta = (right_arc_m - left_arc_m) / wheelbase_m;
-        let ds = 0.5 * (right_arc_m + left_arc_m);
+        let Displacement {
+            distance_m: ds,
+            turn_rad: dtheta,
+        } = Displacement::of_wheels(left_arc_m, right_arc_m, wheelbase_m);
         let chord = ds * sinc(0.5 * dtheta);
         let mid = self.heading_rad + 0.5 * dtheta;
         Pose {
@@ -316,6 +366,63 @@ impl Correction {
 /// between two samples are corrupt data, not a wheel (telemetry logs, recorded sets).
 pub const MAX_WHEEL_SPEED_M_S: f64 = 20.0;
 
+/// A magnetic compass's deviation curve `[A₁, B₁, A₂, B₂]` (rad): a compass on a robot reads
+/// `ψ + d(ψ)` for a true heading `ψ`, with `d(ψ) = A₁·sin ψ + B₁·cos ψ + A₂·sin 2ψ + B₂·cos 2ψ`
+/// (hard and soft iron: motors, battery, steel; marine practice's B, C, D, E — its constant A
+/// is a bias that no heading change sees).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct Deviation(pub [f64; 4]);
+
+impl Deviation {
+    /// `d(ψ)` (rad) at heading `psi` (rad).
+    pub fn at(&self, psi: f64) -> f64 {
+        let [a1, b1, a2, b2] = self.0;
+        a1 * psi.sin() + b1 * psi.cos() + a2 * (2.0 * psi).sin() + b2 * (2.0 * psi).cos()
+    }
+
+    /// The true heading of a compass reading `r` (rad): `r − d(ψ)`, solved by fixed-point
+    /// iteration (a deviation of a few degrees converges in three steps).
+    pub fn remove(&self, r: f64) -> f64 {
+        let mut psi = r;
+        for _ in 0..4 {
+            psi = r - self.at(psi);
+        }
+        wrap_angle(psi)
+    }
+
+    /// The largest |d(ψ)| over a turn (rad).
+    pub fn amplitude(&self) -> f64 {
+        (0..360)
+            .map(|k| self.at(f64::from(k).to_radians()).abs())
+            .fold(0.0, f64::max)
+    }
+
+    /// Whether every coefficient is zero.
+    pub fn is_zero(&self) -> bool {
+        self.0.iter().all(|c| *c == 0.0)
+    }
+}
+
+impl FromStr for Deviation {
+    type Err = String;
+
+    /// `A1,B1,A2,B2` in degrees.
+    fn from_str(s: &str) -> Result<Self, String> {
+        let v: Vec<f64> = s
+            .split(',')
+            .map(|x| x.trim().parse::<f64>())
+            .collect::<Result<_, _>>()
+            .map_err(|_| format!("{s:?}: expected A1,B1,A2,B2 in degrees"))?;
+        let arr: [f64; 4] = v
+            .try_into()
+            .map_err(|_| format!("{s:?}: expected four coefficients A1,B1,A2,B2"))?;
+        if arr.iter().any(|c| !(c.is_finite() && c.abs() <= 45.0)) {
+            return Err(format!("{s:?}: each coefficient must be within ±45°"));
+        }
+        Ok(Deviation(arr.map(f64::to_radians)))
+    }
+}
+
 /// How a wheel-*ratio* estimate is split into two absolute wheel diameters.
 ///
 /// Heading errors only observe `D_R/(D·E_b)` and `D_L/(D·E_b)`; the absolute wheel scale is
@@ -323,7 +430,7 @@ pub const MAX_WHEEL_SPEED_M_S: f64 = 20.0;
 /// must use the same one: mixed, a 4 m square is left several centimetres open.
 ///
 /// This one type serves the library, routine files, the command line and JSON. Its text form
-/// ([`FromStr`](std::str::FromStr), [`Display`](std::fmt::Display)) is `left-nominal`,
+/// ([`FromStr`], [`Display`](std::fmt::Display)) is `left-nominal`,
 /// `mean-preserving` or `measured-scale:COMMANDED_M,MEASURED_M`; in TOML and JSON the first two
 /// are strings and the third a table, `{ measured-scale = { commanded_m = 2.0, measured_m =
 /// 1.98 } }`.

@@ -1,21 +1,25 @@
 //! odocal: odometry calibration for two-wheel differential-drive robots.
 //!
-//! Layers, data flowing one way (each uses only those above it):
-//! - [`kinematics`]: parameters, the exact pose update, sign conventions, split conventions.
+//! Layers, data flowing one way (each uses only those above it; `docs/architecture.md` has
+//! the whole map and `tests/architecture.rs` checks it):
+//! - [`kinematics`]: parameters, the exact pose update, the odometry's displacement, sign
+//!   conventions, split conventions.
 //! - [`sim`]: a true robot driven open-loop by a controller with its own configured parameters.
 //! - [`calibration`]: pure estimators from square tests (UMBmark, Lee, heading-only,
-//!   Jung & Chung, exact) with standard errors and the Cramér–Rao bound; the online filter.
-//! - [`study`]: simulated calibrate → write back → verify experiments (the paper's Sec. 3).
-//! - [`dataset`]: readers for recorded runs (OptiOdom) and replay evaluation.
+//!   Jung & Chung, exact, legs) with standard errors and the Cramér–Rao bound; the one
+//!   recording pipeline every input converts into; the online filter and its tracker.
+//! - [`io`]: bounded reads, atomic writes, backups, serial ports.
 //! - [`protocol`]: the serial wire protocol of `protocol/SPEC.md` (the `odocal-protocol` crate).
-//! - [`base`]: the seam — a drive, a heading source and a parameter store — and the one write
-//!   transaction.
-//! - [`hal`]: our protocol's async client over any byte stream; a [`base`] backend.
-//! - [`mock`]: simulated robots behind the protocol (duplex or pseudo-terminal) and behind the
-//!   seam in process.
-//! - [`ros`]: ROS robots — messages, the ros2_control YAML store, bags, rosbridge.
-//! - [`routine`]: the recalibration procedure, over the seam only.
-//! - [`track`]: the online estimator fed from live telemetry, logs or recorded data sets.
+//! - [`base`]: the seam — a drive, a heading source and a parameter store — the one write
+//!   transaction, and the file store every file format plugs into.
+//! - Backends, one folder each: [`hal`] (our protocol), [`ros`] (rosbridge, bags, the
+//!   ros2_control YAML), [`roboclaw`] (with its robot profile), [`nmea`] (compasses).
+//! - [`spec`]: where a robot is — drive, heading and store specs, any drive with any heading
+//!   source; the one list of backends.
+//! - [`routine`]: the recalibration procedure and live tracking, over the seam only.
+//! - [`offline`]: recorded data sets, recording logs and simulated studies.
+//! - [`mock`]: simulated robots behind each protocol (duplex, pseudo-terminal, loopback) and
+//!   behind the seam in process.
 //! - [`report`]: Markdown, plots, report files and the ROS 2 export.
 //! - [`demo`]: the mock device, the HAL and the routine wired together.
 //!
@@ -23,11 +27,7 @@
 //! use odocal::calibration::{estimate, Method, RunMeasurement, SquareTest};
 //! use odocal::kinematics::SplitConvention;
 //!
-//! let run = |deg: f64| RunMeasurement {
-//!     heading_error_rad: deg.to_radians(),
-//!     final_xy_m: None,
-//!     leg_heading_error_rad: None,
-//! };
+//! let run = |deg: f64| RunMeasurement::heading(deg.to_radians());
 //! let test = SquareTest {
 //!     side_m: 4.0,
 //!     wheelbase_m: 0.39,
@@ -42,18 +42,17 @@
 
 pub mod base;
 pub mod calibration;
-pub mod dataset;
 pub mod demo;
 pub mod hal;
+pub mod io;
 pub mod kinematics;
 pub mod mock;
 pub mod nmea;
-pub mod profile;
+pub mod offline;
 pub mod protocol;
 pub mod report;
 pub mod roboclaw;
 pub mod ros;
 pub mod routine;
 pub mod sim;
-pub mod study;
-pub mod track;
+pub mod spec;

@@ -111,7 +111,7 @@ fn bad_input_fails_with_a_clear_message() {
 
 #[test]
 fn replay_json_has_evaluations() {
-    let root = odocal::dataset::default_optiodom_root();
+    let root = odocal::offline::dataset::default_optiodom_root();
     let set = root.join("square/231220200040");
     if !set.is_dir() {
         assert!(
@@ -281,8 +281,7 @@ fn routine_files_run_and_malformed_ones_name_the_line() {
     // The shipped example files parse.
     for f in ["examples/routine-mock.toml", "examples/routine-robot.toml"] {
         let text = std::fs::read_to_string(f).unwrap();
-        odocal::routine::config::RoutineConfig::from_toml(&text)
-            .unwrap_or_else(|e| panic!("{f}: {e}"));
+        odocal::spec::RoutineFile::from_toml(&text).unwrap_or_else(|e| panic!("{f}: {e}"));
     }
 }
 
@@ -424,8 +423,11 @@ fn record_says_why_nothing_was_recorded_and_records_from_a_real_time_mock() {
     drop(mock.stdin.take());
     let _ = mock.wait();
     assert!(ok, "{err}");
-    let (_, samples) = odocal::track::read_log(&out2).unwrap();
-    assert!(samples.len() > 5, "{stdout}");
+    let (_, samples) = odocal::offline::log::read_log(&out2).unwrap();
+    assert!(
+        samples.travel.len() > 5 && samples.headings.len() > 5,
+        "{stdout}"
+    );
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

@@ -4,8 +4,8 @@
 use odocal::calibration::exact::predicted_heading_errors;
 use odocal::calibration::{estimate, Method, SquareTest};
 use odocal::kinematics::{Pose, SplitConvention, WheelParams};
+use odocal::offline::study::{accuracy_study, e_max_sys, square_test, StudyConfig};
 use odocal::sim::{NoiseModel, Simulator};
-use odocal::study::{accuracy_study, e_max_sys, square_test, StudyConfig};
 use proptest::prelude::*;
 use std::f64::consts::FRAC_PI_2;
 

@@ -154,7 +154,7 @@ async fn ten_squares(faults: FaultConfig) -> (SquareTest, SharedDevice, Client) 
             let m = RunMeasurement {
                 heading_error_rad: rec.heading_error_rad,
                 final_xy_m: None,
-                leg_heading_error_rad: None,
+                ..RunMeasurement::default()
             };
             match direction {
                 Direction::Cw => test.cw.push(m),

@@ -6,8 +6,8 @@ mod common;
 use common::odocal_json;
 use odocal::calibration::online::{OnlineConfig, OnlineEstimator, ScaleSource};
 use odocal::calibration::{estimate, Method};
-use odocal::dataset::OptiOdomSet;
 use odocal::kinematics::{Correction, SplitConvention, WheelParams};
+use odocal::offline::dataset::OptiOdomSet;
 use odocal::sim::{NoiseModel, Simulator};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -248,14 +248,16 @@ fn write_random_log(
     delay_samples: usize,
 ) {
     use odocal::hal::TelemetrySample;
+    use odocal::offline::log::{LogHeader, LogWriter};
     use odocal::protocol::message::MotionState;
-    use odocal::track::{LogHeader, LogWriter};
     let mut sim = noisy_robot(nominal, truth, 42);
     let header = LogHeader {
         odocal_version: "test".into(),
         device: None,
         params: *nominal,
         period_ms: 20,
+        base: None,
+        clocks: odocal::calibration::recording::Clocks::Shared,
     };
     let mut log = LogWriter::create(path, header).unwrap();
     let mut path_gen = RandomPath::new(42);
@@ -324,7 +326,8 @@ fn track_reads_a_recorded_log_and_converges() {
 
 #[test]
 fn a_heading_stream_three_tenths_of_a_second_late_is_detected_reported_and_corrected() {
-    use odocal::track::{read_log, Tracker};
+    use odocal::calibration::tracker::Tracker;
+    use odocal::offline::log::read_log;
     let nominal = WheelParams::nominal(0.15, 0.39, 4096.0);
     let truth = Correction {
         left_diameter_scale: 1.0,
@@ -356,7 +359,7 @@ fn a_heading_stream_three_tenths_of_a_second_late_is_detected_reported_and_corre
     let nis = v["heading_nis_mean"].as_f64().unwrap();
     assert!((0.5..2.0).contains(&nis), "NIS {nis}");
     // Fed as it is, the same log puts the filter far off: what the correction saved.
-    let (header, samples) = read_log(&log_path).unwrap();
+    let (header, rec) = read_log(&log_path).unwrap();
     let mut raw = Tracker::new(
         {
             let mut c = OnlineConfig::new(header.params);
@@ -367,9 +370,11 @@ fn a_heading_stream_three_tenths_of_a_second_late_is_detected_reported_and_corre
         1.0,
     )
     .unwrap();
-    for s in &samples {
-        raw.feed_sample(s);
+    for (t, h) in rec.travel.iter().zip(&rec.headings) {
+        raw.push_travel(*t);
+        raw.push_heading(h.clone());
     }
+    raw.finish_stream();
     let (raw_nis, _) = raw.filter().nis_mean();
     let g = raw.filter().gate_stats();
     assert!(
@@ -460,6 +465,7 @@ fn position_fixes_make_the_wheel_scale_observable() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn live_telemetry_from_the_mock_calibrates_and_writes_back() {
     use odocal::base::Base;
+    use odocal::calibration::tracker::Tracker;
     use odocal::hal::link::LinkConfig;
     use odocal::hal::Client;
     use odocal::kinematics::Direction;
@@ -468,7 +474,6 @@ async fn live_telemetry_from_the_mock_calibrates_and_writes_back() {
     use odocal::routine::config::WritePolicy;
     use odocal::routine::square::{run_square, SquareCommand};
     use odocal::routine::{write_parameters, Unattended};
-    use odocal::track::Tracker;
     use std::time::Duration;
 
     let device = common::mock_device(COMPASS_DEG, 1);
@@ -486,11 +491,10 @@ async fn live_telemetry_from_the_mock_calibrates_and_writes_back() {
     )
     .unwrap();
     let base = Base::single(client.clone());
-    let mut rx = client.subscribe();
-    client
-        .configure_telemetry(Some(Duration::from_millis(20)))
-        .await
-        .unwrap();
+    tracker.start_stream(base.clocks());
+    let period = Duration::from_millis(20);
+    let mut travel = base.drive.travel(period).await.unwrap().unwrap();
+    let mut headings = base.heading.stream(period).await.unwrap().unwrap();
     // Any driving will do; squares of 2 m in both directions here.
     for direction in [Direction::Cw, Direction::Ccw, Direction::Cw, Direction::Ccw] {
         let cmd = SquareCommand {
@@ -503,10 +507,14 @@ async fn live_telemetry_from_the_mock_calibrates_and_writes_back() {
             stream_period: Duration::from_millis(20),
         };
         run_square(&base, &cmd, |_| {}).await.unwrap();
-        while let Ok(s) = rx.try_recv() {
-            tracker.feed_sample(&s);
+        while let Ok(s) = travel.try_recv() {
+            tracker.push_travel(s);
+        }
+        while let Ok(s) = headings.try_recv() {
+            tracker.push_heading(s);
         }
     }
+    tracker.finish_stream();
     let e = tracker.estimate().unwrap();
     assert!(
         (e.e_b - 0.976).abs() < 3.0 * e.e_b_std && e.e_b_std < 0.002,
@@ -539,8 +547,8 @@ async fn live_telemetry_from_the_mock_calibrates_and_writes_back() {
 #[test]
 fn a_log_without_driving_is_an_error_not_a_nan() {
     use odocal::hal::TelemetrySample;
+    use odocal::offline::log::{LogHeader, LogWriter};
     use odocal::protocol::message::MotionState;
-    use odocal::track::{LogHeader, LogWriter};
     let dir = common::scratch("track-empty");
     std::fs::create_dir_all(&dir).unwrap();
     let header = LogHeader {
@@ -548,6 +556,8 @@ fn a_log_without_driving_is_an_error_not_a_nan() {
         device: None,
         params: WheelParams::nominal(0.15, 0.39, 4096.0),
         period_ms: 20,
+        base: None,
+        clocks: odocal::calibration::recording::Clocks::Shared,
     };
     // A header and nothing else; then a robot that stood still.
     let empty = dir.join("empty.jsonl");

@@ -6,8 +6,8 @@
 mod common;
 
 use odocal::calibration::{estimate, Method};
-use odocal::dataset::{replay, DatasetError, OptiOdomSet};
 use odocal::kinematics::SplitConvention;
+use odocal::offline::dataset::{replay, DatasetError, OptiOdomSet};
 use std::path::PathBuf;
 
 fn data_root() -> Option<PathBuf> {
@@ -137,7 +137,7 @@ fn legs_are_found_in_every_recorded_run_and_the_leg_method_escapes_the_start_tra
         let test = set.square_test().unwrap();
         for r in test.cw.iter().chain(test.ccw.iter()) {
             assert!(
-                r.leg_heading_error_rad.is_some(),
+                r.legs.is_some(),
                 "{}: a run without four legs found",
                 set.id
             );
@@ -163,7 +163,7 @@ fn legs_are_found_in_every_recorded_run_and_the_leg_method_escapes_the_start_tra
 #[test]
 fn pooled_leave_one_recording_out_the_default_method_is_honest_and_no_worse_than_umbmark_on_position(
 ) {
-    use odocal::dataset::leave_one_recording_out;
+    use odocal::offline::dataset::leave_one_recording_out;
     let Some(root) = data_root() else { return };
     let sets = square_sets(&root);
     let held = leave_one_recording_out(&sets, SplitConvention::LeftNominal).unwrap();

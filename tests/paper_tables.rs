@@ -5,7 +5,7 @@
 //! `|est − true|·100` (percentage points). Where our figure differs from the paper's we say so.
 
 use odocal::calibration::Method;
-use odocal::study::{run_study, MethodOutcome, StudyConfig, StudyOutcome};
+use odocal::offline::study::{run_study, MethodOutcome, StudyConfig, StudyOutcome};
 
 fn study(e_b: f64, e_d: f64) -> StudyOutcome {
     run_study(&StudyConfig::paper(e_b, e_d), 0).expect("paper study runs")
@@ -85,8 +85,8 @@ fn exact_method_is_exact_and_closes_the_square() {
 fn estimation_and_write_back_must_share_a_convention() {
     use odocal::calibration::estimate;
     use odocal::kinematics::SplitConvention;
+    use odocal::offline::study::{e_max_sys, simulate_tests};
     use odocal::sim::{NoiseModel, Simulator};
-    use odocal::study::{e_max_sys, simulate_tests};
     let cfg = StudyConfig::paper(0.976, 0.992);
     let tests = simulate_tests(&cfg, 0).unwrap();
     let verify = |e_b: f64, e_d: f64, split: SplitConvention| {

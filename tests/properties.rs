@@ -4,11 +4,12 @@
 //! what they must not touch.
 
 use odocal::calibration::online::{OnlineConfig, ScaleSource};
+use odocal::calibration::tracker::Tracker;
 use odocal::kinematics::{SplitConvention, WheelParams};
 use odocal::mock::{FaultConfig, MockConfig, MockDevice, MAX_EVENTS_PER_STEP};
+use odocal::offline::log::read_log;
 use odocal::protocol::message::{id, ParamsBlock};
 use odocal::protocol::{Body, Frame, FrameKind, Packet, Response};
-use odocal::track::{read_log, Tracker};
 use proptest::prelude::*;
 use std::time::Duration;
 
@@ -204,14 +205,14 @@ proptest! {
         std::fs::write(&path, text).unwrap();
         let p = path.clone();
         let outcome = within(Duration::from_secs(20), format!("{path:?}"), move || {
-            let (header, samples) = read_log(&p).map_err(|e| e.to_string())?;
+            let (header, recording) = read_log(&p).map_err(|e| e.to_string())?;
             let mut tracker = Tracker::new(
                 OnlineConfig::new(header.params),
                 ScaleSource::Convention(SplitConvention::LeftNominal),
                 0.5,
             )
             .map_err(|e| e.to_string())?;
-            tracker.feed_log(&samples);
+            tracker.feed_recording("log", &recording);
             tracker.estimate().map_err(|e| e.to_string())
         });
         let _ = std::fs::remove_file(&path);

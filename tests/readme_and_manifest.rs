@@ -157,3 +157,25 @@ fn every_speed_figure_in_the_readme_names_its_command_and_machine() {
         );
     }
 }
+
+/// The README quotes every size bound odocal applies to files (`io::SIZE_BOUNDS`), as it is.
+#[test]
+fn the_readme_quotes_every_file_size_bound() {
+    let readme = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/README.md"))
+        .unwrap()
+        .split_whitespace()
+        .collect::<Vec<_>>()
+        .join(" ");
+    for (what, bytes) in odocal::io::SIZE_BOUNDS {
+        let shown = if bytes % (1 << 30) == 0 {
+            format!("{} GiB", bytes >> 30)
+        } else {
+            format!("{} MiB", bytes >> 20)
+        };
+        assert!(
+            readme.contains(&shown),
+            "the README does not give the bound of {what}: {shown}"
+        );
+    }
+    assert!(readme.contains("io::SIZE_BOUNDS"));
+}

@@ -8,12 +8,12 @@ mod common;
 use odocal::base::Drive;
 use odocal::kinematics::WheelParams;
 use odocal::mock::roboclaw::{
-    robot, serve_compass, serve_roboclaw, spawn_robot, MockRoboClawConfig, SharedRobot,
+    compass_of, robot, serve_roboclaw, spawn_robot, MockRoboClawConfig, SharedRobot,
 };
 use odocal::nmea::NmeaCompass;
-use odocal::profile::{Profile, ProfileStore};
 use odocal::roboclaw::client::{RoboClaw, RoboClawConfig};
 use odocal::roboclaw::drive::RoboClawDrive;
+use odocal::roboclaw::profile::{Profile, ProfileStore};
 use odocal::routine::config::RoutineConfig;
 use odocal::routine::{run, Unattended};
 use std::path::{Path, PathBuf};
@@ -21,25 +21,7 @@ use std::sync::Arc;
 use std::time::Duration;
 use tokio_util::sync::CancellationToken;
 
-const PROFILE: &str = "\
-# test robot
-[geometry]
-left_wheel_diameter_m = 0.15
-right_wheel_diameter_m = 0.15
-wheelbase_m = 0.39
-encoder_counts_per_motor_rev = 1024
-gear_ratio = 4.0
-
-[wiring]
-left_channel = \"M2\"
-left_encoder_sign = 1
-right_encoder_sign = -1
-
-[limits]
-max_speed_m_s = 1.0
-max_accel_m_s2 = 1.0
-min_battery_v = 10.5
-";
+const PROFILE: &str = common::ROBOCLAW_PROFILE;
 
 fn profile_file(name: &str) -> (PathBuf, PathBuf) {
     let dir = common::scratch(name);
@@ -71,7 +53,8 @@ fn claw_on(robot_state: &SharedRobot) -> RoboClaw {
 
 fn compass_on(robot_state: &SharedRobot) -> NmeaCompass {
     let (host, dev) = tokio::io::duplex(4096);
-    tokio::spawn(serve_compass(dev, robot_state.clone()));
+    let (cfg, heading) = compass_of(robot_state);
+    tokio::spawn(odocal::mock::nmea::serve_compass(dev, cfg, heading));
     NmeaCompass::new(host, "duplex", Duration::from_millis(500))
 }
 

@@ -6,7 +6,7 @@ mod common;
 
 use odocal::base::Base;
 use odocal::mock::rosbridge::{MockRosConfig, MockRosbridge};
-use odocal::ros::base::{connect, RosBaseConfig};
+use odocal::ros::live::{connect, RosBaseConfig};
 use odocal::ros::yaml::DiffDriveConfig;
 use odocal::routine::config::RoutineConfig;
 use odocal::routine::{run, RoutineError, RoutineEvent, RoutineUi, Unattended};
@@ -14,19 +14,7 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 use tokio_util::sync::CancellationToken;
 
-const YAML: &str = "\
-controller_manager:
-  ros__parameters:
-    update_rate: 100  # Hz
-
-diff_drive_controller:
-  ros__parameters:
-    left_wheel_names: [\"left_wheel_joint\"]
-    right_wheel_names: [\"right_wheel_joint\"]
-    wheel_separation: 0.39
-    wheel_radius: 0.075
-    cmd_vel_timeout: 0.5  # s
-";
+const YAML: &str = common::DIFF_DRIVE_YAML;
 
 /// The two end-to-end calibrations run one at a time: each drives a robot at many times real
 /// speed, and two at once on a 2-core machine starve each other's control loops.

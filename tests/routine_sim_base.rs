@@ -19,12 +19,17 @@ fn robot(compass_sigma_deg: f64) -> SimBase {
     common::sim_base(compass_sigma_deg, 3)
 }
 
-/// Runs the routine on `sim` after setting `faults`, without ground truth.
+/// Runs the routine on `sim` after setting `faults`, without ground truth; squares only (no
+/// compass swing, no realigning turns between them), so that motions count squares.
 async fn run_faulty(sim: &SimBase, faults: SimFaults, name: &str) -> Result<Report, RoutineError> {
     sim.set_faults(faults);
     run(
         &Base::single(sim.clone()),
-        &routine(name),
+        &RoutineConfig {
+            realign: false,
+            swing: false,
+            ..routine(name)
+        },
         None,
         &mut Unattended,
         &CancellationToken::new(),
@@ -248,18 +253,84 @@ async fn a_report_without_ground_truth_has_no_empty_rows_and_reads_as_words() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
-/// "Never worse": with a compass too noisy to calibrate from (σ 25° per reading, one square each
-/// way), the verification cannot show the written parameters clearly better, so they are
+/// A robot that needs no correction, measured by a noisy compass (σ 3° per reading) with one
+/// square each way: whatever the estimate says is noise, the Cramér–Rao bound of the compass's
+/// noise measured at rest (one run has no scatter) says so, and nothing is written.
+#[tokio::test]
+async fn a_correction_within_its_own_noise_is_not_written() {
+    use odocal::sim::{NoiseModel, Simulator};
+    let noise = NoiseModel {
+        compass_sigma_rad: 3f64.to_radians(),
+        ..NoiseModel::default()
+    };
+    let sim = SimBase::new(Simulator::new(nominal(), nominal(), noise, 3).unwrap());
+    let report = run(
+        &Base::single(sim.clone()),
+        &RoutineConfig {
+            runs_per_direction: 1,
+            max_rounds: 1,
+            ..routine("noise")
+        },
+        None,
+        &mut Unattended,
+        &CancellationToken::new(),
+    )
+    .await
+    .unwrap();
+    let chosen = &report.rounds[0].chosen;
+    assert_eq!(chosen.e_b_std_err, None);
+    let [sb, sd] = report.rounds[0].cramer_rao_std.unwrap();
+    // The noise is real: an estimate away from 1, by no more than its standard errors say.
+    assert!(
+        chosen.e_b != 1.0 && (chosen.e_b - 1.0).abs() < 2.0 * sb,
+        "{chosen:?}"
+    );
+    assert!(
+        chosen.e_d != 1.0 && (chosen.e_d - 1.0).abs() < 2.0 * sd,
+        "{chosen:?}"
+    );
+    assert!(
+        !report.written && report.converged,
+        "{:?}",
+        report.rounds[0]
+    );
+    let why = report.rounds[0].converged_because.clone().unwrap();
+    assert!(why.contains("not significant"), "{why}");
+    assert_eq!(sim.configured(), nominal());
+}
+
+/// "Never worse": the leg method forced on a compass with a large deviation (which it cannot
+/// see through) writes parameters the verification cannot show clearly better, so they are
 /// restored and the routine fails with the numbers; `keep_worse` keeps them, with a warning.
 #[tokio::test]
 async fn parameters_that_are_not_clearly_better_are_restored_unless_kept() {
+    // Without the compass swing, which would measure the deviation and remove it.
     let noisy = |name: &str| RoutineConfig {
-        runs_per_direction: 1,
-        verification_runs: 1,
+        runs_per_direction: 2,
+        verification_runs: 2,
         max_rounds: 1,
         max_change: 0.25,
-        method: Some(odocal::calibration::Method::Exact),
+        method: Some(odocal::calibration::Method::Legs),
+        swing: false,
         ..routine(name)
+    };
+    let robot = |_: f64| {
+        use odocal::sim::sensor::HeadingModel;
+        use odocal::sim::{NoiseModel, Simulator};
+        let noise = NoiseModel {
+            compass_sigma_rad: 0.1f64.to_radians(),
+            ..NoiseModel::default()
+        };
+        let deviating = HeadingModel {
+            deviation: "25,0,0,15".parse().unwrap(),
+            ..HeadingModel::default()
+        };
+        SimBase::new(
+            Simulator::new(common::truth(), nominal(), noise, 3)
+                .unwrap()
+                .with_heading_model(deviating)
+                .unwrap(),
+        )
     };
     let sim = robot(25.0);
     let err = run(
@@ -380,7 +451,12 @@ async fn reports_never_overwrite_or_follow_links() {
 #[tokio::test]
 async fn a_failed_run_leaves_a_partial_report_with_every_square_measured() {
     let sim = robot(0.37);
-    let cfg = routine("partial");
+    // Squares only (no swing, no realigning turns), so that motions count squares.
+    let cfg = RoutineConfig {
+        realign: false,
+        swing: false,
+        ..routine("partial")
+    };
     sim.set_faults(SimFaults {
         // Three whole squares (8 motions each), then the drive vanishes in the fourth.
         fail_after_motions: Some(8 * 3 + 2),

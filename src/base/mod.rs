@@ -11,16 +11,20 @@
 //! Parameters are written only through a [`transaction::Transaction`]: backup, write, read
 //! back, commit, read back the committed copy, and roll back on any failure.
 
+pub mod adjusted;
 pub mod error;
 pub mod fanout;
-pub mod files;
+pub mod file_store;
 pub mod guard;
 pub mod transaction;
 
 pub use error::BaseError;
 pub use fanout::Fanout;
+pub use file_store::{FileStore, ParamFile};
 pub use guard::MotionGuard;
 
+pub use crate::calibration::recording::{Clocks, HeadingSample, TravelSample, Validity};
+pub use crate::calibration::HeadingKind;
 use crate::kinematics::{Pose, WheelParams};
 use async_trait::async_trait;
 use serde::{Deserialize, Serialize};
@@ -35,46 +39,6 @@ pub const STREAM_CAPACITY: usize = 1 << 16;
 /// Samples from a drive or heading source, in the order they were taken.
 pub type SampleStream<T> = mpsc::Receiver<T>;
 
-/// Wheel travel since the previous sample of the same stream, as the drive believes it
-/// (encoder counts times the *configured* travel per count; metres, forward positive).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-pub struct TravelSample {
-    /// Time on the drive's clock (s); streams of different devices need not share a clock.
-    pub time_s: f64,
-    /// Left wheel travel since the previous sample (m).
-    pub left_m: f64,
-    /// Right wheel travel since the previous sample (m).
-    pub right_m: f64,
-}
-
-/// Whether a heading reading may be used, and if not, why.
-#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case", tag = "state", content = "reason")]
-pub enum Validity {
-    /// Usable.
-    Valid,
-    /// Not usable, with the sensor's or the backend's reason.
-    Invalid(String),
-}
-
-impl Validity {
-    /// `true` for [`Validity::Valid`].
-    pub fn is_valid(&self) -> bool {
-        matches!(self, Validity::Valid)
-    }
-}
-
-/// One heading reading.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct HeadingSample {
-    /// Time on the heading source's clock (s).
-    pub time_s: f64,
-    /// Heading (rad), counter-clockwise positive, wrapped to (−π, π].
-    pub heading_rad: f64,
-    /// Whether it may be used.
-    pub validity: Validity,
-}
-
 /// What a component says about itself, for reports and backups.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ComponentInfo {
@@ -87,13 +51,7 @@ pub struct ComponentInfo {
 }
 
 /// What a drive's own odometry (with the parameters it is configured with) saw of one motion.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
-pub struct Achieved {
-    /// Forward distance (m).
-    pub distance_m: f64,
-    /// Turn (rad, counter-clockwise positive, not wrapped).
-    pub turn_rad: f64,
-}
+pub type Achieved = crate::kinematics::Displacement;
 
 /// What the routine learns from a drive's pre-flight check.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
@@ -157,6 +115,12 @@ pub trait Drive: Send + Sync {
     fn diagnostics(&self) -> serde_json::Value {
         serde_json::Value::Null
     }
+
+    /// The clock [`TravelSample::time_s`] is on ([`HeadingSource::clock`] explains); `None`:
+    /// a clock of its own.
+    fn clock(&self) -> Option<String> {
+        None
+    }
 }
 
 /// A compass, IMU or any sensor of absolute heading.
@@ -165,7 +129,9 @@ pub trait HeadingSource: Send + Sync {
     /// Describes the source.
     fn info(&self) -> ComponentInfo;
 
-    /// The newest reading; an invalid one is returned as such, not as an error.
+    /// A reading taken after the call, never one an earlier call returned (averaging at rest
+    /// counts distinct readings: a cached message returned twice would halve the noise it
+    /// reports); an invalid one is returned as such, not as an error.
     async fn read(&self) -> Result<HeadingSample, BaseError>;
 
     /// Readings from now on, about every `period`, or `None` when the source cannot stream.
@@ -173,6 +139,35 @@ pub trait HeadingSource: Send + Sync {
         &self,
         period: Duration,
     ) -> Result<Option<SampleStream<HeadingSample>>, BaseError>;
+
+    /// What the sensor measures (a compass may deviate, a gyro's scale enters `E_b`); a
+    /// backend that cannot know says [`HeadingKind::Unknown`], and the user can declare it
+    /// ([`adjusted::Adjusted`]).
+    fn kind(&self) -> HeadingKind {
+        HeadingKind::Unknown
+    }
+
+    /// The clock [`HeadingSample::time_s`] is on, by name: a drive and a heading source that
+    /// name the same clock stamp comparable times (one device; header stamps of one robot;
+    /// [`HOST_CLOCK`] for devices this host stamps). `None`: a clock of its own, known to no
+    /// other component.
+    fn clock(&self) -> Option<String> {
+        None
+    }
+}
+
+/// The name of the clock [`host_time_s`] reads.
+pub const HOST_CLOCK: &str = "host";
+
+/// Seconds on this host's clock, one epoch for the whole process: what backends that stamp
+/// samples on arrival (a compass on a serial line, a controller that is polled) use, so that
+/// their streams share a clock.
+pub fn host_time_s() -> f64 {
+    static EPOCH: std::sync::OnceLock<tokio::time::Instant> = std::sync::OnceLock::new();
+    EPOCH
+        .get_or_init(tokio::time::Instant::now)
+        .elapsed()
+        .as_secs_f64()
 }
 
 /// Where the robot keeps its wheel parameters: device memory with a committed copy, or a file.
@@ -279,6 +274,15 @@ impl Base {
             heading: d.clone(),
             store: d,
             reconnect: None,
+        }
+    }
+
+    /// How the drive's travel and the heading source's readings are stamped: on one clock
+    /// when both name it, else each on its own.
+    pub fn clocks(&self) -> Clocks {
+        match (self.drive.clock(), self.heading.clock()) {
+            (Some(a), Some(b)) if a == b => Clocks::Shared,
+            _ => Clocks::StartedTogether,
         }
     }
 

@@ -257,7 +257,7 @@ fn write_backup(dir: &Path, backup: &BackupFile) -> Result<PathBuf, BaseError> {
     let stem = format!(
         "odocal-backup-{}-{}",
         sanitise(&backup.store.id),
-        super::files::stamp_ms()
+        crate::io::stamp_ms()
     );
     let err = |path: &Path, source: std::io::Error| BaseError::Backup {
         path: path.to_path_buf(),
@@ -266,7 +266,7 @@ fn write_backup(dir: &Path, backup: &BackupFile) -> Result<PathBuf, BaseError> {
     std::fs::create_dir_all(dir).map_err(|e| err(dir, e))?;
     let text =
         serde_json::to_string_pretty(backup).map_err(|e| err(dir, std::io::Error::other(e)))?;
-    super::files::create_unique(
+    crate::io::create_unique(
         |n| {
             if n == 0 {
                 dir.join(format!("{stem}.json"))
@@ -285,7 +285,7 @@ pub fn read_backup(path: &Path) -> Result<BackupFile, BaseError> {
         path: path.to_path_buf(),
         source,
     };
-    let text = super::files::read_bounded(path, super::files::MAX_TEXT_FILE).map_err(err)?;
+    let text = crate::io::read_bounded(path, crate::io::MAX_TEXT_FILE).map_err(err)?;
     let backup: BackupFile = serde_json::from_str(&text)
         .map_err(|e| err(std::io::Error::new(std::io::ErrorKind::InvalidData, e)))?;
     backup

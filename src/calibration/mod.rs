@@ -23,19 +23,25 @@
 
 pub mod error;
 pub mod exact;
+pub mod gyro;
 pub mod heading_only;
 pub mod jung_chung;
 pub mod lee;
 pub mod legs;
+pub mod matched_legs;
 pub mod online;
 pub mod pool;
+pub mod recording;
+pub mod segment;
+pub mod swing;
 pub mod time_offset;
+pub mod tracker;
 pub mod umbmark;
 pub mod uncertainty;
 
 pub use error::CalibrationError;
 
-use crate::kinematics::{Correction, Direction, SplitConvention};
+use crate::kinematics::{Correction, Direction, Displacement, SplitConvention};
 use nalgebra::{SMatrix, SVector};
 use serde::{Deserialize, Serialize};
 use std::f64::consts::{FRAC_PI_2, PI};
@@ -43,16 +49,51 @@ use std::fmt;
 use std::str::FromStr;
 
 /// One square run's measurements.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
 pub struct RunMeasurement {
     /// Final-minus-start heading error (rad, CCW positive, wrapped to (-π, π]).
     pub heading_error_rad: f64,
     /// Final position in the start frame (m): x along the first leg, y to its left.
     pub final_xy_m: Option<[f64; 2]>,
-    /// Heading error from the middle of the first leg to the middle of the last (rad; heading
-    /// sensor minus odometry), when the heading along the legs was recorded ([`legs`]).
+    /// The heading along the legs, when it was recorded ([`legs`]): each leg's mean heading
+    /// error (sensor minus odometry) and odometry.
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub leg_heading_error_rad: Option<f64>,
+    pub legs: Option<legs::LegMeasurement>,
+    /// The odometry's turn and distance over the run, from rest to rest, when measured (a
+    /// drive that ends its motions on its own odometry does not turn exactly ±2π); `None`: as
+    /// commanded ([`ideal_odometry`]). See [`exact`].
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub odometry: Option<Displacement>,
+    /// Variance of `heading_error_rad` from the heading sensor's own noise (rad²), when the
+    /// readings tell it: a floor under the run-to-run scatter in the standard errors, which
+    /// two runs estimate badly.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub noise_variance_rad2: Option<f64>,
+}
+
+impl RunMeasurement {
+    /// Whether the heading along the legs was measured.
+    pub fn has_leg_heading(&self) -> bool {
+        self.legs
+            .is_some_and(|l| l.legs.iter().all(|m| m.error_rad.is_finite()))
+    }
+
+    /// A run with only its final heading error (rad).
+    pub fn heading(heading_error_rad: f64) -> Self {
+        RunMeasurement {
+            heading_error_rad,
+            ..RunMeasurement::default()
+        }
+    }
+}
+
+/// The odometry of a square of side `side_m` in `direction` executed as commanded: four sides
+/// forward and a turn of ±2π (counter-clockwise positive).
+pub fn ideal_odometry(direction: Direction, side_m: f64) -> Displacement {
+    Displacement {
+        distance_m: 4.0 * side_m,
+        turn_rad: direction.turn_sign() * 2.0 * PI,
+    }
 }
 
 /// A bi-directional square test: everything the estimators need.
@@ -147,12 +188,21 @@ impl SquareTest {
         Ok(())
     }
 
-    /// Whether every run has its heading along the legs.
+    /// Whether at least one run in each direction has its heading along the legs (what the leg
+    /// method needs; it leaves out the runs without).
     pub fn has_leg_headings(&self) -> bool {
-        self.cw
-            .iter()
-            .chain(self.ccw.iter())
-            .all(|r| r.leg_heading_error_rad.is_some_and(f64::is_finite))
+        let with = |runs: &[RunMeasurement]| runs.iter().any(RunMeasurement::has_leg_heading);
+        with(&self.cw) && with(&self.ccw)
+    }
+
+    /// Runs without the heading along the legs, of all runs: the leg method leaves them out (a
+    /// stream that lost the end of a run), and says so.
+    pub fn runs_without_leg_headings(&self) -> (usize, usize) {
+        let all: Vec<&RunMeasurement> = self.cw.iter().chain(self.ccw.iter()).collect();
+        (
+            all.iter().filter(|r| !r.has_leg_heading()).count(),
+            all.len(),
+        )
     }
 
     /// Whether every run has a final position.
@@ -180,17 +230,21 @@ pub enum Method {
     Exact,
     /// The exact inversion on the heading along the legs ([`legs`]).
     Legs,
+    /// The exact inversion on legs matched by azimuth: immune to a compass's deviation
+    /// ([`matched_legs`]).
+    MatchedLegs,
 }
 
 impl Method {
     /// Every method, in the order reports list them.
-    pub const ALL: [Method; 6] = [
+    pub const ALL: [Method; 7] = [
         Method::Umbmark,
         Method::Lee,
         Method::HeadingOnly,
         Method::JungChung,
         Method::Exact,
         Method::Legs,
+        Method::MatchedLegs,
     ];
 
     /// The method's stable name (CLI and JSON).
@@ -202,12 +256,13 @@ impl Method {
             Method::JungChung => "jung-chung",
             Method::Exact => "exact",
             Method::Legs => "legs",
+            Method::MatchedLegs => "matched-legs",
         }
     }
 
     /// Whether the method needs the heading along the legs.
     pub fn needs_leg_headings(self) -> bool {
-        matches!(self, Method::Legs)
+        matches!(self, Method::Legs | Method::MatchedLegs)
     }
 
     /// Whether the method needs final positions (otherwise it uses final headings only).
@@ -229,7 +284,7 @@ impl FromStr for Method {
             .into_iter()
             .find(|m| m.name() == s)
             .ok_or_else(|| {
-                format!("unknown method {s:?}; expected one of umbmark, lee, heading-only, jung-chung, exact, legs")
+                format!("unknown method {s:?}; expected one of umbmark, lee, heading-only, jung-chung, exact, legs, matched-legs")
             })
     }
 }
@@ -242,13 +297,19 @@ impl FromStr for Method {
 pub struct MeanObservation {
     v: SVector<f64, 6>,
     has_positions: bool,
+    odometry: [Displacement; 2],
 }
 
 impl MeanObservation {
     /// The means of a (validated) test.
     pub fn of(test: &SquareTest) -> Self {
         let mut v = SVector::<f64, 6>::zeros();
-        for (offset, runs) in [(0, &test.cw), (3, &test.ccw)] {
+        let mut odometry = [Displacement::default(); 2];
+        for (k, (offset, runs, direction)) in
+            [(0, &test.cw, Direction::Cw), (3, &test.ccw, Direction::Ccw)]
+                .into_iter()
+                .enumerate()
+        {
             let n = runs.len() as f64;
             for r in runs {
                 v[offset] += r.heading_error_rad / n;
@@ -256,12 +317,27 @@ impl MeanObservation {
                     v[offset + 1] += xy[0] / n;
                     v[offset + 2] += xy[1] / n;
                 }
+                let o = r
+                    .odometry
+                    .unwrap_or_else(|| ideal_odometry(direction, test.side_m));
+                odometry[k].distance_m += o.distance_m / n;
+                odometry[k].turn_rad += o.turn_rad / n;
             }
         }
         MeanObservation {
             v,
             has_positions: test.has_positions(),
+            odometry,
         }
+    }
+
+    /// Mean odometry of the clockwise runs (their turn and distance).
+    pub fn odometry_cw(&self) -> Displacement {
+        self.odometry[0]
+    }
+    /// Mean odometry of the counter-clockwise runs.
+    pub fn odometry_ccw(&self) -> Displacement {
+        self.odometry[1]
     }
 
     /// Mean clockwise heading error (rad).
@@ -302,9 +378,10 @@ pub struct Estimate {
     pub e_b: f64,
     /// `E_d = D_R / D_L`, relative to the configured ratio.
     pub e_d: f64,
-    /// Standard error of `e_b` from run-to-run scatter (needs ≥ 2 runs per direction).
+    /// Standard error of `e_b` from run-to-run scatter (needs ≥ 2 runs per direction), never
+    /// below what the heading's own noise gives when the runs state it.
     pub e_b_std_err: Option<f64>,
-    /// Standard error of `e_d` from run-to-run scatter.
+    /// Standard error of `e_d`, as `e_b_std_err`.
     pub e_d_std_err: Option<f64>,
     /// Factors to apply to the configured parameters.
     pub correction: Correction,
@@ -325,6 +402,8 @@ fn point(
         Method::JungChung => jung_chung::ratios(obs, ctx)?,
         // On the test `legs::equivalent_test` made of the leg headings.
         Method::Exact | Method::Legs => exact::ratios(obs, ctx)?,
+        // Estimated on its own ([`matched_legs::estimate`]); never reached.
+        Method::MatchedLegs => return Err(CalibrationError::MissingLegHeadings),
     };
     if !(e_b.is_finite() && e_b > 0.0 && e_d.is_finite() && e_d > 0.0) {
         return Err(CalibrationError::NotPhysical {
@@ -344,6 +423,9 @@ pub fn estimate(
     test.validate()?;
     if method.needs_positions() && !test.has_positions() {
         return Err(CalibrationError::MissingPositions(method));
+    }
+    if method == Method::MatchedLegs {
+        return matched_legs::estimate(test, convention);
     }
     let equivalent;
     let test = if method.needs_leg_headings() {
@@ -371,18 +453,81 @@ pub fn estimate(
     })
 }
 
-/// The method to write back unless the user names one, by what the data holds.
+/// What a heading sensor measures, which decides what can go wrong with it.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum HeadingKind {
+    /// An absolute heading from the Earth's field (a compass, a 9-axis IMU's fused yaw): it
+    /// deviates near motors, batteries and steel, by a curve of the azimuth.
+    Magnetic,
+    /// A heading integrated from a gyro (a 6-axis IMU): no deviation, but its scale error
+    /// enters `E_b` one to one.
+    Gyro,
+    /// An external reference (motion capture): the true heading.
+    Reference,
+    /// Not known (a ROS IMU may be either): treated as magnetic where it matters.
+    #[default]
+    Unknown,
+}
+
+impl HeadingKind {
+    /// The kind's stable name (CLI and JSON).
+    pub fn name(self) -> &'static str {
+        match self {
+            HeadingKind::Magnetic => "magnetic",
+            HeadingKind::Gyro => "gyro",
+            HeadingKind::Reference => "reference",
+            HeadingKind::Unknown => "unknown",
+        }
+    }
+
+    /// Whether its readings may carry a deviation curve.
+    pub fn may_deviate(self) -> bool {
+        matches!(self, HeadingKind::Magnetic | HeadingKind::Unknown)
+    }
+}
+
+impl fmt::Display for HeadingKind {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl FromStr for HeadingKind {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, String> {
+        [
+            HeadingKind::Magnetic,
+            HeadingKind::Gyro,
+            HeadingKind::Reference,
+            HeadingKind::Unknown,
+        ]
+        .into_iter()
+        .find(|k| k.name() == s)
+        .ok_or_else(|| format!("{s:?}: use magnetic, gyro, reference or unknown"))
+    }
+}
+
+/// The method to write back unless the user names one, by what the data holds and what the
+/// heading sensor is.
 ///
-/// With the heading along the legs, `legs`: it reads the heading where the paper's model holds
-/// and leaves out the start transient real robots show (see [`legs`] and the README's real-data
-/// scoreboard). With final headings only, `exact`. `None` never happens today; it is kept so a
-/// caller handles a test no method can use.
-pub fn default_method(has_leg_headings: bool, has_positions: bool) -> Option<Method> {
+/// With the heading along the legs: `matched-legs` for a sensor that may deviate (a compass):
+/// it compares legs that point the same way, so a deviation curve cancels ([`matched_legs`]);
+/// `legs` for a gyro or a reference, which cannot deviate and where comparing the first and
+/// last legs uses more of the square (see [`legs`] and the README's real-data scoreboard).
+/// Both leave out the start transient real robots show. With final headings only, `exact`.
+/// `None` never happens today; it is kept so a caller handles a test no method can use.
+pub fn default_method(
+    has_leg_headings: bool,
+    has_positions: bool,
+    kind: HeadingKind,
+) -> Option<Method> {
     let _ = has_positions;
-    Some(if has_leg_headings {
-        Method::Legs
-    } else {
-        Method::Exact
+    Some(match (has_leg_headings, kind.may_deviate()) {
+        (false, _) => Method::Exact,
+        (true, true) => Method::MatchedLegs,
+        (true, false) => Method::Legs,
     })
 }
 
@@ -407,18 +552,25 @@ pub fn estimate_all(
 /// Standard errors of `(E_b, E_d)` by the delta method: the sample covariance of each
 /// direction's runs, divided by the run count, pushed through the estimator's numerical
 /// Jacobian with respect to the means.
+///
+/// The heading's variance is floored by what the sensor's own noise gives when every run of a
+/// direction states it ([`RunMeasurement::noise_variance_rad2`]): two runs' scatter is often
+/// far below the truth by chance. One run has no standard error: its noise alone would leave
+/// out what changes from run to run on a real floor (slip, a bump, the start), which on
+/// motion-capture recordings is most of it.
 fn standard_errors(
     method: Method,
     test: &SquareTest,
     obs: &MeanObservation,
     ctx: &Context,
 ) -> Option<(f64, f64)> {
-    if test.cw.len() < 2 || test.ccw.len() < 2 {
-        return None;
-    }
     let mut cov = SMatrix::<f64, 6, 6>::zeros();
     for (offset, runs) in [(0, &test.cw), (3, &test.ccw)] {
         let n = runs.len() as f64;
+        if runs.len() < 2 {
+            return None;
+        }
+        let noise = noise_variance_of_mean(runs);
         let rows: Vec<[f64; 3]> = runs
             .iter()
             .map(|r| {
@@ -437,6 +589,9 @@ fn standard_errors(
                 cov[(offset + i, offset + j)] = s / (n - 1.0) / n;
             }
         }
+        if let Some(v) = noise {
+            cov[(offset, offset)] = cov[(offset, offset)].max(v);
+        }
     }
     let mut jac = SMatrix::<f64, 2, 6>::zeros();
     for k in 0..6 {
@@ -453,6 +608,17 @@ fn standard_errors(
     }
     let out = jac * cov * jac.transpose();
     Some((out[(0, 0)].max(0.0).sqrt(), out[(1, 1)].max(0.0).sqrt()))
+}
+
+/// The variance of the mean heading error of `runs` from the sensor's noise (rad²), when every
+/// run states it.
+pub(crate) fn noise_variance_of_mean(runs: &[RunMeasurement]) -> Option<f64> {
+    let n = runs.len() as f64;
+    let sum = runs
+        .iter()
+        .map(|r| r.noise_variance_rad2)
+        .sum::<Option<f64>>()?;
+    (n > 0.0).then(|| sum / (n * n))
 }
 
 /// `E_max,sys` (Borenstein & Feng): the larger distance from the start of the CW and the CCW
@@ -511,7 +677,7 @@ mod tests {
                 .map(|&h| RunMeasurement {
                     heading_error_rad: h,
                     final_xy_m: None,
-                    leg_heading_error_rad: None,
+                    ..RunMeasurement::default()
                 })
                 .collect()
         };

@@ -84,13 +84,27 @@ pub struct OnlineConfig {
 /// χ² with one degree of freedom at 99.9 %.
 pub const CHI2_1_999: f64 = 10.828;
 
+/// Fewer "counts" per wheel revolution than this mean the wheel is measured as an angle, not
+/// counted (a ROS robot's joint states: 2π per revolution).
+const ANGLE_UNITS_BELOW: f64 = 100.0;
+
+/// The quantisation assumed for a wheel measured as an angle: a 4096-count encoder's.
+const ASSUMED_COUNTS_PER_REV: f64 = 4096.0;
+
 impl OnlineConfig {
     /// Defaults for a robot whose controller is configured with `configured`.
     pub fn new(configured: WheelParams) -> Self {
+        // Half a count of quantisation; for a wheel measured as an angle, one count of a
+        // 4096-count encoder in its units.
+        let count_noise = if configured.counts_per_wheel_rev < ANGLE_UNITS_BELOW {
+            configured.counts_per_wheel_rev / ASSUMED_COUNTS_PER_REV
+        } else {
+            0.5
+        };
         OnlineConfig {
             configured,
             slip_fraction: 0.01,
-            count_noise: 0.5,
+            count_noise,
             heading_sigma_rad: 0.37f64.to_radians(),
             position_sigma_m: 0.01,
             ratio_prior_sigma: 0.05,

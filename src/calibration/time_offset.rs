@@ -21,6 +21,9 @@
 use crate::kinematics::wrap_angle;
 use serde::Serialize;
 
+/// Largest offset searched for (s): every input uses this window.
+pub const MAX_OFFSET_S: f64 = 1.0;
+
 /// Offsets below this (s) are not worth a warning: below one telemetry period of most robots,
 /// and a heading error of `ω·offset` ≤ 0.05 rad at 1 rad/s.
 pub const WARN_ABOVE_S: f64 = 0.05;

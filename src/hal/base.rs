@@ -44,6 +44,11 @@ impl Client {
         }
     }
 
+    /// The device's clock: telemetry and heading readings carry its time.
+    fn clock_name(&self) -> String {
+        format!("{KIND}:{}", self.component_info().id)
+    }
+
     /// Notes the completed-motion count, starts the motion and waits until the device reports
     /// it finished, allowing for slower-than-commanded execution.
     async fn run_motion(
@@ -213,6 +218,10 @@ impl Drive for Client {
         .map_err(to_base("drive", "the telemetry setting"))
     }
 
+    fn clock(&self) -> Option<String> {
+        Some(self.clock_name())
+    }
+
     fn diagnostics(&self) -> serde_json::Value {
         let mut v = serde_json::to_value(self.stats()).unwrap_or_default();
         if let (Some(map), Some(last)) = (v.as_object_mut(), self.last_request()) {
@@ -273,20 +282,14 @@ impl HeadingSource for Client {
         if self.device_info().capabilities & capability::TELEMETRY == 0 {
             return Ok(None);
         }
-        self.forward(period, |s| {
-            Some(HeadingSample {
-                time_s: s.device_time_s,
-                heading_rad: s.heading_rad,
-                validity: if s.heading_valid {
-                    Validity::Valid
-                } else {
-                    Validity::Invalid("telemetry marks the heading invalid".into())
-                },
-            })
-        })
-        .await
-        .map(Some)
-        .map_err(to_base("heading", "the telemetry setting"))
+        self.forward(period, |s| Some(s.heading_sample()))
+            .await
+            .map(Some)
+            .map_err(to_base("heading", "the telemetry setting"))
+    }
+
+    fn clock(&self) -> Option<String> {
+        Some(self.clock_name())
     }
 }
 

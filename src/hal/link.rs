@@ -46,7 +46,7 @@ pub struct LinkConfig {
 impl Default for LinkConfig {
     fn default() -> Self {
         LinkConfig {
-            baud: 115_200,
+            baud: super::DEFAULT_BAUD,
             retries: 5,
             retry_budget: Duration::from_secs(3),
             margin: Duration::from_millis(30),

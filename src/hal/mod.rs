@@ -33,6 +33,9 @@ use std::time::Duration;
 use tokio::io::{AsyncRead, AsyncWrite};
 use tokio::sync::{broadcast, mpsc, oneshot, watch};
 
+/// The link's baud rate unless configured (SPEC.md §1).
+pub const DEFAULT_BAUD: u32 = 115_200;
+
 /// Baud rates a serial link may be opened at.
 pub const BAUD_RANGE: std::ops::RangeInclusive<u32> = 300..=4_000_000;
 
@@ -141,6 +144,21 @@ pub struct TelemetrySample {
     pub dropped_before: u32,
 }
 
+impl TelemetrySample {
+    /// The heading of this sample as the seam has it, on the device's clock.
+    pub fn heading_sample(&self) -> crate::base::HeadingSample {
+        crate::base::HeadingSample {
+            time_s: self.device_time_s,
+            heading_rad: self.heading_rad,
+            validity: if self.heading_valid {
+                crate::base::Validity::Valid
+            } else {
+                crate::base::Validity::Invalid("telemetry marks the heading invalid".into())
+            },
+        }
+    }
+}
+
 /// A heading reading in SI units.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct HeadingReading {
@@ -183,13 +201,10 @@ pub async fn open_port(path: &str, baud: u32) -> Result<(Client, DeviceInfo), Ha
             BAUD_RANGE.end()
         )));
     }
-    use tokio_serial::SerialPortBuilderExt;
-    let port = tokio_serial::new(path, baud)
-        .open_native_async()
-        .map_err(|e| HalError::Open {
-            path: path.to_string(),
-            source: Arc::new(e),
-        })?;
+    let port = crate::io::serial::open(path, baud).map_err(|e| HalError::Open {
+        path: path.to_string(),
+        source: Arc::new(e),
+    })?;
     let (mut client, info) = Client::connect(
         port,
         LinkConfig {

@@ -16,6 +16,7 @@ use crate::protocol::message::{
     WatchdogState, WatchdogTimeout, WheelSpeedRequest,
 };
 use crate::protocol::{units, Payload, Writer};
+use crate::sim::sensor::HeadingModel;
 use crate::sim::{Motion, MotionPlan, NoiseModel, SimError, Simulator};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -62,6 +63,9 @@ pub struct MockConfig {
     /// Simulate broken storage: every write of the stored copy fails (NACK STORAGE_FAILURE).
     #[serde(default)]
     pub storage_fails: bool,
+    /// How the heading sensor errs (deviation, a gyro's scale, latency, loss…).
+    #[serde(default)]
+    pub heading_model: HeadingModel,
 }
 
 impl MockConfig {
@@ -89,6 +93,7 @@ impl MockConfig {
             storage_path: None,
             serial_number: 0x0DC0_0001,
             storage_fails: false,
+            heading_model: HeadingModel::default(),
         })
     }
 }
@@ -163,6 +168,8 @@ pub struct MockDevice {
     fault_flags: u16,
     last: Option<LastRequest>,
     counters: DeviceCounters,
+    /// The last heading the sensor gave (µrad), reported with a lost reading.
+    last_heading_urad: i32,
 }
 
 fn block(p: &WheelParams) -> ParamsBlock {
@@ -198,8 +205,7 @@ impl MockDevice {
         let mut storage_discarded = None;
         let stored = match config.storage_path.as_ref() {
             None => None,
-            Some(p) => match crate::base::files::read_bounded(p, crate::base::files::MAX_TEXT_FILE)
-            {
+            Some(p) => match crate::io::read_bounded(p, crate::io::MAX_TEXT_FILE) {
                 Err(e) if e.kind() == std::io::ErrorKind::NotFound => None,
                 Err(e) => {
                     storage_discarded = Some(format!("{}: {e}", p.display()));
@@ -229,7 +235,8 @@ impl MockDevice {
             quantise_encoders: true,
             ..config.noise
         };
-        let sim = Simulator::new(config.truth, active, noise, config.seed)?;
+        let sim = Simulator::new(config.truth, active, noise, config.seed)?
+            .with_heading_model(config.heading_model)?;
         Ok(MockDevice {
             rng: ChaCha8Rng::seed_from_u64(config.seed ^ 0x7E1E_3E7F),
             sim,
@@ -250,6 +257,7 @@ impl MockDevice {
             fault_flags: 0,
             last: None,
             counters: DeviceCounters::default(),
+            last_heading_urad: 0,
             config,
         })
     }
@@ -322,19 +330,25 @@ impl MockDevice {
         }
     }
 
-    fn heading_urad(&mut self) -> i32 {
+    /// A heading reading now (µrad) and whether the sensor gave one (a lost reading is
+    /// reported invalid, with the last value).
+    fn heading_urad(&mut self) -> (i32, bool) {
         let noise = self.config.noise;
         let n = if noise.compass_sigma_rad > 0.0 {
             Normal::new(0.0, noise.compass_sigma_rad).map_or(0.0, |d| d.sample(&mut self.rng))
         } else {
             0.0
         };
-        let mut h = wrap_angle(self.sim.pose().heading_rad + noise.compass_bias_rad + n);
+        self.sim.set_time(self.now_us as f64 * 1e-6);
+        let Some(mut h) = self.sim.heading_reading_with(n) else {
+            return (self.last_heading_urad, false);
+        };
         if self.config.compass == CompassConvention::Clockwise {
             h = wrap_angle(-h);
         }
         // A wrapped heading always fits the µrad field.
-        units::rad_to_urad("heading", h).unwrap_or(0)
+        self.last_heading_urad = units::rad_to_urad("heading", h).unwrap_or(0);
+        (self.last_heading_urad, true)
     }
 
     fn encoders(&self) -> (i32, i32) {
@@ -605,12 +619,15 @@ impl MockDevice {
                     right_counts,
                 }))
             }
-            Request::ReadHeading => Ok(Response::ReadHeading(Heading {
-                timestamp_us: self.now_us as u32,
-                heading_urad: self.heading_urad(),
-                valid: true,
-                sensor_status: 1,
-            })),
+            Request::ReadHeading => {
+                let (heading_urad, valid) = self.heading_urad();
+                Ok(Response::ReadHeading(Heading {
+                    timestamp_us: self.now_us as u32,
+                    heading_urad,
+                    valid,
+                    sensor_status: u8::from(valid),
+                }))
+            }
             Request::ConfigureTelemetry(TelemetryPeriod { period_ms }) => {
                 if period_ms != 0 && !(5..=1000).contains(&period_ms) {
                     return nack(NackCode::OutOfRange, 0);
@@ -751,6 +768,7 @@ impl MockDevice {
             }
             let dt = (step_end - self.now_us) as f64 * 1e-6;
             self.now_us = step_end;
+            self.sim.set_time(self.now_us as f64 * 1e-6);
             if let Some(m) = self.queue.front_mut() {
                 let from = m.elapsed_s / m.duration_s;
                 m.elapsed_s = (m.elapsed_s + dt).min(m.duration_s);
@@ -827,13 +845,14 @@ impl MockDevice {
         self.counters.telemetry_samples += 1;
         let (left_counts, right_counts) = self.encoders();
         let status = self.status();
+        let (heading_urad, heading_valid) = self.heading_urad();
         let t = Telemetry {
             sample_index: self.sample_index,
             timestamp_us: self.now_us as u32,
             left_counts,
             right_counts,
-            heading_urad: self.heading_urad(),
-            heading_valid: true,
+            heading_urad,
+            heading_valid,
             motion_state: status.motion_state,
             queue_depth: status.queue_depth,
         };

@@ -8,16 +8,28 @@
 
 pub mod device;
 pub mod error;
+pub mod nmea;
+pub mod pty;
 pub mod roboclaw;
 pub mod rosbridge;
 pub mod serve;
 pub mod sim_base;
 
+pub use pty::PtyServer;
 pub use sim_base::{SimBase, SimCounters, SimFaults};
 
 pub use device::{
     CompassConvention, DeviceCounters, MockConfig, MockDevice, MockError, MAX_EVENTS_PER_STEP,
 };
 pub use serve::{
-    lock, serve, spawn_duplex, spawn_pty, FaultConfig, PtyServer, ServeEnd, SharedDevice, TimeMode,
+    heading_sensor, lock, serve, spawn_duplex, spawn_pty, FaultConfig, ServeEnd, SharedDevice,
+    TimeMode,
 };
+
+/// What kind of heading a simulated sensor is, as a backend would say it.
+pub fn heading_kind(model: &crate::sim::sensor::HeadingModel) -> crate::base::HeadingKind {
+    match model.kind {
+        crate::sim::sensor::SensorKind::Compass => crate::base::HeadingKind::Magnetic,
+        crate::sim::sensor::SensorKind::Gyro => crate::base::HeadingKind::Gyro,
+    }
+}

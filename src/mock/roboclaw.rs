@@ -7,9 +7,11 @@
 //! Faults: lost acknowledgements (the command executed, the `0xFF` never sent), lost bytes of
 //! answers, a brown-out (encoders reset, motors stopped), occasional bad compass checksums.
 
+use super::nmea::{HeadingFn, MockCompassConfig};
+use super::pty::{spawn_on_pty, PtyServer};
 use crate::kinematics::{Pose, WheelParams};
-use crate::nmea::sentence;
 use crate::roboclaw::packet::{be_u32, cmd, ACK, BUFFER_IDLE, CRC16};
+use crate::sim::sensor::HeadingModel;
 use crate::sim::{NoiseModel, Simulator};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -33,6 +35,8 @@ pub struct MockRoboClawConfig {
     pub right_encoder_sign: i8,
     /// Compass noise and bias.
     pub noise: NoiseModel,
+    /// How the compass errs (deviation, the motors' field, latency, loss…).
+    pub heading_model: HeadingModel,
     /// Seed of every draw.
     pub seed: u64,
     /// Robot seconds per wall-clock second.
@@ -63,6 +67,7 @@ impl MockRoboClawConfig {
             left_encoder_sign: 1,
             right_encoder_sign: 1,
             noise: NoiseModel::default(),
+            heading_model: HeadingModel::default(),
             seed: 1,
             time_scale: 1.0,
             version: "USB Roboclaw 2x7a v4.2.8\n".into(),
@@ -200,10 +205,12 @@ impl MockRobot {
         };
         let l = l * f64::from(self.cfg.left_encoder_sign);
         let r = r * f64::from(self.cfg.right_encoder_sign);
+        self.time_s += dt;
+        let now = self.time_s;
+        self.sim.set_time(now);
         if l != 0.0 || r != 0.0 {
             self.sim.step_counts(l, r);
         }
-        self.time_s += dt;
     }
 
     fn counter(&self, i: usize) -> u32 {
@@ -309,7 +316,8 @@ fn write_len(command: u8) -> Option<usize> {
 
 /// Builds the shared robot and starts its physics (robot time at `time_scale`).
 pub fn spawn_robot(cfg: MockRoboClawConfig) -> Result<SharedRobot, crate::sim::SimError> {
-    let sim = Simulator::new(cfg.truth, cfg.truth, cfg.noise, cfg.seed)?;
+    let sim = Simulator::new(cfg.truth, cfg.truth, cfg.noise, cfg.seed)?
+        .with_heading_model(cfg.heading_model)?;
     let robot_state = Arc::new(Mutex::new(MockRobot {
         rng: ChaCha8Rng::seed_from_u64(cfg.seed ^ 0x5EED),
         sim,
@@ -413,41 +421,6 @@ where
     }
 }
 
-/// Streams the compass's heading sentences on `stream` until it closes.
-pub async fn serve_compass<S>(mut stream: S, robot_state: SharedRobot) -> std::io::Result<()>
-where
-    S: AsyncWrite + Unpin,
-{
-    let (hz, scale, talker) = {
-        let r = robot(&robot_state);
-        (
-            r.cfg.compass_hz.clamp(0.1, 100.0),
-            r.cfg.time_scale.max(1e-3),
-            r.cfg.compass_talker.clone(),
-        )
-    };
-    let mut tick = tokio::time::interval(Duration::from_secs_f64(1.0 / (hz * scale)));
-    loop {
-        tick.tick().await;
-        let line = {
-            let mut r = robot(&robot_state);
-            let heading = r.sim.read_heading();
-            let azimuth = (-heading.to_degrees()).rem_euclid(360.0);
-            let mut s = sentence(&format!("{talker}HDT"), &format!("{azimuth:.2},T"));
-            let bad = r.cfg.bad_checksum_rate;
-            if bad > 0.0 && r.rng.random_bool(bad.min(1.0)) {
-                // Flip the checksum's last digit.
-                let at = s.len() - 3;
-                let c = if &s[at..at + 1] == "0" { "1" } else { "0" };
-                s.replace_range(at..at + 1, c);
-            }
-            s
-        };
-        stream.write_all(line.as_bytes()).await?;
-        stream.flush().await?;
-    }
-}
-
 /// Both devices on new pseudo-terminals; keep the handle alive while they are used.
 pub struct MockRoboClawPtys {
     /// The controller's terminal.
@@ -456,63 +429,39 @@ pub struct MockRoboClawPtys {
     pub compass_path: String,
     /// The shared robot.
     pub robot: SharedRobot,
-    tasks: Vec<tokio::task::JoinHandle<()>>,
+    _servers: (PtyServer<()>, PtyServer<()>),
 }
 
-impl Drop for MockRoboClawPtys {
-    fn drop(&mut self) {
-        for t in &self.tasks {
-            t.abort();
-        }
-    }
+/// The robot's compass: its simulator's reading (noise and bias of the robot's model).
+pub fn compass_of(robot_state: &SharedRobot) -> (MockCompassConfig, HeadingFn) {
+    let r = robot(robot_state);
+    let cfg = MockCompassConfig {
+        hz: r.cfg.compass_hz,
+        talker: r.cfg.compass_talker.clone(),
+        bad_checksum_rate: r.cfg.bad_checksum_rate,
+        // The robot's simulator adds the compass's noise.
+        sigma_rad: 0.0,
+        time_scale: r.cfg.time_scale,
+        seed: r.cfg.seed,
+    };
+    let shared = robot_state.clone();
+    (cfg, Arc::new(move || robot(&shared).sim.heading_reading()))
 }
 
 /// Serves a mock RoboClaw and a mock compass of one robot on two pseudo-terminals.
 pub fn spawn_ptys(cfg: MockRoboClawConfig) -> std::io::Result<MockRoboClawPtys> {
-    use tokio_serial::SerialPort;
     let robot_state =
         spawn_robot(cfg).map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidInput, e))?;
-    let (claw_master, claw_slave) =
-        tokio_serial::SerialStream::pair().map_err(std::io::Error::other)?;
-    let (compass_master, compass_slave) =
-        tokio_serial::SerialStream::pair().map_err(std::io::Error::other)?;
-    let no_path = || std::io::Error::other("pseudo-terminal has no path");
-    let roboclaw_path = claw_slave.name().ok_or_else(no_path)?;
-    let compass_path = compass_slave.name().ok_or_else(no_path)?;
-    let r1 = robot_state.clone();
-    let r2 = robot_state.clone();
-    // The devices serve the master sides; the slave handles keep the terminals alive. A host
-    // that closes a terminal makes the master fail with EIO until it is opened again.
-    let tasks = vec![
-        tokio::spawn(async move {
-            let _keep = claw_slave;
-            let mut master = claw_master;
-            loop {
-                match serve_roboclaw(&mut master, r1.clone()).await {
-                    Err(e) if e.raw_os_error() == Some(5) => {
-                        tokio::time::sleep(Duration::from_millis(5)).await
-                    }
-                    _ => return,
-                }
-            }
-        }),
-        tokio::spawn(async move {
-            let _keep = compass_slave;
-            let mut master = compass_master;
-            loop {
-                match serve_compass(&mut master, r2.clone()).await {
-                    Err(e) if e.raw_os_error() == Some(5) => {
-                        tokio::time::sleep(Duration::from_millis(5)).await
-                    }
-                    _ => return,
-                }
-            }
-        }),
-    ];
+    let r = robot_state.clone();
+    let claw = spawn_on_pty(Box::new(move |master| {
+        Box::pin(serve_roboclaw(master, r.clone()))
+    }))?;
+    let (compass_cfg, heading) = compass_of(&robot_state);
+    let compass = super::nmea::spawn_pty(compass_cfg, heading)?;
     Ok(MockRoboClawPtys {
-        roboclaw_path,
-        compass_path,
+        roboclaw_path: claw.path.clone(),
+        compass_path: compass.path.clone(),
         robot: robot_state,
-        tasks,
+        _servers: (claw, compass),
     })
 }

@@ -10,9 +10,10 @@
 //! [`MockRosbridge::vanish`] drops every connection and stops listening while the robot keeps
 //! running, as a crashed `rosbridge_server` would.
 
-use crate::kinematics::{Pose, WheelParams};
+use crate::kinematics::{Displacement, Pose, WheelParams};
 use crate::ros::msg::{Header, Imu, JointState, Odometry, Quaternion, Time, Twist, TwistStamped};
 use crate::ros::yaml::{DiffDriveConfig, MULTIPLIER_KEYS};
+use crate::sim::sensor::HeadingModel;
 use crate::sim::{NoiseModel, Simulator};
 use futures_util::{SinkExt, StreamExt};
 use serde_json::{json, Value};
@@ -33,6 +34,8 @@ pub struct MockRosConfig {
     pub truth: WheelParams,
     /// IMU noise (the simulator's compass).
     pub noise: NoiseModel,
+    /// How the IMU's heading errs (a gyro's scale and drift, latency, loss…).
+    pub heading_model: HeadingModel,
     /// Seed of the simulator.
     pub seed: u64,
     /// Robot seconds per wall-clock second.
@@ -70,6 +73,7 @@ impl MockRosConfig {
             controller,
             truth,
             noise: NoiseModel::default(),
+            heading_model: HeadingModel::default(),
             seed: 1,
             time_scale: 1.0,
             joint_hz: 50.0,
@@ -164,6 +168,7 @@ impl MockRosbridge {
         }
         let configured = cfg.controller.effective();
         let sim = Simulator::new(cfg.truth, configured, cfg.noise, cfg.seed)
+            .and_then(|s| s.with_heading_model(cfg.heading_model))
             .map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidInput, e))?;
         let state = Arc::new(Mutex::new(MockRosState {
             sim,
@@ -205,6 +210,13 @@ impl MockRosbridge {
     /// The simulated robot and controller.
     pub fn state(&self) -> MutexGuard<'_, MockRosState> {
         lock(&self.state)
+    }
+
+    /// The robot's heading sensor (its errors included), for a mock compass mounted on it
+    /// ([`super::nmea`]).
+    pub fn heading_sensor(&self) -> super::nmea::HeadingFn {
+        let state = self.state.clone();
+        Arc::new(move || lock(&state).sim.heading_reading())
     }
 
     /// rosbridge crashes: every connection drops and nothing listens; the robot keeps running.
@@ -268,35 +280,39 @@ async fn physics(
                 } else {
                     s.cmd
                 };
-                let (v0, w0) = (
-                    0.5 * (s.wheel_speed.0 * g.left_m_per_count()
-                        + s.wheel_speed.1 * g.right_m_per_count()),
-                    (s.wheel_speed.1 * g.right_m_per_count()
-                        - s.wheel_speed.0 * g.left_m_per_count())
-                        / g.wheelbase_m,
-                );
+                let (sl, sr) = g.travel_m(s.wheel_speed.0, s.wheel_speed.1);
+                let now = Displacement::of_wheels(sl, sr, g.wheelbase_m);
                 let step_to =
                     |now: f64, want: f64, lim: f64| now + (want - now).clamp(-lim * dt, lim * dt);
-                let v1 = step_to(v0, v, cfg.accel_limit_m_s2);
-                let w1 = step_to(w0, w, cfg.alpha_limit_rad_s2);
-                let wl = (v1 - 0.5 * w1 * g.wheelbase_m) / g.left_m_per_count();
-                let wr = (v1 + 0.5 * w1 * g.wheelbase_m) / g.right_m_per_count();
+                let (v1, w1) = (
+                    step_to(now.distance_m, v, cfg.accel_limit_m_s2),
+                    step_to(now.turn_rad, w, cfg.alpha_limit_rad_s2),
+                );
+                let (l1, r1) = Displacement {
+                    distance_m: v1,
+                    turn_rad: w1,
+                }
+                .wheels(g.wheelbase_m);
+                let (wl, wr) = (l1 / g.left_m_per_count(), r1 / g.right_m_per_count());
                 s.wheel_speed = (wl, wr);
                 let (dl, dr) = (wl * dt, wr * dt);
                 s.sim.step_counts(dl, dr);
                 s.angles.0 += dl;
                 s.angles.1 += dr;
                 s.odo = g.odometry_step(&s.odo, dl, dr);
-                let yaw = s.sim.read_heading();
-                batch.push((
-                    "/imu".to_string(),
-                    serde_json::to_value(Imu {
-                        header: header(t, "imu_link"),
-                        orientation: Quaternion::from_yaw(yaw),
-                        ..Imu::default()
-                    })
-                    .unwrap_or(Value::Null),
-                ));
+                s.sim.set_time(t);
+                // A reading the sensor lost is a message not sent.
+                if let Some(yaw) = s.sim.heading_reading() {
+                    batch.push((
+                        "/imu".to_string(),
+                        serde_json::to_value(Imu {
+                            header: header(t, "imu_link"),
+                            orientation: Quaternion::from_yaw(yaw),
+                            ..Imu::default()
+                        })
+                        .unwrap_or(Value::Null),
+                    ));
+                }
                 if step.is_multiple_of(every) {
                     let names = (
                         s.controller

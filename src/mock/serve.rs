@@ -2,6 +2,7 @@
 //! in virtual or scaled real time, with seeded fault injection.
 
 use super::device::MockDevice;
+use super::pty::{spawn_on_pty, PtyServer};
 use crate::protocol::{Frame, FrameCodec, FrameKind};
 use bytes::BytesMut;
 use rand::{RngExt, SeedableRng};
@@ -16,6 +17,13 @@ pub const INTER_BYTE_GAP: Duration = Duration::from_millis(20);
 
 /// A device shared between its server task and observers (tests, the CLI).
 pub type SharedDevice = Arc<Mutex<MockDevice>>;
+
+/// The device's heading sensor (its errors included), for a mock compass mounted on its
+/// robot ([`super::nmea`]).
+pub fn heading_sensor(device: &SharedDevice) -> super::nmea::HeadingFn {
+    let device = device.clone();
+    Arc::new(move || lock(&device).sim_mut().heading_reading())
+}
 
 /// Locks a shared device; a panic elsewhere while holding the lock does not make the device's
 /// state unusable for observers, so poisoning is ignored.
@@ -309,50 +317,13 @@ pub fn spawn_duplex(
     (host, task)
 }
 
-/// A pseudo-terminal served by the device: open its path like a USB serial adapter.
-pub struct PtyServer {
-    /// Path of the terminal's slave side (e.g. `/dev/pts/5`).
-    pub path: String,
-    /// The server task; it ends when the device vanishes (faults) or is aborted.
-    pub task: tokio::task::JoinHandle<std::io::Result<ServeEnd>>,
-    // Held open so the terminal survives hosts opening and closing it.
-    _slave: tokio_serial::SerialStream,
-}
-
-impl Drop for PtyServer {
-    fn drop(&mut self) {
-        self.task.abort();
-    }
-}
-
 /// Creates a pseudo-terminal and serves `device` on it.
 pub fn spawn_pty(
     device: SharedDevice,
     time: TimeMode,
     faults: FaultConfig,
-) -> std::io::Result<PtyServer> {
-    use tokio_serial::SerialPort;
-    let (master, slave) = tokio_serial::SerialStream::pair().map_err(std::io::Error::other)?;
-    let path = slave
-        .name()
-        .ok_or_else(|| std::io::Error::other("pseudo-terminal has no path"))?;
-    let task = tokio::spawn(async move {
-        // A host that closes the terminal makes the master side fail with EIO until another
-        // opens it; the device keeps serving through that.
-        let mut master = master;
-        loop {
-            match serve(device.clone(), &mut master, time, faults).await {
-                Ok(end) => return Ok(end),
-                Err(e) if e.raw_os_error() == Some(5) => {
-                    tokio::time::sleep(Duration::from_millis(5)).await;
-                }
-                Err(e) => return Err(e),
-            }
-        }
-    });
-    Ok(PtyServer {
-        path,
-        task,
-        _slave: slave,
-    })
+) -> std::io::Result<PtyServer<ServeEnd>> {
+    spawn_on_pty(Box::new(move |master| {
+        Box::pin(serve(device.clone(), master, time, faults))
+    }))
 }

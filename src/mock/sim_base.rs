@@ -131,8 +131,10 @@ impl SimBase {
                     f64::from(k) / f64::from(steps),
                     f64::from(k + 1) / f64::from(steps),
                 );
-                st.sim.advance_plan(&plan, from, to);
                 st.time_s += duration_s / f64::from(steps);
+                let now = st.time_s;
+                st.sim.set_time(now);
+                st.sim.advance_plan(&plan, from, to);
                 let cfg = *st.sim.configured();
                 let f = to - from;
                 let travel = TravelSample {
@@ -140,11 +142,7 @@ impl SimBase {
                     left_m: f * plan.left_counts * cfg.left_m_per_count(),
                     right_m: f * plan.right_counts * cfg.right_m_per_count(),
                 };
-                let heading = HeadingSample {
-                    time_s: st.time_s,
-                    heading_rad: st.sim.read_heading(),
-                    validity: heading_validity(&st.faults),
-                };
+                let heading = reading(&mut st);
                 st.travel.send(&travel);
                 st.headings.send(&heading);
             }
@@ -153,6 +151,25 @@ impl SimBase {
         }
         self.state().counters.motions += 1;
         Ok(())
+    }
+}
+
+/// A heading reading now: invalid when the faults say so or the sensor lost it.
+fn reading(st: &mut State) -> HeadingSample {
+    let now = st.time_s;
+    st.sim.set_time(now);
+    let validity = heading_validity(&st.faults);
+    match st.sim.heading_reading() {
+        Some(h) => HeadingSample {
+            time_s: now,
+            heading_rad: h,
+            validity,
+        },
+        None => HeadingSample {
+            time_s: now,
+            heading_rad: f64::NAN,
+            validity: Validity::Invalid("the sensor lost this reading".into()),
+        },
     }
 }
 
@@ -239,6 +256,10 @@ impl Drive for SimBase {
         st.period_s = period.as_secs_f64().max(1e-3);
         Ok(Some(st.travel.subscribe()))
     }
+
+    fn clock(&self) -> Option<String> {
+        Some(SIM_CLOCK.into())
+    }
 }
 
 #[async_trait]
@@ -248,13 +269,7 @@ impl HeadingSource for SimBase {
     }
 
     async fn read(&self) -> Result<HeadingSample, BaseError> {
-        let mut st = self.state();
-        let validity = heading_validity(&st.faults);
-        Ok(HeadingSample {
-            time_s: st.time_s,
-            heading_rad: st.sim.read_heading(),
-            validity,
-        })
+        Ok(reading(&mut self.state()))
     }
 
     async fn stream(
@@ -265,7 +280,18 @@ impl HeadingSource for SimBase {
         st.period_s = period.as_secs_f64().max(1e-3);
         Ok(Some(st.headings.subscribe()))
     }
+
+    fn kind(&self) -> crate::base::HeadingKind {
+        super::heading_kind(self.state().sim.heading_model())
+    }
+
+    fn clock(&self) -> Option<String> {
+        Some(SIM_CLOCK.into())
+    }
 }
+
+/// The simulation's clock, on which both streams are stamped.
+const SIM_CLOCK: &str = "simulation";
 
 #[async_trait]
 impl ParamStore for SimBase {

@@ -6,7 +6,7 @@
 pub mod plots;
 pub mod ros2;
 
-use crate::base::files::create_new;
+use crate::io::create_new;
 use crate::routine::report::{params_table, Report};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};

@@ -5,8 +5,9 @@
 //! YAML (only the multipliers change; the file is backed up beside itself and replaced
 //! atomically) or written as a new file (never over an existing one).
 
+use crate::io::{backup_beside, replace_atomically};
 use crate::kinematics::WheelParams;
-use crate::ros::yaml::{backup_beside, merge_multipliers, replace_atomically, DiffDriveConfig};
+use crate::ros::yaml::{merge_multipliers, DiffDriveConfig};
 use serde_json::Value;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -178,8 +179,7 @@ pub fn export(path: &Path, controller: &str, cal: &Calibration) -> Result<Export
         source,
     };
     if path.exists() {
-        let text = crate::base::files::read_bounded(path, crate::base::files::MAX_TEXT_FILE)
-            .map_err(io)?;
+        let text = crate::io::read_bounded(path, crate::io::MAX_TEXT_FILE).map_err(io)?;
         let cfg = DiffDriveConfig::parse(&text, controller, path)?;
         let merged = merge_multipliers(
             &text,

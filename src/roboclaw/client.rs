@@ -134,13 +134,10 @@ impl RoboClaw {
 
     /// Opens a serial port by path.
     pub fn open(path: &str, cfg: RoboClawConfig) -> Result<Self, RoboClawError> {
-        use tokio_serial::SerialPortBuilderExt;
-        let port = tokio_serial::new(path, cfg.baud)
-            .open_native_async()
-            .map_err(|e| RoboClawError::Open {
-                path: path.into(),
-                source: Arc::new(e),
-            })?;
+        let port = crate::io::serial::open(path, cfg.baud).map_err(|e| RoboClawError::Open {
+            path: path.into(),
+            source: Arc::new(e),
+        })?;
         Self::new(port, cfg, path)
     }
 

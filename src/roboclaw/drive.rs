@@ -8,7 +8,7 @@ use super::packet::{cmd, drive_distance_data, BUFFER_IDLE};
 use crate::base::{
     Achieved, BaseError, ComponentInfo, Drive, Fanout, Preflight, SampleStream, TravelSample,
 };
-use crate::profile::{Channel, Profile};
+use crate::roboclaw::profile::{Channel, Profile};
 use async_trait::async_trait;
 use std::sync::{Arc, RwLock};
 use std::time::Duration;
@@ -23,7 +23,6 @@ pub struct RoboClawDrive {
     version: String,
     profile: Arc<RwLock<Profile>>,
     travel: Fanout<TravelSample>,
-    start: Instant,
 }
 
 fn err(what: &'static str) -> impl Fn(RoboClawError) -> BaseError {
@@ -70,7 +69,6 @@ impl RoboClawDrive {
             version,
             profile,
             travel: Fanout::default(),
-            start: Instant::now(),
         })
     }
 
@@ -96,7 +94,7 @@ impl RoboClawDrive {
 
     fn forward(&self, left_m: f64, right_m: f64) {
         let sample = TravelSample {
-            time_s: self.start.elapsed().as_secs_f64(),
+            time_s: crate::base::host_time_s(),
             left_m,
             right_m,
         };
@@ -161,6 +159,9 @@ impl RoboClawDrive {
             w2.0.abs() as u32,
         );
         let before = self.claw.encoders().await.map_err(err("an encoder read"))?;
+        // The stream is silent at rest: a zero sample marks where this motion's travel starts
+        // (a sample covers the time since the one before it).
+        self.forward(0.0, 0.0);
         match self
             .claw
             .write(cmd::DRIVE_SPEED_ACCEL_DISTANCE, &data)
@@ -226,10 +227,7 @@ impl RoboClawDrive {
         if tl != 0.0 || tr != 0.0 {
             self.forward(tl, tr);
         }
-        Ok(Some(Achieved {
-            distance_m: 0.5 * (sl + sr),
-            turn_rad: (sr - sl) / g.wheelbase_m,
-        }))
+        Ok(Some(Achieved::of_wheels(sl, sr, g.wheelbase_m)))
     }
 }
 
@@ -307,8 +305,14 @@ impl Drive for RoboClawDrive {
         max_rate_rad_s: f64,
     ) -> Result<Option<Achieved>, BaseError> {
         let b = self.profile().params().wheelbase_m;
-        let arc = 0.5 * angle_rad * b;
-        self.wheels_by(-arc, arc, max_rate_rad_s * 0.5 * b).await
+        let turn = |rad: f64| Achieved {
+            distance_m: 0.0,
+            turn_rad: rad,
+        };
+        let (left, right) = turn(angle_rad).wheels(b);
+        // The turn-rate limit as the wheels' speed.
+        let (_, speed) = turn(max_rate_rad_s).wheels(b);
+        self.wheels_by(left, right, speed).await
     }
 
     async fn stop(&self) -> Result<(), BaseError> {
@@ -330,5 +334,10 @@ impl Drive for RoboClawDrive {
         _period: Duration,
     ) -> Result<Option<SampleStream<TravelSample>>, BaseError> {
         Ok(Some(self.travel.subscribe()))
+    }
+
+    fn clock(&self) -> Option<String> {
+        // Stamped on arrival of each encoder read.
+        Some(crate::base::HOST_CLOCK.into())
     }
 }

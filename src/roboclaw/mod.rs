@@ -4,9 +4,10 @@
 pub mod client;
 pub mod drive;
 pub mod packet;
+pub mod profile;
 
 use crate::base::{Base, HeadingSource};
-use crate::profile::ProfileStore;
+use profile::ProfileStore;
 use std::sync::Arc;
 
 /// A robot made of a RoboClaw drive, any heading source (an NMEA compass, an IMU) and its

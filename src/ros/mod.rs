@@ -3,8 +3,7 @@
 //! rosbridge ([`rosbridge`]).
 
 pub mod bag;
-pub mod bag_writer;
-pub mod base;
+pub mod live;
 pub mod msg;
 pub mod rosbridge;
 pub mod yaml;

@@ -182,6 +182,31 @@ pub struct JointState {
     pub effort: Vec<f64>,
 }
 
+impl JointState {
+    /// The indices of the left and right wheel joints: the names given, or else the one name
+    /// containing "left" and the one containing "right" (case ignored); `None` when either
+    /// is missing or ambiguous, or both are one joint.
+    pub fn wheel_indices(
+        &self,
+        left: &Option<String>,
+        right: &Option<String>,
+    ) -> Option<(usize, usize)> {
+        let find = |given: &Option<String>, side: &str| match given {
+            Some(g) => self.name.iter().position(|n| n == g),
+            None => {
+                let mut hits = (0..self.name.len())
+                    .filter(|&i| self.name[i].to_ascii_lowercase().contains(side));
+                match (hits.next(), hits.next()) {
+                    (Some(i), None) => Some(i),
+                    _ => None,
+                }
+            }
+        };
+        let (l, r) = (find(left, "left")?, find(right, "right")?);
+        (l != r).then_some((l, r))
+    }
+}
+
 /// `sensor_msgs/Imu`.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct Imu {

@@ -15,12 +15,9 @@
 //! is replaced atomically, and the first replacement in a session first copies the original
 //! beside it (`<file>.odocal-backup-<ms>`, created exclusively).
 
-pub use crate::base::files::{backup_beside, replace_atomically};
-use crate::base::{BaseError, ComponentInfo, ParamStore};
+use crate::base::{FileStore, ParamFile};
 use crate::kinematics::WheelParams;
-use async_trait::async_trait;
 use std::path::{Path, PathBuf};
-use std::sync::{Arc, Mutex, RwLock};
 use yaml_rust2::{Yaml, YamlLoader};
 
 /// Wheel angle units per revolution: the "counts" of a ROS robot are radians.
@@ -221,7 +218,7 @@ impl DiffDriveConfig {
 
 /// Reads a YAML file, refusing anything larger than a configuration file can be (16 MiB).
 fn read_bounded(path: &Path) -> Result<String, YamlError> {
-    crate::base::files::read_bounded(path, 16 << 20).map_err(|source| YamlError::Io {
+    crate::io::read_bounded(path, crate::io::MAX_TEXT_FILE).map_err(|source| YamlError::Io {
         path: path.to_path_buf(),
         source,
     })
@@ -341,145 +338,75 @@ pub fn merge_multipliers(
     Ok(out)
 }
 
-/// The controller's YAML file as a [`ParamStore`]: `write` stages effective parameters (and
-/// updates the shared geometry a ROS drive integrates its odometry with), `commit` rewrites
-/// the multipliers in the file.
-pub struct YamlStore {
-    path: PathBuf,
-    controller: String,
-    staged: Mutex<Option<WheelParams>>,
-    file_backup: Mutex<Option<PathBuf>>,
-    geometry: Arc<RwLock<WheelParams>>,
+/// The controller's YAML as a [`FileStore`] format: `controller`'s section, whose effective
+/// geometry is the parameters; writing changes only the multipliers ([`merge_multipliers`]).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ControllerYaml {
+    /// The controller's name (its section).
+    pub controller: String,
 }
 
-fn store_err(path: &Path) -> impl Fn(YamlError) -> BaseError + '_ {
-    move |e| BaseError::backend(format!("store {}", path.display()), e)
-}
+impl ParamFile for ControllerYaml {
+    type Content = DiffDriveConfig;
+    type Error = YamlError;
 
-impl YamlStore {
-    /// Opens `controller`'s section of `path` (which must parse).
-    pub fn open(path: &Path, controller: &str) -> Result<Self, YamlError> {
-        let cfg = DiffDriveConfig::load(path, controller)?;
-        Ok(YamlStore {
-            path: path.to_path_buf(),
-            controller: controller.into(),
-            staged: Mutex::new(None),
-            file_backup: Mutex::new(None),
-            geometry: Arc::new(RwLock::new(cfg.effective())),
+    fn kind(&self) -> &'static str {
+        "ros2-control-yaml"
+    }
+
+    fn id(&self, path: &Path) -> String {
+        format!("{}#{}", path.display(), self.controller)
+    }
+
+    fn details(&self, path: &Path) -> serde_json::Value {
+        serde_json::json!({ "file": path, "controller": self.controller })
+    }
+
+    fn parse(&self, text: &str, path: &Path) -> Result<DiffDriveConfig, YamlError> {
+        DiffDriveConfig::parse(text, &self.controller, path)
+    }
+
+    fn params(content: &DiffDriveConfig) -> WheelParams {
+        content.effective()
+    }
+
+    fn render(&self, text: &str, params: &WheelParams, path: &Path) -> Result<String, YamlError> {
+        // Multipliers on the file's own nominal values, rounded as they will be written.
+        let cfg = DiffDriveConfig::parse(text, &self.controller, path)?;
+        merge_multipliers(text, &self.controller, &cfg.multipliers_for(params), path)
+    }
+
+    fn refuse(&self, _current: &WheelParams, params: &WheelParams) -> Option<String> {
+        ((params.counts_per_wheel_rev - RAD_PER_REV).abs() > 1e-9).then(|| {
+            format!(
+                "a ROS robot's wheel angles are radians: counts per revolution must stay 2π, got {}",
+                params.counts_per_wheel_rev
+            )
         })
     }
 
-    /// The file.
-    pub fn path(&self) -> &Path {
-        &self.path
-    }
-
-    /// The section as the file has it now.
-    pub fn config(&self) -> Result<DiffDriveConfig, YamlError> {
-        DiffDriveConfig::load(&self.path, &self.controller)
-    }
-
-    /// The effective parameters in use (staged or committed), shared with a drive.
-    pub fn geometry(&self) -> Arc<RwLock<WheelParams>> {
-        self.geometry.clone()
-    }
-
-    /// The copy of the original file made before the first replacement, if any.
-    pub fn file_backup(&self) -> Option<PathBuf> {
-        self.file_backup
-            .lock()
-            .unwrap_or_else(|p| p.into_inner())
-            .clone()
-    }
-
-    fn set_geometry(&self, p: WheelParams) {
-        *self.geometry.write().unwrap_or_else(|p| p.into_inner()) = p;
+    fn io_error(&self, path: &Path, source: std::io::Error) -> YamlError {
+        YamlError::Io {
+            path: path.to_path_buf(),
+            source,
+        }
     }
 }
 
-#[async_trait]
-impl ParamStore for YamlStore {
-    fn info(&self) -> ComponentInfo {
-        ComponentInfo {
-            kind: "ros2-control-yaml".into(),
-            id: format!("{}#{}", self.path.display(), self.controller),
-            details: serde_json::json!({ "file": self.path, "controller": self.controller }),
-        }
-    }
+/// The controller's YAML file as a [`crate::base::ParamStore`]: `write` stages effective
+/// parameters (and updates the section a ROS drive integrates its odometry with), `commit`
+/// rewrites the multipliers in the file ([`FileStore`]).
+pub type YamlStore = FileStore<ControllerYaml>;
 
-    async fn read(&self) -> Result<WheelParams, BaseError> {
-        if let Some(p) = *self.staged.lock().unwrap_or_else(|p| p.into_inner()) {
-            return Ok(p);
-        }
-        Ok(self.config().map_err(store_err(&self.path))?.effective())
-    }
-
-    async fn write(&self, params: &WheelParams) -> Result<WheelParams, BaseError> {
-        params.validate().map_err(|e| BaseError::InvalidArgument {
-            component: "store".into(),
-            reason: e.to_string(),
-        })?;
-        if (params.counts_per_wheel_rev - RAD_PER_REV).abs() > 1e-9 {
-            return Err(BaseError::InvalidArgument {
-                component: "store".into(),
-                reason: format!(
-                    "a ROS robot's wheel angles are radians: counts per revolution must stay 2π, got {}",
-                    params.counts_per_wheel_rev
-                ),
-            });
-        }
-        // What the file would hold: multipliers rounded as they will be written.
-        let cfg = self.config().map_err(store_err(&self.path))?;
-        let m = cfg.multipliers_for(params);
-        let text = read_bounded(&self.path).map_err(store_err(&self.path))?;
-        let merged = merge_multipliers(&text, &self.controller, &m, &self.path)
-            .map_err(store_err(&self.path))?;
-        let held = DiffDriveConfig::parse(&merged, &self.controller, &self.path)
-            .map_err(store_err(&self.path))?
-            .effective();
-        *self.staged.lock().unwrap_or_else(|p| p.into_inner()) = Some(held);
-        self.set_geometry(held);
-        Ok(held)
-    }
-
-    async fn commit(&self) -> Result<(), BaseError> {
-        let Some(p) = *self.staged.lock().unwrap_or_else(|p| p.into_inner()) else {
-            return Ok(());
-        };
-        let io = |source| {
-            store_err(&self.path)(YamlError::Io {
-                path: self.path.clone(),
-                source,
-            })
-        };
-        let cfg = self.config().map_err(store_err(&self.path))?;
-        let text = read_bounded(&self.path).map_err(store_err(&self.path))?;
-        let merged = merge_multipliers(
-            &text,
-            &self.controller,
-            &cfg.multipliers_for(&p),
-            &self.path,
+impl FileStore<ControllerYaml> {
+    /// Opens `controller`'s section of `path` (which must parse).
+    pub fn open(path: &Path, controller: &str) -> Result<Self, YamlError> {
+        FileStore::with_format(
+            ControllerYaml {
+                controller: controller.into(),
+            },
+            path,
         )
-        .map_err(store_err(&self.path))?;
-        {
-            let mut backup = self.file_backup.lock().unwrap_or_else(|p| p.into_inner());
-            if backup.is_none() {
-                *backup = Some(backup_beside(&self.path).map_err(io)?);
-            }
-        }
-        replace_atomically(&self.path, &merged).map_err(io)?;
-        *self.staged.lock().unwrap_or_else(|p| p.into_inner()) = None;
-        Ok(())
-    }
-
-    async fn read_committed(&self) -> Result<Option<WheelParams>, BaseError> {
-        Ok(Some(
-            self.config().map_err(store_err(&self.path))?.effective(),
-        ))
-    }
-
-    fn resolution(&self) -> WheelParams {
-        crate::base::files::FILE_RESOLUTION
     }
 }
 

@@ -33,22 +33,12 @@ impl WritePolicy {
     }
 }
 
-/// Everything the recalibration routine needs to know.
+/// Everything the recalibration routine needs to know: the procedure only. Where the robot is
+/// comes from elsewhere (a routine file's `[robot]` table, the command line: see
+/// [`crate::spec`]); the routine sees nothing but a [`crate::base::Base`].
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct RoutineConfig {
-    /// Where the robot is: a serial port (`/dev/ttyUSB0`), `mock` for the built-in simulated
-    /// robot, or `rosbridge://HOST:PORT` for a ROS robot (with a `[ros]` table).
-    pub port: Option<String>,
-    /// Settings of a ROS base (`yaml`, `controller`, `cmd_vel`, `twist_stamped`, `topics`, …),
-    /// read by the ROS backend, not by the routine.
-    pub ros: Option<toml::Table>,
-    /// The heading source of a `roboclaw:` base: `nmea:PORT[?baud=4800]`.
-    pub heading: Option<String>,
-    /// The robot profile of a `roboclaw:` base.
-    pub profile: Option<PathBuf>,
-    /// Baud rate.
-    pub baud: u32,
     /// Square side (m).
     pub side_m: f64,
     /// Squares per direction in each calibration round.
@@ -61,9 +51,21 @@ pub struct RoutineConfig {
     pub heading_samples: usize,
     /// Pause for the base to settle before heading readings (s).
     pub settle_s: f64,
-    /// Estimator whose result is written; `None`: chosen by the data
-    /// ([`crate::calibration::default_method`]: `legs` when the heading along the legs was
-    /// streamed in every run, else `exact`).
+    /// **Moves the robot**: before each square, turn in place back to the heading the first
+    /// square started at, so every square's legs point the same four ways (what lets
+    /// `matched-legs` cancel a compass's deviation).
+    pub realign: bool,
+    /// **Moves the robot**: before the first square, turn in place two full turns each way,
+    /// slowly, to measure the compass's deviation curve and remove it from every reading
+    /// after ([`crate::calibration::swing`]); only for a heading that may deviate (magnetic
+    /// or unknown) and a base that streams both wheels and heading.
+    pub swing: bool,
+    /// A gyro heading's measured scale error (`odocal spin`): the gyro reads `1 + s` times every
+    /// turn, and each heading change is divided by it before anything uses it
+    /// ([`crate::calibration::gyro`]). Without it, `E_b` carries the scale error one to one.
+    pub gyro_scale_error: Option<f64>,
+    /// Estimator whose result is written; `None`: chosen by the data and the heading sensor
+    /// ([`crate::calibration::default_method`]).
     pub method: Option<Method>,
     /// Diameter split for estimation and write-back (see [`SplitConvention`]).
     pub convention: SplitConvention,
@@ -73,8 +75,10 @@ pub struct RoutineConfig {
     pub confirm_motion: bool,
     /// Squares per direction in the verification after writing.
     pub verification_runs: usize,
-    /// Converged when |E_b − 1| and |E_d − 1| are both below this.
-    pub tolerance: f64,
+    /// Also converged when |E_b − 1| and |E_d − 1| are both below this (a user's choice;
+    /// without it, a round converges when its correction is not significant or too small to
+    /// see: [`crate::routine::convergence`]).
+    pub tolerance: Option<f64>,
     /// Most calibration rounds.
     pub max_rounds: usize,
     /// Refuse to write any parameter changed by more than this fraction from the backup.
@@ -98,23 +102,21 @@ pub struct RoutineConfig {
 impl Default for RoutineConfig {
     fn default() -> Self {
         RoutineConfig {
-            port: None,
-            ros: None,
-            heading: None,
-            profile: None,
-            baud: 115_200,
             side_m: 4.0,
             runs_per_direction: 5,
             max_speed_m_s: 0.2,
             max_rate_rad_s: 0.5,
             heading_samples: 5,
+            realign: true,
+            swing: true,
+            gyro_scale_error: None,
             settle_s: 0.5,
             method: None,
             convention: SplitConvention::LeftNominal,
             write_back: WritePolicy::Ask,
             confirm_motion: true,
             verification_runs: 3,
-            tolerance: 0.001,
+            tolerance: None,
             max_rounds: 3,
             max_change: 0.1,
             allow_large_change: false,
@@ -143,12 +145,15 @@ impl RoutineConfig {
         self.convention
     }
 
-    /// Parses a routine file; errors name the line.
+    /// Parses a file of routine settings; errors name the line.
     pub fn from_toml(text: &str) -> Result<Self, ConfigError> {
-        let cfg: RoutineConfig = toml::from_str(text).map_err(|e| ConfigError {
-            line: e.span().map(|s| line_of(text, s.start)),
-            message: e.message().to_string(),
-        })?;
+        Self::from_table(parse_table(text)?, text)
+    }
+
+    /// The settings of `table`, parsed from `text` (which gives errors their line): the part
+    /// of a routine file that is the procedure.
+    pub fn from_table(table: toml::Table, text: &str) -> Result<Self, ConfigError> {
+        let cfg: RoutineConfig = table.try_into().map_err(|e| table_error(&e, text))?;
         cfg.validate().map_err(|mut e| {
             e.line = e.line.or_else(|| key_line(text, &e.message));
             e
@@ -210,17 +215,24 @@ impl RoutineConfig {
         if let Err(e) = self.convention.validate() {
             return bad("convention", e.to_string());
         }
+        if let Some(g) = self.gyro_scale_error {
+            if !(g.is_finite() && g.abs() < 0.1) {
+                return bad(
+                    "gyro_scale_error",
+                    format!("must be within ±0.1 (a fraction: 0.01 is 1 %), got {g}"),
+                );
+            }
+        }
         if self.verification_runs > 50 {
             return bad(
                 "verification_runs",
                 format!("at most 50, got {}", self.verification_runs),
             );
         }
-        if !(positive(self.tolerance) && self.tolerance < 0.1) {
-            return bad(
-                "tolerance",
-                format!("must be in (0, 0.1), got {}", self.tolerance),
-            );
+        if let Some(t) = self.tolerance {
+            if !(positive(t) && t < 0.1) {
+                return bad("tolerance", format!("must be in (0, 0.1), got {t}"));
+            }
         }
         if !(1..=10).contains(&self.max_rounds) {
             return bad(
@@ -260,12 +272,39 @@ impl RoutineConfig {
     }
 }
 
+/// Parses TOML text into a table; a syntax error names its line.
+pub fn parse_table(text: &str) -> Result<toml::Table, ConfigError> {
+    toml::from_str(text).map_err(|e: toml::de::Error| ConfigError {
+        line: e.span().map(|s| line_of(text, s.start)),
+        message: e.message().to_string(),
+    })
+}
+
+/// A deserialisation error of a table parsed from `text`, named by its key and line (a table
+/// keeps no spans: the key the error names is looked up in the text).
+pub fn table_error(e: &toml::de::Error, text: &str) -> ConfigError {
+    let shown = e.to_string();
+    let quoted = |after: &str| {
+        let rest = &shown[shown.rfind(after)? + after.len()..];
+        Some(rest[..rest.find('`')?].to_string())
+    };
+    let key = quoted("in `").or_else(|| quoted("unknown field `"));
+    let message = match (&key, e.message()) {
+        (Some(k), m) if !m.contains(k.as_str()) => format!("{k}: {m}"),
+        (_, m) => m.to_string(),
+    };
+    ConfigError {
+        line: key.and_then(|k| key_line(text, &k)),
+        message,
+    }
+}
+
 fn line_of(text: &str, offset: usize) -> usize {
     text[..offset.min(text.len())].matches('\n').count() + 1
 }
 
-/// The line that sets the key a validation message starts with (`key: ...`).
-fn key_line(text: &str, message: &str) -> Option<usize> {
+/// The line that sets the key a message starts with (`key: ...`), or the key itself.
+pub fn key_line(text: &str, message: &str) -> Option<usize> {
     let key = message.split(':').next()?.trim();
     text.lines()
         .position(|l| {
@@ -284,7 +323,7 @@ mod tests {
     #[test]
     fn a_full_file_parses() {
         let cfg = RoutineConfig::from_toml(
-            "port = \"mock\"\nside_m = 2.0\nruns_per_direction = 3\nmethod = \"jung-chung\"\n\
+            "side_m = 2.0\nruns_per_direction = 3\nmethod = \"jung-chung\"\n\
              write_back = \"dry-run\"\n\
              convention = { measured-scale = { commanded_m = 2.0, measured_m = 1.98 } }\n",
         )

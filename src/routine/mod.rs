@@ -14,23 +14,30 @@ pub mod config;
 pub mod error;
 pub mod heading;
 pub mod report;
+pub mod spin;
 pub mod square;
+pub mod swing;
+pub mod track;
 
 pub use error::RoutineError;
 pub use report::Report;
 
+use crate::base::adjusted::Adjusted;
 use crate::base::transaction::Transaction;
 pub use crate::base::GroundTruth;
-use crate::base::{Base, BaseError, HeadingSample};
+use crate::base::{Base, BaseError, HeadingKind, HeadingSample, MotionGuard};
+use crate::calibration::swing::SwingFit;
 use crate::calibration::uncertainty::{cramer_rao_bound, heading_error_sigma, TestDesign};
 use crate::calibration::{
     default_method, estimate_all, Estimate, Method, RunMeasurement, SquareTest,
 };
-use crate::kinematics::{wrap_angle, Direction, WheelParams};
+use crate::kinematics::{wrap_angle, Direction, Displacement, WheelParams};
 use config::{RoutineConfig, WritePolicy};
-use report::{Phase, RoundReport, RunReport};
+use report::{Phase, RoundReport, RunReport, Stage};
 use square::{run_square, SquareCommand, SquareRecord};
+use std::sync::Arc;
 use std::time::Duration;
+use swing::SwingCommand;
 use tokio_util::sync::CancellationToken;
 
 /// Something the routine reports while it works.
@@ -60,6 +67,12 @@ pub enum RoutineEvent {
     RunDone {
         /// Heading error (deg).
         heading_error_deg: f64,
+    },
+    /// The robot turned in place back to the first square's heading before a square
+    /// ([`RoutineConfig::realign`]).
+    Realigned {
+        /// The turn commanded (rad, counter-clockwise positive as [`crate::base::Drive::turn_in_place`]).
+        turn_rad: f64,
     },
     /// Something looks wrong but the routine goes on.
     Warning(String),
@@ -119,45 +132,606 @@ pub async fn run(
     ui.event(&RoutineEvent::Stage(
         "reading and backing up the robot's parameters".into(),
     ));
-    let mut tx = cancellable(
+    let tx = cancellable(
         cancel,
         Transaction::begin(base.store.clone(), &cfg.backup_dir),
     )
     .await?;
-    let mut progress = Progress::default();
-    let result = body(base, cfg, truth, ui, cancel, &mut tx, &mut progress).await;
-    match result {
+    let mut base = base.clone();
+    if let Some(s) = cfg.gyro_scale_error {
+        base.heading = Arc::new(
+            Adjusted::new(base.heading.clone(), None, Default::default()).with_gyro_scale_error(s),
+        );
+    }
+    let mut run = Calibration {
+        base,
+        cfg,
+        truth,
+        ui,
+        cancel,
+        tx,
+        progress: Progress::default(),
+        heading_noise_rad: 0.0,
+        warnings: Vec::new(),
+        start_heading_rad: None,
+        swing: None,
+    };
+    match run.body().await {
         Ok(report) => Ok(report),
-        Err(err) => {
-            // Stop first (the guard in run_square has already asked for a stop if a square was
-            // cut short; this covers everything else), then undo any write.
-            let _ = tokio::time::timeout(Duration::from_secs(2), base.drive.stop()).await;
-            let err = undo(base, &mut tx, err).await;
-            // Nothing measured is thrown away: the squares driven so far, where it stopped
-            // and why, beside the backup or in the report directory.
-            let dir = cfg.report_dir.as_ref().unwrap_or(&cfg.backup_dir);
-            match write_partial(base, cfg, &progress, &err, dir, tx.backup_path()) {
-                Ok(path) => ui.event(&RoutineEvent::Warning(format!(
-                    "{} square(s) measured before the failure ({}) are in {}",
-                    progress.runs.len(),
-                    progress.phase,
-                    path.display()
-                ))),
-                Err(e) => ui.event(&RoutineEvent::Warning(format!(
-                    "the partial report could not be written to {}: {e}",
-                    dir.display()
-                ))),
-            }
-            Err(err)
-        }
+        Err(err) => Err(run.fail(err).await),
     }
 }
 
-/// Where a run got to: the phase and every square measured so far.
+/// One calibration run on a base: the steps of the procedure, each a method of its own.
+struct Calibration<'a> {
+    /// The caller's base; its heading source wrapped once a swing measured a deviation.
+    base: Base,
+    cfg: &'a RoutineConfig,
+    truth: Option<&'a dyn GroundTruth>,
+    ui: &'a mut dyn RoutineUi,
+    cancel: &'a CancellationToken,
+    /// The one write path: backed up before anything else, rolled back on failure.
+    tx: Transaction,
+    progress: Progress,
+    heading_noise_rad: f64,
+    warnings: Vec<String>,
+    /// The heading every square starts at (the first square's), once known.
+    start_heading_rad: Option<f64>,
+    /// What the compass swing measured.
+    swing: Option<SwingFit>,
+}
+
+impl Calibration<'_> {
+    /// The procedure: pre-flight, rounds (each written when allowed) until converged,
+    /// verification, judgement.
+    async fn body(&mut self) -> Result<Report, RoutineError> {
+        self.preflight().await?;
+        self.confirm_motion()?;
+        let original = *self.tx.original();
+        self.swing(&original).await?;
+        let mut current = original;
+        let mut rounds = Vec::new();
+        let mut converged = false;
+        for round in 1..=self.cfg.max_rounds {
+            let mut rr = self.round(round, &current).await?;
+            if let Some(why) = &rr.converged_because {
+                self.stage(format!(
+                    "converged: E_b {:.5}, E_d {:.5}: {why}",
+                    rr.chosen.e_b, rr.chosen.e_d
+                ));
+                converged = true;
+                rounds.push(rr);
+                break;
+            }
+            let proposed = rr.chosen.correction.apply(&current)?;
+            check_bounds(self.cfg.max_change, &original, &proposed)?;
+            rr.params_after = Some(proposed);
+            if !self.authorise_write(&current, &proposed) {
+                rounds.push(rr);
+                break;
+            }
+            self.progress.stage = Stage::WriteBack { round };
+            // From here on, the parameters are what the store reports (rounded to its
+            // resolution).
+            current = cancellable(self.cancel, self.tx.apply(&proposed)).await?;
+            rr.written = true;
+            rounds.push(rr);
+        }
+        if !converged && self.tx.written() {
+            self.warn(format!(
+                "not converged after {} round(s) (the last correction was still significant); \
+                 the last estimate was written",
+                self.cfg.max_rounds
+            ));
+        }
+        let verification = self.verify(&current, &rounds).await?;
+        let mut report = Report::assemble(
+            &self.base,
+            self.cfg,
+            original,
+            self.tx.backup_path().to_path_buf(),
+            current,
+            self.heading_noise_rad,
+            rounds,
+            verification,
+            converged,
+            self.tx.written(),
+            std::mem::take(&mut self.warnings),
+        );
+        report.swing = self.swing.take();
+        Ok(report)
+    }
+
+    /// **Moves the robot**: the compass swing ([`RoutineConfig::swing`]); a deviation it
+    /// measures is removed from every reading after. A base that cannot swing, or a swing
+    /// that does not fit, is a warning: the default method pairs legs by azimuth and does not
+    /// need it.
+    async fn swing(&mut self, params: &WheelParams) -> Result<(), RoutineError> {
+        let kind = self.base.heading.kind();
+        if !self.cfg.swing || !kind.may_deviate() {
+            return Ok(());
+        }
+        self.progress.stage = Stage::Swing;
+        let cmd = SwingCommand {
+            turns_per_direction: 2,
+            rate_rad_s: self.cfg.max_rate_rad_s.min(swing::SWING_RATE_RAD_S),
+            wheelbase_m: params.wheelbase_m,
+            stream_period: Duration::from_millis(self.cfg.telemetry_ms.max(1)),
+        };
+        self.stage(format!(
+            "compass swing: two full turns in place each way at {:.2} rad/s (the heading is {kind})",
+            cmd.rate_rad_s
+        ));
+        match cancellable(self.cancel, swing::run_swing(&self.base, &cmd)).await? {
+            Ok(fit) => {
+                let [a1, b1, a2, b2] = fit.deviation.0.map(f64::to_degrees);
+                self.stage(format!(
+                    "compass deviation up to {:.2}° (A1 {a1:+.2}°, B1 {b1:+.2}°, A2 {a2:+.2}°, \
+                     B2 {b2:+.2}°; residual {:.2}°): removed from every reading from here on",
+                    fit.amplitude_rad.to_degrees(),
+                    fit.residual_rms_rad.to_degrees()
+                ));
+                if let Some(advice) = fit.advice() {
+                    self.warn(advice);
+                }
+                self.base.heading = Arc::new(Adjusted::new(
+                    self.base.heading.clone(),
+                    None,
+                    fit.deviation,
+                ));
+                self.swing = Some(fit);
+            }
+            Err(why) => self.warn(format!("no compass swing: {why}")),
+        }
+        Ok(())
+    }
+
+    fn stage(&mut self, s: String) {
+        self.ui.event(&RoutineEvent::Stage(s));
+    }
+
+    /// A warning for the user now and for the report.
+    fn warn(&mut self, w: String) {
+        self.ui.event(&RoutineEvent::Warning(w.clone()));
+        self.warnings.push(w);
+    }
+
+    /// Drive faults, the heading sensor at rest (its validity and noise), the watchdog.
+    async fn preflight(&mut self) -> Result<(), RoutineError> {
+        self.progress.stage = Stage::PreFlight;
+        self.stage("pre-flight checks".into());
+        let check = cancellable(self.cancel, self.base.drive.preflight()).await?;
+        if !check.faults.is_empty() {
+            return Err(RoutineError::Preflight(check.faults.join("; ")));
+        }
+        let readings = match cancellable(
+            self.cancel,
+            heading::readings(self.base.heading.as_ref(), 10),
+        )
+        .await
+        {
+            Err(RoutineError::Base(BaseError::HeadingInvalid { reason })) => {
+                return Err(RoutineError::Preflight(format!(
+                    "the heading sensor reports invalid: {reason}"
+                )))
+            }
+            other => other?,
+        };
+        self.heading_noise_rad = heading::circular_std(&readings);
+        self.stage(format!(
+            "heading noise at rest: {:.3}° (σ of 10 readings)",
+            self.heading_noise_rad.to_degrees()
+        ));
+        let armed = cancellable(
+            self.cancel,
+            self.base
+                .drive
+                .arm_watchdog(Duration::from_millis(self.cfg.watchdog_ms)),
+        )
+        .await?;
+        let mut warnings = check.warnings;
+        if let Some(w) = gyro_warning(self.base.heading.kind(), self.cfg.gyro_scale_error) {
+            warnings.push(w);
+        }
+        if armed.is_none() {
+            warnings.push(
+                "the drive has no watchdog: if this host vanishes mid-motion, only the drive's \
+                 own limits stop the robot"
+                    .into(),
+            );
+        }
+        for w in warnings {
+            self.warn(w);
+        }
+        Ok(())
+    }
+
+    /// Asks before the robot first moves (unless the settings say not to).
+    fn confirm_motion(&mut self) -> Result<(), RoutineError> {
+        let cfg = self.cfg;
+        let question = format!(
+            "The robot will drive {} open-loop squares of {} m at up to {} m/s and {} rad/s. \
+             Is the area clear and may it move?",
+            cfg.runs_per_direction * 2,
+            cfg.side_m,
+            cfg.max_speed_m_s,
+            cfg.max_rate_rad_s
+        );
+        if cfg.confirm_motion && !self.ui.confirm(&question) {
+            return Err(RoutineError::Declined("the robot may not move".into()));
+        }
+        Ok(())
+    }
+
+    /// A calibration round: its squares, every method's estimate, the chosen one and whether
+    /// it is within tolerance.
+    async fn round(
+        &mut self,
+        round: usize,
+        current: &WheelParams,
+    ) -> Result<RoundReport, RoutineError> {
+        self.stage(format!("round {round}: calibration squares"));
+        let runs = self
+            .drive_runs(
+                Phase::Calibration { round },
+                self.cfg.runs_per_direction,
+                current,
+            )
+            .await?;
+        for r in &runs {
+            self.warnings.extend(r.warnings.iter().cloned());
+        }
+        let test = square_test(self.cfg, current, &runs);
+        let mut estimates = Vec::new();
+        let mut failures = Vec::new();
+        for (method, result) in estimate_all(&test, self.cfg.split_convention())? {
+            match result {
+                Ok(e) => estimates.push(e),
+                Err(e) => failures.push((method, e.to_string())),
+            }
+        }
+        let method = self.choose(&test);
+        let chosen = estimates
+            .iter()
+            .find(|e| e.method == method)
+            .cloned()
+            .ok_or_else(|| {
+                let why = failures.iter().find(|(m, _)| *m == method).map_or(
+                    "it needs data this run did not record".to_string(),
+                    |(_, e)| e.clone(),
+                );
+                RoutineError::Implausible(format!("method {method} gave no estimate: {why}"))
+            })?;
+        let crb = cramer_rao_std(
+            self.cfg,
+            &chosen,
+            self.heading_noise_rad,
+            current.wheelbase_m,
+        );
+        let converged_because = convergence(self.cfg, &chosen, crb, current.wheelbase_m);
+        Ok(RoundReport {
+            round,
+            params_before: *current,
+            runs,
+            estimates,
+            failures,
+            chosen,
+            cramer_rao_std: crb,
+            converged: converged_because.is_some(),
+            converged_because,
+            params_after: None,
+            written: false,
+        })
+    }
+
+    /// The method to write: the configured one, or the data's default ([`default_method`]),
+    /// saying when some runs lacked the heading along the legs.
+    fn choose(&mut self, test: &SquareTest) -> Method {
+        if let Some(m) = self.cfg.method {
+            return m;
+        }
+        let m = default_method(
+            test.has_leg_headings(),
+            test.has_positions(),
+            self.base.heading.kind(),
+        )
+        .unwrap_or(Method::Exact);
+        let (without, of) = test.runs_without_leg_headings();
+        if !matches!(m, Method::Legs | Method::MatchedLegs) {
+            self.warn(
+                "the heading along the legs was not recorded in any run of one direction: \
+                 estimating from the headings at rest (exact), which counts any start transient"
+                    .into(),
+            );
+        } else if without > 0 {
+            self.warn(format!(
+                "the heading along the legs was not recorded in {without} of {of} runs \
+                 (incomplete streams): the leg method uses the other {}",
+                of - without
+            ));
+        }
+        m
+    }
+
+    /// Whether the new parameters may be written: the policy, and the user's answer when it
+    /// asks ([`authorise`]).
+    fn authorise_write(&mut self, current: &WheelParams, proposed: &WheelParams) -> bool {
+        let write = authorise(self.cfg.write_back, self.ui, current, proposed);
+        if !write {
+            self.stage(match self.cfg.write_back {
+                WritePolicy::DryRun => "dry run: nothing written".into(),
+                _ => "not written (declined)".into(),
+            });
+        }
+        write
+    }
+
+    /// The verification squares after a write, judged against the first round ([`judge`]).
+    async fn verify(
+        &mut self,
+        current: &WheelParams,
+        rounds: &[RoundReport],
+    ) -> Result<Vec<RunReport>, RoutineError> {
+        if !self.tx.written() || self.cfg.verification_runs == 0 {
+            return Ok(Vec::new());
+        }
+        self.stage("verification squares".into());
+        let verification = self
+            .drive_runs(Phase::Verification, self.cfg.verification_runs, current)
+            .await?;
+        let abs_deg = |runs: &[RunReport]| -> Vec<(Direction, f64)> {
+            runs.iter()
+                .map(|r| (r.direction, r.heading_error_deg.abs()))
+                .collect()
+        };
+        let before = rounds.first().map(|r| abs_deg(&r.runs)).unwrap_or_default();
+        let distance: Vec<f64> = rounds
+            .iter()
+            .map(|r| (r.chosen.e_b - 1.0).abs() + (r.chosen.e_d - 1.0).abs())
+            .collect();
+        if let Err(why) = judge(&before, &abs_deg(&verification), &distance) {
+            if !self.cfg.keep_worse {
+                return Err(RoutineError::NotBetter(why));
+            }
+            self.warn(format!("{why}; kept because of --keep-worse"));
+        }
+        Ok(verification)
+    }
+
+    /// Stops the base, undoes any write and leaves the partial report; returns the error as
+    /// it stands after the rollback.
+    async fn fail(mut self, err: RoutineError) -> RoutineError {
+        // Stop first (the guard in run_square has already asked for a stop if a square was cut
+        // short; this covers everything else), then undo any write.
+        let _ = tokio::time::timeout(Duration::from_secs(2), self.base.drive.stop()).await;
+        let err = undo(&self.base, &mut self.tx, err).await;
+        // Nothing measured is thrown away: the squares driven so far, where it stopped and
+        // why, beside the backup or in the report directory.
+        let cfg = self.cfg;
+        let dir = cfg.report_dir.as_ref().unwrap_or(&cfg.backup_dir);
+        let written = write_partial(
+            &self.base,
+            cfg,
+            &self.progress,
+            &err,
+            dir,
+            self.tx.backup_path(),
+        );
+        self.ui.event(&RoutineEvent::Warning(match written {
+            Ok(path) => format!(
+                "{} square(s) measured before the failure ({}) are in {}",
+                self.progress.runs.len(),
+                self.progress.stage,
+                path.display()
+            ),
+            Err(e) => format!(
+                "the partial report could not be written to {}: {e}",
+                dir.display()
+            ),
+        }));
+        err
+    }
+
+    /// **Moves the robot**: turns in place back to the heading the first square started at
+    /// (by the heading sensor: a deviation is the same at one azimuth, so the same reading is
+    /// the same true heading), so that every square's legs point the same four ways. The first
+    /// call notes the heading instead.
+    async fn realign(&mut self) -> Result<(), RoutineError> {
+        if !self.cfg.realign {
+            return Ok(());
+        }
+        let n = self.cfg.heading_samples;
+        let now = cancellable(
+            self.cancel,
+            heading::mean_heading(self.base.heading.as_ref(), n),
+        )
+        .await?;
+        let Some(target) = self.start_heading_rad else {
+            self.start_heading_rad = Some(now);
+            return Ok(());
+        };
+        // Twice at most: the second turn takes out what the drive's own error left.
+        let mut off = wrap_angle(target - now);
+        for _ in 0..2 {
+            if off.abs() < REALIGN_WITHIN_RAD {
+                break;
+            }
+            let guard = MotionGuard::new(&self.base.drive);
+            cancellable(
+                self.cancel,
+                self.base.drive.turn_in_place(off, self.cfg.max_rate_rad_s),
+            )
+            .await?;
+            guard.disarm();
+            self.ui.event(&RoutineEvent::Realigned { turn_rad: off });
+            if self.cfg.settle_s > 0.0 {
+                tokio::time::sleep(Duration::from_secs_f64(self.cfg.settle_s)).await;
+            }
+            let now = cancellable(
+                self.cancel,
+                heading::mean_heading(self.base.heading.as_ref(), n),
+            )
+            .await?;
+            off = wrap_angle(target - now);
+        }
+        Ok(())
+    }
+
+    /// **Moves the robot**: `per_direction` squares clockwise, then as many counter-clockwise,
+    /// each measured, kept in the progress and checked for plausibility.
+    async fn drive_runs(
+        &mut self,
+        phase: Phase,
+        per_direction: usize,
+        params: &WheelParams,
+    ) -> Result<Vec<RunReport>, RoutineError> {
+        self.progress.stage = Stage::of(phase);
+        let cfg = self.cfg;
+        let of = per_direction * 2;
+        self.ui.event(&RoutineEvent::Plan {
+            motions: of as u64 * 8,
+        });
+        let label = phase.label();
+        let mut out = Vec::with_capacity(of);
+        let mut index = 0;
+        for direction in [Direction::Cw, Direction::Ccw] {
+            for _ in 0..per_direction {
+                index += 1;
+                let cmd = SquareCommand {
+                    side_m: cfg.side_m,
+                    direction,
+                    max_speed_m_s: cfg.max_speed_m_s,
+                    max_rate_rad_s: cfg.max_rate_rad_s,
+                    heading_samples: cfg.heading_samples,
+                    settle: Duration::from_secs_f64(cfg.settle_s),
+                    stream_period: Duration::from_millis(cfg.telemetry_ms.max(1)),
+                };
+                self.realign().await?;
+                let start = self.truth.map(|t| t.pose());
+                let rec = {
+                    let ui = &mut *self.ui;
+                    let label = label.clone();
+                    let on_motion = move |motion| {
+                        ui.event(&RoutineEvent::Motion {
+                            phase: label.clone(),
+                            run: index,
+                            of,
+                            direction,
+                            motion,
+                        })
+                    };
+                    cancellable(self.cancel, run_square(&self.base, &cmd, on_motion)).await?
+                };
+                let run = RunReport::new(phase, &rec, params, start, self.truth);
+                // Measured is kept, even a square the next check refuses.
+                self.progress.runs.push(run.clone());
+                check_plausible(&rec, &run, params, self.ui)?;
+                self.ui.event(&RoutineEvent::RunDone {
+                    heading_error_deg: run.heading_error_deg,
+                });
+                out.push(run);
+            }
+        }
+        Ok(out)
+    }
+}
+
+/// What a gyro's scale error does to the estimate, for a heading that is or may be integrated
+/// from a gyro whose scale was not given.
+pub fn gyro_warning(kind: HeadingKind, scale_error: Option<f64>) -> Option<String> {
+    if scale_error.is_some() {
+        return None;
+    }
+    let what = "E_b (the wheelbase) carries the gyro's scale error one to one: a gyro 1 % fast \
+                writes a wheelbase 1 % off, and no square can tell; measure it with `odocal spin` \
+                and give it with --gyro-scale-error";
+    match kind {
+        HeadingKind::Gyro => Some(format!("the heading is integrated from a gyro: {what}")),
+        HeadingKind::Unknown => Some(format!(
+            "the heading sensor's kind is unknown (--heading-kind): if it is integrated from a \
+             gyro (an IMU without magnetometer), {what}"
+        )),
+        HeadingKind::Magnetic | HeadingKind::Reference => None,
+    }
+}
+
+/// A square starts within this of the first square's heading (rad; 0.5°), or the robot turns
+/// back to it ([`RoutineConfig::realign`]).
+pub const REALIGN_WITHIN_RAD: f64 = 0.5 * std::f64::consts::PI / 180.0;
+
+/// A correction that changes the heading error of a square by less than this (deg) is not
+/// worth a write: it is below what a user can see or a compass can tell.
+pub const VISIBLE_DEG: f64 = 0.1;
+
+/// Whether a round's estimate ends the calibration, and why: its correction is within two of
+/// its standard errors of no correction (nothing significant to apply), or it would change
+/// the heading error of a square by less than [`VISIBLE_DEG`], or (when the user set one) it
+/// is within the tolerance. A significant, visible correction is applied whatever its size.
+/// Without run-to-run standard errors (one run per direction) the Cramér–Rao bound stands in.
+pub fn convergence(
+    cfg: &RoutineConfig,
+    chosen: &Estimate,
+    cramer_rao_std: Option<[f64; 2]>,
+    wheelbase_m: f64,
+) -> Option<String> {
+    let (db, dd) = (chosen.e_b - 1.0, chosen.e_d - 1.0);
+    if let Some(t) = cfg.tolerance {
+        if db.abs() < t && dd.abs() < t {
+            return Some(format!(
+                "|E_b − 1| and |E_d − 1| are within the tolerance ±{t}"
+            ));
+        }
+    }
+    let sigma = match (chosen.e_b_std_err, chosen.e_d_std_err, cramer_rao_std) {
+        (Some(b), Some(d), _) => Some((b, d)),
+        (_, _, Some([b, d])) => Some((b, d)),
+        _ => None,
+    };
+    if let Some((sb, sd)) = sigma {
+        if db.abs() <= 2.0 * sb && dd.abs() <= 2.0 * sd {
+            return Some(format!(
+                "the correction is not significant (E_b − 1 = {db:+.5} ± {sb:.5}, E_d − 1 = \
+                 {dd:+.5} ± {sd:.5}: within two standard errors)"
+            ));
+        }
+    }
+    let (cw, ccw) = crate::calibration::exact::predicted_heading_errors(
+        &chosen.correction,
+        cfg.side_m,
+        wheelbase_m,
+    );
+    let gain_deg = cw.abs().max(ccw.abs()).to_degrees();
+    (gain_deg < VISIBLE_DEG).then(|| {
+        format!(
+            "the correction would change a square's heading error by {gain_deg:.3}° at most, \
+             below the {VISIBLE_DEG}° that can be seen"
+        )
+    })
+}
+
+/// The one confirmation of a write: by the policy, asking the user under
+/// [`WritePolicy::Ask`] with the table of old → new parameters.
+fn authorise(
+    policy: WritePolicy,
+    ui: &mut dyn RoutineUi,
+    current: &WheelParams,
+    proposed: &WheelParams,
+) -> bool {
+    match policy {
+        WritePolicy::DryRun => false,
+        WritePolicy::Yes => true,
+        WritePolicy::Ask => ui.confirm(&format!(
+            "Write these parameters and commit them?\n{}",
+            report::params_table(current, proposed)
+        )),
+    }
+}
+
+/// Where a run got to: the stage and every square measured so far.
 #[derive(Debug, Clone, Default, serde::Serialize)]
 pub struct Progress {
-    /// The phase the run was in (pre-flight, round N, write-back, verification).
-    pub phase: String,
+    /// The stage the run was in.
+    pub stage: Stage,
     /// Every square measured, in order.
     pub runs: Vec<RunReport>,
 }
@@ -174,11 +748,11 @@ fn write_partial(
     dir: &std::path::Path,
     backup: &std::path::Path,
 ) -> std::io::Result<std::path::PathBuf> {
-    let stamp = crate::base::files::stamp_ms();
+    let stamp = crate::io::stamp_ms();
     let value = serde_json::json!({
         "odocal_version": env!("CARGO_PKG_VERSION"),
         "error": err.to_string(),
-        "phase": progress.phase,
+        "phase": progress.stage,
         "parameters": ParamsAfterFailure::of(err),
         "backup": backup,
         "base": base.info(),
@@ -188,7 +762,7 @@ fn write_partial(
     });
     let text = serde_json::to_string_pretty(&value).map_err(std::io::Error::other)?;
     std::fs::create_dir_all(dir)?;
-    crate::base::files::create_unique(
+    crate::io::create_unique(
         |n| {
             dir.join(if n == 0 {
                 format!("partial-report-{stamp}.json")
@@ -316,199 +890,17 @@ impl ParamsAfterFailure {
     }
 }
 
-async fn body(
-    base: &Base,
-    cfg: &RoutineConfig,
-    truth: Option<&dyn GroundTruth>,
-    ui: &mut dyn RoutineUi,
-    cancel: &CancellationToken,
-    tx: &mut Transaction,
-    progress: &mut Progress,
-) -> Result<Report, RoutineError> {
-    progress.phase = "pre-flight".into();
-    let (heading_noise_rad, mut warnings) = preflight(base, cfg, ui, cancel).await?;
-    let total_runs = cfg.runs_per_direction * 2;
-    if cfg.confirm_motion
-        && !ui.confirm(&format!(
-        "The robot will drive {total_runs} open-loop squares of {} m at up to {} m/s and {} rad/s. \
-         Is the area clear and may it move?",
-        cfg.side_m, cfg.max_speed_m_s, cfg.max_rate_rad_s
-    )) {
-        return Err(RoutineError::Declined("the robot may not move".into()));
-    }
-    let original = *tx.original();
-    let mut current = original;
-    let mut rounds = Vec::new();
-    let mut converged = false;
-    for round in 1..=cfg.max_rounds {
-        ui.event(&RoutineEvent::Stage(format!(
-            "round {round}: calibration squares"
-        )));
-        let runs = drive_runs(
-            base,
-            cfg,
-            truth,
-            ui,
-            cancel,
-            Phase::Calibration { round },
-            cfg.runs_per_direction,
-            &current,
-            progress,
-        )
-        .await?;
-        for r in &runs {
-            warnings.extend(r.warnings.iter().cloned());
-        }
-        let test = square_test(cfg, &current, &runs);
-        let mut estimates = Vec::new();
-        let mut failures = Vec::new();
-        for (method, result) in estimate_all(&test, cfg.split_convention())? {
-            match result {
-                Ok(e) => estimates.push(e),
-                Err(e) => failures.push((method, e.to_string())),
-            }
-        }
-        let method = match cfg.method {
-            Some(m) => m,
-            None => {
-                let m = default_method(test.has_leg_headings(), test.has_positions())
-                    .unwrap_or(Method::Exact);
-                if m != Method::Legs {
-                    ui.event(&RoutineEvent::Warning(
-                        "the heading along the legs was not streamed in every run: estimating \
-                         from the headings at rest (exact), which counts any start transient"
-                            .into(),
-                    ));
-                }
-                m
-            }
-        };
-        let chosen = estimates
-            .iter()
-            .find(|e| e.method == method)
-            .cloned()
-            .ok_or_else(|| {
-                let why = failures.iter().find(|(m, _)| *m == method).map_or(
-                    "it needs data this run did not record".to_string(),
-                    |(_, e)| e.clone(),
-                );
-                RoutineError::Implausible(format!("method {method} gave no estimate: {why}"))
-            })?;
-        let crb = cramer_rao_std(cfg, &chosen, heading_noise_rad, current.wheelbase_m);
-        let round_converged =
-            (chosen.e_b - 1.0).abs() < cfg.tolerance && (chosen.e_d - 1.0).abs() < cfg.tolerance;
-        let mut rr = RoundReport {
-            round,
-            params_before: current,
-            runs,
-            estimates,
-            failures,
-            chosen: chosen.clone(),
-            cramer_rao_std: crb,
-            converged: round_converged,
-            params_after: None,
-            written: false,
-        };
-        if round_converged {
-            ui.event(&RoutineEvent::Stage(format!(
-                "converged: E_b {:.5}, E_d {:.5} within ±{}",
-                chosen.e_b, chosen.e_d, cfg.tolerance
-            )));
-            converged = true;
-            rounds.push(rr);
-            break;
-        }
-        let proposed = chosen.correction.apply(&current)?;
-        check_bounds(cfg.max_change, &original, &proposed)?;
-        rr.params_after = Some(proposed);
-        let write = match cfg.write_back {
-            WritePolicy::DryRun => false,
-            WritePolicy::Yes => true,
-            WritePolicy::Ask => ui.confirm(&format!(
-                "Write these parameters and commit them?\n{}",
-                report::params_table(&current, &proposed)
-            )),
-        };
-        if !write {
-            ui.event(&RoutineEvent::Stage(match cfg.write_back {
-                WritePolicy::DryRun => "dry run: nothing written".into(),
-                _ => "not written (declined)".into(),
-            }));
-            rounds.push(rr);
-            break;
-        }
-        // From here on, the parameters are what the store reports (rounded to its resolution).
-        progress.phase = format!("write-back after round {round}");
-        current = cancellable(cancel, tx.apply(&proposed)).await?;
-        rr.written = true;
-        rounds.push(rr);
-    }
-    if !converged && tx.written() {
-        let msg = format!(
-            "not converged to ±{} after {} round(s); the last estimate was written",
-            cfg.tolerance, cfg.max_rounds
-        );
-        ui.event(&RoutineEvent::Warning(msg.clone()));
-        warnings.push(msg);
-    }
-    let verification = if tx.written() && cfg.verification_runs > 0 {
-        ui.event(&RoutineEvent::Stage("verification squares".into()));
-        drive_runs(
-            base,
-            cfg,
-            truth,
-            ui,
-            cancel,
-            Phase::Verification,
-            cfg.verification_runs,
-            &current,
-            progress,
-        )
-        .await?
-    } else {
-        Vec::new()
-    };
-    if tx.written() && !verification.is_empty() {
-        let abs_deg = |runs: &[RunReport]| -> Vec<f64> {
-            runs.iter().map(|r| r.heading_error_deg.abs()).collect()
-        };
-        let before = rounds.first().map(|r| abs_deg(&r.runs)).unwrap_or_default();
-        let distance: Vec<f64> = rounds
-            .iter()
-            .map(|r| (r.chosen.e_b - 1.0).abs() + (r.chosen.e_d - 1.0).abs())
-            .collect();
-        if let Err(why) = judge(&before, &abs_deg(&verification), &distance) {
-            if !cfg.keep_worse {
-                return Err(RoutineError::NotBetter(why));
-            }
-            ui.event(&RoutineEvent::Warning(format!(
-                "{why}; kept because of --keep-worse"
-            )));
-            warnings.push(why);
-        }
-    }
-    Ok(Report::assemble(
-        base,
-        cfg,
-        original,
-        tx.backup_path().to_path_buf(),
-        current,
-        heading_noise_rad,
-        rounds,
-        verification,
-        converged,
-        tx.written(),
-        warnings,
-    ))
-}
-
 /// Whether written parameters clearly helped ("never worse"): `Err` with the numbers when the
 /// rounds diverged (the last round's estimate is no nearer 1 than the first's,
 /// `round_distance` being `|E_b − 1| + |E_d − 1|` per round) or when the verification's mean
 /// |heading error| is not below the first round's by two of its standard errors (the two
 /// means' standard errors combined; an error of a run set with fewer than two runs counts its
 /// spread as 0).
-pub fn judge(before_deg: &[f64], after_deg: &[f64], round_distance: &[f64]) -> Result<(), String> {
+pub fn judge(
+    before_deg: &[(Direction, f64)],
+    after_deg: &[(Direction, f64)],
+    round_distance: &[f64],
+) -> Result<(), String> {
     if let (Some(first), Some(last)) = (round_distance.first(), round_distance.last()) {
         if round_distance.len() >= 2 && last >= first {
             return Err(format!(
@@ -518,15 +910,28 @@ pub fn judge(before_deg: &[f64], after_deg: &[f64], round_distance: &[f64]) -> R
             ));
         }
     }
-    let stats = |v: &[f64]| {
-        let n = v.len().max(1) as f64;
-        let mean = v.iter().sum::<f64>() / n;
-        let var = if v.len() > 1 {
-            v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0)
-        } else {
-            0.0
-        };
-        (mean, (var / n).sqrt())
+    // Per direction: a robot off by 50° one way and 10° the other is not a scatter of 40°.
+    let stats = |v: &[(Direction, f64)]| {
+        let mut parts = Vec::new();
+        for d in [Direction::Cw, Direction::Ccw] {
+            let x: Vec<f64> = v.iter().filter(|r| r.0 == d).map(|r| r.1).collect();
+            if x.is_empty() {
+                continue;
+            }
+            let n = x.len() as f64;
+            let mean = x.iter().sum::<f64>() / n;
+            let var = if x.len() > 1 {
+                x.iter().map(|e| (e - mean).powi(2)).sum::<f64>() / (n - 1.0)
+            } else {
+                0.0
+            };
+            parts.push((mean, var / n));
+        }
+        let k = parts.len().max(1) as f64;
+        (
+            parts.iter().map(|p| p.0).sum::<f64>() / k,
+            parts.iter().map(|p| p.1).sum::<f64>().sqrt() / k,
+        )
     };
     let ((b, sb), (a, sa)) = (stats(before_deg), stats(after_deg));
     let margin = 2.0 * sb.hypot(sa);
@@ -538,110 +943,6 @@ pub fn judge(before_deg: &[f64], after_deg: &[f64], round_distance: &[f64]) -> R
         ));
     }
     Ok(())
-}
-
-async fn preflight(
-    base: &Base,
-    cfg: &RoutineConfig,
-    ui: &mut dyn RoutineUi,
-    cancel: &CancellationToken,
-) -> Result<(f64, Vec<String>), RoutineError> {
-    ui.event(&RoutineEvent::Stage("pre-flight checks".into()));
-    let check = cancellable(cancel, base.drive.preflight()).await?;
-    if !check.faults.is_empty() {
-        return Err(RoutineError::Preflight(check.faults.join("; ")));
-    }
-    let mut warnings = check.warnings;
-    let readings = match cancellable(cancel, heading::readings(base.heading.as_ref(), 10)).await {
-        Err(RoutineError::Base(BaseError::HeadingInvalid { reason })) => {
-            return Err(RoutineError::Preflight(format!(
-                "the heading sensor reports invalid: {reason}"
-            )))
-        }
-        other => other?,
-    };
-    let noise = heading::circular_std(&readings);
-    ui.event(&RoutineEvent::Stage(format!(
-        "heading noise at rest: {:.3}° (σ of 10 readings)",
-        noise.to_degrees()
-    )));
-    let armed = cancellable(
-        cancel,
-        base.drive
-            .arm_watchdog(Duration::from_millis(cfg.watchdog_ms)),
-    )
-    .await?;
-    if armed.is_none() {
-        warnings.push(
-            "the drive has no watchdog: if this host vanishes mid-motion, only the \
-                       drive's own limits stop the robot"
-                .into(),
-        );
-    }
-    for w in &warnings {
-        ui.event(&RoutineEvent::Warning(w.clone()));
-    }
-    Ok((noise, warnings))
-}
-
-#[allow(clippy::too_many_arguments)]
-async fn drive_runs(
-    base: &Base,
-    cfg: &RoutineConfig,
-    truth: Option<&dyn GroundTruth>,
-    ui: &mut dyn RoutineUi,
-    cancel: &CancellationToken,
-    phase: Phase,
-    per_direction: usize,
-    params: &WheelParams,
-    progress: &mut Progress,
-) -> Result<Vec<RunReport>, RoutineError> {
-    progress.phase = phase.label();
-    let of = per_direction * 2;
-    ui.event(&RoutineEvent::Plan {
-        motions: of as u64 * 8,
-    });
-    let label = phase.label();
-    let mut out = Vec::with_capacity(of);
-    let mut index = 0;
-    for direction in [Direction::Cw, Direction::Ccw] {
-        for _ in 0..per_direction {
-            index += 1;
-            let cmd = SquareCommand {
-                side_m: cfg.side_m,
-                direction,
-                max_speed_m_s: cfg.max_speed_m_s,
-                max_rate_rad_s: cfg.max_rate_rad_s,
-                heading_samples: cfg.heading_samples,
-                settle: Duration::from_secs_f64(cfg.settle_s),
-                stream_period: Duration::from_millis(cfg.telemetry_ms.max(1)),
-            };
-            let start = truth.map(|t| t.pose());
-            let rec = {
-                let ui_ref = &mut *ui;
-                let label = label.clone();
-                let on_motion = move |motion| {
-                    ui_ref.event(&RoutineEvent::Motion {
-                        phase: label.clone(),
-                        run: index,
-                        of,
-                        direction,
-                        motion,
-                    })
-                };
-                cancellable(cancel, run_square(base, &cmd, on_motion)).await?
-            };
-            let run = RunReport::new(phase, &rec, params, start, truth);
-            // Measured is kept, even a square the next check refuses.
-            progress.runs.push(run.clone());
-            check_plausible(&rec, &run, params, ui)?;
-            ui.event(&RoutineEvent::RunDone {
-                heading_error_deg: run.heading_error_deg,
-            });
-            out.push(run);
-        }
-    }
-    Ok(out)
 }
 
 /// Total turn of the streamed heading over a run (rad, unwrapped).
@@ -659,7 +960,7 @@ fn odometry_turn(rec: &SquareRecord, params: &WheelParams) -> Option<f64> {
     (rec.travel.len() > 8).then(|| {
         rec.travel
             .iter()
-            .map(|t| (t.right_m - t.left_m) / params.wheelbase_m)
+            .map(|t| Displacement::of_wheels(t.left_m, t.right_m, params.wheelbase_m).turn_rad)
             .sum()
     })
 }
@@ -718,7 +1019,9 @@ fn square_test(cfg: &RoutineConfig, params: &WheelParams, runs: &[RunReport]) ->
         let m = RunMeasurement {
             heading_error_rad: r.heading_error_rad,
             final_xy_m: r.true_final_xy_m,
-            leg_heading_error_rad: r.leg_heading_error_rad,
+            odometry: r.odometry,
+            legs: r.legs,
+            noise_variance_rad2: None,
         };
         match r.direction {
             Direction::Cw => test.cw.push(m),
@@ -800,15 +1103,7 @@ pub async fn write_parameters(
     let mut tx = cancellable(cancel, Transaction::begin(base.store.clone(), backup_dir)).await?;
     let current = *tx.original();
     check_bounds(max_change, &current, new)?;
-    let go = match policy {
-        WritePolicy::DryRun => false,
-        WritePolicy::Yes => true,
-        WritePolicy::Ask => ui.confirm(&format!(
-            "Write these parameters and commit them?\n{}",
-            report::params_table(&current, new)
-        )),
-    };
-    if !go {
+    if !authorise(policy, ui, &current, new) {
         return Err(RoutineError::Declined("parameters not written".into()));
     }
     match cancellable(cancel, tx.apply(new)).await {
@@ -820,21 +1115,40 @@ pub async fn write_parameters(
 #[cfg(test)]
 mod judge_tests {
     use super::judge;
+    use crate::kinematics::Direction;
+
+    fn cw(v: &[f64]) -> Vec<(Direction, f64)> {
+        v.iter().map(|&x| (Direction::Cw, x)).collect()
+    }
 
     #[test]
     fn only_a_clear_improvement_that_converges_passes() {
         // 5° → 0.1°, rounds converging: better.
         assert_eq!(
-            judge(&[5.0, 5.2, 4.9], &[0.1, 0.12], &[0.03, 0.0005]),
+            judge(&cw(&[5.0, 5.2, 4.9]), &cw(&[0.1, 0.12]), &[0.03, 0.0005]),
             Ok(())
         );
         // The rounds oscillate (the last no nearer than the first): refused, with the numbers.
-        let e = judge(&[37.7, 37.8], &[38.6, 38.5], &[0.5, 0.2, 0.5]).unwrap_err();
+        let e = judge(&cw(&[37.7, 37.8]), &cw(&[38.6, 38.5]), &[0.5, 0.2, 0.5]).unwrap_err();
         assert!(e.contains("diverged") && e.contains("0.50000"), "{e}");
         // Worse after than before.
-        let e = judge(&[1.0, 1.1], &[1.3, 1.2], &[0.02]).unwrap_err();
+        let e = judge(&cw(&[1.0, 1.1]), &cw(&[1.3, 1.2]), &[0.02]).unwrap_err();
         assert!(e.contains("1.050° before, 1.250° after"), "{e}");
         // Better, but within the scatter: not clearly better.
-        assert!(judge(&[0.30, 0.10, 0.50], &[0.25, 0.05, 0.45], &[0.001]).is_err());
+        assert!(judge(&cw(&[0.30, 0.10, 0.50]), &cw(&[0.25, 0.05, 0.45]), &[0.001]).is_err());
+        // A robot 58° off one way and 3° the other, each repeatable, brought to 0.1°: better
+        // (pooled, the two directions would look like a scatter of 30°).
+        let both = |a: f64, b: f64| {
+            vec![
+                (Direction::Cw, a),
+                (Direction::Cw, a + 0.1),
+                (Direction::Ccw, b),
+                (Direction::Ccw, b - 0.1),
+            ]
+        };
+        assert_eq!(
+            judge(&both(58.0, 3.0), &both(0.1, 0.15), &[0.06, 0.0001]),
+            Ok(())
+        );
     }
 }

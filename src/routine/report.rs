@@ -6,8 +6,9 @@ use super::config::RoutineConfig;
 use super::square::SquareRecord;
 use super::GroundTruth;
 use crate::base::{Base, BaseInfo, TravelSample};
+use crate::calibration::legs::LegMeasurement;
 use crate::calibration::{Estimate, Method};
-use crate::kinematics::{Direction, Pose, WheelParams};
+use crate::kinematics::{Direction, Displacement, Pose, WheelParams};
 use serde::Serialize;
 use std::fmt::Write as _;
 use std::path::PathBuf;
@@ -28,10 +29,55 @@ pub enum Phase {
 impl Phase {
     /// "round 2" or "verification".
     pub fn label(&self) -> String {
-        match self {
-            Phase::Calibration { round } => format!("round {round}"),
-            Phase::Verification => "verification".into(),
+        Stage::of(*self).to_string()
+    }
+}
+
+/// Where a run of the routine is, for its progress and a partial report: shown (and written
+/// to JSON) as `pre-flight`, `round N`, `write-back after round N`, `verification`.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub enum Stage {
+    /// Checking the drive and the heading sensor (nothing has moved).
+    #[default]
+    PreFlight,
+    /// Turning in place to measure the compass's deviation.
+    Swing,
+    /// Driving and estimating a calibration round.
+    Round(usize),
+    /// Writing the parameters a round proposed.
+    WriteBack {
+        /// The round.
+        round: usize,
+    },
+    /// Driving the verification squares.
+    Verification,
+}
+
+impl Stage {
+    /// The stage of driving a phase's squares.
+    pub fn of(phase: Phase) -> Self {
+        match phase {
+            Phase::Calibration { round } => Stage::Round(round),
+            Phase::Verification => Stage::Verification,
         }
+    }
+}
+
+impl std::fmt::Display for Stage {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Stage::PreFlight => f.write_str("pre-flight"),
+            Stage::Swing => f.write_str("compass swing"),
+            Stage::Round(round) => write!(f, "round {round}"),
+            Stage::WriteBack { round } => write!(f, "write-back after round {round}"),
+            Stage::Verification => f.write_str("verification"),
+        }
+    }
+}
+
+impl Serialize for Stage {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.collect_str(self)
     }
 }
 
@@ -55,8 +101,12 @@ pub struct RunReport {
     /// Mean heading at rest after (rad).
     pub heading_after_rad: f64,
     /// Heading error along the legs, middle of the first to the middle of the last (rad),
-    /// when both streams ran ([`SquareRecord::leg_heading_error`]).
+    /// when both streams ran ([`SquareRecord::leg_measurement`]).
     pub leg_heading_error_rad: Option<f64>,
+    /// The drive's odometry over the run (turn and distance), when it reported it.
+    pub odometry: Option<Displacement>,
+    /// The heading along the legs, leg by leg (mean error and odometry at each leg's middle).
+    pub legs: Option<LegMeasurement>,
     /// Parameters configured during the run.
     pub params: WheelParams,
     /// True final position in the start frame (simulation only).
@@ -125,6 +175,7 @@ impl RunReport {
                 rec.heading_error_rad.to_degrees()
             ));
         }
+        let legs = rec.leg_measurement(params.wheelbase_m);
         RunReport {
             phase,
             direction: rec.command.direction,
@@ -132,7 +183,9 @@ impl RunReport {
             heading_error_deg: rec.heading_error_rad.to_degrees(),
             heading_before_rad: rec.heading_before_rad,
             heading_after_rad: rec.heading_after_rad,
-            leg_heading_error_rad: rec.leg_heading_error(params.wheelbase_m),
+            leg_heading_error_rad: legs.map(|l| l.heading_error_rad()),
+            odometry: rec.odometry,
+            legs,
             params: *params,
             true_final_xy_m,
             odometry_path: integrate(&rec.travel, params, params),
@@ -161,8 +214,10 @@ pub struct RoundReport {
     pub chosen: Estimate,
     /// Cramér–Rao bound on the std of (E_b, E_d) for the measured heading noise.
     pub cramer_rao_std: Option<[f64; 2]>,
-    /// Whether this round's estimate was within tolerance of 1.
+    /// Whether this round ended the calibration ([`super::convergence`]).
     pub converged: bool,
+    /// Why it did.
+    pub converged_because: Option<String>,
     /// Parameters proposed from this round (absent when converged).
     pub params_after: Option<WheelParams>,
     /// Whether they were written.
@@ -208,6 +263,9 @@ pub struct Report {
     pub diagnostics: serde_json::Value,
     /// Warnings raised on the way.
     pub warnings: Vec<String>,
+    /// What the compass swing measured (removed from every reading after it), when it ran.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub swing: Option<crate::calibration::swing::SwingFit>,
 }
 
 /// `E_max,sys` of runs with true final positions (simulation only), see
@@ -265,6 +323,7 @@ impl Report {
             written,
             diagnostics: base.drive.diagnostics(),
             warnings,
+            swing: None,
         }
     }
 }

@@ -5,7 +5,9 @@
 use super::heading::mean_heading;
 use super::RoutineError;
 use crate::base::{Base, HeadingSample, MotionGuard, SampleStream, TravelSample};
-use crate::kinematics::{wrap_angle, Direction};
+use crate::calibration::legs::LegMeasurement;
+use crate::calibration::recording::{Clocks, Recording};
+use crate::kinematics::{wrap_angle, Direction, Displacement};
 use serde::Serialize;
 use std::f64::consts::FRAC_PI_2;
 use std::time::Duration;
@@ -42,58 +44,34 @@ pub struct SquareRecord {
     /// odometry turn (the commanded ±360° when the drive executes to its resolution), which
     /// removes what the drive did not execute as commanded.
     pub heading_error_rad: f64,
-    /// The drive's odometry turn over the square, when it reported one (rad).
-    pub odometry_turn_rad: Option<f64>,
+    /// The drive's odometry over the square (its turn and distance), when every motion
+    /// reported what it saw.
+    pub odometry: Option<Displacement>,
     /// Wheel travel streamed while driving (empty when the drive cannot stream).
     pub travel: Vec<TravelSample>,
     /// Headings streamed while driving (empty when the source cannot stream).
     pub headings: Vec<HeadingSample>,
+    /// How the two streams' clocks relate ([`Base::clocks`]).
+    pub clocks: Clocks,
 }
 
 impl SquareRecord {
-    /// The heading error along the legs ([`crate::calibration::legs`]) from the streamed wheel
-    /// travel and headings, or `None` without both streams or without four legs.
-    ///
-    /// The two streams may run on different clocks (a drive and a separate IMU): both were
-    /// started just before the first motion, so their first samples give a coarse alignment,
-    /// refined by the turn-rate correlation of [`crate::calibration::time_offset`].
-    pub fn leg_heading_error(&self, wheelbase_m: f64) -> Option<f64> {
-        use crate::calibration::legs::{leg_heading_error, LegSample};
-        use crate::calibration::time_offset::{estimate_time_offset, unwrapped_heading_at};
-        let (h_times, h_values): (Vec<f64>, Vec<Option<f64>>) = self
-            .headings
-            .iter()
-            .filter(|h| h.validity.is_valid() && h.heading_rad.is_finite())
-            .map(|h| (h.time_s, Some(h.heading_rad)))
-            .unzip();
-        let (t_h0, t_d0) = (*h_times.first()?, self.travel.first()?.time_s);
-        // Both clocks from their stream's first sample (see above).
-        let h_times: Vec<f64> = h_times.iter().map(|t| t - t_h0).collect();
-        let times: Vec<f64> = self.travel.iter().map(|t| t.time_s - t_d0).collect();
-        let odo: Vec<f64> = self
-            .travel
-            .iter()
-            .map(|t| (t.right_m - t.left_m) / wheelbase_m)
-            .collect();
-        let at = |offset_s: f64| -> Vec<Option<f64>> {
-            let shifted: Vec<f64> = times.iter().map(|t| t + offset_s).collect();
-            unwrapped_heading_at(&h_times, &h_values, &shifted)
-        };
-        let offset = estimate_time_offset(&times, &odo, &at(0.0), 1.0).map_or(0.0, |o| o.offset_s);
-        let heading = at(offset);
-        let mut samples = Vec::with_capacity(times.len());
-        let mut odo_turn = 0.0;
-        for ((t, tr), h) in times.iter().zip(&self.travel).zip(heading) {
-            odo_turn += (tr.right_m - tr.left_m) / wheelbase_m;
-            let Some(h) = h else { continue };
-            samples.push(LegSample {
-                t: *t,
-                ds: 0.5 * (tr.left_m + tr.right_m),
-                dth: (tr.right_m - tr.left_m) / wheelbase_m,
-                error_rad: h - odo_turn,
-            });
+    /// The streams as a [`Recording`].
+    pub fn recording(&self) -> Recording {
+        Recording {
+            travel: self.travel.clone(),
+            headings: self.headings.clone(),
+            clocks: self.clocks,
         }
-        leg_heading_error(&samples, wheelbase_m)
+    }
+
+    /// The heading along the legs ([`crate::calibration::legs`]) from the streamed wheel
+    /// travel and headings ([`Recording::track`] aligns their clocks), or `None` without both
+    /// streams or without four legs.
+    pub fn leg_measurement(&self, wheelbase_m: f64) -> Option<LegMeasurement> {
+        self.recording()
+            .track(wheelbase_m)
+            .leg_measurement(wheelbase_m)
     }
 }
 
@@ -125,7 +103,7 @@ pub async fn run_square(
     let turn = cmd.direction.turn_sign() * FRAC_PI_2;
     let mut done = 0;
     // Σ of the drive's reported turns while every motion reported one.
-    let mut achieved: Option<f64> = Some(0.0);
+    let mut achieved: Option<Displacement> = Some(Displacement::default());
     for _ in 0..4 {
         let leg = base
             .drive
@@ -137,7 +115,7 @@ pub async fn run_square(
         done += 1;
         on_motion(done);
         achieved = match (achieved, leg, corner) {
-            (Some(sum), Some(a), Some(b)) => Some(sum + a.turn_rad + b.turn_rad),
+            (Some(sum), Some(a), Some(b)) => Some(sum.plus(&a).plus(&b)),
             _ => None,
         };
     }
@@ -154,9 +132,12 @@ pub async fn run_square(
         command: *cmd,
         heading_before_rad: before,
         heading_after_rad: after,
-        heading_error_rad: wrap_angle(after - before - achieved.map_or(0.0, |t| t - 4.0 * turn)),
-        odometry_turn_rad: achieved,
+        heading_error_rad: wrap_angle(
+            after - before - achieved.map_or(0.0, |a| a.turn_rad - 4.0 * turn),
+        ),
+        odometry: achieved,
         travel: drain(&mut travel),
         headings: drain(&mut headings),
+        clocks: base.clocks(),
     })
 }

@@ -3,9 +3,9 @@
 //! Each test file compiles its own copy, so not every file uses every helper.
 #![allow(dead_code)]
 
-use odocal::dataset::default_optiodom_root;
 use odocal::kinematics::{SplitConvention, WheelParams};
 use odocal::mock::{MockConfig, MockDevice, SharedDevice, SimBase};
+use odocal::offline::dataset::default_optiodom_root;
 use odocal::sim::{NoiseModel, Simulator};
 use std::path::PathBuf;
 use std::process::Command;
@@ -15,6 +15,43 @@ use std::sync::{Arc, Mutex};
 pub const TRUE_E_B: f64 = 0.976;
 /// True `E_d` of the test robot (the paper's), left wheel nominal.
 pub const TRUE_E_D: f64 = 0.992;
+
+/// A robot profile of the test robot's nominal geometry, wired as the RoboClaw mocks of the
+/// tests are (left wheel on M2, right encoder counting down).
+pub const ROBOCLAW_PROFILE: &str = "\
+# test robot
+[geometry]
+left_wheel_diameter_m = 0.15
+right_wheel_diameter_m = 0.15
+wheelbase_m = 0.39
+encoder_counts_per_motor_rev = 1024
+gear_ratio = 4.0
+
+[wiring]
+left_channel = \"M2\"
+left_encoder_sign = 1
+right_encoder_sign = -1
+
+[limits]
+max_speed_m_s = 1.0
+max_accel_m_s2 = 1.0
+min_battery_v = 10.5
+";
+
+/// A ros2_control YAML of the test robot's nominal geometry.
+pub const DIFF_DRIVE_YAML: &str = "\
+controller_manager:
+  ros__parameters:
+    update_rate: 100  # Hz
+
+diff_drive_controller:
+  ros__parameters:
+    left_wheel_names: [\"left_wheel_joint\"]
+    right_wheel_names: [\"right_wheel_joint\"]
+    wheel_separation: 0.39
+    wheel_radius: 0.075
+    cmd_vel_timeout: 0.5  # s
+";
 
 /// The controller's factory configuration: D 0.15 m, b 0.39 m, 4096 counts per revolution.
 pub fn nominal() -> WheelParams {
@@ -181,9 +218,11 @@ pub fn virtual_routine(backup_dir: PathBuf) -> odocal::routine::config::RoutineC
     }
 }
 
-/// The `calibrate` flags of [`quick_routine`], for CLI tests.
-pub const QUICK_FLAGS: [&str; 15] = [
+/// The `calibrate` flags of [`quick_routine`], for CLI tests, without the compass swing (50 s
+/// of turning at real speed; `tests/heading_sensors.rs` covers it).
+pub const QUICK_FLAGS: [&str; 16] = [
     "--yes",
+    "--no-swing",
     "--side-m",
     "1",
     "--runs",
@@ -199,3 +238,15 @@ pub const QUICK_FLAGS: [&str; 15] = [
     "--verification-runs",
     "2",
 ];
+
+/// Relative errors of `written` against `truth` in the two combinations a heading can observe:
+/// the diameter ratio `D_R/D_L` and the wheelbase over the mean diameter `b/D̄`.
+pub fn combination_errors(written: &WheelParams, truth: &WheelParams) -> (f64, f64) {
+    let b_over_d = |p: &WheelParams| {
+        2.0 * p.wheelbase_m / (p.left_wheel_diameter_m + p.right_wheel_diameter_m)
+    };
+    (
+        written.e_d() / truth.e_d() - 1.0,
+        b_over_d(written) / b_over_d(truth) - 1.0,
+    )
+}

@@ -8,6 +8,7 @@ use odocal::mock::{
     lock, spawn_pty, CompassConvention, FaultConfig, MockConfig, MockDevice, TimeMode,
 };
 use odocal::protocol::message::{ParamSource, RestoreTarget};
+use odocal::spec::DriveSpec;
 use serde_json::json;
 use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
@@ -17,12 +18,8 @@ type CliResult = Result<(), Box<dyn std::error::Error>>;
 /// Arguments of `odocal mock-device`.
 #[derive(Debug, clap::Args)]
 pub struct MockArgs {
-    /// True E_b of the simulated robot (relative to the factory parameters).
-    #[arg(long, default_value_t = 0.976)]
-    true_eb: f64,
-    /// True E_d of the simulated robot (left wheel nominal).
-    #[arg(long, default_value_t = 0.992)]
-    true_ed: f64,
+    #[command(flatten)]
+    truth: crate::TrueRobotArgs,
     /// Factory wheel diameter (m).
     #[arg(long, default_value_t = 0.15)]
     wheel_diameter_m: f64,
@@ -59,15 +56,21 @@ pub struct MockArgs {
     /// Serve until Ctrl-C only (by default closing stdin also stops the device).
     #[arg(long)]
     ignore_stdin: bool,
+    #[command(flatten)]
+    compass: crate::MockCompassArgs,
+    #[command(flatten)]
+    sensor: crate::HeadingModelArgs,
 }
 
 /// Runs `odocal mock-device`.
 pub async fn mock_device(args: MockArgs) -> CliResult {
     let nominal =
         WheelParams::nominal(args.wheel_diameter_m, args.wheelbase_m, args.counts_per_rev);
-    let mut cfg = MockConfig::with_ratios(nominal, args.true_eb, args.true_ed)?;
+    args.truth.check()?;
+    let mut cfg = MockConfig::with_ratios(nominal, args.truth.true_eb, args.truth.true_ed)?;
     cfg.noise.compass_sigma_rad = args.compass_sigma_deg.to_radians();
     cfg.noise.compass_bias_rad = args.compass_bias_deg.to_radians();
+    cfg.heading_model = args.sensor.model()?;
     cfg.seed = args.seed;
     cfg.storage_path = args.storage;
     if args.clockwise_compass {
@@ -88,6 +91,13 @@ pub async fn mock_device(args: MockArgs) -> CliResult {
     let device = Arc::new(Mutex::new(device));
     let server = spawn_pty(device.clone(), time, args.faults.unwrap_or_default())?;
     println!("{}", server.path);
+    let scale = match time {
+        TimeMode::RealTime { scale } => scale,
+        TimeMode::Virtual => 1.0,
+    };
+    let _compass = args
+        .compass
+        .spawn(odocal::mock::heading_sensor(&device), scale)?;
     if let Some(link) = &args.link {
         std::fs::write(link, format!("{}\n", server.path))?;
     }
@@ -384,8 +394,13 @@ async fn restore_from(
 
 /// Runs `odocal status`.
 pub async fn status(port: PortArgs) -> CliResult {
-    if port.port.starts_with("roboclaw:") {
-        return crate::serial_bases::roboclaw_status(&port.port, port.json).await;
+    if let DriveSpec::RoboClaw {
+        port: path,
+        address,
+        baud,
+    } = port.port.parse::<DriveSpec>()?
+    {
+        return crate::roboclaw::roboclaw_status(&port.port, &path, address, baud, port.json).await;
     }
     let client = port.connect().await?;
     let s = client.status().await?;
@@ -418,12 +433,8 @@ pub struct HeadingArgs {
 
 /// Runs `odocal heading`.
 pub async fn heading(args: HeadingArgs) -> CliResult {
-    if args.port.port.starts_with("nmea:") {
-        return crate::serial_bases::nmea_heading(&args.port.port, args.samples, args.port.json)
-            .await;
-    }
-    let client = args.port.connect().await?;
-    let mean = odocal::routine::heading::mean_heading(&client, args.samples).await?;
+    let source = odocal::spec::open_heading(&args.port.port, args.port.baud).await?;
+    let mean = odocal::routine::heading::mean_heading(source.as_ref(), args.samples).await?;
     if args.port.json {
         return print_json(&json!({
             "heading_rad": mean,

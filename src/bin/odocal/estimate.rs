@@ -92,7 +92,7 @@ fn runs(headings_deg: &[f64], xy: Option<&XyList>) -> Result<Vec<RunMeasurement>
         .map(|(i, h)| RunMeasurement {
             heading_error_rad: h.to_radians(),
             final_xy_m: xy.map(|l| l.0[i]),
-            leg_heading_error_rad: None,
+            ..RunMeasurement::default()
         })
         .collect())
 }
@@ -187,7 +187,7 @@ pub fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
         return print_json(&json!({
             "convention": convention.name(),
             "configured": configured,
-            "default_method": calibration::default_method(test.has_leg_headings(), test.has_positions()),
+            "default_method": calibration::default_method(test.has_leg_headings(), test.has_positions(), calibration::HeadingKind::Unknown),
             "warnings": warnings,
             "estimates": estimates,
             "failures": failures.iter().map(|(m, e)| json!({"method": m.name(), "error": e})).collect::<Vec<_>>(),

@@ -4,9 +4,11 @@ mod device;
 mod estimate;
 mod ports;
 mod replay;
+mod roboclaw;
+mod robot;
 mod ros;
 mod routine;
-mod serial_bases;
+mod sensor;
 mod simulate;
 mod track;
 
@@ -56,6 +58,12 @@ enum Command {
     Status(device::PortArgs),
     /// Read the heading (counter-clockwise positive).
     Heading(device::HeadingArgs),
+    /// Compass swing (moves the robot: full turns in place each way): fits the compass's
+    /// deviation curve and prints it as --compass-deviation-deg.
+    Swing(sensor::SwingArgs),
+    /// Gyro spin test (moves the robot: full turns in place): with where it stopped against a
+    /// floor mark, the gyro's scale error, printed as --gyro-scale-error.
+    Spin(sensor::SpinArgs),
     /// List this machine's serial ports with their USB ids.
     Ports(ports::Args),
     /// Calibrate offline from a ROS 2 bag (MCAP): finds the square runs, every method.
@@ -63,7 +71,7 @@ enum Command {
     /// Serve a simulated ROS 2 robot behind a mock rosbridge server on loopback.
     MockRosbridge(ros::MockArgs),
     /// Serve a mock RoboClaw and a mock NMEA compass of one simulated robot on two PTYs.
-    MockRoboclaw(serial_bases::MockArgs),
+    MockRoboclaw(roboclaw::MockArgs),
 }
 
 /// Convention flags shared by the subcommands that estimate.
@@ -95,6 +103,46 @@ impl ConventionArgs {
     }
 }
 
+/// A mock NMEA compass on the simulated robot of a mock server (`--nmea`): its terminal is
+/// printed as `nmea:PATH` on the line after the server's own.
+#[derive(Debug, Clone, clap::Args)]
+pub struct MockCompassArgs {
+    /// Also serve an NMEA 0183 compass on the robot, on a pseudo-terminal of its own (printed
+    /// as nmea:PATH on the next line).
+    #[arg(long)]
+    nmea: bool,
+    /// Sentences per second of robot time of the --nmea compass.
+    #[arg(long, default_value_t = 10.0)]
+    nmea_hz: f64,
+    /// Noise per sentence of the --nmea compass (deg).
+    #[arg(long, default_value_t = 0.2)]
+    nmea_sigma_deg: f64,
+}
+
+impl MockCompassArgs {
+    /// Starts the compass if asked for and prints its spec; keep the handle while serving.
+    pub fn spawn(
+        &self,
+        heading: odocal::mock::nmea::HeadingFn,
+        time_scale: f64,
+    ) -> Result<Option<odocal::mock::PtyServer<()>>, Box<dyn std::error::Error>> {
+        if !self.nmea {
+            return Ok(None);
+        }
+        in_range("--nmea-hz", self.nmea_hz, 0.1, 100.0)?;
+        in_range("--nmea-sigma-deg", self.nmea_sigma_deg, 0.0, 10.0)?;
+        let cfg = odocal::mock::nmea::MockCompassConfig {
+            hz: self.nmea_hz,
+            sigma_rad: self.nmea_sigma_deg.to_radians(),
+            time_scale,
+            ..Default::default()
+        };
+        let pty = odocal::mock::nmea::spawn_pty(cfg, heading)?;
+        println!("nmea:{}", pty.path);
+        Ok(Some(pty))
+    }
+}
+
 /// Prints `value` as pretty JSON on stdout.
 pub fn print_json(value: &serde_json::Value) -> Result<(), Box<dyn std::error::Error>> {
     println!("{}", serde_json::to_string_pretty(value)?);
@@ -107,6 +155,92 @@ pub fn in_range(flag: &str, value: f64, lo: f64, hi: f64) -> Result<(), String> 
         Ok(())
     } else {
         Err(format!("{flag} must be in [{lo}, {hi}], got {value}"))
+    }
+}
+
+/// [`in_range`] for several flags: (flag, value, lowest, highest).
+pub fn in_ranges(checks: &[(&str, f64, f64, f64)]) -> Result<(), String> {
+    checks
+        .iter()
+        .try_for_each(|&(flag, v, lo, hi)| in_range(flag, v, lo, hi))
+}
+
+/// The true errors of a mock's simulated robot.
+#[derive(Debug, Clone, clap::Args)]
+pub struct TrueRobotArgs {
+    /// True E_b of the simulated robot (relative to its configured parameters).
+    #[arg(long, default_value_t = 0.976)]
+    pub true_eb: f64,
+    /// True E_d of the simulated robot (left wheel nominal).
+    #[arg(long, default_value_t = 0.992)]
+    pub true_ed: f64,
+}
+
+impl TrueRobotArgs {
+    /// Checks both against what a mock can simulate.
+    pub fn check(&self) -> Result<(), String> {
+        in_ranges(&[
+            ("--true-eb", self.true_eb, 0.5, 2.0),
+            ("--true-ed", self.true_ed, 0.8, 1.25),
+        ])
+    }
+}
+
+/// How a mock's heading sensor errs (all off by default: an ideal sensor with the mock's noise).
+#[derive(Debug, Clone, clap::Args)]
+pub struct HeadingModelArgs {
+    /// The simulated heading sensor: compass (absolute, magnetic) or gyro (integrated).
+    #[arg(long, default_value = "compass", value_parser = ["compass", "gyro"])]
+    heading_sensor: String,
+    /// A compass's deviation curve A1,B1,A2,B2 (deg): d(ψ) = A1 sin ψ + B1 cos ψ + A2 sin 2ψ +
+    /// B2 cos 2ψ.
+    #[arg(long, allow_hyphen_values = true)]
+    deviation_deg: Option<odocal::sim::sensor::Deviation>,
+    /// A compass's offset while the wheels drive (the motor currents' field, deg).
+    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+    motor_offset_deg: f64,
+    /// A gyro's scale error (0.01: it reads 1 % more turn).
+    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+    gyro_scale_error: f64,
+    /// A gyro's bias (deg/s).
+    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+    gyro_bias_deg_s: f64,
+    /// A gyro bias's random walk (deg/s per √s).
+    #[arg(long, default_value_t = 0.0)]
+    gyro_bias_walk_deg_s: f64,
+    /// Readings rounded to this step (deg; 0: none).
+    #[arg(long, default_value_t = 0.0)]
+    heading_quantum_deg: f64,
+    /// Readings show the heading this long ago (s).
+    #[arg(long, default_value_t = 0.0)]
+    heading_latency_s: f64,
+    /// Probability that a reading is lost.
+    #[arg(long, default_value_t = 0.0)]
+    heading_loss: f64,
+}
+
+impl HeadingModelArgs {
+    /// The model these flags describe, checked.
+    pub fn model(&self) -> Result<odocal::sim::sensor::HeadingModel, String> {
+        use odocal::sim::sensor::{HeadingModel, SensorKind};
+        let m = HeadingModel {
+            kind: if self.heading_sensor == "gyro" {
+                SensorKind::Gyro
+            } else {
+                SensorKind::Compass
+            },
+            deviation: self.deviation_deg.unwrap_or_default(),
+            motor_offset_rad: self.motor_offset_deg.to_radians(),
+            gyro_scale_error: self.gyro_scale_error,
+            gyro_bias_rad_s: self.gyro_bias_deg_s.to_radians(),
+            gyro_bias_walk: self.gyro_bias_walk_deg_s.to_radians(),
+            quantum_rad: self.heading_quantum_deg.to_radians(),
+            latency_s: self.heading_latency_s,
+            loss: self.heading_loss,
+        };
+        m.validate()
+            .map_err(|(name, value)| format!("heading sensor: {name} = {value} is out of range"))?;
+        Ok(m)
     }
 }
 
@@ -173,10 +307,12 @@ fn main() -> ExitCode {
         Command::Params { command } => block_on(device::params(command)),
         Command::Status(port) => block_on(device::status(port)),
         Command::Heading(args) => block_on(device::heading(args)),
+        Command::Swing(args) => block_on(sensor::swing(args)),
+        Command::Spin(args) => block_on(sensor::spin(args)),
         Command::Ports(args) => ports::run(args),
         Command::Bag(args) => ros::run(args),
         Command::MockRosbridge(args) => block_on(ros::mock(args)),
-        Command::MockRoboclaw(args) => block_on(serial_bases::mock(args)),
+        Command::MockRoboclaw(args) => block_on(roboclaw::mock(args)),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

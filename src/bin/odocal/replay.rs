@@ -3,7 +3,7 @@
 
 use crate::{pm, print_json, ConventionArgs};
 use odocal::calibration::pool::UncertaintyKind;
-use odocal::dataset::{replay, OptiOdomSet};
+use odocal::offline::dataset::{replay, OptiOdomSet};
 use serde_json::json;
 use std::path::PathBuf;
 
@@ -42,7 +42,7 @@ pub fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
             return Err("--write-bag converts one set; give one --dataset".into());
         }
         let topics = odocal::ros::bag::RosTopics::default();
-        let n = odocal::ros::bag_writer::write_optiodom_bag(path, calib, 2.0, &topics)?;
+        let n = odocal::ros::bag::writer::write_optiodom_bag(path, calib, 2.0, &topics)?;
         println!(
             "wrote {} ({n} messages, {} runs)",
             path.display(),

@@ -75,6 +75,10 @@ pub struct BagArgs {
     /// Diameter split: left-nominal, mean-preserving or measured-scale:COMMANDED_M,MEASURED_M.
     #[arg(long, default_value = "left-nominal")]
     convention: SplitConvention,
+    /// What the IMU's yaw is: magnetic (a compass or a 9-axis fusion: it may deviate), gyro
+    /// (integrated), reference (ground truth) or unknown. It decides the default method.
+    #[arg(long, default_value = "unknown")]
+    heading_kind: odocal::calibration::HeadingKind,
     /// Print one JSON object.
     #[arg(long)]
     json: bool,
@@ -147,7 +151,7 @@ pub fn run(args: BagArgs) -> Result<(), Box<dyn std::error::Error>> {
         )?);
     }
     let nominal = nominal_of_first.unwrap_or((f64::NAN, f64::NAN));
-    let pooled = pool_bags(&reports, nominal, args.convention)?;
+    let pooled = pool_bags(&reports, nominal, args.convention, args.heading_kind)?;
     if args.json {
         if let [report] = reports.as_slice() {
             let mut v = serde_json::to_value(report)?;
@@ -214,6 +218,7 @@ fn pool_bags(
     reports: &[bag::BagReport],
     nominal: (f64, f64),
     convention: SplitConvention,
+    kind: odocal::calibration::HeadingKind,
 ) -> Result<PooledBags, Box<dyn std::error::Error>> {
     use odocal::calibration::pool::{pool_methods, RecordingEstimates};
     let per: Vec<Vec<_>> = reports
@@ -252,7 +257,7 @@ fn pool_bags(
     let all_legs = reports
         .iter()
         .all(|r| r.runs.iter().all(|run| run.leg_heading_error_rad.is_some()));
-    let default_method = odocal::calibration::default_method(all_legs, false)
+    let default_method = odocal::calibration::default_method(all_legs, false, kind)
         .filter(|m| methods.estimates.iter().any(|e| e.method == *m));
     Ok(PooledBags {
         methods,
@@ -368,12 +373,8 @@ pub struct MockArgs {
     /// Loopback port (0: any free one). The URL is printed on the first line.
     #[arg(long, default_value_t = 9090)]
     port: u16,
-    /// True E_b of the simulated robot.
-    #[arg(long, default_value_t = 0.976)]
-    true_eb: f64,
-    /// True E_d of the simulated robot (left wheel nominal).
-    #[arg(long, default_value_t = 0.992)]
-    true_ed: f64,
+    #[command(flatten)]
+    truth: crate::TrueRobotArgs,
     /// IMU noise per reading (deg).
     #[arg(long, default_value_t = 0.1)]
     compass_sigma_deg: f64,
@@ -386,34 +387,37 @@ pub struct MockArgs {
     /// Keep serving when stdin closes (stop with Ctrl-C only).
     #[arg(long)]
     ignore_stdin: bool,
+    #[command(flatten)]
+    compass: crate::MockCompassArgs,
+    #[command(flatten)]
+    sensor: crate::HeadingModelArgs,
 }
 
 /// Runs `odocal mock-rosbridge`.
 pub async fn mock(args: MockArgs) -> Result<(), Box<dyn std::error::Error>> {
     use odocal::mock::rosbridge::{MockRosConfig, MockRosbridge};
-    for (name, v, lo, hi) in [
-        ("--true-eb", args.true_eb, 0.5, 2.0),
-        ("--true-ed", args.true_ed, 0.8, 1.25),
+    args.truth.check()?;
+    crate::in_ranges(&[
         ("--compass-sigma-deg", args.compass_sigma_deg, 0.0, 10.0),
         ("--time-scale", args.time_scale, 0.01, 100.0),
-    ] {
-        if !(v.is_finite() && (lo..=hi).contains(&v)) {
-            return Err(format!("{name} must be in [{lo}, {hi}], got {v}").into());
-        }
-    }
+    ])?;
     let controller = DiffDriveConfig::load(&args.ros_yaml, &args.controller)?;
-    let mut cfg = MockRosConfig::with_ratios(controller, args.true_eb, args.true_ed)?;
+    let mut cfg = MockRosConfig::with_ratios(controller, args.truth.true_eb, args.truth.true_ed)?;
     cfg.noise.compass_sigma_rad = args.compass_sigma_deg.to_radians();
+    cfg.heading_model = args.sensor.model()?;
     cfg.time_scale = args.time_scale;
     cfg.cmd_vel = args.cmd_vel.clone();
     let server =
         MockRosbridge::spawn(cfg, std::net::SocketAddr::from(([127, 0, 0, 1], args.port))).await?;
     println!("{}", server.url());
+    let _compass = args
+        .compass
+        .spawn(server.heading_sensor(), args.time_scale)?;
     eprintln!(
         "mock rosbridge: a ROS 2 robot with diff_drive_controller (true E_b {}, E_d {}) on {}; \
          /joint_states, /odom, /imu; obeys {}. Ctrl-C{} stops it.",
-        args.true_eb,
-        args.true_ed,
+        args.truth.true_eb,
+        args.truth.true_ed,
         server.url(),
         args.cmd_vel,
         if args.ignore_stdin {

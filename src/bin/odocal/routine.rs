@@ -1,15 +1,16 @@
 //! `odocal demo`, `calibrate`, `run` and `export`: the recalibration routine's commands.
 
 use crate::print_json;
+use crate::robot::RobotArgs;
 use indicatif::{ProgressBar, ProgressStyle};
 use odocal::base::Base;
 use odocal::calibration::Method;
 use odocal::demo::{run_demo, DemoOptions};
-use odocal::hal::open_port;
 use odocal::kinematics::SplitConvention;
 use odocal::routine::config::{RoutineConfig, WritePolicy};
 use odocal::routine::report::Report;
 use odocal::routine::{run, RoutineEvent, RoutineUi};
+use odocal::spec::{BaseSpec, DriveSpec, RobotSection, RoutineFile};
 use serde_json::json;
 use std::io::{BufRead, IsTerminal, Write};
 use std::path::PathBuf;
@@ -96,6 +97,14 @@ impl RoutineUi for TerminalUi {
                         motion.div_ceil(2)
                     ));
                     b.inc(1);
+                }
+            }
+            RoutineEvent::Realigned { turn_rad } => {
+                if self.bar.is_none() {
+                    self.say(&format!(
+                        "  turned {:+.2}° back to the first square's heading",
+                        turn_rad.to_degrees()
+                    ));
                 }
             }
             RoutineEvent::RunDone { heading_error_deg } => {
@@ -245,6 +254,8 @@ pub struct DemoArgs {
     /// Allow parameter changes of up to 100 % (a simulated skid-steer robot, --true-eb 1.5).
     #[arg(long)]
     allow_large_change: bool,
+    #[command(flatten)]
+    sensor: crate::HeadingModelArgs,
 }
 
 /// Runs `odocal demo`.
@@ -260,6 +271,7 @@ pub async fn demo(args: DemoArgs) -> CliResult {
         opts.faults = f.parse::<odocal::mock::FaultConfig>()?;
     }
     opts.faults.seed = args.seed;
+    opts.heading_model = args.sensor.model()?;
     opts.routine.backup_dir = args.report_dir.clone();
     opts.routine.report_dir = Some(args.report_dir.clone());
     if args.allow_large_change {
@@ -305,10 +317,22 @@ pub struct RoutineFlags {
     /// Heading readings averaged at rest before and after each square.
     #[arg(long)]
     heading_samples: Option<usize>,
-    /// Estimator to write: umbmark, lee, heading-only, jung-chung, exact or legs. Default:
-    /// legs when the heading along the legs was streamed in every run, else exact.
+    /// Estimator to write: umbmark, lee, heading-only, jung-chung, exact, legs or
+    /// matched-legs. Default: with the heading along the legs, matched-legs for a compass or
+    /// an IMU of unknown kind, legs for a gyro or a reference; else exact.
     #[arg(long)]
     method: Option<String>,
+    /// Skip the compass swing (two slow full turns in place each way before the squares,
+    /// which measure the compass's deviation and remove it from every reading).
+    #[arg(long)]
+    no_swing: bool,
+    /// Do not turn back to the first square's heading before each square.
+    #[arg(long)]
+    no_realign: bool,
+    /// The gyro's scale error as `odocal spin` measured it (0.01: the gyro reads 1 % more
+    /// than every turn); removed from every heading before estimating.
+    #[arg(long, allow_hyphen_values = true)]
+    gyro_scale_error: Option<f64>,
     /// Diameter split for estimation and write-back: left-nominal, mean-preserving or
     /// measured-scale:COMMANDED_M,MEASURED_M.
     #[arg(long)]
@@ -322,7 +346,9 @@ pub struct RoutineFlags {
     /// Verification squares per direction.
     #[arg(long)]
     verification_runs: Option<usize>,
-    /// Convergence tolerance on |E_b − 1| and |E_d − 1|.
+    /// Also stop when |E_b − 1| and |E_d − 1| are below this [default: stop when a round's
+    /// correction is not significant (within two standard errors) or would change the heading
+    /// by less than 0.1° per square].
     #[arg(long)]
     tolerance: Option<f64>,
     /// Most calibration rounds.
@@ -365,12 +391,20 @@ impl RoutineFlags {
         }
         set!(side_m => side_m, runs => runs_per_direction, max_speed_m_s => max_speed_m_s,
              max_rate_rad_s => max_rate_rad_s, verification_runs => verification_runs,
-             tolerance => tolerance, max_rounds => max_rounds, settle_s => settle_s,
+             max_rounds => max_rounds, settle_s => settle_s,
              heading_samples => heading_samples);
         if let Some(m) = &self.method {
             cfg.method = Some(m.parse::<Method>()?);
         }
+        if let Some(t) = self.tolerance {
+            cfg.tolerance = Some(t);
+        }
         cfg.keep_worse |= self.keep_worse;
+        cfg.swing &= !self.no_swing;
+        if let Some(g) = self.gyro_scale_error {
+            cfg.gyro_scale_error = Some(g);
+        }
+        cfg.realign &= !self.no_realign;
         if self.allow_large_change {
             cfg.allow_large_change = true;
             cfg.max_change = self.max_change.unwrap_or(1.0);
@@ -420,24 +454,8 @@ impl RoutineFlags {
 /// Arguments of `odocal calibrate`.
 #[derive(Debug, clap::Args)]
 pub struct CalibrateArgs {
-    /// Serial port of a motor controller that speaks odocal's protocol.
-    #[arg(long, conflicts_with = "base")]
-    port: Option<String>,
-    /// A ROS robot: rosbridge://HOST:PORT (needs --ros-yaml); or a RoboClaw:
-    /// roboclaw:PORT[?address=128&baud=38400] (needs --heading and --profile).
-    #[arg(long)]
-    base: Option<String>,
-    /// The heading source of a RoboClaw base: nmea:PORT[?baud=4800].
-    #[arg(long)]
-    heading: Option<String>,
-    /// The robot profile of a RoboClaw base (geometry, wiring, limits; written back).
-    #[arg(long)]
-    profile: Option<PathBuf>,
     #[command(flatten)]
-    ros: RosLiveArgs,
-    /// Baud rate.
-    #[arg(long, default_value_t = 115_200)]
-    baud: u32,
+    robot: RobotArgs,
     /// A routine file to start from (flags override it).
     #[arg(long)]
     config: Option<PathBuf>,
@@ -445,171 +463,44 @@ pub struct CalibrateArgs {
     flags: RoutineFlags,
 }
 
-fn read_config(path: &std::path::Path) -> Result<RoutineConfig, Box<dyn std::error::Error>> {
-    let text = odocal::base::files::read_bounded(path, odocal::base::files::MAX_TEXT_FILE)
+fn read_routine_file(path: &std::path::Path) -> Result<RoutineFile, Box<dyn std::error::Error>> {
+    let text = odocal::io::read_bounded(path, odocal::io::MAX_TEXT_FILE)
         .map_err(|e| format!("cannot read {}: {e}", path.display()))?;
-    RoutineConfig::from_toml(&text).map_err(|e| format!("{}: {e}", path.display()).into())
+    RoutineFile::from_toml(&text).map_err(|e| format!("{}: {e}", path.display()).into())
 }
 
-/// ROS settings of `calibrate --base rosbridge://…` (a routine file's `[ros]` table holds the
-/// same keys).
-#[derive(Debug, Clone, clap::Args)]
-pub struct RosLiveArgs {
-    /// The controller's ros2_control YAML: the geometry is read from it and the calibrated
-    /// multipliers are written into it (backed up beside it first).
-    #[arg(long)]
-    ros_yaml: Option<PathBuf>,
-    /// The diff_drive_controller's name.
-    #[arg(long)]
-    controller: Option<String>,
-    /// Velocity topic (default /cmd_vel; newer setups use /diff_drive_controller/cmd_vel).
-    #[arg(long)]
-    cmd_vel: Option<String>,
-    /// Publish geometry_msgs/TwistStamped instead of Twist.
-    #[arg(long)]
-    twist_stamped: bool,
-    /// Where the drive's odometry comes from: joint-states (default) or odom.
-    #[arg(long)]
-    wheel_source: Option<String>,
-    /// Joint states topic.
-    #[arg(long)]
-    joint_states_topic: Option<String>,
-    /// IMU topic.
-    #[arg(long)]
-    imu_topic: Option<String>,
-    /// Odometry topic.
-    #[arg(long)]
-    odom_topic: Option<String>,
-    /// Also set the written multipliers on the running controller (set_parameters).
-    #[arg(long)]
-    ros_set_live: bool,
+/// Says what connected, in a line.
+fn connected(base: &Base) -> String {
+    let info = base.info();
+    let part = |c: &odocal::base::ComponentInfo| format!("{} {}", c.kind, c.id);
+    format!(
+        "connected: drive {}; heading {}; parameters in {}",
+        part(&info.drive),
+        part(&info.heading),
+        part(&info.store)
+    )
 }
 
-impl RosLiveArgs {
-    /// The base settings: the routine file's `[ros]` table, then these flags.
-    fn config(
-        &self,
-        url: &str,
-        file: Option<&toml::Table>,
-    ) -> Result<odocal::ros::base::RosBaseConfig, Box<dyn std::error::Error>> {
-        let mut c: odocal::ros::base::RosBaseConfig = match file {
-            Some(t) => t
-                .clone()
-                .try_into()
-                .map_err(|e| format!("[ros] table: {e}"))?,
-            None => Default::default(),
-        };
-        c.url = url.to_string();
-        if let Some(y) = &self.ros_yaml {
-            c.yaml = y.clone();
-        } else if file.is_none_or(|t| !t.contains_key("yaml")) {
-            return Err("a ROS robot needs --ros-yaml (the controller's ros2_control YAML)".into());
-        }
-        if let Some(v) = &self.controller {
-            c.controller = v.clone();
-        }
-        if let Some(v) = &self.cmd_vel {
-            c.cmd_vel = v.clone();
-        }
-        c.twist_stamped |= self.twist_stamped;
-        c.set_live |= self.ros_set_live;
-        if let Some(v) = &self.wheel_source {
-            c.wheel_source = match v.as_str() {
-                "joint-states" => odocal::ros::base::WheelSource::JointStates,
-                "odom" => odocal::ros::base::WheelSource::Odom,
-                other => {
-                    return Err(format!("--wheel-source {other}: use joint-states or odom").into())
-                }
-            };
-        }
-        if let Some(v) = &self.joint_states_topic {
-            c.topics.joint_states = v.clone();
-        }
-        if let Some(v) = &self.imu_topic {
-            c.topics.imu = v.clone();
-        }
-        if let Some(v) = &self.odom_topic {
-            c.topics.odom = v.clone();
-        }
-        Ok(c)
-    }
-}
-
-/// Where the routine runs: a serial port, a ROS robot, or a RoboClaw with a compass.
-enum Target<'a> {
-    Port {
-        path: &'a str,
-        baud: u32,
-    },
-    Ros(Box<odocal::ros::base::RosBaseConfig>),
-    RoboClaw {
-        drive: String,
-        heading: Option<String>,
-        profile: Option<PathBuf>,
-    },
-}
-
-async fn run_on(mut cfg: RoutineConfig, target: Target<'_>, flags: &RoutineFlags) -> CliResult {
+/// **Moves the robot**: the routine on the robot `spec` names.
+async fn run_on(mut cfg: RoutineConfig, spec: BaseSpec, flags: &RoutineFlags) -> CliResult {
     // A real calibration always leaves its evidence behind.
     if cfg.report_dir.is_none() {
         cfg.report_dir = Some(PathBuf::from("odocal-report"));
     }
-    let place = match &target {
-        Target::Port { path, .. } => path.to_string(),
-        Target::Ros(r) => r.url.clone(),
-        Target::RoboClaw { drive, .. } => drive.clone(),
-    };
     if !flags.json {
         eprintln!(
-            "odocal calibrate: this MOVES THE ROBOT on {place}: {} squares of {} m per direction \
+            "odocal calibrate: this MOVES THE ROBOT on {}: {} squares of {} m per direction \
              per round at up to {} m/s. Ctrl-C stops it at any time.",
-            cfg.runs_per_direction, cfg.side_m, cfg.max_speed_m_s
+            spec.place(),
+            cfg.runs_per_direction,
+            cfg.side_m,
+            cfg.max_speed_m_s
         );
     }
-    let base = match target {
-        Target::Port { path, baud } => {
-            let (client, info) = open_port(path, baud).await?;
-            if !flags.json {
-                eprintln!(
-                    "connected: {} (protocol {}.{}, serial {:#x})",
-                    info.firmware_id, info.major, info.minor, info.serial_number
-                );
-            }
-            // A device that resets or is re-plugged mid-run is reopened to restore the backup.
-            let reconnect =
-                odocal::hal::base::reconnect_port(client.clone(), path.to_string(), baud);
-            Base::single(client).with_reconnect(reconnect)
-        }
-        Target::RoboClaw {
-            drive,
-            heading,
-            profile,
-        } => {
-            let base =
-                crate::serial_bases::roboclaw_base(&drive, heading.as_deref(), profile.as_deref())
-                    .await?;
-            if !flags.json {
-                let info = base.info();
-                eprintln!(
-                    "connected: {} ({}), heading {}, profile {}",
-                    info.drive.id, info.drive.details["firmware"], info.heading.id, info.store.id
-                );
-            }
-            base
-        }
-        Target::Ros(r) => {
-            let base = odocal::ros::base::connect(&r).await?;
-            if !flags.json {
-                eprintln!(
-                    "connected: rosbridge at {}, geometry and write-back in {} ({})",
-                    r.url,
-                    r.yaml.display(),
-                    r.controller
-                );
-            }
-            base
-        }
-    };
+    let base = spec.open().await?;
+    if !flags.json {
+        eprintln!("{}", connected(&base));
+    }
     let mut ui = TerminalUi::new(flags.json, flags.yes);
     let token = ctrl_c_token();
     let report = run(&base, &cfg, None, &mut ui, &token).await?;
@@ -617,48 +508,48 @@ async fn run_on(mut cfg: RoutineConfig, target: Target<'_>, flags: &RoutineFlags
     finish(&report, cfg.report_dir.as_ref(), flags.json)
 }
 
+/// The built-in simulated robot with these settings (it moves nobody's hardware: no need to
+/// ask before it drives).
+async fn run_simulated(mut cfg: RoutineConfig, flags: &RoutineFlags) -> CliResult {
+    cfg.confirm_motion = false;
+    let opts = DemoOptions {
+        routine: cfg.clone(),
+        ..DemoOptions::default()
+    };
+    let mut ui = TerminalUi::new(flags.json, flags.yes);
+    let token = ctrl_c_token();
+    let (report, _) = run_demo(&opts, &mut ui, &token).await?;
+    drop(ui);
+    finish(&report, cfg.report_dir.as_ref(), flags.json)
+}
+
+/// The routine on whatever the spec names.
+async fn run_spec(cfg: RoutineConfig, spec: BaseSpec, flags: &RoutineFlags) -> CliResult {
+    match spec.drive {
+        DriveSpec::Simulated => run_simulated(cfg, flags).await,
+        _ => run_on(cfg, spec, flags).await,
+    }
+}
+
 /// Runs `odocal calibrate`.
 pub async fn calibrate(args: CalibrateArgs) -> CliResult {
-    let mut cfg = match &args.config {
-        Some(p) => read_config(p)?,
-        None => RoutineConfig::default(),
+    let (robot, mut cfg) = match &args.config {
+        Some(p) => {
+            let f = read_routine_file(p)?;
+            (f.robot, f.routine)
+        }
+        None => (RobotSection::default(), RoutineConfig::default()),
     };
     args.flags.apply(&mut cfg)?;
-    let target = match (&args.port, &args.base) {
-        (Some(p), None) => Target::Port {
-            path: p,
-            baud: args.baud,
-        },
-        (None, Some(url)) if url.starts_with("rosbridge://") || url.starts_with("ws://") => {
-            Target::Ros(Box::new(args.ros.config(url, cfg.ros.as_ref())?))
-        }
-        (None, Some(spec)) if spec.starts_with("roboclaw:") => Target::RoboClaw {
-            drive: spec.clone(),
-            heading: args.heading.clone().or_else(|| cfg.heading.clone()),
-            profile: args.profile.clone().or_else(|| cfg.profile.clone()),
-        },
-        (None, Some(other)) => {
-            return Err(format!(
-                "--base {other}: use rosbridge://HOST:PORT or roboclaw:PORT (or --port for a \
-                 controller that speaks odocal's protocol)"
-            )
-            .into())
-        }
-        _ => {
-            return Err(
-                "give --port PATH (odocal protocol), --base rosbridge://HOST:PORT or --base \
-                 roboclaw:PORT"
-                    .into(),
-            )
-        }
-    };
-    run_on(cfg, target, &args.flags).await
+    let spec = args.robot.spec(robot)?;
+    run_spec(cfg, spec, &args.flags).await
 }
 
 /// Arguments of `odocal run`.
 #[derive(Debug, clap::Args)]
 pub struct RunArgs {
-    /// The routine file (TOML; see examples/*.toml). `port = "mock"` uses the simulated robot.
+    /// The routine file (TOML; see examples/*.toml). `drive = "mock"` in its [robot] table
+    /// uses the simulated robot.
     routine: PathBuf,
     #[command(flatten)]
     flags: RoutineFlags,
@@ -666,58 +557,13 @@ pub struct RunArgs {
 
 /// Runs `odocal run`.
 pub async fn run_file(args: RunArgs) -> CliResult {
-    let mut cfg = read_config(&args.routine)?;
+    let RoutineFile { robot, routine } = read_routine_file(&args.routine)?;
+    let mut cfg = routine;
     args.flags.apply(&mut cfg)?;
-    match cfg.port.clone().as_deref() {
-        Some("mock") => {
-            // The simulated robot moves nobody's hardware: no need to ask before it drives.
-            cfg.confirm_motion = false;
-            let opts = DemoOptions {
-                routine: cfg.clone(),
-                ..DemoOptions::default()
-            };
-            let mut ui = TerminalUi::new(args.flags.json, args.flags.yes);
-            let token = ctrl_c_token();
-            let (report, _) = run_demo(&opts, &mut ui, &token).await?;
-            drop(ui);
-            finish(&report, cfg.report_dir.as_ref(), args.flags.json)
-        }
-        Some(url) if url.starts_with("rosbridge://") || url.starts_with("ws://") => {
-            let ros = RosLiveArgs {
-                ros_yaml: None,
-                controller: None,
-                cmd_vel: None,
-                twist_stamped: false,
-                wheel_source: None,
-                joint_states_topic: None,
-                imu_topic: None,
-                odom_topic: None,
-                ros_set_live: false,
-            }
-            .config(url, cfg.ros.as_ref())?;
-            run_on(cfg.clone(), Target::Ros(Box::new(ros)), &args.flags).await
-        }
-        Some(spec) if spec.starts_with("roboclaw:") => {
-            let target = Target::RoboClaw {
-                drive: spec.to_string(),
-                heading: cfg.heading.clone(),
-                profile: cfg.profile.clone(),
-            };
-            run_on(cfg.clone(), target, &args.flags).await
-        }
-        Some(port) => {
-            let target = Target::Port {
-                path: port,
-                baud: cfg.baud,
-            };
-            run_on(cfg.clone(), target, &args.flags).await
-        }
-        None => Err(format!(
-            "{}: no `port` (a serial port path, or \"mock\" for the simulated robot)",
-            args.routine.display()
-        )
-        .into()),
-    }
+    let spec = robot
+        .spec()
+        .map_err(|e| format!("{}: {e}", args.routine.display()))?;
+    run_spec(cfg, spec, &args.flags).await
 }
 
 /// Arguments of `odocal export`.
@@ -750,17 +596,7 @@ pub struct ExportArgs {
 /// Runs `odocal export`.
 pub fn export(args: ExportArgs) -> CliResult {
     use odocal::report::ros2::{calibration_of, export, Exported};
-    let len = std::fs::metadata(&args.from)
-        .map_err(|e| format!("cannot read {}: {e}", args.from.display()))?
-        .len();
-    if len > 64 << 20 {
-        return Err(format!(
-            "{}: {len} bytes is not an odocal result",
-            args.from.display()
-        )
-        .into());
-    }
-    let text = odocal::base::files::read_bounded(&args.from, odocal::base::files::MAX_TEXT_FILE)
+    let text = odocal::io::read_bounded(&args.from, odocal::io::MAX_TEXT_FILE)
         .map_err(|e| format!("cannot read {}: {e}", args.from.display()))?;
     let v: serde_json::Value = serde_json::from_str(&text)
         .map_err(|e| format!("{}: not JSON ({e})", args.from.display()))?;

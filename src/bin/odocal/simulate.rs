@@ -2,8 +2,8 @@
 
 use crate::{pm, print_json, ConventionArgs};
 use odocal::kinematics::{SplitConvention, WheelParams};
+use odocal::offline::study::{run_trials, StudyConfig};
 use odocal::sim::NoiseModel;
-use odocal::study::{run_trials, StudyConfig};
 use serde_json::json;
 
 /// Arguments of `odocal simulate`.
@@ -66,12 +66,15 @@ pub struct Args {
     /// file: /joint_states, /imu and /odom as a ROS robot would publish them, for `odocal bag`.
     #[arg(long)]
     bag: Option<std::path::PathBuf>,
+    /// How the --bag's IMU errs (a deviation, a gyro's scale, a late or lossy stream).
+    #[command(flatten)]
+    sensor: crate::HeadingModelArgs,
 }
 
 /// Writes the simulated square test as a ROS 2 bag.
 fn write_bag(args: &Args, path: &std::path::Path) -> Result<(), Box<dyn std::error::Error>> {
+    use odocal::ros::bag::writer::{write_simulated_bag, SimulatedBag};
     use odocal::ros::bag::RosTopics;
-    use odocal::ros::bag_writer::{write_simulated_bag, SimulatedBag};
     use odocal::ros::yaml::RAD_PER_REV;
     let configured = WheelParams::nominal(args.wheel_diameter_m, args.wheelbase_m, RAD_PER_REV);
     let truth =
@@ -82,7 +85,8 @@ fn write_bag(args: &Args, path: &std::path::Path) -> Result<(), Box<dyn std::err
         wheel_slip_sigma: args.slip_sigma,
         ..NoiseModel::default()
     };
-    let mut sim = odocal::sim::Simulator::new(truth, configured, noise, args.seed)?;
+    let mut sim = odocal::sim::Simulator::new(truth, configured, noise, args.seed)?
+        .with_heading_model(args.sensor.model()?)?;
     let cfg = SimulatedBag {
         side_m: args.side_m,
         runs: args.runs.max(1),

@@ -1,15 +1,20 @@
-//! `odocal record` and `odocal track`: telemetry logs and the online estimator.
+//! `odocal record` and `odocal track`: logs of a live session and the online estimator, on any
+//! base (a controller of our protocol, a ROS robot, a RoboClaw with a compass).
 
 use crate::print_json;
+use crate::robot::RobotArgs;
 use clap::ArgGroup;
+use odocal::base::Base;
 use odocal::calibration::online::{OnlineConfig, OnlineEstimate, ScaleSource};
-use odocal::dataset::OptiOdomSet;
-use odocal::hal::open_port;
-use odocal::kinematics::SplitConvention;
-use odocal::protocol::message::ParamSource;
+use odocal::calibration::recording::Event;
+use odocal::calibration::tracker::Tracker;
+use odocal::kinematics::{SplitConvention, WheelParams};
+use odocal::offline::dataset::OptiOdomSet;
+use odocal::offline::log::{read_log, LogHeader, LogWriter};
 use odocal::routine::config::WritePolicy;
+use odocal::routine::track::{track_live, DrivePath, TrackOptions, TrackOutcome};
 use odocal::routine::{write_parameters, RoutineEvent, RoutineUi};
-use odocal::track::{read_log, LogHeader, LogWriter, Tracker};
+use odocal::spec::RobotSection;
 use serde_json::json;
 use std::io::BufRead;
 use std::path::PathBuf;
@@ -18,133 +23,199 @@ use tokio_util::sync::CancellationToken;
 
 type CliResult = Result<(), Box<dyn std::error::Error>>;
 
-/// Arguments of `odocal record`.
-#[derive(Debug, clap::Args)]
-pub struct RecordArgs {
-    /// Serial port of the motor controller.
-    #[arg(long)]
-    port: String,
-    /// Baud rate.
-    #[arg(long, default_value_t = 115_200)]
-    baud: u32,
-    /// The log to write (JSON lines).
-    #[arg(long)]
-    out: PathBuf,
-    /// Telemetry period (ms).
-    #[arg(long, default_value_t = 20)]
-    period_ms: u64,
-    /// Stop after this long (default: until Ctrl-C).
-    #[arg(long)]
-    duration_s: Option<f64>,
+/// A token cancelled by Ctrl-C.
+fn ctrl_c_token() -> CancellationToken {
+    let token = CancellationToken::new();
+    let t = token.clone();
+    tokio::spawn(async move {
+        if tokio::signal::ctrl_c().await.is_ok() {
+            t.cancel();
+        }
+    });
+    token
 }
 
-async fn until_stopped(duration_s: Option<f64>) {
-    match duration_s {
-        Some(s) => {
-            tokio::select! {
-                () = tokio::time::sleep(Duration::from_secs_f64(s.max(0.0))) => {}
-                _ = tokio::signal::ctrl_c() => {}
-            }
-        }
-        None => {
-            let _ = tokio::signal::ctrl_c().await;
+/// How a live session drives, if it does.
+#[derive(Debug, Clone, clap::Args)]
+pub struct DriveArgs {
+    /// MOVES THE ROBOT: drive this path while tracking: squares:SIDE_M (alternating
+    /// clockwise and counter-clockwise) or wander:AREA_M (random stretches and turns both
+    /// ways inside a square of that side). Asks first unless --yes.
+    #[arg(long)]
+    drive: Option<DrivePath>,
+    /// Motions of the path.
+    #[arg(long, default_value_t = 40)]
+    motions: usize,
+    /// Straight speed limit of the path (m/s, at most 1.0).
+    #[arg(long, default_value_t = 0.2)]
+    max_speed_m_s: f64,
+    /// Turn-rate limit of the path (rad/s, at most 3.0).
+    #[arg(long, default_value_t = 0.5)]
+    max_rate_rad_s: f64,
+    /// Seed of a wandering path.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Answer yes: drive without asking (and write back without asking with --write-back).
+    #[arg(long)]
+    yes: bool,
+}
+
+/// Opens the robot and reads the parameters its travel is converted with.
+async fn open(robot: &RobotArgs) -> Result<(Base, WheelParams), Box<dyn std::error::Error>> {
+    let base = robot.spec(RobotSection::default())?.open().await?;
+    let params = base.store.read().await?;
+    Ok((base, params))
+}
+
+/// A live session: asks before a path is driven, writes every sample to `log` if given.
+async fn live(
+    base: &Base,
+    tracker: &mut Tracker,
+    period_ms: u64,
+    duration_s: Option<f64>,
+    drive: Option<&DriveArgs>,
+    log: Option<&mut LogWriter>,
+    mut on_checkpoint: impl FnMut(&OnlineEstimate),
+) -> Result<TrackOutcome, Box<dyn std::error::Error>> {
+    let path = drive.and_then(|d| d.drive);
+    if let (Some(p), Some(d)) = (path, drive) {
+        let question = format!(
+            "The robot will drive {} motions of {p:?} at up to {} m/s and {} rad/s. Is the \
+             area clear and may it move?",
+            d.motions, d.max_speed_m_s, d.max_rate_rad_s
+        );
+        if !d.yes && !(StdinUi { yes: false }).confirm(&question) {
+            return Err("the robot may not move (not driven)".into());
         }
     }
-}
-
-/// Streams live telemetry into `on_sample` until Ctrl-C or `duration_s`, then turns telemetry
-/// off again.
-async fn stream_telemetry(
-    client: &odocal::hal::Client,
-    period_ms: u64,
-    duration_s: Option<f64>,
-    mut on_sample: impl FnMut(&odocal::hal::TelemetrySample) -> CliResult,
-) -> CliResult {
-    let mut rx = client.subscribe();
-    client
-        .configure_telemetry(Some(Duration::from_millis(period_ms)))
-        .await?;
-    let stop = until_stopped(duration_s);
-    tokio::pin!(stop);
-    let result = loop {
-        tokio::select! {
-            () = &mut stop => break Ok(()),
-            s = rx.recv() => match s {
-                Ok(s) => if let Err(e) = on_sample(&s) { break Err(e) },
-                Err(tokio::sync::broadcast::error::RecvError::Lagged(k)) => {
-                    eprintln!("warning: {k} telemetry samples lost (host too slow)");
-                }
-                Err(_) => break Ok(()),
+    let opts = TrackOptions {
+        period: Duration::from_millis(period_ms.max(1)),
+        duration: duration_s.map(|s| Duration::from_secs_f64(s.max(0.0))),
+        path,
+        motions: drive.map_or(0, |d| d.motions),
+        max_speed_m_s: drive.map_or(0.2, |d| d.max_speed_m_s),
+        max_rate_rad_s: drive.map_or(0.5, |d| d.max_rate_rad_s),
+        seed: drive.map_or(1, |d| d.seed),
+    };
+    let mut error = None;
+    let mut log = log;
+    let mut sink = |e: &Event| {
+        if let (Some(w), None) = (log.as_deref_mut(), &error) {
+            if let Err(e) = w.event(e) {
+                error = Some(e);
             }
         }
     };
-    let _ = client.configure_telemetry(None).await;
-    result
+    let outcome = track_live(
+        base,
+        tracker,
+        &opts,
+        &mut sink,
+        &mut on_checkpoint,
+        &ctrl_c_token(),
+    )
+    .await;
+    if let Some(e) = error {
+        return Err(e.into());
+    }
+    Ok(outcome?)
+}
+
+/// Arguments of `odocal record`.
+#[derive(Debug, clap::Args)]
+pub struct RecordArgs {
+    #[command(flatten)]
+    robot: RobotArgs,
+    /// The log to write (JSON lines).
+    #[arg(long)]
+    out: PathBuf,
+    /// Requested sample period (ms).
+    #[arg(long, default_value_t = 20)]
+    period_ms: u64,
+    /// Stop after this long (default: until Ctrl-C, or the end of the --drive path).
+    #[arg(long)]
+    duration_s: Option<f64>,
+    #[command(flatten)]
+    drive: DriveArgs,
+}
+
+fn header(base: &Base, params: WheelParams, period_ms: u64) -> LogHeader {
+    LogHeader {
+        odocal_version: env!("CARGO_PKG_VERSION").into(),
+        device: None,
+        params,
+        period_ms,
+        base: Some(base.info()),
+        clocks: base.clocks(),
+    }
 }
 
 /// Runs `odocal record`.
 pub async fn record(args: RecordArgs) -> CliResult {
-    let (client, info) = open_port(&args.port, args.baud).await?;
-    let params = client.get_params(ParamSource::Active).await?;
-    let mut log = LogWriter::create(
-        &args.out,
-        LogHeader {
-            odocal_version: env!("CARGO_PKG_VERSION").into(),
-            device: Some(info),
-            params,
-            period_ms: args.period_ms,
-        },
-    )?;
+    let (base, params) = open(&args.robot).await?;
+    let mut log = LogWriter::create(&args.out, header(&base, params, args.period_ms))?;
     eprintln!(
-        "recording telemetry to {} (Ctrl-C to stop)",
-        args.out.display()
+        "recording wheel travel and headings to {} ({})",
+        args.out.display(),
+        match (args.drive.drive, args.duration_s) {
+            (Some(_), _) => "while driving the path".to_string(),
+            (None, Some(s)) => format!("for {s} s"),
+            (None, None) => "Ctrl-C to stop".to_string(),
+        }
     );
-    let mut n = 0u64;
-    stream_telemetry(&client, args.period_ms, args.duration_s, |s| {
-        n += 1;
-        log.sample(s).map_err(Into::into)
-    })
+    let mut tracker = Tracker::new(
+        OnlineConfig::new(params),
+        ScaleSource::Filter,
+        f64::INFINITY,
+    )?;
+    let outcome = live(
+        &base,
+        &mut tracker,
+        args.period_ms,
+        args.duration_s,
+        Some(&args.drive),
+        Some(&mut log),
+        |_| {},
+    )
     .await?;
     log.flush()?;
-    let stats = client.stats();
-    if n == 0 {
+    let rec = &outcome.recording;
+    if rec.travel.is_empty() {
         return Err(format!(
-            "no telemetry arrived in {:.1} s ({} written with its header only). The device \
-             answers but sends no samples: a controller may stream only while the robot moves \
-             (drive it while recording), and `odocal mock-device` in virtual time (the default) \
-             never advances while idle: start it with --real-time 1 to record from it",
+            "no telemetry arrived in {:.1} s ({} written with its header only). The robot \
+             answers but sends no wheel travel: a controller may stream only while the robot \
+             moves (drive it while recording, or give --drive), and `odocal mock-device` in \
+             virtual time (the default) never advances while idle: start it with --real-time 1 \
+             to record from it",
             args.duration_s.unwrap_or(f64::NAN),
             args.out.display()
         )
         .into());
     }
     println!(
-        "recorded {n} samples to {} ({} lost on the link)",
-        args.out.display(),
-        stats.telemetry_dropped
+        "recorded {} travel samples and {} headings to {}",
+        rec.travel.len(),
+        rec.headings.len(),
+        args.out.display()
     );
     Ok(())
 }
 
-/// Live samples kept for the clock-offset check (an hour at 50 Hz).
-const LIVE_SAMPLES_KEPT: usize = 180_000;
-
 /// Arguments of `odocal track`.
 #[derive(Debug, clap::Args)]
-#[command(group(ArgGroup::new("source").required(true).args(["port", "log", "dataset"])))]
+#[command(group(ArgGroup::new("source").required(true).args(["port", "base", "log", "dataset"])))]
 pub struct TrackArgs {
-    /// Live: the motor controller's serial port (the robot is driven by something else).
-    #[arg(long)]
-    port: Option<String>,
-    /// Baud rate.
-    #[arg(long, default_value_t = 115_200)]
-    baud: u32,
-    /// A telemetry log written by `odocal record`.
+    #[command(flatten)]
+    robot: RobotArgs,
+    /// A log written by `odocal record` or `track --record`.
     #[arg(long)]
     log: Option<PathBuf>,
     /// A recorded OptiOdom set (ground-truth heading plays the compass).
     #[arg(long)]
     dataset: Option<PathBuf>,
+    /// Live: also write every sample to this log (it replays to the same numbers).
+    #[arg(long)]
+    record: Option<PathBuf>,
     /// Diameter split for E_b.
     #[arg(long, default_value = "left-nominal")]
     convention: SplitConvention,
@@ -157,21 +228,20 @@ pub struct TrackArgs {
     /// Print an estimate every this many metres driven.
     #[arg(long, default_value_t = 1.0)]
     every_m: f64,
-    /// Live: telemetry period (ms).
+    /// Live: requested sample period (ms).
     #[arg(long, default_value_t = 20)]
     period_ms: u64,
-    /// Live: stop after this long (default: until Ctrl-C).
+    /// Live: stop after this long (default: until Ctrl-C, or the end of the --drive path).
     #[arg(long)]
     duration_s: Option<f64>,
+    #[command(flatten)]
+    drive: DriveArgs,
     /// Live: write the estimate back when both standard deviations are below --max-std.
-    #[arg(long, requires = "port")]
+    #[arg(long)]
     write_back: bool,
     /// Largest standard deviation of E_b and E_d that justifies a write-back.
     #[arg(long, default_value_t = 0.002)]
     max_std: f64,
-    /// Write back without asking.
-    #[arg(long)]
-    yes: bool,
     /// Where the parameter backup goes before a write-back.
     #[arg(long, default_value = ".")]
     backup_dir: PathBuf,
@@ -220,43 +290,49 @@ pub async fn track(args: TrackArgs) -> CliResult {
     if !args.json {
         println!("{:>9} {:>10}   estimate", "", "driven");
     }
-    let mut write_back = None;
+    if args.write_back && (args.log.is_some() || args.dataset.is_some()) {
+        return Err("--write-back writes to a live robot: give --port or --base".into());
+    }
+    let mut base = None;
     let (tracker, configured) = if let Some(dir) = &args.dataset {
         let set = OptiOdomSet::load(dir)?;
         let mut t = Tracker::new(config(set.configured), scale, args.every_m)?;
-        for e in t.feed_dataset(&set) {
+        for e in set.feed(&mut t) {
             show(&e, args.json, "");
         }
         (t, set.configured)
     } else if let Some(path) = &args.log {
-        let (header, samples) = read_log(path)?;
+        let (header, recording) = read_log(path)?;
         let mut t = Tracker::new(config(header.params), scale, args.every_m)?;
-        for e in t.feed_log(&samples) {
+        for e in t.feed_recording("log", &recording) {
             show(&e, args.json, "");
         }
         (t, header.params)
-    } else if let Some(port) = &args.port {
-        let (client, _) = open_port(port, args.baud).await?;
-        let configured = client.get_params(ParamSource::Active).await?;
-        let mut t = Tracker::new(config(configured), scale, args.every_m)?;
-        // Kept for the clock-offset check at the end; an hour at 50 Hz, then the oldest go.
-        let mut kept = std::collections::VecDeque::new();
-        stream_telemetry(&client, args.period_ms, args.duration_s, |s| {
-            if let Some(e) = t.feed_sample(s) {
-                show(&e, args.json, "");
-            }
-            if kept.len() == LIVE_SAMPLES_KEPT {
-                kept.pop_front();
-            }
-            kept.push_back(*s);
-            Ok(())
-        })
-        .await?;
-        t.check_time_offset("live", kept.make_contiguous());
-        write_back = Some(client);
-        (t, configured)
     } else {
-        return Err("give --port, --log or --dataset".into());
+        let (b, configured) = open(&args.robot).await?;
+        let mut t = Tracker::new(config(configured), scale, args.every_m)?;
+        let mut log = match &args.record {
+            Some(p) => Some(LogWriter::create(
+                p,
+                header(&b, configured, args.period_ms),
+            )?),
+            None => None,
+        };
+        live(
+            &b,
+            &mut t,
+            args.period_ms,
+            args.duration_s,
+            Some(&args.drive),
+            log.as_mut(),
+            |e| show(e, args.json, ""),
+        )
+        .await?;
+        if let Some(l) = log.as_mut() {
+            l.flush()?;
+        }
+        base = Some(b);
+        (t, configured)
     };
     let last = tracker.estimate()?;
     show(&last, args.json, "final");
@@ -264,21 +340,23 @@ pub async fn track(args: TrackArgs) -> CliResult {
     let gate = tracker.filter().gate_stats();
     let excitation = tracker.filter().excitation(scale)?;
     let mut written = None;
-    if let (true, Some(client)) = (args.write_back, &write_back) {
+    if let (true, Some(base)) = (args.write_back, &base) {
         if last.e_b_std < args.max_std && last.e_d_std < args.max_std {
             let new = last.correction.apply(&configured)?;
-            let policy = if args.yes {
+            let policy = if args.drive.yes {
                 WritePolicy::Yes
             } else {
                 WritePolicy::Ask
             };
             let (applied, backup) = write_parameters(
-                &odocal::base::Base::single(client.clone()),
+                base,
                 &new,
                 policy,
                 0.1,
                 &args.backup_dir,
-                &mut StdinUi { yes: args.yes },
+                &mut StdinUi {
+                    yes: args.drive.yes,
+                },
                 &CancellationToken::new(),
             )
             .await?;

@@ -5,13 +5,17 @@
 //! computed from its *configured* parameters; the true robot then moves those rotations with
 //! its *true* parameters, integrated exactly ([`Pose::advance`]). The mismatch between the two
 //! is the systematic odometry error the calibration estimates. Every noise source is off by
-//! default, so a default simulator is deterministic and exact.
+//! default, so a default simulator is deterministic and exact. How its heading sensor errs
+//! (deviation, a gyro's scale, latency, loss…) is [`sensor`]'s.
+
+pub mod sensor;
 
 pub use crate::kinematics::Direction;
-use crate::kinematics::{wrap_angle, KinematicsError, Pose, WheelParams};
+use crate::kinematics::{wrap_angle, Displacement, KinematicsError, Pose, WheelParams};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
+use sensor::{HeadingModel, HeadingSensor};
 use serde::{Deserialize, Serialize};
 use std::f64::consts::FRAC_PI_2;
 
@@ -147,6 +151,7 @@ pub struct Simulator {
     start_pose: Pose,
     left_counts_total: f64,
     right_counts_total: f64,
+    sensor: HeadingSensor,
 }
 
 impl Simulator {
@@ -176,7 +181,28 @@ impl Simulator {
             start_pose: Pose::default(),
             left_counts_total: 0.0,
             right_counts_total: 0.0,
+            sensor: HeadingSensor::new(HeadingModel::default()),
         })
+    }
+
+    /// The same simulator whose heading sensor errs as `model` says.
+    pub fn with_heading_model(mut self, model: HeadingModel) -> Result<Self, SimError> {
+        model
+            .validate()
+            .map_err(|(name, value)| SimError::Noise { name, value })?;
+        self.sensor = HeadingSensor::new(model);
+        Ok(self)
+    }
+
+    /// How the heading sensor errs.
+    pub fn heading_model(&self) -> &HeadingModel {
+        self.sensor.model()
+    }
+
+    /// The simulation's clock is at `t_s` (s): a gyro's bias integrates, a latency looks back
+    /// from here. A mock that runs in time sets it before it reads the heading.
+    pub fn set_time(&mut self, t_s: f64) {
+        self.sensor.advance_to(t_s, &mut self.rng);
     }
 
     /// Sets where each square run starts (its heading tests angle wrapping, e.g. −179.9°).
@@ -232,10 +258,28 @@ impl Simulator {
         self.right_counts_total = 0.0;
     }
 
-    /// A compass reading of the current heading: CCW positive, with bias and noise, wrapped.
-    pub fn read_heading(&mut self) -> f64 {
+    /// A reading of the heading sensor now: CCW positive, wrapped, with the noise and bias of
+    /// the noise model and the errors of the heading model ([`sensor`]); `None` when the
+    /// reading is lost.
+    pub fn heading_reading(&mut self) -> Option<f64> {
         let noise = gaussian(&mut self.rng, self.noise.compass_sigma_rad);
-        wrap_angle(self.pose.heading_rad + self.noise.compass_bias_rad + noise)
+        self.heading_reading_with(noise)
+    }
+
+    /// [`Simulator::heading_reading`] with noise the caller drew (rad).
+    pub fn heading_reading_with(&mut self, noise_rad: f64) -> Option<f64> {
+        let seen = self.pose.heading_rad + self.noise.compass_bias_rad;
+        self.sensor.read(seen, noise_rad, &mut self.rng)
+    }
+
+    /// A reading of the heading sensor that cannot be lost (simulated studies, bags): as
+    /// [`Simulator::heading_reading`], a lost reading read again.
+    pub fn read_heading(&mut self) -> f64 {
+        loop {
+            if let Some(h) = self.heading_reading() {
+                return wrap_angle(h);
+            }
+        }
     }
 
     /// The wheel targets (encoder counts, left and right) the controller computes for `motion`.
@@ -243,10 +287,11 @@ impl Simulator {
         let c = &self.configured;
         let (left_arc, right_arc) = match *motion {
             Motion::Straight { distance_m } => (distance_m, distance_m),
-            Motion::TurnInPlace { angle_rad } => {
-                let arc = 0.5 * angle_rad * c.wheelbase_m;
-                (-arc, arc)
+            Motion::TurnInPlace { angle_rad } => Displacement {
+                distance_m: 0.0,
+                turn_rad: angle_rad,
             }
+            .wheels(c.wheelbase_m),
             Motion::Wheels { left_m, right_m } => (left_m, right_m),
         };
         let mut left = left_arc / c.left_m_per_count();
@@ -288,6 +333,14 @@ impl Simulator {
     /// any split into parts lands exactly where the whole motion does.
     pub fn advance_plan(&mut self, plan: &MotionPlan, from: f64, to: f64) -> Pose {
         let f = (to.clamp(0.0, 1.0) - from.clamp(0.0, 1.0)).max(0.0);
+        if f > 0.0 && (plan.left_arc_m != 0.0 || plan.right_arc_m != 0.0) {
+            let step = Displacement::of_wheels(
+                f * plan.left_arc_m,
+                f * plan.right_arc_m,
+                self.truth.wheelbase_m,
+            );
+            self.sensor.moved(step.turn_rad);
+        }
         self.pose = self.pose.advance(
             f * plan.left_arc_m,
             f * plan.right_arc_m,

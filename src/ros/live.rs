@@ -18,7 +18,7 @@ use crate::base::{
     Achieved, Base, BaseError, ComponentInfo, Drive, Fanout, HeadingSample, HeadingSource,
     ParamStore, Preflight, SampleStream, TravelSample, Validity,
 };
-use crate::kinematics::{wrap_angle, WheelParams};
+use crate::kinematics::{wrap_angle, Displacement, WheelParams};
 use async_trait::async_trait;
 use serde_json::{json, Value};
 use std::sync::{Arc, RwLock};
@@ -43,7 +43,7 @@ pub enum WheelSource {
 pub struct RosBaseConfig {
     /// `rosbridge://HOST:PORT` or `ws://HOST:PORT`.
     pub url: String,
-    /// The controller's YAML file.
+    /// The controller's YAML file (required; empty until given).
     pub yaml: std::path::PathBuf,
     /// The controller's name (its YAML section and its node).
     pub controller: String,
@@ -73,7 +73,7 @@ impl Default for RosBaseConfig {
     fn default() -> Self {
         RosBaseConfig {
             url: "rosbridge://localhost:9090".into(),
-            yaml: "diff_drive.yaml".into(),
+            yaml: std::path::PathBuf::new(),
             controller: "diff_drive_controller".into(),
             topics: RosTopics::default(),
             cmd_vel: "/cmd_vel".into(),
@@ -129,20 +129,33 @@ struct Commander {
     client: RosbridgeClient,
     topic: String,
     stamped: bool,
-    configured: Arc<RwLock<WheelParams>>,
+    configured: Geometry,
     running: Arc<RwLock<WheelParams>>,
+}
+
+/// The section a drive integrates with: the store's, staged values included.
+type Geometry = Arc<RwLock<DiffDriveConfig>>;
+
+/// The effective parameters of the section now.
+fn effective(g: &Geometry) -> WheelParams {
+    g.read().unwrap_or_else(|p| p.into_inner()).effective()
 }
 
 /// The twist that makes a controller running with `running` turn its wheels as (`v`, `w`) in
 /// `configured` asks.
 fn translate(v: f64, w: f64, configured: &WheelParams, running: &WheelParams) -> (f64, f64) {
-    let wl = (v - 0.5 * w * configured.wheelbase_m) / configured.left_m_per_count();
-    let wr = (v + 0.5 * w * configured.wheelbase_m) / configured.right_m_per_count();
-    let (sl, sr) = (
-        wl * running.left_m_per_count(),
-        wr * running.right_m_per_count(),
+    let asked = Displacement {
+        distance_m: v,
+        turn_rad: w,
+    };
+    let (l, r) = asked.wheels(configured.wheelbase_m);
+    // Wheel angle rates, then what the running geometry makes of them.
+    let (sl, sr) = running.travel_m(
+        l / configured.left_m_per_count(),
+        r / configured.right_m_per_count(),
     );
-    (0.5 * (sl + sr), (sr - sl) / running.wheelbase_m)
+    let made = Displacement::of_wheels(sl, sr, running.wheelbase_m);
+    (made.distance_m, made.turn_rad)
 }
 
 impl Commander {
@@ -150,7 +163,7 @@ impl Commander {
         let (v, w) = if v == 0.0 && w == 0.0 {
             (0.0, 0.0)
         } else {
-            let c = *self.configured.read().unwrap_or_else(|p| p.into_inner());
+            let c = effective(&self.configured);
             let r = *self.running.read().unwrap_or_else(|p| p.into_inner());
             translate(v, w, &c, &r)
         };
@@ -222,6 +235,11 @@ mod tests {
     }
 }
 
+/// The robot's clock: joint states, odometry and IMU messages carry its header stamps.
+fn robot_clock(url: &str) -> String {
+    format!("ros:{url}")
+}
+
 fn drive_err(e: impl std::error::Error + Send + Sync + 'static) -> BaseError {
     BaseError::backend("drive (rosbridge)", e)
 }
@@ -231,7 +249,7 @@ fn drive_err(e: impl std::error::Error + Send + Sync + 'static) -> BaseError {
 pub async fn connect(cfg: &RosBaseConfig) -> Result<Base, RosBaseError> {
     let yaml_cfg = DiffDriveConfig::load(&cfg.yaml, &cfg.controller)?;
     let store = YamlStore::open(&cfg.yaml, &cfg.controller)?;
-    let geometry = store.geometry();
+    let geometry = store.shared();
     let timeout = Duration::from_secs_f64(cfg.first_message_timeout_s.clamp(0.1, 60.0));
     let client = RosbridgeClient::connect(&cfg.url, timeout).await?;
     let left = cfg
@@ -367,7 +385,8 @@ fn stamp_of(v: &Value) -> Option<f64> {
     Some(sec + ns * 1e-9)
 }
 
-fn advance(odo: &mut Odo, stamp: f64, ds: f64, dth: f64) {
+fn advance(odo: &mut Odo, stamp: f64, step: Displacement) {
+    let (ds, dth) = (step.distance_m, step.turn_rad);
     let dt = (stamp - odo.stamp_s).max(1e-6);
     let moving = ds.abs() / dt > 0.002 || dth.abs() / dt > 0.01;
     odo.distance_m += ds;
@@ -381,9 +400,21 @@ fn advance(odo: &mut Odo, stamp: f64, ds: f64, dth: f64) {
     };
 }
 
+/// The next message of a subscription, passing over a lag (a slow reader loses messages, not
+/// the subscription); `None` once the connection is gone.
+async fn next_message(rx: &mut tokio::sync::broadcast::Receiver<Value>) -> Option<Value> {
+    loop {
+        match rx.recv().await {
+            Ok(v) => return Some(v),
+            Err(tokio::sync::broadcast::error::RecvError::Lagged(_)) => continue,
+            Err(_) => return None,
+        }
+    }
+}
+
 async fn integrate_joints(
     mut rx: tokio::sync::broadcast::Receiver<Value>,
-    geometry: Arc<RwLock<WheelParams>>,
+    geometry: Geometry,
     left: Option<String>,
     right: Option<String>,
     tx: watch::Sender<Odo>,
@@ -392,35 +423,30 @@ async fn integrate_joints(
     let mut last: Option<(f64, f64)> = None;
     let mut odo = Odo::default();
     loop {
-        let v = match rx.recv().await {
-            Ok(v) => v,
-            Err(tokio::sync::broadcast::error::RecvError::Lagged(_)) => continue,
-            Err(_) => return,
+        let Some(v) = next_message(&mut rx).await else {
+            return;
         };
         let Ok(js) = serde_json::from_value::<JointState>(v.clone()) else {
             continue;
         };
-        let find = |given: &Option<String>, side: &str| match given {
-            Some(g) => js.name.iter().position(|n| n == g),
-            None => {
-                let hits: Vec<usize> = (0..js.name.len())
-                    .filter(|&i| js.name[i].to_ascii_lowercase().contains(side))
-                    .collect();
-                (hits.len() == 1).then(|| hits[0])
-            }
-        };
-        let (Some(l), Some(r)) = (find(&left, "left"), find(&right, "right")) else {
+        let Some((l, r)) = js.wheel_indices(&left, &right) else {
             continue;
         };
         let (Some(&lp), Some(&rp)) = (js.position.get(l), js.position.get(r)) else {
             continue;
         };
         let stamp = stamp_of(&v).unwrap_or(odo.stamp_s);
-        let g = *geometry.read().unwrap_or_else(|p| p.into_inner());
+        let g = effective(&geometry);
         if let Some((l0, r0)) = last {
-            let sl = super::msg::angle_step(l0, lp) * g.left_m_per_count();
-            let sr = super::msg::angle_step(r0, rp) * g.right_m_per_count();
-            advance(&mut odo, stamp, 0.5 * (sl + sr), (sr - sl) / g.wheelbase_m);
+            let (sl, sr) = g.travel_m(
+                super::msg::angle_step(l0, lp),
+                super::msg::angle_step(r0, rp),
+            );
+            advance(
+                &mut odo,
+                stamp,
+                Displacement::of_wheels(sl, sr, g.wheelbase_m),
+            );
             travel.send(&TravelSample {
                 time_s: stamp,
                 left_m: sl,
@@ -437,17 +463,15 @@ async fn integrate_joints(
 
 async fn integrate_odom(
     mut rx: tokio::sync::broadcast::Receiver<Value>,
-    geometry: Arc<RwLock<WheelParams>>,
+    geometry: Geometry,
     tx: watch::Sender<Odo>,
     travel: Fanout<TravelSample>,
 ) {
     let mut last: Option<(f64, f64, f64)> = None;
     let mut odo = Odo::default();
     loop {
-        let v = match rx.recv().await {
-            Ok(v) => v,
-            Err(tokio::sync::broadcast::error::RecvError::Lagged(_)) => continue,
-            Err(_) => return,
+        let Some(v) = next_message(&mut rx).await else {
+            return;
         };
         let Ok(o) = serde_json::from_value::<Odometry>(v.clone()) else {
             continue;
@@ -460,16 +484,16 @@ async fn integrate_odom(
         if let Some((x0, y0, yaw0)) = last {
             let dth = wrap_angle(yaw - yaw0);
             let mid = yaw0 + 0.5 * dth;
-            let ds = (x - x0) * mid.cos() + (y - y0) * mid.sin();
-            let b = geometry
-                .read()
-                .unwrap_or_else(|p| p.into_inner())
-                .wheelbase_m;
-            advance(&mut odo, stamp, ds, dth);
+            let step = Displacement {
+                distance_m: (x - x0) * mid.cos() + (y - y0) * mid.sin(),
+                turn_rad: dth,
+            };
+            advance(&mut odo, stamp, step);
+            let (left_m, right_m) = step.wheels(effective(&geometry).wheelbase_m);
             travel.send(&TravelSample {
                 time_s: stamp,
-                left_m: ds - 0.5 * dth * b,
-                right_m: ds + 0.5 * dth * b,
+                left_m,
+                right_m,
             });
         } else {
             odo.samples = 1;
@@ -486,10 +510,8 @@ async fn follow_imu(
     streams: Fanout<HeadingSample>,
 ) {
     loop {
-        let v = match rx.recv().await {
-            Ok(v) => v,
-            Err(tokio::sync::broadcast::error::RecvError::Lagged(_)) => continue,
-            Err(_) => return,
+        let Some(v) = next_message(&mut rx).await else {
+            return;
         };
         let stamp = stamp_of(&v).unwrap_or(0.0);
         let sample = match serde_json::from_value::<Imu>(v) {
@@ -524,7 +546,7 @@ async fn follow_imu(
 }
 
 /// Which odometry quantity a motion watches.
-#[derive(Clone, Copy)]
+#[derive(Clone, Copy, PartialEq, Eq)]
 enum Kind {
     Straight,
     Turn,
@@ -533,12 +555,33 @@ enum Kind {
 impl RosDrive {
     /// Drives until the odometry's `kind` quantity has changed by `target`, ramping at the
     /// configured acceleration and limited to `max` (m/s or rad/s).
+    /// One motion closed on the odometry; a turn that ends more than [`TURN_TRIM_RAD`] off its
+    /// target is trimmed by up to two slow turns in place (a tenth of the rate): the braking
+    /// runs on messages that arrive late by the link's latency, and a square whose corners
+    /// are not square points its legs elsewhere than the other direction's (which the methods
+    /// that pair legs by azimuth rely on).
     async fn motion(
         &self,
         kind: Kind,
         target: f64,
         max: f64,
     ) -> Result<Option<Achieved>, BaseError> {
+        let mut done = self.motion_once(kind, target, max).await?;
+        if kind == Kind::Turn {
+            for _ in 0..2 {
+                let rest = target - done.turn_rad;
+                if rest.abs() <= TURN_TRIM_RAD {
+                    break;
+                }
+                let trim = self.motion_once(kind, rest, 0.1 * max).await?;
+                done.turn_rad += trim.turn_rad;
+                done.distance_m += trim.distance_m;
+            }
+        }
+        Ok(Some(done))
+    }
+
+    async fn motion_once(&self, kind: Kind, target: f64, max: f64) -> Result<Achieved, BaseError> {
         if !(target.is_finite() && max.is_finite() && max > 0.0) {
             return Err(BaseError::InvalidArgument {
                 component: "drive (rosbridge)".into(),
@@ -634,12 +677,15 @@ impl RosDrive {
             return Err(drive_err(RosbridgeError::Closed("wheel data ended".into())));
         }
         let end = *self.odo.borrow();
-        Ok(Some(Achieved {
+        Ok(Achieved {
             distance_m: end.distance_m - start.distance_m,
             turn_rad: end.turn_rad - start.turn_rad,
-        }))
+        })
     }
 }
+
+/// A turn that ends further than this from its target (rad; 0.2°) by the odometry is trimmed.
+pub const TURN_TRIM_RAD: f64 = 0.2 * std::f64::consts::PI / 180.0;
 
 #[async_trait]
 impl Drive for RosDrive {
@@ -706,6 +752,10 @@ impl Drive for RosDrive {
     ) -> Result<Option<SampleStream<TravelSample>>, BaseError> {
         Ok(Some(self.travel.subscribe()))
     }
+
+    fn clock(&self) -> Option<String> {
+        Some(robot_clock(&self.cfg.url))
+    }
 }
 
 impl Drop for RosDrive {
@@ -729,11 +779,18 @@ impl HeadingSource for RosHeading {
         // Robot time of the newest wheel data: the reading must be at least as new, so that a
         // heading "at rest" is never one taken before the wheels stopped (messages of the two
         // topics can be processed at different paces).
+        // And it must arrive after this call: the newest cached message returned to every read
+        // would make ten readings at rest one reading ten times (a noise of zero, an average of
+        // one sample).
         let newest = self.wheels.borrow().stamp_s;
+        let asked = Instant::now();
         let mut rx = self.latest.clone();
         let fresh = tokio::time::timeout(
             self.stale,
-            rx.wait_for(|h| h.as_ref().is_some_and(|(_, s)| s.time_s >= newest)),
+            rx.wait_for(|h| {
+                h.as_ref()
+                    .is_some_and(|(at, s)| *at > asked && s.time_s >= newest)
+            }),
         )
         .await;
         match fresh {
@@ -751,7 +808,7 @@ impl HeadingSource for RosHeading {
                     time_s: last.as_ref().map_or(0.0, |(_, s)| s.time_s),
                     heading_rad: last.as_ref().map_or(0.0, |(_, s)| s.heading_rad),
                     validity: Validity::Invalid(format!(
-                        "stale: no {} message as new as the wheel data ({newest:.3} s) within {:?}",
+                        "stale: no new {} message as new as the wheel data ({newest:.3} s) within {:?}",
                         self.topic, self.stale
                     )),
                 })
@@ -764,6 +821,10 @@ impl HeadingSource for RosHeading {
         _period: Duration,
     ) -> Result<Option<SampleStream<HeadingSample>>, BaseError> {
         Ok(Some(self.streams.subscribe()))
+    }
+
+    fn clock(&self) -> Option<String> {
+        Some(robot_clock(&self.url))
     }
 }
 
@@ -788,10 +849,7 @@ impl ParamStore for RosStore {
         let staged = self.yaml.read().await?;
         self.yaml.commit().await?;
         if self.set_live {
-            let cfg = self
-                .yaml
-                .config()
-                .map_err(|e| BaseError::backend("store", e))?;
+            let cfg = self.yaml.on_disk()?;
             let m = cfg.multipliers_for(&staged);
             let values = [
                 m.wheel_separation_multiplier,

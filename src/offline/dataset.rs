@@ -14,9 +14,13 @@
 //! did removes that execution error from the calibration. Final positions likewise are ground
 //! truth minus odometry, in the start frame.
 
+use crate::calibration::legs::LegMeasurement;
+use crate::calibration::online::OnlineEstimate;
 use crate::calibration::pool::{
     pool_methods, Pooled, PooledMethods, RecordingEstimates, UncertaintyKind,
 };
+use crate::calibration::recording::{Clocks, HeadingSample, Recording, TravelSample, Validity};
+use crate::calibration::tracker::Tracker;
 use crate::calibration::{self, Estimate, Method, RunMeasurement, SquareTest};
 use crate::kinematics::{
     wrap_angle, Direction, Pose, SplitConvention, WheelParams, MAX_WHEEL_SPEED_M_S,
@@ -118,36 +122,50 @@ pub struct RunEnd {
 }
 
 impl RecordedRun {
-    /// The heading error along the legs ([`crate::calibration::legs`]): ground-truth heading
-    /// minus odometry heading (configured `params`), middle of the first leg to the middle of
-    /// the last; `None` unless the odometry finds exactly four legs.
-    pub fn leg_heading_error(&self, params: &WheelParams) -> Option<f64> {
-        use crate::calibration::legs::{leg_heading_error, LegSample};
-        let first = self.samples.first()?;
-        let (mut truth_turn, mut odo_turn, mut prev) = (0.0, 0.0, first.truth.heading_rad);
-        let mut out = vec![LegSample {
-            t: first.time_s,
-            ds: 0.0,
-            dth: 0.0,
-            error_rad: 0.0,
-        }];
-        for s in self.samples.iter().skip(1) {
-            let (sl, sr) = (
-                s.left_counts * params.left_m_per_count(),
-                s.right_counts * params.right_m_per_count(),
-            );
-            let dth = (sr - sl) / params.wheelbase_m;
-            odo_turn += dth;
-            truth_turn += wrap_angle(s.truth.heading_rad - prev);
-            prev = s.truth.heading_rad;
-            out.push(LegSample {
-                t: s.time_s,
-                ds: 0.5 * (sl + sr),
-                dth,
-                error_rad: truth_turn - odo_turn,
-            });
+    /// The run as a [`Recording`]: the encoder increments as wheel travel under `params` (the
+    /// first row's, from before the run started, left out) and the ground-truth heading as the
+    /// heading stream, both on the run's clock.
+    pub fn recording(&self, params: &WheelParams) -> Recording {
+        let travel = self
+            .samples
+            .iter()
+            .enumerate()
+            .map(|(i, s)| {
+                let (left_m, right_m) = if i == 0 {
+                    (0.0, 0.0)
+                } else {
+                    params.travel_m(s.left_counts, s.right_counts)
+                };
+                TravelSample {
+                    time_s: s.time_s,
+                    left_m,
+                    right_m,
+                }
+            })
+            .collect();
+        let headings = self
+            .samples
+            .iter()
+            .map(|s| HeadingSample {
+                time_s: s.time_s,
+                heading_rad: s.truth.heading_rad,
+                validity: Validity::Valid,
+            })
+            .collect();
+        Recording {
+            travel,
+            headings,
+            clocks: Clocks::Shared,
         }
-        leg_heading_error(&out, params.wheelbase_m)
+    }
+
+    /// The heading along the legs ([`crate::calibration::legs`]): ground-truth heading minus
+    /// odometry heading (configured `params`), middle of the first leg to the middle of the
+    /// last; `None` unless the odometry finds exactly four legs.
+    pub fn leg_measurement(&self, params: &WheelParams) -> Option<LegMeasurement> {
+        self.recording(params)
+            .track(params.wheelbase_m)
+            .leg_measurement(params.wheelbase_m)
     }
 
     /// Integrates the run's encoder increments with `params` and reports both final poses.
@@ -198,8 +216,7 @@ fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> DatasetError + '_ {
 }
 
 fn reader(path: &Path) -> Result<csv::Reader<std::io::Take<std::fs::File>>, DatasetError> {
-    let file = crate::base::files::open_bounded(path, crate::base::files::MAX_DATA_FILE)
-        .map_err(io_err(path))?;
+    let file = crate::io::open_bounded(path, crate::io::MAX_DATA_FILE).map_err(io_err(path))?;
     Ok(csv::ReaderBuilder::new()
         .has_headers(false)
         .flexible(true)
@@ -437,6 +454,15 @@ impl OptiOdomSet {
         })
     }
 
+    /// Feeds every run to `tracker`, each as a run of its own (the ground-truth heading plays
+    /// the compass); returns the checkpoints passed.
+    pub fn feed(&self, tracker: &mut Tracker) -> Vec<OnlineEstimate> {
+        self.runs
+            .iter()
+            .flat_map(|run| tracker.feed_recording(&run.name, &run.recording(&self.configured)))
+            .collect()
+    }
+
     /// The set as a bi-directional square test (direction told from the ground-truth turn).
     pub fn square_test(&self) -> Result<SquareTest, DatasetError> {
         let side_m = self
@@ -461,13 +487,20 @@ impl OptiOdomSet {
                     turn_deg: end.truth_turn_rad.to_degrees(),
                 });
             };
+            let track = run
+                .recording(&self.configured)
+                .track(self.configured.wheelbase_m);
+            let odometry = track.odometry_in(0..track.points.len());
+            let legs = track.leg_measurement(self.configured.wheelbase_m);
             let m = RunMeasurement {
                 heading_error_rad: wrap_angle(end.truth_turn_rad - end.odometry_turn_rad),
                 final_xy_m: Some([
                     end.truth.x_m - end.odometry.x_m,
                     end.truth.y_m - end.odometry.y_m,
                 ]),
-                leg_heading_error_rad: run.leg_heading_error(&self.configured),
+                odometry: Some(odometry),
+                legs,
+                noise_variance_rad2: None,
             };
             match direction {
                 Direction::Cw => test.cw.push(m),
@@ -637,6 +670,8 @@ pub fn replay(
     let default_method = calibration::default_method(
         has(SquareTest::has_leg_headings),
         has(SquareTest::has_positions),
+        // Motion capture: the heading is the reference.
+        calibration::HeadingKind::Reference,
     )
     .filter(|m| pooled.iter().any(|p| p.method == *m));
     Ok(Replay {

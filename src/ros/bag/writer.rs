@@ -1,10 +1,10 @@
 //! Writing ROS 2 bags (MCAP, CDR) with the topics odocal reads: simulated square tests and
 //! recorded OptiOdom sets, so a user can see what to record and tests can check `odocal bag`.
 
-use super::bag::{BagError, RosTopics};
-use super::msg::{cdr, types, Header, Imu, JointState, Odometry, Quaternion, Time};
-use super::yaml::RAD_PER_REV;
+use super::{BagError, RosTopics};
 use crate::kinematics::{wrap_angle, Direction, WheelParams};
+use crate::ros::msg::{cdr, types, Header, Imu, JointState, Odometry, Quaternion, Time};
+use crate::ros::yaml::RAD_PER_REV;
 use serde::Serialize;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -203,8 +203,13 @@ pub fn write_simulated_bag(
     // One time step: IMU every step, joints and odometry every `sub` steps.
     let mut emit =
         |w: &mut BagWriter, sim: &mut crate::sim::Simulator, t: f64| -> Result<(), BagError> {
-            w.imu(t, sim.read_heading())?;
-            messages += 1;
+            // The sensor's clock is the bag's: a late sensor shows the robot `latency` ago, a
+            // lost reading is a message not written.
+            sim.set_time(t);
+            if let Some(yaw) = sim.heading_reading() {
+                w.imu(t, yaw)?;
+                messages += 1;
+            }
             if step.is_multiple_of(sub) {
                 let (l, r) = sim.encoder_counts();
                 odo = configured.odometry_step(&odo, l - last.0, r - last.1);
@@ -261,7 +266,7 @@ pub fn write_simulated_bag(
 /// calibrates as `odocal replay` does on the set.
 pub fn write_optiodom_bag(
     path: &Path,
-    set: &crate::dataset::OptiOdomSet,
+    set: &crate::offline::dataset::OptiOdomSet,
     rest_s: f64,
     topics: &RosTopics,
 ) -> Result<u64, BagError> {

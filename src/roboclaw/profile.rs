@@ -1,6 +1,6 @@
 //! A robot profile: the TOML file that holds the geometry of a robot whose controller knows
 //! none (a RoboClaw counts encoder ticks), how it is wired, and its limits — and, as a
-//! [`ParamStore`], where a calibration writes back.
+//! [`crate::base::ParamStore`], where a calibration writes back.
 //!
 //! ```toml
 //! [geometry]
@@ -24,13 +24,10 @@
 //! Writing back changes only the three geometry values, in place (comments and everything else
 //! stay, `toml_edit`), after copying the file beside itself, and replaces it atomically.
 
-use crate::base::files::{backup_beside, replace_atomically};
-use crate::base::{BaseError, ComponentInfo, ParamStore};
+use crate::base::{FileStore, ParamFile};
 use crate::kinematics::WheelParams;
-use async_trait::async_trait;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
-use std::sync::{Arc, Mutex, RwLock};
 
 /// A profile that cannot be used.
 #[derive(Debug, thiserror::Error)]
@@ -192,7 +189,7 @@ impl Profile {
 }
 
 fn read_bounded(path: &Path) -> Result<String, ProfileError> {
-    crate::base::files::read_bounded(path, 1 << 20).map_err(|source| ProfileError::Io {
+    crate::io::read_bounded(path, crate::io::MAX_TEXT_FILE).map_err(|source| ProfileError::Io {
         path: path.to_path_buf(),
         source,
     })
@@ -238,115 +235,67 @@ pub fn with_geometry(text: &str, p: &WheelParams, path: &Path) -> Result<String,
     Ok(out)
 }
 
-/// The profile as a [`ParamStore`]: `write` stages (and updates the geometry a drive counts
-/// with), `commit` rewrites the file.
-pub struct ProfileStore {
-    path: PathBuf,
-    staged: Mutex<Option<WheelParams>>,
-    backup: Mutex<Option<PathBuf>>,
-    geometry: Arc<RwLock<Profile>>,
-}
+/// The profile's format for a [`FileStore`]: its geometry is the parameters, the wiring and
+/// limits come along for the drive.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct ProfileFile;
 
-fn store_err(e: ProfileError) -> BaseError {
-    BaseError::backend("store (profile)", e)
-}
+impl ParamFile for ProfileFile {
+    type Content = Profile;
+    type Error = ProfileError;
 
-impl ProfileStore {
-    /// Opens a profile.
-    pub fn open(path: &Path) -> Result<Self, ProfileError> {
-        let p = Profile::load(path)?;
-        Ok(ProfileStore {
-            path: path.to_path_buf(),
-            staged: Mutex::new(None),
-            backup: Mutex::new(None),
-            geometry: Arc::new(RwLock::new(p)),
+    fn kind(&self) -> &'static str {
+        "robot-profile"
+    }
+
+    fn id(&self, path: &Path) -> String {
+        path.display().to_string()
+    }
+
+    fn details(&self, path: &Path) -> serde_json::Value {
+        serde_json::json!({ "file": path })
+    }
+
+    fn parse(&self, text: &str, path: &Path) -> Result<Profile, ProfileError> {
+        Profile::parse(text, path)
+    }
+
+    fn params(content: &Profile) -> WheelParams {
+        content.params()
+    }
+
+    fn render(
+        &self,
+        text: &str,
+        params: &WheelParams,
+        path: &Path,
+    ) -> Result<String, ProfileError> {
+        with_geometry(text, params, path)
+    }
+
+    fn refuse(&self, current: &WheelParams, params: &WheelParams) -> Option<String> {
+        ((params.counts_per_wheel_rev - current.counts_per_wheel_rev).abs() > 1e-9).then(|| {
+            "encoder resolution and gearing are not calibrated: counts per revolution must stay"
+                .into()
         })
     }
 
-    /// The profile in use (staged geometry included), shared with a drive.
-    pub fn shared(&self) -> Arc<RwLock<Profile>> {
-        self.geometry.clone()
-    }
-
-    /// The copy of the file made before its first replacement.
-    pub fn file_backup(&self) -> Option<PathBuf> {
-        self.backup
-            .lock()
-            .unwrap_or_else(|p| p.into_inner())
-            .clone()
+    fn io_error(&self, path: &Path, source: std::io::Error) -> ProfileError {
+        ProfileError::Io {
+            path: path.to_path_buf(),
+            source,
+        }
     }
 }
 
-#[async_trait]
-impl ParamStore for ProfileStore {
-    fn info(&self) -> ComponentInfo {
-        ComponentInfo {
-            kind: "robot-profile".into(),
-            id: self.path.display().to_string(),
-            details: serde_json::json!({ "file": self.path }),
-        }
-    }
+/// The profile as a [`crate::base::ParamStore`]: `write` stages (and updates the profile a
+/// drive counts with), `commit` rewrites the file ([`FileStore`]).
+pub type ProfileStore = FileStore<ProfileFile>;
 
-    async fn read(&self) -> Result<WheelParams, BaseError> {
-        Ok(self
-            .geometry
-            .read()
-            .unwrap_or_else(|p| p.into_inner())
-            .params())
-    }
-
-    async fn write(&self, params: &WheelParams) -> Result<WheelParams, BaseError> {
-        params.validate().map_err(|e| BaseError::InvalidArgument {
-            component: "store (profile)".into(),
-            reason: e.to_string(),
-        })?;
-        let mut g = self.geometry.write().unwrap_or_else(|p| p.into_inner());
-        if (params.counts_per_wheel_rev - g.params().counts_per_wheel_rev).abs() > 1e-9 {
-            return Err(BaseError::InvalidArgument {
-                component: "store (profile)".into(),
-                reason: "encoder resolution and gearing are not calibrated: counts per revolution must stay".into(),
-            });
-        }
-        let text = read_bounded(&self.path).map_err(store_err)?;
-        let held = Profile::parse(
-            &with_geometry(&text, params, &self.path).map_err(store_err)?,
-            &self.path,
-        )
-        .map_err(store_err)?;
-        *g = held;
-        *self.staged.lock().unwrap_or_else(|p| p.into_inner()) = Some(held.params());
-        Ok(held.params())
-    }
-
-    async fn commit(&self) -> Result<(), BaseError> {
-        let Some(p) = *self.staged.lock().unwrap_or_else(|p| p.into_inner()) else {
-            return Ok(());
-        };
-        let io = |source| {
-            store_err(ProfileError::Io {
-                path: self.path.clone(),
-                source,
-            })
-        };
-        let text = read_bounded(&self.path).map_err(store_err)?;
-        let out = with_geometry(&text, &p, &self.path).map_err(store_err)?;
-        {
-            let mut b = self.backup.lock().unwrap_or_else(|p| p.into_inner());
-            if b.is_none() {
-                *b = Some(backup_beside(&self.path).map_err(io)?);
-            }
-        }
-        replace_atomically(&self.path, &out).map_err(io)?;
-        *self.staged.lock().unwrap_or_else(|p| p.into_inner()) = None;
-        Ok(())
-    }
-
-    async fn read_committed(&self) -> Result<Option<WheelParams>, BaseError> {
-        Ok(Some(Profile::load(&self.path).map_err(store_err)?.params()))
-    }
-
-    fn resolution(&self) -> WheelParams {
-        crate::base::files::FILE_RESOLUTION
+impl FileStore<ProfileFile> {
+    /// Opens a profile.
+    pub fn open(path: &Path) -> Result<Self, ProfileError> {
+        FileStore::with_format(ProfileFile, path)
     }
 }
 

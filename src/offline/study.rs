@@ -87,7 +87,7 @@ pub fn square_test(
             .map(|r| RunMeasurement {
                 heading_error_rad: r.measured_heading_error_rad,
                 final_xy_m: Some(r.measured_final_xy_m),
-                leg_heading_error_rad: None,
+                ..RunMeasurement::default()
             })
             .collect()
     };

@@ -1,7 +1,7 @@
-//! Safe writes for file-backed parameter stores: a backup copy beside the file, created
-//! exclusively, and an atomic replacement that keeps the file's permissions.
+//! Files: bounded reads (only regular files, never more than a kind's bound), atomic
+//! replacement that keeps a file's permissions, files created new (never replacing one, never
+//! following a link), and backup copies beside a file.
 
-use crate::kinematics::WheelParams;
 use std::io::Write as _;
 use std::path::{Path, PathBuf};
 
@@ -75,7 +75,7 @@ pub fn create_unique(name: impl Fn(u32) -> PathBuf, bytes: &[u8]) -> std::io::Re
 /// Copies `path` to a new `<path>.odocal-backup-<ms>[-n]` beside it, never overwriting.
 pub fn backup_beside(path: &Path) -> std::io::Result<PathBuf> {
     let stamp = stamp_ms();
-    let text = read_bounded_bytes(path, MAX_TEXT_FILE)?;
+    let text = read_bounded_bytes(path, super::MAX_TEXT_FILE)?;
     create_unique(
         |n| {
             let mut name = path.as_os_str().to_owned();
@@ -128,18 +128,3 @@ pub fn read_bounded(path: &Path, max_bytes: u64) -> std::io::Result<String> {
     String::from_utf8(read_bounded_bytes(path, max_bytes)?)
         .map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidData, e))
 }
-
-/// Most bytes odocal reads of a configuration, backup, routine or report file.
-pub const MAX_TEXT_FILE: u64 = 16 << 20;
-
-/// Most bytes odocal reads of one recorded run or telemetry log (hours of 200 Hz samples).
-pub const MAX_DATA_FILE: u64 = 1 << 30;
-
-/// What a file store written with odocal's text formats resolves: values are written with
-/// at least ten significant decimals, far below a nanometre at robot sizes.
-pub const FILE_RESOLUTION: WheelParams = WheelParams {
-    left_wheel_diameter_m: 1e-9,
-    right_wheel_diameter_m: 1e-9,
-    wheelbase_m: 1e-9,
-    counts_per_wheel_rev: 1e-9,
-};

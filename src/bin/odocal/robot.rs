@@ -1,0 +1,147 @@
+//! The flags that say where a robot is, shared by `calibrate`, `track` and `record`: they become
+//! a [`RobotSection`] laid over a routine file's, and the library makes the spec.
+
+use odocal::ros::live::{RosBaseConfig, WheelSource};
+use odocal::spec::{BaseSpec, RobotSection};
+use std::path::PathBuf;
+
+type Error = Box<dyn std::error::Error>;
+
+/// Where the robot is.
+#[derive(Debug, Clone, clap::Args)]
+pub struct RobotArgs {
+    /// Serial port of a motor controller that speaks odocal's protocol.
+    #[arg(long, conflicts_with = "base")]
+    port: Option<String>,
+    /// The drive: rosbridge://HOST:PORT (a ROS robot; needs --ros-yaml),
+    /// 'roboclaw:PORT?address=128&baud=38400' (needs --heading and --profile), or
+    /// odocal:PORT?baud=115200. Quote it: a shell ends the command at `&`.
+    #[arg(long)]
+    base: Option<String>,
+    /// Baud rate of an odocal-protocol controller [default: 115200].
+    #[arg(long)]
+    baud: Option<u32>,
+    /// The heading source, when it is not the drive's own: nmea:PORT[?baud=4800].
+    #[arg(long)]
+    heading: Option<String>,
+    /// The robot profile of a drive that keeps no parameters (a RoboClaw): geometry, wiring,
+    /// limits; written back.
+    #[arg(long)]
+    profile: Option<PathBuf>,
+    /// What the heading sensor is: magnetic (a compass; deviation possible), gyro
+    /// (integrated; its scale error enters E_b), reference (ground truth) or unknown
+    /// [default: what the backend says; a ROS IMU is unknown].
+    #[arg(long)]
+    heading_kind: Option<String>,
+    /// A compass deviation to remove from every reading, A1,B1,A2,B2 in degrees
+    /// (d(ψ) = A1·sin ψ + B1·cos ψ + A2·sin 2ψ + B2·cos 2ψ, as `odocal swing` prints it).
+    #[arg(long, allow_hyphen_values = true)]
+    compass_deviation_deg: Option<String>,
+    #[command(flatten)]
+    ros: RosFlags,
+}
+
+/// ROS settings of `--base rosbridge://…` (a routine file's `[robot.ros]` table holds the same
+/// keys).
+#[derive(Debug, Clone, Default, clap::Args)]
+pub struct RosFlags {
+    /// The controller's ros2_control YAML: the geometry is read from it and the calibrated
+    /// multipliers are written into it (backed up beside it first).
+    #[arg(long)]
+    ros_yaml: Option<PathBuf>,
+    /// The diff_drive_controller's name [default: diff_drive_controller].
+    #[arg(long)]
+    controller: Option<String>,
+    /// Velocity topic [default: /cmd_vel; newer setups use /diff_drive_controller/cmd_vel].
+    #[arg(long)]
+    cmd_vel: Option<String>,
+    /// Publish geometry_msgs/TwistStamped instead of Twist.
+    #[arg(long)]
+    twist_stamped: bool,
+    /// Where the drive's odometry comes from: joint-states (default) or odom.
+    #[arg(long)]
+    wheel_source: Option<String>,
+    /// Joint states topic [default: /joint_states].
+    #[arg(long)]
+    joint_states_topic: Option<String>,
+    /// IMU topic [default: /imu].
+    #[arg(long)]
+    imu_topic: Option<String>,
+    /// Odometry topic [default: /odom].
+    #[arg(long)]
+    odom_topic: Option<String>,
+    /// Also set the written multipliers on the running controller (set_parameters).
+    #[arg(long)]
+    ros_set_live: bool,
+}
+
+impl RosFlags {
+    /// Whether any ROS flag was given.
+    fn any(&self) -> bool {
+        self.ros_yaml.is_some()
+            || self.controller.is_some()
+            || self.cmd_vel.is_some()
+            || self.twist_stamped
+            || self.wheel_source.is_some()
+            || self.joint_states_topic.is_some()
+            || self.imu_topic.is_some()
+            || self.odom_topic.is_some()
+            || self.ros_set_live
+    }
+
+    /// `c` with the flags given laid over it.
+    fn apply(&self, mut c: RosBaseConfig) -> Result<RosBaseConfig, Error> {
+        if let Some(y) = &self.ros_yaml {
+            c.yaml = y.clone();
+        }
+        if let Some(v) = &self.controller {
+            c.controller = v.clone();
+        }
+        if let Some(v) = &self.cmd_vel {
+            c.cmd_vel = v.clone();
+        }
+        c.twist_stamped |= self.twist_stamped;
+        c.set_live |= self.ros_set_live;
+        if let Some(v) = &self.wheel_source {
+            c.wheel_source = match v.as_str() {
+                "joint-states" => WheelSource::JointStates,
+                "odom" => WheelSource::Odom,
+                other => {
+                    return Err(format!("--wheel-source {other}: use joint-states or odom").into())
+                }
+            };
+        }
+        if let Some(v) = &self.joint_states_topic {
+            c.topics.joint_states = v.clone();
+        }
+        if let Some(v) = &self.imu_topic {
+            c.topics.imu = v.clone();
+        }
+        if let Some(v) = &self.odom_topic {
+            c.topics.odom = v.clone();
+        }
+        Ok(c)
+    }
+}
+
+impl RobotArgs {
+    /// The robot: a routine file's section (if any) with these flags laid over it.
+    pub fn spec(&self, file: RobotSection) -> Result<BaseSpec, Error> {
+        let ros = match (file.ros.clone(), self.ros.any()) {
+            (Some(c), _) => Some(self.ros.apply(c)?),
+            (None, true) => Some(self.ros.apply(RosBaseConfig::default())?),
+            (None, false) => None,
+        };
+        let flags = RobotSection {
+            drive: self.port.clone().or_else(|| self.base.clone()),
+            baud: self.baud,
+            heading: self.heading.clone(),
+            store: None,
+            profile: self.profile.clone(),
+            ros,
+            heading_kind: self.heading_kind.clone(),
+            compass_deviation_deg: self.compass_deviation_deg.clone(),
+        };
+        Ok(file.over(flags).spec()?)
+    }
+}

@@ -1,0 +1,182 @@
+//! A tracking session of the online filter ([`super::online`]): samples in, estimates out at
+//! checkpoints every so many metres, from live streams or from recordings.
+//!
+//! Live samples arrive as two streams ([`Tracker::push_travel`], [`Tracker::push_heading`]) and
+//! are merged into time order ([`super::recording::Merger`]); a recording is fed the same way
+//! after its clocks are aligned ([`Tracker::feed_recording`]), a significant clock offset
+//! removed first and noted in [`Tracker::time_offsets`]. Live streams cannot be re-read: a live
+//! session checks its samples for an offset at the end and only reports it
+//! ([`Tracker::check_time_offset`]). Because the merged order depends only on the stamps, the
+//! replay of a live session's samples gives the same numbers as the session did (unless the
+//! replay removes an offset the live session could only report).
+
+use super::online::{OnlineConfig, OnlineEstimate, OnlineEstimator, ScaleSource};
+use super::recording::{Clocks, Event, Feeder, HeadingSample, Merger, Recording, TravelSample};
+use super::time_offset::TimeOffset;
+use super::CalibrationError;
+use serde::Serialize;
+
+/// Least driving (m) before the online filter reports an estimate.
+pub const MIN_DISTANCE_M: f64 = 0.5;
+
+/// A time offset found in one run of input.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct RunTimeOffset {
+    /// The run (file name, "log", "live").
+    pub run: String,
+    /// What was found.
+    pub offset: TimeOffset,
+    /// Whether the heading was re-read at the shifted time before it was fed.
+    pub corrected: bool,
+}
+
+/// The online estimator with checkpoints every `every_m` metres driven.
+pub struct Tracker {
+    filter: OnlineEstimator,
+    scale: ScaleSource,
+    merger: Merger,
+    feeder: Feeder,
+    every_m: f64,
+    next_m: f64,
+    /// Estimates taken at each checkpoint.
+    pub checkpoints: Vec<OnlineEstimate>,
+    /// Clock offsets found between the travel and heading streams, per run checked.
+    pub time_offsets: Vec<RunTimeOffset>,
+}
+
+impl Tracker {
+    /// A tracker over a fresh filter; live samples are taken to share one clock until
+    /// [`Tracker::start_stream`] says otherwise.
+    pub fn new(
+        cfg: OnlineConfig,
+        scale: ScaleSource,
+        every_m: f64,
+    ) -> Result<Self, CalibrationError> {
+        let every_m = if every_m.is_finite() {
+            every_m.max(0.01)
+        } else {
+            1.0
+        };
+        Ok(Tracker {
+            filter: OnlineEstimator::new(cfg)?,
+            scale,
+            merger: Merger::new(Clocks::Shared),
+            feeder: Feeder::new(),
+            every_m,
+            next_m: every_m,
+            checkpoints: Vec::new(),
+            time_offsets: Vec::new(),
+        })
+    }
+
+    /// The filter.
+    pub fn filter(&self) -> &OnlineEstimator {
+        &self.filter
+    }
+
+    /// The current estimate.
+    ///
+    /// Input with no driving or no heading readings has nothing to estimate from: that is
+    /// [`CalibrationError::TooLittleData`], not the prior dressed up as a result.
+    pub fn estimate(&self) -> Result<OnlineEstimate, CalibrationError> {
+        let (_, heading_updates) = self.filter.nis_mean();
+        let distance_m = self.filter.distance_m();
+        if heading_updates < 2 || distance_m < MIN_DISTANCE_M {
+            return Err(CalibrationError::TooLittleData {
+                distance_m,
+                heading_updates,
+            });
+        }
+        self.filter.estimate(self.scale)
+    }
+
+    fn maybe_checkpoint(&mut self) -> Option<OnlineEstimate> {
+        if self.filter.distance_m() >= self.next_m {
+            // The next multiple of `every_m` past the distance, in one step: a loop adding
+            // `every_m` would run for ever once the distance is beyond float resolution.
+            let d = self.filter.distance_m();
+            self.next_m = ((d / self.every_m).floor() + 1.0) * self.every_m;
+            if self.next_m.partial_cmp(&d) != Some(std::cmp::Ordering::Greater) {
+                self.next_m = f64::INFINITY;
+            }
+            if let Ok(e) = self.estimate() {
+                self.checkpoints.push(e);
+                return Some(e);
+            }
+        }
+        None
+    }
+
+    fn feed(&mut self, events: Vec<Event>) -> Vec<OnlineEstimate> {
+        let mut out = Vec::new();
+        for e in &events {
+            self.feeder.feed(&mut self.filter, e);
+            out.extend(self.maybe_checkpoint());
+        }
+        out
+    }
+
+    /// Starts a new stretch of driving whose streams' clocks relate as `clocks`: the pose
+    /// starts again at the origin (the parameters carry over).
+    pub fn start_stream(&mut self, clocks: Clocks) -> Vec<OnlineEstimate> {
+        let out = self.finish_stream();
+        self.filter.restart_pose();
+        self.merger = Merger::new(clocks);
+        self.feeder = Feeder::new();
+        out
+    }
+
+    /// Takes a live travel sample; returns the checkpoints passed.
+    pub fn push_travel(&mut self, s: TravelSample) -> Vec<OnlineEstimate> {
+        self.merger.push_travel(s);
+        let ready = self.merger.ready();
+        self.feed(ready)
+    }
+
+    /// Takes a live heading sample; returns the checkpoints passed.
+    pub fn push_heading(&mut self, s: HeadingSample) -> Vec<OnlineEstimate> {
+        self.merger.push_heading(s);
+        let ready = self.merger.ready();
+        self.feed(ready)
+    }
+
+    /// Feeds what the streams left waiting (they ended); returns the checkpoints passed.
+    pub fn finish_stream(&mut self) -> Vec<OnlineEstimate> {
+        let rest = self.merger.finish();
+        let out = self.feed(rest);
+        self.feeder.finish(&mut self.filter);
+        out
+    }
+
+    /// Feeds a whole recording as a run of its own (the pose starts at the origin): checked
+    /// for a clock offset first and corrected if it is significant; returns the checkpoints
+    /// passed.
+    pub fn feed_recording(&mut self, run: &str, recording: &Recording) -> Vec<OnlineEstimate> {
+        let wheelbase = self.filter.config().configured.wheelbase_m;
+        let (aligned, alignment) = recording.aligned(wheelbase);
+        if let Some(offset) = alignment.offset {
+            self.time_offsets.push(RunTimeOffset {
+                run: run.into(),
+                offset,
+                corrected: alignment.corrected,
+            });
+        }
+        let mut out = self.start_stream(Clocks::Shared);
+        out.extend(self.feed(aligned.events()));
+        self.feeder.finish(&mut self.filter);
+        out
+    }
+
+    /// Checks samples already fed live for a clock offset and records it uncorrected; returns
+    /// it when one could be estimated.
+    pub fn check_time_offset(&mut self, run: &str, recording: &Recording) -> Option<TimeOffset> {
+        let wheelbase = self.filter.config().configured.wheelbase_m;
+        let offset = recording.time_offset(wheelbase)?;
+        self.time_offsets.push(RunTimeOffset {
+            run: run.into(),
+            offset,
+            corrected: false,
+        });
+        Some(offset)
+    }
+}

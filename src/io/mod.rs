@@ -1,0 +1,35 @@
+//! Input and output every layer above shares: bounded reads, atomic writes, files created new,
+//! backups ([`files`]), the size bounds of every kind of file odocal reads ([`SIZE_BOUNDS`]),
+//! and opening serial ports ([`serial`]).
+
+pub mod files;
+pub mod serial;
+
+pub use files::*;
+
+/// Most bytes odocal reads of a configuration, routine, profile, controller YAML, backup or
+/// result file.
+pub const MAX_TEXT_FILE: u64 = 16 << 20;
+
+/// Most bytes odocal reads of one recorded run or telemetry log (hours of 200 Hz samples).
+pub const MAX_DATA_FILE: u64 = 1 << 30;
+
+/// Most bytes of one bag file (read into memory; split larger recordings, `ros2 bag convert`).
+pub const MAX_BAG_FILE: u64 = 4 << 30;
+
+/// Every size bound, for documentation: what it covers and the bound (bytes). The README's
+/// table is checked against it.
+pub const SIZE_BOUNDS: [(&str, u64); 3] = [
+    (
+        "text: routine files, robot profiles, controller YAML, backups, results to export",
+        MAX_TEXT_FILE,
+    ),
+    (
+        "data: telemetry and recording logs, recorded runs",
+        MAX_DATA_FILE,
+    ),
+    (
+        "bag: one bag file (of a directory: each file)",
+        MAX_BAG_FILE,
+    ),
+];

@@ -1,0 +1,332 @@
+//! Any container's messages into [`BagData`]: the three topics resolved (by name, or by type
+//! when the name is not in the bag), their types checked, the wheel joints picked by name,
+//! joint angles unwrapped, every sample on its header stamp (the log time where a header has
+//! none), and all of it in time order from the bag's first message.
+
+use super::{
+    open_container, BagData, BagError, BagOptions, Channel, Container, JointSample, OdomSample,
+    RawMessage, RosTopics, YawSample,
+};
+use crate::ros::msg::{angle_step, cdr, types, yaw_of, Header, Imu, JointState, Odometry};
+use std::collections::BTreeMap;
+use std::path::Path;
+
+/// Reads the wheel joints, IMU and odometry from the bag at `path`.
+pub fn read_bag(path: &Path, opts: &BagOptions) -> Result<BagData, BagError> {
+    let bytes = crate::io::read_bounded_bytes(path, crate::io::MAX_BAG_FILE).map_err(|source| {
+        BagError::Io {
+            path: path.to_path_buf(),
+            source,
+        }
+    })?;
+    read_bag_bytes(&bytes, path, opts)
+}
+
+/// [`read_bag`] from bytes in memory (`path` names them in errors).
+pub fn read_bag_bytes(bytes: &[u8], path: &Path, opts: &BagOptions) -> Result<BagData, BagError> {
+    read_container(open_container(bytes, path)?.as_ref(), opts)
+}
+
+/// What a topic is for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Role {
+    Joints,
+    Imu,
+    Odom,
+}
+
+impl Role {
+    const ALL: [Role; 3] = [Role::Joints, Role::Imu, Role::Odom];
+
+    fn canonical(self) -> &'static str {
+        match self {
+            Role::Joints => types::JOINT_STATE,
+            Role::Imu => types::IMU,
+            Role::Odom => types::ODOMETRY,
+        }
+    }
+
+    fn what(self) -> &'static str {
+        match self {
+            Role::Joints => "wheel joint",
+            Role::Imu => "IMU",
+            Role::Odom => "odometry",
+        }
+    }
+
+    fn topic(self, t: &RosTopics) -> &str {
+        match self {
+            Role::Joints => &t.joint_states,
+            Role::Imu => &t.imu,
+            Role::Odom => &t.odom,
+        }
+    }
+}
+
+/// The message time: the header's stamp, or the log time when the header has none.
+fn stamp_or(h: &Header, log_time_ns: u64) -> f64 {
+    if h.stamp.sec != 0 || h.stamp.nanosec != 0 {
+        h.stamp.seconds()
+    } else {
+        log_time_ns as f64 * 1e-9
+    }
+}
+
+/// The topics to read: as given, or — when a given topic is not in the bag and exactly one
+/// channel carries the type it should — that channel (with a note saying so). Needs the
+/// channels up front (rosbag2 writes a summary); without them the names are used as given.
+fn resolve_topics(
+    channels: Option<&[Channel]>,
+    given: &RosTopics,
+    notes: &mut Vec<String>,
+) -> RosTopics {
+    let Some(channels) = channels else {
+        return given.clone();
+    };
+    let pick = |role: Role, notes: &mut Vec<String>| {
+        let topic = role.topic(given);
+        if channels.iter().any(|c| c.topic == topic) {
+            return topic.to_string();
+        }
+        let of_type: Vec<&String> = channels
+            .iter()
+            .filter(|c| types::is(&c.type_name, role.canonical()))
+            .map(|c| &c.topic)
+            .collect();
+        match of_type.as_slice() {
+            [only] => {
+                let what = match role {
+                    Role::Joints => "wheel joints",
+                    other => other.what(),
+                };
+                notes.push(format!("{what} from {only}: the bag has no {topic}"));
+                (*only).clone()
+            }
+            _ => topic.to_string(),
+        }
+    };
+    RosTopics {
+        joint_states: pick(Role::Joints, notes),
+        imu: pick(Role::Imu, notes),
+        odom: pick(Role::Odom, notes),
+    }
+}
+
+fn check_type(ch: &Channel, role: Role) -> Result<(), BagError> {
+    if types::is(&ch.type_name, role.canonical()) && ch.encoding == "cdr" {
+        Ok(())
+    } else {
+        Err(BagError::UnknownType {
+            topic: ch.topic.clone(),
+            type_name: ch.type_name.clone(),
+            encoding: ch.encoding.clone(),
+            expected: role.canonical(),
+        })
+    }
+}
+
+/// Joint angles as read, before sorting: time, unwrapped left and right, and the raw angles
+/// the next message is unwrapped against.
+#[derive(Debug, Clone, Copy)]
+struct RawJoints {
+    t: f64,
+    left_rad: f64,
+    right_rad: f64,
+    raw: (f64, f64),
+}
+
+/// Everything read so far.
+#[derive(Default)]
+struct Reading {
+    counts: BTreeMap<&'static str, usize>,
+    messages: u64,
+    wheel_names: Option<(String, String)>,
+    seen_names: Vec<String>,
+    joints: Vec<RawJoints>,
+    imu: Vec<YawSample>,
+    odom: Vec<OdomSample>,
+    first_s: Option<f64>,
+}
+
+impl Reading {
+    fn joints(&mut self, js: JointState, log_ns: u64, opts: &BagOptions) {
+        // The wheels are found by name once; a message of another joint group (one that does
+        // not name them) is skipped.
+        let ix = match &self.wheel_names {
+            Some((ln, rn)) => js
+                .name
+                .iter()
+                .position(|n| n == ln)
+                .zip(js.name.iter().position(|n| n == rn)),
+            None => match js.wheel_indices(&opts.left_joint, &opts.right_joint) {
+                Some((l, r)) => {
+                    self.wheel_names = Some((js.name[l].clone(), js.name[r].clone()));
+                    Some((l, r))
+                }
+                None => {
+                    self.seen_names.clone_from(&js.name);
+                    None
+                }
+            },
+        };
+        let Some((l, r)) = ix else { return };
+        let (Some(&lp), Some(&rp)) = (js.position.get(l), js.position.get(r)) else {
+            return;
+        };
+        if !(lp.is_finite() && rp.is_finite()) {
+            return;
+        }
+        // Unwrapped against the previous sample (a driver that wraps its angles).
+        let (left_rad, right_rad) = match self.joints.last() {
+            Some(p) => (
+                p.left_rad + angle_step(p.raw.0, lp),
+                p.right_rad + angle_step(p.raw.1, rp),
+            ),
+            None => (lp, rp),
+        };
+        let t = stamp_or(&js.header, log_ns);
+        self.joints.push(RawJoints {
+            t,
+            left_rad,
+            right_rad,
+            raw: (lp, rp),
+        });
+        self.saw(t);
+    }
+
+    fn imu(&mut self, imu: Imu, log_ns: u64) {
+        let yaw_rad = if imu.orientation_covariance[0] == -1.0 {
+            None
+        } else {
+            yaw_of(&imu.orientation).ok()
+        };
+        let t = stamp_or(&imu.header, log_ns);
+        self.imu.push(YawSample { t, yaw_rad });
+        self.saw(t);
+    }
+
+    fn odom(&mut self, o: Odometry, log_ns: u64) {
+        let Ok(yaw_rad) = yaw_of(&o.pose.pose.orientation) else {
+            return;
+        };
+        let t = stamp_or(&o.header, log_ns);
+        self.odom.push(OdomSample {
+            t,
+            x_m: o.pose.pose.position.x,
+            y_m: o.pose.pose.position.y,
+            yaw_rad,
+        });
+        self.saw(t);
+    }
+
+    fn saw(&mut self, t: f64) {
+        self.first_s = Some(self.first_s.map_or(t, |f| f.min(t)));
+    }
+
+    fn message(
+        &mut self,
+        m: RawMessage<'_>,
+        role: Role,
+        opts: &BagOptions,
+    ) -> Result<(), BagError> {
+        let index = {
+            let n = self.counts.entry(role.what()).or_default();
+            *n += 1;
+            *n - 1
+        };
+        self.messages += 1;
+        if index == 0 {
+            check_type(m.channel, role)?;
+        }
+        let decode_err = |source| BagError::Decode {
+            topic: m.channel.topic.clone(),
+            index,
+            source,
+        };
+        match role {
+            Role::Joints => self.joints(
+                cdr::decode(m.data).map_err(decode_err)?,
+                m.log_time_ns,
+                opts,
+            ),
+            Role::Imu => self.imu(cdr::decode(m.data).map_err(decode_err)?, m.log_time_ns),
+            Role::Odom => self.odom(cdr::decode(m.data).map_err(decode_err)?, m.log_time_ns),
+        }
+        Ok(())
+    }
+}
+
+/// Reads the three topics of any container.
+pub fn read_container(bag: &dyn Container, opts: &BagOptions) -> Result<BagData, BagError> {
+    let mut notes = Vec::new();
+    let listed = bag.channels();
+    let topics = resolve_topics(listed.as_deref(), &opts.topics, &mut notes);
+    let mut seen: BTreeMap<String, String> = listed
+        .unwrap_or_default()
+        .into_iter()
+        .map(|c| (c.topic, c.type_name))
+        .collect();
+    let mut r = Reading::default();
+    bag.messages(&mut |m| {
+        seen.entry(m.channel.topic.clone())
+            .or_insert_with(|| m.channel.type_name.clone());
+        match Role::ALL
+            .into_iter()
+            .find(|role| role.topic(&topics) == m.channel.topic)
+        {
+            Some(role) => r.message(m, role, opts),
+            None => Ok(()),
+        }
+    })?;
+    let available: Vec<(String, String)> = seen.into_iter().collect();
+    let missing = |role: Role| BagError::MissingTopic {
+        what: role.what(),
+        topic: role.topic(&topics).to_string(),
+        available: available.clone(),
+    };
+    let count = |role: Role| r.counts.get(role.what()).copied().unwrap_or(0);
+    if count(Role::Joints) == 0 {
+        return Err(missing(Role::Joints));
+    }
+    if r.joints.is_empty() {
+        return Err(BagError::Joints {
+            topic: topics.joint_states.clone(),
+            names: r.seen_names,
+        });
+    }
+    if count(Role::Imu) == 0 {
+        return Err(missing(Role::Imu));
+    }
+    let t0 = r.first_s.unwrap_or(0.0);
+    r.joints.sort_by(|a, b| a.t.total_cmp(&b.t));
+    r.imu.sort_by(|a, b| a.t.total_cmp(&b.t));
+    r.odom.sort_by(|a, b| a.t.total_cmp(&b.t));
+    Ok(BagData {
+        joints: r
+            .joints
+            .into_iter()
+            .map(|j| JointSample {
+                t: j.t - t0,
+                left_rad: j.left_rad,
+                right_rad: j.right_rad,
+            })
+            .collect(),
+        imu: r
+            .imu
+            .into_iter()
+            .map(|y| YawSample { t: y.t - t0, ..y })
+            .collect(),
+        odom: r
+            .odom
+            .into_iter()
+            .map(|o| OdomSample { t: o.t - t0, ..o })
+            .collect(),
+        topics: available,
+        messages: r.messages,
+        side_m: bag
+            .metadata("odocal")
+            .and_then(|m| m.get("side_m").and_then(|v| v.parse::<f64>().ok()))
+            .filter(|s| s.is_finite() && *s > 0.0),
+        notes,
+    })
+}

@@ -1,0 +1,352 @@
+//! Live tracking on any base: the online filter fed from the seam's travel and heading streams
+//! while the robot drives — by whatever else drives it, or along a path this session drives
+//! itself ([`DrivePath`]). Every sample goes to a sink in the order it arrived (a log of it
+//! replays through [`Tracker::feed_recording`] to the same numbers: the filter sees the merged
+//! time order, which depends only on the stamps).
+//!
+//! Safety: a path is driven only when asked for, within the routine's hard speed limits, one
+//! guarded motion at a time ([`MotionGuard`]): an error, a cancellation or the end of the
+//! session stops the base.
+
+use super::config::{HARD_RATE_LIMIT_RAD_S, HARD_SPEED_LIMIT_M_S};
+use super::RoutineError;
+use crate::base::{Base, MotionGuard};
+use crate::calibration::online::OnlineEstimate;
+use crate::calibration::recording::{Event, Recording};
+use crate::calibration::tracker::Tracker;
+use rand::{RngExt, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use std::f64::consts::{FRAC_PI_2, PI};
+use std::str::FromStr;
+use std::time::Duration;
+use tokio_util::sync::CancellationToken;
+
+/// A path the session drives while it tracks. Both excite both parameters: straight stretches
+/// observe `E_d`, turns both ways observe `E_b`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum DrivePath {
+    /// Squares of this side (m), alternately clockwise and counter-clockwise.
+    Squares {
+        /// Side (m).
+        side_m: f64,
+    },
+    /// Random straight stretches and turns (30–180° either way) that keep the robot inside a
+    /// square of this side (m) centred on where it started.
+    Wander {
+        /// Side of the square the robot stays in (m).
+        area_m: f64,
+    },
+}
+
+impl FromStr for DrivePath {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, String> {
+        let (kind, size) = s
+            .split_once(':')
+            .ok_or_else(|| format!("{s:?}: expected squares:SIDE_M or wander:AREA_M"))?;
+        let size: f64 = size
+            .parse()
+            .ok()
+            .filter(|v: &f64| v.is_finite() && (0.5..=50.0).contains(v))
+            .ok_or_else(|| format!("{s:?}: the size must be in [0.5, 50] m"))?;
+        match kind {
+            "squares" => Ok(DrivePath::Squares { side_m: size }),
+            "wander" => Ok(DrivePath::Wander { area_m: size }),
+            other => Err(format!("{s:?}: {other} is not a path (squares, wander)")),
+        }
+    }
+}
+
+/// One motion of a path.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Step {
+    Straight(f64),
+    Turn(f64),
+}
+
+/// The motions of a path, as many as asked for.
+fn steps(path: DrivePath, motions: usize, seed: u64) -> Vec<Step> {
+    let mut out = Vec::with_capacity(motions);
+    match path {
+        DrivePath::Squares { side_m } => {
+            let mut sign = -1.0;
+            while out.len() < motions {
+                for _ in 0..4 {
+                    out.push(Step::Straight(side_m));
+                    out.push(Step::Turn(sign * FRAC_PI_2));
+                }
+                sign = -sign;
+            }
+        }
+        DrivePath::Wander { area_m } => {
+            let mut rng = ChaCha8Rng::seed_from_u64(seed);
+            let half = 0.5 * area_m;
+            let (mut x, mut y, mut th) = (0.0f64, 0.0f64, 0.0f64);
+            while out.len() < motions {
+                let turn =
+                    rng.random_range(PI / 6.0..=PI) * if rng.random_bool(0.5) { 1.0 } else { -1.0 };
+                th += turn;
+                out.push(Step::Turn(turn));
+                // As far as the box allows along the new heading (the commanded pose).
+                let (c, s) = (th.cos(), th.sin());
+                let room = |p: f64, d: f64| {
+                    if d > 1e-9 {
+                        (half - p) / d
+                    } else if d < -1e-9 {
+                        (-half - p) / d
+                    } else {
+                        f64::INFINITY
+                    }
+                };
+                let reach = room(x, c).min(room(y, s)).max(0.0);
+                let want = rng.random_range(0.3 * area_m..=area_m);
+                let length = want.min(reach);
+                if length >= 0.1 * area_m {
+                    out.push(Step::Straight(length));
+                    x += length * c;
+                    y += length * s;
+                }
+            }
+        }
+    }
+    out.truncate(motions);
+    out
+}
+
+/// How a live session runs.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TrackOptions {
+    /// Requested period of both streams.
+    pub period: Duration,
+    /// Stop after this long (wall clock); `None`: until the path is driven, or cancelled.
+    pub duration: Option<Duration>,
+    /// **Moves the robot**: a path to drive while tracking; `None` tracks whatever drives it.
+    pub path: Option<DrivePath>,
+    /// Motions of the path.
+    pub motions: usize,
+    /// Straight-leg speed limit (m/s).
+    pub max_speed_m_s: f64,
+    /// Turn-rate limit (rad/s).
+    pub max_rate_rad_s: f64,
+    /// Seed of a wandering path.
+    pub seed: u64,
+}
+
+impl Default for TrackOptions {
+    fn default() -> Self {
+        TrackOptions {
+            period: Duration::from_millis(20),
+            duration: None,
+            path: None,
+            motions: 40,
+            max_speed_m_s: 0.2,
+            max_rate_rad_s: 0.5,
+            seed: 1,
+        }
+    }
+}
+
+/// Samples of each stream a session keeps for the clock-offset check at its end (an hour at
+/// 50 Hz); beyond it the oldest go, so a session of any length holds bounded memory.
+pub const LIVE_SAMPLES_KEPT: usize = 180_000;
+
+/// Drops the oldest samples beyond [`LIVE_SAMPLES_KEPT`] (in batches, so it costs nothing per
+/// sample).
+fn bound<T>(v: &mut Vec<T>) {
+    if v.len() >= 2 * LIVE_SAMPLES_KEPT {
+        v.drain(..v.len() - LIVE_SAMPLES_KEPT);
+    }
+}
+
+/// What a session saw.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct TrackOutcome {
+    /// The samples, as they arrived (the newest [`LIVE_SAMPLES_KEPT`] to
+    /// 2·[`LIVE_SAMPLES_KEPT`] of each stream; the sink had them all).
+    pub recording: Recording,
+    /// Motions of the path driven.
+    pub motions_driven: usize,
+}
+
+/// **Moves the robot when `opts.path` is given**: tracks `base` live with `tracker` until the
+/// path is driven, `opts.duration` passes or `cancel` fires; hands every sample to `sink` and
+/// every checkpoint to `on_checkpoint`. At the end the streams' clock offset is checked (and
+/// reported in the tracker, not corrected: live samples cannot be re-read).
+pub async fn track_live(
+    base: &Base,
+    tracker: &mut Tracker,
+    opts: &TrackOptions,
+    sink: &mut dyn FnMut(&Event),
+    on_checkpoint: &mut dyn FnMut(&OnlineEstimate),
+    cancel: &CancellationToken,
+) -> Result<TrackOutcome, RoutineError> {
+    if opts.path.is_some()
+        && !(opts.max_speed_m_s > 0.0
+            && opts.max_speed_m_s <= HARD_SPEED_LIMIT_M_S
+            && opts.max_rate_rad_s > 0.0
+            && opts.max_rate_rad_s <= HARD_RATE_LIMIT_RAD_S)
+    {
+        return Err(RoutineError::Config(super::config::ConfigError {
+            line: None,
+            message: format!(
+                "speed limits must be in (0, {HARD_SPEED_LIMIT_M_S}] m/s and (0, \
+                 {HARD_RATE_LIMIT_RAD_S}] rad/s"
+            ),
+        }));
+    }
+    let mut travel = base.drive.travel(opts.period).await?.ok_or_else(|| {
+        RoutineError::Preflight("the drive cannot stream its wheel travel".into())
+    })?;
+    let mut headings = base.heading.stream(opts.period).await?.ok_or_else(|| {
+        RoutineError::Preflight("the heading source cannot stream its readings".into())
+    })?;
+    let clocks = base.clocks();
+    for e in tracker.start_stream(clocks) {
+        on_checkpoint(&e);
+    }
+    let mut outcome = TrackOutcome {
+        recording: Recording {
+            clocks,
+            ..Recording::default()
+        },
+        motions_driven: 0,
+    };
+    let plan = opts
+        .path
+        .map(|p| steps(p, opts.motions, opts.seed))
+        .unwrap_or_default();
+    let driving = async {
+        for step in &plan {
+            let guard = MotionGuard::new(&base.drive);
+            match *step {
+                Step::Straight(d) => base.drive.move_straight(d, opts.max_speed_m_s).await?,
+                Step::Turn(a) => base.drive.turn_in_place(a, opts.max_rate_rad_s).await?,
+            };
+            guard.disarm();
+        }
+        Ok::<usize, RoutineError>(plan.len())
+    };
+    tokio::pin!(driving);
+    let deadline = async {
+        match opts.duration {
+            Some(d) => tokio::time::sleep(d).await,
+            // Until the path is driven, or cancelled.
+            None => std::future::pending::<()>().await,
+        }
+    };
+    tokio::pin!(deadline);
+    let passive = opts.path.is_none();
+    let mut take = |e: Event, outcome: &mut TrackOutcome, tracker: &mut Tracker| {
+        sink(&e);
+        let passed = match &e {
+            Event::Travel(t) => {
+                bound(&mut outcome.recording.travel);
+                outcome.recording.travel.push(*t);
+                tracker.push_travel(*t)
+            }
+            Event::Heading(h) => {
+                bound(&mut outcome.recording.headings);
+                outcome.recording.headings.push(h.clone());
+                tracker.push_heading(h.clone())
+            }
+        };
+        for c in passed {
+            on_checkpoint(&c);
+        }
+    };
+    let (mut travel_open, mut headings_open) = (true, true);
+    let result = loop {
+        if !(travel_open || headings_open) {
+            break Err(RoutineError::Preflight(
+                "both streams ended: the drive and the heading source went away".into(),
+            ));
+        }
+        tokio::select! {
+            t = travel.recv(), if travel_open => match t {
+                Some(t) => take(Event::Travel(t), &mut outcome, tracker),
+                None => travel_open = false,
+            },
+            h = headings.recv(), if headings_open => match h {
+                Some(h) => take(Event::Heading(h), &mut outcome, tracker),
+                None => headings_open = false,
+            },
+            r = &mut driving, if !passive => {
+                match r {
+                    Ok(n) => {
+                        outcome.motions_driven = n;
+                        break Ok(());
+                    }
+                    Err(e) => break Err(e),
+                }
+            }
+            () = &mut deadline => break Ok(()),
+            () = cancel.cancelled() => break Err(RoutineError::Cancelled),
+        }
+    };
+    if opts.path.is_some() {
+        // However it ended, the base stops (a motion cut short has its guard's stop already).
+        let _ = tokio::time::timeout(Duration::from_secs(2), base.drive.stop()).await;
+    }
+    result?;
+    // Streams are forwarded by tasks of their own: what they hold still counts.
+    for _ in 0..8 {
+        tokio::task::yield_now().await;
+    }
+    while let Ok(t) = travel.try_recv() {
+        take(Event::Travel(t), &mut outcome, tracker);
+    }
+    while let Ok(h) = headings.try_recv() {
+        take(Event::Heading(h), &mut outcome, tracker);
+    }
+    for e in tracker.finish_stream() {
+        on_checkpoint(&e);
+    }
+    tracker.check_time_offset("live", &outcome.recording);
+    Ok(outcome)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn paths_turn_both_ways_and_wandering_stays_in_its_box() {
+        let s = steps(DrivePath::Squares { side_m: 1.0 }, 16, 1);
+        let turns: Vec<f64> = s
+            .iter()
+            .filter_map(|s| match s {
+                Step::Turn(a) => Some(*a),
+                Step::Straight(_) => None,
+            })
+            .collect();
+        assert_eq!(turns.iter().sum::<f64>(), 0.0);
+        let w = steps(DrivePath::Wander { area_m: 2.0 }, 200, 7);
+        assert_eq!(w.len(), 200);
+        let (mut x, mut y, mut th): (f64, f64, f64) = (0.0, 0.0, 0.0);
+        let (mut left, mut right) = (0, 0);
+        for s in w {
+            match s {
+                Step::Turn(a) => {
+                    th += a;
+                    if a > 0.0 {
+                        left += 1
+                    } else {
+                        right += 1
+                    }
+                }
+                Step::Straight(d) => {
+                    x += d * th.cos();
+                    y += d * th.sin();
+                    assert!(x.abs() <= 1.0 + 1e-9 && y.abs() <= 1.0 + 1e-9, "{x}, {y}");
+                }
+            }
+        }
+        assert!(left > 20 && right > 20, "{left} left, {right} right");
+        assert!("wander:0.1".parse::<DrivePath>().is_err());
+        assert_eq!(
+            "squares:2".parse::<DrivePath>(),
+            Ok(DrivePath::Squares { side_m: 2.0 })
+        );
+    }
+}

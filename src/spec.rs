@@ -1,0 +1,752 @@
+//! Where a robot is: typed specs of its drive, its heading source and its parameter store,
+//! parsed from the command line or a routine file's `[robot]` table, each opened by
+//! [`BaseSpec::open`] into a [`Base`].
+//!
+//! Any drive combines with any heading source: a controller of our protocol with a separate
+//! compass, a ROS robot whose IMU is poor with an NMEA compass, a RoboClaw (which has no
+//! heading sensor) with a compass. This file is the one place the backends are listed: a new
+//! heading source is its module plus one variant of [`HeadingSpec`] here (its text form in
+//! [`HeadingSpec::from_str`](std::str::FromStr) and its opening in [`HeadingSpec::open`]).
+//!
+//! Text forms (URL-like: quote them in a shell, `&` would end the command):
+//!
+//! | spec | forms |
+//! |---|---|
+//! | drive | `PORT` or `odocal:PORT[?baud=115200]` (odocal's protocol); `rosbridge://HOST:PORT` or `ws://HOST:PORT` (ROS, with `[robot.ros]` settings); `roboclaw:PORT[?address=128&baud=38400]`; `mock` (the built-in simulated robot) |
+//! | heading | `drive` (the drive's own); `nmea:PORT[?baud=4800]` |
+//! | store | `drive` (the drive's own); `profile:PATH` (a robot profile, for a drive that keeps no parameters) |
+
+use crate::base::adjusted::Adjusted;
+use crate::base::{Base, BaseError, HeadingKind, HeadingSource, ParamStore};
+use crate::hal::HalError;
+use crate::kinematics::Deviation;
+use crate::nmea::NmeaCompass;
+use crate::roboclaw::client::{RoboClaw, RoboClawConfig, RoboClawError};
+use crate::roboclaw::profile::{ProfileError, ProfileStore};
+use crate::ros::live::{RosBaseConfig, RosBaseError};
+use crate::routine::config::{key_line, parse_table, table_error, ConfigError, RoutineConfig};
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+use std::str::FromStr;
+use std::sync::Arc;
+use std::time::Duration;
+
+/// Baud rate of odocal's protocol unless configured (SPEC.md §1).
+pub const ODOCAL_BAUD: u32 = crate::hal::DEFAULT_BAUD;
+/// Baud rate of a RoboClaw unless configured.
+pub const ROBOCLAW_BAUD: u32 = 38_400;
+/// Packet serial address of a RoboClaw unless configured.
+pub const ROBOCLAW_ADDRESS: u8 = 0x80;
+/// Baud rate of an NMEA 0183 compass unless configured.
+pub const NMEA_BAUD: u32 = 4800;
+
+/// Why a spec cannot be parsed, combined or opened.
+#[derive(Debug, thiserror::Error)]
+pub enum SpecError {
+    /// The text is not a spec.
+    #[error("{text:?}: {reason}")]
+    Parse {
+        /// The text given.
+        text: String,
+        /// What is wrong, and the forms that are right.
+        reason: String,
+    },
+    /// The parts do not make a robot (a RoboClaw without a profile, a drive without a heading).
+    #[error("{0}")]
+    Combination(String),
+    /// A controller of our protocol could not be opened.
+    #[error(transparent)]
+    Odocal(#[from] HalError),
+    /// A ROS robot could not be reached.
+    #[error(transparent)]
+    Ros(#[from] RosBaseError),
+    /// A RoboClaw could not be opened.
+    #[error(transparent)]
+    RoboClaw(#[from] RoboClawError),
+    /// A robot profile could not be read.
+    #[error(transparent)]
+    Profile(#[from] ProfileError),
+    /// A heading source could not be opened.
+    #[error(transparent)]
+    Heading(#[from] BaseError),
+}
+
+fn parse_err(text: &str, reason: impl Into<String>) -> SpecError {
+    SpecError::Parse {
+        text: text.into(),
+        reason: reason.into(),
+    }
+}
+
+/// A port and its options (`key=value`).
+type PortOptions = (String, BTreeMap<String, String>);
+
+/// `scheme:PATH?k=v&k=v` split into the path and its options; `None` when the text does not
+/// start with `scheme:`.
+fn scheme_parts(
+    text: &str,
+    scheme: &str,
+    allowed: &[&str],
+) -> Option<Result<PortOptions, SpecError>> {
+    let rest = text.strip_prefix(scheme)?.strip_prefix(':')?;
+    Some((|| {
+        let (path, query) = rest.split_once('?').unwrap_or((rest, ""));
+        if path.is_empty() {
+            return Err(parse_err(text, format!("no port (expected {scheme}:PORT)")));
+        }
+        let mut opts = BTreeMap::new();
+        for kv in query.split('&').filter(|s| !s.is_empty()) {
+            let (k, v) = kv
+                .split_once('=')
+                .ok_or_else(|| parse_err(text, format!("option {kv:?} is not key=value")))?;
+            if !allowed.contains(&k) {
+                return Err(parse_err(
+                    text,
+                    format!("unknown option {k} (options: {})", allowed.join(", ")),
+                ));
+            }
+            opts.insert(k.to_string(), v.to_string());
+        }
+        Ok((path.to_string(), opts))
+    })())
+}
+
+fn option<T: FromStr>(
+    text: &str,
+    opts: &BTreeMap<String, String>,
+    key: &str,
+    default: T,
+) -> Result<T, SpecError> {
+    match opts.get(key) {
+        None => Ok(default),
+        Some(v) => v
+            .parse()
+            .map_err(|_| parse_err(text, format!("{key}={v} is not a number in range"))),
+    }
+}
+
+/// The part of a robot that moves.
+#[derive(Debug, Clone, PartialEq)]
+pub enum DriveSpec {
+    /// A controller that speaks odocal's protocol on a serial port: drive, heading source and
+    /// store at once.
+    Odocal {
+        /// The port.
+        port: String,
+        /// Its baud rate.
+        baud: u32,
+    },
+    /// A ROS robot through rosbridge: drive, its IMU as heading source, the controller's YAML
+    /// as store.
+    Rosbridge(Box<RosBaseConfig>),
+    /// A RoboClaw on a serial port: a drive only, whose geometry and wiring are in a robot
+    /// profile ([`StoreSpec::Profile`]); it has no heading sensor.
+    RoboClaw {
+        /// The port.
+        port: String,
+        /// Packet serial address.
+        address: u8,
+        /// Baud rate.
+        baud: u32,
+    },
+    /// The built-in simulated robot (opened by the demo, not by [`BaseSpec::open`]).
+    Simulated,
+}
+
+impl FromStr for DriveSpec {
+    type Err = SpecError;
+
+    fn from_str(text: &str) -> Result<Self, SpecError> {
+        let text = text.trim();
+        if text == "mock" {
+            return Ok(DriveSpec::Simulated);
+        }
+        if text.starts_with("rosbridge://") || text.starts_with("ws://") {
+            return Ok(DriveSpec::Rosbridge(Box::new(RosBaseConfig {
+                url: text.into(),
+                ..RosBaseConfig::default()
+            })));
+        }
+        if let Some(parts) = scheme_parts(text, "roboclaw", &["address", "baud"]) {
+            let (port, opts) = parts?;
+            return Ok(DriveSpec::RoboClaw {
+                port,
+                address: option(text, &opts, "address", ROBOCLAW_ADDRESS)?,
+                baud: option(text, &opts, "baud", ROBOCLAW_BAUD)?,
+            });
+        }
+        if let Some(parts) = scheme_parts(text, "odocal", &["baud"]) {
+            let (port, opts) = parts?;
+            return Ok(DriveSpec::Odocal {
+                port,
+                baud: option(text, &opts, "baud", ODOCAL_BAUD)?,
+            });
+        }
+        if text.is_empty() || text.contains("://") || text.starts_with("nmea:") {
+            return Err(parse_err(
+                text,
+                "not a drive: give a serial port of an odocal-protocol controller, \
+                 rosbridge://HOST:PORT, roboclaw:PORT[?address=128&baud=38400] or mock",
+            ));
+        }
+        Ok(DriveSpec::Odocal {
+            port: text.into(),
+            baud: ODOCAL_BAUD,
+        })
+    }
+}
+
+impl DriveSpec {
+    /// Where it is, for messages (a port or a URL).
+    pub fn place(&self) -> String {
+        match self {
+            DriveSpec::Odocal { port, .. } | DriveSpec::RoboClaw { port, .. } => port.clone(),
+            DriveSpec::Rosbridge(c) => c.url.clone(),
+            DriveSpec::Simulated => "the built-in simulated robot".into(),
+        }
+    }
+}
+
+/// The sensor of the robot's heading.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub enum HeadingSpec {
+    /// The drive's own (a controller's compass, a ROS robot's IMU).
+    #[default]
+    Drive,
+    /// An NMEA 0183 compass on a serial port.
+    Nmea {
+        /// The port.
+        port: String,
+        /// Baud rate.
+        baud: u32,
+    },
+}
+
+impl FromStr for HeadingSpec {
+    type Err = SpecError;
+
+    fn from_str(text: &str) -> Result<Self, SpecError> {
+        let text = text.trim();
+        if text == "drive" {
+            return Ok(HeadingSpec::Drive);
+        }
+        if let Some(parts) = scheme_parts(text, "nmea", &["baud"]) {
+            let (port, opts) = parts?;
+            return Ok(HeadingSpec::Nmea {
+                port,
+                baud: option(text, &opts, "baud", NMEA_BAUD)?,
+            });
+        }
+        Err(parse_err(
+            text,
+            "not a heading source: give drive (the drive's own) or nmea:PORT[?baud=4800]",
+        ))
+    }
+}
+
+impl HeadingSpec {
+    /// Opens a heading source that is not the drive's; `None` for [`HeadingSpec::Drive`].
+    pub fn open(&self) -> Result<Option<Arc<dyn HeadingSource>>, SpecError> {
+        Ok(match self {
+            HeadingSpec::Drive => None,
+            HeadingSpec::Nmea { port, baud } => Some(Arc::new(NmeaCompass::open(
+                port,
+                *baud,
+                Duration::from_secs(1),
+            )?)),
+        })
+    }
+}
+
+/// Where the parameters live.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub enum StoreSpec {
+    /// The drive's own (a controller's memory, a ROS robot's YAML).
+    #[default]
+    Drive,
+    /// A robot profile, for a drive that keeps no parameters of its own (a RoboClaw).
+    Profile(PathBuf),
+}
+
+impl FromStr for StoreSpec {
+    type Err = SpecError;
+
+    fn from_str(text: &str) -> Result<Self, SpecError> {
+        let text = text.trim();
+        if text == "drive" {
+            return Ok(StoreSpec::Drive);
+        }
+        match text.strip_prefix("profile:") {
+            Some(path) if !path.is_empty() => Ok(StoreSpec::Profile(path.into())),
+            _ => Err(parse_err(
+                text,
+                "not a parameter store: give drive (the drive's own) or profile:PATH",
+            )),
+        }
+    }
+}
+
+/// A robot: its drive, heading source and store.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BaseSpec {
+    /// The drive.
+    pub drive: DriveSpec,
+    /// The heading source.
+    pub heading: HeadingSpec,
+    /// The store.
+    pub store: StoreSpec,
+    /// What the heading sensor is, when the user says so (else the backend's word).
+    pub heading_kind: Option<HeadingKind>,
+    /// A compass deviation removed from every reading ([`Adjusted`]).
+    pub deviation: Deviation,
+}
+
+/// Where a robot is, as a routine file's `[robot]` table (or, in older files, its top-level
+/// keys) and the command line give it: every key optional, flags laid over the file
+/// ([`RobotSection::over`]), then made a [`BaseSpec`].
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct RobotSection {
+    /// The drive ([`DriveSpec`]'s text form); `port` is the same key.
+    #[serde(alias = "port", skip_serializing_if = "Option::is_none")]
+    pub drive: Option<String>,
+    /// Baud rate of an odocal-protocol controller.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub baud: Option<u32>,
+    /// The heading source ([`HeadingSpec`]'s text form).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub heading: Option<String>,
+    /// The store ([`StoreSpec`]'s text form).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub store: Option<String>,
+    /// A robot profile: the same as `store = "profile:PATH"`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub profile: Option<PathBuf>,
+    /// Settings of a ROS robot ([`RosBaseConfig`]; its `url` comes from `drive`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub ros: Option<RosBaseConfig>,
+    /// What the heading sensor is ([`HeadingKind`]'s name: `magnetic`, `gyro`, `reference`,
+    /// `unknown`), when the backend cannot tell.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub heading_kind: Option<String>,
+    /// A compass deviation to remove from every reading, `"A1,B1,A2,B2"` in degrees (what
+    /// `odocal swing` measured; [`Deviation`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub compass_deviation_deg: Option<String>,
+}
+
+impl RobotSection {
+    /// `self` with every key `flags` sets replaced by the flag's (the ROS table merged by the
+    /// caller, who knows which ROS flags were given).
+    pub fn over(self, flags: RobotSection) -> RobotSection {
+        // The store is one setting with two spellings: a flag's replaces the file's.
+        let (store, profile) = if flags.store.is_some() || flags.profile.is_some() {
+            (flags.store, flags.profile)
+        } else {
+            (self.store, self.profile)
+        };
+        RobotSection {
+            drive: flags.drive.or(self.drive),
+            baud: flags.baud.or(self.baud),
+            heading: flags.heading.or(self.heading),
+            store,
+            profile,
+            ros: flags.ros.or(self.ros),
+            heading_kind: flags.heading_kind.or(self.heading_kind),
+            compass_deviation_deg: flags.compass_deviation_deg.or(self.compass_deviation_deg),
+        }
+    }
+
+    /// The robot these keys describe.
+    pub fn spec(&self) -> Result<BaseSpec, SpecError> {
+        let text = self.drive.as_deref().ok_or_else(|| {
+            SpecError::Combination(
+                "no robot given: a serial port (--port), rosbridge://HOST:PORT or \
+                 roboclaw:PORT (--base), or `drive` in the routine file's [robot] table"
+                    .into(),
+            )
+        })?;
+        let mut drive: DriveSpec = text.parse()?;
+        match &mut drive {
+            DriveSpec::Odocal { baud, .. } if !text.contains("baud=") => {
+                *baud = self.baud.unwrap_or(ODOCAL_BAUD);
+            }
+            DriveSpec::Rosbridge(cfg) => {
+                let url = cfg.url.clone();
+                **cfg = RosBaseConfig {
+                    url,
+                    ..self.ros.clone().unwrap_or_default()
+                };
+            }
+            _ => {}
+        }
+        let heading = match &self.heading {
+            Some(h) => h.parse()?,
+            None => HeadingSpec::Drive,
+        };
+        let store = match (&self.store, &self.profile) {
+            (Some(_), Some(_)) => {
+                return Err(SpecError::Combination(
+                    "give the store once: `store = \"profile:PATH\"` or `profile = PATH`".into(),
+                ))
+            }
+            (Some(s), None) => s.parse()?,
+            (None, Some(p)) => StoreSpec::Profile(p.clone()),
+            (None, None) => StoreSpec::Drive,
+        };
+        let mut spec = BaseSpec::new(drive, heading, store)?;
+        if let Some(k) = &self.heading_kind {
+            spec.heading_kind = Some(k.parse().map_err(|reason: String| SpecError::Parse {
+                text: k.clone(),
+                reason,
+            })?);
+        }
+        if let Some(d) = &self.compass_deviation_deg {
+            spec.deviation = d.parse().map_err(|reason: String| SpecError::Parse {
+                text: d.clone(),
+                reason,
+            })?;
+        }
+        Ok(spec)
+    }
+}
+
+impl BaseSpec {
+    /// A robot of these parts, checked to make one: a RoboClaw needs a profile and a heading
+    /// source of its own; a drive that keeps its parameters takes no profile.
+    pub fn new(
+        drive: DriveSpec,
+        heading: HeadingSpec,
+        store: StoreSpec,
+    ) -> Result<Self, SpecError> {
+        match (&drive, &heading, &store) {
+            (DriveSpec::RoboClaw { .. }, _, StoreSpec::Drive) => Err(SpecError::Combination(
+                "a RoboClaw keeps no geometry: give its robot profile (--profile robot.toml)"
+                    .into(),
+            )),
+            (DriveSpec::RoboClaw { .. }, HeadingSpec::Drive, _) => Err(SpecError::Combination(
+                "a RoboClaw has no heading sensor: give one (--heading nmea:PORT)".into(),
+            )),
+            (DriveSpec::RoboClaw { .. }, _, StoreSpec::Profile(_)) => Ok(()),
+            (_, _, StoreSpec::Profile(p)) => Err(SpecError::Combination(format!(
+                "this drive keeps its own parameters; a robot profile ({}) is for a drive that \
+                 keeps none (a RoboClaw)",
+                p.display()
+            ))),
+            (DriveSpec::Rosbridge(cfg), _, _) if cfg.yaml.as_os_str().is_empty() => {
+                Err(SpecError::Combination(
+                    "a ROS robot needs the controller's ros2_control YAML (--ros-yaml, or \
+                     `yaml` in the routine file's [robot.ros] table)"
+                        .into(),
+                ))
+            }
+            _ => Ok(()),
+        }?;
+        Ok(BaseSpec {
+            drive,
+            heading,
+            store,
+            heading_kind: None,
+            deviation: Deviation::default(),
+        })
+    }
+
+    /// Where the robot is, for messages.
+    pub fn place(&self) -> String {
+        self.drive.place()
+    }
+
+    /// **Connects to the robot** (it does not move): opens the drive, and the heading source
+    /// and store when they are not the drive's, and composes the [`Base`].
+    pub async fn open(&self) -> Result<Base, SpecError> {
+        let own_heading = self.heading.open()?;
+        let mut base =
+            match &self.drive {
+                DriveSpec::Odocal { port, baud } => {
+                    let (client, _) = crate::hal::open_port(port, *baud).await?;
+                    // A device that resets or is re-plugged mid-run is reopened to restore the
+                    // backup.
+                    let reconnect =
+                        crate::hal::base::reconnect_port(client.clone(), port.clone(), *baud);
+                    Base::single(client).with_reconnect(reconnect)
+                }
+                DriveSpec::Rosbridge(cfg) => crate::ros::live::connect(cfg).await?,
+                DriveSpec::RoboClaw {
+                    port,
+                    address,
+                    baud,
+                } => {
+                    let StoreSpec::Profile(path) = &self.store else {
+                        return Err(SpecError::Combination("a RoboClaw needs a profile".into()));
+                    };
+                    let Some(heading) = own_heading.clone() else {
+                        return Err(SpecError::Combination(
+                            "a RoboClaw needs a heading source".into(),
+                        ));
+                    };
+                    let claw = RoboClaw::open(
+                        port,
+                        RoboClawConfig {
+                            address: *address,
+                            baud: *baud,
+                            ..RoboClawConfig::default()
+                        },
+                    )?;
+                    crate::roboclaw::base(claw, heading, ProfileStore::open(path)?).await?
+                }
+                DriveSpec::Simulated => return Err(SpecError::Combination(
+                    "the built-in simulated robot is opened by `odocal demo` or a routine file \
+                     with drive = \"mock\""
+                        .into(),
+                )),
+            };
+        if let Some(heading) = own_heading {
+            base.heading = heading;
+        }
+        if self.heading_kind.is_some() || !self.deviation.is_zero() {
+            base.heading = Arc::new(Adjusted::new(
+                base.heading.clone(),
+                self.heading_kind,
+                self.deviation,
+            ));
+        }
+        Ok(base)
+    }
+}
+
+/// A routine file: where the robot is, and the procedure ([`RoutineConfig`]).
+///
+/// ```toml
+/// [robot]
+/// drive = "roboclaw:/dev/ttyACM0?address=128"
+/// heading = "nmea:/dev/ttyUSB1?baud=4800"
+/// profile = "robot.toml"
+///
+/// side_m = 2.0   # … the procedure's keys, at the top
+/// ```
+///
+/// Older files give the robot's keys at the top (`port`, `baud`, `heading`, `profile`, and a
+/// `[ros]` table); they mean the same.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RoutineFile {
+    /// Where the robot is (any key may be missing: flags fill them in).
+    pub robot: RobotSection,
+    /// The procedure.
+    pub routine: RoutineConfig,
+}
+
+/// The robot's keys an older routine file gives at the top.
+const TOP_LEVEL_ROBOT_KEYS: [&str; 5] = ["port", "baud", "heading", "profile", "ros"];
+
+impl RoutineFile {
+    /// Parses a routine file; errors name the line.
+    pub fn from_toml(text: &str) -> Result<Self, ConfigError> {
+        let mut table = parse_table(text)?;
+        let mut robot = match table.remove("robot") {
+            Some(toml::Value::Table(t)) => t,
+            Some(_) => {
+                return Err(ConfigError {
+                    line: key_line(text, "robot"),
+                    message: "robot: must be a table ([robot])".into(),
+                })
+            }
+            None => toml::Table::new(),
+        };
+        for key in TOP_LEVEL_ROBOT_KEYS {
+            if let Some(v) = table.remove(key) {
+                let name = if key == "port" { "drive" } else { key };
+                if robot.contains_key(name) || (key == "port" && robot.contains_key("port")) {
+                    return Err(ConfigError {
+                        line: key_line(text, key),
+                        message: format!("{key}: given twice (at the top and in [robot])"),
+                    });
+                }
+                robot.insert(key.into(), v);
+            }
+        }
+        let robot: RobotSection = robot.try_into().map_err(|e| table_error(&e, text))?;
+        Ok(RoutineFile {
+            robot,
+            routine: RoutineConfig::from_table(table, text)?,
+        })
+    }
+}
+
+/// Opens a heading source alone, from a heading spec (`nmea:PORT…`) or a drive spec whose
+/// drive has a heading sensor (an odocal-protocol port): for `odocal heading`.
+pub async fn open_heading(text: &str, baud: u32) -> Result<Arc<dyn HeadingSource>, SpecError> {
+    if let Ok(h) = text.parse::<HeadingSpec>() {
+        if let Some(source) = h.open()? {
+            return Ok(source);
+        }
+    }
+    match text.parse::<DriveSpec>()? {
+        DriveSpec::Odocal { port, baud: b } => {
+            let baud = if text.contains("baud=") { b } else { baud };
+            Ok(Arc::new(crate::hal::open_port(&port, baud).await?.0))
+        }
+        _ => Err(parse_err(
+            text,
+            "give nmea:PORT[?baud=4800] or the port of an odocal-protocol controller",
+        )),
+    }
+}
+
+/// Opens a parameter store alone: an odocal-protocol controller's port, or a file store
+/// (`profile:PATH`).
+pub async fn open_store(text: &str, baud: u32) -> Result<Arc<dyn ParamStore>, SpecError> {
+    if let Ok(StoreSpec::Profile(path)) = text.parse::<StoreSpec>() {
+        return Ok(Arc::new(ProfileStore::open(&path)?));
+    }
+    match text.parse::<DriveSpec>()? {
+        DriveSpec::Odocal { port, baud: b } => {
+            let baud = if text.contains("baud=") { b } else { baud };
+            Ok(Arc::new(crate::hal::open_port(&port, baud).await?.0))
+        }
+        _ => Err(parse_err(
+            text,
+            "give the port of an odocal-protocol controller or profile:PATH",
+        )),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn specs_parse_from_their_text_forms() {
+        assert_eq!(
+            "/dev/ttyUSB0".parse::<DriveSpec>().unwrap(),
+            DriveSpec::Odocal {
+                port: "/dev/ttyUSB0".into(),
+                baud: ODOCAL_BAUD
+            }
+        );
+        assert_eq!(
+            "roboclaw:/dev/ttyACM0?address=129&baud=115200"
+                .parse::<DriveSpec>()
+                .unwrap(),
+            DriveSpec::RoboClaw {
+                port: "/dev/ttyACM0".into(),
+                address: 129,
+                baud: 115_200
+            }
+        );
+        assert!(matches!(
+            "rosbridge://localhost:9090".parse::<DriveSpec>(),
+            Ok(DriveSpec::Rosbridge(c)) if c.url == "rosbridge://localhost:9090"
+        ));
+        assert_eq!(
+            "nmea:/dev/ttyUSB1?baud=9600"
+                .parse::<HeadingSpec>()
+                .unwrap(),
+            HeadingSpec::Nmea {
+                port: "/dev/ttyUSB1".into(),
+                baud: 9600
+            }
+        );
+        assert_eq!(
+            "profile:robot.toml".parse::<StoreSpec>().unwrap(),
+            StoreSpec::Profile("robot.toml".into())
+        );
+        for bad in [
+            "roboclaw:",
+            "roboclaw:/dev/x?speed=3",
+            "roboclaw:/dev/x?address=999",
+        ] {
+            let e = bad.parse::<DriveSpec>().unwrap_err().to_string();
+            assert!(e.starts_with(&format!("{bad:?}")), "{e}");
+        }
+        assert!("nmea:/dev/x?baud=fast".parse::<HeadingSpec>().is_err());
+        assert!("/dev/ttyUSB0".parse::<HeadingSpec>().is_err());
+    }
+
+    #[test]
+    fn routine_files_hold_the_robot_apart_from_the_procedure() {
+        let f = RoutineFile::from_toml(
+            "side_m = 2.0\n[robot]\ndrive = \"roboclaw:/dev/x\"\nheading = \"nmea:/dev/y\"\n\
+             profile = \"r.toml\"\n",
+        )
+        .unwrap();
+        assert_eq!(f.routine.side_m, 2.0);
+        assert!(matches!(
+            f.robot.spec().unwrap().drive,
+            DriveSpec::RoboClaw { .. }
+        ));
+        // An older file: the robot at the top, a [ros] table.
+        let f = RoutineFile::from_toml(
+            "port = \"rosbridge://localhost:9090\"\nside_m = 1.5\n[ros]\nyaml = \"c.yaml\"\n\
+             controller = \"diffbot_base_controller\"\n",
+        )
+        .unwrap();
+        match f.robot.spec().unwrap().drive {
+            DriveSpec::Rosbridge(c) => {
+                assert_eq!(c.url, "rosbridge://localhost:9090");
+                assert_eq!(c.controller, "diffbot_base_controller");
+            }
+            other => panic!("{other:?}"),
+        }
+        // Errors keep their line, in either part.
+        let e =
+            RoutineFile::from_toml("[robot]\ndrive = \"/dev/x\"\nbaud = \"fast\"\n").unwrap_err();
+        assert_eq!(e.line, Some(3), "{e}");
+        let e =
+            RoutineFile::from_toml("side_m = 2.0\nruns_per_direction = \"five\"\n").unwrap_err();
+        assert_eq!(e.line, Some(2), "{e}");
+        let e =
+            RoutineFile::from_toml("port = \"/dev/x\"\n[robot]\ndrive = \"/dev/y\"\n").unwrap_err();
+        assert!(e.message.contains("twice"), "{e}");
+    }
+
+    #[test]
+    fn parts_that_make_no_robot_are_refused_before_anything_opens() {
+        let section = |drive: &str, heading: Option<&str>, profile: Option<&str>| RobotSection {
+            drive: Some(drive.into()),
+            heading: heading.map(String::from),
+            profile: profile.map(PathBuf::from),
+            ..RobotSection::default()
+        };
+        let e = section("roboclaw:/dev/x", Some("nmea:/dev/y"), None)
+            .spec()
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("--profile"), "{e}");
+        let e = section("roboclaw:/dev/x", None, Some("r.toml"))
+            .spec()
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("--heading"), "{e}");
+        let e = section("/dev/x", None, Some("r.toml"))
+            .spec()
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("keeps its own parameters"), "{e}");
+        let e = section("rosbridge://h:1", None, None)
+            .spec()
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("--ros-yaml"), "{e}");
+        // Any drive with any heading source: our protocol with a compass.
+        let s = section("/dev/x", Some("nmea:/dev/y"), None).spec().unwrap();
+        assert!(matches!(s.heading, HeadingSpec::Nmea { .. }));
+        // Flags over the file.
+        let file = RobotSection {
+            drive: Some("/dev/a".into()),
+            baud: Some(57_600),
+            ..RobotSection::default()
+        };
+        let merged = file.over(RobotSection {
+            drive: Some("/dev/b".into()),
+            ..RobotSection::default()
+        });
+        assert_eq!(
+            merged.spec().unwrap().drive,
+            DriveSpec::Odocal {
+                port: "/dev/b".into(),
+                baud: 57_600
+            }
+        );
+    }
+}

@@ -1,0 +1,418 @@
+//! Heading sensors as robots have them, on every kind of base: a compass with a deviation curve
+//! (over our protocol, on a RoboClaw with an NMEA compass, on a ROS robot's IMU), a robot far
+//! off per square, and a gyro with a scale error. The written parameters are checked in the two
+//! combinations a heading can observe (`D_R/D_L` and `b/D̄`) against the simulated truth.
+
+mod common;
+
+use odocal::base::Base;
+use odocal::hal::link::LinkConfig;
+use odocal::hal::Client;
+use odocal::kinematics::{Pose, WheelParams};
+use odocal::mock::{lock, spawn_duplex, FaultConfig, MockConfig, MockDevice, TimeMode};
+use odocal::routine::config::RoutineConfig;
+use odocal::routine::report::Report;
+use odocal::routine::{run, Unattended};
+use odocal::sim::sensor::{Deviation, HeadingModel, SensorKind};
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+use tokio_util::sync::CancellationToken;
+
+fn deviating(dev: &str) -> HeadingModel {
+    HeadingModel {
+        deviation: dev.parse::<Deviation>().unwrap(),
+        ..HeadingModel::default()
+    }
+}
+
+/// The routine over our protocol (virtual time) on a robot of `e_b`, `e_d` whose compass
+/// (σ 0.2°) has `model`, starting at azimuth `psi0`; the report and the truth.
+async fn over_our_protocol(
+    name: &str,
+    e_b: f64,
+    e_d: f64,
+    model: HeadingModel,
+    psi0: f64,
+    tweak: impl FnOnce(&mut RoutineConfig),
+) -> (Report, WheelParams) {
+    let mut cfg = MockConfig::with_ratios(common::nominal(), e_b, e_d).unwrap();
+    cfg.noise.compass_sigma_rad = 0.2f64.to_radians();
+    cfg.heading_model = model;
+    let device = Arc::new(Mutex::new(MockDevice::new(cfg).unwrap()));
+    lock(&device).sim_mut().place(Pose::new(0.0, 0.0, psi0));
+    let (stream, _task) = spawn_duplex(device.clone(), TimeMode::Virtual, FaultConfig::default());
+    let (client, _) = Client::connect(stream, LinkConfig::default())
+        .await
+        .unwrap();
+    let mut routine = common::virtual_routine(common::scratch(name));
+    tweak(&mut routine);
+    let truth = odocal::demo::MockTruth(device.clone());
+    let report = run(
+        &Base::single(client),
+        &routine,
+        Some(&truth),
+        &mut Unattended,
+        &CancellationToken::new(),
+    )
+    .await
+    .unwrap_or_else(|e| panic!("{name}: {e}"));
+    let t = *lock(&device).sim().truth();
+    (report, t)
+}
+
+fn assert_within(report: &Report, truth: &WheelParams, limit: f64, what: &str) {
+    let (d, b) = common::combination_errors(&report.final_params, truth);
+    assert!(
+        d.abs() < limit && b.abs() < limit,
+        "{what}: D_R/D_L {d:+.2e}, b/D {b:+.2e} (limit {limit:.0e}); rounds {:?}",
+        report
+            .rounds
+            .iter()
+            .map(|r| (r.chosen.method, r.chosen.e_b, r.chosen.e_d, r.written))
+            .collect::<Vec<_>>()
+    );
+}
+
+/// Deviation curves of 1.5–3° (both harmonics) from four starting azimuths: the default
+/// (compass swing, then legs matched by azimuth) writes both combinations within 0.1 % of the
+/// truth; so does the matched-leg method without the swing, on the deviation alone.
+#[tokio::test(start_paused = true)]
+async fn a_deviating_compass_over_our_protocol_is_calibrated_from_any_azimuth() {
+    let cases = [
+        ("2.2,0,0,0.7", 0.0),
+        ("0,-3,1.5,0", 1.3),
+        ("-1.5,1.5,-1,-1", -2.4),
+        ("1,2,0,-2.5", 3.0),
+    ];
+    for (i, (dev, psi0)) in cases.into_iter().enumerate() {
+        for swing in [true, false] {
+            let what = format!("{dev} from {psi0} rad, swing {swing}");
+            let (report, truth) = over_our_protocol(
+                &format!("dev-{i}-{swing}"),
+                common::TRUE_E_B,
+                common::TRUE_E_D,
+                deviating(dev),
+                psi0,
+                |c| c.swing = swing,
+            )
+            .await;
+            assert_within(&report, &truth, 1e-3, &what);
+            assert_eq!(report.swing.is_some(), swing, "{what}");
+            if let Some(fit) = &report.swing {
+                // The swing found the curve it removed.
+                let want: Deviation = dev.parse().unwrap();
+                for k in 0..4 {
+                    assert!(
+                        (fit.deviation.0[k] - want.0[k]).abs() < 0.1f64.to_radians(),
+                        "{what}: {:?}",
+                        fit.deviation
+                    );
+                }
+            }
+        }
+    }
+}
+
+/// A robot about 50° off per square (E_b 0.95, E_d 1.05 on 1 m sides), compass σ 0.2°: the
+/// written combinations within 0.03 % of the truth and every verification square within 0.3°.
+#[tokio::test(start_paused = true)]
+async fn a_robot_fifty_degrees_off_is_brought_within_a_third_of_a_degree() {
+    let (report, truth) =
+        over_our_protocol("fifty", 0.95, 1.05, HeadingModel::default(), 0.7, |c| {
+            c.verification_runs = 3
+        })
+        .await;
+    let worst_before = report.rounds[0]
+        .runs
+        .iter()
+        .map(|r| r.heading_error_deg.abs())
+        .fold(0.0, f64::max);
+    assert!(worst_before > 45.0, "{worst_before}°");
+    assert_within(&report, &truth, 3e-4, "50° off");
+    for v in &report.verification {
+        assert!(v.heading_error_deg.abs() <= 0.3, "{}°", v.heading_error_deg);
+    }
+}
+
+/// The same robot on a RoboClaw with an NMEA compass (in-memory links, 20 times real speed),
+/// its compass deviating by 2.5° and 1°.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_roboclaw_with_a_deviating_compass_and_a_robot_far_off() {
+    use odocal::mock::roboclaw::{compass_of, serve_roboclaw, spawn_robot, MockRoboClawConfig};
+    use odocal::nmea::NmeaCompass;
+    use odocal::roboclaw::client::{RoboClaw, RoboClawConfig};
+    use odocal::roboclaw::profile::{Profile, ProfileStore};
+    for (name, e_b, e_d, dev, limit) in [
+        (
+            "rc-deviation",
+            common::TRUE_E_B,
+            common::TRUE_E_D,
+            "2.5,0,0,-1",
+            1e-3,
+        ),
+        ("rc-fifty", 0.95, 1.05, "0,0,0,0", 3e-4),
+    ] {
+        let dir = common::scratch(name);
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("robot.toml");
+        std::fs::write(&path, common::ROBOCLAW_PROFILE).unwrap();
+        let mut truth = WheelParams::from_ratios(
+            &common::nominal(),
+            e_b,
+            e_d,
+            &odocal::kinematics::SplitConvention::LeftNominal,
+        )
+        .unwrap();
+        truth.counts_per_wheel_rev = 4096.0;
+        let mut cfg = MockRoboClawConfig::new(truth);
+        cfg.left_on_m1 = false;
+        cfg.right_encoder_sign = -1;
+        cfg.noise.compass_sigma_rad = 0.2f64.to_radians();
+        cfg.heading_model = deviating(dev);
+        cfg.time_scale = 20.0;
+        cfg.compass_hz = 20.0;
+        let robot = spawn_robot(cfg).unwrap();
+        let (host, dev_end) = tokio::io::duplex(4096);
+        tokio::spawn(serve_roboclaw(dev_end, robot.clone()));
+        let claw = RoboClaw::new(host, RoboClawConfig::default(), "duplex").unwrap();
+        let (host, dev_end) = tokio::io::duplex(4096);
+        let (ccfg, heading) = compass_of(&robot);
+        tokio::spawn(odocal::mock::nmea::serve_compass(dev_end, ccfg, heading));
+        let compass = NmeaCompass::new(host, "duplex", Duration::from_millis(500));
+        let base =
+            odocal::roboclaw::base(claw, Arc::new(compass), ProfileStore::open(&path).unwrap())
+                .await
+                .unwrap();
+        // Ten readings at rest (the default): a verification square's own noise is then
+        // 0.2°·√(2/10) ≈ 0.09°, a third of the 0.3° it is held to.
+        let routine = RoutineConfig {
+            verification_runs: 3,
+            heading_samples: 10,
+            ..common::quick_routine(&dir)
+        };
+        let report = run(
+            &base,
+            &routine,
+            None,
+            &mut Unattended,
+            &CancellationToken::new(),
+        )
+        .await
+        .unwrap_or_else(|e| panic!("{name}: {e}"));
+        let written = Profile::load(&path).unwrap().params();
+        assert_eq!(written, report.final_params, "{name}");
+        assert_within(&report, &truth, limit, name);
+        if e_b < 0.96 {
+            for v in &report.verification {
+                assert!(
+                    v.heading_error_deg.abs() <= 0.3,
+                    "{name}: {}°",
+                    v.heading_error_deg
+                );
+            }
+        }
+    }
+}
+
+/// A ROS robot whose IMU heading deviates (a 9-axis IMU's fused yaw near the motors), at 40
+/// times real speed: the pre-flight reports the IMU's own noise (σ 0.2°), and the written
+/// multipliers are within 0.1 % in both combinations.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_ros_robot_with_a_deviating_imu_and_its_real_noise() {
+    use odocal::mock::rosbridge::{MockRosConfig, MockRosbridge};
+    use odocal::ros::live::{connect, RosBaseConfig};
+    use odocal::ros::yaml::DiffDriveConfig;
+    let dir = common::scratch("ros-deviation");
+    std::fs::create_dir_all(&dir).unwrap();
+    let yaml = dir.join("diff_drive.yaml");
+    std::fs::write(&yaml, common::DIFF_DRIVE_YAML).unwrap();
+    let controller = DiffDriveConfig::load(&yaml, "diff_drive_controller").unwrap();
+    let mut cfg =
+        MockRosConfig::with_ratios(controller, common::TRUE_E_B, common::TRUE_E_D).unwrap();
+    let sigma = 0.2f64.to_radians();
+    cfg.noise.compass_sigma_rad = sigma;
+    cfg.heading_model = deviating("-2,1.5,1,0");
+    cfg.time_scale = 40.0;
+    let server = MockRosbridge::spawn(cfg, "127.0.0.1:0".parse().unwrap())
+        .await
+        .unwrap();
+    let base = connect(&RosBaseConfig {
+        url: server.url(),
+        yaml: yaml.clone(),
+        ..RosBaseConfig::default()
+    })
+    .await
+    .unwrap();
+    let report = run(
+        &base,
+        &common::quick_routine(&dir),
+        None,
+        &mut Unattended,
+        &CancellationToken::new(),
+    )
+    .await
+    .unwrap();
+    let noise = report.heading_noise_rad / sigma;
+    assert!(
+        (0.7..=1.3).contains(&noise),
+        "pre-flight noise {noise:.2} σ"
+    );
+    let written = DiffDriveConfig::load(&yaml, "diff_drive_controller")
+        .unwrap()
+        .effective();
+    let truth = server.state().true_params();
+    assert_eq!(written, report.final_params);
+    assert_within(&report, &truth, 1e-3, "ROS IMU with deviation");
+}
+
+/// A gyro heading 1 % fast: without its scale, the report names the risk (and `E_b` is off by
+/// about the scale); a spin test measures the scale against the floor mark, and with it the
+/// written combinations are within 0.1 %.
+#[tokio::test]
+async fn a_gyro_scale_error_is_named_and_a_spin_test_removes_it() {
+    use odocal::mock::SimBase;
+    use odocal::sim::{NoiseModel, Simulator};
+    let gyro = HeadingModel {
+        kind: SensorKind::Gyro,
+        gyro_scale_error: 0.01,
+        ..HeadingModel::default()
+    };
+    let robot = || {
+        let noise = NoiseModel {
+            compass_sigma_rad: 0.05f64.to_radians(),
+            ..NoiseModel::default()
+        };
+        SimBase::new(
+            Simulator::new(common::truth(), common::nominal(), noise, 5)
+                .unwrap()
+                .with_heading_model(gyro)
+                .unwrap(),
+        )
+    };
+    let routine = |name: &str| RoutineConfig {
+        backup_dir: common::scratch(name),
+        settle_s: 0.0,
+        ..common::quick_routine(&common::scratch(name))
+    };
+    // Without the scale: the warning, and an E_b the scale moved.
+    let sim = robot();
+    let report = run(
+        &Base::single(sim.clone()),
+        &routine("gyro-raw"),
+        None,
+        &mut Unattended,
+        &CancellationToken::new(),
+    )
+    .await
+    .unwrap();
+    assert!(
+        report
+            .warnings
+            .iter()
+            .any(|w| w.contains("integrated from a gyro") && w.contains("odocal spin")),
+        "{:?}",
+        report.warnings
+    );
+    let (_, b) = common::combination_errors(&report.final_params, &common::truth());
+    assert!(b.abs() > 0.005, "the scale moves b/D: {b:+.2e}");
+    // The spin test: five turns, the mark read off the simulated robot's true heading.
+    let sim = robot();
+    let base = Base::single(sim.clone());
+    let start = sim.with_sim(|s| s.pose().heading_rad);
+    let spin = odocal::routine::spin::run_spin(&base, 5, 0.5, 10)
+        .await
+        .unwrap();
+    let past = odocal::kinematics::wrap_angle(sim.with_sim(|s| s.pose().heading_rad) - start);
+    let s = odocal::calibration::gyro::scale_from_spin(
+        spin.heading_before_rad,
+        spin.heading_after_rad,
+        5.0,
+        past,
+    )
+    .unwrap();
+    assert!((s - 0.01).abs() < 5e-4, "spin test: {s}");
+    let report = run(
+        &base,
+        &RoutineConfig {
+            gyro_scale_error: Some(s),
+            ..routine("gyro-spin")
+        },
+        None,
+        &mut Unattended,
+        &CancellationToken::new(),
+    )
+    .await
+    .unwrap();
+    assert!(
+        !report.warnings.iter().any(|w| w.contains("odocal spin")),
+        "{:?}",
+        report.warnings
+    );
+    assert_within(
+        &report,
+        &common::truth(),
+        1e-3,
+        "gyro with its scale removed",
+    );
+}
+
+/// `odocal swing` on a RoboClaw with an NMEA compass (the mocks on pseudo-terminals, 20 times
+/// real speed): the curve it prints is the compass's, and so is the flag that gives it back.
+#[test]
+fn odocal_swing_prints_the_compass_deviation_and_its_flag() {
+    let dir = common::scratch("swing-cli");
+    std::fs::create_dir_all(&dir).unwrap();
+    let profile = dir.join("robot.toml");
+    std::fs::write(&profile, common::ROBOCLAW_PROFILE).unwrap();
+    let profile_s = profile.to_str().unwrap();
+    let (mut mock, lines) = common::spawn_server_lines(
+        "mock-roboclaw",
+        &[
+            "--profile",
+            profile_s,
+            "--time-scale",
+            "20",
+            "--compass-hz",
+            "20",
+            "--compass-sigma-deg",
+            "0.1",
+            "--deviation-deg",
+            "1.5,-2,0.5,1",
+        ],
+        2,
+    );
+    let heading = format!("{}?baud=115200", lines[1]);
+    let v = common::odocal_json(&[
+        "swing",
+        "--base",
+        &lines[0],
+        "--heading",
+        &heading,
+        "--profile",
+        profile_s,
+        "--yes",
+        "--json",
+    ]);
+    let _ = mock.kill();
+    let got: Deviation = v["compass_deviation_deg"]
+        .as_str()
+        .unwrap()
+        .parse()
+        .unwrap();
+    let want: Deviation = "1.5,-2,0.5,1".parse().unwrap();
+    for k in 0..4 {
+        assert!(
+            (got.0[k] - want.0[k]).abs() < 0.25f64.to_radians(),
+            "{got:?} vs {want:?}: {v}"
+        );
+    }
+    assert!(
+        v["advice"].as_str().unwrap().contains("mount it away"),
+        "{v}"
+    );
+    // The profile is read, never written, by a swing.
+    assert_eq!(
+        std::fs::read_to_string(&profile).unwrap(),
+        common::ROBOCLAW_PROFILE
+    );
+}
