@@ -180,15 +180,12 @@ pub fn estimate(
         let out = jac * cov * jac.transpose();
         Some((out[(0, 0)].max(0.0).sqrt(), out[(1, 1)].max(0.0).sqrt()))
     });
-    Ok(Estimate {
-        method: Method::MatchedLegs,
-        e_b: correction.e_b(),
-        e_d: correction.e_d(),
-        e_b_std_err: std_err.map(|s| s.0),
-        e_d_std_err: std_err.map(|s| s.1),
+    Ok(Estimate::of(
+        Method::MatchedLegs,
         correction,
-        convention: convention.name().to_string(),
-    })
+        std_err,
+        &convention,
+    ))
 }
 
 #[cfg(test)]

@@ -389,6 +389,27 @@ pub struct Estimate {
     pub convention: String,
 }
 
+impl Estimate {
+    /// The estimate `method` gives as `correction`, with standard errors `(E_b, E_d)` when
+    /// known, under `convention`.
+    pub fn of(
+        method: Method,
+        correction: Correction,
+        std_err: Option<(f64, f64)>,
+        convention: &SplitConvention,
+    ) -> Estimate {
+        Estimate {
+            method,
+            e_b: correction.e_b(),
+            e_d: correction.e_d(),
+            e_b_std_err: std_err.map(|s| s.0),
+            e_d_std_err: std_err.map(|s| s.1),
+            correction,
+            convention: convention.name().to_string(),
+        }
+    }
+}
+
 /// The estimator's point value as a correction.
 fn point(
     method: Method,
@@ -442,15 +463,7 @@ pub fn estimate(
     let obs = MeanObservation::of(test);
     let correction = point(method, &obs, &ctx)?;
     let std_err = standard_errors(method, test, &obs, &ctx);
-    Ok(Estimate {
-        method,
-        e_b: correction.e_b(),
-        e_d: correction.e_d(),
-        e_b_std_err: std_err.map(|s| s.0),
-        e_d_std_err: std_err.map(|s| s.1),
-        correction,
-        convention: convention.name().to_string(),
-    })
+    Ok(Estimate::of(method, correction, std_err, &ctx.convention))
 }
 
 /// What a heading sensor measures, which decides what can go wrong with it.
