@@ -1,51 +1,27 @@
 //! [`Adjusted`]: a heading source as the user knows it better than its backend does — its kind
-//! declared, each reading corrected for a measured compass deviation (the curve a compass
-//! swing fits, [`crate::calibration::swing`]) and for a gyro's measured scale error
-//! ([`crate::calibration::gyro`]). The deviation depends on the reading alone; the scale
-//! divides the heading's change since the first reading, which is unwrapped across every
-//! reading (at rest and streamed alike; consecutive readings are far less than half a turn
-//! apart).
+//! declared, and each reading corrected for a measured compass deviation (the curve a compass
+//! swing fits, [`crate::calibration::swing`]), which depends on the reading alone.
+//!
+//! A gyro's scale error is not removed here: it scales heading *changes*, and a change between
+//! two readings at rest a full turn apart cannot be unwrapped from the readings alone. The
+//! routine removes it from each run against the odometry's turn
+//! ([`crate::calibration::gyro::unscaled_error`]).
 
 use super::{
     BaseError, ComponentInfo, HeadingKind, HeadingSample, HeadingSource, SampleStream,
     STREAM_CAPACITY,
 };
-use crate::kinematics::{wrap_angle, Deviation};
+use crate::kinematics::Deviation;
 use async_trait::async_trait;
-use std::sync::{Arc, Mutex, RwLock};
+use std::sync::{Arc, RwLock};
 use std::time::Duration;
 use tokio::sync::mpsc;
 
-/// A heading source with a declared kind, and a deviation and a gyro scale error removed
-/// from its readings.
+/// A heading source with a declared kind and a deviation removed from its readings.
 pub struct Adjusted {
     inner: Arc<dyn HeadingSource>,
     kind: Option<HeadingKind>,
     deviation: Arc<RwLock<Deviation>>,
-    scale: Arc<Scale>,
-}
-
-/// A gyro's scale error and the unwrapped heading it divides.
-#[derive(Default)]
-struct Scale {
-    error: f64,
-    /// The first reading and the last, unwrapped from it (rad).
-    unwrapped: Mutex<Option<(f64, f64)>>,
-}
-
-impl Scale {
-    fn correct(&self, s: &mut HeadingSample) {
-        if self.error == 0.0 || !s.validity.is_valid() {
-            return;
-        }
-        let mut u = self.unwrapped.lock().unwrap_or_else(|p| p.into_inner());
-        let (first, last) = match *u {
-            None => (s.heading_rad, s.heading_rad),
-            Some((first, last)) => (first, last + wrap_angle(s.heading_rad - last)),
-        };
-        *u = Some((first, last));
-        s.heading_rad = wrap_angle(first + (last - first) / (1.0 + self.error));
-    }
 }
 
 impl Adjusted {
@@ -59,18 +35,7 @@ impl Adjusted {
             inner,
             kind,
             deviation: Arc::new(RwLock::new(deviation)),
-            scale: Arc::default(),
         }
-    }
-
-    /// The same with a gyro's scale error `s` removed (a gyro that reads `1 + s` times every
-    /// turn).
-    pub fn with_gyro_scale_error(mut self, s: f64) -> Self {
-        self.scale = Arc::new(Scale {
-            error: s,
-            unwrapped: Mutex::new(None),
-        });
-        self
     }
 
     /// The deviation removed from every reading, shared: a swing that measures a new one sets
@@ -101,10 +66,6 @@ impl HeadingSource for Adjusted {
                 "deviation_removed_deg".into(),
                 serde_json::json!(d.0.map(f64::to_degrees)),
             );
-            map.insert(
-                "gyro_scale_error_removed".into(),
-                serde_json::json!(self.scale.error),
-            );
         }
         info
     }
@@ -112,7 +73,6 @@ impl HeadingSource for Adjusted {
     async fn read(&self) -> Result<HeadingSample, BaseError> {
         let mut s = self.inner.read().await?;
         correct(&mut s, &self.deviation);
-        self.scale.correct(&mut s);
         Ok(s)
     }
 
@@ -124,11 +84,10 @@ impl HeadingSource for Adjusted {
             return Ok(None);
         };
         let (tx, out) = mpsc::channel(STREAM_CAPACITY);
-        let (deviation, scale) = (self.deviation.clone(), self.scale.clone());
+        let deviation = self.deviation.clone();
         tokio::spawn(async move {
             while let Some(mut s) = rx.recv().await {
                 correct(&mut s, &deviation);
-                scale.correct(&mut s);
                 if tx.send(s).await.is_err() {
                     return;
                 }

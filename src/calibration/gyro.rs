@@ -16,7 +16,8 @@
 //! With `s` known, each heading change is divided by `1 + s` before estimating
 //! ([`remove_scale`]). Sign conventions are the crate's: counter-clockwise positive.
 
-use super::{ideal_odometry, CalibrationError, SquareTest};
+use super::legs::LegMeasurement;
+use super::{ideal_odometry, CalibrationError, RunMeasurement, SquareTest};
 use crate::kinematics::{wrap_angle, Direction};
 use std::f64::consts::TAU;
 
@@ -54,30 +55,54 @@ pub fn scale_from_spin(
     Ok(s)
 }
 
-/// The test with the gyro's scale error `s` taken out of every heading change: the run's
-/// turn `θ + T` (heading error plus the odometry's turn) becomes `(θ + T)/(1 + s)`, and so
-/// does each leg's heading along the run.
-pub fn remove_scale(test: &SquareTest, s: f64) -> Result<SquareTest, CalibrationError> {
-    if !(s.is_finite() && s.abs() < 0.1) {
-        return Err(CalibrationError::Unsupported(format!(
+/// A heading error against the odometry's turn `turn_rad`, with the gyro's scale error `s`
+/// taken out of the heading's change: the heading turned `θ + T` by the gyro, so truly
+/// `(θ + T)/(1 + s)`. The heading's change need not be unwrapped (a square's at-rest readings
+/// are a full turn apart): `θ` is wrapped and `T` carries the whole turns.
+pub fn unscaled_error(error_rad: f64, turn_rad: f64, s: f64) -> f64 {
+    (error_rad + turn_rad) / (1.0 + s) - turn_rad
+}
+
+/// Checks that `s` is a gyro's scale error (finite, under 10 %).
+pub fn check_scale(s: f64) -> Result<(), CalibrationError> {
+    if s.is_finite() && s.abs() < 0.1 {
+        Ok(())
+    } else {
+        Err(CalibrationError::Unsupported(format!(
             "a gyro scale error of {s} is not a gyro's"
-        )));
+        )))
     }
-    let k = 1.0 / (1.0 + s);
+}
+
+/// One run with the gyro's scale error `s` taken out of its heading changes: the whole run's
+/// ([`unscaled_error`] against the odometry's turn, the commanded one without it) and each
+/// leg's along it.
+pub fn remove_scale_from_run(run: &mut RunMeasurement, direction: Direction, side_m: f64, s: f64) {
+    let t = run
+        .odometry
+        .unwrap_or_else(|| ideal_odometry(direction, side_m))
+        .turn_rad;
+    run.heading_error_rad = wrap_angle(unscaled_error(run.heading_error_rad, t, s));
+    if let Some(legs) = &mut run.legs {
+        remove_scale_from_legs(legs, s);
+    }
+}
+
+/// The legs of one run with the gyro's scale error `s` taken out of their headings.
+pub fn remove_scale_from_legs(legs: &mut LegMeasurement, s: f64) {
+    for leg in &mut legs.legs {
+        leg.error_rad = unscaled_error(leg.error_rad, leg.odometry.turn_rad, s);
+    }
+}
+
+/// The test with the gyro's scale error `s` taken out of every heading change
+/// ([`remove_scale_from_run`]).
+pub fn remove_scale(test: &SquareTest, s: f64) -> Result<SquareTest, CalibrationError> {
+    check_scale(s)?;
     let mut out = test.clone();
     for (runs, direction) in [(&mut out.cw, Direction::Cw), (&mut out.ccw, Direction::Ccw)] {
         for r in runs.iter_mut() {
-            let t = r
-                .odometry
-                .unwrap_or_else(|| ideal_odometry(direction, test.side_m))
-                .turn_rad;
-            r.heading_error_rad = wrap_angle((r.heading_error_rad + t) * k - t);
-            if let Some(legs) = &mut r.legs {
-                for leg in &mut legs.legs {
-                    let t = leg.odometry.turn_rad;
-                    leg.error_rad = (leg.error_rad + t) * k - t;
-                }
-            }
+            remove_scale_from_run(r, direction, test.side_m, s);
         }
     }
     Ok(out)

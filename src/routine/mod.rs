@@ -137,12 +137,7 @@ pub async fn run(
         Transaction::begin(base.store.clone(), &cfg.backup_dir),
     )
     .await?;
-    let mut base = base.clone();
-    if let Some(s) = cfg.gyro_scale_error {
-        base.heading = Arc::new(
-            Adjusted::new(base.heading.clone(), None, Default::default()).with_gyro_scale_error(s),
-        );
-    }
+    let base = base.clone();
     let mut run = Calibration {
         base,
         cfg,
@@ -622,7 +617,10 @@ impl Calibration<'_> {
                     };
                     cancellable(self.cancel, run_square(&self.base, &cmd, on_motion)).await?
                 };
-                let run = RunReport::new(phase, &rec, params, start, self.truth);
+                let mut run = RunReport::new(phase, &rec, params, start, self.truth);
+                if let Some(s) = cfg.gyro_scale_error {
+                    run.remove_gyro_scale(s, cfg.side_m);
+                }
                 // Measured is kept, even a square the next check refuses.
                 self.progress.runs.push(run.clone());
                 check_plausible(&rec, &run, params, self.ui)?;

@@ -197,6 +197,26 @@ impl RunReport {
     }
 }
 
+impl RunReport {
+    /// The run as a gyro of scale error `s` would have measured it without the error: every
+    /// heading change divided by `1 + s` ([`crate::calibration::gyro`]), against the
+    /// odometry's turn (the commanded ±2π when the drive did not report one).
+    pub fn remove_gyro_scale(&mut self, s: f64, side_m: f64) {
+        let mut m = crate::calibration::RunMeasurement {
+            heading_error_rad: self.heading_error_rad,
+            final_xy_m: None,
+            odometry: self.odometry,
+            legs: self.legs,
+            noise_variance_rad2: None,
+        };
+        crate::calibration::gyro::remove_scale_from_run(&mut m, self.direction, side_m, s);
+        self.heading_error_rad = m.heading_error_rad;
+        self.heading_error_deg = m.heading_error_rad.to_degrees();
+        self.legs = m.legs;
+        self.leg_heading_error_rad = m.legs.map(|l| l.heading_error_rad());
+    }
+}
+
 /// One calibration round.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct RoundReport {
