@@ -261,6 +261,7 @@ pub async fn connect(cfg: &RosBaseConfig) -> Result<Base, RosBaseError> {
         .clone()
         .or_else(|| yaml_cfg.right_wheel_names.first().cloned());
     // Wheels.
+    let rejects = Rejects::default();
     let (odo_tx, odo_rx) = watch::channel(Odo::default());
     let travel: Fanout<TravelSample> = Fanout::default();
     match cfg.wheel_source {
@@ -268,6 +269,7 @@ pub async fn connect(cfg: &RosBaseConfig) -> Result<Base, RosBaseError> {
             let rx = client.subscribe(&cfg.topics.joint_states, types::JOINT_STATE)?;
             tokio::spawn(integrate_joints(
                 rx,
+                (cfg.topics.joint_states.clone(), rejects.clone()),
                 geometry.clone(),
                 left,
                 right,
@@ -277,14 +279,25 @@ pub async fn connect(cfg: &RosBaseConfig) -> Result<Base, RosBaseError> {
         }
         WheelSource::Odom => {
             let rx = client.subscribe(&cfg.topics.odom, types::ODOMETRY)?;
-            tokio::spawn(integrate_odom(rx, geometry.clone(), odo_tx, travel.clone()));
+            tokio::spawn(integrate_odom(
+                rx,
+                (cfg.topics.odom.clone(), rejects.clone()),
+                geometry.clone(),
+                odo_tx,
+                travel.clone(),
+            ));
         }
     }
     // Heading.
     let imu_rx = client.subscribe(&cfg.topics.imu, types::IMU)?;
     let (head_tx, head_rx) = watch::channel(None);
     let streams: Fanout<HeadingSample> = Fanout::default();
-    tokio::spawn(follow_imu(imu_rx, head_tx, streams.clone()));
+    tokio::spawn(follow_imu(
+        imu_rx,
+        (cfg.topics.imu.clone(), rejects.clone()),
+        head_tx,
+        streams.clone(),
+    ));
     let vel_type = if cfg.twist_stamped {
         types::TWIST_STAMPED
     } else {
@@ -296,8 +309,10 @@ pub async fn connect(cfg: &RosBaseConfig) -> Result<Base, RosBaseError> {
         WheelSource::JointStates => &cfg.topics.joint_states,
         WheelSource::Odom => &cfg.topics.odom,
     };
-    wait_first(&client, &odo_rx, |o| o.samples > 0, wheel_topic, timeout).await?;
-    wait_first(&client, &head_rx, |h| h.is_some(), &cfg.topics.imu, timeout).await?;
+    let first = |topic: &str| (topic.to_string(), rejects.clone(), timeout);
+    wait_first(&client, &odo_rx, |o| o.samples > 0, first(wheel_topic)).await?;
+    let imu_ok = |h: &Option<(Instant, HeadingSample)>| h.is_some();
+    wait_first(&client, &head_rx, imu_ok, first(&cfg.topics.imu)).await?;
     // What the controller was started with: the file as it is now.
     let running = Arc::new(RwLock::new(yaml_cfg.effective()));
     let drive = RosDrive {
@@ -339,8 +354,7 @@ async fn wait_first<T>(
     client: &RosbridgeClient,
     rx: &watch::Receiver<T>,
     ready: impl Fn(&T) -> bool,
-    topic: &str,
-    timeout: Duration,
+    (topic, rejects, timeout): (String, Rejects, Duration),
 ) -> Result<(), RosbridgeError> {
     let mut rx = rx.clone();
     let waited = tokio::time::timeout(timeout, rx.wait_for(|v| ready(v))).await;
@@ -372,10 +386,54 @@ async fn wait_first<T>(
         .and_then(|v| v.get("topics").cloned())
         .map(|t| format!("; the robot publishes {t}"))
         .unwrap_or_default();
+    if let Some(why) = rejects.describe(&topic) {
+        return Err(RosbridgeError::Timeout(format!(
+            "no usable message on {topic} within {timeout:?}: {why}"
+        )));
+    }
     Err(RosbridgeError::Timeout(format!(
         "no message on {topic} within {timeout:?}: is the robot's driver running and the topic \
          name right (a flag or the routine file sets it)?{topics}"
     )))
+}
+
+/// A message as its type, or why not, naming the field (`effort[1]: invalid type…`).
+fn decode<T: serde::de::DeserializeOwned>(v: &Value) -> Result<T, String> {
+    serde_path_to_error::deserialize(v).map_err(|e| format!("field `{}`: {}", e.path(), e.inner()))
+}
+
+/// Messages that arrived but could not be used, per topic: how many, the first reason and an
+/// example, so that a silent topic and a topic whose messages odocal cannot read are told
+/// apart.
+#[derive(Clone, Default)]
+struct Rejects(Arc<std::sync::Mutex<std::collections::BTreeMap<String, Rejected>>>);
+
+struct Rejected {
+    count: u64,
+    reason: String,
+    example: String,
+}
+
+impl Rejects {
+    fn note(&self, topic: &str, reason: String, msg: &Value) {
+        let mut map = self.0.lock().unwrap_or_else(|p| p.into_inner());
+        let r = map.entry(topic.to_string()).or_insert_with(|| Rejected {
+            count: 0,
+            reason,
+            example: msg.to_string().chars().take(240).collect(),
+        });
+        r.count += 1;
+    }
+
+    fn describe(&self, topic: &str) -> Option<String> {
+        let map = self.0.lock().unwrap_or_else(|p| p.into_inner());
+        map.get(topic).map(|r| {
+            format!(
+                "{} message(s) arrived and none could be used: {}; e.g. {}",
+                r.count, r.reason, r.example
+            )
+        })
+    }
 }
 
 fn stamp_of(v: &Value) -> Option<f64> {
@@ -414,6 +472,7 @@ async fn next_message(rx: &mut tokio::sync::broadcast::Receiver<Value>) -> Optio
 
 async fn integrate_joints(
     mut rx: tokio::sync::broadcast::Receiver<Value>,
+    (topic, rejects): (String, Rejects),
     geometry: Geometry,
     left: Option<String>,
     right: Option<String>,
@@ -426,15 +485,30 @@ async fn integrate_joints(
         let Some(v) = next_message(&mut rx).await else {
             return;
         };
-        let Ok(js) = serde_json::from_value::<JointState>(v.clone()) else {
-            continue;
+        let js = match decode::<JointState>(&v) {
+            Ok(js) => js,
+            Err(why) => {
+                rejects.note(&topic, why, &v);
+                continue;
+            }
         };
         let Some((l, r)) = js.wheel_indices(&left, &right) else {
+            let want = match (&left, &right) {
+                (Some(l), Some(r)) => format!("`{l}` and `{r}`"),
+                _ => "one name with \"left\" and one with \"right\"".into(),
+            };
+            let why = format!("no wheel joints {want} among {:?}", js.name);
+            rejects.note(&topic, why, &v);
             continue;
         };
         let (Some(&lp), Some(&rp)) = (js.position.get(l), js.position.get(r)) else {
+            rejects.note(&topic, "fewer positions than names".into(), &v);
             continue;
         };
+        if !(lp.is_finite() && rp.is_finite()) {
+            rejects.note(&topic, "a wheel position is not a number".into(), &v);
+            continue;
+        }
         let stamp = stamp_of(&v).unwrap_or(odo.stamp_s);
         let g = effective(&geometry);
         if let Some((l0, r0)) = last {
@@ -463,6 +537,7 @@ async fn integrate_joints(
 
 async fn integrate_odom(
     mut rx: tokio::sync::broadcast::Receiver<Value>,
+    (topic, rejects): (String, Rejects),
     geometry: Geometry,
     tx: watch::Sender<Odo>,
     travel: Fanout<TravelSample>,
@@ -473,13 +548,25 @@ async fn integrate_odom(
         let Some(v) = next_message(&mut rx).await else {
             return;
         };
-        let Ok(o) = serde_json::from_value::<Odometry>(v.clone()) else {
-            continue;
+        let o = match decode::<Odometry>(&v) {
+            Ok(o) => o,
+            Err(why) => {
+                rejects.note(&topic, why, &v);
+                continue;
+            }
         };
-        let Ok(yaw) = yaw_of(&o.pose.pose.orientation) else {
-            continue;
+        let yaw = match yaw_of(&o.pose.pose.orientation) {
+            Ok(yaw) => yaw,
+            Err(why) => {
+                rejects.note(&topic, format!("pose.pose.orientation: {why}"), &v);
+                continue;
+            }
         };
         let (x, y) = (o.pose.pose.position.x, o.pose.pose.position.y);
+        if !(x.is_finite() && y.is_finite()) {
+            rejects.note(&topic, "pose.pose.position is not a number".into(), &v);
+            continue;
+        }
         let stamp = stamp_of(&v).unwrap_or(odo.stamp_s);
         if let Some((x0, y0, yaw0)) = last {
             let dth = wrap_angle(yaw - yaw0);
@@ -506,6 +593,7 @@ async fn integrate_odom(
 
 async fn follow_imu(
     mut rx: tokio::sync::broadcast::Receiver<Value>,
+    (topic, rejects): (String, Rejects),
     tx: watch::Sender<Option<(Instant, HeadingSample)>>,
     streams: Fanout<HeadingSample>,
 ) {
@@ -514,12 +602,15 @@ async fn follow_imu(
             return;
         };
         let stamp = stamp_of(&v).unwrap_or(0.0);
-        let sample = match serde_json::from_value::<Imu>(v) {
-            Err(e) => HeadingSample {
-                time_s: stamp,
-                heading_rad: 0.0,
-                validity: Validity::Invalid(format!("undecodable IMU message: {e}")),
-            },
+        let sample = match decode::<Imu>(&v) {
+            Err(e) => {
+                rejects.note(&topic, e.clone(), &v);
+                HeadingSample {
+                    time_s: stamp,
+                    heading_rad: 0.0,
+                    validity: Validity::Invalid(format!("undecodable IMU message: {e}")),
+                }
+            }
             Ok(imu) if imu.orientation_covariance[0] == -1.0 => HeadingSample {
                 time_s: stamp,
                 heading_rad: 0.0,

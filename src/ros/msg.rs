@@ -50,10 +50,13 @@ pub struct Header {
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
 pub struct Vector3 {
     /// x.
+    #[serde(deserialize_with = "lenient::float")]
     pub x: f64,
     /// y.
+    #[serde(deserialize_with = "lenient::float")]
     pub y: f64,
     /// z.
+    #[serde(deserialize_with = "lenient::float")]
     pub z: f64,
 }
 
@@ -61,12 +64,16 @@ pub struct Vector3 {
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Quaternion {
     /// x.
+    #[serde(deserialize_with = "lenient::float")]
     pub x: f64,
     /// y.
+    #[serde(deserialize_with = "lenient::float")]
     pub y: f64,
     /// z.
+    #[serde(deserialize_with = "lenient::float")]
     pub z: f64,
     /// w.
+    #[serde(deserialize_with = "lenient::float")]
     pub w: f64,
 }
 
@@ -155,8 +162,9 @@ impl<'de> Deserialize<'de> for Covariance36 {
                 let mut out = [0.0; 36];
                 for (i, v) in out.iter_mut().enumerate() {
                     *v = a
-                        .next_element()?
-                        .ok_or_else(|| serde::de::Error::invalid_length(i, &self))?;
+                        .next_element::<lenient::Float>()?
+                        .ok_or_else(|| serde::de::Error::invalid_length(i, &self))?
+                        .0;
                 }
                 Ok(Covariance36(out))
             }
@@ -173,12 +181,14 @@ pub struct JointState {
     /// Joint names.
     pub name: Vec<String>,
     /// Positions (rad for revolute joints).
+    #[serde(deserialize_with = "lenient::floats")]
     pub position: Vec<f64>,
     /// Velocities (rad/s).
-    #[serde(default)]
+    #[serde(default, deserialize_with = "lenient::unused_floats")]
     pub velocity: Vec<f64>,
-    /// Efforts.
-    #[serde(default)]
+    /// Efforts (joint_state_broadcaster fills them with NaN for wheels without an effort
+    /// interface; odocal does not use them).
+    #[serde(default, deserialize_with = "lenient::unused_floats")]
     pub effort: Vec<f64>,
 }
 
@@ -215,14 +225,17 @@ pub struct Imu {
     /// Orientation.
     pub orientation: Quaternion,
     /// Orientation covariance; element 0 = −1 means "no orientation" (REP 145).
+    #[serde(deserialize_with = "lenient::floats9")]
     pub orientation_covariance: [f64; 9],
     /// Angular velocity (rad/s).
     pub angular_velocity: Vector3,
     /// Its covariance.
+    #[serde(deserialize_with = "lenient::floats9")]
     pub angular_velocity_covariance: [f64; 9],
     /// Linear acceleration (m/s²).
     pub linear_acceleration: Vector3,
     /// Its covariance.
+    #[serde(deserialize_with = "lenient::floats9")]
     pub linear_acceleration_covariance: [f64; 9],
 }
 
@@ -313,6 +326,200 @@ pub struct Odometry {
     pub pose: PoseWithCovariance,
     /// Twist in the child frame.
     pub twist: TwistWithCovariance,
+}
+
+/// Floats as rosbridge really sends them in JSON: a NaN or infinite scalar, or element of a
+/// variable-length array, as `null`; elements of fixed-size arrays (covariances) as the bare
+/// tokens `NaN`, `Infinity`, `-Infinity` (rosbridge_suite #916), which [`lenient::json`]
+/// turns into strings first; integers where floats are meant. Binary formats (CDR, ROS 1) are
+/// read as they are: these only apply to self-describing input.
+pub mod lenient {
+    use serde::de::{Deserialize, Deserializer, Error, IgnoredAny, SeqAccess, Visitor};
+    use std::borrow::Cow;
+    use std::fmt;
+
+    /// One float as rosbridge sends it.
+    #[derive(Debug, Clone, Copy, PartialEq)]
+    pub struct Float(pub f64);
+
+    struct FloatVisitor;
+
+    impl<'de> Visitor<'de> for FloatVisitor {
+        type Value = Float;
+        fn expecting(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+            f.write_str("a number, null, or NaN/Infinity/-Infinity")
+        }
+        fn visit_f64<E: Error>(self, v: f64) -> Result<Float, E> {
+            Ok(Float(v))
+        }
+        fn visit_i64<E: Error>(self, v: i64) -> Result<Float, E> {
+            Ok(Float(v as f64))
+        }
+        fn visit_u64<E: Error>(self, v: u64) -> Result<Float, E> {
+            Ok(Float(v as f64))
+        }
+        fn visit_unit<E: Error>(self) -> Result<Float, E> {
+            Ok(Float(f64::NAN))
+        }
+        fn visit_none<E: Error>(self) -> Result<Float, E> {
+            Ok(Float(f64::NAN))
+        }
+        fn visit_str<E: Error>(self, v: &str) -> Result<Float, E> {
+            match v {
+                "NaN" | "nan" => Ok(Float(f64::NAN)),
+                "Infinity" | "inf" => Ok(Float(f64::INFINITY)),
+                "-Infinity" | "-inf" => Ok(Float(f64::NEG_INFINITY)),
+                _ => Err(E::invalid_value(serde::de::Unexpected::Str(v), &self)),
+            }
+        }
+    }
+
+    impl<'de> Deserialize<'de> for Float {
+        fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Float, D::Error> {
+            if d.is_human_readable() {
+                d.deserialize_any(FloatVisitor)
+            } else {
+                f64::deserialize(d).map(Float)
+            }
+        }
+    }
+
+    /// A float field.
+    pub fn float<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+        Float::deserialize(d).map(|f| f.0)
+    }
+
+    /// A variable-length float array.
+    pub fn floats<'de, D: Deserializer<'de>>(d: D) -> Result<Vec<f64>, D::Error> {
+        Vec::<Float>::deserialize(d).map(|v| v.into_iter().map(|f| f.0).collect())
+    }
+
+    /// A `float64[9]`.
+    pub fn floats9<'de, D: Deserializer<'de>>(d: D) -> Result<[f64; 9], D::Error> {
+        <[Float; 9]>::deserialize(d).map(|a| a.map(|f| f.0))
+    }
+
+    /// A float array odocal does not use: in JSON, anything (a driver's odd value there never
+    /// costs the message) reads as empty unless it is a float array; in binary formats it is
+    /// read as it is, since its bytes have to be passed over.
+    pub fn unused_floats<'de, D: Deserializer<'de>>(d: D) -> Result<Vec<f64>, D::Error> {
+        if !d.is_human_readable() {
+            return Vec::<f64>::deserialize(d);
+        }
+        struct Any;
+        impl<'de> Visitor<'de> for Any {
+            type Value = Vec<f64>;
+            fn expecting(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+                f.write_str("anything")
+            }
+            fn visit_seq<A: SeqAccess<'de>>(self, mut a: A) -> Result<Vec<f64>, A::Error> {
+                let mut out = Vec::new();
+                let mut floats = true;
+                while let Some(v) = a.next_element::<Option<FloatOrOther>>()? {
+                    match v {
+                        Some(FloatOrOther::Float(f)) if floats => out.push(f),
+                        None if floats => out.push(f64::NAN),
+                        _ => floats = false,
+                    }
+                }
+                Ok(if floats { out } else { Vec::new() })
+            }
+            fn visit_unit<E: Error>(self) -> Result<Vec<f64>, E> {
+                Ok(Vec::new())
+            }
+            fn visit_none<E: Error>(self) -> Result<Vec<f64>, E> {
+                Ok(Vec::new())
+            }
+            fn visit_bool<E: Error>(self, _: bool) -> Result<Vec<f64>, E> {
+                Ok(Vec::new())
+            }
+            fn visit_i64<E: Error>(self, _: i64) -> Result<Vec<f64>, E> {
+                Ok(Vec::new())
+            }
+            fn visit_u64<E: Error>(self, _: u64) -> Result<Vec<f64>, E> {
+                Ok(Vec::new())
+            }
+            fn visit_f64<E: Error>(self, _: f64) -> Result<Vec<f64>, E> {
+                Ok(Vec::new())
+            }
+            fn visit_str<E: Error>(self, _: &str) -> Result<Vec<f64>, E> {
+                Ok(Vec::new())
+            }
+            fn visit_map<A: serde::de::MapAccess<'de>>(
+                self,
+                mut a: A,
+            ) -> Result<Vec<f64>, A::Error> {
+                while a.next_entry::<IgnoredAny, IgnoredAny>()?.is_some() {}
+                Ok(Vec::new())
+            }
+        }
+        d.deserialize_any(Any)
+    }
+
+    /// An element of an unused array: a float, or anything else (passed over).
+    enum FloatOrOther {
+        Float(f64),
+        Other,
+    }
+
+    impl<'de> Deserialize<'de> for FloatOrOther {
+        fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+            match serde_json::Value::deserialize(d)? {
+                serde_json::Value::Number(n) => {
+                    Ok(n.as_f64().map_or(FloatOrOther::Other, FloatOrOther::Float))
+                }
+                serde_json::Value::String(s) => Ok(FloatVisitor
+                    .visit_str::<serde_json::Error>(&s)
+                    .map_or(FloatOrOther::Other, |f| FloatOrOther::Float(f.0))),
+                _ => Ok(FloatOrOther::Other),
+            }
+        }
+    }
+
+    /// JSON text as rosbridge writes it, made valid: the bare tokens `NaN`, `Infinity` and
+    /// `-Infinity` (outside strings) become the strings `"NaN"`, `"Infinity"`, `"-Infinity"`,
+    /// which the float fields above read. Text without them is returned as it is.
+    pub fn json(text: &str) -> Cow<'_, str> {
+        let bytes = text.as_bytes();
+        if !(text.contains("NaN") || text.contains("Infinity")) {
+            return Cow::Borrowed(text);
+        }
+        let mut out = String::with_capacity(text.len() + 16);
+        let (mut i, mut start, mut in_string) = (0, 0, false);
+        while i < bytes.len() {
+            let b = bytes[i];
+            if in_string {
+                match b {
+                    b'\\' => i += 1,
+                    b'"' => in_string = false,
+                    _ => {}
+                }
+                i += 1;
+                continue;
+            }
+            if b == b'"' {
+                in_string = true;
+                i += 1;
+                continue;
+            }
+            let token = ["-Infinity", "Infinity", "NaN"]
+                .into_iter()
+                .find(|t| bytes[i..].starts_with(t.as_bytes()));
+            match token {
+                Some(t) => {
+                    out.push_str(&text[start..i]);
+                    out.push('"');
+                    out.push_str(t);
+                    out.push('"');
+                    i += t.len();
+                    start = i;
+                }
+                None => i += 1,
+            }
+        }
+        out.push_str(&text[start..]);
+        Cow::Owned(out)
+    }
 }
 
 /// ROS 2 type names and message definitions (the `ros2msg` schema text a bag stores).
@@ -520,5 +727,69 @@ mod tests {
         )
         .unwrap();
         assert_eq!(ros2.position, vec![0.1]);
+    }
+
+    /// Joint states and IMU messages as rosbridge servers send them (the raw text): NaN as
+    /// `null` or as bare tokens, integers for floats, fields odocal does not know, `effort`
+    /// empty, null, NaN or nonsense — every one is read, and the wheel positions are intact.
+    #[test]
+    fn messages_as_rosbridge_sends_them_are_read() {
+        let read = |text: &str| -> serde_json::Value {
+            serde_json::from_str(&lenient::json(text)).unwrap_or_else(|e| panic!("{text}: {e}"))
+        };
+        let head = r#""header":{"stamp":{"sec":1700000000,"nanosec":5},"frame_id":""},"name":["left_wheel_joint","right_wheel_joint"],"position":[1.5,-2],"velocity":[0.1,0]"#;
+        for effort in [
+            r#""effort":[null,null]"#,
+            r#""effort":[NaN,NaN]"#,
+            r#""effort":[]"#,
+            r#""effort":null"#,
+            r#""effort":[Infinity,-Infinity]"#,
+            r#""effort":["n/a",1]"#,
+            r#""extra":{"a":[1,2]},"effort":[0,0]"#,
+        ] {
+            let text = format!("{{{head},{effort}}}");
+            let js: JointState =
+                serde_json::from_value(read(&text)).unwrap_or_else(|e| panic!("{text}: {e}"));
+            assert_eq!(js.position, vec![1.5, -2.0], "{text}");
+        }
+        // A NaN wheel position is read as NaN (and refused by whoever uses it), not an error.
+        let js: JointState = serde_json::from_value(read(
+            r#"{"header":{"stamp":{"sec":1,"nanosec":0}},"name":["l","r"],"position":[null,NaN]}"#,
+        ))
+        .unwrap();
+        assert!(js.position.iter().all(|p| p.is_nan()));
+        // rosbridge_suite #916: bare NaN in a fixed-size covariance; "NaN" inside a string is
+        // left alone.
+        let imu: Imu = serde_json::from_value(read(
+            r#"{"header":{"stamp":{"sec":1,"nanosec":0},"frame_id":"NaN Infinity"},
+                "orientation":{"x":0,"y":0,"z":0,"w":1},
+                "orientation_covariance":[NaN,0,0,0,Infinity,0,0,0,-Infinity],
+                "angular_velocity":{"x":null,"y":0,"z":0},
+                "angular_velocity_covariance":[0,0,0,0,0,0,0,0,0],
+                "linear_acceleration":{"x":0,"y":0,"z":9.8},
+                "linear_acceleration_covariance":[0,0,0,0,0,0,0,0,0]}"#,
+        ))
+        .unwrap();
+        assert_eq!(imu.header.frame_id, "NaN Infinity");
+        assert!(imu.orientation_covariance[0].is_nan());
+        assert_eq!(imu.orientation_covariance[4], f64::INFINITY);
+        assert_eq!(imu.orientation_covariance[8], f64::NEG_INFINITY);
+        assert_eq!(imu.orientation.w, 1.0);
+        // A field odocal does use, broken, is an error that names it.
+        let bad = read(
+            r#"{"header":{"stamp":{"sec":1,"nanosec":0}},"name":["l","r"],"position":[1,"x"]}"#,
+        );
+        let err = serde_path_to_error::deserialize::<_, JointState>(&bad).unwrap_err();
+        assert_eq!(err.path().to_string(), "position[1]");
+        // CDR is untouched by the leniency.
+        let js = JointState {
+            name: vec!["l".into(), "r".into()],
+            position: vec![1.0, 2.0],
+            effort: vec![f64::NAN, 0.5],
+            ..JointState::default()
+        };
+        let back: JointState = cdr::decode(&cdr::encode(&js).unwrap()).unwrap();
+        assert_eq!(back.position, js.position);
+        assert!(back.effort[0].is_nan() && back.effort[1] == 0.5);
     }
 }

@@ -296,7 +296,9 @@ fn dispatch(
     pending: &Pending,
     foreign: &Mutex<(u64, Option<String>)>,
 ) {
-    let Ok(v) = serde_json::from_str::<Value>(text) else {
+    // rosbridge writes NaN and infinities inside fixed-size float arrays as bare tokens
+    // (rosbridge_suite #916): not JSON, but a message all the same.
+    let Ok(v) = serde_json::from_str::<Value>(&super::msg::lenient::json(text)) else {
         note_foreign(foreign, format!("non-JSON text {text:?}"));
         return;
     };
