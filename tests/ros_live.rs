@@ -5,7 +5,7 @@
 mod common;
 
 use odocal::base::Base;
-use odocal::mock::rosbridge::{MockRosConfig, MockRosbridge};
+use odocal::mock::rosbridge::{EffortStyle, MockRosConfig, MockRosbridge};
 use odocal::ros::live::{connect, RosBaseConfig};
 use odocal::ros::yaml::DiffDriveConfig;
 use odocal::routine::config::RoutineConfig;
@@ -56,7 +56,10 @@ fn routine(dir: &Path) -> RoutineConfig {
 async fn calibrating_through_rosbridge_writes_multipliers_that_fix_the_robot() {
     let _one_at_a_time = END_TO_END.lock().await;
     let (dir, yaml) = yaml_file("ros-live");
-    let server = mock(&yaml, |_| {}).await;
+    // Joint states as joint_state_broadcaster sends them for wheels without an effort
+    // interface, through a rosbridge that writes NaN as the bare token (rosbridge_suite #916):
+    // not JSON, and odocal never reads `effort`, so they must not cost a message.
+    let server = mock(&yaml, |c| c.effort = EffortStyle::BareNan).await;
     let base = connect(&ros_config(server.url(), &yaml)).await.unwrap();
     let report = run(
         &base,
@@ -329,4 +332,69 @@ fn calibrate_base_rosbridge_end_to_end_from_the_command_line() {
         "{written:?}"
     );
     assert!(report_dir.join("report.json").is_file());
+}
+
+/// Joint states whose `effort` rosbridge writes as `null` (a NaN in a variable-length array),
+/// or leaves empty: the base connects on the first messages and drives by them.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn joint_states_with_effort_null_or_empty_drive_the_robot() {
+    for effort in [EffortStyle::Null, EffortStyle::Empty, EffortStyle::Zero] {
+        let (_dir, yaml) = yaml_file(&format!("ros-effort-{effort:?}"));
+        let server = mock(&yaml, |c| {
+            c.effort = effort;
+            // Real time: at forty times the robot overshoots what the test wants to see.
+            c.time_scale = 1.0;
+        })
+        .await;
+        let base = connect(&ros_config(server.url(), &yaml))
+            .await
+            .unwrap_or_else(|e| panic!("{effort:?}: {e}"));
+        let done = base
+            .drive
+            .move_straight(0.3, 0.3)
+            .await
+            .unwrap_or_else(|e| panic!("{effort:?}: {e}"))
+            .expect("the odometry's distance");
+        assert!((done.distance_m - 0.3).abs() < 0.02, "{effort:?}: {done:?}");
+    }
+}
+
+/// A velocity topic nothing listens to (Jazzy's controller takes TwistStamped on
+/// /diff_drive_controller/cmd_vel): the first motion stops within two seconds and says why,
+/// naming the topic, that nothing subscribes to it, and the controller's topic with its type.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_velocity_topic_nothing_listens_to_is_diagnosed_at_once() {
+    let (_dir, yaml) = yaml_file("ros-wrong-cmd-vel");
+    let server = mock(&yaml, |c| {
+        c.cmd_vel = "/diff_drive_controller/cmd_vel".into();
+        c.cmd_vel_stamped = true;
+        c.time_scale = 1.0;
+    })
+    .await;
+    let base = connect(&ros_config(server.url(), &yaml)).await.unwrap();
+    let started = std::time::Instant::now();
+    let err = base.drive.move_straight(1.0, 0.3).await.unwrap_err();
+    let took = started.elapsed();
+    let text = err.to_string();
+    assert!(took < Duration::from_secs(2), "{took:?}: {text}");
+    for needle in [
+        "did not move",
+        "/cmd_vel",
+        "nothing subscribes to /cmd_vel",
+        "/diff_drive_controller/cmd_vel (geometry_msgs/msg/TwistStamped)",
+    ] {
+        assert!(text.contains(needle), "{needle:?} not in: {text}");
+    }
+    assert_eq!(
+        server.state().counters.commands,
+        0,
+        "the robot was never commanded"
+    );
+    // With the right topic and type, the same robot moves.
+    let mut cfg = ros_config(server.url(), &yaml);
+    cfg.cmd_vel = "/diff_drive_controller/cmd_vel".into();
+    cfg.twist_stamped = true;
+    let base = connect(&cfg).await.unwrap();
+    let done = base.drive.move_straight(0.2, 0.3).await.unwrap().unwrap();
+    assert!((done.distance_m - 0.2).abs() < 0.02, "{done:?}");
 }

@@ -657,14 +657,15 @@ impl RosDrive {
         target: f64,
         max: f64,
     ) -> Result<Option<Achieved>, BaseError> {
-        let mut done = self.motion_once(kind, target, max).await?;
+        let mut done = self.motion_once(kind, target, max, true).await?;
         if kind == Kind::Turn {
             for _ in 0..2 {
                 let rest = target - done.turn_rad;
                 if rest.abs() <= TURN_TRIM_RAD {
                     break;
                 }
-                let trim = self.motion_once(kind, rest, 0.1 * max).await?;
+                // A trim creeps, and a wheel may stick at a creep: no stillness diagnosis.
+                let trim = self.motion_once(kind, rest, 0.1 * max, false).await?;
                 done.turn_rad += trim.turn_rad;
                 done.distance_m += trim.distance_m;
             }
@@ -672,7 +673,13 @@ impl RosDrive {
         Ok(Some(done))
     }
 
-    async fn motion_once(&self, kind: Kind, target: f64, max: f64) -> Result<Achieved, BaseError> {
+    async fn motion_once(
+        &self,
+        kind: Kind,
+        target: f64,
+        max: f64,
+        diagnose: bool,
+    ) -> Result<Achieved, BaseError> {
         if !(target.is_finite() && max.is_finite() && max > 0.0) {
             return Err(BaseError::InvalidArgument {
                 component: "drive (rosbridge)".into(),
@@ -703,9 +710,13 @@ impl RosDrive {
         let mut last_t = Instant::now();
         let mut last_progress_t = Instant::now();
         let mut last_samples = start.samples;
+        let first_command = Instant::now();
+        let mut moved = false;
         loop {
             let now_odo = *odo.borrow();
             let progress = sign * (pick(&now_odo) - pick(&start));
+            moved |= (now_odo.distance_m - start.distance_m).abs() > STILL_M
+                || (now_odo.turn_rad - start.turn_rad).abs() > STILL_RAD;
             let remaining = goal - progress;
             if remaining <= tol {
                 break;
@@ -730,6 +741,11 @@ impl RosDrive {
                         WheelSource::Odom => &self.cfg.topics.odom,
                     }
                 ))));
+            }
+            // Wheel data arrives (the check above) and shows no motion: nothing obeys.
+            if diagnose && !moved && first_command.elapsed() > STILL_LIMIT {
+                let _ = self.commander.send(0.0, 0.0);
+                return Err(drive_err(self.diagnose_still().await));
             }
             let dt = (now - last_t).as_secs_f64().clamp(0.0, 0.1);
             last_t = now;
@@ -772,6 +788,106 @@ impl RosDrive {
             distance_m: end.distance_m - start.distance_m,
             turn_rad: end.turn_rad - start.turn_rad,
         })
+    }
+}
+
+/// A robot whose odometry has not changed this long after a motion's first command is not
+/// obeying: stopped and diagnosed ([`NotMoving`]).
+pub const STILL_LIMIT: Duration = Duration::from_secs(1);
+/// Odometry changes below these (m, rad) are not motion.
+const STILL_M: f64 = 1e-4;
+const STILL_RAD: f64 = 1e-4;
+
+/// The robot did not move on a motion's command: what the robot's graph says about why.
+#[derive(Debug, thiserror::Error)]
+#[error(
+    "the robot did not move within {after:?} of the first command on {topic} ({kind}): its \
+     odometry ({odometry}) did not change; {diagnosis}; stopped"
+)]
+pub struct NotMoving {
+    /// The velocity topic commanded.
+    pub topic: String,
+    /// The message type published there.
+    pub kind: String,
+    /// How long it waited.
+    pub after: Duration,
+    /// The odometry source watched.
+    pub odometry: String,
+    /// What rosapi tells: the topic's type, its subscribers, the velocity topics that exist.
+    pub diagnosis: String,
+}
+
+impl RosDrive {
+    /// Asks rosapi why nothing moves: who subscribes to the velocity topic, as which type, and
+    /// which topics of a velocity type the robot has.
+    async fn diagnose_still(&self) -> NotMoving {
+        let client = &self.commander.client;
+        let ask = |service: &'static str, args: Value| async move {
+            client
+                .call_service(service, "rosapi_msgs/srv/Any", args, Duration::from_secs(1))
+                .await
+                .ok()
+        };
+        let topic = self.cfg.cmd_vel.clone();
+        let kind = if self.cfg.twist_stamped {
+            types::TWIST_STAMPED
+        } else {
+            types::TWIST
+        };
+        let mut notes = Vec::new();
+        let listed = ask("/rosapi/topic_type", json!({ "topic": topic })).await;
+        match listed
+            .as_ref()
+            .and_then(|v| v.get("type"))
+            .and_then(Value::as_str)
+        {
+            Some(t) if !t.is_empty() && !types::is(t, kind) && !types::is(kind, t) => notes.push(
+                format!("{topic} carries {t}, not the {kind} published (--twist-stamped)"),
+            ),
+            _ => {}
+        }
+        let subscribers = ask("/rosapi/subscribers", json!({ "topic": topic }))
+            .await
+            .and_then(|v| v.get("subscribers").cloned())
+            .and_then(|v| serde_json::from_value::<Vec<String>>(v).ok());
+        match subscribers {
+            Some(s) if s.is_empty() => notes.push(format!("nothing subscribes to {topic}")),
+            Some(s) => notes.push(format!("{topic} is subscribed by {}", s.join(", "))),
+            None => notes.push("rosapi did not say who subscribes".into()),
+        }
+        let all = ask("/rosapi/topics", json!({})).await;
+        let pairs: Vec<(String, String)> = all
+            .as_ref()
+            .and_then(|v| {
+                let t: Vec<String> = serde_json::from_value(v.get("topics")?.clone()).ok()?;
+                let k: Vec<String> = serde_json::from_value(v.get("types")?.clone()).ok()?;
+                Some(t.into_iter().zip(k).collect())
+            })
+            .unwrap_or_default();
+        let velocity: Vec<String> = pairs
+            .iter()
+            .filter(|(t, k)| {
+                *t != topic && (types::is(k, types::TWIST) || types::is(k, types::TWIST_STAMPED))
+            })
+            .map(|(t, k)| format!("{t} ({k})"))
+            .collect();
+        if !velocity.is_empty() {
+            notes.push(format!(
+                "velocity topics on this robot: {} (give the controller's with --cmd-vel, and \
+                 --twist-stamped for TwistStamped)",
+                velocity.join(", ")
+            ));
+        }
+        NotMoving {
+            topic,
+            kind: kind.into(),
+            after: STILL_LIMIT,
+            odometry: match self.cfg.wheel_source {
+                WheelSource::JointStates => self.cfg.topics.joint_states.clone(),
+                WheelSource::Odom => self.cfg.topics.odom.clone(),
+            },
+            diagnosis: notes.join("; "),
+        }
     }
 }
 

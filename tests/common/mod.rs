@@ -7,7 +7,7 @@ use odocal::kinematics::{SplitConvention, WheelParams};
 use odocal::mock::{MockConfig, MockDevice, SharedDevice, SimBase};
 use odocal::offline::dataset::default_optiodom_root;
 use odocal::sim::{NoiseModel, Simulator};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::sync::{Arc, Mutex};
 
@@ -118,6 +118,30 @@ pub fn optiodom(sub: &str) -> Option<PathBuf> {
     eprintln!(
         "NOTICE: skipping, OptiOdom data not found at {}",
         root.display()
+    );
+    None
+}
+
+/// The Python of the virtual environment `.ci/run` makes with the client libraries odocal did
+/// not write (`.ci/requirements.txt`: roslibpy, rosbags, basicmicro), or `ODOCAL_PYTHON`. A
+/// missing one fails the test when `CI` is set, and skips it with a notice otherwise.
+#[allow(dead_code)]
+pub fn client_python() -> Option<PathBuf> {
+    let python = std::env::var_os("ODOCAL_PYTHON")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("target/ci-venv/bin/python"));
+    if python.is_file() {
+        return Some(python);
+    }
+    assert!(
+        std::env::var_os("CI").is_none(),
+        "no Python with the client libraries at {} (.ci/run makes it; or set ODOCAL_PYTHON)",
+        python.display()
+    );
+    eprintln!(
+        "NOTICE: skipping, no Python with the client libraries at {} (run .ci/run once, or \
+         set ODOCAL_PYTHON)",
+        python.display()
     );
     None
 }

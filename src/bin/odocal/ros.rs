@@ -384,6 +384,14 @@ pub struct MockArgs {
     /// Velocity topic the controller obeys.
     #[arg(long, default_value = "/cmd_vel")]
     cmd_vel: String,
+    /// The controller expects geometry_msgs/TwistStamped there (Jazzy's default), not Twist.
+    #[arg(long)]
+    cmd_vel_stamped: bool,
+    /// How /joint_states carries `effort`, as real robots send it: empty, zero, null (NaN as
+    /// rosbridge writes it in a variable-length array) or nan (the bare token NaN, also in the
+    /// IMU's fixed-size covariance: rosbridge_suite #916).
+    #[arg(long, default_value = "empty")]
+    effort: odocal::mock::rosbridge::EffortStyle,
     /// Keep serving when stdin closes (stop with Ctrl-C only).
     #[arg(long)]
     ignore_stdin: bool,
@@ -407,6 +415,8 @@ pub async fn mock(args: MockArgs) -> Result<(), Box<dyn std::error::Error>> {
     cfg.heading_model = args.sensor.model()?;
     cfg.time_scale = args.time_scale;
     cfg.cmd_vel = args.cmd_vel.clone();
+    cfg.cmd_vel_stamped = args.cmd_vel_stamped;
+    cfg.effort = args.effort;
     let server =
         MockRosbridge::spawn(cfg, std::net::SocketAddr::from(([127, 0, 0, 1], args.port))).await?;
     println!("{}", server.url());
@@ -415,11 +425,16 @@ pub async fn mock(args: MockArgs) -> Result<(), Box<dyn std::error::Error>> {
         .spawn(server.heading_sensor(), args.time_scale)?;
     eprintln!(
         "mock rosbridge: a ROS 2 robot with diff_drive_controller (true E_b {}, E_d {}) on {}; \
-         /joint_states, /odom, /imu; obeys {}. Ctrl-C{} stops it.",
+         /joint_states, /odom, /imu; obeys {} ({}). Ctrl-C{} stops it.",
         args.truth.true_eb,
         args.truth.true_ed,
         server.url(),
         args.cmd_vel,
+        if args.cmd_vel_stamped {
+            "TwistStamped"
+        } else {
+            "Twist"
+        },
         if args.ignore_stdin {
             ""
         } else {

@@ -1,29 +1,37 @@
 //! A mock rosbridge server on a loopback socket, backed by the simulator: a ROS 2 robot with
-//! `diff_drive_controller` as seen through `rosbridge_server`.
+//! `diff_drive_controller` as seen through `rosbridge_server`, speaking the rosbridge v2
+//! protocol to any client ([`conn`]) and answering rosapi and the controller's parameter
+//! services ([`services`]).
 //!
 //! The controller turns each `cmd_vel` twist into wheel speeds with its **configured** geometry
 //! (from the YAML), ramps them at its acceleration limits and stops them after
 //! `cmd_vel_timeout` without a command; the **true** robot moves those wheel rotations with its
 //! true geometry. It publishes `/joint_states` (wheel angles), `/odom` (the controller's
-//! odometry, configured geometry) and `/imu` (true yaw with noise) at their rates, in time that
-//! can run faster than the wall clock, and answers `set_parameters` on the controller.
+//! odometry, configured geometry) and `/imu` (true yaw with noise) at their rates, stamped with
+//! the wall clock at start plus robot time (which can run faster than the wall clock).
 //! [`MockRosbridge::vanish`] drops every connection and stops listening while the robot keeps
 //! running, as a crashed `rosbridge_server` would.
+//!
+//! What real robots send is reproduced on request ([`EffortStyle`]): joint_state_broadcaster
+//! fills `effort` with NaN for wheels without an effort interface, which rosbridge writes as
+//! `null`, or as the bare token `NaN` inside fixed-size arrays (rosbridge_suite #916).
+
+mod conn;
+mod services;
+
+pub use services::ParamValue;
 
 use crate::kinematics::{Displacement, Pose, WheelParams};
-use crate::ros::msg::{Header, Imu, JointState, Odometry, Quaternion, Time, Twist, TwistStamped};
-use crate::ros::yaml::{DiffDriveConfig, MULTIPLIER_KEYS};
+use crate::ros::msg::{Header, Imu, JointState, Odometry, Quaternion, Time, Twist};
+use crate::ros::yaml::DiffDriveConfig;
 use crate::sim::sensor::HeadingModel;
 use crate::sim::{NoiseModel, Simulator};
-use futures_util::{SinkExt, StreamExt};
-use serde_json::{json, Value};
-use std::collections::HashSet;
+use serde_json::Value;
 use std::net::SocketAddr;
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::Duration;
 use tokio::sync::broadcast;
 use tokio::task::JoinHandle;
-use tokio_tungstenite::tungstenite::Message;
 
 /// Everything that defines a mock ROS robot.
 #[derive(Debug, Clone)]
@@ -50,6 +58,11 @@ pub struct MockRosConfig {
     pub alpha_limit_rad_s2: f64,
     /// Velocity topic it obeys.
     pub cmd_vel: String,
+    /// The velocity message type it expects there: `TwistStamped` (Jazzy's default) or
+    /// `Twist`.
+    pub cmd_vel_stamped: bool,
+    /// How the joint states' `effort` and the IMU's unknown covariances come out.
+    pub effort: EffortStyle,
     /// Delay before each message leaves (wall clock).
     pub latency: Duration,
     /// Stop publishing `/joint_states` after this much robot time (a failing driver).
@@ -81,9 +94,40 @@ impl MockRosConfig {
             accel_limit_m_s2: 1.0,
             alpha_limit_rad_s2: 4.0,
             cmd_vel: "/cmd_vel".into(),
+            cmd_vel_stamped: false,
+            effort: EffortStyle::Empty,
             latency: Duration::from_millis(2),
             joint_states_stop_after_s: None,
         })
+    }
+}
+
+/// How a robot's joint states carry `effort` (odocal never uses it), as real drivers and
+/// rosbridge put it on the wire.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub enum EffortStyle {
+    /// `"effort": []`.
+    #[default]
+    Empty,
+    /// `"effort": [0.0, 0.0]`.
+    Zero,
+    /// NaN written as rosbridge writes a NaN in a variable-length array: `[null, null]`.
+    Null,
+    /// NaN as the bare token `NaN` (`[NaN, NaN]`, not JSON), and the IMU's fixed-size
+    /// `angular_velocity_covariance` likewise (rosbridge_suite #916).
+    BareNan,
+}
+
+impl std::str::FromStr for EffortStyle {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "empty" => Ok(EffortStyle::Empty),
+            "zero" => Ok(EffortStyle::Zero),
+            "null" => Ok(EffortStyle::Null),
+            "nan" => Ok(EffortStyle::BareNan),
+            other => Err(format!("{other:?}: use empty, zero, null or nan")),
+        }
     }
 }
 
@@ -100,8 +144,10 @@ pub struct MockRosCounters {
     pub connections: u64,
     /// `set_parameters` calls answered.
     pub parameter_sets: u64,
-    /// Messages received that were not rosbridge operations.
+    /// Messages received that were not rosbridge operations, or operations refused.
     pub bad_requests: u64,
+    /// Status messages sent.
+    pub status_sent: u64,
 }
 
 /// The simulated robot and controller.
@@ -115,6 +161,12 @@ pub struct MockRosState {
     wheel_speed: (f64, f64),
     odo: Pose,
     angles: (f64, f64),
+    /// The controller node's parameters, as `get_parameters` reads them.
+    params: std::collections::BTreeMap<String, ParamValue>,
+    /// Topics clients advertised, with their types: in the graph from then on.
+    advertised: std::collections::BTreeMap<String, String>,
+    /// Wall-clock seconds since the epoch when robot time was 0.
+    epoch_s: f64,
     /// Counters.
     pub counters: MockRosCounters,
 }
@@ -138,6 +190,16 @@ impl MockRosState {
     /// The geometry the running controller uses.
     pub fn configured(&self) -> WheelParams {
         self.controller.effective()
+    }
+
+    /// The controller node's parameter `name`, as `get_parameters` would answer.
+    pub fn parameter(&self, name: &str) -> Option<&ParamValue> {
+        self.params.get(name)
+    }
+
+    /// The wall-clock stamp of robot time `t` (s since the epoch).
+    fn stamp(&self, t: f64) -> f64 {
+        self.epoch_s + t
     }
 }
 
@@ -170,8 +232,14 @@ impl MockRosbridge {
         let sim = Simulator::new(cfg.truth, configured, cfg.noise, cfg.seed)
             .and_then(|s| s.with_heading_model(cfg.heading_model))
             .map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidInput, e))?;
+        let epoch_s = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0.0, |d| d.as_secs_f64());
         let state = Arc::new(Mutex::new(MockRosState {
             sim,
+            params: services::controller_parameters(&cfg.controller),
+            advertised: Default::default(),
+            epoch_s,
             controller: cfg.controller.clone(),
             time_s: 0.0,
             cmd: (0.0, 0.0),
@@ -189,7 +257,7 @@ impl MockRosbridge {
         let (st, conns) = (state.clone(), connections.clone());
         let listener = tokio::spawn(async move {
             while let Ok((tcp, _)) = listener.accept().await {
-                let h = tokio::spawn(serve(tcp, cfg.clone(), st.clone(), out.subscribe()));
+                let h = tokio::spawn(conn::serve(tcp, cfg.clone(), st.clone(), out.subscribe()));
                 conns.lock().unwrap_or_else(|p| p.into_inner()).push(h);
             }
         });
@@ -301,13 +369,20 @@ async fn physics(
                 s.angles.1 += dr;
                 s.odo = g.odometry_step(&s.odo, dl, dr);
                 s.sim.set_time(t);
+                let stamp = s.stamp(t);
                 // A reading the sensor lost is a message not sent.
                 if let Some(yaw) = s.sim.heading_reading() {
+                    let unknown = if cfg.effort == EffortStyle::BareNan {
+                        [f64::NAN; 9]
+                    } else {
+                        [0.0; 9]
+                    };
                     batch.push((
                         "/imu".to_string(),
                         serde_json::to_value(Imu {
-                            header: header(t, "imu_link"),
+                            header: header(stamp, "imu_link"),
                             orientation: Quaternion::from_yaw(yaw),
+                            angular_velocity_covariance: unknown,
                             ..Imu::default()
                         })
                         .unwrap_or(Value::Null),
@@ -327,20 +402,25 @@ async fn physics(
                             .unwrap_or("right_wheel_joint".into()),
                     );
                     if cfg.joint_states_stop_after_s.is_none_or(|stop| t < stop) {
+                        let effort = match cfg.effort {
+                            EffortStyle::Empty => vec![],
+                            EffortStyle::Zero => vec![0.0, 0.0],
+                            EffortStyle::Null | EffortStyle::BareNan => vec![f64::NAN; 2],
+                        };
                         batch.push((
                             "/joint_states".to_string(),
                             serde_json::to_value(JointState {
-                                header: header(t, ""),
+                                header: header(stamp, ""),
                                 name: vec![names.0, names.1],
                                 position: vec![s.angles.0, s.angles.1],
                                 velocity: vec![wl, wr],
-                                effort: vec![],
+                                effort,
                             })
                             .unwrap_or(Value::Null),
                         ));
                     }
                     let mut o = Odometry {
-                        header: header(t, "odom"),
+                        header: header(stamp, "odom"),
                         child_frame_id: "base_link".into(),
                         ..Odometry::default()
                     };
@@ -361,132 +441,4 @@ async fn physics(
             let _ = out.send((topic, msg, at));
         }
     }
-}
-
-/// One client connection: its subscriptions, its commands, its service calls.
-async fn serve(
-    tcp: tokio::net::TcpStream,
-    cfg: MockRosConfig,
-    state: Arc<Mutex<MockRosState>>,
-    mut topics: broadcast::Receiver<Outgoing>,
-) {
-    let Ok(ws) = tokio_tungstenite::accept_async(tcp).await else {
-        return;
-    };
-    lock(&state).counters.connections += 1;
-    let (mut sink, mut source) = ws.split();
-    let mut subscribed: HashSet<String> = HashSet::new();
-    loop {
-        tokio::select! {
-            m = topics.recv() => match m {
-                Ok((topic, msg, at)) => {
-                    if subscribed.contains(&topic) {
-                        // Transport latency: no message leaves earlier than this after it was made.
-                        tokio::time::sleep_until(at + cfg.latency).await;
-                        let text = json!({"op": "publish", "topic": topic, "msg": msg}).to_string();
-                        if sink.send(Message::text(text)).await.is_err() {
-                            return;
-                        }
-                    }
-                }
-                Err(broadcast::error::RecvError::Lagged(_)) => {}
-                Err(_) => return,
-            },
-            m = source.next() => {
-                let text = match m {
-                    Some(Ok(Message::Text(t))) => t.to_string(),
-                    Some(Ok(Message::Close(_))) | None | Some(Err(_)) => return,
-                    Some(Ok(_)) => continue,
-                };
-                let Ok(op) = serde_json::from_str::<Value>(&text) else {
-                    lock(&state).counters.bad_requests += 1;
-                    let _ = sink.send(Message::text(json!({"op": "status", "level": "error", "msg": "not JSON"}).to_string())).await;
-                    continue;
-                };
-                match op.get("op").and_then(Value::as_str) {
-                    Some("subscribe") => {
-                        if let Some(t) = op.get("topic").and_then(Value::as_str) {
-                            subscribed.insert(t.to_string());
-                        }
-                    }
-                    Some("unsubscribe") => {
-                        if let Some(t) = op.get("topic").and_then(Value::as_str) {
-                            subscribed.remove(t);
-                        }
-                    }
-                    Some("advertise") | Some("unadvertise") => {}
-                    Some("publish") => {
-                        if op.get("topic").and_then(Value::as_str) == Some(cfg.cmd_vel.as_str()) {
-                            let msg = op.get("msg").cloned().unwrap_or(Value::Null);
-                            let twist = serde_json::from_value::<TwistStamped>(msg.clone())
-                                .map(|t| t.twist)
-                                .or_else(|_| serde_json::from_value::<Twist>(msg));
-                            if let Ok(tw) = twist {
-                                let mut s = lock(&state);
-                                s.cmd = (tw.linear.x, tw.angular.z);
-                                s.last_cmd_s = s.time_s;
-                                s.counters.commands += 1;
-                                s.counters.last_command = s.cmd;
-                                if tw.is_zero() {
-                                    s.counters.zero_commands += 1;
-                                }
-                            }
-                        }
-                    }
-                    Some("call_service") => {
-                        let reply = call_service(&op, &state);
-                        if sink.send(Message::text(reply.to_string())).await.is_err() {
-                            return;
-                        }
-                    }
-                    _ => {
-                        lock(&state).counters.bad_requests += 1;
-                    }
-                }
-            }
-        }
-    }
-}
-
-fn call_service(op: &Value, state: &Mutex<MockRosState>) -> Value {
-    let id = op.get("id").cloned().unwrap_or(Value::Null);
-    let service = op
-        .get("service")
-        .and_then(Value::as_str)
-        .unwrap_or("")
-        .to_string();
-    let mut s = lock(state);
-    let controller = s.controller.controller.clone();
-    if service == format!("/{controller}/set_parameters") {
-        let mut results = Vec::new();
-        let params = op["args"]["parameters"]
-            .as_array()
-            .cloned()
-            .unwrap_or_default();
-        for p in params {
-            let name = p["name"].as_str().unwrap_or("");
-            let value = p["value"]["double_value"].as_f64();
-            let ok = match (MULTIPLIER_KEYS.iter().position(|k| *k == name), value) {
-                (Some(i), Some(v)) if v.is_finite() && v > 0.0 => {
-                    match i {
-                        0 => s.controller.separation_multiplier = v,
-                        1 => s.controller.left_radius_multiplier = v,
-                        _ => s.controller.right_radius_multiplier = v,
-                    }
-                    true
-                }
-                _ => false,
-            };
-            results.push(json!({"successful": ok, "reason": if ok { "" } else { "not a multiplier odocal sets" }}));
-        }
-        let g = s.controller.effective();
-        let _ = s.sim.set_configured(g);
-        s.counters.parameter_sets += 1;
-        return json!({"op": "service_response", "id": id, "service": service, "values": {"results": results}, "result": true});
-    }
-    if service == "/rosapi/topics" {
-        return json!({"op": "service_response", "id": id, "service": service, "result": true,
-            "values": {"topics": ["/joint_states", "/imu", "/odom"], "types": ["sensor_msgs/msg/JointState", "sensor_msgs/msg/Imu", "nav_msgs/msg/Odometry"]}});
-    }
-    json!({"op": "service_response", "id": id, "service": service, "result": false, "values": format!("no service {service}")})
 }
