@@ -310,6 +310,9 @@ fn calibrate_base_rosbridge_end_to_end_from_the_command_line() {
             "20",
             "--compass-sigma-deg",
             "0.05",
+            // NaN efforts as rosbridge writes a NaN in a variable-length array.
+            "--effort",
+            "null",
         ],
     );
     assert!(url.starts_with("rosbridge://127.0.0.1:"), "{url}");
