@@ -31,6 +31,32 @@ pub struct MockCompassConfig {
     pub time_scale: f64,
     /// Seed of the checksum faults.
     pub seed: u64,
+    /// How each sentence ends.
+    pub line_end: LineEnd,
+}
+
+/// How a compass ends its sentences: NMEA says CR LF; some devices send one of the two.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub enum LineEnd {
+    /// `\r\n`.
+    #[default]
+    CrLf,
+    /// `\n` alone.
+    Lf,
+    /// `\r` alone.
+    Cr,
+}
+
+impl std::str::FromStr for LineEnd {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "crlf" => Ok(LineEnd::CrLf),
+            "lf" => Ok(LineEnd::Lf),
+            "cr" => Ok(LineEnd::Cr),
+            other => Err(format!("{other:?}: use crlf, lf or cr")),
+        }
+    }
 }
 
 impl Default for MockCompassConfig {
@@ -42,6 +68,7 @@ impl Default for MockCompassConfig {
             sigma_rad: 0.0,
             time_scale: 1.0,
             seed: 1,
+            line_end: LineEnd::CrLf,
         }
     }
 }
@@ -79,7 +106,16 @@ where
         let bad = bad_rate > 0.0 && rng.random_bool(bad_rate);
         let Some(value) = heading() else { continue };
         let reading = value + rand_distr::Distribution::sample(&noise, &mut rng);
-        let line = hdt(&cfg.talker, reading, bad);
+        let mut line = hdt(&cfg.talker, reading, bad);
+        match cfg.line_end {
+            LineEnd::CrLf => {}
+            LineEnd::Lf => {
+                line.remove(line.len() - 2);
+            }
+            LineEnd::Cr => {
+                line.pop();
+            }
+        }
         stream.write_all(line.as_bytes()).await?;
         stream.flush().await?;
     }

@@ -443,6 +443,7 @@ pub fn compass_of(robot_state: &SharedRobot) -> (MockCompassConfig, HeadingFn) {
         sigma_rad: 0.0,
         time_scale: r.cfg.time_scale,
         seed: r.cfg.seed,
+        ..MockCompassConfig::default()
     };
     let shared = robot_state.clone();
     (cfg, Arc::new(move || robot(&shared).sim.heading_reading()))

@@ -1,4 +1,10 @@
 //! An NMEA 0183 compass on a serial line as the seam's [`HeadingSource`].
+//!
+//! Compasses differ: 0.2 to 50 sentences a second, lines ended by CR LF, LF or CR alone, and a
+//! port that holds whatever the compass sent before odocal opened it. So: what was queued
+//! before the port was opened is dropped; any of the three line ends ends a sentence; and a
+//! reading is stale only after about two and a half of the compass's own observed intervals
+//! (never sooner than the configured minimum), so that a slow compass can be averaged.
 
 use super::sentence::{azimuth_to_heading, parse, Kind, NmeaError, MAX_SENTENCE};
 use crate::base::{
@@ -6,6 +12,7 @@ use crate::base::{
     Validity,
 };
 use async_trait::async_trait;
+use std::collections::VecDeque;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 use tokio::io::{AsyncRead, AsyncReadExt};
@@ -32,6 +39,31 @@ pub struct NmeaCompass {
     stats: Arc<Mutex<(NmeaStats, Option<String>)>>,
     streams: Fanout<HeadingSample>,
     stale: Duration,
+    arrivals: Arc<Mutex<VecDeque<Instant>>>,
+}
+
+/// Arrivals kept to judge the compass's rate.
+const RATE_WINDOW: usize = 9;
+/// How long a first reading is awaited, before the compass's rate is known: a compass at
+/// 0.2 Hz sends within 5 s.
+pub const FIRST_WAIT: Duration = Duration::from_secs(6);
+/// The longest a fresh reading is awaited, whatever the rate.
+pub const MAX_WAIT: Duration = Duration::from_secs(15);
+
+/// How long to await a fresh reading: 2.5 median intervals of `arrivals`, at least `min`,
+/// at most [`MAX_WAIT`]; [`FIRST_WAIT`] (or `min`) before two sentences have arrived.
+pub fn wait_for_fresh(arrivals: &VecDeque<Instant>, min: Duration) -> Duration {
+    let mut gaps: Vec<Duration> = arrivals
+        .iter()
+        .zip(arrivals.iter().skip(1))
+        .map(|(a, b)| b.duration_since(*a))
+        .collect();
+    if gaps.is_empty() {
+        return FIRST_WAIT.max(min);
+    }
+    gaps.sort();
+    let median = gaps[gaps.len() / 2];
+    median.mul_f64(2.5).clamp(min, MAX_WAIT.max(min))
 }
 
 impl NmeaCompass {
@@ -43,13 +75,21 @@ impl NmeaCompass {
         let (tx, latest) = watch::channel(None);
         let stats: Arc<Mutex<(NmeaStats, Option<String>)>> = Arc::default();
         let streams: Fanout<HeadingSample> = Fanout::default();
-        tokio::spawn(read_sentences(stream, tx, stats.clone(), streams.clone()));
+        let arrivals: Arc<Mutex<VecDeque<Instant>>> = Arc::default();
+        let out = Outputs {
+            tx,
+            stats: stats.clone(),
+            streams: streams.clone(),
+            arrivals: arrivals.clone(),
+        };
+        tokio::spawn(read_sentences(stream, out));
         NmeaCompass {
             label: label.into(),
             latest,
             stats,
             streams,
             stale,
+            arrivals,
         }
     }
 
@@ -63,6 +103,9 @@ impl NmeaCompass {
         }
         let port = crate::io::serial::open(path, baud)
             .map_err(|e| BaseError::backend(format!("heading (NMEA {path})"), e))?;
+        // Sentences the compass sent before now would be taken for readings after the call.
+        tokio_serial::SerialPort::clear(&port, tokio_serial::ClearBuffer::Input)
+            .map_err(|e| BaseError::backend(format!("heading (NMEA {path})"), e))?;
         Ok(Self::new(port, path, stale))
     }
 
@@ -72,12 +115,15 @@ impl NmeaCompass {
     }
 }
 
-async fn read_sentences<S: AsyncRead + Unpin>(
-    mut stream: S,
+/// Where the reader puts what it reads.
+struct Outputs {
     tx: watch::Sender<Option<(Instant, HeadingSample)>>,
     stats: Arc<Mutex<(NmeaStats, Option<String>)>>,
     streams: Fanout<HeadingSample>,
-) {
+    arrivals: Arc<Mutex<VecDeque<Instant>>>,
+}
+
+async fn read_sentences<S: AsyncRead + Unpin>(mut stream: S, out: Outputs) {
     let mut line: Vec<u8> = Vec::with_capacity(MAX_SENTENCE);
     let mut chunk = [0u8; 256];
     let mut chosen: Option<Kind> = None;
@@ -88,7 +134,9 @@ async fn read_sentences<S: AsyncRead + Unpin>(
             Ok(n) => n,
         };
         for &b in &chunk[..n] {
-            if b != b'\n' {
+            // CR LF, LF alone and CR alone all end a sentence; the empty line between CR and
+            // LF is nothing.
+            if b != b'\n' && b != b'\r' {
                 if line.len() < MAX_SENTENCE {
                     line.push(b);
                 } else {
@@ -96,9 +144,12 @@ async fn read_sentences<S: AsyncRead + Unpin>(
                 }
                 continue;
             }
+            if line.is_empty() && !too_long {
+                continue;
+            }
             let text = String::from_utf8_lossy(&line).into_owned();
             line.clear();
-            let mut st = stats.lock().unwrap_or_else(|p| p.into_inner());
+            let mut st = out.stats.lock().unwrap_or_else(|p| p.into_inner());
             if std::mem::take(&mut too_long) {
                 st.0.malformed += 1;
                 st.1 = Some("a line longer than NMEA's 82 characters".into());
@@ -113,14 +164,22 @@ async fn read_sentences<S: AsyncRead + Unpin>(
                     }
                     chosen = Some(kind);
                     st.0.headings += 1;
+                    drop(st);
+                    let now = Instant::now();
                     let sample = HeadingSample {
                         time_s: crate::base::host_time_s(),
                         heading_rad: azimuth_to_heading(azimuth),
                         validity: Validity::Valid,
                     };
-                    drop(st);
-                    streams.send(&sample);
-                    let _ = tx.send(Some((Instant::now(), sample)));
+                    {
+                        let mut a = out.arrivals.lock().unwrap_or_else(|p| p.into_inner());
+                        a.push_back(now);
+                        while a.len() > RATE_WINDOW {
+                            a.pop_front();
+                        }
+                    }
+                    out.streams.send(&sample);
+                    let _ = out.tx.send(Some((now, sample)));
                 }
                 Err(NmeaError::Other(_)) => st.0.ignored += 1,
                 Err(e @ NmeaError::Checksum { .. }) => {
@@ -129,7 +188,7 @@ async fn read_sentences<S: AsyncRead + Unpin>(
                 }
                 Err(e) => {
                     st.0.malformed += 1;
-                    st.1 = Some(e.to_string());
+                    st.1 = Some(format!("{e} in {text:?}"));
                 }
             }
         }
@@ -149,9 +208,13 @@ impl HeadingSource for NmeaCompass {
     async fn read(&self) -> Result<HeadingSample, BaseError> {
         // A reading taken after this call: never one from before the robot stopped.
         let asked = Instant::now();
+        let wait = wait_for_fresh(
+            &self.arrivals.lock().unwrap_or_else(|p| p.into_inner()),
+            self.stale,
+        );
         let mut rx = self.latest.clone();
         let fresh = tokio::time::timeout(
-            self.stale,
+            wait,
             rx.wait_for(|h| h.as_ref().is_some_and(|(at, _)| *at >= asked)),
         )
         .await;
@@ -173,7 +236,7 @@ impl HeadingSource for NmeaCompass {
                     validity: Validity::Invalid(format!(
                         "stale: no valid heading sentence on {} within {:?} ({} used, {} bad checksums, {} malformed{})",
                         self.label,
-                        self.stale,
+                        wait,
                         stats.headings,
                         stats.bad_checksums,
                         stats.malformed,
@@ -236,5 +299,110 @@ mod tests {
             Validity::Valid => panic!("a silent compass must not read valid"),
         }
         writer.await.unwrap();
+    }
+
+    /// CR LF, LF alone and CR alone each end a sentence; a contradicting indicator is counted
+    /// as malformed with its reason.
+    #[tokio::test]
+    async fn any_line_end_ends_a_sentence() {
+        for end in ["\r\n", "\n", "\r"] {
+            let (mut tx, rx) = tokio::io::duplex(1024);
+            let compass = NmeaCompass::new(rx, "test", Duration::from_millis(200));
+            use tokio::io::AsyncWriteExt;
+            let writer = tokio::spawn(async move {
+                for i in 0..30 {
+                    let s = if i == 2 {
+                        sentence("HCHDT", "123.4,M")
+                    } else {
+                        sentence("HCHDT", "270.0,T")
+                    };
+                    let s = s.trim_end().to_string() + end;
+                    if tx.write_all(s.as_bytes()).await.is_err() {
+                        return;
+                    }
+                    tokio::time::sleep(Duration::from_millis(10)).await;
+                }
+            });
+            for _ in 0..3 {
+                let h = compass.read().await.unwrap();
+                assert!(h.validity.is_valid(), "{end:?}: {:?}", h.validity);
+                assert!((h.heading_rad - std::f64::consts::FRAC_PI_2).abs() < 1e-12);
+            }
+            writer.await.unwrap();
+            let st = compass.stats();
+            assert_eq!(st.malformed, 1, "{end:?}: {st:?}");
+            assert!(st.headings >= 25, "{end:?}: {st:?}");
+        }
+    }
+
+    /// A compass at 0.5 Hz, then one at 0.2 Hz, read several times in a row: each reading waits
+    /// for the next sentence (about 2.5 of the compass's intervals at most), none is stale.
+    #[tokio::test(start_paused = true)]
+    async fn a_slow_compass_is_read_sample_after_sample() {
+        for period_s in [2.0, 5.0] {
+            let (mut tx, rx) = tokio::io::duplex(1024);
+            let compass = NmeaCompass::new(rx, "slow", Duration::from_secs(1));
+            use tokio::io::AsyncWriteExt;
+            let writer = tokio::spawn(async move {
+                loop {
+                    let s = sentence("HCHDT", "10.0,T");
+                    if tx.write_all(s.as_bytes()).await.is_err() {
+                        return;
+                    }
+                    tokio::time::sleep(Duration::from_secs_f64(period_s)).await;
+                }
+            });
+            for i in 0..5 {
+                let h = compass.read().await.unwrap();
+                assert!(
+                    h.validity.is_valid(),
+                    "{period_s} s, reading {i}: {:?}",
+                    h.validity
+                );
+            }
+            writer.abort();
+        }
+        let mut a = VecDeque::new();
+        let t = Instant::now();
+        assert_eq!(wait_for_fresh(&a, Duration::from_secs(1)), FIRST_WAIT);
+        for k in 0..5 {
+            a.push_back(t + Duration::from_millis(100 * k));
+        }
+        assert_eq!(
+            wait_for_fresh(&a, Duration::from_secs(1)),
+            Duration::from_secs(1)
+        );
+        assert_eq!(
+            wait_for_fresh(&a, Duration::from_millis(100)),
+            Duration::from_millis(250)
+        );
+    }
+
+    /// Sentences queued on the port before it was opened (a compass that has been talking all
+    /// along) are not readings: the first reading is one the compass sent after. (On one
+    /// thread the reader meets the backlog only after the first read has begun waiting.)
+    #[tokio::test]
+    async fn what_was_queued_before_opening_is_not_a_reading() {
+        use std::sync::atomic::{AtomicU64, Ordering};
+        let heading = Arc::new(AtomicU64::new(1.0f64.to_bits()));
+        let h = heading.clone();
+        let cfg = crate::mock::nmea::MockCompassConfig {
+            hz: 1.0,
+            ..Default::default()
+        };
+        let pty = crate::mock::nmea::spawn_pty(
+            cfg,
+            Arc::new(move || Some(f64::from_bits(h.load(Ordering::SeqCst)))),
+        )
+        .unwrap();
+        // Two sentences of the old heading (at 0 and 1 s) pile up on the port; the robot then
+        // turns, and the port is opened before the compass's next sentence.
+        tokio::time::sleep(Duration::from_millis(1300)).await;
+        heading.store((-2.0f64).to_bits(), Ordering::SeqCst);
+        let compass = NmeaCompass::open(&pty.path, 115_200, Duration::from_secs(1)).unwrap();
+        for _ in 0..2 {
+            let r = compass.read().await.unwrap();
+            assert!((r.heading_rad + 2.0).abs() < 1e-3, "{r:?}");
+        }
     }
 }

@@ -98,6 +98,22 @@ pub fn parse(sentence: &str) -> Result<(Kind, f64), NmeaError> {
             (Some(_), other) => Err(field(format!("{name} direction {other:?} is not E or W"))),
         }
     };
+    // HDT's indicator is `T` (true), HDM's `M` (magnetic): a sentence that contradicts its
+    // own type is not trusted either way.
+    let indicator = |want: &str| -> Result<(), NmeaError> {
+        match f.get(1).map(|v| v.trim()) {
+            Some(v) if v == want => Ok(()),
+            other => Err(field(format!(
+                "indicator {:?} contradicts the sentence type (want {want:?})",
+                other.unwrap_or("")
+            ))),
+        }
+    };
+    match kind {
+        Kind::Hdt => indicator("T")?,
+        Kind::Hdm => indicator("M")?,
+        Kind::Hdg => {}
+    }
     let azimuth = match kind {
         Kind::Hdt | Kind::Hdm => heading,
         // Sensor heading + deviation = magnetic; + variation = true.
@@ -162,6 +178,19 @@ mod tests {
             parse(&sentence("HEHDT", "400.0,T")),
             Err(NmeaError::Field { .. })
         ));
+        // The indicator must agree with the type: `$HCHDT,…,M` is not a true heading.
+        for (address, fields) in [
+            ("HCHDT", "123.4,M"),
+            ("HCHDT", "123.4,"),
+            ("HCHDT", "123.4"),
+            ("HCHDM", "123.4,T"),
+        ] {
+            let e = parse(&sentence(address, fields)).unwrap_err();
+            assert!(
+                e.to_string().contains("indicator"),
+                "{address},{fields}: {e}"
+            );
+        }
     }
 
     #[test]

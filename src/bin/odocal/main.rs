@@ -117,6 +117,9 @@ pub struct MockCompassArgs {
     /// Noise per sentence of the --nmea compass (deg).
     #[arg(long, default_value_t = 0.2)]
     nmea_sigma_deg: f64,
+    /// How the --nmea compass ends its sentences: crlf (NMEA), lf or cr.
+    #[arg(long, default_value = "crlf")]
+    nmea_line_end: odocal::mock::nmea::LineEnd,
 }
 
 impl MockCompassArgs {
@@ -135,6 +138,7 @@ impl MockCompassArgs {
             hz: self.nmea_hz,
             sigma_rad: self.nmea_sigma_deg.to_radians(),
             time_scale,
+            line_end: self.nmea_line_end,
             ..Default::default()
         };
         let pty = odocal::mock::nmea::spawn_pty(cfg, heading)?;
