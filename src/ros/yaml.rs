@@ -173,7 +173,7 @@ pub enum Unkeepable {
         anchor_line: usize,
     },
     /// It is inside an anchored node that an alias repeats elsewhere.
-    #[error("it is inside the anchor at line {anchor_line}, which the alias at line {alias_line} repeats: changing it would change that too")]
+    #[error("the alias at line {alias_line} repeats the anchor at line {anchor_line} that holds it: changing it would change that too")]
     SharedAnchor {
         /// The anchored node's line.
         anchor_line: usize,
@@ -1213,5 +1213,59 @@ diffbot:
             )],
         );
         assert_eq!(out, expected);
+    }
+
+    #[tokio::test]
+    async fn a_file_that_cannot_be_rewritten_is_refused_before_anything_and_owes_no_rollback() {
+        use crate::base::transaction::{Rollback, Transaction};
+        use crate::base::{BaseError, ParamStore};
+        use std::sync::Arc;
+        let dir = std::env::temp_dir().join(format!("odocal-yaml-tx-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let file = dir.join("controllers.yaml");
+        let backups = dir.join("backups");
+        let shared = format!("{HEAD}    left_wheel_radius_multiplier: &m 1.0\n    right_wheel_radius_multiplier: *m\n");
+        // Readable, not writable: refused by `begin`, before a backup or anything else.
+        std::fs::write(&file, &shared).unwrap();
+        let store: Arc<dyn ParamStore> =
+            Arc::new(YamlStore::open(&file, "diff_drive_controller").unwrap());
+        let e = Transaction::begin(store, &backups).await.err().unwrap();
+        assert!(matches!(e, BaseError::Unwritable { .. }), "{e}");
+        assert!(
+            e.to_string().contains("line 5") && e.to_string().contains("nothing was changed"),
+            "{e}"
+        );
+        assert!(!backups.exists());
+        // A file that turns unwritable after `begin`: the write is refused and nothing is owed
+        // (no "restoring the backup failed … nothing to restore").
+        std::fs::write(&file, FILE).unwrap();
+        let store: Arc<dyn ParamStore> =
+            Arc::new(YamlStore::open(&file, "diff_drive_controller").unwrap());
+        let mut tx = Transaction::begin(store.clone(), &backups).await.unwrap();
+        std::fs::write(&file, &shared).unwrap();
+        let mut p = *tx.original();
+        p.wheelbase_m *= 0.99;
+        let e = tx.apply(&p).await.unwrap_err();
+        assert!(matches!(e, BaseError::Unwritable { .. }), "{e}");
+        assert!(!tx.written());
+        assert_eq!(tx.rollback().await.unwrap(), Rollback::NothingWritten);
+        assert_eq!(std::fs::read_to_string(&file).unwrap(), shared);
+        // A directory that takes no new file is refused too (not as root, who may write anyway).
+        #[cfg(unix)]
+        {
+            use std::os::unix::fs::PermissionsExt;
+            std::fs::write(&file, FILE).unwrap();
+            let store = YamlStore::open(&file, "diff_drive_controller").unwrap();
+            std::fs::set_permissions(&dir, std::fs::Permissions::from_mode(0o555)).unwrap();
+            let probe = std::fs::File::create(dir.join("probe")).is_err();
+            let e = store.check_write(&store.read().await.unwrap()).await;
+            std::fs::set_permissions(&dir, std::fs::Permissions::from_mode(0o755)).unwrap();
+            if probe {
+                let e = e.unwrap_err();
+                assert!(e.to_string().contains("no new file can be created"), "{e}");
+            }
+        }
+        let _ = std::fs::remove_dir_all(&dir);
     }
 }
