@@ -8,7 +8,7 @@
 //! a robot are those effective values, with wheel angles (rad) as its "counts"
 //! (`counts_per_wheel_rev` = 2π).
 //!
-//! The controller's parameters are found by the file's structure ([`locate`]): any nesting of
+//! The controller's parameters are found by the file's structure: any nesting of
 //! namespace keys (`/**:`, `/robot/ctrl:`), any document, flow or block style, anchors; the
 //! controller named under `controller_manager` is not its section. Reading and writing use the
 //! same search, and a file where it is not one clear place is refused with the reason.
@@ -726,7 +726,7 @@ pub fn merge_multipliers(
     let plan = located.plan(src, &values)?;
     let mut out = src.to_string();
     let mut edits = plan.edits;
-    edits.sort_by(|a, b| b.at.cmp(&a.at));
+    edits.sort_by_key(|e| std::cmp::Reverse(e.at));
     for e in &edits {
         out.replace_range(e.at..e.end, &e.text);
     }
