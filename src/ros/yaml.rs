@@ -91,7 +91,7 @@ pub enum YamlError {
         what: String,
     },
     /// No parameters for the controller.
-    #[error("{}: no parameters of `{controller}` (a `ros__parameters:` under a key naming it); {}", path.display(), if found.is_empty() { "the file names no diff_drive_controller".to_string() } else { format!("the diff-drive controllers in it: {} (give the name with --controller)", found.join(", ")) })]
+    #[error("{}: no parameters of `{controller}` (a `ros__parameters:` under a key naming it); {}", path.display(), match (found.is_empty(), nodes.is_empty()) { (false, _) => format!("the diff-drive controllers in it: {} (give the name with --controller)", found.join(", ")), (true, false) => format!("it names no diff-drive controller, only parameters of {}", nodes.join(", ")), (true, true) => "it has no `ros__parameters:` at all".to_string() })]
     NoController {
         /// The file.
         path: PathBuf,
@@ -100,6 +100,8 @@ pub enum YamlError {
         /// The diff-drive controllers the file does have (sections that look like one, and
         /// `controller_manager` entries of type `diff_drive_controller/DiffDriveController`).
         found: Vec<String>,
+        /// Every node the file has parameters for.
+        nodes: Vec<String>,
     },
     /// The controller's parameters are in more than one place.
     #[error("{}: `{controller}` has parameters in {} places (`ros__parameters:` at lines {}); ROS merges them, so which one to change is not clear: keep one", path.display(), lines.len(), join_lines(lines))]
@@ -307,6 +309,7 @@ fn locate<'t>(
                 path: path.to_path_buf(),
                 controller: controller.into(),
                 found: locate::diff_drive_controllers(tree, &all),
+                nodes: locate::node_names(&all),
             })
         }
         several => {
@@ -928,6 +931,19 @@ diff_drive_controller:
         };
         assert_eq!(found, &["diff_drive_controller", "base", "tracks"]);
         assert!(e.to_string().contains("--controller"), "{e}");
+        // No diff-drive controller at all: the nodes it does have.
+        let e = DiffDriveConfig::parse(
+            "controller_manager:\n  ros__parameters: {}\n/**/imu:\n  ros__parameters: {}\n",
+            "diff_cont",
+            Path::new("f.yaml"),
+        )
+        .unwrap_err();
+        assert!(
+            e.to_string().ends_with(
+                "it names no diff-drive controller, only parameters of controller_manager, /**/imu"
+            ),
+            "{e}"
+        );
         let e = DiffDriveConfig::parse("a: [1,\n", "x", Path::new("f.yaml")).unwrap_err();
         assert!(matches!(e, YamlError::Parse { line: 2, .. }), "{e}");
     }

@@ -132,6 +132,21 @@ fn display_name(node: &[String]) -> String {
         .join("/")
 }
 
+/// Every node with parameters (`/ns/node` when namespaced), once each, in file order.
+pub(crate) fn node_names(all: &[Section]) -> Vec<String> {
+    let mut names: Vec<String> = Vec::new();
+    for s in all {
+        let name = match s.node.as_slice() {
+            [one] => one.clone(),
+            more => format!("/{}", more.join("/")),
+        };
+        if name != "/" && !names.contains(&name) {
+            names.push(name);
+        }
+    }
+    names
+}
+
 /// The diff-drive controllers a file mentions, in file order: sections that look like one
 /// (a geometry key or wheel names, or `type: diff_drive_controller/DiffDriveController`), and
 /// the controllers `controller_manager` is told to load with that type (`<name>: {type: …}` or
