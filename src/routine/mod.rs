@@ -1,8 +1,8 @@
 //! The scripted recalibration: from a mis-calibrated base to written, committed and verified
 //! parameters, safely, on any [`Base`].
 //!
-//! [`run`] drives a base through: a backup of its parameters (a [`Transaction`], before
-//! anything else), pre-flight checks (drive faults, heading validity and noise at rest, the
+//! [`run`] drives a base through: a backup of its parameters once the store has shown it can
+//! take a write (a [`Transaction`], before anything else), pre-flight checks (drive faults, heading validity and noise at rest, the
 //! watchdog), calibration rounds of CW and CCW squares ([`square`]; each checked for
 //! plausibility, including the compass's sign convention against the commanded turns),
 //! estimation with every method, bounded write-back through the transaction under the
