@@ -249,6 +249,74 @@ async fn rosbridge_vanishing_mid_leg_fails_fast_and_the_controller_stops_the_rob
     assert_eq!(std::fs::read_to_string(&yaml).unwrap(), YAML);
 }
 
+/// A controller YAML odocal reads but cannot write back keeping the rest of it (here, a
+/// multiplier that is an anchor another line repeats) is refused by `calibrate` — and by
+/// `calibrate --dry-run` — before the robot is commanded to move, with the reason and the
+/// line; nothing is written and no rollback is owed.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_yaml_that_cannot_be_written_is_refused_before_the_robot_moves() {
+    let (dir, good) = yaml_file("ros-unwritable");
+    let server = mock(&good, |_| {}).await;
+    let bad = dir.join("bad.yaml");
+    let text = format!(
+        "{YAML}    wheel_separation_multiplier: &m 1.0\n    left_wheel_radius_multiplier: *m\n"
+    );
+    std::fs::write(&bad, &text).unwrap();
+    for dry_run in [false, true] {
+        let mut args: Vec<String> = ["calibrate", "--base", &server.url(), "--ros-yaml"]
+            .iter()
+            .map(|s| s.to_string())
+            .collect();
+        args.push(bad.display().to_string());
+        args.extend(common::QUICK_FLAGS.iter().map(|s| s.to_string()));
+        args.extend([
+            "--report-dir".into(),
+            dir.join("report").display().to_string(),
+        ]);
+        if dry_run {
+            args.push("--dry-run".into());
+        }
+        let started = std::time::Instant::now();
+        let (ok, _, err) = tokio::task::spawn_blocking(move || {
+            common::odocal(&args.iter().map(String::as_str).collect::<Vec<_>>())
+        })
+        .await
+        .unwrap();
+        assert!(!ok, "dry run {dry_run}: must fail");
+        assert!(
+            err.contains("line 12")
+                && err.contains("`wheel_separation_multiplier`")
+                && err.contains("the alias at line 13 repeats the anchor at line 12")
+                && err.contains("nothing was changed"),
+            "dry run {dry_run}: {err}"
+        );
+        assert!(!err.contains("restor"), "no rollback is owed: {err}");
+        assert!(
+            started.elapsed() < Duration::from_secs(30),
+            "fails fast, took {:?}",
+            started.elapsed()
+        );
+    }
+    let c = server.state().counters.clone();
+    assert!(c.connections >= 2, "calibrate connected: {c:?}");
+    assert_eq!(
+        c.commands, c.zero_commands,
+        "never commanded to move: {c:?}"
+    );
+    assert_eq!(server.state().wheel_speeds(), (0.0, 0.0));
+    assert_eq!(
+        std::fs::read_to_string(&bad).unwrap(),
+        text,
+        "nothing written"
+    );
+    let beside: Vec<_> = std::fs::read_dir(&dir)
+        .unwrap()
+        .filter_map(|e| e.ok())
+        .filter(|e| e.file_name().to_string_lossy().contains("odocal-backup"))
+        .collect();
+    assert!(beside.is_empty(), "no copy of the YAML was needed");
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_server_that_is_not_rosbridge_is_diagnosed() {
     let (_dir, yaml) = yaml_file("ros-wrong");

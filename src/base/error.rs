@@ -53,6 +53,16 @@ pub enum BaseError {
         /// What is wrong.
         reason: String,
     },
+    /// The store cannot hold the parameters as asked (a file it cannot rewrite keeping the
+    /// rest of it): nothing was changed.
+    #[error("{component} cannot take the parameters: {source}; nothing was changed")]
+    Unwritable {
+        /// Which component.
+        component: String,
+        /// Why.
+        #[source]
+        source: BackendError,
+    },
     /// The component does not offer this.
     #[error("{component} cannot {what}")]
     Unsupported {

@@ -4,7 +4,8 @@
 //!
 //! `write` stages: it renders the new text in memory, parses it back, and updates the
 //! geometry a drive counts with ([`FileStore::shared`]), so the new parameters take effect at
-//! once. `commit` renders again from the file as it is then, copies the original beside it
+//! once; `check_write` does the same without staging, and probes the directory, so that a file
+//! that cannot be written is known before anything depends on it. `commit` renders again from the file as it is then, copies the original beside it
 //! the first time (a backup created new, never overwriting one) and replaces the file
 //! atomically. Nothing is ever half-written: the file is either the old text or the new.
 
@@ -113,17 +114,36 @@ impl<F: ParamFile> FileStore<F> {
     }
 
     /// What the file would hold with `params` written into its current text: the new text and
-    /// its content, read back. Changes nothing (a dry run of a write).
+    /// its content, read back. Changes nothing (a dry run of a write); a text the format
+    /// cannot rewrite is [`BaseError::Unwritable`].
     pub fn rendered(&self, params: &WheelParams) -> Result<(String, F::Content), BaseError> {
+        let unwritable = |e: F::Error| BaseError::Unwritable {
+            component: format!("store {}", self.path.display()),
+            source: Box::new(e),
+        };
         let text = self
             .format
             .render(&self.text()?, params, &self.path)
-            .map_err(|e| self.err(e))?;
-        let content = self
-            .format
-            .parse(&text, &self.path)
-            .map_err(|e| self.err(e))?;
+            .map_err(unwritable)?;
+        let content = self.format.parse(&text, &self.path).map_err(unwritable)?;
         Ok((text, content))
+    }
+
+    fn invalid(&self, reason: String) -> BaseError {
+        BaseError::InvalidArgument {
+            component: format!("store ({})", self.format.kind()),
+            reason,
+        }
+    }
+
+    /// Why `params` cannot be staged: not a robot, or refused by the format.
+    fn check_params(&self, params: &WheelParams) -> Result<(), BaseError> {
+        params.validate().map_err(|e| self.invalid(e.to_string()))?;
+        let current = F::params(&self.content.read().unwrap_or_else(|p| p.into_inner()));
+        match self.format.refuse(&current, params) {
+            Some(why) => Err(self.invalid(why)),
+            None => Ok(()),
+        }
     }
 }
 
@@ -145,15 +165,7 @@ impl<F: ParamFile> ParamStore for FileStore<F> {
     }
 
     async fn write(&self, params: &WheelParams) -> Result<WheelParams, BaseError> {
-        let invalid = |reason: String| BaseError::InvalidArgument {
-            component: format!("store ({})", self.format.kind()),
-            reason,
-        };
-        params.validate().map_err(|e| invalid(e.to_string()))?;
-        let current = F::params(&self.content.read().unwrap_or_else(|p| p.into_inner()));
-        if let Some(why) = self.format.refuse(&current, params) {
-            return Err(invalid(why));
-        }
+        self.check_params(params)?;
         let (_, content) = self.rendered(params)?;
         let held = F::params(&content);
         *self.content.write().unwrap_or_else(|p| p.into_inner()) = content;
@@ -183,5 +195,22 @@ impl<F: ParamFile> ParamStore for FileStore<F> {
 
     fn resolution(&self) -> WheelParams {
         FILE_RESOLUTION
+    }
+
+    /// The dry merge: the file parses, `params` render into it and read back, and its
+    /// directory takes the backup and the replacement's temporary file.
+    async fn check_write(&self, params: &WheelParams) -> Result<(), BaseError> {
+        self.check_params(params)?;
+        self.rendered(params)?;
+        // The backup beside the file and the replacement's temporary file are new files there.
+        let dir = crate::io::dir_of(&self.path);
+        crate::io::probe_dir(dir).map_err(|e| BaseError::Unwritable {
+            component: format!(
+                "store {} (no new file can be created in {})",
+                self.path.display(),
+                dir.display()
+            ),
+            source: Box::new(e),
+        })
     }
 }

@@ -197,6 +197,15 @@ pub trait ParamStore: Send + Sync {
     /// Smallest difference the store can represent, per field (diameters and wheelbase in
     /// metres, counts per revolution): read-backs are compared to this.
     fn resolution(&self) -> WheelParams;
+
+    /// Proves, changing nothing, that `params` could be written and committed, so that a store
+    /// that cannot take them is refused before the robot moves ([`BaseError::Unwritable`]). A
+    /// file store renders them into its text in memory and checks that its directory takes
+    /// new files; a device has nothing to prove ahead (the default).
+    async fn check_write(&self, params: &WheelParams) -> Result<(), BaseError> {
+        let _ = params;
+        Ok(())
+    }
 }
 
 /// Where the robot truly is: known only in simulation, where it gives reports true end points,

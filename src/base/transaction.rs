@@ -1,7 +1,8 @@
 //! The only way parameters get written: a transaction over a [`ParamStore`].
 //!
-//! [`Transaction::begin`] reads what the store holds and writes it to a new backup file before
-//! anything else (created exclusively: an earlier backup is never overwritten, a symlink never
+//! [`Transaction::begin`] reads what the store holds, proves the store could take a write (a
+//! dry run: a file that cannot be rewritten is refused before the robot moves), and writes it
+//! to a new backup file before anything else (created exclusively: an earlier backup is never overwritten, a symlink never
 //! followed). [`Transaction::apply`] writes, reads back, commits and reads back the committed
 //! copy; [`Transaction::rollback`] puts the original back, in use and, if a commit may have
 //! happened, committed too. Callers decide *whether* to write (policy, bounds, confirmation);
@@ -77,12 +78,15 @@ impl std::fmt::Display for Holds {
 }
 
 impl Transaction {
-    /// Reads the store and writes the backup into `backup_dir` (created if needed). Nothing
-    /// is written to the store.
+    /// Reads the store, proves that it could take a write of what it holds
+    /// ([`ParamStore::check_write`]: a file that cannot be rewritten is refused here, before
+    /// anything depends on it), and writes the backup into `backup_dir` (created if needed).
+    /// Nothing is written to the store.
     pub async fn begin(
         store: Arc<dyn ParamStore>,
         backup_dir: &Path,
     ) -> Result<Transaction, BaseError> {
+        store.check_write(&store.read().await?).await?;
         let (backup_path, backup) = backup_store(store.as_ref(), backup_dir).await?;
         let original = backup.active;
         Ok(Transaction {
@@ -121,9 +125,18 @@ impl Transaction {
     pub async fn apply(&mut self, params: &WheelParams) -> Result<WheelParams, BaseError> {
         let resolution = self.store.resolution();
         // Marked before the call: a cancelled or failed write may still have landed.
+        let before = (self.written, self.last_written);
         self.written = true;
         self.last_written = Some(*params);
-        let applied = self.store.write(params).await?;
+        let applied = match self.store.write(params).await {
+            Ok(applied) => applied,
+            // These say that nothing was changed: no rollback is owed for this write.
+            Err(e @ (BaseError::Unwritable { .. } | BaseError::InvalidArgument { .. })) => {
+                (self.written, self.last_written) = before;
+                return Err(e);
+            }
+            Err(e) => return Err(e),
+        };
         let read = self.store.read().await?;
         if !same_within(&applied, params, &resolution) || !same_within(&read, params, &resolution) {
             return Err(BaseError::ReadBack {
@@ -135,8 +148,8 @@ impl Transaction {
         match self.store.commit().await {
             Ok(()) => self.committed = true,
             // A refusal leaves the committed copy as it was (SPEC.md §5 SAVE_PARAMS is atomic;
-            // file stores replace atomically).
-            Err(e @ BaseError::Refused { .. }) => return Err(e),
+            // file stores replace atomically, and refuse a text they cannot render before).
+            Err(e @ (BaseError::Refused { .. } | BaseError::Unwritable { .. })) => return Err(e),
             // Anything else leaves it unknown whether the commit happened: undo it too.
             Err(e) => {
                 self.committed = true;

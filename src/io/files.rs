@@ -8,10 +8,7 @@ use std::path::{Path, PathBuf};
 /// Writes `text` to `path` atomically (a temporary file in the same directory, synced, renamed
 /// over it), keeping the file's permissions.
 pub fn replace_atomically(path: &Path, text: &str) -> std::io::Result<()> {
-    let dir = path
-        .parent()
-        .filter(|d| !d.as_os_str().is_empty())
-        .unwrap_or(Path::new("."));
+    let dir = dir_of(path);
     let name = path
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
@@ -34,6 +31,21 @@ pub fn replace_atomically(path: &Path, text: &str) -> std::io::Result<()> {
         let _ = std::fs::remove_file(&tmp);
     }
     result
+}
+
+/// The directory a file is in (`.` for a bare name).
+pub fn dir_of(path: &Path) -> &Path {
+    path.parent()
+        .filter(|d| !d.as_os_str().is_empty())
+        .unwrap_or(Path::new("."))
+}
+
+/// Proves that a new file can be created in `dir` (and removed again): what a backup beside a
+/// file and an atomic replacement need, checked before anything depends on it.
+pub fn probe_dir(dir: &Path) -> std::io::Result<()> {
+    let probe = dir.join(format!(".odocal-write-check-{}", std::process::id()));
+    create_new(&probe, b"")?;
+    std::fs::remove_file(&probe)
 }
 
 /// Milliseconds since the Unix epoch, for file names that sort by time.

@@ -224,7 +224,12 @@ pub fn ros2_diff_drive_yaml(
         "# Calibrated: left D {:.9} m, right D {:.9} m, wheelbase {:.9} m.",
         calibrated.left_wheel_diameter_m, calibrated.right_wheel_diameter_m, calibrated.wheelbase_m
     );
-    let _ = writeln!(s, "{controller_name}:\n  ros__parameters:");
+    // A namespaced name (`ns/ctrl`) is a fully qualified node key.
+    let key = match controller_name.contains('/') && !controller_name.starts_with('/') {
+        true => format!("/{controller_name}"),
+        false => controller_name.to_string(),
+    };
+    let _ = writeln!(s, "{key}:\n  ros__parameters:");
     let _ = writeln!(s, "    wheel_separation: {:.9}", nominal.wheelbase_m);
     let _ = writeln!(s, "    wheel_radius: {radius:.9}");
     let _ = writeln!(

@@ -1113,4 +1113,8 @@ impl ParamStore for RosStore {
     fn resolution(&self) -> WheelParams {
         self.yaml.resolution()
     }
+
+    async fn check_write(&self, params: &WheelParams) -> Result<(), BaseError> {
+        self.yaml.check_write(params).await
+    }
 }

@@ -1,24 +1,39 @@
 //! The ros2_control YAML file as a parameter store.
 //!
-//! `diff_drive_controller` keeps the geometry in its section of a YAML file:
-//! `<controller>: ros__parameters: {wheel_separation, wheel_radius, wheel_separation_multiplier,
-//! left_wheel_radius_multiplier, right_wheel_radius_multiplier, left_wheel_names, …}`. The
+//! `diff_drive_controller` keeps the geometry in its parameters in a YAML file:
+//! `wheel_separation`, `wheel_radius`, `wheel_separation_multiplier`,
+//! `left_wheel_radius_multiplier`, `right_wheel_radius_multiplier`, `left_wheel_names`, …. The
 //! controller's odometry uses `b = wheel_separation · wheel_separation_multiplier` and per
 //! wheel `r = wheel_radius · <side>_wheel_radius_multiplier`; odocal's [`WheelParams`] for such
 //! a robot are those effective values, with wheel angles (rad) as its "counts"
 //! (`counts_per_wheel_rev` = 2π).
 //!
+//! The controller's parameters are found by the file's structure: any nesting of
+//! namespace keys (`/**:`, `/robot/ctrl:`), any document, flow or block style, anchors; the
+//! controller named under `controller_manager` is not its section. Reading and writing use the
+//! same search, and a file where it is not one clear place is refused with the reason.
+//!
 //! Calibration writes back only the **multipliers** (computed from the new effective values,
 //! so they compose with the ones the file already had); the nominal values stay as the URDF
-//! and the robot's description have them. The file is edited as text — every other key, the
-//! order and the comments stay — then parsed again to check that it says what was meant. It
-//! is replaced atomically, and the first replacement in a session first copies the original
-//! beside it (`<file>.odocal-backup-<ms>`, created exclusively).
+//! and the robot's description have them. The new values are spliced into the text — every
+//! other byte stays — a missing multiplier is inserted as a line of the section (or `, key:
+//! value` in a flow mapping), and the result is parsed again and must say exactly what was
+//! meant, everything else unchanged ([`merge_multipliers`]). What cannot be changed in place
+//! without changing something else (an alias, an anchor used elsewhere, a tag other than
+//! `!!float`, a value over several lines) is refused, naming the line. The file is replaced
+//! atomically, and the first replacement in a session first copies the original beside it
+//! (`<file>.odocal-backup-<ms>`, created exclusively).
+
+mod locate;
+mod tree;
 
 use crate::base::{FileStore, ParamFile};
 use crate::kinematics::WheelParams;
+use locate::Section;
+use std::collections::HashMap;
 use std::path::{Path, PathBuf};
-use yaml_rust2::{Yaml, YamlLoader};
+use tree::{Kind, Node, NodeId, Tree, TreeError};
+use yaml_rust2::scanner::{ScanError, TScalarStyle};
 
 /// Wheel angle units per revolution: the "counts" of a ROS robot are radians.
 pub const RAD_PER_REV: f64 = 2.0 * std::f64::consts::PI;
@@ -29,6 +44,18 @@ pub const MULTIPLIER_KEYS: [&str; 3] = [
     "left_wheel_radius_multiplier",
     "right_wheel_radius_multiplier",
 ];
+
+/// The geometry keys odocal reads: the nominal values and the multipliers.
+const READ_KEYS: [&str; 5] = [
+    "wheel_separation",
+    "wheel_radius",
+    MULTIPLIER_KEYS[0],
+    MULTIPLIER_KEYS[1],
+    MULTIPLIER_KEYS[2],
+];
+
+/// The core schema's float tag (`!!float`), the one tag a written decimal keeps true.
+const FLOAT_TAG: &str = "tag:yaml.org,2002:float";
 
 /// A YAML file that cannot be used.
 #[derive(Debug, thiserror::Error)]
@@ -43,27 +70,63 @@ pub enum YamlError {
         source: std::io::Error,
     },
     /// Not valid YAML.
-    #[error("{}: line {line}: {message}", path.display())]
+    #[error("{}: line {line}: not valid YAML: {}", path.display(), source.info())]
     Parse {
         /// The file.
         path: PathBuf,
         /// 1-based line.
         line: usize,
-        /// The parser's message.
-        message: String,
+        /// The parser's error.
+        #[source]
+        source: ScanError,
     },
-    /// No section for the controller.
-    #[error("{}: no `{controller}:` section with `ros__parameters:`; the file has {}", path.display(), if sections.is_empty() { "no sections".to_string() } else { format!("sections {}", sections.join(", ")) })]
+    /// Nested deeper, or with more nodes, than a parameter file has.
+    #[error("{}: line {line}: {what}: not a parameter file odocal reads", path.display())]
+    TooLarge {
+        /// The file.
+        path: PathBuf,
+        /// 1-based line.
+        line: usize,
+        /// What exceeds the bound.
+        what: String,
+    },
+    /// No parameters for the controller.
+    #[error("{}: no parameters of `{controller}` (a `ros__parameters:` under a key naming it); {}", path.display(), match (found.is_empty(), nodes.is_empty()) { (false, _) => format!("the diff-drive controllers in it: {} (give the name with --controller)", found.join(", ")), (true, false) => format!("it names no diff-drive controller, only parameters of {}", nodes.join(", ")), (true, true) => "it has no `ros__parameters:` at all".to_string() })]
     NoController {
         /// The file.
         path: PathBuf,
         /// The controller looked for.
         controller: String,
-        /// The top-level sections the file does have.
-        sections: Vec<String>,
+        /// The diff-drive controllers the file does have (sections that look like one, and
+        /// `controller_manager` entries of type `diff_drive_controller/DiffDriveController`).
+        found: Vec<String>,
+        /// Every node the file has parameters for.
+        nodes: Vec<String>,
+    },
+    /// The controller's parameters are in more than one place.
+    #[error("{}: `{controller}` has parameters in {} places (`ros__parameters:` at lines {}); ROS merges them, so which one to change is not clear: keep one", path.display(), lines.len(), join_lines(lines))]
+    Ambiguous {
+        /// The file.
+        path: PathBuf,
+        /// The controller.
+        controller: String,
+        /// The lines of each `ros__parameters:`.
+        lines: Vec<usize>,
+    },
+    /// A key is in the controller's parameters twice.
+    #[error("{}: `{key}` is in `{controller}`'s parameters twice (lines {} and {}); which one ROS takes is not clear: keep one", path.display(), lines[0], lines[1])]
+    DuplicateKey {
+        /// The file.
+        path: PathBuf,
+        /// The controller.
+        controller: String,
+        /// The key.
+        key: String,
+        /// Where it is.
+        lines: [usize; 2],
     },
     /// A required key is missing or not a number.
-    #[error("{}: `{controller}.ros__parameters.{key}` {problem}", path.display())]
+    #[error("{}: line {line}: `{controller}.ros__parameters.{key}` {problem}", path.display())]
     BadKey {
         /// The file.
         path: PathBuf,
@@ -71,17 +134,79 @@ pub enum YamlError {
         controller: String,
         /// The key.
         key: &'static str,
+        /// The line of the value (of the section, when the key is missing).
+        line: usize,
         /// What is wrong.
         problem: String,
     },
-    /// The section is written in flow style (`{…}`), which odocal does not rewrite.
-    #[error("{}: `{controller}` parameters are in flow style ({{…}}); write them one per line so odocal can update them", path.display())]
-    FlowStyle {
+    /// A multiplier cannot be written without changing something else in the file.
+    #[error("{}: line {line}: cannot write `{key}` of `{controller}` in place: {reason}", path.display())]
+    Unkeepable {
         /// The file.
         path: PathBuf,
         /// The controller.
         controller: String,
+        /// The multiplier.
+        key: &'static str,
+        /// The line of its value (or of the section, for one to insert).
+        line: usize,
+        /// Why.
+        reason: Unkeepable,
     },
+    /// The merged text does not read back as meant (odocal's own check; nothing is written).
+    #[error("{}: the merged text would not read back as meant ({detail}); nothing was written", path.display())]
+    Unverified {
+        /// The file.
+        path: PathBuf,
+        /// What differed.
+        detail: String,
+    },
+}
+
+/// Why a multiplier cannot be changed in place.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum Unkeepable {
+    /// Its value is an alias: the number lives at the anchor, which other places share.
+    #[error("it is the alias `{alias}` of the anchor at line {anchor_line}; change it there, or write the number here")]
+    Alias {
+        /// The alias as written (`*one`).
+        alias: String,
+        /// The anchor's line.
+        anchor_line: usize,
+    },
+    /// It is inside an anchored node that an alias repeats elsewhere.
+    #[error("the alias at line {alias_line} repeats the anchor at line {anchor_line} that holds it: changing it would change that too")]
+    SharedAnchor {
+        /// The anchored node's line.
+        anchor_line: usize,
+        /// The first alias's line.
+        alias_line: usize,
+    },
+    /// It has a tag a decimal number would contradict.
+    #[error("it is tagged `{tag}`; odocal writes a decimal number (untagged or `!!float`)")]
+    Tag {
+        /// The tag.
+        tag: String,
+    },
+    /// Its text cannot be located exactly.
+    #[error("its value's text cannot be located exactly (a value over several lines?); write it on one line")]
+    NoSpan,
+    /// The key is missing and there is no place to insert it.
+    #[error(
+        "it is missing and the section has no line to put it after; add `{key}: 1.0` yourself"
+    )]
+    NoPlace {
+        /// The key.
+        key: &'static str,
+    },
+}
+
+fn join_lines(lines: &[usize]) -> String {
+    lines
+        .iter()
+        .map(usize::to_string)
+        .collect::<Vec<_>>()
+        .join(", ")
 }
 
 /// A `diff_drive_controller` section.
@@ -118,76 +243,217 @@ pub struct Multipliers {
     pub right_wheel_radius_multiplier: f64,
 }
 
-impl DiffDriveConfig {
-    /// Reads `controller`'s section from YAML text (`path` names the file in errors).
-    pub fn parse(text: &str, controller: &str, path: &Path) -> Result<Self, YamlError> {
-        let docs = YamlLoader::load_from_str(text).map_err(|e| YamlError::Parse {
+impl Multipliers {
+    fn values(&self) -> [f64; 3] {
+        [
+            self.wheel_separation_multiplier,
+            self.left_wheel_radius_multiplier,
+            self.right_wheel_radius_multiplier,
+        ]
+    }
+}
+
+/// The text without a UTF-8 byte-order mark, and the mark (yaml-rust2 would read it as part
+/// of the first key).
+fn split_bom(text: &str) -> (&str, &str) {
+    match text.strip_prefix('\u{feff}') {
+        Some(body) => ("\u{feff}", body),
+        None => ("", text),
+    }
+}
+
+fn parse_tree(body: &str, path: &Path) -> Result<Tree, YamlError> {
+    Tree::parse(body).map_err(|e| match e {
+        TreeError::Scan(source) => YamlError::Parse {
             path: path.to_path_buf(),
-            line: e.marker().line(),
-            message: e.to_string(),
-        })?;
-        let doc = docs.first().cloned().unwrap_or(Yaml::Null);
-        let params = &doc[controller]["ros__parameters"];
-        if params.as_hash().is_none() {
-            let sections = doc
-                .as_hash()
-                .map(|h| {
-                    h.keys()
-                        .filter_map(|k| k.as_str().map(String::from))
-                        .collect()
-                })
-                .unwrap_or_default();
+            line: source.marker().line(),
+            source,
+        },
+        TreeError::TooDeep(line) => YamlError::TooLarge {
+            path: path.to_path_buf(),
+            line,
+            what: format!("nested deeper than {} levels", tree::MAX_DEPTH),
+        },
+        TreeError::TooBig(line) => YamlError::TooLarge {
+            path: path.to_path_buf(),
+            line,
+            what: format!("more than {} values", tree::MAX_NODES),
+        },
+    })
+}
+
+/// The controller's parameters in a parsed file: the one place both reading and writing use.
+struct Located<'t> {
+    tree: &'t Tree,
+    path: &'t Path,
+    controller: &'t str,
+    section: Section,
+    /// The parameters' mapping (an alias followed).
+    params: NodeId,
+    /// Each key, and its value.
+    keys: HashMap<&'t str, (NodeId, NodeId)>,
+}
+
+/// Finds `controller`'s parameters in `tree` by its structure; see the module.
+fn locate<'t>(
+    tree: &'t Tree,
+    controller: &'t str,
+    path: &'t Path,
+) -> Result<Located<'t>, YamlError> {
+    let all = locate::sections(tree);
+    let matched = locate::controller_sections(tree, &all, controller);
+    let section = match matched.as_slice() {
+        [one] => (*one).clone(),
+        [] => {
             return Err(YamlError::NoController {
                 path: path.to_path_buf(),
                 controller: controller.into(),
-                sections,
-            });
+                found: locate::diff_drive_controllers(tree, &all),
+                nodes: locate::node_names(&all),
+            })
         }
-        let bad = |key: &'static str, problem: String| YamlError::BadKey {
+        several => {
+            return Err(YamlError::Ambiguous {
+                path: path.to_path_buf(),
+                controller: controller.into(),
+                lines: several.iter().map(|s| tree.nodes[s.key].line).collect(),
+            })
+        }
+    };
+    let params = tree.resolve(section.params);
+    if !matches!(tree.nodes[params].kind, Kind::Map { .. }) {
+        return Err(YamlError::BadKey {
             path: path.to_path_buf(),
             controller: controller.into(),
+            key: "ros__parameters",
+            line: tree.nodes[section.key].line,
+            problem: "is not a mapping of parameters".into(),
+        });
+    }
+    let mut keys: HashMap<&str, (NodeId, NodeId)> = HashMap::new();
+    for &(k, v) in tree.entries(params) {
+        let Some(key) = tree.nodes[k].scalar() else {
+            continue;
+        };
+        if let Some(&(first, _)) = keys.get(key) {
+            return Err(YamlError::DuplicateKey {
+                path: path.to_path_buf(),
+                controller: controller.into(),
+                key: key.into(),
+                lines: [tree.nodes[first].line, tree.nodes[k].line],
+            });
+        }
+        keys.insert(key, (k, v));
+    }
+    Ok(Located {
+        tree,
+        path,
+        controller,
+        section,
+        params,
+        keys,
+    })
+}
+
+/// A plain scalar's number as rcl would read it (an integer or a float), or why it is none.
+fn plain_number(node: &Node) -> Result<f64, String> {
+    let Kind::Scalar { value, style, .. } = &node.kind else {
+        return Err(match node.kind {
+            Kind::Map { .. } => "is a mapping, not a number".into(),
+            _ => "is a sequence, not a number".into(),
+        });
+    };
+    match style {
+        TScalarStyle::Plain => {}
+        TScalarStyle::SingleQuoted | TScalarStyle::DoubleQuoted => {
+            return Err(format!(
+                "is the string {value:?} (quoted): ROS reads a string, not a number"
+            ))
+        }
+        TScalarStyle::Literal | TScalarStyle::Folded => {
+            return Err("is a block scalar (`|` or `>`): ROS reads a string, not a number".into())
+        }
+    }
+    if let Some(tag) = &node.tag {
+        if !tag.ends_with(":float") && !tag.ends_with(":int") {
+            return Err(format!("is tagged `{tag}`, not a number"));
+        }
+    }
+    value
+        .parse::<f64>()
+        .ok()
+        .filter(|x| x.is_finite())
+        .ok_or_else(|| format!("is {value:?}, not a number"))
+}
+
+impl Located<'_> {
+    fn line_of(&self, key: &str) -> usize {
+        self.keys
+            .get(key)
+            .map_or(self.tree.nodes[self.section.key].line, |&(k, _)| {
+                self.tree.nodes[k].line
+            })
+    }
+
+    fn bad(&self, key: &'static str, problem: String) -> YamlError {
+        YamlError::BadKey {
+            path: self.path.to_path_buf(),
+            controller: self.controller.into(),
             key,
+            line: self.line_of(key),
             problem,
+        }
+    }
+
+    /// A positive number under `key`, or `default` when the key is missing.
+    fn number(&self, key: &'static str, default: Option<f64>) -> Result<f64, YamlError> {
+        let Some(&(_, v)) = self.keys.get(key) else {
+            return default.ok_or_else(|| self.bad(key, "is missing".into()));
         };
-        let number = |key: &'static str, default: Option<f64>| -> Result<f64, YamlError> {
-            let v = &params[key];
-            let x = match v {
-                Yaml::BadValue => {
-                    return default.ok_or_else(|| bad(key, "is missing".into()));
-                }
-                Yaml::Real(_) => v.as_f64(),
-                Yaml::Integer(i) => Some(*i as f64),
-                _ => None,
-            };
-            match x {
-                Some(x) if x.is_finite() && x > 0.0 => Ok(x),
-                _ => Err(bad(key, format!("must be a positive number, is {v:?}"))),
-            }
+        let x =
+            plain_number(&self.tree.nodes[self.tree.resolve(v)]).map_err(|p| self.bad(key, p))?;
+        if x > 0.0 {
+            Ok(x)
+        } else {
+            Err(self.bad(key, format!("must be a positive number, is {x}")))
+        }
+    }
+
+    /// A sequence of strings under `key` (empty when missing).
+    fn names(&self, key: &str) -> Vec<String> {
+        let Some(&(_, v)) = self.keys.get(key) else {
+            return Vec::new();
         };
-        let names = |key: &str| -> Vec<String> {
-            params[key]
-                .as_vec()
-                .map(|v| {
-                    v.iter()
-                        .filter_map(|n| n.as_str().map(String::from))
-                        .collect()
-                })
-                .unwrap_or_default()
-        };
-        let cfg = DiffDriveConfig {
-            controller: controller.into(),
-            wheel_separation_m: number("wheel_separation", None)?,
-            wheel_radius_m: number("wheel_radius", None)?,
-            separation_multiplier: number("wheel_separation_multiplier", Some(1.0))?,
-            left_radius_multiplier: number("left_wheel_radius_multiplier", Some(1.0))?,
-            right_radius_multiplier: number("right_wheel_radius_multiplier", Some(1.0))?,
-            left_wheel_names: names("left_wheel_names"),
-            right_wheel_names: names("right_wheel_names"),
-            cmd_vel_timeout_s: number("cmd_vel_timeout", Some(f64::NAN))
-                .ok()
-                .filter(|t| t.is_finite()),
-        };
-        Ok(cfg)
+        match &self.tree.nodes[self.tree.resolve(v)].kind {
+            Kind::Seq { items, .. } => items
+                .iter()
+                .filter_map(|&i| self.tree.nodes[self.tree.resolve(i)].scalar())
+                .map(String::from)
+                .collect(),
+            _ => Vec::new(),
+        }
+    }
+
+    fn config(&self) -> Result<DiffDriveConfig, YamlError> {
+        Ok(DiffDriveConfig {
+            controller: self.controller.into(),
+            wheel_separation_m: self.number("wheel_separation", None)?,
+            wheel_radius_m: self.number("wheel_radius", None)?,
+            separation_multiplier: self.number(MULTIPLIER_KEYS[0], Some(1.0))?,
+            left_radius_multiplier: self.number(MULTIPLIER_KEYS[1], Some(1.0))?,
+            right_radius_multiplier: self.number(MULTIPLIER_KEYS[2], Some(1.0))?,
+            left_wheel_names: self.names("left_wheel_names"),
+            right_wheel_names: self.names("right_wheel_names"),
+            cmd_vel_timeout_s: self.number("cmd_vel_timeout", None).ok(),
+        })
+    }
+}
+
+impl DiffDriveConfig {
+    /// Reads `controller`'s parameters from YAML text (`path` names the file in errors).
+    pub fn parse(text: &str, controller: &str, path: &Path) -> Result<Self, YamlError> {
+        let tree = parse_tree(split_bom(text).1, path)?;
+        locate(&tree, controller, path)?.config()
     }
 
     /// Reads a file.
@@ -224,118 +490,303 @@ fn read_bounded(path: &Path) -> Result<String, YamlError> {
     })
 }
 
-fn indent_of(line: &str) -> usize {
-    line.len() - line.trim_start_matches(' ').len()
-}
-
-fn is_content(line: &str) -> bool {
-    let t = line.trim();
-    !t.is_empty() && !t.starts_with('#')
-}
-
-/// Formats a multiplier: ten decimals, which keeps effective lengths to well under a nanometre.
+/// Formats a multiplier, always with a decimal point (ROS 2 parameters are typed: `1` would be
+/// an integer, which a double parameter refuses): ten decimals, which keeps effective lengths
+/// to well under a nanometre, or a mantissa with a point and an exponent far from 1.
 fn format_multiplier(v: f64) -> String {
-    format!("{v:.10}")
+    if (1e-3..1e7).contains(&v) {
+        format!("{v:.10}")
+    } else {
+        let s = format!("{v:.10e}");
+        s.replacen("e", ".0e", usize::from(!s.contains('.')))
+    }
 }
 
-/// Sets the multipliers in `controller`'s section of `text`, keeping every other line as it
-/// is (a key already there keeps its position and trailing comment; a new key goes at the end
-/// of the section). The result is parsed again and must hold exactly the values written.
+/// One splice: bytes `at..end` become `text`.
+struct Edit {
+    at: usize,
+    end: usize,
+    text: String,
+}
+
+/// What a merge does to the text, and what the tree must then read.
+struct Plan {
+    edits: Vec<Edit>,
+    /// Scalars whose value changes.
+    replaced: Vec<(NodeId, String)>,
+    /// Entries inserted into the parameters' mapping at this index.
+    inserted: Option<(usize, Vec<(&'static str, String)>)>,
+}
+
+/// The end of the line holding byte `from` (before its `\r\n` or `\n`, or the end of the
+/// text) and its line break, if nothing but blanks and a comment follow `from` there.
+fn line_end_after(src: &str, from: usize) -> Option<(usize, &'static str)> {
+    let rest = src.get(from..)?;
+    let (content, eol) = match rest.find('\n') {
+        Some(n) if rest[..n].ends_with('\r') => (&rest[..n - 1], "\r\n"),
+        Some(n) => (&rest[..n], "\n"),
+        None if src.contains("\r\n") => (rest, "\r\n"),
+        None => (rest, "\n"),
+    };
+    let tail = content.trim_start_matches([' ', '\t']);
+    (tail.is_empty() || tail.starts_with('#')).then_some((from + content.len(), eol))
+}
+
+/// The column of a block mapping's key, as spaces, if only indentation (and sequence dashes)
+/// come before it on its line.
+fn key_indent(src: &str, key: &Node) -> Option<String> {
+    let line_start = src[..key.start].rfind('\n').map_or(0, |n| n + 1);
+    let prefix = &src[line_start..key.start];
+    prefix
+        .chars()
+        .all(|c| c == ' ' || c == '-')
+        .then(|| " ".repeat(prefix.chars().count()))
+}
+
+impl Located<'_> {
+    fn unkeepable(&self, key: &'static str, line: usize, reason: Unkeepable) -> YamlError {
+        YamlError::Unkeepable {
+            path: self.path.to_path_buf(),
+            controller: self.controller.into(),
+            key,
+            line,
+            reason,
+        }
+    }
+
+    /// Refuses a change at `id` (for `key`) that would change what an alias repeats.
+    fn not_shared(&self, key: &'static str, line: usize, id: NodeId) -> Result<(), YamlError> {
+        match self.tree.shared_ancestor(id) {
+            Some((anchored, alias_line)) => Err(self.unkeepable(
+                key,
+                line,
+                Unkeepable::SharedAnchor {
+                    anchor_line: self.tree.anchor_line(anchored),
+                    alias_line,
+                },
+            )),
+            None => Ok(()),
+        }
+    }
+
+    /// The splices that write `values` (formatted) into `src`; see [`merge_multipliers`].
+    fn plan(&self, src: &str, values: &[String; 3]) -> Result<Plan, YamlError> {
+        let tree = self.tree;
+        let mut plan = Plan {
+            edits: Vec::new(),
+            replaced: Vec::new(),
+            inserted: None,
+        };
+        let mut missing = Vec::new();
+        for (key, value) in MULTIPLIER_KEYS.into_iter().zip(values) {
+            let Some(&(k, v)) = self.keys.get(key) else {
+                missing.push((key, value.clone()));
+                continue;
+            };
+            let node = &tree.nodes[v];
+            let line = tree.nodes[k].line;
+            if let Kind::Alias { end, .. } = node.kind {
+                let anchor_line = tree.anchor_line(tree.resolve(v));
+                let alias = src.get(node.start..end).unwrap_or("*").to_string();
+                return Err(self.unkeepable(key, line, Unkeepable::Alias { alias, anchor_line }));
+            }
+            if let Some(tag) = node.tag.as_ref().filter(|t| *t != FLOAT_TAG) {
+                let tag = tag.clone();
+                return Err(self.unkeepable(key, line, Unkeepable::Tag { tag }));
+            }
+            self.not_shared(key, line, v)?;
+            let end = node
+                .end()
+                .filter(|_| {
+                    matches!(
+                        node.kind,
+                        Kind::Scalar {
+                            style: TScalarStyle::Plain,
+                            ..
+                        }
+                    )
+                })
+                .ok_or_else(|| self.unkeepable(key, line, Unkeepable::NoSpan))?;
+            plan.edits.push(Edit {
+                at: node.start,
+                end,
+                text: value.clone(),
+            });
+            plan.replaced.push((v, value.clone()));
+        }
+        let Some(&(first_missing, _)) = missing.first() else {
+            return Ok(plan);
+        };
+        let section_line = tree.nodes[self.section.key].line;
+        if let Kind::Alias { end, .. } = tree.nodes[self.section.params].kind {
+            let alias = src
+                .get(tree.nodes[self.section.params].start..end)
+                .unwrap_or("*")
+                .to_string();
+            let anchor_line = tree.anchor_line(self.params);
+            return Err(self.unkeepable(
+                first_missing,
+                section_line,
+                Unkeepable::Alias { alias, anchor_line },
+            ));
+        }
+        self.not_shared(first_missing, section_line, self.params)?;
+        let no_place = || {
+            self.unkeepable(
+                first_missing,
+                section_line,
+                Unkeepable::NoPlace { key: first_missing },
+            )
+        };
+        let Kind::Map { entries, close } = &tree.nodes[self.params].kind else {
+            return Err(no_place());
+        };
+        let line = |(key, value): &(&str, String)| format!("{key}: {value}");
+        if let Some(close) = *close {
+            // Flow: after the last value (a trailing comma stays valid), or inside `{}`.
+            let (at, text) = match entries.last() {
+                None => (
+                    close,
+                    missing.iter().map(line).collect::<Vec<_>>().join(", "),
+                ),
+                Some(&(_, v)) => (
+                    tree.nodes[v].end().ok_or_else(no_place)?,
+                    missing.iter().map(|m| format!(", {}", line(m))).collect(),
+                ),
+            };
+            plan.edits.push(Edit { at, end: at, text });
+            plan.inserted = Some((entries.len(), missing));
+            return Ok(plan);
+        }
+        // Block: a new line after an entry whose value ends its line, at that entry's key's
+        // column; the last multiplier there is, else the nominal values, else any entry.
+        let by_position = |a: &&(NodeId, NodeId), b: &&(NodeId, NodeId)| {
+            tree.nodes[b.1].start.cmp(&tree.nodes[a.1].start)
+        };
+        let named = |names: &[&str]| -> Vec<&(NodeId, NodeId)> {
+            let mut v: Vec<_> = entries
+                .iter()
+                .filter(|(k, _)| tree.nodes[*k].scalar().is_some_and(|k| names.contains(&k)))
+                .collect();
+            v.sort_by(by_position);
+            v
+        };
+        let mut all: Vec<_> = entries.iter().collect();
+        all.sort_by(by_position);
+        let candidates = named(&MULTIPLIER_KEYS)
+            .into_iter()
+            .chain(named(&["wheel_radius"]))
+            .chain(named(&["wheel_separation"]))
+            .chain(all);
+        for &(k, v) in candidates {
+            let Some((at, eol)) = tree.nodes[v].end().and_then(|e| line_end_after(src, e)) else {
+                continue;
+            };
+            let Some(indent) = key_indent(src, &tree.nodes[k]) else {
+                continue;
+            };
+            let text = missing
+                .iter()
+                .map(|m| format!("{eol}{indent}{}", line(m)))
+                .collect();
+            let index = entries
+                .iter()
+                .position(|e| e.0 == k)
+                .map_or(entries.len(), |i| i + 1);
+            plan.edits.push(Edit { at, end: at, text });
+            plan.inserted = Some((index, missing));
+            return Ok(plan);
+        }
+        Err(no_place())
+    }
+}
+
+/// Sets the multipliers in `controller`'s parameters in `text`, keeping every other byte.
+///
+/// A multiplier there has its value replaced (a `!!float` tag, an anchor and a trailing comment
+/// stay); a missing one is inserted after the section's last multiplier (else after
+/// `wheel_radius`) at its indentation, or as `, key: value` at the end of a flow mapping.
+/// Values always have a decimal point. The result is parsed again: the controller's section
+/// must be found as before, hold exactly the values written, and every other value, key,
+/// style, tag and anchor of every document must read as before.
 pub fn merge_multipliers(
     text: &str,
     controller: &str,
     m: &Multipliers,
     path: &Path,
 ) -> Result<String, YamlError> {
-    // Parse first: a file odocal cannot read it does not edit.
-    DiffDriveConfig::parse(text, controller, path)?;
-    let flow = || YamlError::FlowStyle {
-        path: path.to_path_buf(),
-        controller: controller.into(),
-    };
-    let mut lines: Vec<String> = text.lines().map(String::from).collect();
-    let head = format!("{controller}:");
-    let c = lines
-        .iter()
-        .position(|l| {
-            let t = l.trim_start();
-            t == head
-                || t.starts_with(&format!("{head} "))
-                    && t[head.len()..].trim_start().starts_with('#')
-        })
-        .ok_or_else(flow)?;
-    let c_indent = indent_of(&lines[c]);
-    let rp = (c + 1..lines.len())
-        .take_while(|&i| !is_content(&lines[i]) || indent_of(&lines[i]) > c_indent)
-        .find(|&i| {
-            let t = lines[i].trim();
-            t == "ros__parameters:"
-                || t.starts_with("ros__parameters: #")
-                || t.starts_with("ros__parameters:  #")
-        })
-        .ok_or_else(flow)?;
-    let rp_indent = indent_of(&lines[rp]);
-    let end = (rp + 1..lines.len())
-        .find(|&i| is_content(&lines[i]) && indent_of(&lines[i]) <= rp_indent)
-        .unwrap_or(lines.len());
-    let child = (rp + 1..end)
-        .find(|&i| is_content(&lines[i]))
-        .map_or(rp_indent + 2, |i| indent_of(&lines[i]));
-    let mut last_content = (rp + 1..end)
-        .rev()
-        .find(|&i| is_content(&lines[i]))
-        .unwrap_or(rp);
-    for (key, value) in [
-        (MULTIPLIER_KEYS[0], m.wheel_separation_multiplier),
-        (MULTIPLIER_KEYS[1], m.left_wheel_radius_multiplier),
-        (MULTIPLIER_KEYS[2], m.right_wheel_radius_multiplier),
-    ] {
-        let value = format_multiplier(value);
-        let existing = (rp + 1..end).find(|&i| {
-            indent_of(&lines[i]) == child && lines[i].trim_start().starts_with(&format!("{key}:"))
-        });
-        match existing {
-            Some(i) => {
-                // Keep a trailing comment with the spacing before it.
-                let comment = lines[i]
-                    .find(" #")
-                    .map(|p| lines[i][..p].trim_end().len())
-                    .map(|p| lines[i][p..].to_string())
-                    .unwrap_or_default();
-                lines[i] = format!("{}{key}: {value}{comment}", " ".repeat(child));
-            }
-            None => {
-                lines.insert(
-                    last_content + 1,
-                    format!("{}{key}: {value}", " ".repeat(child)),
-                );
-                last_content += 1;
-            }
+    let (bom, src) = split_bom(text);
+    let tree = parse_tree(src, path)?;
+    let located = locate(&tree, controller, path)?;
+    // A file odocal cannot read it does not edit.
+    located.config()?;
+    for (key, v) in MULTIPLIER_KEYS.into_iter().zip(m.values()) {
+        if !(v.is_finite() && v > 0.0) {
+            return Err(located.bad(key, format!("cannot be set to {v}: not a positive number")));
         }
     }
-    let mut out = lines.join("\n");
-    if text.ends_with('\n') {
-        out.push('\n');
+    let values = m.values().map(format_multiplier);
+    let plan = located.plan(src, &values)?;
+    let mut out = src.to_string();
+    let mut edits = plan.edits;
+    edits.sort_by_key(|e| std::cmp::Reverse(e.at));
+    for e in &edits {
+        out.replace_range(e.at..e.end, &e.text);
     }
-    let check = DiffDriveConfig::parse(&out, controller, path)?;
-    let got = [
-        check.separation_multiplier,
-        check.left_radius_multiplier,
-        check.right_radius_multiplier,
-    ];
-    let want = [
-        m.wheel_separation_multiplier,
-        m.left_wheel_radius_multiplier,
-        m.right_wheel_radius_multiplier,
-    ];
-    if got
-        .iter()
-        .zip(want)
-        .any(|(g, w)| (g - w).abs() > 1e-9 * w.abs().max(1.0))
-    {
-        return Err(flow());
+    // The proof: the new text says what was meant, and nothing else changed.
+    let unverified = |detail: String| YamlError::Unverified {
+        path: path.to_path_buf(),
+        detail,
+    };
+    let mut expected = tree.clone();
+    for (id, value) in plan.replaced {
+        if let Kind::Scalar { value: v, .. } = &mut expected.nodes[id].kind {
+            *v = value;
+        }
     }
-    Ok(out)
+    if let Some((index, entries)) = plan.inserted {
+        let params = located.params;
+        let mut ids = Vec::new();
+        for (key, value) in entries {
+            for text in [key.to_string(), value] {
+                expected.nodes.push(Node {
+                    kind: Kind::Scalar {
+                        value: text,
+                        style: TScalarStyle::Plain,
+                        end: None,
+                    },
+                    anchor: 0,
+                    tag: None,
+                    parent: Some(params),
+                    start: 0,
+                    line: 0,
+                });
+                ids.push(expected.nodes.len() - 1);
+            }
+        }
+        if let Kind::Map { entries, .. } = &mut expected.nodes[params].kind {
+            let pairs: Vec<_> = ids.chunks(2).map(|p| (p[0], p[1])).collect();
+            entries.splice(index..index, pairs);
+        }
+    }
+    let after = Tree::parse(&out).map_err(|e| unverified(format!("it does not parse: {e:?}")))?;
+    let back = locate(&after, controller, path)?.config()?;
+    let read = [
+        back.separation_multiplier,
+        back.left_radius_multiplier,
+        back.right_radius_multiplier,
+    ];
+    for ((key, got), want) in MULTIPLIER_KEYS.into_iter().zip(read).zip(&values) {
+        if want.parse::<f64>().ok() != Some(got) {
+            return Err(unverified(format!("`{key}` reads {got}, not {want}")));
+        }
+    }
+    if !expected.same_documents(&after) {
+        return Err(unverified(
+            "something besides the multipliers changed".into(),
+        ));
+    }
+    Ok(format!("{bom}{out}"))
 }
 
 /// The controller's YAML as a [`FileStore`] format: `controller`'s section, whose effective
@@ -431,6 +882,26 @@ diff_drive_controller:
     cmd_vel_timeout: 0.5
 ";
 
+    const M: Multipliers = Multipliers {
+        wheel_separation_multiplier: 0.976,
+        left_wheel_radius_multiplier: 1.004,
+        right_wheel_radius_multiplier: 0.996,
+    };
+
+    fn merge(text: &str) -> Result<String, YamlError> {
+        merge_multipliers(text, "diff_drive_controller", &M, Path::new("f.yaml"))
+    }
+
+    /// `text` with each `(old, new)` replaced once, in order: the expected merge result.
+    fn with(text: &str, changes: &[(&str, &str)]) -> String {
+        let mut out = text.to_string();
+        for (old, new) in changes {
+            assert!(out.contains(old), "{old:?} not in {out}");
+            out = out.replacen(old, new, 1);
+        }
+        out
+    }
+
     #[test]
     fn the_section_reads_into_effective_parameters() {
         let c = DiffDriveConfig::parse(FILE, "diff_drive_controller", Path::new("f.yaml")).unwrap();
@@ -443,19 +914,42 @@ diff_drive_controller:
     }
 
     #[test]
-    fn a_missing_controller_lists_the_sections_there_are() {
-        let e = DiffDriveConfig::parse(FILE, "diff_cont", Path::new("f.yaml")).unwrap_err();
-        let msg = e.to_string();
+    fn a_missing_controller_lists_the_controllers_there_are() {
+        let text = format!(
+            "{FILE}\
+/**:
+  controller_manager:
+    ros__parameters:
+      base: {{type: diff_drive_controller/DiffDriveController}}
+      arm.type: joint_trajectory_controller/JointTrajectoryController
+      tracks.type: diff_drive_controller/DiffDriveController
+"
+        );
+        let e = DiffDriveConfig::parse(&text, "diff_cont", Path::new("f.yaml")).unwrap_err();
+        let YamlError::NoController { found, .. } = &e else {
+            panic!("{e}");
+        };
+        assert_eq!(found, &["diff_drive_controller", "base", "tracks"]);
+        assert!(e.to_string().contains("--controller"), "{e}");
+        // No diff-drive controller at all: the nodes it does have.
+        let e = DiffDriveConfig::parse(
+            "controller_manager:\n  ros__parameters: {}\n/**/imu:\n  ros__parameters: {}\n",
+            "diff_cont",
+            Path::new("f.yaml"),
+        )
+        .unwrap_err();
         assert!(
-            msg.contains("controller_manager") && msg.contains("diff_drive_controller"),
-            "{msg}"
+            e.to_string().ends_with(
+                "it names no diff-drive controller, only parameters of controller_manager, /**/imu"
+            ),
+            "{e}"
         );
         let e = DiffDriveConfig::parse("a: [1,\n", "x", Path::new("f.yaml")).unwrap_err();
-        assert!(matches!(e, YamlError::Parse { .. }), "{e}");
+        assert!(matches!(e, YamlError::Parse { line: 2, .. }), "{e}");
     }
 
     #[test]
-    fn merging_keeps_everything_else_and_composes_with_existing_multipliers() {
+    fn merging_changes_only_the_multipliers_and_composes_with_existing_ones() {
         let path = Path::new("f.yaml");
         let c = DiffDriveConfig::parse(FILE, "diff_drive_controller", path).unwrap();
         let mut p = c.effective();
@@ -463,18 +957,17 @@ diff_drive_controller:
         p.right_wheel_diameter_m *= 0.992;
         let m = c.multipliers_for(&p);
         let out = merge_multipliers(FILE, "diff_drive_controller", &m, path).unwrap();
-        // Every original line except the one multiplier is still there, in order.
-        let kept: Vec<&str> = out.lines().filter(|l| !l.contains("multiplier")).collect();
-        let orig: Vec<&str> = FILE.lines().filter(|l| !l.contains("multiplier")).collect();
-        assert_eq!(kept, orig);
-        assert!(
-            out.contains("wheel_separation_multiplier: 0.9760000000  # tuned 2024"),
-            "{out}"
+        // The one multiplier there changes in place; the two missing ones follow it.
+        let expected = with(
+            FILE,
+            &[(
+                "wheel_separation_multiplier: 1.0  # tuned 2024\n",
+                "wheel_separation_multiplier: 0.9760000000  # tuned 2024\n    \
+                 left_wheel_radius_multiplier: 1.0000000000\n    \
+                 right_wheel_radius_multiplier: 0.9920000000\n",
+            )],
         );
-        assert!(
-            out.contains("    right_wheel_radius_multiplier: 0.9920000000\n"),
-            "{out}"
-        );
+        assert_eq!(out, expected);
         let back = DiffDriveConfig::parse(&out, "diff_drive_controller", path).unwrap();
         assert!((back.effective().wheelbase_m - p.wheelbase_m).abs() < 1e-12);
         // Calibrating again composes: the new multipliers multiply the written ones.
@@ -482,11 +975,313 @@ diff_drive_controller:
         p2.wheelbase_m *= 1.01;
         let m2 = back.multipliers_for(&p2);
         assert!((m2.wheel_separation_multiplier - 0.976 * 1.01).abs() < 1e-12);
-        // Flow style is refused, not mangled.
-        let flow = "diff_drive_controller: {ros__parameters: {wheel_separation: 0.39, wheel_radius: 0.075}}\n";
-        assert!(matches!(
-            merge_multipliers(flow, "diff_drive_controller", &m, path),
-            Err(YamlError::FlowStyle { .. })
+    }
+
+    #[test]
+    fn the_controller_listed_under_controller_manager_is_not_its_section() {
+        // ros2_control_demos' humble layout: the first line reading `diffbot:` is the
+        // controller manager's entry, the section comes after.
+        let text = "\
+controller_manager:
+  ros__parameters:
+    update_rate: 10
+    diffbot:
+      type: diff_drive_controller/DiffDriveController
+
+diffbot:
+  ros__parameters:
+    wheel_separation: 0.10
+    wheel_radius: 0.015
+    wheel_separation_multiplier: 1.0
+    left_wheel_radius_multiplier: 1.0
+    right_wheel_radius_multiplier: 1.0
+";
+        let out = merge_multipliers(text, "diffbot", &M, Path::new("f.yaml")).unwrap();
+        let expected = with(
+            text,
+            &[
+                (
+                    "separation_multiplier: 1.0",
+                    "separation_multiplier: 0.9760000000",
+                ),
+                (
+                    "left_wheel_radius_multiplier: 1.0",
+                    "left_wheel_radius_multiplier: 1.0040000000",
+                ),
+                (
+                    "right_wheel_radius_multiplier: 1.0",
+                    "right_wheel_radius_multiplier: 0.9960000000",
+                ),
+            ],
+        );
+        assert_eq!(out, expected);
+    }
+
+    #[test]
+    fn flow_mappings_crlf_and_a_byte_order_mark_are_kept() {
+        let flow = "\u{feff}diff_drive_controller: {ros__parameters: {wheel_separation: 0.39,\r\n  wheel_radius: 0.075, wheel_separation_multiplier: !!float 1}}\r\n";
+        let out = merge(flow).unwrap();
+        let expected = with(
+            flow,
+            &[(
+                "!!float 1}}",
+                "!!float 0.9760000000, left_wheel_radius_multiplier: 1.0040000000, \
+                 right_wheel_radius_multiplier: 0.9960000000}}",
+            )],
+        );
+        assert_eq!(out, expected);
+        let crlf = FILE.replace('\n', "\r\n");
+        let out = merge(&crlf).unwrap();
+        assert!(
+            out.contains(
+                "# tuned 2024\r\n    left_wheel_radius_multiplier: 1.0040000000\r\n    right"
+            ),
+            "{out}"
+        );
+        assert_eq!(out.matches('\n').count(), crlf.matches('\n').count() + 2);
+        assert!(!out.replace("\r\n", "").contains('\n'), "only CRLF breaks");
+        // An empty flow mapping takes the keys without a comma.
+        let empty = "diff_drive_controller:\n  ros__parameters: {wheel_separation: 0.39, wheel_radius: 0.075, x: {}}\n";
+        assert!(merge(empty).unwrap().ends_with(
+            "x: {}, wheel_separation_multiplier: 0.9760000000, left_wheel_radius_multiplier: \
+             1.0040000000, right_wheel_radius_multiplier: 0.9960000000}\n"
         ));
+    }
+
+    #[test]
+    fn values_always_have_a_decimal_point() {
+        assert_eq!(format_multiplier(1.0), "1.0000000000");
+        assert_eq!(format_multiplier(0.976), "0.9760000000");
+        assert_eq!(format_multiplier(1e-5), "1.0000000000e-5");
+        assert_eq!(format_multiplier(2.5e8), "2.5000000000e8");
+        for v in [1e-5, 2.5e8, 3e-300] {
+            assert_eq!(format_multiplier(v).parse::<f64>().unwrap(), v);
+        }
+        let no_point = Multipliers {
+            wheel_separation_multiplier: 1e-20,
+            ..M
+        };
+        let out =
+            merge_multipliers(FILE, "diff_drive_controller", &no_point, Path::new("f")).unwrap();
+        assert!(
+            out.contains("wheel_separation_multiplier: 1.0000000000e-20  #"),
+            "{out}"
+        );
+        let bad = Multipliers {
+            left_wheel_radius_multiplier: f64::NAN,
+            ..M
+        };
+        let e = merge_multipliers(FILE, "diff_drive_controller", &bad, Path::new("f")).unwrap_err();
+        assert!(
+            matches!(
+                e,
+                YamlError::BadKey {
+                    key: "left_wheel_radius_multiplier",
+                    ..
+                }
+            ),
+            "{e}"
+        );
+    }
+
+    /// The refusal for `text`, which must also leave reading as `reads` says.
+    fn refusal(text: &str, reads: bool) -> YamlError {
+        let read = DiffDriveConfig::parse(text, "diff_drive_controller", Path::new("f.yaml"));
+        assert_eq!(read.is_ok(), reads, "{read:?}");
+        merge(text).unwrap_err()
+    }
+
+    const HEAD: &str = "diff_drive_controller:\n  ros__parameters:\n    wheel_separation: 0.39\n    wheel_radius: 0.075\n";
+
+    #[test]
+    fn what_cannot_be_kept_is_refused_with_the_reason_and_the_line() {
+        // The value is an alias: the number is at the anchor, which others share.
+        let e = refusal(
+            &format!("defaults:\n  one: &one 1.0\n{HEAD}    wheel_separation_multiplier: *one\n"),
+            true,
+        );
+        assert!(
+            matches!(&e, YamlError::Unkeepable { line: 7, reason: Unkeepable::Alias { alias, anchor_line: 2 }, .. } if alias == "*one"),
+            "{e}"
+        );
+        assert!(
+            e.to_string().contains("line 7") && e.to_string().contains("*one"),
+            "{e}"
+        );
+        // The value is an anchor another place repeats.
+        let e = refusal(
+            &format!("{HEAD}    left_wheel_radius_multiplier: &m 1.0\n    right_wheel_radius_multiplier: *m\n"),
+            true,
+        );
+        assert!(
+            matches!(
+                e,
+                YamlError::Unkeepable {
+                    key: "left_wheel_radius_multiplier",
+                    reason: Unkeepable::SharedAnchor {
+                        anchor_line: 5,
+                        alias_line: 6
+                    },
+                    ..
+                }
+            ),
+            "{e}"
+        );
+        // The whole parameter mapping is an anchor repeated by another controller: inserting
+        // into it would change that one too.
+        let e = refusal(
+            "diff_drive_controller:\n  ros__parameters: &p\n    wheel_separation: 0.39\n    wheel_radius: 0.075\nother:\n  ros__parameters: *p\n",
+            true,
+        );
+        assert!(
+            matches!(
+                e,
+                YamlError::Unkeepable {
+                    reason: Unkeepable::SharedAnchor { alias_line: 6, .. },
+                    ..
+                }
+            ),
+            "{e}"
+        );
+        // Parameters given as an alias.
+        let e = refusal(
+            "base: &p {wheel_separation: 0.39, wheel_radius: 0.075}\ndiff_drive_controller:\n  ros__parameters: *p\n",
+            true,
+        );
+        assert!(
+            matches!(
+                e,
+                YamlError::Unkeepable {
+                    line: 3,
+                    reason: Unkeepable::Alias { anchor_line: 1, .. },
+                    ..
+                }
+            ),
+            "{e}"
+        );
+        // A tag a decimal would contradict.
+        let e = refusal(
+            &format!("{HEAD}    wheel_separation_multiplier: !!int 1\n"),
+            true,
+        );
+        assert!(
+            matches!(&e, YamlError::Unkeepable { line: 5, reason: Unkeepable::Tag { tag }, .. } if tag.ends_with("int")),
+            "{e}"
+        );
+        // Block and multi-line scalars, quoted numbers: ROS reads strings; not even read.
+        for (value, says) in [
+            ("|\n      1.0", "block scalar"),
+            ("1.0\n      2", "not a number"),
+            ("\"1.0\"", "quoted"),
+            ("!!str 1.0", "tagged"),
+        ] {
+            let e = refusal(
+                &format!("{HEAD}    wheel_separation_multiplier: {value}\n"),
+                false,
+            );
+            assert!(
+                matches!(e, YamlError::BadKey { line: 5, .. }) && e.to_string().contains(says),
+                "{e}"
+            );
+        }
+        // The controller twice (rcl merges; which to change?), in two documents too.
+        let e = refusal(&format!("{HEAD}---\n/**/diff_drive_controller:\n  ros__parameters:\n    use_sim_time: true\n"), false);
+        assert!(
+            matches!(&e, YamlError::Ambiguous { lines, .. } if lines == &[2, 7]),
+            "{e}"
+        );
+        // A wildcard section setting the geometry applies to the controller too.
+        let e = refusal(
+            &format!("{HEAD}/**:\n  ros__parameters:\n    wheel_radius: 0.08\n"),
+            false,
+        );
+        assert!(
+            matches!(&e, YamlError::Ambiguous { lines, .. } if lines == &[2, 6]),
+            "{e}"
+        );
+        // A duplicate key among the parameters.
+        let e = refusal(&format!("{HEAD}    wheel_radius: 0.08\n"), false);
+        assert!(
+            matches!(&e, YamlError::DuplicateKey { key, lines: [4, 5], .. } if key == "wheel_radius"),
+            "{e}"
+        );
+        // Too deep to be a parameter file.
+        let deep: String = (0..80)
+            .map(|i| format!("{}k{i}:\n", "  ".repeat(i)))
+            .collect();
+        assert!(matches!(refusal(&deep, false), YamlError::TooLarge { .. }));
+    }
+
+    #[test]
+    fn wildcard_sections_without_geometry_and_other_controllers_do_not_interfere() {
+        let text = format!(
+            "/**:\n  ros__parameters:\n    use_sim_time: true\n{HEAD}    wheel_separation_multiplier: 1.0\n\
+             mecanum:\n  ros__parameters:\n    wheel_separation_multiplier: 1.0\n"
+        );
+        let out = merge(&text).unwrap();
+        let expected = with(
+            &text,
+            &[(
+                "    wheel_separation_multiplier: 1.0\n",
+                "    wheel_separation_multiplier: 0.9760000000\n    \
+                 left_wheel_radius_multiplier: 1.0040000000\n    \
+                 right_wheel_radius_multiplier: 0.9960000000\n",
+            )],
+        );
+        assert_eq!(out, expected);
+    }
+
+    #[tokio::test]
+    async fn a_file_that_cannot_be_rewritten_is_refused_before_anything_and_owes_no_rollback() {
+        use crate::base::transaction::{Rollback, Transaction};
+        use crate::base::{BaseError, ParamStore};
+        use std::sync::Arc;
+        let dir = std::env::temp_dir().join(format!("odocal-yaml-tx-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let file = dir.join("controllers.yaml");
+        let backups = dir.join("backups");
+        let shared = format!("{HEAD}    left_wheel_radius_multiplier: &m 1.0\n    right_wheel_radius_multiplier: *m\n");
+        // Readable, not writable: refused by `begin`, before a backup or anything else.
+        std::fs::write(&file, &shared).unwrap();
+        let store: Arc<dyn ParamStore> =
+            Arc::new(YamlStore::open(&file, "diff_drive_controller").unwrap());
+        let e = Transaction::begin(store, &backups).await.err().unwrap();
+        assert!(matches!(e, BaseError::Unwritable { .. }), "{e}");
+        assert!(
+            e.to_string().contains("line 5") && e.to_string().contains("nothing was changed"),
+            "{e}"
+        );
+        assert!(!backups.exists());
+        // A file that turns unwritable after `begin`: the write is refused and nothing is owed
+        // (no "restoring the backup failed … nothing to restore").
+        std::fs::write(&file, FILE).unwrap();
+        let store: Arc<dyn ParamStore> =
+            Arc::new(YamlStore::open(&file, "diff_drive_controller").unwrap());
+        let mut tx = Transaction::begin(store.clone(), &backups).await.unwrap();
+        std::fs::write(&file, &shared).unwrap();
+        let mut p = *tx.original();
+        p.wheelbase_m *= 0.99;
+        let e = tx.apply(&p).await.unwrap_err();
+        assert!(matches!(e, BaseError::Unwritable { .. }), "{e}");
+        assert!(!tx.written());
+        assert_eq!(tx.rollback().await.unwrap(), Rollback::NothingWritten);
+        assert_eq!(std::fs::read_to_string(&file).unwrap(), shared);
+        // A directory that takes no new file is refused too (not as root, who may write anyway).
+        #[cfg(unix)]
+        {
+            use std::os::unix::fs::PermissionsExt;
+            std::fs::write(&file, FILE).unwrap();
+            let store = YamlStore::open(&file, "diff_drive_controller").unwrap();
+            std::fs::set_permissions(&dir, std::fs::Permissions::from_mode(0o555)).unwrap();
+            let probe = std::fs::File::create(dir.join("probe")).is_err();
+            let e = store.check_write(&store.read().await.unwrap()).await;
+            std::fs::set_permissions(&dir, std::fs::Permissions::from_mode(0o755)).unwrap();
+            if probe {
+                let e = e.unwrap_err();
+                assert!(e.to_string().contains("no new file can be created"), "{e}");
+            }
+        }
+        let _ = std::fs::remove_dir_all(&dir);
     }
 }

@@ -1,8 +1,8 @@
 //! The scripted recalibration: from a mis-calibrated base to written, committed and verified
 //! parameters, safely, on any [`Base`].
 //!
-//! [`run`] drives a base through: a backup of its parameters (a [`Transaction`], before
-//! anything else), pre-flight checks (drive faults, heading validity and noise at rest, the
+//! [`run`] drives a base through: a backup of its parameters once the store has shown it can
+//! take a write (a [`Transaction`], before anything else), pre-flight checks (drive faults, heading validity and noise at rest, the
 //! watchdog), calibration rounds of CW and CCW squares ([`square`]; each checked for
 //! plausibility, including the compass's sign convention against the commanded turns),
 //! estimation with every method, bounded write-back through the transaction under the
@@ -130,7 +130,7 @@ pub async fn run(
         check_output_dir(dir)?;
     }
     ui.event(&RoutineEvent::Stage(
-        "reading and backing up the robot's parameters".into(),
+        "reading the robot's parameters, proving they can be written back, backing them up".into(),
     ));
     let tx = cancellable(
         cancel,
@@ -782,14 +782,7 @@ pub fn check_output_dir(dir: &std::path::Path) -> Result<(), RoutineError> {
         return Err(fail("it exists and is not a directory".into()));
     }
     std::fs::create_dir_all(dir).map_err(|e| fail(e.to_string()))?;
-    let probe = dir.join(format!(".odocal-write-check-{}", std::process::id()));
-    std::fs::OpenOptions::new()
-        .write(true)
-        .create_new(true)
-        .open(&probe)
-        .map_err(|e| fail(format!("a new file cannot be created there ({e})")))?;
-    let _ = std::fs::remove_file(&probe);
-    Ok(())
+    crate::io::probe_dir(dir).map_err(|e| fail(format!("a new file cannot be created there ({e})")))
 }
 
 /// How long reopening a store after its link was lost may take (a board that resets when its

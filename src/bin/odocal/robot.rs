@@ -49,7 +49,8 @@ pub struct RosFlags {
     /// multipliers are written into it (backed up beside it first).
     #[arg(long)]
     ros_yaml: Option<PathBuf>,
-    /// The diff_drive_controller's name [default: diff_drive_controller].
+    /// The diff_drive_controller's name, `ns/name` to pick one namespace's [default:
+    /// diff_drive_controller].
     #[arg(long)]
     controller: Option<String>,
     /// Velocity topic [default: /cmd_vel; newer setups use /diff_drive_controller/cmd_vel].

@@ -10,10 +10,11 @@ use std::path::PathBuf;
 /// Where a ROS robot's geometry and data are.
 #[derive(Debug, Clone, clap::Args)]
 pub struct RosArgs {
-    /// The controller's ros2_control YAML (`<controller>: ros__parameters:`).
+    /// The controller's ros2_control YAML (its `ros__parameters:` at any nesting: `/**:`,
+    /// namespaced keys, several documents).
     #[arg(long)]
     pub ros_yaml: Option<PathBuf>,
-    /// The diff_drive_controller's name (its section in the YAML).
+    /// The diff_drive_controller's name (`ns/name` to pick one namespace's).
     #[arg(long, default_value = "diff_drive_controller")]
     pub controller: String,
     /// Wheel joint states topic (sensor_msgs/JointState).
