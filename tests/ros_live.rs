@@ -469,3 +469,34 @@ async fn a_velocity_topic_nothing_listens_to_is_diagnosed_at_once() {
     let done = base.drive.move_straight(0.2, 0.3).await.unwrap().unwrap();
     assert!((done.distance_m - 0.2).abs() < 0.02, "{done:?}");
 }
+
+/// `--ros-set-live` on a controller that does not answer for its multipliers (here: the running
+/// controller has another name): refused before the robot moves, naming the service.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn set_live_is_proved_before_the_robot_moves() {
+    let (dir, yaml) = yaml_file("ros-set-live");
+    let server = mock(&yaml, |c| {
+        c.controller.controller = "base_controller".into();
+        c.time_scale = 1.0;
+    })
+    .await;
+    let mut cfg = ros_config(server.url(), &yaml);
+    cfg.set_live = true;
+    let base = connect(&cfg).await.unwrap();
+    let err = run(
+        &base,
+        &routine(&dir),
+        None,
+        &mut Unattended,
+        &CancellationToken::new(),
+    )
+    .await
+    .unwrap_err();
+    let text = err.to_string();
+    assert!(
+        text.contains("--ros-set-live") && text.contains("/diff_drive_controller/get_parameters"),
+        "{text}"
+    );
+    assert_eq!(server.state().counters.commands, 0, "the robot never moved");
+    assert_eq!(std::fs::read_to_string(&yaml).unwrap(), YAML);
+}

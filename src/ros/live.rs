@@ -1115,6 +1115,54 @@ impl ParamStore for RosStore {
     }
 
     async fn check_write(&self, params: &WheelParams) -> Result<(), BaseError> {
-        self.yaml.check_write(params).await
+        self.yaml.check_write(params).await?;
+        if self.set_live {
+            self.check_live().await?;
+        }
+        Ok(())
+    }
+}
+
+impl RosStore {
+    /// Proves, before the robot moves, that the running controller has the multipliers to set
+    /// live: its `get_parameters` answers with a double for each.
+    async fn check_live(&self) -> Result<(), BaseError> {
+        let service = format!("/{}/get_parameters", self.controller);
+        let unwritable = |why: String| BaseError::Unwritable {
+            component: "store (live)".into(),
+            source: format!("--ros-set-live: {why}").into(),
+        };
+        let answer = self
+            .client
+            .call_service(
+                &service,
+                "rcl_interfaces/srv/GetParameters",
+                json!({ "names": MULTIPLIER_KEYS }),
+                Duration::from_secs(3),
+            )
+            .await
+            .map_err(|e| {
+                unwritable(format!(
+                    "{service} failed ({e}); is the controller running under that name?"
+                ))
+            })?;
+        let values = answer
+            .get("values")
+            .and_then(Value::as_array)
+            .cloned()
+            .unwrap_or_default();
+        let doubles = values
+            .iter()
+            .filter(|v| v.get("type").and_then(Value::as_u64) == Some(3))
+            .count();
+        if doubles != MULTIPLIER_KEYS.len() {
+            return Err(unwritable(format!(
+                "the running controller does not declare {} as doubles ({service} gave {} \
+                 value(s)): a controller without them cannot take a calibration live",
+                MULTIPLIER_KEYS.join(", "),
+                values.len()
+            )));
+        }
+        Ok(())
     }
 }
