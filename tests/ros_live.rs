@@ -500,3 +500,30 @@ async fn set_live_is_proved_before_the_robot_moves() {
     assert_eq!(server.state().counters.commands, 0, "the robot never moved");
     assert_eq!(std::fs::read_to_string(&yaml).unwrap(), YAML);
 }
+
+/// `--ros-set-live` on a controller that has its multipliers: a committed write lands in the
+/// file and on the running controller, as its `get_parameters` reads them.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn set_live_sets_the_running_controllers_multipliers() {
+    let (_dir, yaml) = yaml_file("ros-set-live-ok");
+    let server = mock(&yaml, |c| c.time_scale = 1.0).await;
+    let mut cfg = ros_config(server.url(), &yaml);
+    cfg.set_live = true;
+    let base = connect(&cfg).await.unwrap();
+    let mut p = base.store.read().await.unwrap();
+    p.wheelbase_m *= 0.98;
+    p.right_wheel_diameter_m *= 1.01;
+    base.store.check_write(&p).await.unwrap();
+    base.store.write(&p).await.unwrap();
+    base.store.commit().await.unwrap();
+    let get = |name: &str| match server.state().parameter(name) {
+        Some(odocal::mock::rosbridge::ParamValue::Double(d)) => *d,
+        other => panic!("{name}: {other:?}"),
+    };
+    assert!((get("wheel_separation_multiplier") - 0.98).abs() < 1e-9);
+    assert!((get("right_wheel_radius_multiplier") - 1.01).abs() < 1e-9);
+    assert!((get("left_wheel_radius_multiplier") - 1.0).abs() < 1e-9);
+    let written = DiffDriveConfig::load(&yaml, "diff_drive_controller").unwrap();
+    assert!((written.separation_multiplier - 0.98).abs() < 1e-9);
+    assert!((server.state().configured().wheelbase_m - 0.39 * 0.98).abs() < 1e-9);
+}
