@@ -289,7 +289,8 @@ async fn lost_answers_are_recovered_by_retried_reads_and_a_brown_out_is_seen() {
     assert_eq!((m1, m2), (0, 0));
 }
 
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+/// Virtual time: the budget is a second of silence.
+#[tokio::test(start_paused = true)]
 async fn answers_with_bad_crcs_are_refused_as_such_and_a_silent_port_times_out() {
     use odocal::roboclaw::client::RoboClawError;
     // A device that answers every read with the right length but a corrupted CRC.
@@ -313,20 +314,21 @@ async fn answers_with_bad_crcs_are_refused_as_such_and_a_silent_port_times_out()
         Err(RoboClawError::Crc { command, attempts }) => assert_eq!((command, attempts), (78, 3)),
         other => panic!("expected a CRC error, got {other:?}"),
     }
-    // A port where nothing answers: a timeout naming the command, within the deadlines.
+    // A port where nothing answers: retried until the budget (a second before the serial
+    // timeout is set) is spent, then a timeout naming the command.
     let (host, _dev) = tokio::io::duplex(1024);
     let claw = RoboClaw::new(host, RoboClawConfig::default(), "duplex").unwrap();
-    let started = std::time::Instant::now();
+    let started = tokio::time::Instant::now();
     match claw.battery_v().await {
         Err(RoboClawError::Timeout {
             command, attempts, ..
-        }) => assert_eq!((command, attempts), (24, 3)),
+        }) => assert!(command == 24 && attempts > 3, "{command} {attempts}"),
         other => panic!("expected a timeout, got {other:?}"),
     }
+    let took = started.elapsed();
     assert!(
-        started.elapsed() < Duration::from_secs(1),
-        "{:?}",
-        started.elapsed()
+        took >= Duration::from_millis(900) && took <= Duration::from_millis(1300),
+        "{took:?}"
     );
     // A write answered with something other than the acknowledgement is a NAK, not success.
     let (host, mut dev) = tokio::io::duplex(1024);
@@ -352,4 +354,73 @@ async fn answers_with_bad_crcs_are_refused_as_such_and_a_silent_port_times_out()
         ),
         "{err:?}"
     );
+}
+
+/// A controller that answers every read of the battery (12.3 V), each answer `late`, and
+/// stays silent for `stall` before its `stall_at`-th answer (a host or an adapter that stops
+/// for a while).
+fn slow_controller(late: Duration, stall_at: usize, stall: Duration) -> tokio::io::DuplexStream {
+    let (host, mut dev) = tokio::io::duplex(4096);
+    tokio::spawn(async move {
+        use tokio::io::{AsyncReadExt, AsyncWriteExt};
+        let mut b = [0u8; 2];
+        let mut n = 0;
+        while dev.read_exact(&mut b).await.is_ok() {
+            n += 1;
+            if n == stall_at {
+                tokio::time::sleep(stall).await;
+            }
+            tokio::time::sleep(late).await;
+            let data = 123u16.to_be_bytes();
+            let mut crc = odocal::roboclaw::packet::CRC16.digest();
+            crc.update(&b);
+            crc.update(&data);
+            let c = crc.finalize().to_be_bytes();
+            if dev
+                .write_all(&[data[0], data[1], c[0], c[1]])
+                .await
+                .is_err()
+            {
+                return;
+            }
+        }
+    });
+    host
+}
+
+/// Link budgets, not attempt counts (virtual time): answers 40 ms late are read once the
+/// adapter's latency is measured, and a 400 ms stall in the middle of the reads costs
+/// nothing; only silence past the budget fails.
+#[tokio::test(start_paused = true)]
+async fn late_answers_and_stalls_shorter_than_the_budget_cost_nothing() {
+    let claw = RoboClaw::new(
+        slow_controller(Duration::from_millis(40), 8, Duration::from_millis(400)),
+        RoboClawConfig::default(),
+        "duplex",
+    )
+    .unwrap();
+    let latency = claw.measure_latency().await.unwrap();
+    assert!(latency >= Duration::from_millis(15), "{latency:?}");
+    for _ in 0..10 {
+        assert!((claw.battery_v().await.unwrap() - 12.3).abs() < 1e-9);
+    }
+    // A stall of 1.5 s: past the default budget a read fails; within a budget of 2 s (what a
+    // serial timeout of 2 s sets) it does not.
+    let claw = RoboClaw::new(
+        slow_controller(Duration::ZERO, 1, Duration::from_millis(1500)),
+        RoboClawConfig::default(),
+        "duplex",
+    )
+    .unwrap();
+    assert!(claw.battery_v().await.is_err());
+    let claw = RoboClaw::new(
+        slow_controller(Duration::ZERO, 1, Duration::from_millis(1500)),
+        RoboClawConfig {
+            budget: Duration::from_secs(2),
+            ..RoboClawConfig::default()
+        },
+        "duplex",
+    )
+    .unwrap();
+    assert!((claw.battery_v().await.unwrap() - 12.3).abs() < 1e-9);
 }

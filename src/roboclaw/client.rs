@@ -1,7 +1,17 @@
-//! Transactions with a RoboClaw over any byte stream: one at a time, deadlines from the baud
-//! rate, reads retried (they are safe to repeat), writes acknowledged and never blindly resent.
+//! Transactions with a RoboClaw over any byte stream: one at a time, reads retried (they are
+//! safe to repeat), writes acknowledged and never blindly resent.
+//!
+//! Timing is a link budget, not an attempt count. Each attempt waits for its answer the
+//! transmission time at the baud rate plus the adapter's latency as measured at connection
+//! ([`RoboClaw::measure_latency`]: a USB serial adapter adds 1–16 ms) with room for a host
+//! that is late by a scheduling slice. An attempt that gets no answer is retried until the
+//! budget is spent: the controller's serial timeout once it is set (a silence the controller
+//! itself tolerates, keeping its buffered motion, before it stops its motors), or
+//! [`DEFAULT_BUDGET`] before. A host stalled for less than that costs nothing; only a link
+//! silent past it aborts, and then the controller has stopped by itself.
 
 use super::packet::{self, cmd, ACK, ADDRESSES};
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
@@ -76,24 +86,41 @@ impl From<std::io::Error> for RoboClawError {
 pub struct RoboClawConfig {
     /// Packet serial address (0x80–0x87).
     pub address: u8,
-    /// Baud rate, for deadlines.
+    /// Baud rate, for transmission times.
     pub baud: u32,
-    /// Attempts of a read.
-    pub read_attempts: u32,
-    /// Added to every deadline beyond transmission time.
-    pub margin: Duration,
+    /// The adapter's latency before it is measured (added to every answer's wait).
+    pub latency: Duration,
+    /// How long a read that is safe to repeat keeps retrying before the serial timeout is set.
+    pub budget: Duration,
 }
+
+/// The retry budget of a repeatable read before the controller's serial timeout is set.
+pub const DEFAULT_BUDGET: Duration = Duration::from_secs(1);
 
 impl Default for RoboClawConfig {
     fn default() -> Self {
         RoboClawConfig {
             address: 0x80,
             baud: 38_400,
-            read_attempts: 3,
-            // Above USB-serial adapters' latency (up to 16 ms) and a busy host's scheduling.
-            margin: Duration::from_millis(50),
+            // A USB serial adapter's worst (16 ms) until measured.
+            latency: Duration::from_millis(16),
+            budget: DEFAULT_BUDGET,
         }
     }
+}
+
+/// Slack on every answer's wait for a host that is late by a scheduling slice.
+const HOST_SLACK: Duration = Duration::from_millis(20);
+/// Answers failing their CRC this many times end a read: a wrong baud rate or a noisy line.
+const CRC_ATTEMPTS: u32 = 3;
+/// The controller's own answer time (≥ 1 ms at 38400 baud and below, manual).
+const DEVICE_TIME: Duration = Duration::from_millis(2);
+
+/// What the link has learnt about itself: the adapter's latency and the budget.
+#[derive(Debug)]
+struct Timing {
+    latency_us: AtomicU64,
+    budget_ms: AtomicU64,
 }
 
 trait Port: AsyncRead + AsyncWrite + Unpin + Send {}
@@ -105,6 +132,7 @@ pub struct RoboClaw {
     port: Arc<Mutex<Box<dyn Port>>>,
     cfg: RoboClawConfig,
     label: Arc<str>,
+    timing: Arc<Timing>,
 }
 
 impl RoboClaw {
@@ -125,10 +153,16 @@ impl RoboClaw {
                 cfg.baud
             )));
         }
+        let ms = |d: Duration| u64::try_from(d.as_millis()).unwrap_or(u64::MAX);
+        let us = |d: Duration| u64::try_from(d.as_micros()).unwrap_or(u64::MAX);
         Ok(RoboClaw {
             port: Arc::new(Mutex::new(Box::new(stream))),
             cfg,
             label: Arc::from(label),
+            timing: Arc::new(Timing {
+                latency_us: AtomicU64::new(us(cfg.latency)),
+                budget_ms: AtomicU64::new(ms(cfg.budget)),
+            }),
         })
     }
 
@@ -151,8 +185,42 @@ impl RoboClaw {
         self.cfg
     }
 
+    /// The adapter's latency in use (measured, or the configured guess).
+    pub fn latency(&self) -> Duration {
+        Duration::from_micros(self.timing.latency_us.load(Ordering::Relaxed))
+    }
+
+    /// How long a repeatable read keeps retrying.
+    pub fn budget(&self) -> Duration {
+        Duration::from_millis(self.timing.budget_ms.load(Ordering::Relaxed))
+    }
+
+    /// How long one attempt waits for an answer of `bytes` bytes in all (request and answer):
+    /// their transmission, the controller's answer time, twice the adapter's latency (there
+    /// and back) and a host's scheduling slice.
     fn deadline(&self, bytes: usize) -> Duration {
-        Duration::from_secs_f64(10.0 * bytes as f64 / f64::from(self.cfg.baud)) + self.cfg.margin
+        Duration::from_secs_f64(10.0 * bytes as f64 / f64::from(self.cfg.baud))
+            + DEVICE_TIME
+            + 2 * self.latency()
+            + HOST_SLACK
+    }
+
+    /// Measures the adapter's latency: the slowest of a few short reads' round trips beyond
+    /// their transmission time, which every later wait then allows for. Call it once the
+    /// controller answers (after [`RoboClaw::version`]).
+    pub async fn measure_latency(&self) -> Result<Duration, RoboClawError> {
+        let mut worst = Duration::ZERO;
+        for _ in 0..5 {
+            let started = tokio::time::Instant::now();
+            self.read(cmd::READ_MAIN_BATTERY, 2).await?;
+            let wire = Duration::from_secs_f64(10.0 * 6.0 / f64::from(self.cfg.baud));
+            worst = worst.max(started.elapsed().saturating_sub(wire + DEVICE_TIME));
+        }
+        // Half the round trip is one way; allow the slowest seen, at least a millisecond.
+        let latency = (worst / 2).max(Duration::from_millis(1));
+        let us = u64::try_from(latency.as_micros()).unwrap_or(u64::MAX);
+        self.timing.latency_us.store(us, Ordering::Relaxed);
+        Ok(latency)
     }
 
     /// Discards bytes that arrive within `quiet` of each other: before a request, whatever a
@@ -167,14 +235,18 @@ impl RoboClaw {
         }
     }
 
-    /// A read of `len` data bytes (plus CRC), retried on timeout or CRC failure.
+    /// A read of `len` data bytes (plus CRC), retried on timeout or CRC failure until the
+    /// budget is spent.
     pub async fn read(&self, command: u8, len: usize) -> Result<Vec<u8>, RoboClawError> {
         let after = self.deadline(len + 4);
-        let mut crc_failures = 0;
-        for attempt in 1..=self.cfg.read_attempts.max(1) {
+        let budget = self.budget();
+        let started = tokio::time::Instant::now();
+        let (mut attempts, mut crc_failures) = (0u32, 0u32);
+        loop {
+            attempts += 1;
             let mut port = self.port.lock().await;
             // After a failed attempt, its answer may still be arriving: let it land first.
-            let quiet = if attempt == 1 {
+            let quiet = if attempts == 1 {
                 Duration::from_millis(1)
             } else {
                 after
@@ -185,22 +257,25 @@ impl RoboClaw {
             port.flush().await?;
             let mut buf = vec![0u8; len + 2];
             match tokio::time::timeout(after, port.read_exact(&mut buf)).await {
-                Err(_) => continue,
+                Err(_) => {}
                 Ok(Err(e)) => return Err(e.into()),
-                Ok(Ok(_)) => {}
+                Ok(Ok(_)) => match packet::check_answer(self.cfg.address, command, &buf) {
+                    Some(data) => return Ok(data.to_vec()),
+                    None => crc_failures += 1,
+                },
             }
-            match packet::check_answer(self.cfg.address, command, &buf) {
-                Some(data) => return Ok(data.to_vec()),
-                None => crc_failures = attempt,
+            drop(port);
+            // Answers that keep failing their CRC are a wrong baud rate, not a stall.
+            if crc_failures >= CRC_ATTEMPTS || started.elapsed() + after > budget {
+                break;
             }
         }
-        let attempts = self.cfg.read_attempts.max(1);
-        if crc_failures > 0 {
+        if crc_failures == attempts {
             Err(RoboClawError::Crc { command, attempts })
         } else {
             Err(RoboClawError::Timeout {
                 command,
-                after,
+                after: started.elapsed(),
                 attempts,
             })
         }
@@ -230,27 +305,25 @@ impl RoboClaw {
         }
     }
 
-    /// A write that is safe to repeat (stop, settings), tried up to the read attempts.
+    /// A write that is safe to repeat (stop, settings), retried within the budget.
     pub async fn write_idempotent(&self, command: u8, data: &[u8]) -> Result<(), RoboClawError> {
-        let mut last = None;
-        for _ in 0..self.cfg.read_attempts.max(1) {
+        let started = tokio::time::Instant::now();
+        let budget = self.budget();
+        loop {
             match self.write(command, data).await {
                 Ok(()) => return Ok(()),
-                Err(e @ RoboClawError::Io(_)) => return Err(e),
-                Err(e) => last = Some(e),
+                Err(e @ (RoboClawError::Io(_) | RoboClawError::Nak { .. })) => return Err(e),
+                Err(e) if started.elapsed() >= budget => return Err(e),
+                Err(_) => {}
             }
         }
-        Err(last.unwrap_or(RoboClawError::Timeout {
-            command,
-            after: Duration::ZERO,
-            attempts: 0,
-        }))
     }
 
     /// The firmware version string (the handshake: a RoboClaw answers it, others do not).
     pub async fn version(&self) -> Result<String, RoboClawError> {
         let after = self.deadline(52);
-        for attempt in 1..=self.cfg.read_attempts.max(1) {
+        let attempts = 3;
+        for attempt in 1..=attempts {
             let mut port = self.port.lock().await;
             let quiet = if attempt == 1 {
                 Duration::from_millis(1)
@@ -290,7 +363,7 @@ impl RoboClaw {
         Err(RoboClawError::Timeout {
             command: cmd::READ_VERSION,
             after,
-            attempts: self.cfg.read_attempts.max(1),
+            attempts,
         })
     }
 
@@ -343,6 +416,14 @@ impl RoboClaw {
         let tenths = (t.as_secs_f64() * 10.0).round().clamp(0.0, 255.0) as u8;
         self.write_idempotent(cmd::SET_SERIAL_TIMEOUT, &[tenths])
             .await?;
-        Ok(Duration::from_millis(u64::from(tenths) * 100))
+        let set = Duration::from_millis(u64::from(tenths) * 100);
+        // The controller now tolerates this much silence and then stops by itself: reads may
+        // keep trying as long (never less than the default).
+        let budget = set.max(DEFAULT_BUDGET);
+        self.timing.budget_ms.store(
+            u64::try_from(budget.as_millis()).unwrap_or(u64::MAX),
+            Ordering::Relaxed,
+        );
+        Ok(set)
     }
 }

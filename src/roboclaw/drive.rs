@@ -64,6 +64,7 @@ impl RoboClawDrive {
                 address: claw.config().address,
                 reason: e.to_string(),
             })?;
+        claw.measure_latency().await?;
         Ok(RoboClawDrive {
             claw,
             version,
@@ -242,6 +243,8 @@ impl Drive for RoboClawDrive {
                 "port": self.claw.label(),
                 "address": c.address,
                 "baud": c.baud,
+                "adapter_latency_ms": self.claw.latency().as_secs_f64() * 1e3,
+                "read_budget_ms": self.claw.budget().as_secs_f64() * 1e3,
                 "firmware": self.version,
             }),
         }
