@@ -11,7 +11,7 @@
 //! silent past it aborts, and then the controller has stopped by itself.
 
 use super::packet::{self, cmd, ACK, ADDRESSES};
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
@@ -121,6 +121,8 @@ const DEVICE_TIME: Duration = Duration::from_millis(2);
 struct Timing {
     latency_us: AtomicU64,
     budget_ms: AtomicU64,
+    /// Requests whose answers were not read (they may still arrive).
+    owed: AtomicU32,
 }
 
 trait Port: AsyncRead + AsyncWrite + Unpin + Send {}
@@ -162,6 +164,7 @@ impl RoboClaw {
             timing: Arc::new(Timing {
                 latency_us: AtomicU64::new(us(cfg.latency)),
                 budget_ms: AtomicU64::new(ms(cfg.budget)),
+                owed: AtomicU32::new(0),
             }),
         })
     }
@@ -223,9 +226,8 @@ impl RoboClaw {
         Ok(latency)
     }
 
-    /// Discards bytes that arrive within `quiet` of each other: before a request, whatever a
-    /// late answer left in the port; after a failed attempt (called with the deadline), the
-    /// rest of an answer that came too late, so the retry does not read its tail.
+    /// Discards bytes that arrive within `quiet` of each other: whatever a late answer left in
+    /// the port, or the rest of a broken one.
     async fn drain(port: &mut Box<dyn Port>, quiet: Duration) {
         let mut junk = [0u8; 64];
         while let Ok(Ok(n)) = tokio::time::timeout(quiet, port.read(&mut junk)).await {
@@ -235,48 +237,93 @@ impl RoboClaw {
         }
     }
 
-    /// A read of `len` data bytes (plus CRC), retried on timeout or CRC failure until the
-    /// budget is spent.
+    /// Before a transaction: the port cleared of answers still owed to earlier requests (they
+    /// may arrive late: waited for as long as an answer may take), else of stray bytes.
+    async fn settle(&self, port: &mut Box<dyn Port>) {
+        let owed = self.timing.owed.swap(0, Ordering::Relaxed);
+        let quiet = if owed > 0 {
+            self.deadline(8)
+        } else {
+            Duration::from_millis(1)
+        };
+        Self::drain(port, quiet).await;
+    }
+
+    /// A read of `len` data bytes (plus CRC), until the budget is spent. A request that gets
+    /// no answer in time is sent again, and whichever answer then arrives first is taken: an
+    /// answer to a repeatable read is as good late as on time, so a slow controller or a host
+    /// that stalls costs a repeat, never the read. Answers are read exactly to their length,
+    /// so one never eats into the next.
     pub async fn read(&self, command: u8, len: usize) -> Result<Vec<u8>, RoboClawError> {
         let after = self.deadline(len + 4);
         let budget = self.budget();
         let started = tokio::time::Instant::now();
-        let (mut attempts, mut crc_failures) = (0u32, 0u32);
+        let want = len + 2;
+        let mut port = self.port.lock().await;
+        self.settle(&mut port).await;
+        let (mut sent, mut crc_failures) = (0u32, 0u32);
+        let mut buf: Vec<u8> = Vec::with_capacity(want);
+        let mut resend = true;
+        let mut chunk = [0u8; 64];
         loop {
-            attempts += 1;
-            let mut port = self.port.lock().await;
-            // After a failed attempt, its answer may still be arriving: let it land first.
-            let quiet = if attempts == 1 {
-                Duration::from_millis(1)
-            } else {
-                after
-            };
-            Self::drain(&mut port, quiet).await;
-            port.write_all(&packet::read_frame(self.cfg.address, command))
-                .await?;
-            port.flush().await?;
-            let mut buf = vec![0u8; len + 2];
-            match tokio::time::timeout(after, port.read_exact(&mut buf)).await {
-                Err(_) => {}
-                Ok(Err(e)) => return Err(e.into()),
-                Ok(Ok(_)) => match packet::check_answer(self.cfg.address, command, &buf) {
-                    Some(data) => return Ok(data.to_vec()),
-                    None => crc_failures += 1,
-                },
+            if resend {
+                port.write_all(&packet::read_frame(self.cfg.address, command))
+                    .await?;
+                port.flush().await?;
+                sent += 1;
             }
-            drop(port);
-            // Answers that keep failing their CRC are a wrong baud rate, not a stall.
-            if crc_failures >= CRC_ATTEMPTS || started.elapsed() + after > budget {
-                break;
+            let room = (want - buf.len()).min(chunk.len());
+            match tokio::time::timeout(after, port.read(&mut chunk[..room])).await {
+                Ok(Ok(0)) => {
+                    return Err(std::io::Error::from(std::io::ErrorKind::UnexpectedEof).into())
+                }
+                Ok(Ok(n)) => {
+                    buf.extend_from_slice(&chunk[..n]);
+                    resend = false;
+                    if buf.len() < want {
+                        continue;
+                    }
+                    if let Some(data) = packet::check_answer(self.cfg.address, command, &buf) {
+                        let data = data.to_vec();
+                        self.timing.owed.store(sent - 1, Ordering::Relaxed);
+                        return Ok(data);
+                    }
+                    // A broken answer (noise, or the tail of another): start clean.
+                    crc_failures += 1;
+                    if crc_failures >= CRC_ATTEMPTS {
+                        break;
+                    }
+                    Self::drain(&mut port, after).await;
+                    buf.clear();
+                    resend = true;
+                    sent = 0;
+                }
+                Ok(Err(e)) => return Err(e.into()),
+                Err(_) => {
+                    if started.elapsed() + after > budget {
+                        break;
+                    }
+                    // Silence: ask again. A half answer that went silent is broken.
+                    if !buf.is_empty() {
+                        Self::drain(&mut port, after).await;
+                        buf.clear();
+                        sent = 0;
+                    }
+                    resend = true;
+                }
             }
         }
-        if crc_failures == attempts {
-            Err(RoboClawError::Crc { command, attempts })
+        self.timing.owed.store(sent, Ordering::Relaxed);
+        if crc_failures >= CRC_ATTEMPTS {
+            Err(RoboClawError::Crc {
+                command,
+                attempts: crc_failures,
+            })
         } else {
             Err(RoboClawError::Timeout {
                 command,
                 after: started.elapsed(),
-                attempts,
+                attempts: sent.max(1),
             })
         }
     }
@@ -286,16 +333,20 @@ impl RoboClaw {
         let frame = packet::write_frame(self.cfg.address, command, data);
         let after = self.deadline(frame.len() + 1);
         let mut port = self.port.lock().await;
-        Self::drain(&mut port, Duration::from_millis(1)).await;
+        self.settle(&mut port).await;
         port.write_all(&frame).await?;
         port.flush().await?;
         let mut ack = [0u8; 1];
         match tokio::time::timeout(after, port.read_exact(&mut ack)).await {
-            Err(_) => Err(RoboClawError::Timeout {
-                command,
-                after,
-                attempts: 1,
-            }),
+            Err(_) => {
+                // The acknowledgement may still come: the next transaction waits for it.
+                self.timing.owed.fetch_add(1, Ordering::Relaxed);
+                Err(RoboClawError::Timeout {
+                    command,
+                    after,
+                    attempts: 1,
+                })
+            }
             Ok(Err(e)) => Err(e.into()),
             Ok(Ok(_)) if ack[0] == ACK => Ok(()),
             Ok(Ok(_)) => Err(RoboClawError::Nak {
