@@ -5,7 +5,7 @@
 //! frame) each followed by its index records, and at the bag header's `index_pos` every
 //! connection again and the chunk infos. Messages are read chunk by chunk from the start, so
 //! a bag whose index was never written (a recording cut off, then reindexed or not) reads the
-//! same; the connections at `index_pos` only give the channels up front.
+//! same; the connections at `index_pos` give the channels up front.
 
 use super::{BagError, Channel, Container, RawMessage};
 use std::collections::BTreeMap;
@@ -129,8 +129,8 @@ fn records(buf: &[u8], mut at: usize) -> impl Iterator<Item = Result<Record<'_>,
 pub struct Ros1Bag {
     bytes: Vec<u8>,
     path: PathBuf,
-    /// The connections of the index section, when the bag has one.
-    indexed: Option<Vec<Channel>>,
+    /// The connections of the index section by id, when the bag has one.
+    indexed: Option<BTreeMap<u32, Channel>>,
 }
 
 impl Ros1Bag {
@@ -161,7 +161,7 @@ impl Ros1Bag {
                         channels.insert(id, ch);
                     }
                 }
-                Some(channels.into_values().collect::<Vec<_>>())
+                Some(channels)
             });
         Ok(Ros1Bag { indexed, ..bag })
     }
@@ -246,7 +246,7 @@ impl Ros1Bag {
                 }
                 Some(OP_CONNECTION) => {
                     let (id, ch) = connection(&r).map_err(|e| self.malformed(e))?;
-                    conns.entry(id).or_insert(ch);
+                    conns.insert(id, ch);
                 }
                 Some(OP_CHUNK) if in_chunk.is_none() => {
                     let mut chunk = std::mem::take(scratch);
@@ -329,7 +329,7 @@ impl Container for Ros1Bag {
     }
 
     fn channels(&self) -> Option<Vec<Channel>> {
-        self.indexed.clone()
+        self.indexed.as_ref().map(|c| c.values().cloned().collect())
     }
 
     fn metadata(&self, _name: &str) -> Option<BTreeMap<String, String>> {
@@ -340,7 +340,9 @@ impl Container for Ros1Bag {
         &self,
         each: &mut dyn FnMut(RawMessage<'_>) -> Result<(), BagError>,
     ) -> Result<(), BagError> {
-        let mut conns = BTreeMap::new();
+        // A chunk repeats the connection record before its first message of it; the index's
+        // copy covers a writer that left that out.
+        let mut conns = self.indexed.clone().unwrap_or_default();
         let mut scratch = Vec::new();
         self.run(
             &self.bytes,
