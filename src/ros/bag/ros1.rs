@@ -387,6 +387,11 @@ mod tests {
     /// A bag with one chunk (compressed as asked) holding a connection and two messages, and
     /// the index section's connection.
     fn bag(compression: &str) -> Vec<u8> {
+        bag_with(compression, true)
+    }
+
+    /// [`bag`], its chunk without the connection record when `conn_in_chunk` is false.
+    fn bag_with(compression: &str, conn_in_chunk: bool) -> Vec<u8> {
         let conn = record(
             &[
                 ("op", &[OP_CONNECTION]),
@@ -400,7 +405,11 @@ mod tests {
             ]),
         );
         let inner = [
-            conn.clone(),
+            if conn_in_chunk {
+                conn.clone()
+            } else {
+                Vec::new()
+            },
             record(
                 &[
                     ("op", &[OP_MESSAGE_DATA]),
@@ -489,6 +498,37 @@ mod tests {
             );
             assert_eq!(got[1].2, b"second");
         }
+    }
+
+    #[test]
+    fn a_connection_left_out_of_a_chunk_comes_from_the_index() {
+        assert_eq!(read(bag_with("lz4", false)).unwrap().len(), 2);
+        // Without the index either, the message is named.
+        let mut no_index = bag_with("none", false);
+        let at = no_index
+            .windows(10)
+            .position(|w| w == b"index_pos=")
+            .unwrap()
+            + 10;
+        no_index[at..at + 8].copy_from_slice(&[0; 8]);
+        let conn_len = record(
+            &[
+                ("op", &[OP_CONNECTION]),
+                ("conn", &3u32.to_le_bytes()),
+                ("topic", b"/imu"),
+            ],
+            &header(&[
+                ("topic", b"/imu"),
+                ("type", b"sensor_msgs/Imu"),
+                ("md5sum", b"x"),
+            ]),
+        )
+        .len();
+        no_index.truncate(no_index.len() - conn_len);
+        assert!(matches!(
+            read(no_index),
+            Err(BagError::Container { reason, .. }) if reason.contains("connection 3, before any record of it")
+        ));
     }
 
     #[test]
