@@ -1,19 +1,52 @@
-//! Bag throughput: `odocal bag`'s reading (MCAP, CDR decoding of JointState and Imu) and
-//! analysis on a simulated bag of about a million messages, on one core.
+//! Bag throughput, every container side by side: `odocal bag`'s reading (container, CDR or
+//! ROS 1 decoding of JointState, Imu and Odometry) and analysis of one simulated bag of about
+//! a million messages, on one core, stored as:
 //!
-//! `cargo run --release --example bag_benchmark` (target: ≥ 1 million messages per second)
+//! - MCAP with zstd chunks (odocal's writer; rosbag2's default compression);
+//! - a sqlite3 `.db3` (rosbag2's schema, with its timestamp index);
+//! - a rosbag2 directory of two split `.db3` files and `metadata.yaml`;
+//! - a ROS 1 `.bag`, chunks plain, LZ4 and bz2;
+//! - compressed: a `.db3.zstd` (rosbag2's FILE mode), and a rosbag2 directory whose messages
+//!   are each a zstd frame (MESSAGE mode).
+//!
+//! The other containers are written here from the MCAP's messages (ROS 1 messages serialised by
+//! hand: the header's sequence number, then the ROS 2 fields without alignment).
+//!
+//! `cargo run --release --example bag_benchmark` (target: MCAP ≥ 1 million messages per second,
+//! no container below half of it)
 
 use odocal::kinematics::{SplitConvention, WheelParams};
 use odocal::ros::bag::writer::{write_simulated_bag, SimulatedBag};
-use odocal::ros::bag::{analyse, infer_geometry, read_bag, BagOptions, GeometrySource, RosTopics};
+use odocal::ros::bag::{
+    analyse, infer_geometry, open_container, read_bag, BagOptions, GeometrySource, RosTopics,
+};
+use odocal::ros::msg::{cdr, Header, Imu, JointState, Odometry};
 use odocal::ros::yaml::RAD_PER_REV;
 use odocal::sim::{NoiseModel, Simulator};
+use std::io::Write;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-fn main() -> Result<(), Box<dyn std::error::Error>> {
+type Error = Box<dyn std::error::Error>;
+
+/// One message of the simulated bag: topic, type, log time (ns), CDR bytes.
+struct Message {
+    topic: String,
+    type_name: String,
+    t_ns: u64,
+    cdr: Vec<u8>,
+}
+
+fn main() -> Result<(), Error> {
     let dir = std::env::temp_dir().join(format!("odocal-bag-bench-{}", std::process::id()));
     std::fs::create_dir_all(&dir)?;
-    let path = dir.join("bench.mcap");
+    let result = run(&dir);
+    std::fs::remove_dir_all(&dir)?;
+    result
+}
+
+fn run(dir: &Path) -> Result<(), Error> {
+    let mcap = dir.join("bench.mcap");
     let configured = WheelParams::nominal(0.15, 0.39, RAD_PER_REV);
     let truth = WheelParams::from_ratios(&configured, 0.976, 0.992, &SplitConvention::LeftNominal)?;
     let noise = NoiseModel {
@@ -28,35 +61,392 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         joint_hz: 100.0,
         ..SimulatedBag::default()
     };
-    let written = write_simulated_bag(&path, &mut sim, &cfg, &RosTopics::default())?;
-    let bytes = std::fs::metadata(&path)?.len();
-    let opts = BagOptions::default();
-    let mut times = Vec::new();
+    let written = write_simulated_bag(&mcap, &mut sim, &cfg, &RosTopics::default())?;
+    let mut messages = Vec::new();
+    open_container(&mcap)?.messages(&mut |m| {
+        messages.push(Message {
+            topic: m.channel.topic.clone(),
+            type_name: m.channel.type_name.clone(),
+            t_ns: m.log_time_ns,
+            cdr: m.data.to_vec(),
+        });
+        Ok(())
+    })?;
+    println!(
+        "one simulated bag of {written} messages (JointState + Imu + Odometry) read by `odocal \
+         bag` (container and messages into joints, IMU and odometry), then analysed; median of \
+         3 on one core, million messages per second:\n"
+    );
+    println!(
+        "{:<40}{:>8}{:>8}{:>9}{:>10}{:>10}{:>14}",
+        "container", "MiB", "read s", "read", "+ anal. s", "with it", "exact E_b"
+    );
+    measure("MCAP (zstd chunks)", &mcap)?;
+    let db3 = dir.join("bench.db3");
+    write_db3(&db3, messages.iter(), None)?;
+    measure("sqlite3 .db3", &db3)?;
+    let zstd_file = dir.join("bench.db3.zstd");
+    std::fs::write(
+        &zstd_file,
+        zstd::stream::encode_all(std::fs::File::open(&db3)?, 3)?,
+    )?;
+    std::fs::remove_file(&db3)?;
+    measure("sqlite3 .db3.zstd (rosbag2 FILE mode)", &zstd_file)?;
+    std::fs::remove_file(&zstd_file)?;
+    let split = dir.join("split");
+    write_rosbag2(&split, &messages, "")?;
+    measure("rosbag2 directory, 2 split .db3 files", &split)?;
+    std::fs::remove_dir_all(&split)?;
+    let per_message = dir.join("per_message");
+    write_rosbag2(&per_message, &messages, "message")?;
+    measure("rosbag2 directory, zstd per message", &per_message)?;
+    std::fs::remove_dir_all(&per_message)?;
+    for compression in ["none", "lz4", "bz2"] {
+        let bag = dir.join(format!("bench_{compression}.bag"));
+        write_ros1(&bag, &messages, compression)?;
+        measure(&format!("ROS 1 .bag, {compression} chunks"), &bag)?;
+        std::fs::remove_file(&bag)?;
+    }
+    Ok(())
+}
+
+/// Reads and analyses `path` three times; prints the median rates of reading alone and of
+/// reading and analysing.
+fn measure(name: &str, path: &Path) -> Result<(), Error> {
+    let bytes = size(path)?;
+    let opts = BagOptions {
+        side_m: Some(4.0),
+        ..BagOptions::default()
+    };
+    let (mut reads, mut totals) = (Vec::new(), Vec::new());
     let mut messages = 0;
-    for _ in 0..5 {
+    let mut e_b = f64::NAN;
+    for _ in 0..3 {
         let t = Instant::now();
-        let data = read_bag(&path, &opts)?;
+        let data = read_bag(path, &opts)?;
+        reads.push(t.elapsed().as_secs_f64());
         let g = infer_geometry(&data)?;
         let report = analyse(
-            &path,
+            path,
             &data,
             g.params(),
             GeometrySource::Inferred(g),
             (0.075, 0.39),
             &opts,
         )?;
-        times.push(t.elapsed().as_secs_f64());
+        totals.push(t.elapsed().as_secs_f64());
         messages = data.messages;
-        assert_eq!(report.runs.len(), 40);
+        assert_eq!(report.runs.len(), 40, "{name}");
+        e_b = report
+            .estimates
+            .iter()
+            .find(|e| e.estimate.method == odocal::calibration::Method::Exact)
+            .map_or(f64::NAN, |e| e.estimate.e_b);
     }
-    times.sort_by(f64::total_cmp);
-    let median = times[2];
+    reads.sort_by(f64::total_cmp);
+    totals.sort_by(f64::total_cmp);
+    let (read, total) = (reads[1], totals[1]);
     println!(
-        "bag of {written} messages ({:.1} MiB; JointState + Imu + Odometry, CDR in MCAP): read \
-         and analysed in {median:.3} s median of 5 → {:.2} million messages/s",
+        "{name:<40}{:>8.1}{read:>8.2}{:>9.2}{total:>10.2}{:>10.2}{e_b:>14.9}",
         bytes as f64 / (1 << 20) as f64,
-        messages as f64 / median / 1e6
+        messages as f64 / read / 1e6,
+        messages as f64 / total / 1e6
     );
-    std::fs::remove_dir_all(&dir)?;
     Ok(())
+}
+
+/// Bytes of a file, or of every file of a directory.
+fn size(path: &Path) -> std::io::Result<u64> {
+    if path.is_dir() {
+        let mut total = 0;
+        for e in std::fs::read_dir(path)? {
+            total += size(&e?.path())?;
+        }
+        Ok(total)
+    } else {
+        Ok(std::fs::metadata(path)?.len())
+    }
+}
+
+/// A rosbag2 sqlite3 database (schema as Humble writes it), each payload zstd-compressed on
+/// its own when `level` is given.
+fn write_db3<'a>(
+    path: &Path,
+    messages: impl Iterator<Item = &'a Message>,
+    level: Option<i32>,
+) -> Result<(), Error> {
+    let mut db = rusqlite::Connection::open(path)?;
+    db.execute_batch(
+        "PRAGMA journal_mode = MEMORY; PRAGMA synchronous = OFF;
+         CREATE TABLE topics(id INTEGER PRIMARY KEY, name TEXT NOT NULL, type TEXT NOT NULL,
+             serialization_format TEXT NOT NULL, offered_qos_profiles TEXT NOT NULL);
+         CREATE TABLE messages(id INTEGER PRIMARY KEY, topic_id INTEGER NOT NULL,
+             timestamp INTEGER NOT NULL, data BLOB NOT NULL);
+         CREATE INDEX timestamp_idx ON messages (timestamp ASC);",
+    )?;
+    let tx = db.transaction()?;
+    {
+        // Topic ids as SQLite's integers.
+        let mut topics: Vec<String> = Vec::new();
+        let mut add_topic = tx.prepare(
+            "INSERT INTO topics(id, name, type, serialization_format, offered_qos_profiles) \
+             VALUES (?1, ?2, ?3, 'cdr', '')",
+        )?;
+        let mut add =
+            tx.prepare("INSERT INTO messages(topic_id, timestamp, data) VALUES (?1, ?2, ?3)")?;
+        for m in messages {
+            let id = match topics.iter().position(|t| *t == m.topic) {
+                Some(i) => i as i64 + 1,
+                None => {
+                    topics.push(m.topic.clone());
+                    let id = topics.len() as i64;
+                    add_topic.execute(rusqlite::params![id, m.topic, m.type_name])?;
+                    id
+                }
+            };
+            let data = match level {
+                Some(level) => zstd::bulk::compress(&m.cdr, level)?,
+                None => m.cdr.clone(),
+            };
+            add.execute(rusqlite::params![id, m.t_ns as i64, data])?;
+        }
+    }
+    tx.commit()?;
+    Ok(())
+}
+
+/// A rosbag2 directory of two split sqlite3 files, compressed by message when `mode` says so.
+fn write_rosbag2(dir: &Path, messages: &[Message], mode: &str) -> Result<(), Error> {
+    std::fs::create_dir_all(dir)?;
+    let name = dir
+        .file_name()
+        .map_or("bag".into(), |n| n.to_string_lossy().into_owned());
+    let half = messages.len() / 2;
+    let files: Vec<PathBuf> = (0..2)
+        .map(|i| dir.join(format!("{name}_{i}.db3")))
+        .collect();
+    let level = (mode == "message").then_some(1);
+    write_db3(&files[0], messages[..half].iter(), level)?;
+    write_db3(&files[1], messages[half..].iter(), level)?;
+    let mut topics = String::new();
+    for (topic, type_name) in [
+        ("/joint_states", "sensor_msgs/msg/JointState"),
+        ("/imu", "sensor_msgs/msg/Imu"),
+        ("/odom", "nav_msgs/msg/Odometry"),
+    ] {
+        let count = messages.iter().filter(|m| m.topic == topic).count();
+        topics.push_str(&format!(
+            "    - topic_metadata:\n        name: {topic}\n        type: {type_name}\n        \
+             serialization_format: cdr\n        offered_qos_profiles: ''\n      \
+             message_count: {count}\n"
+        ));
+    }
+    let format = if mode.is_empty() { "" } else { "zstd" };
+    let mut meta = std::fs::File::create(dir.join("metadata.yaml"))?;
+    write!(
+        meta,
+        "rosbag2_bagfile_information:\n  version: 5\n  storage_identifier: sqlite3\n  \
+         relative_file_paths:\n    - {name}_0.db3\n    - {name}_1.db3\n  \
+         compression_format: '{format}'\n  compression_mode: '{}'\n  message_count: {}\n  \
+         topics_with_message_count:\n{topics}",
+        mode.to_uppercase(),
+        messages.len()
+    )?;
+    Ok(())
+}
+
+/// Appends a ROS 1 record: its header fields, then its data.
+fn record(out: &mut Vec<u8>, fields: &[(&str, &[u8])], data: &[u8]) {
+    let len: usize = fields.iter().map(|(n, v)| 4 + n.len() + 1 + v.len()).sum();
+    out.extend((len as u32).to_le_bytes());
+    for (name, value) in fields {
+        out.extend(((name.len() + 1 + value.len()) as u32).to_le_bytes());
+        out.extend(name.as_bytes());
+        out.push(b'=');
+        out.extend(*value);
+    }
+    out.extend((data.len() as u32).to_le_bytes());
+    out.extend(data);
+}
+
+/// A ROS 1 header block (a connection record's data).
+fn header_block(fields: &[(&str, &[u8])]) -> Vec<u8> {
+    let mut out = Vec::new();
+    record(&mut out, fields, &[]);
+    // `record` framed it as a record; a header block is only the fields.
+    out[4..out.len() - 4].to_vec()
+}
+
+/// A ROS 1 bag of the messages, chunks of about 768 KiB (rosbag's default) compressed as
+/// asked, the connections again at the end for the index.
+fn write_ros1(path: &Path, messages: &[Message], compression: &str) -> Result<(), Error> {
+    let mut out = b"#ROSBAG V2.0\n".to_vec();
+    record(&mut out, &[("op", &[0x03]), ("index_pos", &[0; 8])], &[]);
+    let index_pos_at = out
+        .windows(10)
+        .position(|w| w == b"index_pos=")
+        .ok_or("no index_pos field")?
+        + 10;
+    let mut conns: Vec<(String, Vec<u8>)> = Vec::new();
+    let mut seqs: Vec<u32> = Vec::new();
+    let mut chunk = Vec::new();
+    let mut in_chunk: Vec<bool> = Vec::new();
+    let flush = |out: &mut Vec<u8>, chunk: &mut Vec<u8>| -> Result<(), Error> {
+        let data = match compression {
+            "lz4" => {
+                let mut e = lz4::EncoderBuilder::new().build(Vec::new())?;
+                e.write_all(chunk)?;
+                let (data, result) = e.finish();
+                result?;
+                data
+            }
+            "bz2" => {
+                let mut e = bzip2::write::BzEncoder::new(Vec::new(), bzip2::Compression::best());
+                e.write_all(chunk)?;
+                e.finish()?
+            }
+            _ => chunk.clone(),
+        };
+        record(
+            out,
+            &[
+                ("op", &[0x05]),
+                ("compression", compression.as_bytes()),
+                ("size", &(chunk.len() as u32).to_le_bytes()),
+            ],
+            &data,
+        );
+        chunk.clear();
+        Ok(())
+    };
+    for m in messages {
+        let id = match conns.iter().position(|(t, _)| *t == m.topic) {
+            Some(i) => i,
+            None => {
+                let ros1_type = m.type_name.replacen("/msg/", "/", 1);
+                conns.push((
+                    m.topic.clone(),
+                    header_block(&[
+                        ("topic", m.topic.as_bytes()),
+                        ("type", ros1_type.as_bytes()),
+                        ("md5sum", b"*"),
+                        ("message_definition", b""),
+                    ]),
+                ));
+                seqs.push(0);
+                in_chunk.push(false);
+                conns.len() - 1
+            }
+        };
+        let conn = (id as u32).to_le_bytes();
+        if !in_chunk[id] {
+            let (topic, data) = &conns[id];
+            record(
+                &mut chunk,
+                &[
+                    ("op", &[0x07]),
+                    ("conn", &conn),
+                    ("topic", topic.as_bytes()),
+                ],
+                data,
+            );
+            in_chunk[id] = true;
+        }
+        let time = [
+            ((m.t_ns / 1_000_000_000) as u32).to_le_bytes(),
+            ((m.t_ns % 1_000_000_000) as u32).to_le_bytes(),
+        ]
+        .concat();
+        let data = ros1_of(&m.type_name, &m.cdr, seqs[id])?;
+        seqs[id] += 1;
+        record(
+            &mut chunk,
+            &[("op", &[0x02]), ("conn", &conn), ("time", &time)],
+            &data,
+        );
+        if chunk.len() > 768 << 10 {
+            flush(&mut out, &mut chunk)?;
+            in_chunk.iter_mut().for_each(|c| *c = false);
+        }
+    }
+    if !chunk.is_empty() {
+        flush(&mut out, &mut chunk)?;
+    }
+    let index_pos = out.len() as u64;
+    out[index_pos_at..index_pos_at + 8].copy_from_slice(&index_pos.to_le_bytes());
+    for (id, (topic, data)) in conns.iter().enumerate() {
+        let conn = (id as u32).to_le_bytes();
+        record(
+            &mut out,
+            &[
+                ("op", &[0x07]),
+                ("conn", &conn),
+                ("topic", topic.as_bytes()),
+            ],
+            data,
+        );
+    }
+    std::fs::write(path, out)?;
+    Ok(())
+}
+
+/// ROS 1 serialisation of a message odocal wrote in CDR.
+fn ros1_of(type_name: &str, cdr: &[u8], seq: u32) -> Result<Vec<u8>, Error> {
+    fn header(out: &mut Vec<u8>, h: &Header, seq: u32) {
+        out.extend(seq.to_le_bytes());
+        out.extend((h.stamp.sec as u32).to_le_bytes());
+        out.extend(h.stamp.nanosec.to_le_bytes());
+        string(out, &h.frame_id);
+    }
+    fn string(out: &mut Vec<u8>, s: &str) {
+        out.extend((s.len() as u32).to_le_bytes());
+        out.extend(s.as_bytes());
+    }
+    fn f64s(out: &mut Vec<u8>, values: &[f64]) {
+        for v in values {
+            out.extend(v.to_le_bytes());
+        }
+    }
+    fn array(out: &mut Vec<u8>, values: &[f64]) {
+        out.extend((values.len() as u32).to_le_bytes());
+        f64s(out, values);
+    }
+    let mut out = Vec::new();
+    match type_name {
+        "sensor_msgs/msg/JointState" => {
+            let js: JointState = cdr::decode(cdr)?;
+            header(&mut out, &js.header, seq);
+            out.extend((js.name.len() as u32).to_le_bytes());
+            js.name.iter().for_each(|n| string(&mut out, n));
+            array(&mut out, &js.position);
+            array(&mut out, &js.velocity);
+            array(&mut out, &js.effort);
+        }
+        "sensor_msgs/msg/Imu" => {
+            let imu: Imu = cdr::decode(cdr)?;
+            header(&mut out, &imu.header, seq);
+            let q = imu.orientation;
+            f64s(&mut out, &[q.x, q.y, q.z, q.w]);
+            f64s(&mut out, &imu.orientation_covariance);
+            let v = imu.angular_velocity;
+            f64s(&mut out, &[v.x, v.y, v.z]);
+            f64s(&mut out, &imu.angular_velocity_covariance);
+            let a = imu.linear_acceleration;
+            f64s(&mut out, &[a.x, a.y, a.z]);
+            f64s(&mut out, &imu.linear_acceleration_covariance);
+        }
+        "nav_msgs/msg/Odometry" => {
+            let o: Odometry = cdr::decode(cdr)?;
+            header(&mut out, &o.header, seq);
+            string(&mut out, &o.child_frame_id);
+            let (p, q) = (o.pose.pose.position, o.pose.pose.orientation);
+            f64s(&mut out, &[p.x, p.y, p.z, q.x, q.y, q.z, q.w]);
+            f64s(&mut out, &o.pose.covariance.0);
+            let (l, a) = (o.twist.twist.linear, o.twist.twist.angular);
+            f64s(&mut out, &[l.x, l.y, l.z, a.x, a.y, a.z]);
+            f64s(&mut out, &o.twist.covariance.0);
+        }
+        other => return Err(format!("no ROS 1 form of {other} here").into()),
+    }
+    Ok(out)
 }

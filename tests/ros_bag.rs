@@ -1,10 +1,12 @@
-//! `odocal bag` end to end: simulated bags give back the simulated robot, a bag converted from
-//! a recorded OptiOdom set calibrates as `replay` does on the set, and bad input is named.
+//! `odocal bag` end to end: simulated bags give back the simulated robot, in every container
+//! odocal reads as an independent library writes it; a bag converted from a recorded OptiOdom
+//! set calibrates as `replay` does on the set; and bad input is named.
 
 mod common;
 
-use common::{odocal, odocal_json, scratch};
+use common::{odocal, odocal_json, scratch, TRUE_E_B, TRUE_E_D};
 use serde_json::Value;
+use std::path::{Path, PathBuf};
 
 fn method<'a>(v: &'a Value, name: &str) -> &'a Value {
     v["estimates"]
@@ -469,4 +471,197 @@ fn a_late_imu_is_found_and_every_exact_method_stays_within_its_errors() {
         }
         assert_eq!(checked, 6);
     }
+}
+
+/// The fixture bags: one simulated square test (odocal's, noise-free, 2 Hz) written in every
+/// container by the Python library `rosbags` (`tests/fixtures/bags/make_bags.py`).
+const FIXTURES: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/fixtures/bags");
+
+/// Fixture `name` (a file or a directory) copied into `dir`, the files the repository keeps
+/// packed (`<file>.zst`) unpacked to the file rosbags wrote.
+fn fixture(name: &str, dir: &Path) -> PathBuf {
+    fn copy(from: &Path, to: &Path) {
+        if from.is_dir() {
+            std::fs::create_dir_all(to).unwrap();
+            for e in std::fs::read_dir(from).unwrap() {
+                let e = e.unwrap();
+                copy(&e.path(), &to.join(e.file_name()));
+            }
+        } else {
+            std::fs::copy(from, to).unwrap();
+        }
+    }
+    fn unpack(path: &Path) {
+        if path.is_dir() {
+            for e in std::fs::read_dir(path).unwrap() {
+                unpack(&e.unwrap().path());
+            }
+        } else if let Some(plain) = path.to_str().and_then(|p| p.strip_suffix(".zst")) {
+            let bytes = zstd::stream::decode_all(std::fs::File::open(path).unwrap()).unwrap();
+            std::fs::write(plain, bytes).unwrap();
+            std::fs::remove_file(path).unwrap();
+        }
+    }
+    let root = Path::new(FIXTURES);
+    let from = if root.join(name).exists() {
+        root.join(name)
+    } else {
+        root.join(format!("{name}.zst"))
+    };
+    let to = dir.join(from.file_name().unwrap());
+    copy(&from, &to);
+    unpack(&to);
+    dir.join(name)
+}
+
+/// `odocal bag` on `path` with the square side given (only odocal's own MCAP writer records
+/// it), which must succeed.
+fn bag_json(path: &Path) -> Value {
+    odocal_json(&["bag", path.to_str().unwrap(), "--side-m", "1", "--json"])
+}
+
+#[test]
+fn every_container_written_by_rosbags_gives_the_same_simulated_robot() {
+    let dir = scratch("bag-containers");
+    std::fs::create_dir_all(&dir).unwrap();
+    let mut cases: Vec<(String, PathBuf)> = [
+        "sqlite3_split",
+        "mcap_split",
+        "square.db3",
+        "square.mcap",
+        "sqlite3_file_zstd",
+        "mcap_message_zstd",
+        "square.bag",
+        "square_lz4.bag",
+        "square_bz2.bag",
+    ]
+    .iter()
+    .map(|name| (name.to_string(), fixture(name, &dir)))
+    .collect();
+    // Any file zstd-compressed: the repository's packed ROS 1 bag, read as it is.
+    cases.push((
+        "square.bag.zst".into(),
+        Path::new(FIXTURES).join("square.bag.zst"),
+    ));
+    let mut first: Option<(String, f64, f64)> = None;
+    for (name, path) in &cases {
+        let v = bag_json(path);
+        assert_eq!(v["messages"], 303, "{name}: {v}");
+        assert_eq!(v["runs"].as_array().unwrap().len(), 2, "{name}: {v}");
+        assert_eq!(v["geometry"]["source"], "inferred", "{name}");
+        let exact = method(&v, "exact");
+        let (e_b, e_d) = (f(&exact["e_b"]), f(&exact["e_d"]));
+        assert!((e_b - TRUE_E_B).abs() < 1e-5, "{name}: E_b {e_b}");
+        assert!((e_d - TRUE_E_D).abs() < 1e-5, "{name}: E_d {e_d}");
+        match &first {
+            None => first = Some((name.clone(), e_b, e_d)),
+            Some((other, b, d)) => assert!(
+                (e_b - b).abs() < 1e-9 && (e_d - d).abs() < 1e-9,
+                "{name} gives E_b {e_b}, E_d {e_d}; {other} gives {b}, {d}"
+            ),
+        }
+    }
+    // A directory without metadata.yaml: its bag files in name order, and the notes say so.
+    let bare = dir.join("no_metadata");
+    std::fs::create_dir_all(&bare).unwrap();
+    for i in [1, 0] {
+        let name = format!("sqlite3_split_{i}.db3");
+        std::fs::copy(dir.join("sqlite3_split").join(&name), bare.join(&name)).unwrap();
+    }
+    let v = bag_json(&bare);
+    assert!(
+        v["notes"].as_array().unwrap().iter().any(|n| n
+            .as_str()
+            .unwrap()
+            .contains("no metadata.yaml: read its 2 bag files in name order (sqlite3_split_0.db3, sqlite3_split_1.db3)")),
+        "{}",
+        v["notes"]
+    );
+    let (b, d) = first.map(|(_, b, d)| (b, d)).unwrap();
+    assert!((f(&method(&v, "exact")["e_b"]) - b).abs() < 1e-9);
+    assert!((f(&method(&v, "exact")["e_d"]) - d).abs() < 1e-9);
+}
+
+#[test]
+fn what_is_not_a_bag_is_named_and_broken_bags_are_errors() {
+    let dir = scratch("bag-broken");
+    std::fs::create_dir_all(&dir).unwrap();
+    let fails = |path: &Path| {
+        let (ok, _, err) = odocal(&["bag", path.to_str().unwrap()]);
+        assert!(!ok, "{} read", path.display());
+        assert!(!err.contains("panicked"), "{err}");
+        err
+    };
+    // A file of no format odocal reads: its first bytes, what they look like, what odocal reads.
+    let text = dir.join("notes.txt");
+    std::fs::write(&text, "joint states, then the IMU\n").unwrap();
+    let err = fails(&text);
+    for says in [
+        "not a bag odocal reads",
+        "\"joint states, th\"",
+        "(text)",
+        "MCAP",
+        "sqlite3 (.db3)",
+        "rosbag2 directories",
+        "ROS 1 .bag",
+        "zstd",
+    ] {
+        assert!(err.contains(says), "no {says:?} in {err}");
+    }
+    let gz = dir.join("square.mcap.gz");
+    std::fs::write(&gz, [0x1F, 0x8B, 8, 0, 0, 0]).unwrap();
+    assert!(fails(&gz).contains("gzip"));
+    // A name that promises a format gets its complaint.
+    let fake = dir.join("fake.db3");
+    std::fs::write(&fake, "not sqlite").unwrap();
+    assert!(fails(&fake).contains("not a readable sqlite3 bag"));
+    // A directory is read only as a rosbag2 directory.
+    let empty = dir.join("empty");
+    std::fs::create_dir_all(&empty).unwrap();
+    assert!(fails(&empty).contains("not a rosbag2 bag"));
+    // Cut short: a typed error, not a panic, and no journal left beside the file.
+    let db3 = fixture("square.db3", &dir);
+    let bytes = std::fs::read(&db3).unwrap();
+    let cut = dir.join("cut.db3");
+    std::fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
+    let err = fails(&cut);
+    assert!(
+        err.contains("not a readable sqlite3 bag") && err.contains("cut short"),
+        "{err}"
+    );
+    let left: Vec<_> = std::fs::read_dir(&dir)
+        .unwrap()
+        .filter_map(|e| e.ok())
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .filter(|n| n.starts_with("cut.db3") && n != "cut.db3")
+        .collect();
+    assert!(left.is_empty(), "{left:?}");
+    let bag = fixture("square_lz4.bag", &dir);
+    let bytes = std::fs::read(&bag).unwrap();
+    let cut = dir.join("cut.bag");
+    std::fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
+    assert!(fails(&cut).contains("not a readable ROS 1 bag"));
+    // An LZ4 chunk whose frame says a version LZ4 does not have.
+    let mut broken = bytes.clone();
+    let lz4 = broken
+        .windows(4)
+        .position(|w| w == [0x04, 0x22, 0x4D, 0x18])
+        .unwrap();
+    broken[lz4 + 4] ^= 0xC0;
+    let flipped = dir.join("flipped.bag");
+    std::fs::write(&flipped, &broken).unwrap();
+    assert!(fails(&flipped).contains("lz4 chunk at byte"));
+    // A zstd file cut short.
+    let zstd = fixture("sqlite3_file_zstd", &dir).join("sqlite3_file_zstd.db3.zstd");
+    let bytes = std::fs::read(&zstd).unwrap();
+    std::fs::write(&zstd, &bytes[..bytes.len() - 100]).unwrap();
+    assert!(fails(&dir.join("sqlite3_file_zstd")).contains("zstd"));
+    // metadata.yaml listing a file the directory does not have.
+    let split = fixture("sqlite3_split", &dir);
+    std::fs::remove_file(split.join("sqlite3_split_1.db3")).unwrap();
+    let err = fails(&split);
+    assert!(
+        err.contains("metadata.yaml") && err.contains("`sqlite3_split_1.db3`"),
+        "{err}"
+    );
 }

@@ -14,7 +14,8 @@ pub const MAX_TEXT_FILE: u64 = 16 << 20;
 /// Most bytes odocal reads of one recorded run or telemetry log (hours of 200 Hz samples).
 pub const MAX_DATA_FILE: u64 = 1 << 30;
 
-/// Most bytes of one bag file (read into memory; split larger recordings, `ros2 bag convert`).
+/// Most bytes of one bag file, and of what a compressed one or one compressed message
+/// decompresses to (read into memory; split larger recordings, `ros2 bag convert`).
 pub const MAX_BAG_FILE: u64 = 4 << 30;
 
 /// Every size bound, for documentation: what it covers and the bound (bytes). The README's
@@ -29,7 +30,7 @@ pub const SIZE_BOUNDS: [(&str, u64); 3] = [
         MAX_DATA_FILE,
     ),
     (
-        "bag: one bag file (of a directory: each file)",
+        "bag: one bag file (of a directory: each file), also once decompressed",
         MAX_BAG_FILE,
     ),
 ];

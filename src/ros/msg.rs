@@ -1,12 +1,26 @@
 //! The ROS message types odocal reads and writes, field for field as ROS 2 defines them, so one
-//! serde derive serves rosbridge's JSON and a bag's CDR. ROS 1 JSON (rosbridge on ROS 1) is
-//! read too: `secs`/`nsecs` stamps and the header's `seq` are accepted.
+//! serde derive serves rosbridge's JSON, a ROS 2 bag's CDR ([`cdr`]) and a ROS 1 bag's
+//! serialization ([`ros1`]). ROS 1 JSON (rosbridge on ROS 1) is read too: `secs`/`nsecs` stamps
+//! and the header's `seq` are accepted.
 //!
 //! Sign conventions are ROS's (REP 103), which are ours: x forward, y left, yaw
 //! counter-clockwise positive. [`yaw_of`] is the one place a quaternion becomes a heading.
 
 use crate::kinematics::wrap_angle;
 use serde::{Deserialize, Deserializer, Serialize, Serializer};
+
+pub mod ros1;
+
+/// A message that does not decode from, or encode to, its wire form.
+#[derive(Debug, thiserror::Error)]
+pub enum WireError {
+    /// ROS 2's CDR.
+    #[error(transparent)]
+    Cdr(#[from] cdr::CdrError),
+    /// ROS 1 serialization.
+    #[error(transparent)]
+    Ros1(#[from] ros1::Ros1Error),
+}
 
 /// `builtin_interfaces/Time`.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]

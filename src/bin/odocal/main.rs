@@ -66,7 +66,8 @@ enum Command {
     Spin(sensor::SpinArgs),
     /// List this machine's serial ports with their USB ids.
     Ports(ports::Args),
-    /// Calibrate offline from a ROS 2 bag (MCAP): finds the square runs, every method.
+    /// Calibrate offline from a ROS bag (rosbag2 directory, MCAP, sqlite3 .db3, ROS 1 .bag;
+    /// zstd-compressed too): finds the square runs, every method.
     Bag(ros::BagArgs),
     /// Serve a simulated ROS 2 robot behind a mock rosbridge server on loopback.
     MockRosbridge(ros::MockArgs),

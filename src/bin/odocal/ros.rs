@@ -1,4 +1,4 @@
-//! `odocal bag` (and the ROS flags other commands share): calibrate from a ROS 2 bag.
+//! `odocal bag` (and the ROS flags other commands share): calibrate from a ROS bag.
 
 use crate::print_json;
 use odocal::kinematics::SplitConvention;
@@ -56,9 +56,10 @@ impl RosArgs {
 /// Arguments of `odocal bag`.
 #[derive(Debug, clap::Args)]
 pub struct BagArgs {
-    /// The bag (MCAP, the ROS 2 default storage). Several bags of one robot are analysed one by
-    /// one and their square estimates pooled in physical terms (they may have been recorded with
-    /// different multipliers in force).
+    /// The bag: a rosbag2 directory (what `ros2 bag record` makes, split files read in order),
+    /// or one file: MCAP, sqlite3 (.db3), ROS 1 (.bag v2.0), any of them zstd-compressed. Several
+    /// bags of one robot are analysed one by one and their square estimates pooled in physical
+    /// terms (they may have been recorded with different multipliers in force).
     #[arg(required = true)]
     files: Vec<PathBuf>,
     #[command(flatten)]

@@ -1,30 +1,43 @@
 //! Any container's messages into [`BagData`]: the three topics resolved (by name, or by type
-//! when the name is not in the bag), their types checked, the wheel joints picked by name,
-//! joint angles unwrapped, every sample on its header stamp (the log time where a header has
-//! none), and all of it in time order from the bag's first message.
+//! when the name is not in the bag), their types checked, each message decoded from its wire
+//! form (ROS 2's CDR, ROS 1's serialization; a message rosbag2 compressed on its own is
+//! decompressed first), the wheel joints picked by name, joint angles unwrapped, every sample
+//! on its header stamp (the log time where a header has none), and all of it in time order
+//! from the bag's first message.
 
+use super::compression::{zstd_message, ZSTD_MAGIC};
 use super::{
-    open_container, BagData, BagError, BagOptions, Channel, Container, JointSample, OdomSample,
-    RawMessage, RosTopics, YawSample,
+    container_of, open_container, BagData, BagError, BagOptions, Channel, Container, JointSample,
+    OdomSample, RawMessage, RosTopics, YawSample,
 };
-use crate::ros::msg::{angle_step, cdr, types, yaw_of, Header, Imu, JointState, Odometry};
+use crate::ros::msg::{
+    angle_step, cdr, ros1, types, yaw_of, Header, Imu, JointState, Odometry, WireError,
+};
+use serde::de::DeserializeOwned;
 use std::collections::BTreeMap;
 use std::path::Path;
 
-/// Reads the wheel joints, IMU and odometry from the bag at `path`.
+/// Reads the wheel joints, IMU and odometry from the bag at `path`: a file of any format
+/// odocal reads, or a rosbag2 directory.
 pub fn read_bag(path: &Path, opts: &BagOptions) -> Result<BagData, BagError> {
-    let bytes = crate::io::read_bounded_bytes(path, crate::io::MAX_BAG_FILE).map_err(|source| {
-        BagError::Io {
-            path: path.to_path_buf(),
-            source,
-        }
-    })?;
-    read_bag_bytes(&bytes, path, opts)
+    read_container(open_container(path)?.as_ref(), opts)
 }
 
-/// [`read_bag`] from bytes in memory (`path` names them in errors).
-pub fn read_bag_bytes(bytes: &[u8], path: &Path, opts: &BagOptions) -> Result<BagData, BagError> {
-    read_container(open_container(bytes, path)?.as_ref(), opts)
+/// [`read_bag`] of one file's bytes in memory (`path` names them in errors).
+pub fn read_bag_bytes(bytes: Vec<u8>, path: &Path, opts: &BagOptions) -> Result<BagData, BagError> {
+    read_container(container_of(bytes, path)?.as_ref(), opts)
+}
+
+/// The wire forms odocal decodes, as channels name them.
+const ENCODINGS: [&str; 2] = ["cdr", "ros1"];
+
+/// Decodes one message in its channel's wire form.
+fn decode<T: DeserializeOwned>(encoding: &str, data: &[u8]) -> Result<T, WireError> {
+    if encoding == "ros1" {
+        Ok(ros1::decode(data)?)
+    } else {
+        Ok(cdr::decode(data)?)
+    }
 }
 
 /// What a topic is for.
@@ -113,7 +126,7 @@ fn resolve_topics(
 }
 
 fn check_type(ch: &Channel, role: Role) -> Result<(), BagError> {
-    if types::is(&ch.type_name, role.canonical()) && ch.encoding == "cdr" {
+    if types::is(&ch.type_name, role.canonical()) && ENCODINGS.contains(&ch.encoding.as_str()) {
         Ok(())
     } else {
         Err(BagError::UnknownType {
@@ -146,6 +159,36 @@ struct Reading {
     imu: Vec<YawSample>,
     odom: Vec<OdomSample>,
     first_s: Option<f64>,
+    unzstd: Unzstd,
+}
+
+/// rosbag2's per-message compression undone: one zstd context and buffer for every message.
+#[derive(Default)]
+struct Unzstd {
+    ctx: Option<zstd::bulk::Decompressor<'static>>,
+    buf: Vec<u8>,
+}
+
+impl Unzstd {
+    /// The message's serialised bytes: its data, or what its zstd frame holds. (The channel
+    /// of a message rosbag2 compressed still says `cdr`; a CDR payload starts with its
+    /// encapsulation, 00 00 or 00 01, never with zstd's magic.)
+    fn payload<'a>(&'a mut self, m: &RawMessage<'a>, index: usize) -> Result<&'a [u8], BagError> {
+        if m.channel.encoding != "cdr" || !m.data.starts_with(ZSTD_MAGIC) {
+            return Ok(m.data);
+        }
+        let err = |source| BagError::Zstd {
+            what: format!("topic `{}` message {index}", m.channel.topic),
+            source,
+        };
+        let ctx = match self.ctx.take() {
+            Some(ctx) => ctx,
+            None => zstd::bulk::Decompressor::new().map_err(err)?,
+        };
+        let ctx = self.ctx.insert(ctx);
+        zstd_message(m.data, ctx, &mut self.buf).map_err(err)?;
+        Ok(&self.buf)
+    }
 }
 
 impl Reading {
@@ -243,16 +286,17 @@ impl Reading {
             index,
             source,
         };
-        match role {
-            Role::Joints => self.joints(
-                cdr::decode(m.data).map_err(decode_err)?,
-                m.log_time_ns,
-                opts,
-            ),
-            Role::Imu => self.imu(cdr::decode(m.data).map_err(decode_err)?, m.log_time_ns),
-            Role::Odom => self.odom(cdr::decode(m.data).map_err(decode_err)?, m.log_time_ns),
-        }
-        Ok(())
+        // Taken out of `self` while `data` may borrow it.
+        let mut unzstd = std::mem::take(&mut self.unzstd);
+        let data = unzstd.payload(&m, index)?;
+        let enc = m.channel.encoding.as_str();
+        let result = match role {
+            Role::Joints => decode(enc, data).map(|js| self.joints(js, m.log_time_ns, opts)),
+            Role::Imu => decode(enc, data).map(|imu| self.imu(imu, m.log_time_ns)),
+            Role::Odom => decode(enc, data).map(|o| self.odom(o, m.log_time_ns)),
+        };
+        self.unzstd = unzstd;
+        result.map_err(decode_err)
     }
 }
 
@@ -278,6 +322,7 @@ pub fn read_container(bag: &dyn Container, opts: &BagOptions) -> Result<BagData,
             None => Ok(()),
         }
     })?;
+    notes.extend(bag.notes());
     let available: Vec<(String, String)> = seen.into_iter().collect();
     let missing = |role: Role| BagError::MissingTopic {
         what: role.what(),

@@ -1,5 +1,6 @@
 //! The MCAP container (the ROS 2 default storage from Iron on): channels and metadata from the
-//! summary section when the file has one, messages from one pass over the data.
+//! summary section when the file has one, messages from one pass over the data. Chunks
+//! compressed with zstd or lz4 (rosbag2's default is zstd) are the `mcap` crate's to undo.
 
 use super::{BagError, Channel, Container, RawMessage};
 use std::collections::BTreeMap;
@@ -9,16 +10,16 @@ use std::path::{Path, PathBuf};
 pub const MAGIC: &[u8] = ::mcap::MAGIC;
 
 /// An MCAP file in memory.
-pub struct McapBag<'a> {
-    bytes: &'a [u8],
+pub struct McapBag {
+    bytes: Vec<u8>,
     path: PathBuf,
     summary: Option<::mcap::Summary>,
 }
 
-impl<'a> McapBag<'a> {
+impl McapBag {
     /// Reads the summary of `bytes` (from `path`), if it has one.
-    pub fn new(bytes: &'a [u8], path: &Path) -> Result<Self, BagError> {
-        let summary = ::mcap::Summary::read(bytes).map_err(|e| error(path, e))?;
+    pub fn new(bytes: Vec<u8>, path: &Path) -> Result<Self, BagError> {
+        let summary = ::mcap::Summary::read(&bytes).map_err(|e| error(path, e))?;
         Ok(McapBag {
             bytes,
             path: path.to_path_buf(),
@@ -27,11 +28,15 @@ impl<'a> McapBag<'a> {
     }
 }
 
-fn error(path: &Path, e: ::mcap::McapError) -> BagError {
-    BagError::Container {
+/// [`McapBag::new`] as a [`super::FileFormat`] opens it.
+pub fn open(bytes: Vec<u8>, path: &Path) -> Result<Box<dyn Container>, BagError> {
+    Ok(Box::new(McapBag::new(bytes, path)?))
+}
+
+fn error(path: &Path, source: ::mcap::McapError) -> BagError {
+    BagError::Mcap {
         path: path.to_path_buf(),
-        format: "MCAP",
-        reason: e.to_string(),
+        source,
     }
 }
 
@@ -47,7 +52,7 @@ fn channel(c: &::mcap::Channel<'_>) -> Channel {
     }
 }
 
-impl Container for McapBag<'_> {
+impl Container for McapBag {
     fn format(&self) -> &'static str {
         "MCAP"
     }
@@ -65,7 +70,7 @@ impl Container for McapBag<'_> {
             .iter()
             .rev()
             .filter(|i| i.name == name)
-            .find_map(|i| ::mcap::read::metadata(self.bytes, i).ok())
+            .find_map(|i| ::mcap::read::metadata(&self.bytes, i).ok())
             .map(|m| m.metadata)
     }
 
@@ -75,7 +80,7 @@ impl Container for McapBag<'_> {
     ) -> Result<(), BagError> {
         // Channels converted once each, by the reader's channel id.
         let mut known: BTreeMap<u16, Channel> = BTreeMap::new();
-        for m in ::mcap::MessageStream::new(self.bytes).map_err(|e| error(&self.path, e))? {
+        for m in ::mcap::MessageStream::new(&self.bytes).map_err(|e| error(&self.path, e))? {
             let m = m.map_err(|e| error(&self.path, e))?;
             let ch = known
                 .entry(m.channel.id)

@@ -4,30 +4,44 @@
 //! method and the online filter.
 //!
 //! One room per concern:
-//! - a container format ([`mcap`]) implements [`Container`]: its channels, its metadata and
-//!   its messages in order — a new format is one file behind that trait, plus one line in
-//!   [`open_container`];
+//! - a container format implements [`Container`]: its channels, its metadata and its messages
+//!   in order. A file's format is told by its first bytes ([`FILE_FORMATS`]: [`mcap`], the
+//!   ROS 2 default from Iron on; [`sqlite3`], `.db3` up to Humble; [`ros1`], ROS 1 `.bag`
+//!   v2.0); [`rosbag2`] is the directory `ros2 bag record` makes, its split files read in
+//!   order, each through [`open_file`]. A new format is one file behind that trait plus one
+//!   line in [`FILE_FORMATS`];
+//! - [`compression`] undoes zstd where rosbag2 puts it: whole files (`.db3.zstd`,
+//!   `.mcap.zstd`) and single messages, always within [`crate::io::MAX_BAG_FILE`];
 //! - [`decode`] turns any container's messages into [`BagData`] (topics resolved by type,
-//!   wheel joints picked by name, angles unwrapped, header stamps);
+//!   wheel joints picked by name, angles unwrapped, header stamps, CDR or ROS 1 wire form);
 //! - [`mod@analyse`] infers the configured geometry, segments the runs and estimates;
 //! - [`writer`] writes MCAP bags (simulated tests, converted recordings).
 
 pub mod analyse;
+pub mod compression;
 pub mod decode;
 pub mod mcap;
+pub mod ros1;
+pub mod rosbag2;
+pub mod sqlite3;
 pub mod writer;
 
 pub use analyse::{
     analyse, find_runs, infer_geometry, multipliers, BagEstimate, BagReport, BagRun,
     GeometrySource, InferredGeometry,
 };
-pub use decode::read_bag;
+pub use decode::{read_bag, read_bag_bytes};
 
-use super::msg::cdr;
+use super::msg::WireError;
 use crate::kinematics::SplitConvention;
 use serde::Serialize;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
+
+/// What odocal reads, for messages that must say so.
+pub const READS: &str = "MCAP, sqlite3 (.db3), rosbag2 directories (metadata.yaml and its \
+split files), ROS 1 .bag v2.0 (plain, bz2 or lz4 chunks), and any of these files \
+zstd-compressed (.zstd)";
 
 /// Errors reading or analysing a bag.
 #[derive(Debug, thiserror::Error)]
@@ -41,23 +55,91 @@ pub enum BagError {
         #[source]
         source: std::io::Error,
     },
-    /// A file of a container format odocal reads that is not readable as one.
+    /// A file of a container format odocal reads that is not readable as one, as our own
+    /// reader finds (a record's layout, a missing field).
     #[error("{}: not a readable {format} bag: {reason}", path.display())]
     Container {
         /// The file.
         path: PathBuf,
         /// The container format it looked like.
         format: &'static str,
-        /// The reader's error.
+        /// What is wrong.
         reason: String,
     },
+    /// An MCAP file the `mcap` reader refuses.
+    #[error("{}: not a readable MCAP bag: {source}", path.display())]
+    Mcap {
+        /// The file.
+        path: PathBuf,
+        /// The reader's error.
+        #[source]
+        source: ::mcap::McapError,
+    },
+    /// A sqlite3 file SQLite refuses, or one without rosbag2's tables.
+    #[error("{}: not a readable sqlite3 bag: {source}", path.display())]
+    Sqlite {
+        /// The file.
+        path: PathBuf,
+        /// SQLite's error.
+        #[source]
+        source: rusqlite::Error,
+    },
+    /// A ROS 1 chunk that does not decompress to the size its header gives.
+    #[error("{}: not a readable ROS 1 bag: the {compression} chunk at byte {at}: {source}", path.display())]
+    Ros1Chunk {
+        /// The file.
+        path: PathBuf,
+        /// Where the chunk's record starts.
+        at: usize,
+        /// Its compression.
+        compression: String,
+        /// Why.
+        #[source]
+        source: std::io::Error,
+    },
+    /// A zstd-compressed file or message that does not decompress within the size bound.
+    #[error("{what}: zstd: {source}")]
+    Zstd {
+        /// The file, or the topic and message.
+        what: String,
+        /// Why.
+        #[source]
+        source: std::io::Error,
+    },
+    /// A rosbag2 directory whose `metadata.yaml` is not YAML.
+    #[error("{}: not YAML: {source}", path.display())]
+    MetadataYaml {
+        /// The `metadata.yaml`.
+        path: PathBuf,
+        /// The parser's error.
+        #[source]
+        source: yaml_rust2::ScanError,
+    },
+    /// A rosbag2 directory whose `metadata.yaml` odocal cannot follow.
+    #[error("{}: {reason}", path.display())]
+    Metadata {
+        /// The `metadata.yaml`.
+        path: PathBuf,
+        /// What is wrong with it.
+        reason: String,
+    },
+    /// A directory that is not a rosbag2 directory.
+    #[error("{}: a directory without metadata.yaml and without .db3 or .mcap files is not a \
+rosbag2 bag; odocal reads {READS}", path.display())]
+    NotABagDirectory {
+        /// The directory.
+        path: PathBuf,
+    },
     /// A file of no container format odocal reads.
-    #[error("{}: not a bag odocal reads (it starts {starts:?}); odocal reads MCAP", path.display())]
+    #[error("{}: not a bag odocal reads: it starts {starts:?}{}; odocal reads {READS}",
+        path.display(), looks_like.map(|l| format!(" ({l})")).unwrap_or_default())]
     NotABag {
         /// The file.
         path: PathBuf,
         /// Its first bytes, printable ones as they are.
         starts: String,
+        /// What those bytes say it is, when they say.
+        looks_like: Option<&'static str>,
     },
     /// A topic odocal needs is not in the bag.
     #[error(
@@ -73,7 +155,10 @@ pub enum BagError {
         available: Vec<(String, String)>,
     },
     /// A needed topic carries a type odocal does not decode.
-    #[error("topic `{topic}` carries `{type_name}` ({encoding}); odocal reads {expected} in CDR")]
+    #[error(
+        "topic `{topic}` carries `{type_name}` ({encoding}); odocal reads {expected} in CDR or \
+ROS 1 serialization"
+    )]
     UnknownType {
         /// The topic.
         topic: String,
@@ -93,7 +178,7 @@ pub enum BagError {
         index: usize,
         /// Why.
         #[source]
-        source: cdr::CdrError,
+        source: WireError,
     },
     /// The wheel joints cannot be identified.
     #[error("cannot tell the wheel joints in `{topic}` (names: {}); give them (--left-joint/--right-joint or the YAML's left/right_wheel_names)", names.join(", "))]
@@ -242,9 +327,10 @@ pub struct BagData {
 pub struct Channel {
     /// The topic.
     pub topic: String,
-    /// The message type as the bag names it (`sensor_msgs/msg/JointState`).
+    /// The message type as the bag names it (`sensor_msgs/msg/JointState`, or ROS 1's
+    /// `sensor_msgs/JointState`).
     pub type_name: String,
-    /// How messages are serialised (`cdr` for ROS 2).
+    /// How messages are serialised: `cdr` (ROS 2) or `ros1`.
     pub encoding: String,
 }
 
@@ -255,7 +341,7 @@ pub struct RawMessage<'a> {
     pub channel: &'a Channel,
     /// When it was recorded (ns on the recorder's clock).
     pub log_time_ns: u64,
-    /// The serialised message.
+    /// The serialised message (a zstd frame when rosbag2 compressed it by message).
     pub data: &'a [u8],
 }
 
@@ -273,15 +359,108 @@ pub trait Container {
         &self,
         each: &mut dyn FnMut(RawMessage<'_>) -> Result<(), BagError>,
     ) -> Result<(), BagError>;
+    /// Choices made and things worth knowing about the container, once its messages are read
+    /// (files found without metadata, data a reader leaves out).
+    fn notes(&self) -> Vec<String> {
+        Vec::new()
+    }
 }
 
-/// The container of `bytes` (read from `path`), told by its content.
-pub fn open_container<'a>(
-    bytes: &'a [u8],
-    path: &Path,
-) -> Result<Box<dyn Container + 'a>, BagError> {
-    if bytes.starts_with(mcap::MAGIC) {
-        return Ok(Box::new(mcap::McapBag::new(bytes, path)?));
+/// An open bag of any container.
+pub type Opened = Result<Box<dyn Container>, BagError>;
+
+/// A container format a single file holds, told by its first bytes.
+pub struct FileFormat {
+    /// Its name, for messages.
+    pub name: &'static str,
+    /// The bytes every file of it starts with.
+    pub magic: &'static [u8],
+    /// The extension its files have (without the dot).
+    pub extension: &'static str,
+    /// Opens a file of it from its bytes (`path` names it in errors).
+    pub open: fn(Vec<u8>, &Path) -> Opened,
+    /// Opens a plain file of it where it lies, for a format whose reader reads only what it
+    /// needs (SQLite's pages); `None`: from its bytes.
+    pub open_in_place: Option<fn(&Path) -> Opened>,
+}
+
+/// Every single-file container format odocal reads.
+pub const FILE_FORMATS: [FileFormat; 3] = [
+    FileFormat {
+        name: "MCAP",
+        magic: mcap::MAGIC,
+        extension: "mcap",
+        open: mcap::open,
+        open_in_place: None,
+    },
+    FileFormat {
+        name: "sqlite3",
+        magic: sqlite3::MAGIC,
+        extension: "db3",
+        open: sqlite3::open,
+        open_in_place: Some(sqlite3::open_in_place),
+    },
+    FileFormat {
+        name: "ROS 1",
+        magic: ros1::MAGIC,
+        extension: "bag",
+        open: ros1::open,
+        open_in_place: None,
+    },
+];
+
+/// The bag at `path`: a rosbag2 directory, or a single file of any format odocal reads (told
+/// by its content), zstd-compressed or not.
+pub fn open_container(path: &Path) -> Result<Box<dyn Container>, BagError> {
+    let meta = std::fs::metadata(path).map_err(|source| BagError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    if meta.is_dir() {
+        return Ok(Box::new(rosbag2::Rosbag2Dir::open(path)?));
+    }
+    open_file(path)
+}
+
+/// One bag file (a regular file within [`crate::io::MAX_BAG_FILE`]) opened as the format its
+/// first bytes say: where it lies when the format reads it so, else from its bytes, read
+/// whole and decompressed first when it is a zstd file.
+pub fn open_file(path: &Path) -> Result<Box<dyn Container>, BagError> {
+    use std::io::Read;
+    let io = |source| BagError::Io {
+        path: path.to_path_buf(),
+        source,
+    };
+    let mut file = crate::io::open_bounded(path, crate::io::MAX_BAG_FILE).map_err(io)?;
+    let len = file.get_ref().metadata().map_err(io)?.len();
+    let mut bytes = Vec::new();
+    (&mut file).take(16).read_to_end(&mut bytes).map_err(io)?;
+    let in_place = FILE_FORMATS
+        .iter()
+        .find(|f| bytes.starts_with(f.magic))
+        .and_then(|f| f.open_in_place);
+    if let Some(open) = in_place {
+        return open(path);
+    }
+    // Room for the whole file at once rather than grown (and copied) as it is read.
+    bytes.reserve(
+        usize::try_from(len)
+            .unwrap_or(0)
+            .saturating_sub(bytes.len()),
+    );
+    file.read_to_end(&mut bytes).map_err(io)?;
+    let bytes = if bytes.starts_with(compression::ZSTD_MAGIC) {
+        compression::zstd_file(&bytes, path)?
+    } else {
+        bytes
+    };
+    container_of(bytes, path)
+}
+
+/// The container of `bytes` (read from `path`, already decompressed), told by its content.
+pub fn container_of(bytes: Vec<u8>, path: &Path) -> Result<Box<dyn Container>, BagError> {
+    if let Some(format) = FILE_FORMATS.iter().find(|f| bytes.starts_with(f.magic)) {
+        return (format.open)(bytes, path);
     }
     let starts: String = bytes
         .iter()
@@ -295,15 +474,64 @@ pub fn open_container<'a>(
         })
         .collect();
     // A name that promises a format gets that format's complaint.
-    if path.extension().is_some_and(|e| e == "mcap") {
+    let name = path.file_name().map(|n| n.to_string_lossy().to_lowercase());
+    let name = name.as_deref().unwrap_or_default();
+    let name = name.strip_suffix(".zstd").unwrap_or(name);
+    if let Some(format) = FILE_FORMATS
+        .iter()
+        .find(|f| name.rsplit_once('.').is_some_and(|(_, e)| e == f.extension))
+    {
         return Err(BagError::Container {
             path: path.to_path_buf(),
-            format: "MCAP",
-            reason: format!("it does not start with MCAP's magic bytes (it starts {starts:?})"),
+            format: format.name,
+            reason: format!(
+                "it does not start with {}'s magic bytes (it starts {starts:?}{})",
+                format.name,
+                looks_like(&bytes)
+                    .map(|l| format!(", {l}"))
+                    .unwrap_or_default()
+            ),
         });
     }
     Err(BagError::NotABag {
         path: path.to_path_buf(),
         starts,
+        looks_like: looks_like(&bytes),
     })
+}
+
+/// What a file that is no bag odocal reads looks like, by its first bytes.
+fn looks_like(bytes: &[u8]) -> Option<&'static str> {
+    const KNOWN: [(&[u8], &str); 8] = [
+        (
+            b"#ROSBAG V1.",
+            "a ROS 1 bag of format 1.x: `rosbag fix` converts it to 2.0",
+        ),
+        (b"#ROSBAG V", "a ROS 1 bag of a format other than 2.0"),
+        (&[0x1F, 0x8B], "gzip: decompress it first"),
+        (b"BZh", "bzip2: decompress it first"),
+        (
+            &[0x04, 0x22, 0x4D, 0x18],
+            "an LZ4 frame: decompress it first",
+        ),
+        (
+            &[0xFD, b'7', b'z', b'X', b'Z', 0],
+            "xz: decompress it first",
+        ),
+        (b"PK\x03\x04", "a zip archive: extract it first"),
+        (
+            b"rosbag2_bagfile_information",
+            "a rosbag2 metadata.yaml: give its directory",
+        ),
+    ];
+    if bytes.is_empty() {
+        return Some("an empty file");
+    }
+    if let Some((_, what)) = KNOWN.iter().find(|(magic, _)| bytes.starts_with(magic)) {
+        return Some(what);
+    }
+    let head = &bytes[..bytes.len().min(512)];
+    head.iter()
+        .all(|&b| b.is_ascii_graphic() || b.is_ascii_whitespace())
+        .then_some("text")
 }

@@ -62,7 +62,7 @@ impl BagWriter {
         let data = cdr::encode(msg).map_err(|source| BagError::Decode {
             topic: kind.into(),
             index: self.sequence as usize,
-            source,
+            source: source.into(),
         })?;
         let ns = (t.max(0.0) * 1e9) as u64;
         self.sequence += 1;

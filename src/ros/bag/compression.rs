@@ -1,0 +1,105 @@
+//! zstd where rosbag2 puts it: a whole storage file (`compression_mode: FILE`, one streamed
+//! frame, `<file>.zstd`) and each message on its own (`MESSAGE`, one frame per message, the
+//! storage file itself plain). Output never exceeds [`crate::io::MAX_BAG_FILE`]: a frame that
+//! would grow past it is an error, not an allocation. (MCAP's own chunk compression is the
+//! `mcap` crate's; ROS 1 chunks are [`super::ros1`]'s.)
+
+use super::BagError;
+use std::io::Read;
+use std::path::Path;
+
+/// The first bytes of every zstd frame.
+pub const ZSTD_MAGIC: &[u8] = &[0x28, 0xB5, 0x2F, 0xFD];
+
+/// Decompresses a whole zstd file (`path` names it in errors).
+pub fn zstd_file(bytes: &[u8], path: &Path) -> Result<Vec<u8>, BagError> {
+    let mut out = Vec::new();
+    stream(bytes, &mut out).map_err(|source| BagError::Zstd {
+        what: path.display().to_string(),
+        source,
+    })?;
+    Ok(out)
+}
+
+/// Decompresses one message's frame into `out` (cleared first), reusing `ctx` between
+/// messages: a frame that records its size (rosbag2 compresses each message in one call, which
+/// records it) is decompressed in one step into exactly that much room.
+pub fn zstd_message(
+    frame: &[u8],
+    ctx: &mut zstd::bulk::Decompressor<'static>,
+    out: &mut Vec<u8>,
+) -> std::io::Result<()> {
+    out.clear();
+    match zstd::zstd_safe::get_frame_content_size(frame) {
+        Ok(Some(n)) if n <= crate::io::MAX_BAG_FILE => {
+            out.reserve(usize::try_from(n).map_err(|_| too_large(n))?);
+            let written = ctx.decompress_to_buffer(frame, out)?;
+            if written as u64 != n {
+                return Err(std::io::Error::new(
+                    std::io::ErrorKind::InvalidData,
+                    format!("the frame says {n} bytes and holds {written}"),
+                ));
+            }
+            Ok(())
+        }
+        Ok(Some(n)) => Err(too_large(n)),
+        _ => stream(frame, out),
+    }
+}
+
+/// Streams every frame of `bytes` into `out`, stopping with an error past the bound.
+fn stream(bytes: &[u8], out: &mut Vec<u8>) -> std::io::Result<()> {
+    let decoder = zstd::stream::read::Decoder::with_buffer(bytes)?;
+    let read = decoder.take(crate::io::MAX_BAG_FILE + 1).read_to_end(out)?;
+    if read as u64 > crate::io::MAX_BAG_FILE {
+        return Err(too_large(read as u64));
+    }
+    Ok(())
+}
+
+fn too_large(n: u64) -> std::io::Error {
+    std::io::Error::new(
+        std::io::ErrorKind::InvalidData,
+        format!(
+            "decompresses to {n} bytes or more, past the {} a bag file may have",
+            crate::io::MAX_BAG_FILE
+        ),
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn files_and_messages_decompress_and_garbage_is_an_error() {
+        let text = b"the same bytes, over and over ".repeat(100);
+        let frame = zstd::bulk::compress(&text, 3).unwrap();
+        assert!(frame.starts_with(ZSTD_MAGIC));
+        let mut ctx = zstd::bulk::Decompressor::new().unwrap();
+        let mut out = vec![1, 2, 3];
+        zstd_message(&frame, &mut ctx, &mut out).unwrap();
+        assert_eq!(out, text);
+        // A streamed frame (no recorded size) and two frames back to back, as a file.
+        let mut streamed = Vec::new();
+        let mut enc = zstd::stream::write::Encoder::new(&mut streamed, 3).unwrap();
+        std::io::Write::write_all(&mut enc, &text).unwrap();
+        enc.finish().unwrap();
+        zstd_message(&streamed, &mut ctx, &mut out).unwrap();
+        assert_eq!(out, text);
+        let two = [frame.clone(), streamed].concat();
+        assert_eq!(
+            zstd_file(&two, Path::new("x.db3.zstd")).unwrap(),
+            [text.clone(), text].concat()
+        );
+        // Cut short, or a lying header: errors.
+        for cut in [4, frame.len() / 2, frame.len() - 1] {
+            assert!(zstd_message(&frame[..cut], &mut ctx, &mut out).is_err());
+            assert!(matches!(
+                zstd_file(&frame[..cut], Path::new("x.db3.zstd")),
+                Err(BagError::Zstd { .. })
+            ));
+        }
+        assert!(zstd_message(&[0x28, 0xB5, 0x2F, 0xFD, 0xFF], &mut ctx, &mut out).is_err());
+    }
+}
