@@ -377,32 +377,4 @@ mod tests {
             Duration::from_millis(250)
         );
     }
-
-    /// Sentences queued on the port before it was opened (a compass that has been talking all
-    /// along) are not readings: the first reading is one the compass sent after. (On one
-    /// thread the reader meets the backlog only after the first read has begun waiting.)
-    #[tokio::test]
-    async fn what_was_queued_before_opening_is_not_a_reading() {
-        use std::sync::atomic::{AtomicU64, Ordering};
-        let heading = Arc::new(AtomicU64::new(1.0f64.to_bits()));
-        let h = heading.clone();
-        let cfg = crate::mock::nmea::MockCompassConfig {
-            hz: 1.0,
-            ..Default::default()
-        };
-        let pty = crate::mock::nmea::spawn_pty(
-            cfg,
-            Arc::new(move || Some(f64::from_bits(h.load(Ordering::SeqCst)))),
-        )
-        .unwrap();
-        // Two sentences of the old heading (at 0 and 1 s) pile up on the port; the robot then
-        // turns, and the port is opened before the compass's next sentence.
-        tokio::time::sleep(Duration::from_millis(1300)).await;
-        heading.store((-2.0f64).to_bits(), Ordering::SeqCst);
-        let compass = NmeaCompass::open(&pty.path, 115_200, Duration::from_secs(1)).unwrap();
-        for _ in 0..2 {
-            let r = compass.read().await.unwrap();
-            assert!((r.heading_rad + 2.0).abs() < 1e-3, "{r:?}");
-        }
-    }
 }
