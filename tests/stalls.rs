@@ -1,0 +1,175 @@
+//! A busy laptop and a slow adapter: `calibrate` on our protocol's mock device and on the
+//! RoboClaw + NMEA mock, in real time, while the host process — or the device's, as a USB
+//! adapter or a starved controller would — is stopped (SIGSTOP) for 300 ms at five random
+//! moments, and while every answer of our protocol's device comes 40 ms late. Each must
+//! complete with the default method, and estimates that agree with the simulated robot as an
+//! undisturbed run's do (within three of their stated standard errors).
+
+mod common;
+
+use serde_json::Value;
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+/// Runs `odocal args…` (which prints one JSON object), stopping it — or the process `other`
+/// when given — for `stall` `stalls` times, at random moments 1–3 s apart; the JSON and how
+/// many stalls landed while it ran.
+fn stalled(
+    args: &[&str],
+    other: Option<u32>,
+    stalls: usize,
+    stall: Duration,
+    seed: u64,
+) -> (Value, usize) {
+    let child = Command::new(env!("CARGO_BIN_EXE_odocal"))
+        .args(args)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("odocal runs");
+    let pid = other.unwrap_or(child.id()).to_string();
+    let stopper = std::thread::spawn(move || {
+        let mut x = seed.wrapping_mul(6364136223846793005).wrapping_add(1);
+        let mut landed = 0;
+        for _ in 0..stalls {
+            x = x
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            let wait_ms = 1000 + (x >> 33) % 2000;
+            std::thread::sleep(Duration::from_millis(wait_ms));
+            let stopped = Command::new("kill")
+                .args(["-STOP", &pid])
+                .status()
+                .is_ok_and(|s| s.success());
+            std::thread::sleep(stall);
+            let _ = Command::new("kill").args(["-CONT", &pid]).status();
+            landed += usize::from(stopped);
+        }
+        landed
+    });
+    let started = Instant::now();
+    let out = child.wait_with_output().expect("odocal finishes");
+    let landed = stopper.join().expect("the stopper runs");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        out.status.success(),
+        "odocal {args:?} failed after {:?}: {stderr}",
+        started.elapsed()
+    );
+    let v = serde_json::from_slice(&out.stdout).expect("one JSON object");
+    (v, landed)
+}
+
+/// The last round's chosen estimate agrees with the simulated robot within three of its own
+/// standard errors, by the default method.
+fn assert_right(v: &Value, what: &str) {
+    let chosen = &v["rounds"][0]["chosen"];
+    assert_eq!(chosen["method"], "matched-legs", "{what}: {chosen}");
+    for (key, truth) in [("e_b", common::TRUE_E_B), ("e_d", common::TRUE_E_D)] {
+        let got = chosen[key].as_f64().unwrap();
+        let se = chosen[format!("{key}_std_err")].as_f64().unwrap();
+        assert!(
+            (got - truth).abs() < 3.0 * se.max(2e-4),
+            "{what}: {key} {got} ± {se} against {truth}"
+        );
+    }
+}
+
+/// A short routine at real speed: 0.5 m squares, two each way, one verification each way.
+const SHORT: [&str; 20] = [
+    "--yes",
+    "--no-swing",
+    "--dry-run",
+    "--json",
+    "--side-m",
+    "0.5",
+    "--runs",
+    "2",
+    "--max-speed-m-s",
+    "0.5",
+    "--max-rate-rad-s",
+    "3",
+    "--settle-s",
+    "0",
+    "--heading-samples",
+    "3",
+    "--verification-runs",
+    "1",
+    "--max-rounds",
+    "1",
+];
+
+#[test]
+fn our_protocol_survives_host_stalls_and_late_answers() {
+    for (faults, stalls) in [("", 5), ("latency-ms=40", 0)] {
+        let mut mock_args = vec![
+            "--real-time",
+            "1",
+            "--seed",
+            "5",
+            "--compass-sigma-deg",
+            "0.1",
+        ];
+        if !faults.is_empty() {
+            mock_args.extend(["--faults", faults]);
+        }
+        let (mut mock, port) = common::spawn_mock(&mock_args);
+        let dir = common::scratch(&format!("stall-odocal-{stalls}"));
+        let report = dir.join("report");
+        let mut args = vec!["calibrate", "--port", &port, "--report-dir"];
+        args.push(report.to_str().unwrap());
+        args.extend(SHORT);
+        let (v, landed) = stalled(&args, None, stalls, Duration::from_millis(300), 7);
+        drop(mock.stdin.take());
+        let _ = mock.wait();
+        assert_eq!(landed, stalls, "every stall landed while it ran");
+        assert_right(
+            &v,
+            &format!("our protocol, faults {faults:?}, {stalls} stalls"),
+        );
+    }
+}
+
+#[test]
+fn a_roboclaw_survives_host_and_device_stalls() {
+    for stop_device in [false, true] {
+        let dir = common::scratch(&format!("stall-roboclaw-{stop_device}"));
+        std::fs::create_dir_all(&dir).unwrap();
+        let profile = dir.join("robot.toml");
+        std::fs::write(&profile, common::ROBOCLAW_PROFILE).unwrap();
+        let profile_s = profile.to_str().unwrap();
+        let (mut mock, lines) = common::spawn_server_lines(
+            "mock-roboclaw",
+            &[
+                "--profile",
+                profile_s,
+                "--compass-hz",
+                "20",
+                "--compass-sigma-deg",
+                "0.1",
+            ],
+            2,
+        );
+        let heading = format!("{}?baud=115200", lines[1]);
+        let report = dir.join("report");
+        let mut args = vec![
+            "calibrate",
+            "--base",
+            &lines[0],
+            "--heading",
+            &heading,
+            "--profile",
+            profile_s,
+            "--report-dir",
+            report.to_str().unwrap(),
+        ];
+        args.extend(SHORT);
+        let device = stop_device.then(|| mock.id());
+        let (v, landed) = stalled(&args, device, 5, Duration::from_millis(300), 11);
+        drop(mock.stdin.take());
+        let _ = mock.kill();
+        assert_eq!(landed, 5, "every stall landed while it ran");
+        let whose = if stop_device { "device" } else { "host" };
+        assert_right(&v, &format!("RoboClaw with five {whose} stalls"));
+    }
+}
