@@ -424,3 +424,30 @@ async fn late_answers_and_stalls_shorter_than_the_budget_cost_nothing() {
     .unwrap();
     assert!((claw.battery_v().await.unwrap() - 12.3).abs() < 1e-9);
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_encoder_counting_down_through_zero_is_no_preflight_warning() {
+    let (_dir, path) = profile_file("roboclaw-wrap");
+    let robot_state = spawn_robot(mock_config(10.0)).unwrap();
+    let profile = Arc::new(std::sync::RwLock::new(Profile::load(&path).unwrap()));
+    let drive = RoboClawDrive::connect(claw_on(&robot_state), profile)
+        .await
+        .unwrap();
+    // The right encoder (M1) counts down driving forward: from zero it wraps below it, and the
+    // controller sets M1's underflow bit until it is read.
+    drive.move_straight(0.2, 0.5).await.unwrap();
+    let claw = claw_on(&robot_state);
+    let (m1, _) = claw.encoders().await.unwrap();
+    assert!(m1 > u32::MAX / 2, "M1 wrapped below zero: {m1}");
+    let check = drive.preflight().await.unwrap();
+    assert!(
+        check.warnings.is_empty() && check.faults.is_empty(),
+        "{check:?}"
+    );
+    let (_, status) = claw.encoder(1).await.unwrap();
+    assert_eq!(
+        status & odocal::roboclaw::packet::encoder_status::UNDERFLOW,
+        0,
+        "the preflight read cleared it"
+    );
+}

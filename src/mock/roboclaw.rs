@@ -1,30 +1,60 @@
 //! A mock RoboClaw and a mock NMEA compass backed by **one** simulated robot: the controller's
-//! packet serial (CRC, acknowledgements, the buffered distance command, buffer status, the
-//! serial timeout) drives the true robot's wheels; the compass reports its true heading with
-//! noise as `$--HDT` sentences. Each serves any byte stream: an in-memory duplex or a real
-//! pseudo-terminal.
+//! packet serial, as Basicmicro's user manual documents it, drives the true robot's wheels; the
+//! compass reports its true heading with noise as `$--HDT` sentences. Each serves any byte
+//! stream: an in-memory duplex or a real pseudo-terminal.
+//!
+//! The controller knows every command's data length, so a packet written in pieces (Basicmicro's
+//! own library writes each field separately) is reassembled, and a partial packet is dropped
+//! after 10 ms of silence between bytes. A write is acknowledged with `0xFF` only when its CRC
+//! is right; an unknown command gets no answer. Buffered distance commands (41–46, 51) queue
+//! per motor with buffer flag 0 and replace the running one and the queue with 1; speed (35–40,
+//! 50) and duty (32–34) commands run until another command or the serial timeout stops both
+//! motors. Over USB a RoboClaw answers any address 0x80–0x87 (each USB connection is already
+//! unique, says the manual), and so does this mock unless it is given one address, as a
+//! controller on a shared TTL serial bus has.
 //!
 //! Faults: lost acknowledgements (the command executed, the `0xFF` never sent), lost bytes of
-//! answers, a brown-out (encoders reset, motors stopped), occasional bad compass checksums.
+//! answers, a brown-out (encoders reset, motors stopped, settings reloaded from the EEPROM),
+//! occasional bad compass checksums.
 
 use super::nmea::{HeadingFn, MockCompassConfig};
 use super::pty::{spawn_on_pty, PtyServer};
 use crate::kinematics::{Pose, WheelParams};
-use crate::roboclaw::packet::{be_u32, cmd, ACK, BUFFER_IDLE, CRC16};
+use crate::roboclaw::packet::{cmd, encoder_status, ACK, ADDRESSES, BUFFER_IDLE, CRC16, NVM_KEY};
 use crate::sim::sensor::HeadingModel;
 use crate::sim::{NoiseModel, Simulator};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+use std::collections::VecDeque;
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::Duration;
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
 use tokio::time::Instant;
 
+/// Commands one motor's buffer holds behind the running one (the manual's 64); more are
+/// refused without an acknowledgement.
+pub const BUFFER_DEPTH: usize = 64;
+
+/// Silence between bytes after which a partial packet is discarded (the manual's packet
+/// timeout).
+pub const PACKET_TIMEOUT: Duration = Duration::from_millis(10);
+
+/// An acceleration that reaches any speed within one physics step: the manual's "accelerate as
+/// fast as possible" of the speed commands without an acceleration.
+const INSTANT_ACCEL: f64 = 1e9;
+
+/// Motor current at full duty (A), for the current read (49).
+const FULL_DUTY_CURRENT_A: f64 = 2.0;
+
+/// Board temperature (°C), for the temperature reads (82, 83).
+const BOARD_TEMPERATURE_C: f64 = 25.0;
+
 /// How the simulated robot is built and wired.
 #[derive(Debug, Clone)]
 pub struct MockRoboClawConfig {
-    /// Packet serial address.
-    pub address: u8,
+    /// Packet serial address: `None` answers every address 0x80–0x87 as a RoboClaw on USB
+    /// does; `Some` answers only that one, as on a TTL serial bus shared by several units.
+    pub address: Option<u8>,
     /// The robot's true parameters (counts per wheel revolution = encoder counts × gearing).
     pub truth: WheelParams,
     /// Which channel drives the left wheel.
@@ -43,7 +73,7 @@ pub struct MockRoboClawConfig {
     pub time_scale: f64,
     /// Firmware version string.
     pub version: String,
-    /// Main battery (V).
+    /// Main battery (V); the logic supply is taken from it (the LB-MB jumper fitted).
     pub battery_v: f64,
     /// Probability that a write's acknowledgement is lost (the write executes).
     pub lose_ack_rate: f64,
@@ -61,7 +91,7 @@ impl MockRoboClawConfig {
     /// A robot whose true geometry is `truth`, wired straight (left on M1, encoders forward).
     pub fn new(truth: WheelParams) -> Self {
         MockRoboClawConfig {
-            address: 0x80,
+            address: None,
             truth,
             left_on_m1: true,
             left_encoder_sign: 1,
@@ -81,31 +111,243 @@ impl MockRoboClawConfig {
     }
 }
 
-/// One motor channel's motion.
-#[derive(Debug, Clone, Copy, Default)]
+/// One buffered distance command of one motor.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Leg {
+    /// ±1.
+    direction: f64,
+    /// Top speed (counts/s).
+    speed: f64,
+    /// Acceleration and braking (counts/s²).
+    accel: f64,
+    /// Counts to travel.
+    distance: f64,
+}
+
+impl Leg {
+    fn new(speed: i32, distance: u32, accel: f64) -> Self {
+        Leg {
+            direction: if speed < 0 { -1.0 } else { 1.0 },
+            speed: f64::from(speed.unsigned_abs()),
+            // A zero acceleration would never arrive; the slowest that does.
+            accel: accel.max(1.0),
+            distance: f64::from(distance),
+        }
+    }
+}
+
+/// What a motor is doing.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+enum Running {
+    /// Nothing: the motor stands.
+    #[default]
+    Idle,
+    /// A speed command: this signed speed (counts/s) until another command.
+    Speed { target: f64, accel: f64 },
+    /// A duty command: this signed fraction of full duty (open loop, QPPS at full duty).
+    Duty { duty: f64 },
+    /// A buffered distance command with the counts still to go.
+    Leg { leg: Leg, remaining: f64 },
+}
+
+/// One motor channel.
+#[derive(Debug, Clone, Default)]
 struct Motor {
-    /// Encoder counter (its own sign convention).
+    /// Encoder position; the controller's register is its low 32 bits.
     counter: f64,
     /// Speed (counts/s, signed).
     speed: f64,
-    /// Commanded speed magnitude (counts/s).
-    target_speed: f64,
-    /// Direction of the command (±1).
-    direction: f64,
-    /// Counts still to go.
-    remaining: f64,
-    /// Acceleration (counts/s²).
-    accel: f64,
-    /// Whether a command runs.
-    busy: bool,
+    running: Running,
+    /// Buffered commands waiting behind the running one.
+    queue: VecDeque<Leg>,
+    /// The register wrapped below zero since the status was last read.
+    underflow: bool,
+    /// The register wrapped above 2³²−1 since the status was last read.
+    overflow: bool,
+}
+
+impl Motor {
+    fn register(&self) -> u32 {
+        (self.counter.round() as i64) as u32
+    }
+
+    fn moving(&self) -> bool {
+        self.speed != 0.0
+            || match self.running {
+                Running::Idle => false,
+                Running::Speed { target, .. } => target != 0.0,
+                Running::Duty { duty } => duty != 0.0,
+                Running::Leg { .. } => true,
+            }
+    }
+
+    fn stop(&mut self) {
+        self.speed = 0.0;
+        self.running = Running::Idle;
+        self.queue.clear();
+    }
+
+    /// A command that is not buffered: it replaces whatever runs and empties the buffer.
+    fn command(&mut self, running: Running) {
+        self.queue.clear();
+        self.running = running;
+    }
+
+    fn runs_leg(&self) -> bool {
+        matches!(self.running, Running::Leg { .. })
+    }
+
+    /// Whether a buffered command would be taken now.
+    fn takes(&self, replace: bool) -> bool {
+        replace || !self.runs_leg() || self.queue.len() < BUFFER_DEPTH
+    }
+
+    /// A buffered command: queued behind a running one (flag 0), or replacing it and the
+    /// queue (flag 1); it starts at once when no buffered command runs.
+    fn buffer(&mut self, leg: Leg, replace: bool) {
+        // A speed or duty command never finishes, so a leg queued behind one would never run:
+        // the manual's "executes immediately if no other command … is executing" is read as
+        // no *buffered* command, which is also what 47 reports (0x80) under a speed command.
+        if replace || !self.runs_leg() {
+            self.queue.clear();
+            self.start(leg);
+        } else {
+            self.queue.push_back(leg);
+        }
+    }
+
+    /// Starts `leg`, or, if it goes nowhere, the next one waiting.
+    fn start(&mut self, leg: Leg) {
+        let mut next = Some(leg);
+        while let Some(leg) = next {
+            if leg.distance > 0.0 && leg.speed > 0.0 {
+                self.running = Running::Leg {
+                    leg,
+                    remaining: leg.distance,
+                };
+                return;
+            }
+            next = self.queue.pop_front();
+        }
+        self.running = Running::Idle;
+        self.speed = 0.0;
+    }
+
+    /// The buffer length as command 47 reports it: 0x80 when no buffered command runs, else
+    /// how many wait behind the running one.
+    fn buffer_length(&self) -> u8 {
+        if self.runs_leg() {
+            self.queue.len().min(usize::from(u8::MAX)) as u8
+        } else {
+            BUFFER_IDLE
+        }
+    }
+
+    /// The duty applied, ±1.
+    fn duty(&self, qpps: f64) -> f64 {
+        match self.running {
+            Running::Duty { duty } => duty,
+            _ => self.speed / qpps.max(1.0),
+        }
+        .clamp(-1.0, 1.0)
+    }
+
+    /// Moves by `dt` seconds; returns the counts turned.
+    fn step(&mut self, dt: f64, qpps: f64) -> f64 {
+        let before = self.counter;
+        match self.running {
+            Running::Idle => self.speed = 0.0,
+            Running::Speed { target, accel } => {
+                let v = self.speed;
+                let v1 = v + (target - v).clamp(-accel * dt, accel * dt);
+                self.counter += 0.5 * (v + v1) * dt;
+                self.speed = v1;
+            }
+            Running::Duty { duty } => {
+                self.speed = duty * qpps;
+                self.counter += self.speed * dt;
+            }
+            Running::Leg { leg, remaining } => {
+                // Trapezoid: accelerate to the top speed, brake to stop on the distance (a
+                // queued leg starts from rest, where the controller may blend them); a motor
+                // turning the other way is taken as standing.
+                let v = (self.speed * leg.direction).max(0.0);
+                let brake = (2.0 * leg.accel * remaining).sqrt();
+                let v1 = (v + leg.accel * dt).min(leg.speed).min(brake).max(0.0);
+                let step = (0.5 * (v + v1) * dt).min(remaining);
+                let remaining = remaining - step;
+                self.counter += leg.direction * step;
+                self.speed = leg.direction * v1;
+                if remaining <= 1e-9 {
+                    self.speed = 0.0;
+                    self.running = Running::Idle;
+                    if let Some(next) = self.queue.pop_front() {
+                        self.start(next);
+                    }
+                } else {
+                    self.running = Running::Leg { leg, remaining };
+                }
+            }
+        }
+        let wraps = |c: f64| (c.round() as i64).div_euclid(1 << 32);
+        match wraps(self.counter).cmp(&wraps(before)) {
+            std::cmp::Ordering::Less => self.underflow = true,
+            std::cmp::Ordering::Greater => self.overflow = true,
+            std::cmp::Ordering::Equal => {}
+        }
+        self.counter - before
+    }
+}
+
+/// One motor's velocity PID as the controller stores it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct VelocityPid {
+    p: u32,
+    i: u32,
+    d: u32,
+    qpps: u32,
+}
+
+impl Default for VelocityPid {
+    /// The manual's defaults.
+    fn default() -> Self {
+        VelocityPid {
+            p: 0x0001_0000,
+            i: 0x0000_8000,
+            d: 0x0000_4000,
+            qpps: 44_000,
+        }
+    }
+}
+
+/// What Write Settings (94) keeps over a power cycle.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct Settings {
+    pid: [VelocityPid; 2],
+    encoder_modes: [u8; 2],
+    config: u16,
+}
+
+impl Settings {
+    fn factory(address: Option<u8>) -> Self {
+        // Packet serial (0x0003) at 38400 baud (0x0060), the address in bits 8–10.
+        let address_bits = u16::from(address.unwrap_or(0x80).saturating_sub(0x80) & 7) << 8;
+        Settings {
+            pid: [VelocityPid::default(); 2],
+            encoder_modes: [0; 2],
+            config: 0x0063 | address_bits,
+        }
+    }
 }
 
 /// What a test can read back.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct RoboClawCounters {
-    /// Distance commands executed.
+    /// Buffered distance commands accepted (41–46, 51).
     pub drive_commands: u64,
-    /// Stop commands executed.
+    /// Speed and duty commands executed (32–40, 50).
+    pub speed_commands: u64,
+    /// Speed or duty commands that left both motors commanded to stand.
     pub stops: u64,
     /// Serial timeouts that stopped the motors.
     pub serial_timeouts: u64,
@@ -115,6 +357,12 @@ pub struct RoboClawCounters {
     pub bad_crcs: u64,
     /// Read answers deliberately lost.
     pub lost_answers: u64,
+    /// Packets with a command the controller does not know (no answer).
+    pub unknown_commands: u64,
+    /// Partial packets dropped after the packet timeout.
+    pub partial_packets: u64,
+    /// Valid writes refused without an acknowledgement (a full buffer, a wrong key).
+    pub refused: u64,
 }
 
 /// The shared robot.
@@ -122,8 +370,11 @@ pub struct MockRobot {
     cfg: MockRoboClawConfig,
     sim: Simulator,
     motors: [Motor; 2],
-    serial_timeout: Option<Duration>,
+    /// Serial timeout (tenths of a second, 0 = off).
+    serial_timeout: u8,
     last_packet: Instant,
+    settings: Settings,
+    eeprom: Settings,
     rng: ChaCha8Rng,
     /// Robot time (s).
     pub time_s: f64,
@@ -139,7 +390,111 @@ pub fn robot(r: &SharedRobot) -> MutexGuard<'_, MockRobot> {
     r.lock().unwrap_or_else(|p| p.into_inner())
 }
 
+/// Big-endian fields of a write's data, in order.
+struct Fields<'a> {
+    data: &'a [u8],
+    at: usize,
+}
+
+impl<'a> Fields<'a> {
+    fn new(data: &'a [u8]) -> Self {
+        Fields { data, at: 0 }
+    }
+
+    fn take<const N: usize>(&mut self) -> Option<[u8; N]> {
+        let bytes = self.data.get(self.at..self.at + N)?.try_into().ok()?;
+        self.at += N;
+        Some(bytes)
+    }
+
+    fn u8(&mut self) -> Option<u8> {
+        self.take::<1>().map(|b| b[0])
+    }
+
+    fn u16(&mut self) -> Option<u16> {
+        self.take().map(u16::from_be_bytes)
+    }
+
+    fn i16(&mut self) -> Option<i16> {
+        self.take().map(i16::from_be_bytes)
+    }
+
+    fn u32(&mut self) -> Option<u32> {
+        self.take().map(u32::from_be_bytes)
+    }
+
+    fn i32(&mut self) -> Option<i32> {
+        self.take().map(i32::from_be_bytes)
+    }
+
+    /// A buffered command's per-motor part: optional acceleration, signed speed, distance.
+    fn leg(&mut self, accel: Option<u32>) -> Option<Leg> {
+        let accel = accel.map_or(INSTANT_ACCEL, f64::from);
+        Some(Leg::new(self.i32()?, self.u32()?, accel))
+    }
+
+    /// The buffer flag: 0 queues, anything else replaces.
+    fn replace(&mut self) -> Option<bool> {
+        self.u8().map(|b| b != 0)
+    }
+}
+
+/// How a command travels on the wire.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Kind {
+    /// `address, command`; answered with data and a CRC.
+    Read,
+    /// `address, command`, this many data bytes, a CRC; acknowledged with `0xFF`.
+    Write(usize),
+}
+
+/// The commands this controller knows; `None` for the rest.
+fn kind(command: u8) -> Option<Kind> {
+    use cmd::*;
+    Some(match command {
+        READ_SERIAL_TIMEOUT | READ_ENCODER_M1 | READ_ENCODER_M2 | READ_SPEED_M1 | READ_SPEED_M2
+        | READ_VERSION | READ_MAIN_BATTERY | READ_LOGIC_BATTERY | READ_RAW_SPEED_M1
+        | READ_RAW_SPEED_M2 | READ_BUFFERS | READ_PWMS | READ_CURRENTS | READ_VELOCITY_PID_M1
+        | READ_VELOCITY_PID_M2 | READ_ENCODERS | READ_RAW_SPEEDS | READ_TEMPERATURE
+        | READ_TEMPERATURE_2 | READ_STATUS | READ_ENCODER_MODES | READ_CONFIG
+        | READ_AVERAGE_SPEEDS => Kind::Read,
+        RESET_ENCODERS | RELOAD_SETTINGS => Kind::Write(0),
+        SET_SERIAL_TIMEOUT | SET_ENCODER_MODE_M1 | SET_ENCODER_MODE_M2 => Kind::Write(1),
+        DUTY_M1 | DUTY_M2 | SET_CONFIG => Kind::Write(2),
+        SET_ENCODER_M1 | SET_ENCODER_M2 | DUTY_M1M2 | SPEED_M1 | SPEED_M2 | WRITE_SETTINGS => {
+            Kind::Write(4)
+        }
+        DRIVE_SPEEDS | SPEED_ACCEL_M1 | SPEED_ACCEL_M2 => Kind::Write(8),
+        SPEED_DISTANCE_M1 | SPEED_DISTANCE_M2 => Kind::Write(9),
+        SPEED_ACCEL_M1M2 => Kind::Write(12),
+        SPEED_ACCEL_DISTANCE_M1 | SPEED_ACCEL_DISTANCE_M2 => Kind::Write(13),
+        SET_VELOCITY_PID_M1 | SET_VELOCITY_PID_M2 | SPEED_INDIVIDUAL_ACCEL_M1M2 => Kind::Write(16),
+        SPEED_DISTANCE_M1M2 => Kind::Write(17),
+        DRIVE_SPEED_ACCEL_DISTANCE => Kind::Write(21),
+        SPEED_INDIVIDUAL_ACCEL_DISTANCE_M1M2 => Kind::Write(25),
+        _ => return None,
+    })
+}
+
 impl MockRobot {
+    fn new(cfg: MockRoboClawConfig) -> Result<Self, crate::sim::SimError> {
+        let sim = Simulator::new(cfg.truth, cfg.truth, cfg.noise, cfg.seed)?
+            .with_heading_model(cfg.heading_model)?;
+        let settings = Settings::factory(cfg.address);
+        Ok(MockRobot {
+            rng: ChaCha8Rng::seed_from_u64(cfg.seed ^ 0x5EED),
+            sim,
+            motors: Default::default(),
+            serial_timeout: 0,
+            last_packet: Instant::now(),
+            settings,
+            eeprom: settings,
+            time_s: 0.0,
+            counters: RoboClawCounters::default(),
+            cfg,
+        })
+    }
+
     /// The true pose.
     pub fn pose(&self) -> Pose {
         self.sim.pose()
@@ -150,52 +505,40 @@ impl MockRobot {
         *self.sim.truth()
     }
 
-    /// Whether a motor turns.
+    /// Whether a motor turns or is commanded to.
     pub fn moving(&self) -> bool {
-        self.motors.iter().any(|m| m.speed != 0.0 || m.busy)
+        self.motors.iter().any(Motor::moving)
     }
 
-    /// A brown-out: the controller resets (encoders zero, motors stopped, timeout off).
+    /// A brown-out: the controller resets (encoders zero, motors stopped, timeout off, the
+    /// settings those last written to the EEPROM).
     pub fn brown_out(&mut self) {
-        self.motors = [Motor::default(); 2];
-        self.serial_timeout = None;
+        self.motors = Default::default();
+        self.serial_timeout = 0;
+        self.settings = self.eeprom;
     }
 
     fn stop(&mut self) {
         for m in &mut self.motors {
-            m.speed = 0.0;
-            m.remaining = 0.0;
-            m.busy = false;
+            m.stop();
         }
+    }
+
+    fn qpps(&self, i: usize) -> f64 {
+        f64::from(self.settings.pid[i].qpps)
     }
 
     /// Advances robot time by `dt` seconds.
     fn advance(&mut self, dt: f64) {
-        if let Some(t) = self.serial_timeout {
-            if self.last_packet.elapsed() > t && self.moving() {
-                self.stop();
-                self.counters.serial_timeouts += 1;
-            }
+        let timeout = Duration::from_millis(100 * u64::from(self.serial_timeout));
+        if self.serial_timeout > 0 && self.last_packet.elapsed() > timeout && self.moving() {
+            self.stop();
+            self.counters.serial_timeouts += 1;
         }
+        let qpps = [self.qpps(0), self.qpps(1)];
         let mut wheel = [0.0; 2];
         for (i, m) in self.motors.iter_mut().enumerate() {
-            if !m.busy {
-                continue;
-            }
-            // Trapezoid: accelerate to the target speed, brake to stop on the distance.
-            let v = m.speed.abs();
-            let brake = (2.0 * m.accel * m.remaining).sqrt();
-            let v1 = (v + m.accel * dt).min(m.target_speed).min(brake).max(0.0);
-            let step = (0.5 * (v + v1) * dt).min(m.remaining);
-            m.remaining -= step;
-            m.counter += m.direction * step;
-            m.speed = m.direction * v1;
-            wheel[i] = m.direction * step;
-            if m.remaining <= 1e-9 {
-                m.remaining = 0.0;
-                m.speed = 0.0;
-                m.busy = false;
-            }
+            wheel[i] = m.step(dt, qpps[i]);
         }
         // Channels to wheels, encoder counts to forward rotation.
         let (l, r) = if self.cfg.left_on_m1 {
@@ -213,84 +556,272 @@ impl MockRobot {
         }
     }
 
-    fn counter(&self, i: usize) -> u32 {
-        (self.motors[i].counter.round() as i64) as u32
+    /// Answers one complete packet (`frame` from the address to the CRC); empty for no answer.
+    fn packet(&mut self, kind: Kind, frame: &[u8]) -> Vec<u8> {
+        let (Some(&address), Some(&command)) = (frame.first(), frame.get(1)) else {
+            return Vec::new();
+        };
+        let rest = frame.get(2..).unwrap_or_default();
+        match kind {
+            Kind::Read => {
+                self.last_packet = Instant::now();
+                let Some(data) = self.read(command) else {
+                    return Vec::new();
+                };
+                let lose = self.cfg.lose_answer_rate;
+                if lose > 0.0 && self.rng.random_bool(lose.min(1.0)) {
+                    self.counters.lost_answers += 1;
+                    return Vec::new();
+                }
+                let mut d = CRC16.digest();
+                // The answer's CRC covers the address as sent: any of 0x80–0x87 over USB.
+                d.update(&[address, command]);
+                d.update(&data);
+                let mut out = data;
+                out.extend_from_slice(&d.finalize().to_be_bytes());
+                out
+            }
+            Kind::Write(len) => {
+                let (Some(data), Some(crc)) = (rest.get(..len), rest.get(len..len + 2)) else {
+                    return Vec::new();
+                };
+                if CRC16.checksum(&frame[..len + 2]).to_be_bytes() != crc {
+                    self.counters.bad_crcs += 1;
+                    return Vec::new();
+                }
+                self.last_packet = Instant::now();
+                if self.write(command, data).is_none() {
+                    self.counters.refused += 1;
+                    return Vec::new();
+                }
+                self.ack()
+            }
+        }
     }
 
-    /// Executes one complete packet; returns the answer bytes.
-    fn execute(&mut self, command: u8, data: &[u8]) -> Vec<u8> {
-        let a = self.cfg.address;
-        let answer = |data: &[u8]| {
-            let mut d = CRC16.digest();
-            d.update(&[a, command]);
-            d.update(data);
-            let mut out = data.to_vec();
-            out.extend_from_slice(&d.finalize().to_be_bytes());
-            out
-        };
-        self.last_packet = Instant::now();
-        match command {
-            cmd::READ_VERSION => {
+    /// The data a read command answers.
+    fn read(&mut self, command: u8) -> Option<Vec<u8>> {
+        use cmd::*;
+        let i = usize::from(matches!(
+            command,
+            READ_ENCODER_M2
+                | READ_SPEED_M2
+                | READ_RAW_SPEED_M2
+                | READ_VELOCITY_PID_M2
+                | READ_TEMPERATURE_2
+        ));
+        let speed = |m: &Motor| m.speed.round() as i32;
+        let pair32 = |a: i32, b: i32| [a.to_be_bytes(), b.to_be_bytes()].concat();
+        Some(match command {
+            READ_SERIAL_TIMEOUT => vec![self.serial_timeout],
+            READ_ENCODER_M1 | READ_ENCODER_M2 => {
+                let m = &mut self.motors[i];
+                let mut status = 0;
+                for (set, bit) in [
+                    (m.underflow, encoder_status::UNDERFLOW),
+                    (m.speed < 0.0, encoder_status::REVERSE),
+                    (m.overflow, encoder_status::OVERFLOW),
+                ] {
+                    if set {
+                        status |= bit;
+                    }
+                }
+                // The wrap flags clear once read.
+                m.underflow = false;
+                m.overflow = false;
+                let mut d = m.register().to_be_bytes().to_vec();
+                d.push(status);
+                d
+            }
+            READ_SPEED_M1 | READ_SPEED_M2 | READ_RAW_SPEED_M1 | READ_RAW_SPEED_M2 => {
+                // Signed, with the direction repeated in the status byte (1 = backwards).
+                let m = &self.motors[i];
+                let mut d = speed(m).to_be_bytes().to_vec();
+                d.push(u8::from(m.speed < 0.0));
+                d
+            }
+            READ_VERSION => {
                 let mut v = self.cfg.version.clone().into_bytes();
+                v.truncate(47);
                 v.push(0);
-                answer(&v)
+                v
             }
-            cmd::READ_MAIN_BATTERY => {
-                answer(&((self.cfg.battery_v * 10.0).round() as u16).to_be_bytes())
+            READ_MAIN_BATTERY | READ_LOGIC_BATTERY => ((self.cfg.battery_v * 10.0).round() as u16)
+                .to_be_bytes()
+                .to_vec(),
+            READ_BUFFERS => self.motors.iter().map(Motor::buffer_length).collect(),
+            READ_PWMS => (0..2)
+                .flat_map(|i| {
+                    let duty = self.motors[i].duty(self.qpps(i));
+                    ((duty * 32767.0).round() as i16).to_be_bytes()
+                })
+                .collect(),
+            READ_CURRENTS => (0..2)
+                .flat_map(|i| {
+                    let amps = self.motors[i].duty(self.qpps(i)).abs() * FULL_DUTY_CURRENT_A;
+                    ((amps * 100.0).round() as u16).to_be_bytes()
+                })
+                .collect(),
+            READ_VELOCITY_PID_M1 | READ_VELOCITY_PID_M2 => {
+                let p = self.settings.pid[i];
+                [p.p, p.i, p.d, p.qpps]
+                    .iter()
+                    .flat_map(|v| v.to_be_bytes())
+                    .collect()
             }
-            cmd::READ_STATUS => answer(&0u32.to_be_bytes()),
-            cmd::READ_ENCODERS => {
-                let mut d = self.counter(0).to_be_bytes().to_vec();
-                d.extend_from_slice(&self.counter(1).to_be_bytes());
-                answer(&d)
+            READ_ENCODERS => [self.motors[0].register(), self.motors[1].register()]
+                .iter()
+                .flat_map(|v| v.to_be_bytes())
+                .collect(),
+            READ_RAW_SPEEDS | READ_AVERAGE_SPEEDS => {
+                pair32(speed(&self.motors[0]), speed(&self.motors[1]))
             }
-            cmd::READ_ENCODER_M1 | cmd::READ_ENCODER_M2 => {
-                let i = usize::from(command == cmd::READ_ENCODER_M2);
-                let mut d = self.counter(i).to_be_bytes().to_vec();
-                d.push(if self.motors[i].speed < 0.0 { 0x02 } else { 0 });
-                answer(&d)
-            }
-            cmd::READ_BUFFERS => {
-                let b = |m: &Motor| if m.busy { 0 } else { BUFFER_IDLE };
-                answer(&[b(&self.motors[0]), b(&self.motors[1])])
-            }
-            cmd::SET_SERIAL_TIMEOUT => {
-                let t = data.first().copied().unwrap_or(0);
-                self.serial_timeout = (t > 0).then(|| Duration::from_millis(u64::from(t) * 100));
-                self.ack()
-            }
-            cmd::RESET_ENCODERS => {
+            READ_TEMPERATURE | READ_TEMPERATURE_2 => ((BOARD_TEMPERATURE_C * 10.0).round() as u16)
+                .to_be_bytes()
+                .to_vec(),
+            READ_STATUS => 0u32.to_be_bytes().to_vec(),
+            READ_ENCODER_MODES => self.settings.encoder_modes.to_vec(),
+            READ_CONFIG => self.settings.config.to_be_bytes().to_vec(),
+            _ => return None,
+        })
+    }
+
+    /// Executes a write; `None` refuses it (no acknowledgement).
+    fn write(&mut self, command: u8, data: &[u8]) -> Option<()> {
+        use cmd::*;
+        let mut f = Fields::new(data);
+        let m2 = usize::from(matches!(
+            command,
+            SET_ENCODER_M2
+                | SET_VELOCITY_PID_M2
+                | DUTY_M2
+                | SPEED_M2
+                | SPEED_ACCEL_M2
+                | SPEED_DISTANCE_M2
+                | SPEED_ACCEL_DISTANCE_M2
+                | SET_ENCODER_MODE_M2
+        ));
+        let speed = |target: i32, accel: f64| Running::Speed {
+            target: f64::from(target),
+            accel: accel.max(1.0),
+        };
+        let duty = |d: i16| Running::Duty {
+            duty: (f64::from(d) / 32767.0).clamp(-1.0, 1.0),
+        };
+        match command {
+            SET_SERIAL_TIMEOUT => self.serial_timeout = f.u8()?,
+            RESET_ENCODERS => {
                 for m in &mut self.motors {
                     m.counter = 0.0;
+                    m.underflow = false;
+                    m.overflow = false;
                 }
-                self.ack()
             }
-            cmd::DRIVE_SPEEDS => {
-                // Only a full stop is simulated (what odocal sends).
-                self.stop();
-                self.counters.stops += 1;
-                self.ack()
+            SET_ENCODER_M1 | SET_ENCODER_M2 => self.motors[m2].counter = f64::from(f.u32()?),
+            SET_VELOCITY_PID_M1 | SET_VELOCITY_PID_M2 => {
+                // Sent D, P, I; read back P, I, D.
+                let (d, p, i, qpps) = (f.u32()?, f.u32()?, f.u32()?, f.u32()?);
+                self.settings.pid[m2] = VelocityPid { p, i, d, qpps };
             }
-            cmd::DRIVE_SPEED_ACCEL_DISTANCE => {
-                let accel = f64::from(be_u32(data, 0).unwrap_or(0));
-                for (i, at) in [(0usize, 4usize), (1, 12)] {
-                    let speed = be_u32(data, at).unwrap_or(0) as i32;
-                    let dist = f64::from(be_u32(data, at + 4).unwrap_or(0));
-                    self.motors[i] = Motor {
-                        counter: self.motors[i].counter,
-                        speed: self.motors[i].speed,
-                        target_speed: f64::from(speed.unsigned_abs()),
-                        direction: if speed < 0 { -1.0 } else { 1.0 },
-                        remaining: dist,
-                        accel: accel.max(1.0),
-                        busy: dist > 0.0 && speed != 0,
-                    };
+            DUTY_M1 | DUTY_M2 => self.run(&[(m2, duty(f.i16()?))]),
+            DUTY_M1M2 => {
+                let (a, b) = (f.i16()?, f.i16()?);
+                self.run(&[(0, duty(a)), (1, duty(b))]);
+            }
+            SPEED_M1 | SPEED_M2 => self.run(&[(m2, speed(f.i32()?, INSTANT_ACCEL))]),
+            DRIVE_SPEEDS => {
+                let (a, b) = (f.i32()?, f.i32()?);
+                self.run(&[(0, speed(a, INSTANT_ACCEL)), (1, speed(b, INSTANT_ACCEL))]);
+            }
+            SPEED_ACCEL_M1 | SPEED_ACCEL_M2 => {
+                let accel = f64::from(f.u32()?);
+                self.run(&[(m2, speed(f.i32()?, accel))]);
+            }
+            SPEED_ACCEL_M1M2 => {
+                let accel = f64::from(f.u32()?);
+                let (a, b) = (f.i32()?, f.i32()?);
+                self.run(&[(0, speed(a, accel)), (1, speed(b, accel))]);
+            }
+            SPEED_INDIVIDUAL_ACCEL_M1M2 => {
+                let (a1, s1) = (f.u32()?, f.i32()?);
+                let (a2, s2) = (f.u32()?, f.i32()?);
+                self.run(&[(0, speed(s1, f64::from(a1))), (1, speed(s2, f64::from(a2)))]);
+            }
+            SPEED_DISTANCE_M1 | SPEED_DISTANCE_M2 => {
+                let leg = f.leg(None)?;
+                self.buffer(&[(m2, leg)], f.replace()?)?;
+            }
+            SPEED_ACCEL_DISTANCE_M1 | SPEED_ACCEL_DISTANCE_M2 => {
+                let accel = f.u32()?;
+                let leg = f.leg(Some(accel))?;
+                self.buffer(&[(m2, leg)], f.replace()?)?;
+            }
+            SPEED_DISTANCE_M1M2 => {
+                let (a, b) = (f.leg(None)?, f.leg(None)?);
+                self.buffer(&[(0, a), (1, b)], f.replace()?)?;
+            }
+            DRIVE_SPEED_ACCEL_DISTANCE => {
+                let accel = f.u32()?;
+                let (a, b) = (f.leg(Some(accel))?, f.leg(Some(accel))?);
+                self.buffer(&[(0, a), (1, b)], f.replace()?)?;
+            }
+            SPEED_INDIVIDUAL_ACCEL_DISTANCE_M1M2 => {
+                let a1 = f.u32()?;
+                let a = f.leg(Some(a1))?;
+                let a2 = f.u32()?;
+                let b = f.leg(Some(a2))?;
+                self.buffer(&[(0, a), (1, b)], f.replace()?)?;
+            }
+            SET_ENCODER_MODE_M1 | SET_ENCODER_MODE_M2 => {
+                self.settings.encoder_modes[m2] = f.u8()?;
+            }
+            WRITE_SETTINGS => {
+                if f.u32()? != NVM_KEY {
+                    return None;
                 }
-                self.counters.drive_commands += 1;
-                self.ack()
+                self.eeprom = self.settings;
             }
-            _ => Vec::new(),
+            RELOAD_SETTINGS => self.settings = self.eeprom,
+            SET_CONFIG => self.settings.config = f.u16()?,
+            _ => return None,
         }
+        Some(())
+    }
+
+    /// Speed or duty commands for these motors.
+    fn run(&mut self, commands: &[(usize, Running)]) {
+        for &(i, running) in commands {
+            if let Some(m) = self.motors.get_mut(i) {
+                m.command(running);
+            }
+        }
+        self.counters.speed_commands += 1;
+        let stands = |m: &Motor| match m.running {
+            Running::Idle => true,
+            Running::Speed { target, .. } => target == 0.0,
+            Running::Duty { duty } => duty == 0.0,
+            Running::Leg { .. } => false,
+        };
+        if self.motors.iter().all(stands) {
+            self.counters.stops += 1;
+        }
+    }
+
+    /// Buffered commands for these motors, all taken or (a buffer full) none.
+    fn buffer(&mut self, legs: &[(usize, Leg)], replace: bool) -> Option<()> {
+        if !legs
+            .iter()
+            .all(|&(i, _)| self.motors.get(i).is_some_and(|m| m.takes(replace)))
+        {
+            return None;
+        }
+        for &(i, leg) in legs {
+            if let Some(m) = self.motors.get_mut(i) {
+                m.buffer(leg, replace);
+            }
+        }
+        self.counters.drive_commands += 1;
+        Some(())
     }
 
     fn ack(&mut self) -> Vec<u8> {
@@ -303,31 +834,51 @@ impl MockRobot {
     }
 }
 
-/// Data bytes a write command carries (before its CRC); `None` for reads.
-fn write_len(command: u8) -> Option<usize> {
-    match command {
-        cmd::SET_SERIAL_TIMEOUT => Some(1),
-        cmd::RESET_ENCODERS => Some(0),
-        cmd::DRIVE_SPEEDS => Some(8),
-        cmd::DRIVE_SPEED_ACCEL_DISTANCE => Some(21),
-        _ => None,
+/// What the bytes at the start of the input are.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Parsed {
+    /// The start of a packet: more bytes are needed.
+    Incomplete,
+    /// This many bytes start no packet (not an address).
+    Junk(usize),
+    /// A whole packet of `len` bytes; `ours` is false for another controller's on a shared bus.
+    Packet { len: usize, kind: Kind, ours: bool },
+    /// A command the controller does not know: nothing tells where it ends.
+    Unknown,
+}
+
+/// Splits the next packet off `buf`; `ours` says which addresses this controller answers.
+fn parse(buf: &[u8], ours: impl Fn(u8) -> bool) -> Parsed {
+    let Some(&address) = buf.first() else {
+        return Parsed::Incomplete;
+    };
+    if !ADDRESSES.contains(&address) {
+        let junk = buf.iter().position(|b| ADDRESSES.contains(b));
+        return Parsed::Junk(junk.unwrap_or(buf.len()));
+    }
+    let Some(&command) = buf.get(1) else {
+        return Parsed::Incomplete;
+    };
+    let Some(kind) = kind(command) else {
+        return Parsed::Unknown;
+    };
+    let len = match kind {
+        Kind::Read => 2,
+        Kind::Write(n) => n + 4,
+    };
+    if buf.len() < len {
+        return Parsed::Incomplete;
+    }
+    Parsed::Packet {
+        len,
+        kind,
+        ours: ours(address),
     }
 }
 
 /// Builds the shared robot and starts its physics (robot time at `time_scale`).
 pub fn spawn_robot(cfg: MockRoboClawConfig) -> Result<SharedRobot, crate::sim::SimError> {
-    let sim = Simulator::new(cfg.truth, cfg.truth, cfg.noise, cfg.seed)?
-        .with_heading_model(cfg.heading_model)?;
-    let robot_state = Arc::new(Mutex::new(MockRobot {
-        rng: ChaCha8Rng::seed_from_u64(cfg.seed ^ 0x5EED),
-        sim,
-        motors: [Motor::default(); 2],
-        serial_timeout: None,
-        last_packet: Instant::now(),
-        time_s: 0.0,
-        counters: RoboClawCounters::default(),
-        cfg,
-    }));
+    let robot_state = Arc::new(Mutex::new(MockRobot::new(cfg)?));
     let weak = Arc::downgrade(&robot_state);
     tokio::spawn(async move {
         let mut tick = tokio::time::interval(Duration::from_millis(1));
@@ -355,67 +906,53 @@ where
     S: AsyncRead + AsyncWrite + Unpin,
 {
     let (mut rd, mut wr) = tokio::io::split(stream);
-    let address = robot(&robot_state).cfg.address;
+    let only = robot(&robot_state).cfg.address;
+    let ours = |a: u8| only.is_none_or(|o| o == a);
     let mut buf: Vec<u8> = Vec::new();
+    // After an unknown command, everything until the line goes quiet: its length is unknown.
+    let mut ignoring = false;
     let mut chunk = [0u8; 256];
     loop {
-        // A partial packet is dropped after 10 ms of silence, as the controller does.
-        let n = match tokio::time::timeout(Duration::from_millis(10), rd.read(&mut chunk)).await {
+        let n = match tokio::time::timeout(PACKET_TIMEOUT, rd.read(&mut chunk)).await {
             Err(_) => {
+                if !buf.is_empty() {
+                    robot(&robot_state).counters.partial_packets += 1;
+                }
                 buf.clear();
+                ignoring = false;
                 continue;
             }
             Ok(Ok(0)) => return Ok(()),
             Ok(Ok(n)) => n,
             Ok(Err(e)) => return Err(e),
         };
+        if ignoring {
+            continue;
+        }
         buf.extend_from_slice(&chunk[..n]);
         loop {
-            // Resynchronise on this controller's address.
-            match buf.iter().position(|&b| b == address) {
-                Some(0) => {}
-                Some(p) => {
-                    buf.drain(..p);
+            match parse(&buf, ours) {
+                Parsed::Incomplete => break,
+                Parsed::Junk(n) => {
+                    buf.drain(..n);
                 }
-                None => {
+                Parsed::Unknown => {
+                    robot(&robot_state).counters.unknown_commands += 1;
                     buf.clear();
+                    ignoring = true;
                     break;
                 }
-            }
-            if buf.len() < 2 {
-                break;
-            }
-            let command = buf[1];
-            let answer = match write_len(command) {
-                None => {
-                    buf.drain(..2);
-                    let mut r = robot(&robot_state);
-                    let answer = r.execute(command, &[]);
-                    let lose = r.cfg.lose_answer_rate;
-                    if lose > 0.0 && r.rng.random_bool(lose.min(1.0)) {
-                        r.counters.lost_answers += 1;
-                        Vec::new()
-                    } else {
-                        answer
+                Parsed::Packet { len, kind, ours } => {
+                    let frame: Vec<u8> = buf.drain(..len).collect();
+                    if !ours {
+                        continue;
+                    }
+                    let answer = robot(&robot_state).packet(kind, &frame);
+                    if !answer.is_empty() {
+                        wr.write_all(&answer).await?;
+                        wr.flush().await?;
                     }
                 }
-                Some(len) => {
-                    if buf.len() < len + 4 {
-                        break;
-                    }
-                    let frame: Vec<u8> = buf.drain(..len + 4).collect();
-                    let crc = u16::from_be_bytes([frame[len + 2], frame[len + 3]]);
-                    if CRC16.checksum(&frame[..len + 2]) != crc {
-                        robot(&robot_state).counters.bad_crcs += 1;
-                        Vec::new()
-                    } else {
-                        robot(&robot_state).execute(command, &frame[2..len + 2])
-                    }
-                }
-            };
-            if !answer.is_empty() {
-                wr.write_all(&answer).await?;
-                wr.flush().await?;
             }
         }
     }
@@ -465,4 +1002,423 @@ pub fn spawn_ptys(cfg: MockRoboClawConfig) -> std::io::Result<MockRoboClawPtys> 
         robot: robot_state,
         _servers: (claw, compass),
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::roboclaw::packet::{check_answer, write_frame};
+
+    fn test_robot() -> MockRobot {
+        MockRobot::new(MockRoboClawConfig::new(WheelParams::nominal(
+            0.15, 0.39, 4096.0,
+        )))
+        .expect("a valid robot")
+    }
+
+    /// A whole frame through the parser and the executor, as the server takes it.
+    fn send(r: &mut MockRobot, frame: &[u8]) -> Vec<u8> {
+        match parse(frame, |_| true) {
+            Parsed::Packet { len, kind, .. } if len == frame.len() => r.packet(kind, frame),
+            other => panic!("{frame:02X?} parsed as {other:?}"),
+        }
+    }
+
+    fn write(r: &mut MockRobot, command: u8, data: &[u8]) -> Vec<u8> {
+        send(r, &write_frame(0x80, command, data))
+    }
+
+    /// A read's data, its CRC checked.
+    fn read(r: &mut MockRobot, command: u8) -> Vec<u8> {
+        let answer = send(r, &[0x80, command]);
+        check_answer(0x80, command, &answer)
+            .unwrap_or_else(|| panic!("command {command}: bad answer {answer:02X?}"))
+            .to_vec()
+    }
+
+    fn leg46(accel: u32, s1: i32, d1: u32, s2: i32, d2: u32, flag: u8) -> Vec<u8> {
+        let mut d = accel.to_be_bytes().to_vec();
+        for v in [
+            s1.to_be_bytes(),
+            d1.to_be_bytes(),
+            s2.to_be_bytes(),
+            d2.to_be_bytes(),
+        ] {
+            d.extend_from_slice(&v);
+        }
+        d.push(flag);
+        d
+    }
+
+    fn encoders(r: &mut MockRobot) -> (i32, i32) {
+        let d = read(r, cmd::READ_ENCODERS);
+        let v = |at: usize| i32::from_be_bytes([d[at], d[at + 1], d[at + 2], d[at + 3]]);
+        (v(0), v(4))
+    }
+
+    fn buffers(r: &mut MockRobot) -> (u8, u8) {
+        let d = read(r, cmd::READ_BUFFERS);
+        (d[0], d[1])
+    }
+
+    fn run(r: &mut MockRobot, seconds: f64) {
+        for _ in 0..(seconds * 1000.0).round() as usize {
+            r.advance(1e-3);
+        }
+    }
+
+    fn run_until_still(r: &mut MockRobot) {
+        for _ in 0..60_000 {
+            if !r.moving() {
+                return;
+            }
+            r.advance(1e-3);
+        }
+        panic!("still moving after a minute");
+    }
+
+    #[test]
+    fn a_queued_leg_runs_after_the_running_one_and_the_buffer_length_says_so() {
+        let mut r = test_robot();
+        assert_eq!(buffers(&mut r), (BUFFER_IDLE, BUFFER_IDLE));
+        let forward = leg46(3000, 3000, 3000, -3000, 3000, 0);
+        let back = leg46(3000, -3000, 3000, 3000, 3000, 0);
+        assert_eq!(
+            write(&mut r, cmd::DRIVE_SPEED_ACCEL_DISTANCE, &forward),
+            [ACK]
+        );
+        // Idle: it starts at once, nothing waits.
+        assert_eq!(buffers(&mut r), (0, 0));
+        assert_eq!(write(&mut r, cmd::DRIVE_SPEED_ACCEL_DISTANCE, &back), [ACK]);
+        assert_eq!(buffers(&mut r), (1, 1));
+        run(&mut r, 1.0);
+        let (m1, m2) = encoders(&mut r);
+        assert!(m1 > 1000 && m2 < -1000, "the first leg runs: {m1}, {m2}");
+        let mut steps = 0;
+        while buffers(&mut r) == (1, 1) {
+            r.advance(1e-3);
+            steps += 1;
+            assert!(steps < 5000, "the first leg never ends");
+        }
+        assert_eq!(buffers(&mut r), (0, 0), "the second runs, none waits");
+        assert_eq!(encoders(&mut r), (3000, -3000), "where the first leg ended");
+        run_until_still(&mut r);
+        assert_eq!(encoders(&mut r), (0, 0), "back where it began");
+        assert_eq!(buffers(&mut r), (BUFFER_IDLE, BUFFER_IDLE));
+        assert_eq!(r.counters.drive_commands, 2);
+    }
+
+    #[test]
+    fn a_replacing_leg_stops_the_running_one_and_deletes_the_queue() {
+        let mut r = test_robot();
+        let forward = leg46(3000, 3000, 3000, 3000, 3000, 0);
+        for _ in 0..3 {
+            assert_eq!(
+                write(&mut r, cmd::DRIVE_SPEED_ACCEL_DISTANCE, &forward),
+                [ACK]
+            );
+        }
+        assert_eq!(buffers(&mut r), (2, 2));
+        run(&mut r, 1.0);
+        let (at, _) = encoders(&mut r);
+        let replace = leg46(1_000_000, -1000, 500, -1000, 500, 1);
+        assert_eq!(
+            write(&mut r, cmd::DRIVE_SPEED_ACCEL_DISTANCE, &replace),
+            [ACK]
+        );
+        assert_eq!(buffers(&mut r), (0, 0));
+        run_until_still(&mut r);
+        let (m1, m2) = encoders(&mut r);
+        assert_eq!(
+            (m1, m2),
+            (at - 500, at - 500),
+            "only the replacing leg ran after it"
+        );
+    }
+
+    #[test]
+    fn a_full_buffer_refuses_the_command_without_an_acknowledgement() {
+        let mut r = test_robot();
+        let leg = leg46(1000, 1000, 100_000, 1000, 100_000, 0);
+        // One runs, 64 wait.
+        for _ in 0..=BUFFER_DEPTH {
+            assert_eq!(write(&mut r, cmd::DRIVE_SPEED_ACCEL_DISTANCE, &leg), [ACK]);
+        }
+        assert_eq!(buffers(&mut r), (64, 64));
+        assert!(write(&mut r, cmd::DRIVE_SPEED_ACCEL_DISTANCE, &leg).is_empty());
+        assert_eq!(r.counters.refused, 1);
+        // A single-motor leg queues on its own channel only.
+        let mut one = 1000i32.to_be_bytes().to_vec();
+        one.extend_from_slice(&10u32.to_be_bytes());
+        one.push(1);
+        assert_eq!(write(&mut r, cmd::SPEED_DISTANCE_M2, &one), [ACK]);
+        assert_eq!(buffers(&mut r), (64, 0));
+    }
+
+    #[test]
+    fn speed_commands_drive_until_replaced_and_the_serial_timeout_stops_them() {
+        let mut r = test_robot();
+        let mut speeds = 1000i32.to_be_bytes().to_vec();
+        speeds.extend_from_slice(&(-500i32).to_be_bytes());
+        assert_eq!(write(&mut r, cmd::DRIVE_SPEEDS, &speeds), [ACK]);
+        // Not a buffered command: the buffers stay idle while it runs.
+        assert_eq!(buffers(&mut r), (BUFFER_IDLE, BUFFER_IDLE));
+        run(&mut r, 2.0);
+        let (m1, m2) = encoders(&mut r);
+        // Within the count the first step's speed jump leaves.
+        assert!(
+            (m1 - 2000).abs() <= 1 && (m2 + 1000).abs() <= 1,
+            "{m1}, {m2}"
+        );
+        // Speeds are signed, the direction repeated in the status byte.
+        let d = read(&mut r, cmd::READ_SPEED_M2);
+        assert_eq!(
+            (i32::from_be_bytes([d[0], d[1], d[2], d[3]]), d[4]),
+            (-500, 1)
+        );
+        let d = read(&mut r, cmd::READ_RAW_SPEEDS);
+        assert_eq!(i32::from_be_bytes([d[0], d[1], d[2], d[3]]), 1000);
+        let d = read(&mut r, cmd::READ_PWMS);
+        let pwm1 = i16::from_be_bytes([d[0], d[1]]);
+        assert_eq!(pwm1, (1000.0f64 / 44_000.0 * 32767.0).round() as i16);
+        // M2 counted down through zero: the underflow bit, cleared once read.
+        let d = read(&mut r, cmd::READ_ENCODER_M2);
+        assert_eq!(
+            d[4],
+            encoder_status::UNDERFLOW | encoder_status::REVERSE,
+            "{d:02X?}"
+        );
+        assert_eq!(
+            read(&mut r, cmd::READ_ENCODER_M2)[4],
+            encoder_status::REVERSE
+        );
+        // Another speed command replaces it.
+        let back = (-2000i32).to_be_bytes();
+        assert_eq!(write(&mut r, cmd::SPEED_M1, &back), [ACK]);
+        run(&mut r, 1.0);
+        let (m1, m2) = encoders(&mut r);
+        assert!(m1.abs() <= 1 && (m2 + 1500).abs() <= 1, "{m1}, {m2}");
+        // 100 ms of silence with the timeout at 0.1 s stops both motors.
+        assert_eq!(write(&mut r, cmd::SET_SERIAL_TIMEOUT, &[1]), [ACK]);
+        assert_eq!(read(&mut r, cmd::READ_SERIAL_TIMEOUT), [1]);
+        std::thread::sleep(Duration::from_millis(150));
+        run(&mut r, 0.01);
+        assert!(!r.moving());
+        assert_eq!(r.counters.serial_timeouts, 1);
+        // A duty command drives open loop at its share of QPPS.
+        let duties = [16384i16.to_be_bytes(), 0i16.to_be_bytes()].concat();
+        assert_eq!(write(&mut r, cmd::DUTY_M1M2, &duties), [ACK]);
+        let before = encoders(&mut r).0;
+        run(&mut r, 0.05);
+        let moved = encoders(&mut r).0 - before;
+        assert!((moved - 1100).abs() <= 1, "{moved}");
+    }
+
+    #[test]
+    fn every_read_answers_its_documented_layout() {
+        let mut r = test_robot();
+        for (command, len) in [
+            (cmd::READ_SERIAL_TIMEOUT, 1),
+            (cmd::READ_ENCODER_M1, 5),
+            (cmd::READ_ENCODER_M2, 5),
+            (cmd::READ_SPEED_M1, 5),
+            (cmd::READ_SPEED_M2, 5),
+            (cmd::READ_MAIN_BATTERY, 2),
+            (cmd::READ_LOGIC_BATTERY, 2),
+            (cmd::READ_RAW_SPEED_M1, 5),
+            (cmd::READ_RAW_SPEED_M2, 5),
+            (cmd::READ_BUFFERS, 2),
+            (cmd::READ_PWMS, 4),
+            (cmd::READ_CURRENTS, 4),
+            (cmd::READ_VELOCITY_PID_M1, 16),
+            (cmd::READ_VELOCITY_PID_M2, 16),
+            (cmd::READ_ENCODERS, 8),
+            (cmd::READ_RAW_SPEEDS, 8),
+            (cmd::READ_TEMPERATURE, 2),
+            (cmd::READ_TEMPERATURE_2, 2),
+            (cmd::READ_STATUS, 4),
+            (cmd::READ_ENCODER_MODES, 2),
+            (cmd::READ_CONFIG, 2),
+            (cmd::READ_AVERAGE_SPEEDS, 8),
+        ] {
+            assert_eq!(read(&mut r, command).len(), len, "command {command}");
+        }
+        assert_eq!(
+            read(&mut r, cmd::READ_VERSION),
+            b"USB Roboclaw 2x7a v4.2.8\n\0"
+        );
+        assert_eq!(read(&mut r, cmd::READ_MAIN_BATTERY), 123u16.to_be_bytes());
+        assert_eq!(read(&mut r, cmd::READ_TEMPERATURE), 250u16.to_be_bytes());
+        assert_eq!(read(&mut r, cmd::READ_CONFIG), 0x0063u16.to_be_bytes());
+        let pid: Vec<u8> = [0x1_0000u32, 0x8000, 0x4000, 44_000]
+            .iter()
+            .flat_map(|v| v.to_be_bytes())
+            .collect();
+        assert_eq!(read(&mut r, cmd::READ_VELOCITY_PID_M1), pid);
+    }
+
+    #[test]
+    fn settings_are_kept_over_a_brown_out_only_when_written_with_the_key() {
+        let mut r = test_robot();
+        // Sent D, P, I, QPPS.
+        let pid: Vec<u8> = [1u32, 2, 3, 5000]
+            .iter()
+            .flat_map(|v| v.to_be_bytes())
+            .collect();
+        assert_eq!(write(&mut r, cmd::SET_VELOCITY_PID_M2, &pid), [ACK]);
+        let back: Vec<u8> = [2u32, 3, 1, 5000]
+            .iter()
+            .flat_map(|v| v.to_be_bytes())
+            .collect();
+        assert_eq!(read(&mut r, cmd::READ_VELOCITY_PID_M2), back);
+        assert!(write(&mut r, cmd::WRITE_SETTINGS, &[0, 0, 0, 0]).is_empty());
+        assert_eq!(r.counters.refused, 1);
+        r.brown_out();
+        assert_ne!(read(&mut r, cmd::READ_VELOCITY_PID_M2), back, "not written");
+        assert_eq!(write(&mut r, cmd::SET_VELOCITY_PID_M2, &pid), [ACK]);
+        assert_eq!(write(&mut r, cmd::SET_ENCODER_MODE_M1, &[0x40]), [ACK]);
+        assert_eq!(write(&mut r, cmd::SET_CONFIG, &[0x20, 0x63]), [ACK]);
+        assert_eq!(
+            write(&mut r, cmd::WRITE_SETTINGS, &NVM_KEY.to_be_bytes()),
+            [ACK]
+        );
+        assert_eq!(write(&mut r, cmd::SET_ENCODER_MODE_M1, &[0]), [ACK]);
+        r.brown_out();
+        assert_eq!(read(&mut r, cmd::READ_VELOCITY_PID_M2), back);
+        assert_eq!(read(&mut r, cmd::READ_ENCODER_MODES), [0x40, 0]);
+        assert_eq!(read(&mut r, cmd::READ_CONFIG), [0x20, 0x63]);
+    }
+
+    #[test]
+    fn usb_answers_every_address_under_its_own_crc_and_a_bus_unit_only_its_own() {
+        let mut r = test_robot();
+        for address in ADDRESSES {
+            let answer = send(&mut r, &[address, cmd::READ_MAIN_BATTERY]);
+            assert_eq!(
+                check_answer(address, cmd::READ_MAIN_BATTERY, &answer),
+                Some(&123u16.to_be_bytes()[..]),
+                "0x{address:02X}"
+            );
+            let frame = write_frame(address, cmd::RESET_ENCODERS, &[]);
+            assert_eq!(send(&mut r, &frame), [ACK]);
+        }
+        let only = |a: u8| a == 0x82;
+        let other = write_frame(0x81, cmd::SET_SERIAL_TIMEOUT, &[5]);
+        assert_eq!(
+            parse(&other, only),
+            Parsed::Packet {
+                len: 5,
+                kind: Kind::Write(1),
+                ours: false
+            }
+        );
+        assert_eq!(parse(&other[..4], only), Parsed::Incomplete);
+        assert_eq!(parse(&[0x00, 0x7F, 0x81], only), Parsed::Junk(2));
+        assert_eq!(parse(&[0x82, 200, 1, 2], only), Parsed::Unknown);
+    }
+
+    async fn silent_for(host: &mut tokio::io::DuplexStream, wait: Duration) -> bool {
+        let mut b = [0u8; 16];
+        tokio::time::timeout(wait, host.read(&mut b)).await.is_err()
+    }
+
+    #[tokio::test]
+    async fn a_packet_in_pieces_is_reassembled_and_a_partial_one_dropped_after_10_ms() {
+        let robot_state = spawn_robot(MockRoboClawConfig::new(WheelParams::nominal(
+            0.15, 0.39, 4096.0,
+        )))
+        .expect("a valid robot");
+        let (mut host, dev) = tokio::io::duplex(1024);
+        tokio::spawn(serve_roboclaw(dev, robot_state.clone()));
+        // Field by field, as Basicmicro's library writes: address and command, each field, CRC.
+        let frame = write_frame(
+            0x80,
+            cmd::DRIVE_SPEED_ACCEL_DISTANCE,
+            &leg46(1000, 100, 10, 100, 10, 1),
+        );
+        for piece in [
+            &frame[..2],
+            &frame[2..6],
+            &frame[6..10],
+            &frame[10..22],
+            &frame[22..],
+        ] {
+            host.write_all(piece).await.unwrap();
+            tokio::time::sleep(Duration::from_millis(1)).await;
+        }
+        let mut ack = [0u8; 1];
+        let within = Duration::from_secs(1);
+        tokio::time::timeout(within, host.read_exact(&mut ack))
+            .await
+            .expect("an acknowledgement")
+            .unwrap();
+        assert_eq!(ack, [ACK]);
+        // Half a packet, then 30 ms of silence: it is dropped, and the next packet stands
+        // alone.
+        let timeout = write_frame(0x80, cmd::SET_SERIAL_TIMEOUT, &[7]);
+        host.write_all(&timeout[..3]).await.unwrap();
+        tokio::time::sleep(Duration::from_millis(30)).await;
+        host.write_all(&[0x80, cmd::READ_SERIAL_TIMEOUT])
+            .await
+            .unwrap();
+        let mut answer = [0u8; 3];
+        tokio::time::timeout(within, host.read_exact(&mut answer))
+            .await
+            .expect("an answer")
+            .unwrap();
+        assert_eq!(
+            check_answer(0x80, cmd::READ_SERIAL_TIMEOUT, &answer),
+            Some(&[0][..])
+        );
+        // An unknown command and a bad CRC get no answer; the line works again after silence.
+        host.write_all(&[0x80, 200, 0x80, cmd::READ_STATUS])
+            .await
+            .unwrap();
+        assert!(silent_for(&mut host, Duration::from_millis(50)).await);
+        let mut bad = timeout.clone();
+        bad[4] ^= 1;
+        host.write_all(&bad).await.unwrap();
+        assert!(silent_for(&mut host, Duration::from_millis(50)).await);
+        host.write_all(&timeout).await.unwrap();
+        tokio::time::timeout(within, host.read_exact(&mut ack))
+            .await
+            .expect("an acknowledgement")
+            .unwrap();
+        assert_eq!(ack, [ACK]);
+        let r = robot(&robot_state);
+        assert_eq!(
+            (
+                r.counters.partial_packets,
+                r.counters.unknown_commands,
+                r.counters.bad_crcs
+            ),
+            (1, 1, 1)
+        );
+        assert_eq!(r.serial_timeout, 7);
+    }
+
+    #[tokio::test]
+    async fn a_unit_on_a_shared_bus_skips_the_packets_of_the_others() {
+        let mut cfg = MockRoboClawConfig::new(WheelParams::nominal(0.15, 0.39, 4096.0));
+        cfg.address = Some(0x82);
+        let robot_state = spawn_robot(cfg).expect("a valid robot");
+        let (mut host, dev) = tokio::io::duplex(1024);
+        tokio::spawn(serve_roboclaw(dev, robot_state.clone()));
+        // Another unit's write, then its read, then ours, back to back.
+        let mut bytes = write_frame(0x80, cmd::SET_SERIAL_TIMEOUT, &[9]);
+        bytes.extend_from_slice(&[0x81, cmd::READ_CONFIG, 0x82, cmd::READ_CONFIG]);
+        host.write_all(&bytes).await.unwrap();
+        let mut answer = [0u8; 4];
+        tokio::time::timeout(Duration::from_secs(1), host.read_exact(&mut answer))
+            .await
+            .expect("an answer")
+            .unwrap();
+        assert_eq!(
+            check_answer(0x82, cmd::READ_CONFIG, &answer),
+            Some(&0x0263u16.to_be_bytes()[..]),
+            "packet serial at 38400 baud, address 0x82 in the configuration word"
+        );
+        assert!(silent_for(&mut host, Duration::from_millis(50)).await);
+        assert_eq!(robot(&robot_state).serial_timeout, 0, "not ours");
+    }
 }

@@ -270,16 +270,11 @@ impl Drive for RoboClawDrive {
             out.warnings
                 .push(format!("the RoboClaw reports status bits 0x{status:08X}"));
         }
+        // Both encoders must answer. Their wrap bits are no fault: an encoder that counts down
+        // driving forward wraps below zero on its first leg (the controller sets the underflow
+        // bit until it is read), and the drive counts differences modulo 2³².
         for m in [1u8, 2] {
-            let (_, s) = self.claw.encoder(m).await.map_err(err("an encoder"))?;
-            if s & (super::packet::encoder_status::UNDERFLOW
-                | super::packet::encoder_status::OVERFLOW)
-                != 0
-            {
-                out.warnings.push(format!(
-                    "encoder M{m} reports an over- or underflow (status 0x{s:02X})"
-                ));
-            }
+            self.claw.encoder(m).await.map_err(err("an encoder"))?;
         }
         Ok(out)
     }

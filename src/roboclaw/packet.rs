@@ -1,5 +1,5 @@
-//! RoboClaw packet serial, from Basicmicro's public command reference: the commands odocal
-//! uses, their byte layouts (big-endian) and the CRC.
+//! RoboClaw packet serial, from Basicmicro's public command reference: the command numbers
+//! odocal and its mock controller use, the byte layouts odocal sends (big-endian) and the CRC.
 //!
 //! A write is `address, command, data…, CRC16` and is acknowledged with `0xFF`; a read is
 //! `address, command` and is answered with `data…, CRC16`, the CRC covering the address, the
@@ -16,31 +16,115 @@ pub const ACK: u8 = 0xFF;
 /// Valid controller addresses.
 pub const ADDRESSES: std::ops::RangeInclusive<u8> = 0x80..=0x87;
 
-/// Command numbers.
+/// Command numbers: those odocal sends, and the rest of what its mock controller answers.
 pub mod cmd {
     /// Set serial timeout (tenths of a second, 0 = off).
     pub const SET_SERIAL_TIMEOUT: u8 = 14;
+    /// Read the serial timeout (tenths of a second).
+    pub const READ_SERIAL_TIMEOUT: u8 = 15;
     /// Read encoder M1: count u32, status u8.
     pub const READ_ENCODER_M1: u8 = 16;
     /// Read encoder M2.
     pub const READ_ENCODER_M2: u8 = 17;
+    /// Read M1's encoder speed: counts/s i32, direction u8 (1 = backwards).
+    pub const READ_SPEED_M1: u8 = 18;
+    /// Read M2's encoder speed.
+    pub const READ_SPEED_M2: u8 = 19;
     /// Reset both encoders to 0.
     pub const RESET_ENCODERS: u8 = 20;
     /// Read the firmware version string.
     pub const READ_VERSION: u8 = 21;
+    /// Set encoder M1's counter (u32).
+    pub const SET_ENCODER_M1: u8 = 22;
+    /// Set encoder M2's counter.
+    pub const SET_ENCODER_M2: u8 = 23;
     /// Read the main battery voltage (tenths of a volt).
     pub const READ_MAIN_BATTERY: u8 = 24;
+    /// Read the logic battery voltage (tenths of a volt).
+    pub const READ_LOGIC_BATTERY: u8 = 25;
+    /// Set M1's velocity PID: D, P, I (×65536) and QPPS, u32 each.
+    pub const SET_VELOCITY_PID_M1: u8 = 28;
+    /// Set M2's velocity PID.
+    pub const SET_VELOCITY_PID_M2: u8 = 29;
+    /// Read M1's raw speed over the last 1/300 s: counts/s i32, direction u8.
+    pub const READ_RAW_SPEED_M1: u8 = 30;
+    /// Read M2's raw speed.
+    pub const READ_RAW_SPEED_M2: u8 = 31;
+    /// Drive M1 at a signed duty (±32767).
+    pub const DUTY_M1: u8 = 32;
+    /// Drive M2 at a signed duty.
+    pub const DUTY_M2: u8 = 33;
+    /// Drive both motors at signed duties.
+    pub const DUTY_M1M2: u8 = 34;
+    /// Drive M1 at a signed speed (counts/s).
+    pub const SPEED_M1: u8 = 35;
+    /// Drive M2 at a signed speed.
+    pub const SPEED_M2: u8 = 36;
     /// Drive both motors at signed speeds (counts/s).
     pub const DRIVE_SPEEDS: u8 = 37;
+    /// Drive M1 at a signed speed reached with an acceleration (counts/s²).
+    pub const SPEED_ACCEL_M1: u8 = 38;
+    /// Drive M2 at a signed speed with an acceleration.
+    pub const SPEED_ACCEL_M2: u8 = 39;
+    /// Drive both motors at signed speeds with one acceleration.
+    pub const SPEED_ACCEL_M1M2: u8 = 40;
+    /// Buffered drive of M1: signed speed and distance.
+    pub const SPEED_DISTANCE_M1: u8 = 41;
+    /// Buffered drive of M2: signed speed and distance.
+    pub const SPEED_DISTANCE_M2: u8 = 42;
+    /// Buffered drive of both motors: signed speed and distance each.
+    pub const SPEED_DISTANCE_M1M2: u8 = 43;
+    /// Buffered drive of M1: acceleration, signed speed and distance.
+    pub const SPEED_ACCEL_DISTANCE_M1: u8 = 44;
+    /// Buffered drive of M2: acceleration, signed speed and distance.
+    pub const SPEED_ACCEL_DISTANCE_M2: u8 = 45;
     /// Buffered drive of both motors: signed speed, acceleration and distance.
     pub const DRIVE_SPEED_ACCEL_DISTANCE: u8 = 46;
     /// Read both motors' buffer lengths.
     pub const READ_BUFFERS: u8 = 47;
+    /// Read both motors' PWM duties (i16 each, ±32767).
+    pub const READ_PWMS: u8 = 48;
+    /// Read both motors' currents (10 mA units).
+    pub const READ_CURRENTS: u8 = 49;
+    /// Drive both motors at signed speeds, each with its own acceleration (not buffered).
+    pub const SPEED_INDIVIDUAL_ACCEL_M1M2: u8 = 50;
+    /// Buffered drive of both motors, each with its own acceleration, speed and distance.
+    pub const SPEED_INDIVIDUAL_ACCEL_DISTANCE_M1M2: u8 = 51;
+    /// Read M1's velocity PID: P, I, D (×65536) and QPPS.
+    pub const READ_VELOCITY_PID_M1: u8 = 55;
+    /// Read M2's velocity PID.
+    pub const READ_VELOCITY_PID_M2: u8 = 56;
     /// Read both encoders.
     pub const READ_ENCODERS: u8 = 78;
+    /// Read both motors' raw speeds over the last 1/300 s (i32 each).
+    pub const READ_RAW_SPEEDS: u8 = 79;
+    /// Read the board temperature (tenths of a degree Celsius).
+    pub const READ_TEMPERATURE: u8 = 82;
+    /// Read the second temperature sensor (tenths of a degree Celsius).
+    pub const READ_TEMPERATURE_2: u8 = 83;
     /// Read the status (error and warning bits).
     pub const READ_STATUS: u8 = 90;
+    /// Read both encoder modes.
+    pub const READ_ENCODER_MODES: u8 = 91;
+    /// Set M1's encoder mode.
+    pub const SET_ENCODER_MODE_M1: u8 = 92;
+    /// Set M2's encoder mode.
+    pub const SET_ENCODER_MODE_M2: u8 = 93;
+    /// Write the settings to EEPROM; carries [`super::NVM_KEY`].
+    pub const WRITE_SETTINGS: u8 = 94;
+    /// Reload the settings from EEPROM.
+    pub const RELOAD_SETTINGS: u8 = 95;
+    /// Set the standard configuration word.
+    pub const SET_CONFIG: u8 = 98;
+    /// Read the standard configuration word.
+    pub const READ_CONFIG: u8 = 99;
+    /// Read both motors' average speeds over the last second (i32 each).
+    pub const READ_AVERAGE_SPEEDS: u8 = 108;
 }
+
+/// The key current firmware requires after Write Settings (94), as Basicmicro's libraries send
+/// it; the manual's older layout has no data.
+pub const NVM_KEY: u32 = 0xE22E_AB7A;
 
 /// Bits of an encoder's status byte.
 pub mod encoder_status {

@@ -65,6 +65,10 @@ pub struct MockArgs {
     /// Robot seconds per wall-clock second.
     #[arg(long, default_value_t = 1.0)]
     time_scale: f64,
+    /// Answer only this packet address (128–135), as a controller on a shared TTL serial bus;
+    /// by default every address is answered, as a RoboClaw on USB does.
+    #[arg(long, value_parser = clap::value_parser!(u8).range(128..=135))]
+    address: Option<u8>,
     /// Probability that a write's acknowledgement is lost.
     #[arg(long, default_value_t = 0.0)]
     lose_ack_rate: f64,
@@ -110,12 +114,17 @@ pub async fn mock(args: MockArgs) -> CliResult {
     cfg.compass_talker = args.talker.clone();
     cfg.time_scale = args.time_scale;
     cfg.lose_ack_rate = args.lose_ack_rate;
+    cfg.address = args.address;
     cfg.bad_checksum_rate = args.bad_checksum_rate;
     let ptys = spawn_ptys(cfg)?;
     println!("roboclaw:{}", ptys.roboclaw_path);
     println!("nmea:{}", ptys.compass_path);
+    let address = match args.address {
+        Some(a) => format!("address {a}"),
+        None => "any address 128-135, as over USB".into(),
+    };
     eprintln!(
-        "mock RoboClaw (address 128) and NMEA compass ({}HDT at {} Hz) of one simulated robot \
+        "mock RoboClaw ({address}) and NMEA compass ({}HDT at {} Hz) of one simulated robot \
          (true E_b {}, E_d {}); Ctrl-C{} stops them.",
         args.talker,
         args.compass_hz,

@@ -1,7 +1,7 @@
 //! A mock rosbridge server on a loopback socket, backed by the simulator: a ROS 2 robot with
 //! `diff_drive_controller` as seen through `rosbridge_server`, speaking the rosbridge v2
-//! protocol to any client ([`conn`]) and answering rosapi and the controller's parameter
-//! services ([`services`]).
+//! protocol to any client (`conn.rs`) and answering rosapi and the controller's parameter
+//! services (`services.rs`).
 //!
 //! The controller turns each `cmd_vel` twist into wheel speeds with its **configured** geometry
 //! (from the YAML), ramps them at its acceleration limits and stops them after
