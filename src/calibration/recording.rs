@@ -107,6 +107,41 @@ pub struct Recording {
     pub clocks: Clocks,
 }
 
+/// How completely a stream that should never pause covered its span.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Coverage {
+    /// Time from its first sample to its last (s).
+    pub span_s: f64,
+    /// Time inside gaps longer than three of its median intervals (s): samples lost or late.
+    pub missing_s: f64,
+    /// The share of the span not missing (0–1).
+    pub fraction: f64,
+}
+
+/// The coverage of sample times `times` (in order), or `None` with fewer than three samples.
+/// A gap counts as missing beyond one median interval, once it is longer than three: a
+/// stream that lost or delayed samples (a busy host, a lossy link) says by how much.
+pub fn coverage(times: &[f64]) -> Option<Coverage> {
+    if times.len() < 3 {
+        return None;
+    }
+    let mut gaps: Vec<f64> = times.windows(2).map(|w| w[1] - w[0]).collect();
+    let span_s = times[times.len() - 1] - times[0];
+    let mut sorted = gaps.clone();
+    sorted.sort_by(f64::total_cmp);
+    let median = sorted[sorted.len() / 2];
+    if !(span_s > 0.0 && median.is_finite()) {
+        return None;
+    }
+    gaps.retain(|g| *g > 3.0 * median);
+    let missing_s: f64 = gaps.iter().map(|g| g - median).sum();
+    Some(Coverage {
+        span_s,
+        missing_s,
+        fraction: (1.0 - missing_s / span_s).clamp(0.0, 1.0),
+    })
+}
+
 /// How a recording's heading stream was put on its travel clock.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
 pub struct Alignment {
@@ -688,5 +723,22 @@ mod tests {
         by_hand.update_heading(0.0);
         assert_eq!(split.state(), by_hand.state());
         assert_eq!(split.covariance(), by_hand.covariance());
+    }
+
+    #[test]
+    fn coverage_counts_the_gaps_of_a_stream() {
+        let times: Vec<f64> = (0..100).map(|k| 0.1 * f64::from(k)).collect();
+        let full = coverage(&times).unwrap();
+        assert!(full.missing_s < 1e-9 && (full.fraction - 1.0).abs() < 1e-12);
+        // Two seconds lost in the middle.
+        let holed: Vec<f64> = times
+            .iter()
+            .copied()
+            .filter(|t| !(4.0..6.0).contains(t))
+            .collect();
+        let c = coverage(&holed).unwrap();
+        assert!((c.missing_s - 2.0).abs() < 1e-9, "{c:?}");
+        assert!((c.fraction - (1.0 - 2.0 / 9.9)).abs() < 1e-9, "{c:?}");
+        assert!(coverage(&[0.0, 1.0]).is_none());
     }
 }

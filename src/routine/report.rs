@@ -6,6 +6,7 @@ use super::config::RoutineConfig;
 use super::square::SquareRecord;
 use super::GroundTruth;
 use crate::base::{Base, BaseInfo, TravelSample};
+use crate::calibration::recording::{coverage, Coverage};
 use crate::calibration::legs::LegMeasurement;
 use crate::calibration::{Estimate, Method};
 use crate::kinematics::{Direction, Displacement, Pose, WheelParams};
@@ -119,9 +120,15 @@ pub struct RunReport {
     pub travel_samples: usize,
     /// Heading samples streamed during the run.
     pub heading_samples: usize,
+    /// How completely the heading stream covered the run (a stream that lost or delayed
+    /// readings says by how much), when it streamed.
+    pub heading_coverage: Option<Coverage>,
     /// Plausibility warnings.
     pub warnings: Vec<String>,
 }
+
+/// A heading stream that covered less of a run than this is reported as incomplete.
+pub const INCOMPLETE: f64 = 0.9;
 
 /// Integrates wheel travel reported with `configured` parameters as a robot with `actual`
 /// parameters would move, from the origin; decimated to [`PATH_POINTS`].
@@ -176,6 +183,19 @@ impl RunReport {
             ));
         }
         let legs = rec.leg_measurement(params.wheelbase_m);
+        let times: Vec<f64> = rec.headings.iter().map(|h| h.time_s).collect();
+        let heading_coverage = coverage(&times);
+        if let Some(c) = heading_coverage.filter(|c| c.fraction < INCOMPLETE) {
+            warnings.push(format!(
+                "{} {} run: the heading stream missed {:.1} s of {:.1} s ({:.0} % covered): \
+                 readings lost or late",
+                phase.label(),
+                rec.command.direction,
+                c.missing_s,
+                c.span_s,
+                100.0 * c.fraction
+            ));
+        }
         RunReport {
             phase,
             direction: rec.command.direction,
@@ -192,6 +212,7 @@ impl RunReport {
             true_path: truth.map(|t| integrate(&rec.travel, params, &t.true_params())),
             travel_samples: rec.travel.len(),
             heading_samples: rec.headings.len(),
+            heading_coverage,
             warnings,
         }
     }
