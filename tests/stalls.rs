@@ -1,7 +1,7 @@
 //! A busy laptop and a slow adapter: `calibrate` on our protocol's mock device and on the
 //! RoboClaw + NMEA mock, in real time, while the host process — or the device's, as a USB
 //! adapter or a starved controller would — is stopped (SIGSTOP) for 300 ms at five random
-//! moments, and while every answer of our protocol's device comes 40 ms late. Each must
+//! moments, and while every answer comes 40 ms late. Each must
 //! complete with the default method, and estimates that agree with the simulated robot as an
 //! undisturbed run's do (within three of their stated standard errors).
 
@@ -131,8 +131,8 @@ fn our_protocol_survives_host_stalls_and_late_answers() {
 }
 
 #[test]
-fn a_roboclaw_survives_host_and_device_stalls() {
-    for stop_device in [false, true] {
+fn a_roboclaw_survives_host_and_device_stalls_and_late_answers() {
+    for (stop_device, delay_ms) in [(false, "0"), (true, "0"), (false, "40")] {
         let dir = common::scratch(&format!("stall-roboclaw-{stop_device}"));
         std::fs::create_dir_all(&dir).unwrap();
         let profile = dir.join("robot.toml");
@@ -147,6 +147,8 @@ fn a_roboclaw_survives_host_and_device_stalls() {
                 "20",
                 "--compass-sigma-deg",
                 "0.1",
+                "--answer-delay-ms",
+                delay_ms,
             ],
             2,
         );
@@ -165,11 +167,66 @@ fn a_roboclaw_survives_host_and_device_stalls() {
         ];
         args.extend(SHORT);
         let device = stop_device.then(|| mock.id());
-        let (v, landed) = stalled(&args, device, 5, Duration::from_millis(300), 11);
+        let stalls = if delay_ms == "0" { 5 } else { 0 };
+        let (v, landed) = stalled(&args, device, stalls, Duration::from_millis(300), 11);
         drop(mock.stdin.take());
         let _ = mock.kill();
-        assert_eq!(landed, 5, "every stall landed while it ran");
+        assert_eq!(landed, stalls, "every stall landed while it ran");
         let whose = if stop_device { "device" } else { "host" };
-        assert_right(&v, &format!("RoboClaw with five {whose} stalls"));
+        assert_right(
+            &v,
+            &format!("RoboClaw, {stalls} {whose} stalls, answers {delay_ms} ms late"),
+        );
+    }
+}
+
+/// Both cores busy (two spinning processes beside the calibration and the mock): the default
+/// method is the one an idle machine gets, the estimates as right, and every run says how
+/// completely its heading stream covered it.
+#[test]
+fn the_default_method_does_not_depend_on_the_machines_load() {
+    let dir = common::scratch("stall-loaded");
+    std::fs::create_dir_all(&dir).unwrap();
+    let profile = dir.join("robot.toml");
+    std::fs::write(&profile, common::ROBOCLAW_PROFILE).unwrap();
+    let profile_s = profile.to_str().unwrap();
+    let spinners: Vec<std::process::Child> = (0..2)
+        .map(|_| {
+            Command::new("sh")
+                .args(["-c", "while :; do :; done"])
+                .spawn()
+                .expect("sh runs")
+        })
+        .collect();
+    let (mut mock, lines) = common::spawn_server_lines(
+        "mock-roboclaw",
+        &["--profile", profile_s, "--compass-hz", "20", "--compass-sigma-deg", "0.1"],
+        2,
+    );
+    let heading = format!("{}?baud=115200", lines[1]);
+    let report = dir.join("report");
+    let mut args = vec![
+        "calibrate",
+        "--base",
+        &lines[0],
+        "--heading",
+        &heading,
+        "--profile",
+        profile_s,
+        "--report-dir",
+        report.to_str().unwrap(),
+    ];
+    args.extend(SHORT);
+    let (v, _) = stalled(&args, None, 0, Duration::ZERO, 0);
+    for mut s in spinners {
+        let _ = s.kill();
+        let _ = s.wait();
+    }
+    drop(mock.stdin.take());
+    let _ = mock.kill();
+    assert_right(&v, "RoboClaw on a loaded machine");
+    for run in v["rounds"][0]["runs"].as_array().unwrap() {
+        let c = &run["heading_coverage"];
+        assert!(c["fraction"].as_f64().is_some_and(|f| f > 0.0), "{run}");
     }
 }

@@ -79,6 +79,8 @@ pub struct MockRoboClawConfig {
     pub lose_ack_rate: f64,
     /// Probability that a read's answer is lost on the line.
     pub lose_answer_rate: f64,
+    /// Every answer leaves this late (wall clock): a slow USB adapter or a busy controller.
+    pub answer_delay: std::time::Duration,
     /// Compass sentences per second of robot time.
     pub compass_hz: f64,
     /// Compass talker id.
@@ -104,6 +106,7 @@ impl MockRoboClawConfig {
             battery_v: 12.3,
             lose_ack_rate: 0.0,
             lose_answer_rate: 0.0,
+            answer_delay: std::time::Duration::ZERO,
             compass_hz: 10.0,
             compass_talker: "HC".into(),
             bad_checksum_rate: 0.0,
@@ -947,8 +950,14 @@ where
                     if !ours {
                         continue;
                     }
-                    let answer = robot(&robot_state).packet(kind, &frame);
+                    let (answer, delay) = {
+                        let mut r = robot(&robot_state);
+                        (r.packet(kind, &frame), r.cfg.answer_delay)
+                    };
                     if !answer.is_empty() {
+                        if !delay.is_zero() {
+                            tokio::time::sleep(delay).await;
+                        }
                         wr.write_all(&answer).await?;
                         wr.flush().await?;
                     }

@@ -72,6 +72,9 @@ pub struct MockArgs {
     /// Probability that a write's acknowledgement is lost.
     #[arg(long, default_value_t = 0.0)]
     lose_ack_rate: f64,
+    /// Every answer leaves this many milliseconds late (a slow USB adapter, a busy controller).
+    #[arg(long, default_value_t = 0)]
+    answer_delay_ms: u64,
     /// Probability of a compass sentence with a bad checksum.
     #[arg(long, default_value_t = 0.0)]
     bad_checksum_rate: f64,
@@ -114,6 +117,7 @@ pub async fn mock(args: MockArgs) -> CliResult {
     cfg.compass_talker = args.talker.clone();
     cfg.time_scale = args.time_scale;
     cfg.lose_ack_rate = args.lose_ack_rate;
+    cfg.answer_delay = std::time::Duration::from_millis(args.answer_delay_ms.min(10_000));
     cfg.address = args.address;
     cfg.bad_checksum_rate = args.bad_checksum_rate;
     let ptys = spawn_ptys(cfg)?;
