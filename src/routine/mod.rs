@@ -99,6 +99,13 @@ impl RoutineUi for Unattended {
 /// Largest |heading error| a square should produce before the routine warns (45°).
 pub const IMPLAUSIBLE_HEADING_RAD: f64 = std::f64::consts::FRAC_PI_4;
 
+/// Readings the pre-flight takes at rest: at least the first, up to the second while
+/// [`PREFLIGHT_BUDGET`] lasts (fifty state σ within ±30 % 997 times in 1000; ten, 8 in 10).
+pub const PREFLIGHT_READINGS: (usize, usize) = (10, 50);
+
+/// How long the pre-flight goes on reading at rest once it has the least number.
+pub const PREFLIGHT_BUDGET: Duration = Duration::from_secs(5);
+
 async fn cancellable<T, E: Into<RoutineError>>(
     cancel: &CancellationToken,
     fut: impl std::future::Future<Output = Result<T, E>>,
@@ -146,7 +153,9 @@ pub async fn run(
         cancel,
         tx,
         progress: Progress::default(),
-        heading_noise_rad: 0.0,
+        noise: heading::NoisePool::default(),
+        preflight_noise_rad: 0.0,
+        moving_rests: 0,
         warnings: Vec::new(),
         start_heading_rad: None,
         swing: None,
@@ -168,7 +177,12 @@ struct Calibration<'a> {
     /// The one write path: backed up before anything else, rolled back on failure.
     tx: Transaction,
     progress: Progress,
-    heading_noise_rad: f64,
+    /// The spread of every rest's readings so far: the heading sensor's noise.
+    noise: heading::NoisePool,
+    /// The pre-flight's σ, which every rest after is judged against (rad).
+    preflight_noise_rad: f64,
+    /// Rests whose readings spread beyond the sensor's noise: the robot had not settled.
+    moving_rests: usize,
     warnings: Vec<String>,
     /// The heading every square starts at (the first square's), once known.
     start_heading_rad: Option<f64>,
@@ -220,13 +234,19 @@ impl Calibration<'_> {
             ));
         }
         let verification = self.verify(&current, &rounds).await?;
+        if self.moving_rests > 0 {
+            self.warn(format!(
+                "{} rest(s) spread beyond the heading sensor's noise (the robot had not settled):                  left out of the noise estimate; a longer settle_s measures such squares better",
+                self.moving_rests
+            ));
+        }
         let mut report = Report::assemble(
             &self.base,
             self.cfg,
             original,
             self.tx.backup_path().to_path_buf(),
             current,
-            self.heading_noise_rad,
+            self.noise.std_rad(),
             rounds,
             verification,
             converged,
@@ -301,7 +321,12 @@ impl Calibration<'_> {
         }
         let readings = match cancellable(
             self.cancel,
-            heading::readings(self.base.heading.as_ref(), 10),
+            heading::readings_within(
+                self.base.heading.as_ref(),
+                PREFLIGHT_READINGS.0,
+                PREFLIGHT_READINGS.1,
+                PREFLIGHT_BUDGET,
+            ),
         )
         .await
         {
@@ -312,10 +337,12 @@ impl Calibration<'_> {
             }
             other => other?,
         };
-        self.heading_noise_rad = heading::circular_std(&readings);
+        self.noise = heading::NoisePool::of(&readings);
+        self.preflight_noise_rad = self.noise.std_rad();
         self.stage(format!(
-            "heading noise at rest: {:.3}° (σ of 10 readings)",
-            self.heading_noise_rad.to_degrees()
+            "heading noise at rest: {:.3}° (σ of {} readings; refined by every rest that follows)",
+            self.noise.std_rad().to_degrees(),
+            readings.len()
         ));
         let armed = cancellable(
             self.cancel,
@@ -339,6 +366,16 @@ impl Calibration<'_> {
             self.warn(w);
         }
         Ok(())
+    }
+
+    /// Adds a square's readings at rest to the noise estimate, unless their spread shows the
+    /// robot was still moving (judged against the pre-flight's σ), which is counted instead.
+    fn pool_rest_noise(&mut self, rec: &SquareRecord) {
+        if rec.rest_noise.consistent_with(self.preflight_noise_rad) {
+            self.noise = self.noise.plus(rec.rest_noise);
+        } else {
+            self.moving_rests += 1;
+        }
     }
 
     /// Asks before the robot first moves (unless the settings say not to).
@@ -397,12 +434,7 @@ impl Calibration<'_> {
                 );
                 RoutineError::Implausible(format!("method {method} gave no estimate: {why}"))
             })?;
-        let crb = cramer_rao_std(
-            self.cfg,
-            &chosen,
-            self.heading_noise_rad,
-            current.wheelbase_m,
-        );
+        let crb = cramer_rao_std(self.cfg, &chosen, self.noise.std_rad(), current.wheelbase_m);
         let converged_because = convergence(self.cfg, &chosen, crb, current.wheelbase_m);
         Ok(RoundReport {
             round,
@@ -617,6 +649,7 @@ impl Calibration<'_> {
                     };
                     cancellable(self.cancel, run_square(&self.base, &cmd, on_motion)).await?
                 };
+                self.pool_rest_noise(&rec);
                 let mut run = RunReport::new(phase, &rec, params, start, self.truth);
                 if let Some(s) = cfg.gyro_scale_error {
                     run.remove_gyro_scale(s, cfg.side_m);

@@ -6,8 +6,8 @@ use super::config::RoutineConfig;
 use super::square::SquareRecord;
 use super::GroundTruth;
 use crate::base::{Base, BaseInfo, TravelSample};
-use crate::calibration::recording::{coverage, Coverage};
 use crate::calibration::legs::LegMeasurement;
+use crate::calibration::recording::{coverage, Coverage};
 use crate::calibration::{Estimate, Method};
 use crate::kinematics::{Direction, Displacement, Pose, WheelParams};
 use serde::Serialize;
@@ -280,7 +280,8 @@ pub struct Report {
     pub backup_path: PathBuf,
     /// Parameters in the store at the end.
     pub final_params: WheelParams,
-    /// Heading noise at rest (σ of single readings, rad).
+    /// Heading noise at rest (σ of single readings, rad), pooled over the pre-flight's
+    /// readings and every rest's.
     pub heading_noise_rad: f64,
     /// Calibration rounds.
     pub rounds: Vec<RoundReport>,

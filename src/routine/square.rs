@@ -2,7 +2,7 @@
 //! the heading averaged at rest before and after, and the wheel travel and heading streamed
 //! while it drives.
 
-use super::heading::mean_heading;
+use super::heading::{at_rest, NoisePool};
 use super::RoutineError;
 use crate::base::{Base, HeadingSample, MotionGuard, SampleStream, TravelSample};
 use crate::calibration::legs::LegMeasurement;
@@ -53,6 +53,8 @@ pub struct SquareRecord {
     pub headings: Vec<HeadingSample>,
     /// How the two streams' clocks relate ([`Base::clocks`]).
     pub clocks: Clocks,
+    /// The spread of the readings at rest before and after, pooled.
+    pub rest_noise: NoisePool,
 }
 
 impl SquareRecord {
@@ -96,7 +98,7 @@ pub async fn run_square(
     if !cmd.settle.is_zero() {
         tokio::time::sleep(cmd.settle).await;
     }
-    let before = mean_heading(base.heading.as_ref(), cmd.heading_samples).await?;
+    let before = at_rest(base.heading.as_ref(), cmd.heading_samples).await?;
     let mut travel = base.drive.travel(cmd.stream_period).await?;
     let mut headings = base.heading.stream(cmd.stream_period).await?;
     let guard = MotionGuard::new(&base.drive);
@@ -123,21 +125,22 @@ pub async fn run_square(
     if !cmd.settle.is_zero() {
         tokio::time::sleep(cmd.settle).await;
     }
-    let after = mean_heading(base.heading.as_ref(), cmd.heading_samples).await?;
+    let after = at_rest(base.heading.as_ref(), cmd.heading_samples).await?;
     // Streams are forwarded by tasks of their own: let them hand over what they hold.
     for _ in 0..8 {
         tokio::task::yield_now().await;
     }
     Ok(SquareRecord {
         command: *cmd,
-        heading_before_rad: before,
-        heading_after_rad: after,
+        heading_before_rad: before.mean_rad,
+        heading_after_rad: after.mean_rad,
         heading_error_rad: wrap_angle(
-            after - before - achieved.map_or(0.0, |a| a.turn_rad - 4.0 * turn),
+            after.mean_rad - before.mean_rad - achieved.map_or(0.0, |a| a.turn_rad - 4.0 * turn),
         ),
         odometry: achieved,
         travel: drain(&mut travel),
         headings: drain(&mut headings),
         clocks: base.clocks(),
+        rest_noise: before.noise.plus(after.noise),
     })
 }
