@@ -1176,3 +1176,65 @@ mod judge_tests {
         );
     }
 }
+
+#[cfg(test)]
+mod convergence_tests {
+    use super::convergence;
+    use crate::calibration::{Estimate, Method};
+    use crate::kinematics::{Correction, SplitConvention};
+    use crate::routine::config::RoutineConfig;
+
+    fn estimate(e_b: f64, e_d: f64, se: (f64, f64)) -> Estimate {
+        let correction = Correction {
+            left_diameter_scale: 1.0,
+            right_diameter_scale: e_d,
+            wheelbase_scale: e_b,
+        };
+        Estimate::of(
+            Method::Exact,
+            correction,
+            Some(se),
+            &SplitConvention::LeftNominal,
+        )
+    }
+
+    #[test]
+    fn a_significant_visible_correction_is_applied_however_small() {
+        // The round 2: E_d 1.000976 ± 0.00003 on 4 m squares, thirty standard errors
+        // from 1 and 0.2° a square: applied, although below the old fixed 0.001.
+        let cfg = RoutineConfig::default();
+        let e = estimate(1.0, 1.000976, (0.00003, 0.00003));
+        assert_eq!(convergence(&cfg, &e, None, 0.39), None);
+        // The user's explicit tolerance still ends it.
+        let loose = RoutineConfig {
+            tolerance: Some(0.001),
+            ..RoutineConfig::default()
+        };
+        let why = convergence(&loose, &e, None, 0.39).unwrap();
+        assert!(why.contains("tolerance"), "{why}");
+    }
+
+    #[test]
+    fn a_correction_within_two_standard_errors_ends_the_rounds() {
+        let cfg = RoutineConfig::default();
+        let e = estimate(1.003, 0.998, (0.002, 0.0015));
+        let why = convergence(&cfg, &e, None, 0.39).unwrap();
+        assert!(why.contains("not significant"), "{why}");
+        // Without run-to-run errors the Cramér–Rao bound stands in.
+        let mut bare = e.clone();
+        bare.e_b_std_err = None;
+        bare.e_d_std_err = None;
+        assert!(convergence(&cfg, &bare, Some([0.002, 0.0015]), 0.39).is_some());
+        assert_eq!(convergence(&cfg, &bare, Some([0.0001, 0.0001]), 0.39), None);
+    }
+
+    #[test]
+    fn a_significant_correction_too_small_to_see_ends_the_rounds() {
+        // 20 ppm on E_b, precisely measured: significant, but it changes a 4 m square's
+        // heading error by far less than 0.1°.
+        let cfg = RoutineConfig::default();
+        let e = estimate(1.00002, 1.0, (0.000001, 0.000001));
+        let why = convergence(&cfg, &e, None, 0.39).unwrap();
+        assert!(why.contains("below the 0.1°"), "{why}");
+    }
+}
