@@ -5,8 +5,8 @@
 //! Any drive combines with any heading source: a controller of our protocol with a separate
 //! compass, a ROS robot whose IMU is poor with an NMEA compass, a RoboClaw (which has no
 //! heading sensor) with a compass. This file is the one place the backends are listed: a new
-//! heading source is its module plus one variant of [`HeadingSpec`] here (its text form in
-//! [`HeadingSpec::from_str`](std::str::FromStr) and its opening in [`HeadingSpec::open`]).
+//! heading source is its module (exporting a [`HeadingBackend`]) plus one line in
+//! [`HEADING_BACKENDS`]; its text form, options and opening come from there.
 //!
 //! Text forms (URL-like: quote them in a shell, `&` would end the command):
 //!
@@ -17,10 +17,10 @@
 //! | store | `drive` (the drive's own); `profile:PATH` (a robot profile, for a drive that keeps no parameters) |
 
 use crate::base::adjusted::Adjusted;
+use crate::base::heading_backend::{HeadingBackend, PortSpec};
 use crate::base::{Base, BaseError, HeadingKind, HeadingSource, ParamStore};
 use crate::hal::HalError;
 use crate::kinematics::Deviation;
-use crate::nmea::NmeaCompass;
 use crate::roboclaw::client::{RoboClaw, RoboClawConfig, RoboClawError};
 use crate::roboclaw::profile::{ProfileError, ProfileStore};
 use crate::ros::live::{RosBaseConfig, RosBaseError};
@@ -30,7 +30,6 @@ use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::str::FromStr;
 use std::sync::Arc;
-use std::time::Duration;
 
 /// Baud rate of odocal's protocol unless configured (SPEC.md §1).
 pub const ODOCAL_BAUD: u32 = crate::hal::DEFAULT_BAUD;
@@ -38,8 +37,10 @@ pub const ODOCAL_BAUD: u32 = crate::hal::DEFAULT_BAUD;
 pub const ROBOCLAW_BAUD: u32 = 38_400;
 /// Packet serial address of a RoboClaw unless configured.
 pub const ROBOCLAW_ADDRESS: u8 = 0x80;
-/// Baud rate of an NMEA 0183 compass unless configured.
-pub const NMEA_BAUD: u32 = 4800;
+
+/// The heading sources on ports of their own, by scheme: a new one is its module plus one
+/// line here.
+pub const HEADING_BACKENDS: &[&HeadingBackend] = &[&crate::nmea::HEADING_BACKEND];
 
 /// Why a spec cannot be parsed, combined or opened.
 #[derive(Debug, thiserror::Error)]
@@ -79,23 +80,16 @@ fn parse_err(text: &str, reason: impl Into<String>) -> SpecError {
     }
 }
 
-/// A port and its options (`key=value`).
-type PortOptions = (String, BTreeMap<String, String>);
-
 /// `scheme:PATH?k=v&k=v` split into the path and its options; `None` when the text does not
 /// start with `scheme:`.
-fn scheme_parts(
-    text: &str,
-    scheme: &str,
-    allowed: &[&str],
-) -> Option<Result<PortOptions, SpecError>> {
+fn scheme_parts(text: &str, scheme: &str, allowed: &[&str]) -> Option<Result<PortSpec, SpecError>> {
     let rest = text.strip_prefix(scheme)?.strip_prefix(':')?;
     Some((|| {
         let (path, query) = rest.split_once('?').unwrap_or((rest, ""));
         if path.is_empty() {
             return Err(parse_err(text, format!("no port (expected {scheme}:PORT)")));
         }
-        let mut opts = BTreeMap::new();
+        let mut options = BTreeMap::new();
         for kv in query.split('&').filter(|s| !s.is_empty()) {
             let (k, v) = kv
                 .split_once('=')
@@ -106,24 +100,18 @@ fn scheme_parts(
                     format!("unknown option {k} (options: {})", allowed.join(", ")),
                 ));
             }
-            opts.insert(k.to_string(), v.to_string());
+            options.insert(k.to_string(), v.to_string());
         }
-        Ok((path.to_string(), opts))
+        Ok(PortSpec {
+            port: path.to_string(),
+            options,
+        })
     })())
 }
 
-fn option<T: FromStr>(
-    text: &str,
-    opts: &BTreeMap<String, String>,
-    key: &str,
-    default: T,
-) -> Result<T, SpecError> {
-    match opts.get(key) {
-        None => Ok(default),
-        Some(v) => v
-            .parse()
-            .map_err(|_| parse_err(text, format!("{key}={v} is not a number in range"))),
-    }
+fn option<T: FromStr>(text: &str, spec: &PortSpec, key: &str, default: T) -> Result<T, SpecError> {
+    spec.option(key, default)
+        .map_err(|reason| parse_err(text, reason))
 }
 
 /// The part of a robot that moves.
@@ -169,21 +157,24 @@ impl FromStr for DriveSpec {
             })));
         }
         if let Some(parts) = scheme_parts(text, "roboclaw", &["address", "baud"]) {
-            let (port, opts) = parts?;
+            let spec = parts?;
             return Ok(DriveSpec::RoboClaw {
-                port,
-                address: option(text, &opts, "address", ROBOCLAW_ADDRESS)?,
-                baud: option(text, &opts, "baud", ROBOCLAW_BAUD)?,
+                address: option(text, &spec, "address", ROBOCLAW_ADDRESS)?,
+                baud: option(text, &spec, "baud", ROBOCLAW_BAUD)?,
+                port: spec.port,
             });
         }
         if let Some(parts) = scheme_parts(text, "odocal", &["baud"]) {
-            let (port, opts) = parts?;
+            let spec = parts?;
             return Ok(DriveSpec::Odocal {
-                port,
-                baud: option(text, &opts, "baud", ODOCAL_BAUD)?,
+                baud: option(text, &spec, "baud", ODOCAL_BAUD)?,
+                port: spec.port,
             });
         }
-        if text.is_empty() || text.contains("://") || text.starts_with("nmea:") {
+        let heading_scheme = HEADING_BACKENDS
+            .iter()
+            .any(|b| text.starts_with(&format!("{}:", b.scheme)));
+        if text.is_empty() || text.contains("://") || heading_scheme {
             return Err(parse_err(
                 text,
                 "not a drive: give a serial port of an odocal-protocol controller, \
@@ -214,12 +205,12 @@ pub enum HeadingSpec {
     /// The drive's own (a controller's compass, a ROS robot's IMU).
     #[default]
     Drive,
-    /// An NMEA 0183 compass on a serial port.
-    Nmea {
-        /// The port.
-        port: String,
-        /// Baud rate.
-        baud: u32,
+    /// A sensor on a port of its own, of one of the [`HEADING_BACKENDS`].
+    Port {
+        /// Its backend.
+        backend: &'static HeadingBackend,
+        /// The port and options.
+        spec: PortSpec,
     },
 }
 
@@ -231,30 +222,30 @@ impl FromStr for HeadingSpec {
         if text == "drive" {
             return Ok(HeadingSpec::Drive);
         }
-        if let Some(parts) = scheme_parts(text, "nmea", &["baud"]) {
-            let (port, opts) = parts?;
-            return Ok(HeadingSpec::Nmea {
-                port,
-                baud: option(text, &opts, "baud", NMEA_BAUD)?,
-            });
+        for &backend in HEADING_BACKENDS {
+            if let Some(parts) = scheme_parts(text, backend.scheme, backend.options) {
+                let spec = parts?;
+                (backend.check)(&spec).map_err(|reason| parse_err(text, reason))?;
+                return Ok(HeadingSpec::Port { backend, spec });
+            }
         }
+        let forms: Vec<&str> = HEADING_BACKENDS.iter().map(|b| b.form).collect();
         Err(parse_err(
             text,
-            "not a heading source: give drive (the drive's own) or nmea:PORT[?baud=4800]",
+            format!(
+                "not a heading source: give drive (the drive's own) or {}",
+                forms.join(" or ")
+            ),
         ))
     }
 }
 
 impl HeadingSpec {
     /// Opens a heading source that is not the drive's; `None` for [`HeadingSpec::Drive`].
-    pub fn open(&self) -> Result<Option<Arc<dyn HeadingSource>>, SpecError> {
+    pub async fn open(&self) -> Result<Option<Arc<dyn HeadingSource>>, SpecError> {
         Ok(match self {
             HeadingSpec::Drive => None,
-            HeadingSpec::Nmea { port, baud } => Some(Arc::new(NmeaCompass::open(
-                port,
-                *baud,
-                Duration::from_secs(1),
-            )?)),
+            HeadingSpec::Port { backend, spec } => Some((backend.open)(spec.clone()).await?),
         })
     }
 }
@@ -460,7 +451,7 @@ impl BaseSpec {
     /// **Connects to the robot** (it does not move): opens the drive, and the heading source
     /// and store when they are not the drive's, and composes the [`Base`].
     pub async fn open(&self) -> Result<Base, SpecError> {
-        let own_heading = self.heading.open()?;
+        let own_heading = self.heading.open().await?;
         let mut base =
             match &self.drive {
                 DriveSpec::Odocal { port, baud } => {
@@ -577,20 +568,16 @@ impl RoutineFile {
 /// drive has a heading sensor (an odocal-protocol port): for `odocal heading`.
 pub async fn open_heading(text: &str, baud: u32) -> Result<Arc<dyn HeadingSource>, SpecError> {
     if let Ok(h) = text.parse::<HeadingSpec>() {
-        if let Some(source) = h.open()? {
+        if let Some(source) = h.open().await? {
             return Ok(source);
         }
     }
-    match text.parse::<DriveSpec>()? {
-        DriveSpec::Odocal { port, baud: b } => {
-            let baud = if text.contains("baud=") { b } else { baud };
-            Ok(Arc::new(crate::hal::open_port(&port, baud).await?.0))
-        }
-        _ => Err(parse_err(
-            text,
-            "give nmea:PORT[?baud=4800] or the port of an odocal-protocol controller",
-        )),
-    }
+    let forms: Vec<&str> = HEADING_BACKENDS.iter().map(|b| b.form).collect();
+    let hint = format!(
+        "give {} or the port of an odocal-protocol controller",
+        forms.join(" or ")
+    );
+    Ok(Arc::new(open_controller(text, baud, &hint).await?))
 }
 
 /// Opens a parameter store alone: an odocal-protocol controller's port, or a file store
@@ -599,15 +586,23 @@ pub async fn open_store(text: &str, baud: u32) -> Result<Arc<dyn ParamStore>, Sp
     if let Ok(StoreSpec::Profile(path)) = text.parse::<StoreSpec>() {
         return Ok(Arc::new(ProfileStore::open(&path)?));
     }
+    let hint = "give the port of an odocal-protocol controller or profile:PATH";
+    Ok(Arc::new(open_controller(text, baud, hint).await?))
+}
+
+/// An odocal-protocol controller named by a drive spec (its `baud=` over `baud`), or an error
+/// with `hint` for any other drive.
+async fn open_controller(
+    text: &str,
+    baud: u32,
+    hint: &str,
+) -> Result<crate::hal::Client, SpecError> {
     match text.parse::<DriveSpec>()? {
         DriveSpec::Odocal { port, baud: b } => {
             let baud = if text.contains("baud=") { b } else { baud };
-            Ok(Arc::new(crate::hal::open_port(&port, baud).await?.0))
+            Ok(crate::hal::open_port(&port, baud).await?.0)
         }
-        _ => Err(parse_err(
-            text,
-            "give the port of an odocal-protocol controller or profile:PATH",
-        )),
+        _ => Err(parse_err(text, hint)),
     }
 }
 
@@ -638,15 +633,17 @@ mod tests {
             "rosbridge://localhost:9090".parse::<DriveSpec>(),
             Ok(DriveSpec::Rosbridge(c)) if c.url == "rosbridge://localhost:9090"
         ));
-        assert_eq!(
-            "nmea:/dev/ttyUSB1?baud=9600"
-                .parse::<HeadingSpec>()
-                .unwrap(),
-            HeadingSpec::Nmea {
-                port: "/dev/ttyUSB1".into(),
-                baud: 9600
+        match "nmea:/dev/ttyUSB1?baud=9600"
+            .parse::<HeadingSpec>()
+            .unwrap()
+        {
+            HeadingSpec::Port { backend, spec } => {
+                assert_eq!(backend.scheme, "nmea");
+                assert_eq!(spec.port, "/dev/ttyUSB1");
+                assert_eq!(spec.option("baud", 0u32), Ok(9600));
             }
-        );
+            other => panic!("{other:?}"),
+        }
         assert_eq!(
             "profile:robot.toml".parse::<StoreSpec>().unwrap(),
             StoreSpec::Profile("robot.toml".into())
@@ -661,6 +658,25 @@ mod tests {
         }
         assert!("nmea:/dev/x?baud=fast".parse::<HeadingSpec>().is_err());
         assert!("/dev/ttyUSB0".parse::<HeadingSpec>().is_err());
+    }
+
+    #[test]
+    fn every_listed_heading_backend_is_reached_by_its_own_form() {
+        for backend in HEADING_BACKENDS {
+            let text = backend
+                .form
+                .replace("PORT", "/dev/x")
+                .replace(['[', ']'], "");
+            match text.parse::<HeadingSpec>() {
+                Ok(HeadingSpec::Port { backend: b, spec }) => {
+                    assert_eq!(b.scheme, backend.scheme);
+                    assert_eq!(spec.port, "/dev/x");
+                }
+                other => panic!("{text}: {other:?}"),
+            }
+            // Its scheme is not taken for a drive.
+            assert!(text.parse::<DriveSpec>().is_err(), "{text}");
+        }
     }
 
     #[test]
@@ -730,7 +746,7 @@ mod tests {
         assert!(e.contains("--ros-yaml"), "{e}");
         // Any drive with any heading source: our protocol with a compass.
         let s = section("/dev/x", Some("nmea:/dev/y"), None).spec().unwrap();
-        assert!(matches!(s.heading, HeadingSpec::Nmea { .. }));
+        assert!(matches!(s.heading, HeadingSpec::Port { backend, .. } if backend.scheme == "nmea"));
         // Flags over the file.
         let file = RobotSection {
             drive: Some("/dev/a".into()),

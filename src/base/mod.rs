@@ -16,6 +16,7 @@ pub mod error;
 pub mod fanout;
 pub mod file_store;
 pub mod guard;
+pub mod heading_backend;
 pub mod transaction;
 
 pub use error::BaseError;

@@ -13,4 +13,30 @@ pub mod compass;
 pub mod sentence;
 
 pub use compass::{NmeaCompass, NmeaStats};
+
+use crate::base::heading_backend::{HeadingBackend, PortSpec};
+use std::sync::Arc;
+
+/// Baud rate of an NMEA 0183 compass unless configured (NMEA 0183's own).
+pub const NMEA_BAUD: u32 = 4800;
+
+/// An NMEA compass as a heading source of its own: `nmea:PORT[?baud=4800]`.
+pub const HEADING_BACKEND: HeadingBackend = HeadingBackend {
+    scheme: "nmea",
+    form: "nmea:PORT[?baud=4800]",
+    options: &["baud"],
+    check: |spec| spec.option("baud", NMEA_BAUD).map(drop),
+    open: |spec: PortSpec| {
+        Box::pin(async move {
+            let baud = spec.option("baud", NMEA_BAUD).map_err(|reason| {
+                crate::base::BaseError::InvalidArgument {
+                    component: "heading (NMEA)".into(),
+                    reason,
+                }
+            })?;
+            let compass = NmeaCompass::open(&spec.port, baud, std::time::Duration::from_secs(1))?;
+            Ok(Arc::new(compass) as Arc<dyn crate::base::HeadingSource>)
+        })
+    },
+};
 pub use sentence::{azimuth_to_heading, parse, sentence, Kind, NmeaError, MAX_SENTENCE};
