@@ -110,6 +110,28 @@ pub struct SquareTest {
 }
 
 impl SquareTest {
+    /// The test of `runs`, each with its direction, on squares of `side_m` driven with
+    /// `wheelbase_m` configured.
+    pub fn from_runs(
+        side_m: f64,
+        wheelbase_m: f64,
+        runs: impl IntoIterator<Item = (Direction, RunMeasurement)>,
+    ) -> Self {
+        let (mut cw, mut ccw) = (Vec::new(), Vec::new());
+        for (direction, m) in runs {
+            match direction {
+                Direction::Cw => cw.push(m),
+                Direction::Ccw => ccw.push(m),
+            }
+        }
+        SquareTest {
+            side_m,
+            wheelbase_m,
+            cw,
+            ccw,
+        }
+    }
+
     /// The same test without final positions (heading-only data, as from a compass).
     pub fn without_positions(mut self) -> Self {
         for r in self.cw.iter_mut().chain(self.ccw.iter_mut()) {

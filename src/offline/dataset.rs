@@ -468,12 +468,7 @@ impl OptiOdomSet {
         let side_m = self
             .side_m
             .ok_or_else(|| DatasetError::NotASquareSet(self.id.clone()))?;
-        let mut test = SquareTest {
-            side_m,
-            wheelbase_m: self.configured.wheelbase_m,
-            cw: Vec::new(),
-            ccw: Vec::new(),
-        };
+        let mut runs = Vec::with_capacity(self.runs.len());
         for run in &self.runs {
             let end = run.replay(&self.configured);
             let direction = if (end.truth_turn_rad + 2.0 * PI).abs() < 0.5 * PI {
@@ -502,11 +497,9 @@ impl OptiOdomSet {
                 legs,
                 noise_variance_rad2: None,
             };
-            match direction {
-                Direction::Cw => test.cw.push(m),
-                Direction::Ccw => test.ccw.push(m),
-            }
+            runs.push((direction, m));
         }
+        let test = SquareTest::from_runs(side_m, self.configured.wheelbase_m, runs);
         Ok(test)
     }
 

@@ -25,13 +25,11 @@ pub use report::Report;
 use crate::base::adjusted::Adjusted;
 use crate::base::transaction::Transaction;
 pub use crate::base::GroundTruth;
-use crate::base::{Base, BaseError, HeadingKind, HeadingSample, MotionGuard};
+use crate::base::{Base, BaseError, HeadingKind, MotionGuard};
 use crate::calibration::swing::SwingFit;
 use crate::calibration::uncertainty::{cramer_rao_bound, heading_error_sigma, TestDesign};
-use crate::calibration::{
-    default_method, estimate_all, Estimate, Method, RunMeasurement, SquareTest,
-};
-use crate::kinematics::{wrap_angle, Direction, Displacement, WheelParams};
+use crate::calibration::{default_method, estimate_all, Estimate, Method, SquareTest};
+use crate::kinematics::{wrap_angle, Direction, WheelParams};
 use config::{RoutineConfig, WritePolicy};
 use report::{Phase, RoundReport, RunReport, Stage};
 use square::{run_square, SquareCommand, SquareRecord};
@@ -969,26 +967,6 @@ pub fn judge(
     Ok(())
 }
 
-/// Total turn of the streamed heading over a run (rad, unwrapped).
-fn compass_turn(headings: &[HeadingSample]) -> Option<f64> {
-    let valid: Vec<f64> = headings
-        .iter()
-        .filter(|s| s.validity.is_valid())
-        .map(|s| s.heading_rad)
-        .collect();
-    (valid.len() > 8).then(|| valid.windows(2).map(|w| wrap_angle(w[1] - w[0])).sum())
-}
-
-/// Total turn the drive's own odometry saw over a run (rad), from its wheel travel.
-fn odometry_turn(rec: &SquareRecord, params: &WheelParams) -> Option<f64> {
-    (rec.travel.len() > 8).then(|| {
-        rec.travel
-            .iter()
-            .map(|t| Displacement::of_wheels(t.left_m, t.right_m, params.wheelbase_m).turn_rad)
-            .sum()
-    })
-}
-
 fn check_plausible(
     rec: &SquareRecord,
     run: &RunReport,
@@ -997,9 +975,14 @@ fn check_plausible(
 ) -> Result<(), RoutineError> {
     let expected = rec.command.direction.turn_sign() * 2.0 * std::f64::consts::PI;
     let opposite = |turn: f64| (turn + expected).abs() < (turn - expected).abs();
+    // Too few samples to tell a turn's sign (a stream that barely started) are no evidence.
+    let track = rec.recording().track(params.wheelbase_m);
+    let turns = track.turns();
+    let odometry_turn = (track.points.len() > 8).then_some(turns.odometry_rad);
+    let compass_turn = turns.heading_rad.filter(|_| track.readings.len() > 8);
     // The wheels must turn the robot the way the square was commanded; the opposite sign
     // means the encoders or motor channels are swapped or reversed.
-    if let Some(turn) = odometry_turn(rec, params).filter(|&t| opposite(t)) {
+    if let Some(turn) = odometry_turn.filter(|&t| opposite(t)) {
         return Err(RoutineError::Implausible(format!(
             "the drive's odometry turned {:.0}° during a {} square that should turn {:.0}°: \
              left and right wheels (or encoder directions) are swapped",
@@ -1008,7 +991,7 @@ fn check_plausible(
             expected.to_degrees()
         )));
     }
-    match compass_turn(&rec.headings) {
+    match compass_turn {
         // The heading must turn about ±360° the way the square was commanded; the opposite
         // sign means the sensor reports clockwise-positive azimuth.
         Some(turn) if opposite(turn) => {
@@ -1033,26 +1016,11 @@ fn check_plausible(
 }
 
 fn square_test(cfg: &RoutineConfig, params: &WheelParams, runs: &[RunReport]) -> SquareTest {
-    let mut test = SquareTest {
-        side_m: cfg.side_m,
-        wheelbase_m: params.wheelbase_m,
-        cw: Vec::new(),
-        ccw: Vec::new(),
-    };
-    for r in runs {
-        let m = RunMeasurement {
-            heading_error_rad: r.heading_error_rad,
-            final_xy_m: r.true_final_xy_m,
-            odometry: r.odometry,
-            legs: r.legs,
-            noise_variance_rad2: None,
-        };
-        match r.direction {
-            Direction::Cw => test.cw.push(m),
-            Direction::Ccw => test.ccw.push(m),
-        }
-    }
-    test
+    SquareTest::from_runs(
+        cfg.side_m,
+        params.wheelbase_m,
+        runs.iter().map(|r| (r.direction, r.measurement())),
+    )
 }
 
 fn cramer_rao_std(

@@ -219,17 +219,22 @@ impl RunReport {
 }
 
 impl RunReport {
+    /// What the estimators take of this run (its final position where a ground truth gave
+    /// one).
+    pub fn measurement(&self) -> crate::calibration::RunMeasurement {
+        crate::calibration::RunMeasurement {
+            heading_error_rad: self.heading_error_rad,
+            final_xy_m: self.true_final_xy_m,
+            odometry: self.odometry,
+            legs: self.legs,
+            noise_variance_rad2: None,
+        }
+    }
     /// The run as a gyro of scale error `s` would have measured it without the error: every
     /// heading change divided by `1 + s` ([`crate::calibration::gyro`]), against the
     /// odometry's turn (the commanded ±2π when the drive did not report one).
     pub fn remove_gyro_scale(&mut self, s: f64, side_m: f64) {
-        let mut m = crate::calibration::RunMeasurement {
-            heading_error_rad: self.heading_error_rad,
-            final_xy_m: None,
-            odometry: self.odometry,
-            legs: self.legs,
-            noise_variance_rad2: None,
-        };
+        let mut m = self.measurement();
         crate::calibration::gyro::remove_scale_from_run(&mut m, self.direction, side_m, s);
         self.heading_error_rad = m.heading_error_rad;
         self.heading_error_deg = m.heading_error_rad.to_degrees();

@@ -12,7 +12,7 @@ use crate::calibration::segment::{find_squares, RunSegment, SegmentOptions};
 use crate::calibration::time_offset::TimeOffset;
 use crate::calibration::tracker::Tracker;
 use crate::calibration::{estimate_all, Estimate, Method, RunMeasurement, SquareTest};
-use crate::kinematics::{wrap_angle, Direction, SplitConvention, WheelParams};
+use crate::kinematics::{wrap_angle, SplitConvention, WheelParams};
 use crate::ros::yaml::{Multipliers, RAD_PER_REV};
 use serde::Serialize;
 use std::path::{Path, PathBuf};
@@ -267,25 +267,20 @@ pub fn analyse(
         (None, None) if !legs.is_empty() => (legs.iter().sum::<f64>() / legs.len() as f64, "legs"),
         _ => (f64::NAN, "none"),
     };
-    let mut test = SquareTest {
+    let test = SquareTest::from_runs(
         side_m,
-        wheelbase_m: configured.wheelbase_m,
-        cw: Vec::new(),
-        ccw: Vec::new(),
-    };
-    for r in &runs {
-        let m = RunMeasurement {
-            heading_error_rad: r.heading_error_rad,
-            final_xy_m: None,
-            odometry: Some(r.odometry),
-            legs: r.legs,
-            noise_variance_rad2: None,
-        };
-        match r.direction {
-            Direction::Cw => test.cw.push(m),
-            Direction::Ccw => test.ccw.push(m),
-        }
-    }
+        configured.wheelbase_m,
+        runs.iter().map(|r| {
+            let m = RunMeasurement {
+                heading_error_rad: r.heading_error_rad,
+                final_xy_m: None,
+                odometry: Some(r.odometry),
+                legs: r.legs,
+                noise_variance_rad2: None,
+            };
+            (r.direction, m)
+        }),
+    );
     let (mut estimates, mut failures) = (Vec::new(), Vec::new());
     match estimate_all(&test, opts.convention) {
         Ok(all) => {
