@@ -63,6 +63,15 @@ pub fn wrap_angle(angle_rad: f64) -> f64 {
     a
 }
 
+/// The circular mean of `angles` (rad), wrapped to (−π, π]: the direction of the sum of
+/// their unit vectors, so readings either side of ±π average near ±π. `None` for no angles.
+pub fn circular_mean(angles: impl IntoIterator<Item = f64>) -> Option<f64> {
+    let (s, c, n) = angles
+        .into_iter()
+        .fold((0.0, 0.0, 0usize), |(s, c, n), a| (s + a.sin(), c + a.cos(), n + 1));
+    (n > 0).then(|| wrap_angle(s.atan2(c)))
+}
+
 /// `sin(x)/x`, accurate near zero (used by the exact arc update and the scale check).
 pub fn sinc(x: f64) -> f64 {
     if x.abs() < 1e-4 {

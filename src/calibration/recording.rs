@@ -413,13 +413,9 @@ impl Track {
     /// The circular mean of the valid readings with times in `[from_s, to_s]`, and how many.
     pub fn mean_heading(&self, from_s: f64, to_s: f64) -> (Option<f64>, usize) {
         let lo = self.readings.partition_point(|r| r.0 < from_s);
-        let (mut s, mut c, mut n) = (0.0, 0.0, 0);
-        for &(_, v) in self.readings[lo..].iter().take_while(|r| r.0 <= to_s) {
-            s += v.sin();
-            c += v.cos();
-            n += 1;
-        }
-        ((n > 0).then(|| s.atan2(c)), n)
+        let within = self.readings[lo..].iter().take_while(|r| r.0 <= to_s);
+        let n = within.clone().count();
+        (crate::kinematics::circular_mean(within.map(|r| r.1)), n)
     }
 }
 

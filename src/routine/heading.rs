@@ -10,10 +10,7 @@ use crate::kinematics::wrap_angle;
 
 /// The circular mean of `angles` (rad), wrapped to (−π, π].
 pub fn circular_mean(angles: &[f64]) -> f64 {
-    let (s, c) = angles
-        .iter()
-        .fold((0.0, 0.0), |(s, c), a| (s + a.sin(), c + a.cos()));
-    wrap_angle(s.atan2(c))
+    crate::kinematics::circular_mean(angles.iter().copied()).unwrap_or(0.0)
 }
 
 /// The sample standard deviation of `angles` about their circular mean (rad); 0 for fewer
