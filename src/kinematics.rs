@@ -66,9 +66,9 @@ pub fn wrap_angle(angle_rad: f64) -> f64 {
 /// The circular mean of `angles` (rad), wrapped to (−π, π]: the direction of the sum of
 /// their unit vectors, so readings either side of ±π average near ±π. `None` for no angles.
 pub fn circular_mean(angles: impl IntoIterator<Item = f64>) -> Option<f64> {
-    let (s, c, n) = angles
-        .into_iter()
-        .fold((0.0, 0.0, 0usize), |(s, c, n), a| (s + a.sin(), c + a.cos(), n + 1));
+    let (s, c, n) = angles.into_iter().fold((0.0, 0.0, 0usize), |(s, c, n), a| {
+        (s + a.sin(), c + a.cos(), n + 1)
+    });
     (n > 0).then(|| wrap_angle(s.atan2(c)))
 }
 

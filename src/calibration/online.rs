@@ -328,9 +328,9 @@ impl OnlineEstimator {
     pub fn predict_travel(&mut self, s_l: f64, s_r: f64) {
         let b = self.cfg.configured.wheelbase_m;
         let (ul, ur, k, th) = (self.x[UL], self.x[UR], self.x[K], self.x[TH]);
-        let dth = (ur * s_r - ul * s_l) / b;
-        let half_sum = 0.5 * (ur * s_r + ul * s_l);
-        let ds = k * half_sum;
+        let step = crate::kinematics::Displacement::of_wheels(ul * s_l, ur * s_r, b);
+        let dth = step.turn_rad;
+        let ds = k * step.distance_m;
         let phi = th + 0.5 * dth;
         let (sp, cp) = phi.sin_cos();
 
@@ -345,8 +345,8 @@ impl OnlineEstimator {
             f[(Y, col)] = sp * d_ds[i] + 0.5 * ds * cp * d_dth[i];
             f[(TH, col)] = d_dth[i];
         }
-        f[(X, K)] = cp * half_sum;
-        f[(Y, K)] = sp * half_sum;
+        f[(X, K)] = cp * step.distance_m;
+        f[(Y, K)] = sp * step.distance_m;
 
         // Input Jacobian and input noise.
         let g_dth = [-ul / b, ur / b];
