@@ -17,6 +17,7 @@ use odocal::mock::{
 };
 use odocal::protocol::message::{id, ParamsBlock};
 use odocal::routine::config::RoutineConfig;
+use odocal::routine::report::Phase;
 use odocal::routine::{run, ParamsAfterFailure, RoutineError, RoutineEvent, RoutineUi};
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
@@ -28,8 +29,8 @@ use tokio_util::sync::CancellationToken;
 enum Kill {
     /// As the pre-flight checks start.
     Preflight,
-    /// After this motion (1..=8) of this run of this phase ("round 1", "verification").
-    AfterMotion(&'static str, usize, usize),
+    /// After this motion (1..=8) of this run of this phase.
+    AfterMotion(Phase, usize, usize),
     /// The device dies right after executing its first SAVE_PARAMS, the answer unsent.
     OnSave,
 }
@@ -63,7 +64,7 @@ impl RoutineUi for Killer {
                     motion: m,
                     ..
                 },
-            ) if p == phase && *r == run && *m == motion => self.now(),
+            ) if *p == phase && *r == run && *m == motion => self.now(),
             _ => {}
         }
     }
@@ -264,7 +265,7 @@ async fn a_device_killed_in_any_phase_leaves_a_partial_report_and_a_true_stateme
         ),
         (
             "round1",
-            Kill::AfterMotion("round 1", 2, 3),
+            Kill::AfterMotion(Phase::Calibration { round: 1 }, 2, 3),
             "round 1",
             1,
             ParamsAfterFailure::Untouched,
@@ -279,14 +280,14 @@ async fn a_device_killed_in_any_phase_leaves_a_partial_report_and_a_true_stateme
         ),
         (
             "round2",
-            Kill::AfterMotion("round 2", 1, 5),
+            Kill::AfterMotion(Phase::Calibration { round: 2 }, 1, 5),
             "round 2",
             4,
             restored.clone(),
         ),
         (
             "verification",
-            Kill::AfterMotion("verification", 1, 2),
+            Kill::AfterMotion(Phase::Verification, 1, 2),
             "verification",
             8,
             restored.clone(),

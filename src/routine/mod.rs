@@ -50,8 +50,8 @@ pub enum RoutineEvent {
     },
     /// One motion finished.
     Motion {
-        /// "round 1", "verification".
-        phase: String,
+        /// The phase (shown as `round 1`, `verification`).
+        phase: Phase,
         /// Run number (1-based).
         run: usize,
         /// Runs in this phase.
@@ -616,7 +616,6 @@ impl Calibration<'_> {
         self.ui.event(&RoutineEvent::Plan {
             motions: of as u64 * 8,
         });
-        let label = phase.label();
         let mut out = Vec::with_capacity(of);
         let mut index = 0;
         for direction in [Direction::Cw, Direction::Ccw] {
@@ -635,10 +634,9 @@ impl Calibration<'_> {
                 let start = self.truth.map(|t| t.pose());
                 let rec = {
                     let ui = &mut *self.ui;
-                    let label = label.clone();
                     let on_motion = move |motion| {
                         ui.event(&RoutineEvent::Motion {
-                            phase: label.clone(),
+                            phase,
                             run: index,
                             of,
                             direction,

@@ -30,7 +30,13 @@ pub enum Phase {
 impl Phase {
     /// "round 2" or "verification".
     pub fn label(&self) -> String {
-        Stage::of(*self).to_string()
+        self.to_string()
+    }
+}
+
+impl std::fmt::Display for Phase {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        Stage::of(*self).fmt(f)
     }
 }
 
