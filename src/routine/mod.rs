@@ -971,13 +971,27 @@ fn check_plausible(
     params: &WheelParams,
     ui: &mut dyn RoutineUi,
 ) -> Result<(), RoutineError> {
-    let expected = rec.command.direction.turn_sign() * 2.0 * std::f64::consts::PI;
-    let opposite = |turn: f64| (turn + expected).abs() < (turn - expected).abs();
-    // Too few samples to tell a turn's sign (a stream that barely started) are no evidence.
+    use std::f64::consts::{FRAC_PI_2, PI};
+    let sign = rec.command.direction.turn_sign();
+    let expected = sign * 2.0 * PI;
+    // Reversed means at least half the square's turn the other way: a stream that saw little
+    // of the square (lost or late samples) turns near zero, which is no evidence either way.
+    let opposite = |turn: f64| turn * sign < -PI;
+    // Too few samples to tell a turn's sign (a stream that barely started) are no evidence,
+    // nor are headings so far apart that the robot may have turned a quarter between two:
+    // their differences cannot be unwrapped.
     let track = rec.recording().track(params.wheelbase_m);
     let turns = track.turns();
+    let widest_gap_s = track
+        .readings
+        .windows(2)
+        .map(|w| w[1].0 - w[0].0)
+        .fold(0.0, f64::max);
+    let unwrappable = widest_gap_s * rec.command.max_rate_rad_s < FRAC_PI_2;
     let odometry_turn = (track.points.len() > 8).then_some(turns.odometry_rad);
-    let compass_turn = turns.heading_rad.filter(|_| track.readings.len() > 8);
+    let compass_turn = turns
+        .heading_rad
+        .filter(|_| track.readings.len() > 8 && unwrappable);
     // The wheels must turn the robot the way the square was commanded; the opposite sign
     // means the encoders or motor channels are swapped or reversed.
     if let Some(turn) = odometry_turn.filter(|&t| opposite(t)) {
@@ -1003,6 +1017,10 @@ fn check_plausible(
             )));
         }
         Some(_) => {}
+        None if track.readings.len() > 8 => ui.event(&RoutineEvent::Warning(format!(
+            "the heading stream has gaps of up to {widest_gap_s:.2} s: the heading sensor's \
+             sign convention cannot be checked on this square"
+        ))),
         None => ui.event(&RoutineEvent::Warning(
             "no heading stream: the heading sensor's sign convention cannot be checked".into(),
         )),
