@@ -349,13 +349,11 @@ async fn restore_from(
         return print_params(&current, port.json, json!({ "written": false }));
     }
     if !yes {
-        eprint!(
-            "write them to the device{}? [y/N] ",
+        let question = format!(
+            "write them to the device{}?",
             if stored { " and its storage" } else { "" }
         );
-        let mut line = String::new();
-        std::io::stdin().read_line(&mut line)?;
-        if !matches!(line.trim(), "y" | "Y" | "yes") {
+        if !crate::prompt::yes(&question) {
             return Err("not restored: declined".into());
         }
     }

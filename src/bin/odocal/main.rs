@@ -3,6 +3,7 @@
 mod device;
 mod estimate;
 mod ports;
+mod prompt;
 mod replay;
 mod roboclaw;
 mod robot;

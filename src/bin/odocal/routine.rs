@@ -12,9 +12,8 @@ use odocal::routine::report::Report;
 use odocal::routine::{run, RoutineEvent, RoutineUi};
 use odocal::spec::{BaseSpec, DriveSpec, RobotSection, RoutineFile};
 use serde_json::json;
-use std::io::{BufRead, IsTerminal, Write};
+use std::io::IsTerminal;
 use std::path::PathBuf;
-use tokio_util::sync::CancellationToken;
 
 type CliResult = Result<(), Box<dyn std::error::Error>>;
 
@@ -51,13 +50,7 @@ impl RoutineUi for TerminalUi {
             self.say(&format!("{question} yes (--yes)"));
             return true;
         }
-        let ask = || {
-            eprint!("{question} [y/N] ");
-            let _ = std::io::stderr().flush();
-            let mut line = String::new();
-            let ok = std::io::stdin().lock().read_line(&mut line).is_ok();
-            ok && matches!(line.trim(), "y" | "Y" | "yes" | "YES")
-        };
+        let ask = || crate::prompt::yes(question);
         match &self.bar {
             Some(b) => b.suspend(|| tokio::task::block_in_place(ask)),
             None => tokio::task::block_in_place(ask),
@@ -127,18 +120,6 @@ impl Drop for TerminalUi {
 }
 
 /// A token cancelled by Ctrl-C.
-fn ctrl_c_token() -> CancellationToken {
-    let token = CancellationToken::new();
-    let t = token.clone();
-    tokio::spawn(async move {
-        if tokio::signal::ctrl_c().await.is_ok() {
-            eprintln!("\nCtrl-C: stopping the robot and restoring the parameters…");
-            t.cancel();
-        }
-    });
-    token
-}
-
 fn print_outcome(report: &Report, json_out: bool, files: &[PathBuf]) -> CliResult {
     if json_out {
         let mut v = serde_json::to_value(report)?;
@@ -290,7 +271,8 @@ pub async fn demo(args: DemoArgs) -> CliResult {
         );
     }
     let mut ui = TerminalUi::new(args.json, true);
-    let token = ctrl_c_token();
+    let token =
+        crate::prompt::ctrl_c_token(Some("stopping the robot and restoring the parameters…"));
     let (report, _device) = run_demo(&opts, &mut ui, &token).await?;
     drop(ui);
     finish(&report, Some(&args.report_dir), args.json)
@@ -409,14 +391,12 @@ impl RoutineFlags {
             cfg.allow_large_change = true;
             cfg.max_change = self.max_change.unwrap_or(1.0);
             if !self.yes {
-                eprint!(
+                let typed = crate::prompt::answer(&format!(
                     "--allow-large-change lets odocal write parameters up to {:.0} % away from \
-                     what the robot holds now. Type LARGE to allow it: ",
+                     what the robot holds now. Type LARGE to allow it:",
                     100.0 * cfg.max_change
-                );
-                let mut line = String::new();
-                std::io::stdin().read_line(&mut line)?;
-                if line.trim() != "LARGE" {
+                ))?;
+                if typed != "LARGE" {
                     return Err("large changes not confirmed (type LARGE, or give --yes)".into());
                 }
             }
@@ -502,7 +482,8 @@ async fn run_on(mut cfg: RoutineConfig, spec: BaseSpec, flags: &RoutineFlags) ->
         eprintln!("{}", connected(&base));
     }
     let mut ui = TerminalUi::new(flags.json, flags.yes);
-    let token = ctrl_c_token();
+    let token =
+        crate::prompt::ctrl_c_token(Some("stopping the robot and restoring the parameters…"));
     let report = run(&base, &cfg, None, &mut ui, &token).await?;
     drop(ui);
     finish(&report, cfg.report_dir.as_ref(), flags.json)
@@ -517,7 +498,8 @@ async fn run_simulated(mut cfg: RoutineConfig, flags: &RoutineFlags) -> CliResul
         ..DemoOptions::default()
     };
     let mut ui = TerminalUi::new(flags.json, flags.yes);
-    let token = ctrl_c_token();
+    let token =
+        crate::prompt::ctrl_c_token(Some("stopping the robot and restoring the parameters…"));
     let (report, _) = run_demo(&opts, &mut ui, &token).await?;
     drop(ui);
     finish(&report, cfg.report_dir.as_ref(), flags.json)

@@ -8,7 +8,6 @@ use odocal::routine::spin::run_spin;
 use odocal::routine::swing::{run_swing, SwingCommand};
 use odocal::spec::RobotSection;
 use serde_json::json;
-use std::io::{BufRead, Write};
 use std::time::Duration;
 
 type CliResult = Result<(), Box<dyn std::error::Error>>;
@@ -59,21 +58,8 @@ pub struct SpinArgs {
     json: bool,
 }
 
-fn ask(question: &str) -> Result<String, Box<dyn std::error::Error>> {
-    eprint!("{question} ");
-    std::io::stderr().flush()?;
-    let mut line = String::new();
-    std::io::stdin().lock().read_line(&mut line)?;
-    Ok(line.trim().to_string())
-}
-
 fn confirm(yes: bool, what: &str) -> CliResult {
-    if yes
-        || matches!(
-            ask(&format!("{what} Is the area clear? [y/N]"))?.as_str(),
-            "y" | "yes"
-        )
-    {
+    if yes || crate::prompt::yes(&format!("{what} Is the area clear?")) {
         Ok(())
     } else {
         Err("the robot may not move".into())
@@ -191,7 +177,7 @@ pub async fn spin(args: SpinArgs) -> CliResult {
     };
     let past_deg = match args.past_mark_deg {
         Some(d) => d,
-        None => ask(
+        None => crate::prompt::answer(
             "How far past the mark did it stop, in degrees, in the direction it turned \
              (negative if short of it)?",
         )?

@@ -16,7 +16,6 @@ use odocal::routine::track::{track_live, DrivePath, TrackOptions, TrackOutcome};
 use odocal::routine::{write_parameters, RoutineEvent, RoutineUi};
 use odocal::spec::RobotSection;
 use serde_json::json;
-use std::io::BufRead;
 use std::path::PathBuf;
 use std::time::Duration;
 use tokio_util::sync::CancellationToken;
@@ -24,17 +23,6 @@ use tokio_util::sync::CancellationToken;
 type CliResult = Result<(), Box<dyn std::error::Error>>;
 
 /// A token cancelled by Ctrl-C.
-fn ctrl_c_token() -> CancellationToken {
-    let token = CancellationToken::new();
-    let t = token.clone();
-    tokio::spawn(async move {
-        if tokio::signal::ctrl_c().await.is_ok() {
-            t.cancel();
-        }
-    });
-    token
-}
-
 /// How a live session drives, if it does.
 #[derive(Debug, Clone, clap::Args)]
 pub struct DriveArgs {
@@ -112,7 +100,7 @@ async fn live(
         &opts,
         &mut sink,
         &mut on_checkpoint,
-        &ctrl_c_token(),
+        &crate::prompt::ctrl_c_token(None),
     )
     .await;
     if let Some(e) = error {
@@ -268,10 +256,7 @@ impl RoutineUi for StdinUi {
         if self.yes {
             return true;
         }
-        eprint!("{question} [y/N] ");
-        let mut line = String::new();
-        tokio::task::block_in_place(|| std::io::stdin().lock().read_line(&mut line)).is_ok()
-            && matches!(line.trim(), "y" | "Y" | "yes")
+        tokio::task::block_in_place(|| crate::prompt::yes(question))
     }
     fn event(&mut self, event: &RoutineEvent) {
         eprintln!("{event:?}");
