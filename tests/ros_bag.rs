@@ -474,7 +474,8 @@ fn a_late_imu_is_found_and_every_exact_method_stays_within_its_errors() {
 }
 
 /// The fixture bags: one simulated square test (odocal's, noise-free, 2 Hz) written in every
-/// container by the Python library `rosbags` (`tests/fixtures/bags/make_bags.py`).
+/// container by the Python libraries `rosbags` and, for MCAP with lz4 chunks, `mcap`
+/// (`tests/fixtures/bags/make_bags.py`).
 const FIXTURES: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/fixtures/bags");
 
 /// Fixture `name` (a file or a directory) copied into `dir`, the files the repository keeps
@@ -521,7 +522,7 @@ fn bag_json(path: &Path) -> Value {
 }
 
 #[test]
-fn every_container_written_by_rosbags_gives_the_same_simulated_robot() {
+fn every_container_written_by_python_libraries_gives_the_same_simulated_robot() {
     let dir = scratch("bag-containers");
     std::fs::create_dir_all(&dir).unwrap();
     let mut cases: Vec<(String, PathBuf)> = [
@@ -534,6 +535,12 @@ fn every_container_written_by_rosbags_gives_the_same_simulated_robot() {
         "square.bag",
         "square_lz4.bag",
         "square_bz2.bag",
+        // MCAP storage with `compression: Lz4` chunks (Foxglove's writer), and MCAP storage
+        // compressed by rosbag2 as a whole file (`.mcap.zstd`).
+        "square_lz4.mcap",
+        "mcap_file_zstd",
+        // A bag compressed whole by the `lz4` tool.
+        "square.mcap.lz4",
     ]
     .iter()
     .map(|name| (name.to_string(), fixture(name, &dir)))
@@ -651,6 +658,27 @@ fn what_is_not_a_bag_is_named_and_broken_bags_are_errors() {
     let flipped = dir.join("flipped.bag");
     std::fs::write(&flipped, &broken).unwrap();
     assert!(fails(&flipped).contains("lz4 chunk at byte"));
+    // MCAP lz4 chunks and a whole-file LZ4 frame, cut short or with a chunk flipped.
+    let mcap = fixture("square_lz4.mcap", &dir);
+    let bytes = std::fs::read(&mcap).unwrap();
+    let cut_mcap = dir.join("cut_lz4.mcap");
+    std::fs::write(&cut_mcap, &bytes[..bytes.len() / 2]).unwrap();
+    assert!(fails(&cut_mcap).contains("not a readable MCAP bag"));
+    let mut broken = bytes.clone();
+    let chunk = broken
+        .windows(4)
+        .position(|w| w == [0x04, 0x22, 0x4D, 0x18])
+        .unwrap();
+    broken[chunk + 4] ^= 0xC0;
+    let flipped = dir.join("flipped_lz4.mcap");
+    std::fs::write(&flipped, &broken).unwrap();
+    let err = fails(&flipped);
+    assert!(err.contains("not a readable MCAP bag"), "{err}");
+    let lz4_file = fixture("square.mcap.lz4", &dir);
+    let bytes = std::fs::read(&lz4_file).unwrap();
+    std::fs::write(&lz4_file, &bytes[..bytes.len() - 100]).unwrap();
+    let err = fails(&lz4_file);
+    assert!(err.contains("square.mcap.lz4: lz4"), "{err}");
     // A zstd file cut short.
     let zstd = fixture("sqlite3_file_zstd", &dir).join("sqlite3_file_zstd.db3.zstd");
     let bytes = std::fs::read(&zstd).unwrap();
