@@ -643,37 +643,29 @@ fn what_is_not_a_bag_is_named_and_broken_bags_are_errors() {
         .filter(|n| n.starts_with("cut.db3") && n != "cut.db3")
         .collect();
     assert!(left.is_empty(), "{left:?}");
-    let bag = fixture("square_lz4.bag", &dir);
-    let bytes = std::fs::read(&bag).unwrap();
-    let cut = dir.join("cut.bag");
-    std::fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
-    assert!(fails(&cut).contains("not a readable ROS 1 bag"));
-    // An LZ4 chunk whose frame says a version LZ4 does not have.
-    let mut broken = bytes.clone();
-    let lz4 = broken
-        .windows(4)
-        .position(|w| w == [0x04, 0x22, 0x4D, 0x18])
-        .unwrap();
-    broken[lz4 + 4] ^= 0xC0;
-    let flipped = dir.join("flipped.bag");
-    std::fs::write(&flipped, &broken).unwrap();
-    assert!(fails(&flipped).contains("lz4 chunk at byte"));
-    // MCAP lz4 chunks and a whole-file LZ4 frame, cut short or with a chunk flipped.
-    let mcap = fixture("square_lz4.mcap", &dir);
-    let bytes = std::fs::read(&mcap).unwrap();
-    let cut_mcap = dir.join("cut_lz4.mcap");
-    std::fs::write(&cut_mcap, &bytes[..bytes.len() / 2]).unwrap();
-    assert!(fails(&cut_mcap).contains("not a readable MCAP bag"));
-    let mut broken = bytes.clone();
-    let chunk = broken
-        .windows(4)
-        .position(|w| w == [0x04, 0x22, 0x4D, 0x18])
-        .unwrap();
-    broken[chunk + 4] ^= 0xC0;
-    let flipped = dir.join("flipped_lz4.mcap");
-    std::fs::write(&flipped, &broken).unwrap();
-    let err = fails(&flipped);
-    assert!(err.contains("not a readable MCAP bag"), "{err}");
+    // Files with lz4 chunks (a ROS 1 bag, an MCAP), cut in half, and with their first LZ4
+    // frame saying a version LZ4 does not have.
+    let broken = |name: &str| {
+        let bytes = std::fs::read(fixture(name, &dir)).unwrap();
+        let cut = dir.join(format!("cut_{name}"));
+        std::fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
+        let mut flipped = bytes.clone();
+        let lz4 = flipped
+            .windows(4)
+            .position(|w| w == [0x04, 0x22, 0x4D, 0x18])
+            .unwrap();
+        flipped[lz4 + 4] ^= 0xC0;
+        let flipped_path = dir.join(format!("flipped_{name}"));
+        std::fs::write(&flipped_path, &flipped).unwrap();
+        (fails(&cut), fails(&flipped_path))
+    };
+    let (cut, flipped) = broken("square_lz4.bag");
+    assert!(cut.contains("not a readable ROS 1 bag"), "{cut}");
+    assert!(flipped.contains("lz4 chunk at byte"), "{flipped}");
+    let (cut, flipped) = broken("square_lz4.mcap");
+    assert!(cut.contains("not a readable MCAP bag"), "{cut}");
+    assert!(flipped.contains("not a readable MCAP bag"), "{flipped}");
+    // A whole-file LZ4 frame cut short.
     let lz4_file = fixture("square.mcap.lz4", &dir);
     let bytes = std::fs::read(&lz4_file).unwrap();
     std::fs::write(&lz4_file, &bytes[..bytes.len() - 100]).unwrap();

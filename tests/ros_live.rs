@@ -52,6 +52,32 @@ fn routine(dir: &Path) -> RoutineConfig {
     common::quick_routine(dir)
 }
 
+/// The routine on `base`, saying yes to everything.
+async fn unattended(
+    base: &Base,
+    routine: &RoutineConfig,
+) -> Result<odocal::routine::report::Report, RoutineError> {
+    run(
+        base,
+        routine,
+        None,
+        &mut Unattended,
+        &CancellationToken::new(),
+    )
+    .await
+}
+
+/// The error of a straight motion (at 0.3 m/s) on a robot that does not move, which must come
+/// within two seconds of the command.
+async fn stopped_within_two_seconds(base: &Base, distance_m: f64) -> String {
+    let started = std::time::Instant::now();
+    let err = base.drive.move_straight(distance_m, 0.3).await.unwrap_err();
+    let took = started.elapsed();
+    let text = err.to_string();
+    assert!(took < Duration::from_secs(2), "{took:?}: {text}");
+    text
+}
+
 /// The routine end to end through rosbridge, for each form joint_state_broadcaster's `effort`
 /// takes on the wire; odocal never reads `effort`, so none must cost a message. The NaN
 /// efforts of wheels without an effort interface through a rosbridge that writes NaN as the
@@ -73,15 +99,9 @@ async fn calibrating_through_rosbridge_writes_multipliers_that_fix_the_robot() {
             routine.swing = false;
             routine.realign = false;
         }
-        let report = run(
-            &base,
-            &routine,
-            None,
-            &mut Unattended,
-            &CancellationToken::new(),
-        )
-        .await
-        .unwrap_or_else(|e| panic!("{effort:?}: {e}"));
+        let report = unattended(&base, &routine)
+            .await
+            .unwrap_or_else(|e| panic!("{effort:?}: {e}"));
         let before = report.mean_abs_heading_error_before_deg;
         let after = report.mean_abs_heading_error_after_deg.unwrap();
         assert!(
@@ -212,15 +232,7 @@ async fn an_error_mid_leg_publishes_zero() {
     // The wheel driver stops publishing 3 s of robot time in: mid-leg.
     let server = mock(&yaml, |c| c.joint_states_stop_after_s = Some(3.0)).await;
     let base = connect(&ros_config(server.url(), &yaml)).await.unwrap();
-    let err = run(
-        &base,
-        &routine(&dir),
-        None,
-        &mut Unattended,
-        &CancellationToken::new(),
-    )
-    .await
-    .unwrap_err();
+    let err = unattended(&base, &routine(&dir)).await.unwrap_err();
     assert!(err.to_string().contains("no wheel data"), "{err}");
     assert_eq!(last_command(&server).await, (0.0, 0.0));
     assert_eq!(wait_still(&server).await, (0.0, 0.0));
@@ -246,15 +258,7 @@ async fn rosbridge_vanishing_mid_leg_fails_fast_and_the_controller_stops_the_rob
         s2.vanish();
     });
     let started = std::time::Instant::now();
-    let err = run(
-        &base,
-        &routine(&dir),
-        None,
-        &mut Unattended,
-        &CancellationToken::new(),
-    )
-    .await
-    .unwrap_err();
+    let err = unattended(&base, &routine(&dir)).await.unwrap_err();
     killer.await.unwrap();
     assert!(
         started.elapsed() < Duration::from_secs(10),
@@ -461,11 +465,7 @@ async fn a_velocity_topic_nothing_listens_to_is_diagnosed_at_once() {
     })
     .await;
     let base = connect(&ros_config(server.url(), &yaml)).await.unwrap();
-    let started = std::time::Instant::now();
-    let err = base.drive.move_straight(1.0, 0.3).await.unwrap_err();
-    let took = started.elapsed();
-    let text = err.to_string();
-    assert!(took < Duration::from_secs(2), "{took:?}: {text}");
+    let text = stopped_within_two_seconds(&base, 1.0).await;
     for needle in [
         "did not move",
         "/cmd_vel",
@@ -529,15 +529,7 @@ async fn set_live_is_proved_before_the_robot_moves() {
         let mut cfg = ros_config(server.url(), &yaml);
         cfg.set_live = true;
         let base = connect(&cfg).await.unwrap();
-        let err = run(
-            &base,
-            &routine(&dir),
-            None,
-            &mut Unattended,
-            &CancellationToken::new(),
-        )
-        .await
-        .unwrap_err();
+        let err = unattended(&base, &routine(&dir)).await.unwrap_err();
         let text = err.to_string();
         assert!(text.contains("--ros-set-live"), "{name}: {text}");
         for needle in says {
@@ -608,11 +600,7 @@ async fn a_velocity_topic_of_another_type_is_diagnosed_at_once() {
         let mut cfg = ros_config(server.url(), &yaml);
         cfg.wheel_source = source;
         let base = connect(&cfg).await.unwrap();
-        let started = std::time::Instant::now();
-        let err = base.drive.move_straight(1.0, 0.3).await.unwrap_err();
-        let took = started.elapsed();
-        let text = err.to_string();
-        assert!(took < Duration::from_secs(2), "{took:?}: {text}");
+        let text = stopped_within_two_seconds(&base, 1.0).await;
         for needle in [
             "did not move",
             "/cmd_vel carries geometry_msgs/msg/TwistStamped, not the \
@@ -641,11 +629,7 @@ async fn wheels_that_do_not_show_a_moving_robot_are_told_by_the_other_source() {
     })
     .await;
     let base = connect(&ros_config(server.url(), &yaml)).await.unwrap();
-    let started = std::time::Instant::now();
-    let err = base.drive.move_straight(1.0, 0.3).await.unwrap_err();
-    let took = started.elapsed();
-    let text = err.to_string();
-    assert!(took < Duration::from_secs(2), "{took:?}: {text}");
+    let text = stopped_within_two_seconds(&base, 1.0).await;
     assert!(
         text.contains(
             "/odom (the controller's odometry) did change: the robot moves, but /joint_states \
@@ -778,14 +762,7 @@ async fn unused_fields_never_cost_a_message_and_a_silent_rosapi_costs_no_time() 
             "{source:?}: {h:?}"
         );
         assert!((h.heading_rad - 30f64.to_radians()).abs() < 1e-9, "{h:?}");
-        let started = std::time::Instant::now();
-        let err = base.drive.move_straight(0.5, 0.3).await.unwrap_err();
-        let took = started.elapsed();
-        let text = err.to_string();
-        assert!(
-            took < Duration::from_secs(2),
-            "{source:?}: {took:?}: {text}"
-        );
+        let text = stopped_within_two_seconds(&base, 0.5).await;
         assert!(
             text.contains("did not move") && text.contains("rosapi did not say who subscribes"),
             "{text}"

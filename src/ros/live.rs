@@ -1296,11 +1296,14 @@ impl RosStore {
             names.clone(),
         )
         .await?;
-        let values = answer
-            .get("values")
-            .and_then(Value::as_array)
-            .cloned()
-            .unwrap_or_default();
+        let list = |answer: &Value, field: &str| {
+            answer
+                .get(field)
+                .and_then(Value::as_array)
+                .cloned()
+                .unwrap_or_default()
+        };
+        let values = list(&answer, "values");
         let now: Vec<f64> = values
             .iter()
             .filter(|v| v.get("type").and_then(Value::as_u64) == Some(3))
@@ -1321,11 +1324,7 @@ impl RosStore {
             names,
         )
         .await?;
-        let descriptors = answer
-            .get("descriptors")
-            .and_then(Value::as_array)
-            .cloned()
-            .unwrap_or_default();
+        let descriptors = list(&answer, "descriptors");
         for name in MULTIPLIER_KEYS {
             let Some(d) = descriptors
                 .iter()
