@@ -474,7 +474,8 @@ fn a_late_imu_is_found_and_every_exact_method_stays_within_its_errors() {
 }
 
 /// The fixture bags: one simulated square test (odocal's, noise-free, 2 Hz) written in every
-/// container by the Python library `rosbags` (`tests/fixtures/bags/make_bags.py`).
+/// container by the Python libraries `rosbags` and, for MCAP with lz4 chunks, `mcap`
+/// (`tests/fixtures/bags/make_bags.py`).
 const FIXTURES: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/fixtures/bags");
 
 /// Fixture `name` (a file or a directory) copied into `dir`, the files the repository keeps
@@ -521,7 +522,7 @@ fn bag_json(path: &Path) -> Value {
 }
 
 #[test]
-fn every_container_written_by_rosbags_gives_the_same_simulated_robot() {
+fn every_container_written_by_python_libraries_gives_the_same_simulated_robot() {
     let dir = scratch("bag-containers");
     std::fs::create_dir_all(&dir).unwrap();
     let mut cases: Vec<(String, PathBuf)> = [
@@ -534,6 +535,12 @@ fn every_container_written_by_rosbags_gives_the_same_simulated_robot() {
         "square.bag",
         "square_lz4.bag",
         "square_bz2.bag",
+        // MCAP storage with `compression: Lz4` chunks (Foxglove's writer), and MCAP storage
+        // compressed by rosbag2 as a whole file (`.mcap.zstd`).
+        "square_lz4.mcap",
+        "mcap_file_zstd",
+        // A bag compressed whole by the `lz4` tool.
+        "square.mcap.lz4",
     ]
     .iter()
     .map(|name| (name.to_string(), fixture(name, &dir)))
@@ -636,21 +643,34 @@ fn what_is_not_a_bag_is_named_and_broken_bags_are_errors() {
         .filter(|n| n.starts_with("cut.db3") && n != "cut.db3")
         .collect();
     assert!(left.is_empty(), "{left:?}");
-    let bag = fixture("square_lz4.bag", &dir);
-    let bytes = std::fs::read(&bag).unwrap();
-    let cut = dir.join("cut.bag");
-    std::fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
-    assert!(fails(&cut).contains("not a readable ROS 1 bag"));
-    // An LZ4 chunk whose frame says a version LZ4 does not have.
-    let mut broken = bytes.clone();
-    let lz4 = broken
-        .windows(4)
-        .position(|w| w == [0x04, 0x22, 0x4D, 0x18])
-        .unwrap();
-    broken[lz4 + 4] ^= 0xC0;
-    let flipped = dir.join("flipped.bag");
-    std::fs::write(&flipped, &broken).unwrap();
-    assert!(fails(&flipped).contains("lz4 chunk at byte"));
+    // Files with lz4 chunks (a ROS 1 bag, an MCAP), cut in half, and with their first LZ4
+    // frame saying a version LZ4 does not have.
+    let broken = |name: &str| {
+        let bytes = std::fs::read(fixture(name, &dir)).unwrap();
+        let cut = dir.join(format!("cut_{name}"));
+        std::fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
+        let mut flipped = bytes.clone();
+        let lz4 = flipped
+            .windows(4)
+            .position(|w| w == [0x04, 0x22, 0x4D, 0x18])
+            .unwrap();
+        flipped[lz4 + 4] ^= 0xC0;
+        let flipped_path = dir.join(format!("flipped_{name}"));
+        std::fs::write(&flipped_path, &flipped).unwrap();
+        (fails(&cut), fails(&flipped_path))
+    };
+    let (cut, flipped) = broken("square_lz4.bag");
+    assert!(cut.contains("not a readable ROS 1 bag"), "{cut}");
+    assert!(flipped.contains("lz4 chunk at byte"), "{flipped}");
+    let (cut, flipped) = broken("square_lz4.mcap");
+    assert!(cut.contains("not a readable MCAP bag"), "{cut}");
+    assert!(flipped.contains("not a readable MCAP bag"), "{flipped}");
+    // A whole-file LZ4 frame cut short.
+    let lz4_file = fixture("square.mcap.lz4", &dir);
+    let bytes = std::fs::read(&lz4_file).unwrap();
+    std::fs::write(&lz4_file, &bytes[..bytes.len() - 100]).unwrap();
+    let err = fails(&lz4_file);
+    assert!(err.contains("square.mcap.lz4: lz4"), "{err}");
     // A zstd file cut short.
     let zstd = fixture("sqlite3_file_zstd", &dir).join("sqlite3_file_zstd.db3.zstd");
     let bytes = std::fs::read(&zstd).unwrap();

@@ -6,7 +6,7 @@ mod common;
 
 use odocal::base::Base;
 use odocal::mock::rosbridge::{EffortStyle, MockRosConfig, MockRosbridge};
-use odocal::ros::live::{connect, RosBaseConfig};
+use odocal::ros::live::{connect, RosBaseConfig, WheelSource};
 use odocal::ros::yaml::DiffDriveConfig;
 use odocal::routine::config::RoutineConfig;
 use odocal::routine::{run, RoutineError, RoutineEvent, RoutineUi, Unattended};
@@ -52,65 +52,103 @@ fn routine(dir: &Path) -> RoutineConfig {
     common::quick_routine(dir)
 }
 
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn calibrating_through_rosbridge_writes_multipliers_that_fix_the_robot() {
-    let _one_at_a_time = END_TO_END.lock().await;
-    let (dir, yaml) = yaml_file("ros-live");
-    // Joint states as joint_state_broadcaster sends them for wheels without an effort
-    // interface, through a rosbridge that writes NaN as the bare token (rosbridge_suite #916):
-    // not JSON, and odocal never reads `effort`, so they must not cost a message.
-    let server = mock(&yaml, |c| c.effort = EffortStyle::BareNan).await;
-    let base = connect(&ros_config(server.url(), &yaml)).await.unwrap();
-    let report = run(
-        &base,
-        &routine(&dir),
+/// The routine on `base`, saying yes to everything.
+async fn unattended(
+    base: &Base,
+    routine: &RoutineConfig,
+) -> Result<odocal::routine::report::Report, RoutineError> {
+    run(
+        base,
+        routine,
         None,
         &mut Unattended,
         &CancellationToken::new(),
     )
     .await
-    .unwrap();
-    let before = report.mean_abs_heading_error_before_deg;
-    let after = report.mean_abs_heading_error_after_deg.unwrap();
-    assert!(before > 3.0, "the robot is mis-calibrated: {before}°");
-    assert!(
-        after * 10.0 < before,
-        "mean |heading error| {before}° → {after}°"
-    );
-    // The YAML holds the multipliers (the rest of the file as it was), with its backup beside it.
-    let written = DiffDriveConfig::load(&yaml, "diff_drive_controller").unwrap();
-    assert!(
-        (written.separation_multiplier - common::TRUE_E_B).abs() < 0.003,
-        "{written:?}"
-    );
-    assert!(
-        (written.right_radius_multiplier / written.left_radius_multiplier - common::TRUE_E_D).abs()
-            < 0.002,
-        "{written:?}"
-    );
-    assert_eq!(written.wheel_separation_m, 0.39);
-    let text = std::fs::read_to_string(&yaml).unwrap();
-    assert!(
-        text.contains("update_rate: 100  # Hz") && text.contains("cmd_vel_timeout: 0.5  # s"),
-        "{text}"
-    );
-    let backups: Vec<_> = std::fs::read_dir(&dir)
-        .unwrap()
-        .filter_map(|e| e.ok())
-        .filter(|e| {
-            e.file_name()
-                .to_string_lossy()
-                .starts_with("diff_drive.yaml.odocal-backup-")
-        })
-        .collect();
-    assert_eq!(backups.len(), 1);
-    assert_eq!(std::fs::read_to_string(backups[0].path()).unwrap(), YAML);
-    assert_eq!(
-        last_command(&server).await,
-        (0.0, 0.0),
-        "the last word is a zero twist"
-    );
-    drop(base);
+}
+
+/// The error of a straight motion (at 0.3 m/s) on a robot that does not move, which must come
+/// within two seconds of the command.
+async fn stopped_within_two_seconds(base: &Base, distance_m: f64) -> String {
+    let started = std::time::Instant::now();
+    let err = base.drive.move_straight(distance_m, 0.3).await.unwrap_err();
+    let took = started.elapsed();
+    let text = err.to_string();
+    assert!(took < Duration::from_secs(2), "{took:?}: {text}");
+    text
+}
+
+/// The routine end to end through rosbridge, for each form joint_state_broadcaster's `effort`
+/// takes on the wire; odocal never reads `effort`, so none must cost a message. The NaN
+/// efforts of wheels without an effort interface through a rosbridge that writes NaN as the
+/// bare token (rosbridge_suite #916, not JSON) drive the whole routine; `effort: []` (drivers
+/// that leave it empty) a short one: one square each way, one round, no compass swing (the
+/// command-line test below drives `null` through the whole routine).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn calibrating_through_rosbridge_writes_multipliers_that_fix_the_robot() {
+    let _one_at_a_time = END_TO_END.lock().await;
+    for (effort, short) in [(EffortStyle::BareNan, false), (EffortStyle::Empty, true)] {
+        let (dir, yaml) = yaml_file(&format!("ros-live-{effort:?}"));
+        let server = mock(&yaml, |c| c.effort = effort).await;
+        let base = connect(&ros_config(server.url(), &yaml)).await.unwrap();
+        let mut routine = routine(&dir);
+        if short {
+            routine.runs_per_direction = 1;
+            routine.verification_runs = 1;
+            routine.max_rounds = 1;
+            routine.swing = false;
+            routine.realign = false;
+        }
+        let report = unattended(&base, &routine)
+            .await
+            .unwrap_or_else(|e| panic!("{effort:?}: {e}"));
+        let before = report.mean_abs_heading_error_before_deg;
+        let after = report.mean_abs_heading_error_after_deg.unwrap();
+        assert!(
+            before > 3.0,
+            "{effort:?}: the robot is mis-calibrated: {before}°"
+        );
+        assert!(
+            after * 10.0 < before,
+            "{effort:?}: mean |heading error| {before}° → {after}°"
+        );
+        // The YAML holds the multipliers (the rest of the file as it was), with its backup
+        // beside it.
+        let written = DiffDriveConfig::load(&yaml, "diff_drive_controller").unwrap();
+        assert!(
+            (written.separation_multiplier - common::TRUE_E_B).abs() < 0.003,
+            "{effort:?}: {written:?}"
+        );
+        assert!(
+            (written.right_radius_multiplier / written.left_radius_multiplier - common::TRUE_E_D)
+                .abs()
+                < 0.002,
+            "{effort:?}: {written:?}"
+        );
+        assert_eq!(written.wheel_separation_m, 0.39);
+        let text = std::fs::read_to_string(&yaml).unwrap();
+        assert!(
+            text.contains("update_rate: 100  # Hz") && text.contains("cmd_vel_timeout: 0.5  # s"),
+            "{text}"
+        );
+        let backups: Vec<_> = std::fs::read_dir(&dir)
+            .unwrap()
+            .filter_map(|e| e.ok())
+            .filter(|e| {
+                e.file_name()
+                    .to_string_lossy()
+                    .starts_with("diff_drive.yaml.odocal-backup-")
+            })
+            .collect();
+        assert_eq!(backups.len(), 1);
+        assert_eq!(std::fs::read_to_string(backups[0].path()).unwrap(), YAML);
+        assert_eq!(
+            last_command(&server).await,
+            (0.0, 0.0),
+            "the last word is a zero twist"
+        );
+        drop(base);
+    }
 }
 
 /// Cancels the routine on the first motion of round 1's second square.
@@ -194,15 +232,7 @@ async fn an_error_mid_leg_publishes_zero() {
     // The wheel driver stops publishing 3 s of robot time in: mid-leg.
     let server = mock(&yaml, |c| c.joint_states_stop_after_s = Some(3.0)).await;
     let base = connect(&ros_config(server.url(), &yaml)).await.unwrap();
-    let err = run(
-        &base,
-        &routine(&dir),
-        None,
-        &mut Unattended,
-        &CancellationToken::new(),
-    )
-    .await
-    .unwrap_err();
+    let err = unattended(&base, &routine(&dir)).await.unwrap_err();
     assert!(err.to_string().contains("no wheel data"), "{err}");
     assert_eq!(last_command(&server).await, (0.0, 0.0));
     assert_eq!(wait_still(&server).await, (0.0, 0.0));
@@ -228,15 +258,7 @@ async fn rosbridge_vanishing_mid_leg_fails_fast_and_the_controller_stops_the_rob
         s2.vanish();
     });
     let started = std::time::Instant::now();
-    let err = run(
-        &base,
-        &routine(&dir),
-        None,
-        &mut Unattended,
-        &CancellationToken::new(),
-    )
-    .await
-    .unwrap_err();
+    let err = unattended(&base, &routine(&dir)).await.unwrap_err();
     killer.await.unwrap();
     assert!(
         started.elapsed() < Duration::from_secs(10),
@@ -443,11 +465,7 @@ async fn a_velocity_topic_nothing_listens_to_is_diagnosed_at_once() {
     })
     .await;
     let base = connect(&ros_config(server.url(), &yaml)).await.unwrap();
-    let started = std::time::Instant::now();
-    let err = base.drive.move_straight(1.0, 0.3).await.unwrap_err();
-    let took = started.elapsed();
-    let text = err.to_string();
-    assert!(took < Duration::from_secs(2), "{took:?}: {text}");
+    let text = stopped_within_two_seconds(&base, 1.0).await;
     for needle in [
         "did not move",
         "/cmd_vel",
@@ -470,39 +488,65 @@ async fn a_velocity_topic_nothing_listens_to_is_diagnosed_at_once() {
     assert!((done.distance_m - 0.2).abs() < 0.02, "{done:?}");
 }
 
-/// `--ros-set-live` on a controller that does not answer for its multipliers (here: the running
-/// controller has another name): refused before the robot moves, naming the service.
+/// `--ros-set-live` on a controller that cannot take the multipliers live is refused before
+/// the robot moves, naming the service that says so: one that does not answer for them (the
+/// running controller has another name: `get_parameters`), one that declares one read-only
+/// (`describe_parameters`), and one whose parameter callback refuses sets (`set_parameters`
+/// of the values it has now, which changes nothing).
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn set_live_is_proved_before_the_robot_moves() {
-    let (dir, yaml) = yaml_file("ros-set-live");
-    let server = mock(&yaml, |c| {
-        c.controller.controller = "base_controller".into();
-        c.time_scale = 1.0;
-    })
-    .await;
-    let mut cfg = ros_config(server.url(), &yaml);
-    cfg.set_live = true;
-    let base = connect(&cfg).await.unwrap();
-    let err = run(
-        &base,
-        &routine(&dir),
-        None,
-        &mut Unattended,
-        &CancellationToken::new(),
-    )
-    .await
-    .unwrap_err();
-    let text = err.to_string();
-    assert!(
-        text.contains("--ros-set-live") && text.contains("/diff_drive_controller/get_parameters"),
-        "{text}"
-    );
-    assert_eq!(server.state().counters.commands, 0, "the robot never moved");
-    assert_eq!(std::fs::read_to_string(&yaml).unwrap(), YAML);
+    type Tweak = fn(&mut MockRosConfig);
+    let cases: [(&str, Tweak, &[&str]); 3] = [
+        (
+            "renamed",
+            |c| c.controller.controller = "base_controller".into(),
+            &["/diff_drive_controller/get_parameters"],
+        ),
+        (
+            "read-only",
+            |c| c.read_only_parameters = vec!["left_wheel_radius_multiplier".into()],
+            &[
+                "/diff_drive_controller/describe_parameters",
+                "left_wheel_radius_multiplier is read-only",
+            ],
+        ),
+        (
+            "callback",
+            |c| c.refuse_parameter_sets = Some("parameters are read at configure only".into()),
+            &[
+                "/diff_drive_controller/set_parameters refused",
+                "wheel_separation_multiplier: parameters are read at configure only",
+            ],
+        ),
+    ];
+    for (name, tweak, says) in cases {
+        let (dir, yaml) = yaml_file(&format!("ros-set-live-{name}"));
+        let server = mock(&yaml, |c| {
+            tweak(c);
+            c.time_scale = 1.0;
+        })
+        .await;
+        let mut cfg = ros_config(server.url(), &yaml);
+        cfg.set_live = true;
+        let base = connect(&cfg).await.unwrap();
+        let err = unattended(&base, &routine(&dir)).await.unwrap_err();
+        let text = err.to_string();
+        assert!(text.contains("--ros-set-live"), "{name}: {text}");
+        for needle in says {
+            assert!(text.contains(needle), "{name}: {needle:?} not in {text}");
+        }
+        assert_eq!(
+            server.state().counters.commands,
+            0,
+            "{name}: the robot never moved"
+        );
+        assert_eq!(std::fs::read_to_string(&yaml).unwrap(), YAML, "{name}");
+    }
 }
 
-/// `--ros-set-live` on a controller that has its multipliers: a committed write lands in the
-/// file and on the running controller, as its `get_parameters` reads them.
+/// `--ros-set-live` on a controller that has its multipliers, writable: the pre-flight's
+/// `describe_parameters` and `set_parameters` of the present values pass, and a committed write
+/// lands in the file and on the running controller, as its `get_parameters` reads them.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn set_live_sets_the_running_controllers_multipliers() {
     let (_dir, yaml) = yaml_file("ros-set-live-ok");
@@ -514,6 +558,9 @@ async fn set_live_sets_the_running_controllers_multipliers() {
     p.wheelbase_m *= 0.98;
     p.right_wheel_diameter_m *= 1.01;
     base.store.check_write(&p).await.unwrap();
+    // The pre-flight set the multipliers to the values they had: one set, nothing changed.
+    assert_eq!(server.state().counters.parameter_sets, 1);
+    assert_eq!(server.state().configured().wheelbase_m, 0.39);
     base.store.write(&p).await.unwrap();
     base.store.commit().await.unwrap();
     let get = |name: &str| match server.state().parameter(name) {
@@ -526,4 +573,199 @@ async fn set_live_sets_the_running_controllers_multipliers() {
     let written = DiffDriveConfig::load(&yaml, "diff_drive_controller").unwrap();
     assert!((written.separation_multiplier - 0.98).abs() < 1e-9);
     assert!((server.state().configured().wheelbase_m - 0.39 * 0.98).abs() < 1e-9);
+}
+
+/// A velocity topic of another type than the one published (a Jazzy controller taking
+/// `TwistStamped` on `/cmd_vel`, commanded with `Twist`): the first motion stops within two
+/// seconds, saying the topic carries the other type and that the other wheel source did not
+/// change either, whichever source motions close on.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_velocity_topic_of_another_type_is_diagnosed_at_once() {
+    let (_dir, yaml) = yaml_file("ros-wrong-type");
+    let server = mock(&yaml, |c| {
+        c.cmd_vel_stamped = true;
+        c.time_scale = 1.0;
+    })
+    .await;
+    for (source, other) in [
+        (
+            WheelSource::JointStates,
+            "/odom (the controller's odometry) did not change either",
+        ),
+        (
+            WheelSource::Odom,
+            "/joint_states (the joint states) did not change either",
+        ),
+    ] {
+        let mut cfg = ros_config(server.url(), &yaml);
+        cfg.wheel_source = source;
+        let base = connect(&cfg).await.unwrap();
+        let text = stopped_within_two_seconds(&base, 1.0).await;
+        for needle in [
+            "did not move",
+            "/cmd_vel carries geometry_msgs/msg/TwistStamped, not the \
+             geometry_msgs/msg/Twist published (--twist-stamped)",
+            "/cmd_vel is subscribed by /diff_drive_controller",
+            other,
+        ] {
+            assert!(
+                text.contains(needle),
+                "{source:?}: {needle:?} not in: {text}"
+            );
+        }
+    }
+    assert_eq!(server.state().counters.commands, 0, "nothing was obeyed");
+}
+
+/// Joint states whose wheel positions never change (mock hardware without position feedback)
+/// while the controller drives the robot: the motion stops within two seconds, and the
+/// diagnosis says the controller's odometry moved, so that the joint states are what to look at.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn wheels_that_do_not_show_a_moving_robot_are_told_by_the_other_source() {
+    let (_dir, yaml) = yaml_file("ros-frozen-joints");
+    let server = mock(&yaml, |c| {
+        c.frozen_joint_states = true;
+        c.time_scale = 1.0;
+    })
+    .await;
+    let base = connect(&ros_config(server.url(), &yaml)).await.unwrap();
+    let text = stopped_within_two_seconds(&base, 1.0).await;
+    assert!(
+        text.contains(
+            "/odom (the controller's odometry) did change: the robot moves, but /joint_states \
+             does not show it"
+        ),
+        "{text}"
+    );
+    assert!(server.state().counters.commands > 0);
+    assert_eq!(last_command(&server).await, (0.0, 0.0), "stopped");
+}
+
+/// A rosbridge that sends `texts` (raw, as a server writes them: NaN tokens and all) to every
+/// client every 20 ms, and answers nothing (no rosapi, no services).
+async fn raw_rosbridge(texts: Vec<String>) -> String {
+    use futures_util::{SinkExt, StreamExt};
+    use tokio_tungstenite::tungstenite::Message;
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let addr = listener.local_addr().unwrap();
+    tokio::spawn(async move {
+        while let Ok((tcp, _)) = listener.accept().await {
+            let texts = texts.clone();
+            tokio::spawn(async move {
+                let Ok(ws) = tokio_tungstenite::accept_async(tcp).await else {
+                    return;
+                };
+                let (mut sink, mut source) = ws.split();
+                tokio::spawn(async move { while let Some(Ok(_)) = source.next().await {} });
+                loop {
+                    for t in &texts {
+                        if sink.send(Message::text(t.clone())).await.is_err() {
+                            return;
+                        }
+                    }
+                    tokio::time::sleep(Duration::from_millis(20)).await;
+                }
+            });
+        }
+    });
+    format!("rosbridge://{addr}")
+}
+
+const STAMP: &str = r#""stamp":{"sec":1700000000,"nanosec":0}"#;
+
+fn publish(topic: &str, msg: &str) -> String {
+    format!(r#"{{"op":"publish","topic":"{topic}","msg":{msg}}}"#)
+}
+
+fn joint_states(position: &str) -> String {
+    publish(
+        "/joint_states",
+        &format!(
+            r#"{{"header":{{{STAMP},"frame_id":""}},"name":["left_wheel_joint","right_wheel_joint"],"position":{position},"velocity":[0,0],"effort":[NaN,NaN]}}"#
+        ),
+    )
+}
+
+/// An IMU message whose every field odocal does not use is malformed, as drivers and rosbridge
+/// have them: rates as text, a covariance of eight, an acceleration missing, NaN tokens.
+fn imu_with_odd_unused_fields() -> String {
+    publish(
+        "/imu",
+        &format!(
+            r#"{{"header":{{{STAMP},"frame_id":"imu"}},"orientation":{{"x":0,"y":0,"z":0.25881904510252074,"w":0.9659258262890683}},"orientation_covariance":[0,0,0,0,0,0,0,0,0],"angular_velocity":"n/a","angular_velocity_covariance":[NaN,NaN,NaN,NaN,NaN,NaN,NaN,NaN],"linear_acceleration_covariance":[-1]}}"#
+        ),
+    )
+}
+
+/// Odometry with its unused fields malformed: covariances cut short or null, a twist as text.
+fn odom_with_odd_unused_fields() -> String {
+    publish(
+        "/odom",
+        &format!(
+            r#"{{"header":{{{STAMP},"frame_id":"odom"}},"child_frame_id":null,"pose":{{"pose":{{"position":{{"x":0,"y":0,"z":0}},"orientation":{{"x":0,"y":0,"z":0,"w":1}}}},"covariance":[0,0,0]}},"twist":"unknown"}}"#
+        ),
+    )
+}
+
+/// Wheel positions that are not numbers, in the raw text rosbridge sends: the base refuses to
+/// connect, and the error names the topic, the field and shows a message, so that a topic
+/// that talks and one that is silent are told apart.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn messages_that_arrive_but_cannot_be_used_are_named_with_the_field_and_an_example() {
+    let (_dir, yaml) = yaml_file("ros-unusable");
+    let url = raw_rosbridge(vec![
+        joint_states(r#"[0.5,"jammed"]"#),
+        imu_with_odd_unused_fields(),
+    ])
+    .await;
+    let mut cfg = ros_config(url, &yaml);
+    cfg.first_message_timeout_s = 0.5;
+    let err = match connect(&cfg).await {
+        Err(e) => e.to_string(),
+        Ok(_) => panic!("a wheel position that is not a number must not be driven by"),
+    };
+    for needle in [
+        "no usable message on /joint_states",
+        "message(s) arrived and none could be used",
+        "field `position[1]`",
+        r#"e.g. {"effort":"#,
+        r#""position":[0.5,"jammed"]"#,
+    ] {
+        assert!(err.contains(needle), "{needle:?} not in: {err}");
+    }
+}
+
+/// Every field odocal does not use, malformed in the raw text (the IMU's rates, accelerations
+/// and their covariances; the odometry's covariance, twist and child frame), costs nothing: the
+/// base connects on either wheel source and reads the IMU's heading. With no rosapi to ask
+/// (this server answers nothing), a robot that does not move is still diagnosed within two
+/// seconds of the first command: each question waits a bounded time.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn unused_fields_never_cost_a_message_and_a_silent_rosapi_costs_no_time() {
+    let (_dir, yaml) = yaml_file("ros-odd-unused");
+    let url = raw_rosbridge(vec![
+        joint_states("[0.5,-0.5]"),
+        imu_with_odd_unused_fields(),
+        odom_with_odd_unused_fields(),
+    ])
+    .await;
+    for source in [WheelSource::JointStates, WheelSource::Odom] {
+        let mut cfg = ros_config(url.clone(), &yaml);
+        cfg.first_message_timeout_s = 2.0;
+        cfg.wheel_source = source;
+        let base = connect(&cfg)
+            .await
+            .unwrap_or_else(|e| panic!("{source:?}: {e}"));
+        let h = base.heading.read().await.unwrap();
+        assert!(
+            matches!(h.validity, odocal::base::Validity::Valid),
+            "{source:?}: {h:?}"
+        );
+        assert!((h.heading_rad - 30f64.to_radians()).abs() < 1e-9, "{h:?}");
+        let text = stopped_within_two_seconds(&base, 0.5).await;
+        assert!(
+            text.contains("did not move") && text.contains("rosapi did not say who subscribes"),
+            "{text}"
+        );
+    }
 }

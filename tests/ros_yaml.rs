@@ -1,7 +1,8 @@
 //! The controller YAML as real robots lay it out (`tests/fixtures/ros2_control/`: the layouts
 //! of public ros2_control configurations, in our own text and values): calibrating through the
-//! store and `odocal export --ros2 … --force` write the three multipliers and leave every other
-//! byte as it was. Each `expected/` file is its layout with only the multiplier values (and, where
+//! YAML store, through the store the ROS base uses (live, against a mock robot of that
+//! layout), and `odocal export --ros2 … --force` write the three multipliers and leave every
+//! other byte as it was. Each `expected/` file is its layout with only the multiplier values (and, where
 //! they were missing, their lines) written by hand. Files that cannot be kept are refused by
 //! both with the reason and the line, and nothing is written.
 
@@ -10,7 +11,11 @@ mod common;
 use odocal::base::transaction::Transaction;
 use odocal::base::{BaseError, ParamStore};
 use odocal::kinematics::WheelParams;
-use odocal::ros::yaml::{merge_multipliers, DiffDriveConfig, Multipliers, YamlError, YamlStore};
+use odocal::mock::rosbridge::{MockRosConfig, MockRosbridge, ParamValue};
+use odocal::ros::live::{connect, RosBaseConfig};
+use odocal::ros::yaml::{
+    merge_multipliers, DiffDriveConfig, Multipliers, YamlError, YamlStore, MULTIPLIER_KEYS,
+};
 use proptest::prelude::*;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -98,47 +103,95 @@ fn backups_beside(file: &Path) -> Vec<PathBuf> {
     found
 }
 
+/// The routine's path through `store` on the copy `file` of layout `name`: pre-flight and
+/// backup, write, read back, commit, read back; only the multipliers change, the original is
+/// kept beside the file.
+async fn calibrate_through(store: Arc<dyn ParamStore>, file: &Path, name: &str, controller: &str) {
+    let cfg = DiffDriveConfig::load(file, controller).unwrap_or_else(|e| panic!("{e}"));
+    let backups = file.parent().unwrap().join("backups");
+    let mut tx = Transaction::begin(store.clone(), &backups)
+        .await
+        .unwrap_or_else(|e| panic!("{name}: {e}"));
+    assert_eq!(*tx.original(), cfg.effective(), "{name}");
+    tx.apply(&calibrated(&cfg))
+        .await
+        .unwrap_or_else(|e| panic!("{name}: {e}"));
+    assert_eq!(
+        read(file),
+        read(&fixture(&format!("expected/{name}"))),
+        "{name}: only the multipliers change"
+    );
+    let backups = backups_beside(file);
+    assert_eq!(backups.len(), 1, "{name}: {backups:?}");
+    assert_eq!(
+        read(&backups[0]),
+        read(&fixture(name)),
+        "{name}: the original"
+    );
+    let back = DiffDriveConfig::load(file, controller).unwrap();
+    assert_eq!(
+        [
+            back.separation_multiplier,
+            back.left_radius_multiplier,
+            back.right_radius_multiplier
+        ],
+        [1.0234, 0.9987, 1.0012],
+        "{name}"
+    );
+    assert_eq!(
+        store.read_committed().await.unwrap(),
+        Some(back.effective())
+    );
+}
+
 #[tokio::test]
 async fn every_layout_is_calibrated_through_the_store_changing_only_the_multipliers() {
     let dir = common::scratch("ros-yaml-store");
     for (name, controller) in LAYOUTS {
         let file = copy(&dir, name);
-        let cfg = DiffDriveConfig::load(&file, controller).unwrap_or_else(|e| panic!("{e}"));
         let store = Arc::new(YamlStore::open(&file, controller).unwrap());
-        // The routine's path: pre-flight and backup, write, read back, commit, read back.
-        let mut tx = Transaction::begin(store.clone(), &dir.join("backups"))
+        calibrate_through(store, &file, name, controller).await;
+    }
+}
+
+/// Each layout through the store the ROS base itself uses (`odocal::ros::live::connect`'s, with
+/// `--ros-set-live`), against a mock robot whose controller is the layout's (its name, its
+/// namespace, its wheels): the file is written as through the YAML store, and the running
+/// controller takes the same multipliers through its `set_parameters`. Nothing moves.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn every_layout_is_calibrated_through_the_ros_base_store_and_set_live() {
+    let dir = common::scratch("ros-yaml-ros-store");
+    for (name, controller) in LAYOUTS {
+        let file = copy(&dir.join(name.trim_end_matches(".yaml")), name);
+        let cfg = DiffDriveConfig::load(&file, controller).unwrap();
+        let mock = MockRosConfig::with_ratios(cfg, 1.0, 1.0).unwrap();
+        let server = MockRosbridge::spawn(mock, "127.0.0.1:0".parse().unwrap())
             .await
-            .unwrap_or_else(|e| panic!("{name}: {e}"));
-        assert_eq!(*tx.original(), cfg.effective(), "{name}");
-        tx.apply(&calibrated(&cfg))
-            .await
-            .unwrap_or_else(|e| panic!("{name}: {e}"));
-        assert_eq!(
-            read(&file),
-            read(&fixture(&format!("expected/{name}"))),
-            "{name}: only the multipliers change"
-        );
-        let backups = backups_beside(&file);
-        assert_eq!(backups.len(), 1, "{name}: {backups:?}");
-        assert_eq!(
-            read(&backups[0]),
-            read(&fixture(name)),
-            "{name}: the original"
-        );
-        let back = DiffDriveConfig::load(&file, controller).unwrap();
-        assert_eq!(
-            [
-                back.separation_multiplier,
-                back.left_radius_multiplier,
-                back.right_radius_multiplier
-            ],
-            [1.0234, 0.9987, 1.0012],
-            "{name}"
-        );
-        assert_eq!(
-            store.read_committed().await.unwrap(),
-            Some(back.effective())
-        );
+            .unwrap();
+        let base = connect(&RosBaseConfig {
+            url: server.url(),
+            yaml: file.clone(),
+            controller: controller.into(),
+            set_live: true,
+            ..RosBaseConfig::default()
+        })
+        .await
+        .unwrap_or_else(|e| panic!("{name}: {e}"));
+        assert_eq!(base.store.info().details["set_live"], true, "{name}");
+        calibrate_through(base.store.clone(), &file, name, controller).await;
+        for (key, want) in MULTIPLIER_KEYS.iter().zip([
+            WRITTEN.wheel_separation_multiplier,
+            WRITTEN.left_wheel_radius_multiplier,
+            WRITTEN.right_wheel_radius_multiplier,
+        ]) {
+            match server.state().parameter(key) {
+                Some(ParamValue::Double(d)) => {
+                    assert!((d - want).abs() < 1e-9, "{name}: {key} {d}, not {want}")
+                }
+                other => panic!("{name}: {key} {other:?}"),
+            }
+        }
+        assert_eq!(server.state().counters.commands, 0, "{name}: nothing moved");
     }
 }
 

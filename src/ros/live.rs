@@ -185,6 +185,7 @@ pub struct RosDrive {
     commander: Commander,
     cfg: RosBaseConfig,
     odo: watch::Receiver<Odo>,
+    witness: Witness,
     travel: Fanout<TravelSample>,
     cmd_vel_timeout_s: f64,
 }
@@ -260,7 +261,8 @@ pub async fn connect(cfg: &RosBaseConfig) -> Result<Base, RosBaseError> {
         .right_joint
         .clone()
         .or_else(|| yaml_cfg.right_wheel_names.first().cloned());
-    // Wheels.
+    // Wheels: the source motions close on, and the other one for the still-robot diagnosis.
+    let witness = Witness::follow(&client, cfg, (left.clone(), right.clone()))?;
     let rejects = Rejects::default();
     let (odo_tx, odo_rx) = watch::channel(Odo::default());
     let travel: Fanout<TravelSample> = Fanout::default();
@@ -325,6 +327,7 @@ pub async fn connect(cfg: &RosBaseConfig) -> Result<Base, RosBaseError> {
         },
         cfg: cfg.clone(),
         odo: odo_rx,
+        witness,
         travel,
         cmd_vel_timeout_s: yaml_cfg.cmd_vel_timeout_s.unwrap_or(0.5),
     };
@@ -711,6 +714,7 @@ impl RosDrive {
         let mut last_progress_t = Instant::now();
         let mut last_samples = start.samples;
         let first_command = Instant::now();
+        let witnessed = self.witness.now();
         let mut moved = false;
         loop {
             let now_odo = *odo.borrow();
@@ -745,7 +749,7 @@ impl RosDrive {
             // Wheel data arrives (the check above) and shows no motion: nothing obeys.
             if diagnose && !moved && first_command.elapsed() > STILL_LIMIT {
                 let _ = self.commander.send(0.0, 0.0);
-                return Err(drive_err(self.diagnose_still().await));
+                return Err(drive_err(self.diagnose_still(&witnessed).await));
             }
             let dt = (now - last_t).as_secs_f64().clamp(0.0, 0.1);
             last_t = now;
@@ -798,11 +802,12 @@ pub const STILL_LIMIT: Duration = Duration::from_secs(1);
 const STILL_M: f64 = 1e-4;
 const STILL_RAD: f64 = 1e-4;
 
-/// The robot did not move on a motion's command: what the robot's graph says about why.
+/// The robot did not move on a motion's command: what the other wheel source and the robot's
+/// graph say about why.
 #[derive(Debug, thiserror::Error)]
 #[error(
     "the robot did not move within {after:?} of the first command on {topic} ({kind}): its \
-     odometry ({odometry}) did not change; {diagnosis}; stopped"
+     odometry ({odometry}) did not change; {other}; {diagnosis}; stopped"
 )]
 pub struct NotMoving {
     /// The velocity topic commanded.
@@ -813,18 +818,136 @@ pub struct NotMoving {
     pub after: Duration,
     /// The odometry source watched.
     pub odometry: String,
+    /// What the other wheel source (the controller's odometry, or the joint states) showed
+    /// meanwhile.
+    pub other: String,
     /// What rosapi tells: the topic's type, its subscribers, the velocity topics that exist.
     pub diagnosis: String,
 }
 
+/// How long each rosapi question of the still-robot diagnosis may take; they are asked at
+/// once, so that the diagnosis ends within a second of [`STILL_LIMIT`].
+pub const DIAGNOSIS_CALL_TIMEOUT: Duration = Duration::from_millis(400);
+
+/// A change of the other wheel source beyond this (m, rad) is motion.
+const WITNESS_MOVED: f64 = 1e-3;
+
+/// The wheel source motions do not close on, followed (ten messages a second) for the
+/// still-robot diagnosis: when the watched source shows no motion, this one tells a robot that
+/// does not move from a source that does not show it.
+#[derive(Clone)]
+struct Witness {
+    topic: String,
+    what: &'static str,
+    /// Its latest reading: x, y (m) and yaw (rad) of the odometry, or the wheel angles (rad).
+    latest: watch::Receiver<Option<Vec<f64>>>,
+}
+
+impl Witness {
+    /// Subscribes to the source `cfg` does not close on; `wheels` are the joint names given.
+    fn follow(
+        client: &RosbridgeClient,
+        cfg: &RosBaseConfig,
+        wheels: (Option<String>, Option<String>),
+    ) -> Result<Self, RosbridgeError> {
+        let odom = cfg.wheel_source == WheelSource::JointStates;
+        let (topic, kind, what) = if odom {
+            (
+                &cfg.topics.odom,
+                types::ODOMETRY,
+                "the controller's odometry",
+            )
+        } else {
+            (
+                &cfg.topics.joint_states,
+                types::JOINT_STATE,
+                "the joint states",
+            )
+        };
+        let mut rx = client.subscribe_throttled(topic, kind, Duration::from_millis(100))?;
+        let (tx, latest) = watch::channel(None);
+        tokio::spawn(async move {
+            while let Some(v) = next_message(&mut rx).await {
+                let reading = if odom {
+                    decode::<Odometry>(&v).ok().map(|o| {
+                        let p = o.pose.pose;
+                        let yaw = yaw_of(&p.orientation).unwrap_or(f64::NAN);
+                        vec![p.position.x, p.position.y, yaw]
+                    })
+                } else {
+                    decode::<JointState>(&v).ok().map(|js| {
+                        match js.wheel_indices(&wheels.0, &wheels.1) {
+                            Some((l, r)) => [l, r]
+                                .iter()
+                                .filter_map(|&i| js.position.get(i).copied())
+                                .collect(),
+                            None => js.position,
+                        }
+                    })
+                };
+                if reading.is_some() && tx.send(reading).is_err() {
+                    return;
+                }
+            }
+        });
+        Ok(Witness {
+            topic: topic.clone(),
+            what,
+            latest,
+        })
+    }
+
+    /// Its latest reading.
+    fn now(&self) -> Option<Vec<f64>> {
+        self.latest.borrow().clone()
+    }
+
+    /// What it showed between `before` and now, for a robot whose `watched` source did not
+    /// change.
+    fn says(&self, before: &Option<Vec<f64>>, watched: &str) -> String {
+        let (topic, what) = (&self.topic, self.what);
+        match (before, self.now()) {
+            (_, None) => format!("{topic} ({what}) sent nothing to compare with"),
+            (None, Some(_)) => format!("{topic} ({what}) began only during the motion"),
+            (Some(a), Some(b)) => {
+                let change = a
+                    .iter()
+                    .zip(&b)
+                    .map(|(x, y)| super::msg::angle_step(*x, *y).abs())
+                    .fold(0.0, f64::max);
+                if a.len() != b.len() || change > WITNESS_MOVED {
+                    let hint = if what == "the joint states" {
+                        format!(
+                            " (is {watched} the controller's odometry, and is the controller \
+                             running?)"
+                        )
+                    } else {
+                        " (are the wheel joints named as the YAML or --left-joint/--right-joint \
+                         say, and does the hardware report their positions?)"
+                            .into()
+                    };
+                    format!(
+                        "{topic} ({what}) did change: the robot moves, but {watched} does not \
+                         show it{hint}"
+                    )
+                } else {
+                    format!("{topic} ({what}) did not change either")
+                }
+            }
+        }
+    }
+}
+
 impl RosDrive {
-    /// Asks rosapi why nothing moves: who subscribes to the velocity topic, as which type, and
-    /// which topics of a velocity type the robot has.
-    async fn diagnose_still(&self) -> NotMoving {
+    /// Why nothing moves: what the other wheel source showed since the first command
+    /// (`witnessed` then), and rosapi's answers, asked at once, each within
+    /// [`DIAGNOSIS_CALL_TIMEOUT`]: the velocity topic's type and subscribers, and the robot's
+    /// topics of a velocity type.
+    async fn diagnose_still(&self, witnessed: &Option<Vec<f64>>) -> NotMoving {
         let client = &self.commander.client;
         let ask = |service: &'static str, args: Value| async move {
             client
-                .call_service(service, "rosapi_msgs/srv/Any", args, Duration::from_secs(1))
+                .call_service(service, "rosapi_msgs/srv/Any", args, DIAGNOSIS_CALL_TIMEOUT)
                 .await
                 .ok()
         };
@@ -834,8 +957,12 @@ impl RosDrive {
         } else {
             types::TWIST
         };
+        let (listed, subscribers, all) = tokio::join!(
+            ask("/rosapi/topic_type", json!({ "topic": topic })),
+            ask("/rosapi/subscribers", json!({ "topic": topic })),
+            ask("/rosapi/topics", json!({})),
+        );
         let mut notes = Vec::new();
-        let listed = ask("/rosapi/topic_type", json!({ "topic": topic })).await;
         match listed
             .as_ref()
             .and_then(|v| v.get("type"))
@@ -846,8 +973,7 @@ impl RosDrive {
             ),
             _ => {}
         }
-        let subscribers = ask("/rosapi/subscribers", json!({ "topic": topic }))
-            .await
+        let subscribers = subscribers
             .and_then(|v| v.get("subscribers").cloned())
             .and_then(|v| serde_json::from_value::<Vec<String>>(v).ok());
         match subscribers {
@@ -855,7 +981,6 @@ impl RosDrive {
             Some(s) => notes.push(format!("{topic} is subscribed by {}", s.join(", "))),
             None => notes.push("rosapi did not say who subscribes".into()),
         }
-        let all = ask("/rosapi/topics", json!({})).await;
         let pairs: Vec<(String, String)> = all
             .as_ref()
             .and_then(|v| {
@@ -878,14 +1003,16 @@ impl RosDrive {
                 velocity.join(", ")
             ));
         }
+        let odometry = match self.cfg.wheel_source {
+            WheelSource::JointStates => self.cfg.topics.joint_states.clone(),
+            WheelSource::Odom => self.cfg.topics.odom.clone(),
+        };
         NotMoving {
             topic,
             kind: kind.into(),
             after: STILL_LIMIT,
-            odometry: match self.cfg.wheel_source {
-                WheelSource::JointStates => self.cfg.topics.joint_states.clone(),
-                WheelSource::Odom => self.cfg.topics.odom.clone(),
-            },
+            other: self.witness.says(witnessed, &odometry),
+            odometry,
             diagnosis: notes.join("; "),
         }
     }
@@ -1063,37 +1190,11 @@ impl ParamStore for RosStore {
                 m.left_wheel_radius_multiplier,
                 m.right_wheel_radius_multiplier,
             ];
-            let parameters: Vec<Value> = MULTIPLIER_KEYS
-                .iter()
-                .zip(values)
-                .map(|(name, v)| json!({"name": name, "value": {"type": 3, "double_value": v}}))
-                .collect();
-            let service = format!("/{}/set_parameters", self.controller);
-            let answer = self
-                .client
-                .call_service(
-                    &service,
-                    "rcl_interfaces/srv/SetParameters",
-                    json!({ "parameters": parameters }),
-                    Duration::from_secs(3),
-                )
+            let service = self.service("set_parameters");
+            let refused = self
+                .set_multipliers(&service, values)
                 .await
                 .map_err(|e| BaseError::backend("store (live)", e))?;
-            let refused: Vec<String> = answer
-                .get("results")
-                .and_then(Value::as_array)
-                .map(|r| {
-                    r.iter()
-                        .filter(|x| x.get("successful").and_then(Value::as_bool) != Some(true))
-                        .map(|x| {
-                            x.get("reason")
-                                .and_then(Value::as_str)
-                                .unwrap_or("refused")
-                                .to_string()
-                        })
-                        .collect()
-                })
-                .unwrap_or_else(|| vec!["no results in the answer".into()]);
             if !refused.is_empty() {
                 return Err(BaseError::Refused {
                     component: "store (live)".into(),
@@ -1124,43 +1225,137 @@ impl ParamStore for RosStore {
 }
 
 impl RosStore {
-    /// Proves, before the robot moves, that the running controller has the multipliers to set
-    /// live: its `get_parameters` answers with a double for each.
+    /// `/<controller>/<name>`, one of the controller node's services.
+    fn service(&self, name: &str) -> String {
+        format!("/{}/{name}", self.controller)
+    }
+
+    /// Calls the controller's `set_parameters` with the three multipliers (in
+    /// [`MULTIPLIER_KEYS`] order); the reasons of those it refused.
+    async fn set_multipliers(
+        &self,
+        service: &str,
+        values: [f64; 3],
+    ) -> Result<Vec<String>, RosbridgeError> {
+        let parameters: Vec<Value> = MULTIPLIER_KEYS
+            .iter()
+            .zip(values)
+            .map(|(name, v)| json!({"name": name, "value": {"type": 3, "double_value": v}}))
+            .collect();
+        let answer = self
+            .client
+            .call_service(
+                service,
+                "rcl_interfaces/srv/SetParameters",
+                json!({ "parameters": parameters }),
+                Duration::from_secs(3),
+            )
+            .await?;
+        let results = answer.get("results").and_then(Value::as_array);
+        Ok(match results {
+            Some(r) if r.len() == MULTIPLIER_KEYS.len() => MULTIPLIER_KEYS
+                .iter()
+                .zip(r)
+                .filter(|(_, x)| x.get("successful").and_then(Value::as_bool) != Some(true))
+                .map(|(name, x)| {
+                    let why = x.get("reason").and_then(Value::as_str).unwrap_or("");
+                    format!("{name}: {}", if why.is_empty() { "refused" } else { why })
+                })
+                .collect(),
+            _ => vec![format!(
+                "the answer has no result for each of the three parameters: {answer}"
+            )],
+        })
+    }
+
+    /// Proves, before the robot moves, that the running controller can take the multipliers
+    /// live: its `get_parameters` answers with a double for each, its `describe_parameters`
+    /// says each is a double and not read-only, and its `set_parameters` accepts each at the
+    /// value it has now (a write that changes nothing, so that a parameter callback that
+    /// refuses sets, or a node that answers no sets, is found before the robot moves).
     async fn check_live(&self) -> Result<(), BaseError> {
-        let service = format!("/{}/get_parameters", self.controller);
         let unwritable = |why: String| BaseError::Unwritable {
             component: "store (live)".into(),
             source: format!("--ros-set-live: {why}").into(),
         };
-        let answer = self
-            .client
-            .call_service(
-                &service,
-                "rcl_interfaces/srv/GetParameters",
-                json!({ "names": MULTIPLIER_KEYS }),
-                Duration::from_secs(3),
-            )
-            .await
-            .map_err(|e| {
-                unwritable(format!(
-                    "{service} failed ({e}); is the controller running under that name?"
-                ))
-            })?;
-        let values = answer
-            .get("values")
-            .and_then(Value::as_array)
-            .cloned()
-            .unwrap_or_default();
-        let doubles = values
+        let call = |service: String, kind: &'static str, args: Value| async move {
+            self.client
+                .call_service(&service, kind, args, Duration::from_secs(3))
+                .await
+                .map_err(|e| {
+                    unwritable(format!(
+                        "{service} failed ({e}); is the controller running under that name?"
+                    ))
+                })
+        };
+        let names = json!({ "names": MULTIPLIER_KEYS });
+        let service = self.service("get_parameters");
+        let answer = call(
+            service.clone(),
+            "rcl_interfaces/srv/GetParameters",
+            names.clone(),
+        )
+        .await?;
+        let list = |answer: &Value, field: &str| {
+            answer
+                .get(field)
+                .and_then(Value::as_array)
+                .cloned()
+                .unwrap_or_default()
+        };
+        let values = list(&answer, "values");
+        let now: Vec<f64> = values
             .iter()
             .filter(|v| v.get("type").and_then(Value::as_u64) == Some(3))
-            .count();
-        if doubles != MULTIPLIER_KEYS.len() {
+            .filter_map(|v| v.get("double_value").and_then(Value::as_f64))
+            .collect();
+        let Ok(now) = <[f64; 3]>::try_from(now) else {
             return Err(unwritable(format!(
-                "the running controller does not declare {} as doubles ({service} gave {} \
-                 value(s)): a controller without them cannot take a calibration live",
+                "the running controller does not declare {} as doubles with a value ({service} \
+                 gave {} value(s)): a controller without them cannot take a calibration live",
                 MULTIPLIER_KEYS.join(", "),
                 values.len()
+            )));
+        };
+        let service = self.service("describe_parameters");
+        let answer = call(
+            service.clone(),
+            "rcl_interfaces/srv/DescribeParameters",
+            names,
+        )
+        .await?;
+        let descriptors = list(&answer, "descriptors");
+        for name in MULTIPLIER_KEYS {
+            let Some(d) = descriptors
+                .iter()
+                .find(|d| d.get("name").and_then(Value::as_str) == Some(name))
+            else {
+                return Err(unwritable(format!("{service} does not describe {name}")));
+            };
+            if d.get("read_only").and_then(Value::as_bool) != Some(false) {
+                return Err(unwritable(format!(
+                    "{service} says {name} is read-only: the running controller cannot take it \
+                     live (without --ros-set-live the YAML is written, and the controller reads \
+                     it when it is restarted)"
+                )));
+            }
+            if d.get("type").and_then(Value::as_u64) != Some(3) {
+                return Err(unwritable(format!(
+                    "{service} says {name} is of type {}, not a double (3)",
+                    d.get("type").unwrap_or(&Value::Null)
+                )));
+            }
+        }
+        let service = self.service("set_parameters");
+        let refused = self
+            .set_multipliers(&service, now)
+            .await
+            .map_err(|e| unwritable(format!("{service} failed ({e})")))?;
+        if !refused.is_empty() {
+            return Err(unwritable(format!(
+                "{service} refused the multipliers at the values they have now ({}): it would \
+                 refuse the calibration too",
+                refused.join("; ")
             )));
         }
         Ok(())

@@ -55,8 +55,8 @@ impl Time {
 pub struct Header {
     /// Time of the measurement.
     pub stamp: Time,
-    /// Frame.
-    #[serde(default)]
+    /// Frame (odocal does not use it).
+    #[serde(default, deserialize_with = "lenient::unused")]
     pub frame_id: String,
 }
 
@@ -241,15 +241,17 @@ pub struct Imu {
     /// Orientation covariance; element 0 = −1 means "no orientation" (REP 145).
     #[serde(deserialize_with = "lenient::floats9")]
     pub orientation_covariance: [f64; 9],
-    /// Angular velocity (rad/s).
+    /// Angular velocity (rad/s; odocal does not use it).
+    #[serde(default, deserialize_with = "lenient::unused")]
     pub angular_velocity: Vector3,
-    /// Its covariance.
-    #[serde(deserialize_with = "lenient::floats9")]
+    /// Its covariance (unused).
+    #[serde(default, deserialize_with = "lenient::unused_floats9")]
     pub angular_velocity_covariance: [f64; 9],
-    /// Linear acceleration (m/s²).
+    /// Linear acceleration (m/s²; unused).
+    #[serde(default, deserialize_with = "lenient::unused")]
     pub linear_acceleration: Vector3,
-    /// Its covariance.
-    #[serde(deserialize_with = "lenient::floats9")]
+    /// Its covariance (unused).
+    #[serde(default, deserialize_with = "lenient::unused_floats9")]
     pub linear_acceleration_covariance: [f64; 9],
 }
 
@@ -267,7 +269,8 @@ pub struct Pose {
 pub struct PoseWithCovariance {
     /// Pose.
     pub pose: Pose,
-    /// Covariance.
+    /// Covariance (odocal does not use it).
+    #[serde(default, deserialize_with = "lenient::unused")]
     pub covariance: Covariance36,
 }
 
@@ -333,12 +336,13 @@ pub struct TwistStamped {
 pub struct Odometry {
     /// Header.
     pub header: Header,
-    /// Child frame.
-    #[serde(default)]
+    /// Child frame (unused).
+    #[serde(default, deserialize_with = "lenient::unused")]
     pub child_frame_id: String,
     /// Pose in the odometry frame.
     pub pose: PoseWithCovariance,
-    /// Twist in the child frame.
+    /// Twist in the child frame (odocal ends motions on the pose; unused).
+    #[serde(default, deserialize_with = "lenient::unused")]
     pub twist: TwistWithCovariance,
 }
 
@@ -348,7 +352,7 @@ pub struct Odometry {
 /// turns into strings first; integers where floats are meant. Binary formats (CDR, ROS 1) are
 /// read as they are: these only apply to self-describing input.
 pub mod lenient {
-    use serde::de::{Deserialize, Deserializer, Error, IgnoredAny, SeqAccess, Visitor};
+    use serde::de::{Deserialize, DeserializeOwned, Deserializer, Error, Visitor};
     use std::borrow::Cow;
     use std::fmt;
 
@@ -413,81 +417,35 @@ pub mod lenient {
         <[Float; 9]>::deserialize(d).map(|a| a.map(|f| f.0))
     }
 
-    /// A float array odocal does not use: in JSON, anything (a driver's odd value there never
-    /// costs the message) reads as empty unless it is a float array; in binary formats it is
+    /// A field odocal does not use (with `#[serde(default)]`, so that it may be missing): in
+    /// JSON, read when it is well formed and else its default, so that a driver's odd value
+    /// there (another shape, another length, text) never costs the message; in binary formats
     /// read as it is, since its bytes have to be passed over.
+    pub fn unused<'de, D: Deserializer<'de>, T: Default + DeserializeOwned>(
+        d: D,
+    ) -> Result<T, D::Error> {
+        unused_as(d, |v| T::deserialize(v))
+    }
+
+    /// A float array odocal does not use ([`unused`], its floats read as [`Float`]s).
     pub fn unused_floats<'de, D: Deserializer<'de>>(d: D) -> Result<Vec<f64>, D::Error> {
+        unused_as(d, floats)
+    }
+
+    /// A `float64[9]` odocal does not use ([`unused`], its floats read as [`Float`]s).
+    pub fn unused_floats9<'de, D: Deserializer<'de>>(d: D) -> Result<[f64; 9], D::Error> {
+        unused_as(d, floats9)
+    }
+
+    /// [`unused`], its JSON read by `json`.
+    fn unused_as<'de, D: Deserializer<'de>, T: Default + DeserializeOwned>(
+        d: D,
+        json: impl FnOnce(serde_json::Value) -> Result<T, serde_json::Error>,
+    ) -> Result<T, D::Error> {
         if !d.is_human_readable() {
-            return Vec::<f64>::deserialize(d);
+            return T::deserialize(d);
         }
-        struct Any;
-        impl<'de> Visitor<'de> for Any {
-            type Value = Vec<f64>;
-            fn expecting(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-                f.write_str("anything")
-            }
-            fn visit_seq<A: SeqAccess<'de>>(self, mut a: A) -> Result<Vec<f64>, A::Error> {
-                let mut out = Vec::new();
-                let mut floats = true;
-                while let Some(v) = a.next_element::<Option<FloatOrOther>>()? {
-                    match v {
-                        Some(FloatOrOther::Float(f)) if floats => out.push(f),
-                        None if floats => out.push(f64::NAN),
-                        _ => floats = false,
-                    }
-                }
-                Ok(if floats { out } else { Vec::new() })
-            }
-            fn visit_unit<E: Error>(self) -> Result<Vec<f64>, E> {
-                Ok(Vec::new())
-            }
-            fn visit_none<E: Error>(self) -> Result<Vec<f64>, E> {
-                Ok(Vec::new())
-            }
-            fn visit_bool<E: Error>(self, _: bool) -> Result<Vec<f64>, E> {
-                Ok(Vec::new())
-            }
-            fn visit_i64<E: Error>(self, _: i64) -> Result<Vec<f64>, E> {
-                Ok(Vec::new())
-            }
-            fn visit_u64<E: Error>(self, _: u64) -> Result<Vec<f64>, E> {
-                Ok(Vec::new())
-            }
-            fn visit_f64<E: Error>(self, _: f64) -> Result<Vec<f64>, E> {
-                Ok(Vec::new())
-            }
-            fn visit_str<E: Error>(self, _: &str) -> Result<Vec<f64>, E> {
-                Ok(Vec::new())
-            }
-            fn visit_map<A: serde::de::MapAccess<'de>>(
-                self,
-                mut a: A,
-            ) -> Result<Vec<f64>, A::Error> {
-                while a.next_entry::<IgnoredAny, IgnoredAny>()?.is_some() {}
-                Ok(Vec::new())
-            }
-        }
-        d.deserialize_any(Any)
-    }
-
-    /// An element of an unused array: a float, or anything else (passed over).
-    enum FloatOrOther {
-        Float(f64),
-        Other,
-    }
-
-    impl<'de> Deserialize<'de> for FloatOrOther {
-        fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
-            match serde_json::Value::deserialize(d)? {
-                serde_json::Value::Number(n) => {
-                    Ok(n.as_f64().map_or(FloatOrOther::Other, FloatOrOther::Float))
-                }
-                serde_json::Value::String(s) => Ok(FloatVisitor
-                    .visit_str::<serde_json::Error>(&s)
-                    .map_or(FloatOrOther::Other, |f| FloatOrOther::Float(f.0))),
-                _ => Ok(FloatOrOther::Other),
-            }
-        }
+        Ok(json(serde_json::Value::deserialize(d)?).unwrap_or_default())
     }
 
     /// JSON text as rosbridge writes it, made valid: the bare tokens `NaN`, `Infinity` and
@@ -805,5 +763,100 @@ mod tests {
         let back: JointState = cdr::decode(&cdr::encode(&js).unwrap()).unwrap();
         assert_eq!(back.position, js.position);
         assert!(back.effort[0].is_nan() && back.effort[1] == 0.5);
+    }
+
+    /// Every field odocal does not use, malformed or missing in the raw text, costs nothing:
+    /// the IMU's angular velocity, linear acceleration and their covariances, the odometry's
+    /// covariances, twist and frames. The fields it uses stay strict and name themselves.
+    #[test]
+    fn unused_fields_never_cost_a_message_and_used_ones_stay_strict() {
+        let read = |text: &str| -> serde_json::Value {
+            serde_json::from_str(&lenient::json(text)).unwrap_or_else(|e| panic!("{text}: {e}"))
+        };
+        let head = r#""header":{"stamp":{"sec":1700000000,"nanosec":5},"frame_id":"imu"}"#;
+        let orientation = r#""orientation":{"x":0,"y":0,"z":0.25881904510252074,"w":0.9659258262890683},"orientation_covariance":[0,0,0,0,0,0,0,0,0.01]"#;
+        for rest in [
+            // Missing altogether.
+            "",
+            // Another shape, another length, text, null, NaN tokens.
+            r#","angular_velocity":"n/a","angular_velocity_covariance":[0,0,0,0,0,0,0,0]"#,
+            r#","angular_velocity":[1,2,3],"linear_acceleration":null"#,
+            r#","linear_acceleration":{"x":"fast","y":0,"z":9.8},"linear_acceleration_covariance":"unknown""#,
+            r#","angular_velocity_covariance":[NaN,NaN,NaN,NaN,NaN,NaN,NaN,NaN,NaN,NaN]"#,
+            r#","angular_velocity":{"x":1},"linear_acceleration_covariance":{"0":1}"#,
+        ] {
+            let text = format!("{{{head},{orientation}{rest}}}");
+            let imu: Imu = serde_path_to_error::deserialize(&read(&text))
+                .unwrap_or_else(|e| panic!("{text}: {e}"));
+            assert!((yaw_of(&imu.orientation).unwrap() - 30f64.to_radians()).abs() < 1e-12);
+            assert_eq!(imu.orientation_covariance[8], 0.01, "{text}");
+        }
+        let pose = r#""pose":{"pose":{"position":{"x":1.5,"y":-2,"z":0},"orientation":{"x":0,"y":0,"z":0,"w":1}}"#;
+        for (frames, covariance, twist) in [
+            (r#""header":{"stamp":{"sec":1,"nanosec":0}}"#, "", ""),
+            (
+                r#""header":{"stamp":{"sec":1,"nanosec":0},"frame_id":null},"child_frame_id":5"#,
+                r#","covariance":[0,0,0]"#,
+                r#","twist":null"#,
+            ),
+            (
+                r#""header":{"stamp":{"sec":1,"nanosec":0},"frame_id":"odom"},"child_frame_id":"base""#,
+                r#","covariance":"none""#,
+                r#","twist":{"twist":{"linear":{"x":"?"}},"covariance":[1]}"#,
+            ),
+            (
+                r#""header":{"stamp":{"sec":1,"nanosec":0}}"#,
+                r#","covariance":[NaN,1,2,3,4,5,6,7,8,9,10,11,12,13,14,15,16,17,18,19,20,21,22,23,24,25,26,27,28,29,30,31,32,33,34,35,36]"#,
+                r#","twist":{"twist":{"linear":{"x":0.5,"y":0,"z":0},"angular":{"x":0,"y":0,"z":0}}}"#,
+            ),
+        ] {
+            let text = format!("{{{frames},{pose}{covariance}}}{twist}}}");
+            let o: Odometry = serde_path_to_error::deserialize(&read(&text))
+                .unwrap_or_else(|e| panic!("{text}: {e}"));
+            assert_eq!(
+                (o.pose.pose.position.x, o.pose.pose.position.y),
+                (1.5, -2.0),
+                "{text}"
+            );
+            assert_eq!(o.header.stamp, Time { sec: 1, nanosec: 0 });
+        }
+        // What odocal uses, broken: an error naming the field.
+        for (text, path) in [
+            (
+                format!(
+                    r#"{{{head},"orientation":"level","orientation_covariance":[0,0,0,0,0,0,0,0,0]}}"#
+                ),
+                "orientation",
+            ),
+            (
+                format!(r#"{{{head},{}}}"#, orientation.replace("0.01", "\"x\"")),
+                "orientation_covariance[8]",
+            ),
+            (
+                format!(r#"{{"header":{{"frame_id":"imu"}},{orientation}}}"#),
+                "header",
+            ),
+        ] {
+            let err = serde_path_to_error::deserialize::<_, Imu>(&read(&text)).unwrap_err();
+            assert!(err.path().to_string().starts_with(path), "{text}: {err}");
+        }
+        let text = format!(r#"{{"header":{{"stamp":{{"sec":1,"nanosec":0}}}},{pose}}}}}"#)
+            .replace("1.5", "\"x\"");
+        let err = serde_path_to_error::deserialize::<_, Odometry>(&read(&text)).unwrap_err();
+        assert_eq!(err.path().to_string(), "pose.pose.position.x", "{text}");
+        // Binary forms read every field as it is.
+        let imu = Imu {
+            angular_velocity: Vector3 {
+                x: 0.5,
+                y: 0.0,
+                z: -0.25,
+            },
+            linear_acceleration_covariance: [2.0; 9],
+            ..Imu::default()
+        };
+        assert_eq!(
+            cdr::decode::<Imu>(&cdr::encode(&imu).unwrap()).unwrap(),
+            imu
+        );
     }
 }

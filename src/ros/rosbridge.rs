@@ -215,6 +215,18 @@ impl RosbridgeClient {
         topic: &str,
         type_name: &str,
     ) -> Result<broadcast::Receiver<Value>, RosbridgeError> {
+        self.subscribe_throttled(topic, type_name, Duration::ZERO)
+    }
+
+    /// [`Self::subscribe`], the server sending at most one message per `throttle` (rosbridge's
+    /// `throttle_rate`; zero: every message). A topic already subscribed keeps its first
+    /// subscription's rate.
+    pub fn subscribe_throttled(
+        &self,
+        topic: &str,
+        type_name: &str,
+        throttle: Duration,
+    ) -> Result<broadcast::Receiver<Value>, RosbridgeError> {
         let rx = {
             let mut topics = lock(&self.topics);
             match topics.get(topic) {
@@ -232,6 +244,7 @@ impl RosbridgeClient {
             "topic": topic,
             "type": type_name,
             "queue_length": 0,
+            "throttle_rate": u64::try_from(throttle.as_millis()).unwrap_or(u64::MAX),
         }))?;
         Ok(rx)
     }

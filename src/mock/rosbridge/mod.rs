@@ -67,6 +67,14 @@ pub struct MockRosConfig {
     pub latency: Duration,
     /// Stop publishing `/joint_states` after this much robot time (a failing driver).
     pub joint_states_stop_after_s: Option<f64>,
+    /// Publish `/joint_states` whose wheel positions never change while the robot moves
+    /// (ros2_control's mock hardware without position feedback).
+    pub frozen_joint_states: bool,
+    /// Controller parameters declared read-only: `describe_parameters` says so and a set of
+    /// them is refused with rclcpp's reason.
+    pub read_only_parameters: Vec<String>,
+    /// A parameter callback of the controller that refuses every set with this reason.
+    pub refuse_parameter_sets: Option<String>,
 }
 
 impl MockRosConfig {
@@ -98,6 +106,9 @@ impl MockRosConfig {
             effort: EffortStyle::Empty,
             latency: Duration::from_millis(2),
             joint_states_stop_after_s: None,
+            frozen_joint_states: false,
+            read_only_parameters: Vec::new(),
+            refuse_parameter_sets: None,
         })
     }
 }
@@ -412,7 +423,11 @@ async fn physics(
                             serde_json::to_value(JointState {
                                 header: header(stamp, ""),
                                 name: vec![names.0, names.1],
-                                position: vec![s.angles.0, s.angles.1],
+                                position: if cfg.frozen_joint_states {
+                                    vec![0.0, 0.0]
+                                } else {
+                                    vec![s.angles.0, s.angles.1]
+                                },
                                 velocity: vec![wl, wr],
                                 effort,
                             })

@@ -4,8 +4,10 @@
 //! node's parameter services as `rcl_interfaces` defines them (`get_parameters`,
 //! `set_parameters`, `set_parameters_atomically`, `list_parameters`, `describe_parameters`,
 //! `get_parameter_types`), with rclcpp's answers: `get_parameters` of an undeclared name gives
-//! no values, `set_parameters` refuses an undeclared name or another type with rclcpp's
-//! reasons and accepts any value of the declared type (Humble's controller declares no ranges).
+//! no values, `set_parameters` refuses an undeclared name, another type or a read-only
+//! parameter ([`MockRosConfig::read_only_parameters`]) with rclcpp's reasons, and what a
+//! parameter callback refuses ([`MockRosConfig::refuse_parameter_sets`]); it accepts any other
+//! value of the declared type (Humble's controller declares no ranges).
 //!
 //! Replies carry `id` only when the request did, as `rosbridge_server` does.
 
@@ -334,7 +336,7 @@ fn answer(
 ) -> Result<Value, String> {
     let ctrl = controller_node(cfg);
     if let Some(name) = service.strip_prefix(&format!("{ctrl}/")) {
-        return parameters(name, args, state).ok_or_else(|| missing(service));
+        return parameters(name, args, cfg, state).ok_or_else(|| missing(service));
     }
     if let Some(name) = service.strip_prefix(&format!("{BROADCASTER_NODE}/")) {
         // A node with parameters odocal has no business with: it answers, empty.
@@ -401,7 +403,13 @@ fn missing(service: &str) -> String {
 }
 
 /// The controller node's parameter services, or `None` for another name.
-fn parameters(name: &str, args: &Value, state: &Mutex<MockRosState>) -> Option<Value> {
+fn parameters(
+    name: &str,
+    args: &Value,
+    cfg: &MockRosConfig,
+    state: &Mutex<MockRosState>,
+) -> Option<Value> {
+    let read_only = |n: &str| cfg.read_only_parameters.iter().any(|r| r == n);
     let names = || -> Vec<String> {
         args.get("names")
             .and_then(|n| serde_json::from_value(n.clone()).ok())
@@ -430,7 +438,7 @@ fn parameters(name: &str, args: &Value, state: &Mutex<MockRosState>) -> Option<V
                 .map(|n| {
                     s.params.get(n).map(|v| {
                         json!({"name": n, "type": v.type_id(), "description": "",
-                            "additional_constraints": "", "read_only": false,
+                            "additional_constraints": "", "read_only": read_only(n),
                             "dynamic_typing": false, "floating_point_range": [],
                             "integer_range": []})
                     })
@@ -474,6 +482,12 @@ fn parameters(name: &str, args: &Value, state: &Mutex<MockRosState>) -> Option<V
                     (None, _) => Err(format!(
                         "parameter '{n}' cannot be set because it was not declared"
                     )),
+                    (Some(_), _) if read_only(n) => Err(format!(
+                        "parameter '{n}' cannot be set because it is read-only"
+                    )),
+                    (Some(_), _) if cfg.refuse_parameter_sets.is_some() => {
+                        Err(cfg.refuse_parameter_sets.clone().unwrap_or_default())
+                    }
                     (Some(have), Some(Ok(v))) if v.type_id() == have.type_id() => {
                         staged.insert(n.to_string(), v);
                         Ok(())

@@ -1,8 +1,10 @@
 //! zstd where rosbag2 puts it: a whole storage file (`compression_mode: FILE`, one streamed
 //! frame, `<file>.zstd`) and each message on its own (`MESSAGE`, one frame per message, the
-//! storage file itself plain). Output never exceeds [`crate::io::MAX_BAG_FILE`]: a frame that
-//! would grow past it is an error, not an allocation. (MCAP's own chunk compression is the
-//! `mcap` crate's; ROS 1 chunks are [`super::ros1`]'s.)
+//! storage file itself plain); and a whole file in LZ4 frames (`<file>.lz4`, what the `lz4`
+//! tool makes of a bag: rosbag2 itself compresses with zstd only). Output never exceeds
+//! [`crate::io::MAX_BAG_FILE`]: a frame that would grow past it is an error, not an
+//! allocation. (MCAP's own chunk compression, zstd or lz4, is the `mcap` crate's; ROS 1 chunks
+//! are [`super::ros1`]'s.)
 
 use super::BagError;
 use std::io::Read;
@@ -18,6 +20,34 @@ pub fn zstd_file(bytes: &[u8], path: &Path) -> Result<Vec<u8>, BagError> {
         what: path.display().to_string(),
         source,
     })?;
+    Ok(out)
+}
+
+/// The first bytes of every LZ4 frame.
+pub const LZ4_MAGIC: &[u8] = &[0x04, 0x22, 0x4D, 0x18];
+
+/// Decompresses a whole file of LZ4 frames (`path` names it in errors): every frame of it,
+/// each read to its end (a frame cut short is an error, not a shorter bag).
+pub fn lz4_file(bytes: &[u8], path: &Path) -> Result<Vec<u8>, BagError> {
+    let error = |source| BagError::Lz4 {
+        path: path.to_path_buf(),
+        source,
+    };
+    let mut out = Vec::new();
+    let mut rest = bytes;
+    // The decoder stops at the end of a frame; the format allows several back to back.
+    while !rest.is_empty() {
+        let mut decoder = lz4::Decoder::new(rest).map_err(error)?;
+        bounded(&mut decoder, &mut out).map_err(error)?;
+        let (left, done) = decoder.finish();
+        done.map_err(|_| {
+            error(std::io::Error::new(
+                std::io::ErrorKind::UnexpectedEof,
+                format!("a frame is cut short after {} bytes", out.len()),
+            ))
+        })?;
+        rest = left;
+    }
     Ok(out)
 }
 
@@ -49,10 +79,16 @@ pub fn zstd_message(
 
 /// Streams every frame of `bytes` into `out`, stopping with an error past the bound.
 fn stream(bytes: &[u8], out: &mut Vec<u8>) -> std::io::Result<()> {
-    let decoder = zstd::stream::read::Decoder::with_buffer(bytes)?;
-    let read = decoder.take(crate::io::MAX_BAG_FILE + 1).read_to_end(out)?;
-    if read as u64 > crate::io::MAX_BAG_FILE {
-        return Err(too_large(read as u64));
+    bounded(&mut zstd::stream::read::Decoder::with_buffer(bytes)?, out)
+}
+
+/// Appends what a decoder gives to `out`, stopping with an error once `out` would pass the
+/// bound.
+fn bounded(decoder: &mut impl Read, out: &mut Vec<u8>) -> std::io::Result<()> {
+    let room = (crate::io::MAX_BAG_FILE + 1).saturating_sub(out.len() as u64);
+    decoder.take(room).read_to_end(out)?;
+    if out.len() as u64 > crate::io::MAX_BAG_FILE {
+        return Err(too_large(out.len() as u64));
     }
     Ok(())
 }
@@ -101,5 +137,24 @@ mod tests {
             ));
         }
         assert!(zstd_message(&[0x28, 0xB5, 0x2F, 0xFD, 0xFF], &mut ctx, &mut out).is_err());
+    }
+
+    #[test]
+    fn lz4_files_decompress_and_garbage_is_an_error() {
+        let text = b"the same bytes, over and over ".repeat(100);
+        let mut enc = lz4::EncoderBuilder::new().build(Vec::new()).unwrap();
+        std::io::Write::write_all(&mut enc, &text).unwrap();
+        let (frame, done) = enc.finish();
+        done.unwrap();
+        assert!(frame.starts_with(LZ4_MAGIC));
+        let two = [frame.clone(), frame.clone()].concat();
+        let path = Path::new("x.mcap.lz4");
+        assert_eq!(lz4_file(&two, path).unwrap(), [text.clone(), text].concat());
+        for cut in [4, frame.len() / 2, frame.len() - 1] {
+            assert!(
+                matches!(lz4_file(&frame[..cut], path), Err(BagError::Lz4 { .. })),
+                "cut at {cut}"
+            );
+        }
     }
 }

@@ -228,7 +228,11 @@ fn parse(docs: &[Yaml]) -> Result<Metadata, String> {
     };
     if compressed.is_some() && !format.eq_ignore_ascii_case("zstd") {
         return Err(format!(
-            "compression format `{format}`: odocal reads zstd, rosbag2's one"
+            "compression format `{format}`: rosbag2 compresses files and messages with zstd \
+             only (rosbag2_compression_zstd is the one compression plugin it ships), which is \
+             what odocal reads; a bag of another format was written by a plugin odocal does not \
+             know: `ros2 bag convert` with that plugin installed writes it uncompressed. (MCAP \
+             storage's own lz4 chunks, `compression: Lz4` in a storage config, are read.)"
         ));
     }
     let files: Vec<String> = info["relative_file_paths"]
@@ -351,7 +355,11 @@ mod tests {
         assert!(!parse(&none).unwrap().compression_file);
         for (from, to, says) in [
             ("sqlite3", "rosbag_v2", "storage `rosbag_v2`"),
-            ("ZSTD", "lz4", "compression format `lz4`"),
+            (
+                "ZSTD",
+                "lz4",
+                "compression format `lz4`: rosbag2 compresses files and messages with zstd only",
+            ),
             ("FILE", "BLOCK", "compression mode `block`"),
             ("relative_file_paths", "paths", "relative_file_paths"),
             (
