@@ -448,10 +448,25 @@ impl BaseSpec {
         self.drive.place()
     }
 
+    /// What the heading sensor is and the deviation removed from its readings: the spec's
+    /// (a flag's), else the robot profile's (a swing saved there).
+    pub fn heading_correction(&self) -> Result<(Option<HeadingKind>, Deviation), SpecError> {
+        let (mut kind, mut deviation) = (self.heading_kind, self.deviation);
+        if let StoreSpec::Profile(path) = &self.store {
+            let section = crate::roboclaw::profile::Profile::load(path)?.heading;
+            kind = kind.or(section.kind);
+            if deviation.is_zero() {
+                deviation = section.deviation();
+            }
+        }
+        Ok((kind, deviation))
+    }
+
     /// **Connects to the robot** (it does not move): opens the drive, and the heading source
     /// and store when they are not the drive's, and composes the [`Base`].
     pub async fn open(&self) -> Result<Base, SpecError> {
         let own_heading = self.heading.open().await?;
+        let (heading_kind, deviation) = self.heading_correction()?;
         let mut base =
             match &self.drive {
                 DriveSpec::Odocal { port, baud } => {
@@ -495,12 +510,8 @@ impl BaseSpec {
         if let Some(heading) = own_heading {
             base.heading = heading;
         }
-        if self.heading_kind.is_some() || !self.deviation.is_zero() {
-            base.heading = Arc::new(Adjusted::new(
-                base.heading.clone(),
-                self.heading_kind,
-                self.deviation,
-            ));
+        if heading_kind.is_some() || !deviation.is_zero() {
+            base.heading = Arc::new(Adjusted::new(base.heading.clone(), heading_kind, deviation));
         }
         Ok(base)
     }

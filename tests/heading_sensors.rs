@@ -439,7 +439,6 @@ fn odocal_swing_prints_the_compass_deviation_and_its_flag() {
         "--yes",
         "--json",
     ]);
-    let _ = mock.kill();
     let got: Deviation = v["compass_deviation_deg"]
         .as_str()
         .unwrap()
@@ -461,4 +460,53 @@ fn odocal_swing_prints_the_compass_deviation_and_its_flag() {
         std::fs::read_to_string(&profile).unwrap(),
         common::ROBOCLAW_PROFILE
     );
+    // --save keeps the curve in the profile (the file copied beside itself first), and a
+    // swing after it measures what is left on top of the saved curve: nearly nothing, and the
+    // whole curve it reports is still the compass's.
+    let swing = |extra: &[&str]| {
+        let mut args = vec![
+            "swing",
+            "--base",
+            &lines[0],
+            "--heading",
+            &heading,
+            "--profile",
+            profile_s,
+            "--yes",
+            "--json",
+        ];
+        args.extend(extra);
+        common::odocal_json(&args)
+    };
+    let saved = swing(&["--save"]);
+    let kept = odocal::roboclaw::profile::Profile::load(&profile).unwrap();
+    let backup = saved["profile_backup"].as_str().unwrap();
+    assert_eq!(
+        std::fs::read_to_string(backup).unwrap(),
+        common::ROBOCLAW_PROFILE
+    );
+    let after = swing(&[]);
+    let _ = mock.kill();
+    let residual = &after["fit"]["deviation"];
+    let whole: Deviation = after["compass_deviation_deg"]
+        .as_str()
+        .unwrap()
+        .parse()
+        .unwrap();
+    for k in 0..4 {
+        let saved_k = kept.heading.deviation().0[k];
+        assert!(
+            (saved_k - want.0[k]).abs() < 0.25f64.to_radians(),
+            "{kept:?}"
+        );
+        let left = residual[k].as_f64().unwrap();
+        assert!(
+            left.abs() < 0.25f64.to_radians(),
+            "left after saving: {after}"
+        );
+        assert!(
+            (whole.0[k] - want.0[k]).abs() < 0.25f64.to_radians(),
+            "{after}"
+        );
+    }
 }

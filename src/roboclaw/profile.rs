@@ -19,13 +19,18 @@
 //! max_speed_m_s = 0.5
 //! max_accel_m_s2 = 0.5
 //! min_battery_v = 10.5
+//!
+//! [heading]                             # optional: what `odocal swing --save` measured
+//! kind = "magnetic"
+//! compass_deviation_deg = [1.5, -2.0, 0.5, 1.0]   # A1, B1, A2, B2 (kinematics::Deviation)
 //! ```
 //!
-//! Writing back changes only the three geometry values, in place (comments and everything else
-//! stay, `toml_edit`), after copying the file beside itself, and replaces it atomically.
+//! Writing back changes only the three geometry values (or, for a swing, the `[heading]`
+//! table), in place (comments and everything else stay, `toml_edit`), after copying the file
+//! beside itself, and replaces it atomically.
 
-use crate::base::{FileStore, ParamFile};
-use crate::kinematics::WheelParams;
+use crate::base::{FileStore, HeadingKind, ParamFile};
+use crate::kinematics::{Deviation, WheelParams};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
@@ -111,6 +116,30 @@ pub struct Limits {
     pub min_battery_v: Option<f64>,
 }
 
+/// What the profile says of the robot's heading sensor: applied whenever the robot is opened
+/// with this profile (a flag overrides it).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct HeadingSection {
+    /// What the sensor is.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub kind: Option<HeadingKind>,
+    /// The compass's deviation A1, B1, A2, B2 (deg), removed from every reading.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub compass_deviation_deg: Option<[f64; 4]>,
+}
+
+impl HeadingSection {
+    /// The deviation in radians (zero when none is given).
+    pub fn deviation(&self) -> Deviation {
+        Deviation(
+            self.compass_deviation_deg
+                .unwrap_or_default()
+                .map(f64::to_radians),
+        )
+    }
+}
+
 /// A robot profile.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -121,6 +150,9 @@ pub struct Profile {
     pub wiring: Wiring,
     /// Limits.
     pub limits: Limits,
+    /// The heading sensor, when known.
+    #[serde(default)]
+    pub heading: HeadingSection,
 }
 
 impl Profile {
@@ -157,6 +189,13 @@ impl Profile {
                 return Err(invalid(format!(
                     "wiring.{k}_encoder_sign must be 1 or -1, got {s}"
                 )));
+            }
+        }
+        if let Some(d) = p.heading.compass_deviation_deg {
+            if !d.iter().all(|c| c.is_finite() && c.abs() <= 45.0) {
+                return Err(invalid(
+                    "heading.compass_deviation_deg must be four numbers within ±45°".into(),
+                ));
             }
         }
         let l = &p.limits;
@@ -233,6 +272,59 @@ pub fn with_geometry(text: &str, p: &WheelParams, path: &Path) -> Result<String,
         return Err(invalid("the rewritten profile does not read back".into()));
     }
     Ok(out)
+}
+
+/// `text` with its `[heading]` table set to `heading` (other keys of that table, comments and
+/// every other table untouched).
+pub fn with_heading(
+    text: &str,
+    heading: &HeadingSection,
+    path: &Path,
+) -> Result<String, ProfileError> {
+    let invalid = |message: String| ProfileError::Invalid {
+        path: path.to_path_buf(),
+        message,
+    };
+    let mut doc: toml_edit::DocumentMut = text
+        .parse()
+        .map_err(|e: toml_edit::TomlError| invalid(e.to_string()))?;
+    let table = doc
+        .entry("heading")
+        .or_insert(toml_edit::table())
+        .as_table_like_mut()
+        .ok_or_else(|| invalid("heading: must be a table ([heading])".into()))?;
+    if let Some(kind) = heading.kind {
+        table.insert("kind", toml_edit::value(kind.name()));
+    }
+    if let Some(d) = heading.compass_deviation_deg {
+        let mut array = toml_edit::Array::new();
+        for c in d {
+            // Thousandths of a degree: the fit is not better.
+            array.push((c * 1000.0).round() / 1000.0);
+        }
+        table.insert("compass_deviation_deg", toml_edit::value(array));
+    }
+    let out = doc.to_string();
+    let back = Profile::parse(&out, path)?;
+    if back.params() != Profile::parse(text, path)?.params() {
+        return Err(invalid("the rewritten profile does not read back".into()));
+    }
+    Ok(out)
+}
+
+/// **Rewrites the profile at `path`** with its `[heading]` table set to `heading`: the file
+/// is copied beside itself first (a new file, never replacing an earlier copy), then replaced
+/// atomically. Returns the copy's path.
+pub fn save_heading(path: &Path, heading: &HeadingSection) -> Result<PathBuf, ProfileError> {
+    let io = |source| ProfileError::Io {
+        path: path.to_path_buf(),
+        source,
+    };
+    let text = read_bounded(path)?;
+    let out = with_heading(&text, heading, path)?;
+    let backup = crate::io::files::backup_beside(path).map_err(io)?;
+    crate::io::files::replace_atomically(path, &out).map_err(io)?;
+    Ok(backup)
 }
 
 /// The profile's format for a [`FileStore`]: its geometry is the parameters, the wiring and
@@ -342,6 +434,7 @@ min_battery_v = 10.5
             out.contains("# my robot") && out.contains("min_battery_v = 10.5"),
             "{out}"
         );
+        assert_eq!(p.heading, HeadingSection::default());
         let bad = EXAMPLE.replace("right_encoder_sign = -1", "right_encoder_sign = 2");
         let e = Profile::parse(&bad, path).unwrap_err().to_string();
         assert!(e.contains("right_encoder_sign"), "{e}");
@@ -349,5 +442,39 @@ min_battery_v = 10.5
             .unwrap_err()
             .to_string();
         assert!(e.contains("line 2"), "{e}");
+    }
+
+    #[test]
+    fn a_swing_is_kept_in_the_heading_table_and_read_back() {
+        let path = Path::new("robot.toml");
+        let h = HeadingSection {
+            kind: Some(HeadingKind::Magnetic),
+            compass_deviation_deg: Some([1.5, -2.0, 0.5, 1.0004]),
+        };
+        let out = with_heading(EXAMPLE, &h, path).unwrap();
+        assert!(out.starts_with(EXAMPLE), "only a table is added: {out}");
+        let p = Profile::parse(&out, path).unwrap();
+        assert_eq!(p.heading.kind, Some(HeadingKind::Magnetic));
+        assert_eq!(p.heading.compass_deviation_deg, Some([1.5, -2.0, 0.5, 1.0]));
+        assert!((p.heading.deviation().0[1] - (-2f64).to_radians()).abs() < 1e-12);
+        // A second swing replaces the curve, keeping a comment beside the table.
+        let commented = out.replace("[heading]", "[heading] # swung in the lab");
+        let again = HeadingSection {
+            kind: None,
+            compass_deviation_deg: Some([0.0, 0.5, 0.0, 0.0]),
+        };
+        let out2 = with_heading(&commented, &again, path).unwrap();
+        assert!(out2.contains("# swung in the lab"), "{out2}");
+        let p2 = Profile::parse(&out2, path).unwrap();
+        assert_eq!(p2.heading.compass_deviation_deg, Some([0.0, 0.5, 0.0, 0.0]));
+        assert_eq!(p2.heading.kind, Some(HeadingKind::Magnetic));
+        // Out of range or not a table: refused.
+        let wild = format!("{EXAMPLE}\n[heading]\ncompass_deviation_deg = [90, 0, 0, 0]\n");
+        let e = Profile::parse(&wild, path).unwrap_err().to_string();
+        assert!(e.contains("compass_deviation_deg"), "{e}");
+        let e = with_heading(&format!("heading = 3\n{EXAMPLE}"), &h, path)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("heading"), "{e}");
     }
 }

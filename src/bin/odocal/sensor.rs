@@ -3,10 +3,12 @@
 //! a mark on the floor. Both print the flag that gives the result to `calibrate`.
 
 use crate::robot::RobotArgs;
+use odocal::base::HeadingKind;
 use odocal::calibration::gyro::scale_from_spin;
+use odocal::roboclaw::profile::{save_heading, HeadingSection};
 use odocal::routine::spin::run_spin;
 use odocal::routine::swing::{run_swing, SwingCommand};
-use odocal::spec::RobotSection;
+use odocal::spec::{RobotSection, StoreSpec};
 use serde_json::json;
 use std::time::Duration;
 
@@ -23,6 +25,10 @@ pub struct SwingArgs {
     /// Turn-rate limit (rad/s): slow, so that a compass that filters keeps up.
     #[arg(long, default_value_t = 0.5)]
     rate_rad_s: f64,
+    /// Save the curve in the robot profile's [heading] table (a profile store only; the file
+    /// is copied beside itself first): every later command with this profile removes it.
+    #[arg(long)]
+    save: bool,
     /// Turn without asking first.
     #[arg(long)]
     yes: bool,
@@ -74,7 +80,22 @@ pub async fn swing(args: SwingArgs) -> CliResult {
     if !(1..=10).contains(&args.turns) {
         return Err(format!("--turns {}: must be 1..=10", args.turns).into());
     }
-    let base = args.robot.spec(RobotSection::default())?.open().await?;
+    let spec = args.robot.spec(RobotSection::default())?;
+    let save_to = match (&spec.store, args.save) {
+        (StoreSpec::Profile(path), true) => Some(path.clone()),
+        (_, true) => {
+            return Err(
+                "--save keeps the curve in a robot profile: give --profile (for other \
+                        robots, pass the printed --compass-deviation-deg)"
+                    .into(),
+            )
+        }
+        _ => None,
+    };
+    // What is already removed from the readings (a flag, or the profile's saved curve): the
+    // swing measures what is left, and the curve to keep is both.
+    let (_, applied) = spec.heading_correction()?;
+    let base = spec.open().await?;
     confirm(
         args.yes,
         &format!(
@@ -97,18 +118,31 @@ pub async fn swing(args: SwingArgs) -> CliResult {
         }
     }
     .map_err(|why| format!("no swing: {why}"))?;
-    let flag = fit
-        .deviation
-        .0
-        .map(|c| format!("{:.3}", c.to_degrees()))
-        .join(",");
+    let total_deg: [f64; 4] =
+        std::array::from_fn(|k| (applied.0[k] + fit.deviation.0[k]).to_degrees());
+    let flag = total_deg.map(|c| format!("{c:.3}")).join(",");
+    let saved = match &save_to {
+        Some(path) => {
+            let kind = base.heading.kind();
+            let section = HeadingSection {
+                kind: (kind == HeadingKind::Magnetic).then_some(kind),
+                compass_deviation_deg: Some(total_deg),
+            };
+            let backup = save_heading(path, &section)?;
+            Some((path.clone(), backup))
+        }
+        None => None,
+    };
     if args.json {
         println!(
             "{}",
             serde_json::to_string_pretty(&json!({
                 "fit": fit,
+                "already_removed_deg": applied.0.map(f64::to_degrees),
                 "compass_deviation_deg": flag,
                 "advice": fit.advice(),
+                "saved_to": saved.as_ref().map(|s| &s.0),
+                "profile_backup": saved.as_ref().map(|s| &s.1),
             }))?
         );
         return Ok(());
@@ -131,10 +165,21 @@ pub async fn swing(args: SwingArgs) -> CliResult {
     if let Some(advice) = fit.advice() {
         println!("advice: {advice}");
     }
-    println!(
-        "to remove it from every reading: --compass-deviation-deg {flag} (calibrate also \
-         swings by itself unless --no-swing)"
-    );
+    if !applied.is_zero() {
+        println!("(on top of the deviation already removed: the whole curve is {flag} degrees)");
+    }
+    match &saved {
+        Some((path, backup)) => println!(
+            "saved in {} ([heading]; the earlier file is {}): every command with this profile \
+             removes it",
+            path.display(),
+            backup.display()
+        ),
+        None => println!(
+            "to remove it from every reading: --compass-deviation-deg {flag}, or --save it in the \
+             robot profile (calibrate also swings by itself unless --no-swing)"
+        ),
+    }
     Ok(())
 }
 
