@@ -110,6 +110,61 @@ fn bad_input_fails_with_a_clear_message() {
 }
 
 #[test]
+fn plan_states_side_runs_robot_time_and_predicted_errors_and_moves_nothing() {
+    let base = [
+        "plan",
+        "--floor-m",
+        "5,9.5",
+        "--heading-sigma-deg",
+        "0.37",
+        "--wheelbase-m",
+        "0.39",
+        "--heading-kind",
+        "magnetic",
+        "--method",
+        "exact",
+        "--heading-samples",
+        "1",
+    ];
+    let with = |extra: &[&'static str]| -> Vec<&'static str> {
+        base.iter().chain(extra).copied().collect()
+    };
+    let v = json(&with(&["--target-eb-std", "3e-4", "--json"]));
+    let f = |k: &str| v[k].as_f64().unwrap_or_else(|| panic!("no {k}: {v}"));
+    // E_b ± σ_c/(2π√n) at rest (one reading at each end): about 12 runs per direction.
+    let runs = f("runs_per_direction");
+    let std_e_b = f("predicted_std_e_b");
+    assert!((12.0..=16.0).contains(&runs), "{v}");
+    assert!(std_e_b <= 3e-4 && std_e_b > 2.5e-4, "{v}");
+    assert!(f("predicted_std_e_d") > 0.0 && f("side_m") >= 1.0 && f("side_m") <= 4.0);
+    // Squares, their robot time and the compass swing (two turns each way at 0.5 rad/s).
+    let plan = &v["plan"];
+    let squares = plan["squares"].as_f64().unwrap();
+    let square_s = plan["square_time_s"].as_f64().unwrap();
+    let swing_s = 4.0 * std::f64::consts::TAU / 0.5;
+    assert!(
+        (f("robot_time_s") - swing_s - squares * square_s).abs() < 1e-6,
+        "{v}"
+    );
+    assert_eq!(v["moves"], false);
+    // Text: what it costs, where, and the flags that drive it.
+    let (ok, out, err) = odocal(&with(&["--target-eb-std", "3e-4"]));
+    assert!(ok, "{err}");
+    assert!(
+        out.contains("moves nothing") && out.contains("of robot time") && out.contains("floor:"),
+        "{out}"
+    );
+    assert!(out.contains("--target-eb-std 0.0003"), "{out}");
+    // A target out of reach, or no room: said, and a failure.
+    let (ok, _, err) = odocal(&with(&["--target-eb-std", "1e-6"]));
+    assert!(!ok && err.contains("not reached within 20 runs"), "{err}");
+    let mut small = with(&[]);
+    small[2] = "1,2";
+    let (ok, _, err) = odocal(&small);
+    assert!(!ok && err.contains("no room"), "{err}");
+}
+
+#[test]
 fn replay_json_has_evaluations() {
     let root = odocal::offline::dataset::default_optiodom_root();
     let set = root.join("square/231220200040");

@@ -38,7 +38,8 @@ async fn what_was_queued_before_opening_is_not_a_reading() {
 }
 
 /// `odocal heading --samples 5` on mock compasses at 0.5, 1, 10 and 50 Hz (the line ends
-/// varied): five fresh readings each, the slow ones waited for at their own rate.
+/// varied): five fresh readings each, the slow ones waited for at their own rate; and the noise
+/// per reading of fifty.
 #[test]
 fn heading_reads_five_samples_from_compasses_at_any_rate() {
     for (hz, end) in [("0.5", "crlf"), ("1", "cr"), ("10", "lf"), ("50", "crlf")] {
@@ -47,6 +48,9 @@ fn heading_reads_five_samples_from_compasses_at_any_rate() {
             &[
                 "--real-time",
                 "1",
+                // The robot's own compass quiet: the sentences carry the NMEA compass's 0.2°.
+                "--compass-sigma-deg",
+                "0",
                 "--nmea",
                 "--nmea-hz",
                 hz,
@@ -57,6 +61,14 @@ fn heading_reads_five_samples_from_compasses_at_any_rate() {
         );
         let port = format!("{}?baud=115200", lines[1]);
         let v = common::odocal_json(&["heading", "--port", &port, "--samples", "5", "--json"]);
+        if hz == "50" {
+            // Fifty readings at rest give the noise per reading `odocal plan` wants: the
+            // mock's 0.2°, within three of the estimate's standard errors (10 %).
+            let many =
+                common::odocal_json(&["heading", "--port", &port, "--samples", "50", "--json"]);
+            let sigma = many["sigma_deg"].as_f64().unwrap_or(f64::NAN);
+            assert!((0.14..=0.26).contains(&sigma), "{many}");
+        }
         drop(mock.stdin.take());
         let _ = mock.wait();
         assert_eq!(v["samples"], 5, "{hz} Hz: {v}");

@@ -52,15 +52,7 @@ fn routine(name: &str) -> RoutineConfig {
 async fn the_whole_routine_runs_on_an_in_process_base() {
     let sim = robot(0.37);
     let cfg = routine("whole");
-    let report = run(
-        &Base::single(sim.clone()),
-        &cfg,
-        Some(&sim),
-        &mut Unattended,
-        &CancellationToken::new(),
-    )
-    .await
-    .unwrap();
+    let report = common::routine_on(&sim, &cfg).await.unwrap();
     assert!(report.written && report.converged, "{report:?}");
     let before = report.e_max_sys_before_m.unwrap();
     let after = report.e_max_sys_after_m.unwrap();

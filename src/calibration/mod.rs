@@ -30,6 +30,7 @@ pub mod lee;
 pub mod legs;
 pub mod matched_legs;
 pub mod online;
+pub mod plan;
 pub mod pool;
 pub mod recording;
 pub mod segment;

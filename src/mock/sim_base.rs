@@ -91,6 +91,12 @@ impl SimBase {
         self.state().counters
     }
 
+    /// Robot time so far (s): every motion's duration at its speed limit (the simulation's
+    /// clock; pauses at rest take none).
+    pub fn time_s(&self) -> f64 {
+        self.state().time_s
+    }
+
     /// The parameters the simulated controller uses now.
     pub fn configured(&self) -> WheelParams {
         *self.state().sim.configured()

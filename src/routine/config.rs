@@ -1,5 +1,6 @@
 //! The routine's settings: defaults, validation, and the TOML routine file.
 
+use crate::calibration::plan::Target;
 use crate::calibration::Method;
 use crate::kinematics::SplitConvention;
 use serde::{Deserialize, Serialize};
@@ -81,6 +82,14 @@ pub struct RoutineConfig {
     pub tolerance: Option<f64>,
     /// Most calibration rounds.
     pub max_rounds: usize,
+    /// Drive each round's squares in clockwise and counter-clockwise pairs until the written
+    /// estimate's stated standard error of `E_b` is at most this (`runs_per_direction` is then
+    /// unused); see [`crate::routine::planning`].
+    pub target_e_b_std: Option<f64>,
+    /// As `target_e_b_std`, for `E_d` (both when both are given).
+    pub target_e_d_std: Option<f64>,
+    /// With a target, the most squares per direction a round may drive.
+    pub max_runs_per_direction: usize,
     /// Refuse to write any parameter changed by more than this fraction from the backup.
     pub max_change: f64,
     /// Allow `max_change` beyond 25 % (up to 100 %): skid-steer robots need wheelbase
@@ -118,6 +127,9 @@ impl Default for RoutineConfig {
             verification_runs: 3,
             tolerance: None,
             max_rounds: 3,
+            target_e_b_std: None,
+            target_e_d_std: None,
+            max_runs_per_direction: 20,
             max_change: 0.1,
             allow_large_change: false,
             keep_worse: false,
@@ -140,6 +152,17 @@ pub struct ConfigError {
 }
 
 impl RoutineConfig {
+    /// The precision the settings ask for, when they ask for one (the round's squares then stop
+    /// once it is reached).
+    pub fn target(&self) -> Option<Target> {
+        let t = Target {
+            e_b_std: self.target_e_b_std,
+            e_d_std: self.target_e_d_std,
+            end_point_m: None,
+        };
+        t.any().then_some(t)
+    }
+
     /// The split convention these settings select.
     pub fn split_convention(&self) -> SplitConvention {
         self.convention
@@ -233,6 +256,22 @@ impl RoutineConfig {
             if !(positive(t) && t < 0.1) {
                 return bad("tolerance", format!("must be in (0, 0.1), got {t}"));
             }
+        }
+        for (key, target) in [
+            ("target_e_b_std", self.target_e_b_std),
+            ("target_e_d_std", self.target_e_d_std),
+        ] {
+            if let Some(t) = target.filter(|t| !(positive(*t) && *t < 0.1)) {
+                return bad(key, format!("must be in (0, 0.1), got {t}"));
+            }
+        }
+        if !(crate::calibration::plan::MIN_RUNS_PER_DIRECTION..=50)
+            .contains(&self.max_runs_per_direction)
+        {
+            return bad(
+                "max_runs_per_direction",
+                format!("must be 2..=50, got {}", self.max_runs_per_direction),
+            );
         }
         if !(1..=10).contains(&self.max_rounds) {
             return bad(

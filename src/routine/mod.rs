@@ -13,6 +13,7 @@
 pub mod config;
 pub mod error;
 pub mod heading;
+pub mod planning;
 pub mod report;
 pub mod spin;
 pub mod square;
@@ -26,11 +27,13 @@ use crate::base::adjusted::Adjusted;
 use crate::base::transaction::Transaction;
 pub use crate::base::GroundTruth;
 use crate::base::{Base, BaseError, HeadingKind, MotionGuard};
+use crate::calibration::plan::Plan;
 use crate::calibration::swing::SwingFit;
 use crate::calibration::uncertainty::{cramer_rao_bound, heading_error_sigma, TestDesign};
 use crate::calibration::{default_method, estimate_all, Estimate, Method, SquareTest};
 use crate::kinematics::{wrap_angle, Direction, WheelParams};
 use config::{RoutineConfig, WritePolicy};
+use planning::Stop;
 use report::{Phase, RoundReport, RunReport, Stage};
 use square::{run_square, SquareCommand, SquareRecord};
 use std::sync::Arc;
@@ -43,10 +46,19 @@ use tokio_util::sync::CancellationToken;
 pub enum RoutineEvent {
     /// A stage starts (human-readable).
     Stage(String),
-    /// The number of motions the next phase will drive.
+    /// The motions the next phase will drive.
     Plan {
         /// Motions.
         motions: u64,
+        /// Their robot time at the speed limits (s).
+        robot_time_s: f64,
+    },
+    /// The phase drives more than it planned (a round whose target is not reached yet).
+    Extend {
+        /// More motions.
+        motions: u64,
+        /// Their robot time at the speed limits (s).
+        robot_time_s: f64,
     },
     /// One motion finished.
     Motion {
@@ -60,6 +72,8 @@ pub enum RoutineEvent {
         direction: Direction,
         /// Motion within the square (1..=8).
         motion: usize,
+        /// Its robot time at the speed limits (s).
+        duration_s: f64,
     },
     /// A run finished with this heading error (deg).
     RunDone {
@@ -157,6 +171,7 @@ pub async fn run(
         warnings: Vec::new(),
         start_heading_rad: None,
         swing: None,
+        plan: None,
     };
     match run.body().await {
         Ok(report) => Ok(report),
@@ -186,6 +201,8 @@ struct Calibration<'a> {
     start_heading_rad: Option<f64>,
     /// What the compass swing measured.
     swing: Option<SwingFit>,
+    /// The plan shown before the robot moved ([`planning`]).
+    plan: Option<Plan>,
 }
 
 impl Calibration<'_> {
@@ -193,6 +210,7 @@ impl Calibration<'_> {
     /// verification, judgement.
     async fn body(&mut self) -> Result<Report, RoutineError> {
         self.preflight().await?;
+        self.make_plan();
         self.confirm_motion()?;
         let original = *self.tx.original();
         self.swing(&original).await?;
@@ -231,10 +249,26 @@ impl Calibration<'_> {
                 self.cfg.max_rounds
             ));
         }
-        let verification = self.verify(&current, &rounds).await?;
+        let verification = match rounds.last().filter(|r| {
+            // A later round of a sequential run that confirmed the written parameters was
+            // driven with the parameters that stay: its squares are the verification.
+            self.cfg.target().is_some() && converged && r.round > 1 && r.params_before == current
+        }) {
+            Some(last) => {
+                self.stage(
+                    "verification: the confirming round's squares, driven with the written \
+                     parameters"
+                        .into(),
+                );
+                let runs = last.runs.clone();
+                self.judged(&rounds, runs)?
+            }
+            None => self.verify(&current, &rounds).await?,
+        };
         if self.moving_rests > 0 {
             self.warn(format!(
-                "{} rest(s) spread beyond the heading sensor's noise (the robot had not settled):                  left out of the noise estimate; a longer settle_s measures such squares better",
+                "{} rest(s) spread beyond the heading sensor's noise (the robot had not settled): \
+                 left out of the noise estimate; a longer settle_s measures such squares better",
                 self.moving_rests
             ));
         }
@@ -252,6 +286,7 @@ impl Calibration<'_> {
             std::mem::take(&mut self.warnings),
         );
         report.swing = self.swing.take();
+        report.plan = self.plan.take();
         Ok(report)
     }
 
@@ -261,13 +296,13 @@ impl Calibration<'_> {
     /// need it.
     async fn swing(&mut self, params: &WheelParams) -> Result<(), RoutineError> {
         let kind = self.base.heading.kind();
-        if !self.cfg.swing || !kind.may_deviate() {
+        if !planning::swings(self.cfg, kind) {
             return Ok(());
         }
         self.progress.stage = Stage::Swing;
         let cmd = SwingCommand {
-            turns_per_direction: 2,
-            rate_rad_s: self.cfg.max_rate_rad_s.min(swing::SWING_RATE_RAD_S),
+            turns_per_direction: planning::SWING_TURNS_PER_DIRECTION,
+            rate_rad_s: planning::swing_rate_rad_s(self.cfg),
             wheelbase_m: params.wheelbase_m,
             stream_period: Duration::from_millis(self.cfg.telemetry_ms.max(1)),
         };
@@ -379,14 +414,7 @@ impl Calibration<'_> {
     /// Asks before the robot first moves (unless the settings say not to).
     fn confirm_motion(&mut self) -> Result<(), RoutineError> {
         let cfg = self.cfg;
-        let question = format!(
-            "The robot will drive {} open-loop squares of {} m at up to {} m/s and {} rad/s. \
-             Is the area clear and may it move?",
-            cfg.runs_per_direction * 2,
-            cfg.side_m,
-            cfg.max_speed_m_s,
-            cfg.max_rate_rad_s
-        );
+        let question = planning::motion_question(cfg, self.plan.as_ref());
         if cfg.confirm_motion && !self.ui.confirm(&question) {
             return Err(RoutineError::Declined("the robot may not move".into()));
         }
@@ -401,17 +429,22 @@ impl Calibration<'_> {
         current: &WheelParams,
     ) -> Result<RoundReport, RoutineError> {
         self.stage(format!("round {round}: calibration squares"));
-        let runs = self
-            .drive_runs(
-                Phase::Calibration { round },
-                self.cfg.runs_per_direction,
-                current,
-            )
-            .await?;
+        let phase = Phase::Calibration { round };
+        let (runs, stopped) = match self.cfg.target() {
+            Some(target) => {
+                let (runs, why) = self.drive_until(phase, &target, current).await?;
+                (runs, Some(why))
+            }
+            None => (
+                self.drive_runs(phase, self.cfg.runs_per_direction, current)
+                    .await?,
+                None,
+            ),
+        };
         for r in &runs {
             self.warnings.extend(r.warnings.iter().cloned());
         }
-        let test = square_test(self.cfg, current, &runs);
+        let test = square_test(self.cfg, current, &runs, self.noise.std_rad());
         let mut estimates = Vec::new();
         let mut failures = Vec::new();
         for (method, result) in estimate_all(&test, self.cfg.split_convention())? {
@@ -432,7 +465,21 @@ impl Calibration<'_> {
                 );
                 RoutineError::Implausible(format!("method {method} gave no estimate: {why}"))
             })?;
-        let crb = cramer_rao_std(self.cfg, &chosen, self.noise.std_rad(), current.wheelbase_m);
+        let crb = cramer_rao_std(
+            self.cfg,
+            &chosen,
+            self.noise.std_rad(),
+            current.wheelbase_m,
+            test.cw.len().min(test.ccw.len()),
+        );
+        let stopped_because = stopped.map(|why| {
+            let text = why.describe(test.cw.len().min(test.ccw.len()));
+            match why {
+                Stop::Ceiling => self.warn(format!("round {round}: {text}")),
+                _ => self.stage(format!("round {round}: {text}")),
+            }
+            text
+        });
         let converged_because = convergence(self.cfg, &chosen, crb, current.wheelbase_m);
         Ok(RoundReport {
             round,
@@ -444,6 +491,7 @@ impl Calibration<'_> {
             cramer_rao_std: crb,
             converged: converged_because.is_some(),
             converged_because,
+            stopped_because,
             params_after: None,
             written: false,
         })
@@ -452,15 +500,10 @@ impl Calibration<'_> {
     /// The method to write: the configured one, or the data's default ([`default_method`]),
     /// saying when some runs lacked the heading along the legs.
     fn choose(&mut self, test: &SquareTest) -> Method {
-        if let Some(m) = self.cfg.method {
+        let m = self.method_for(test);
+        if self.cfg.method.is_some() {
             return m;
         }
-        let m = default_method(
-            test.has_leg_headings(),
-            test.has_positions(),
-            self.base.heading.kind(),
-        )
-        .unwrap_or(Method::Exact);
         let (without, of) = test.runs_without_leg_headings();
         if !matches!(m, Method::Legs | Method::MatchedLegs) {
             self.warn(
@@ -476,6 +519,18 @@ impl Calibration<'_> {
             ));
         }
         m
+    }
+
+    /// The method to write for `test`, without a word (see [`Calibration::choose`]).
+    fn method_for(&self, test: &SquareTest) -> Method {
+        self.cfg.method.unwrap_or_else(|| {
+            default_method(
+                test.has_leg_headings(),
+                test.has_positions(),
+                self.base.heading.kind(),
+            )
+            .unwrap_or(Method::Exact)
+        })
     }
 
     /// Whether the new parameters may be written: the policy, and the user's answer when it
@@ -504,6 +559,16 @@ impl Calibration<'_> {
         let verification = self
             .drive_runs(Phase::Verification, self.cfg.verification_runs, current)
             .await?;
+        self.judged(rounds, verification)
+    }
+
+    /// `verification` once [`judge`] finds it clearly better than the first round (or the
+    /// settings keep worse parameters, with a warning).
+    fn judged(
+        &mut self,
+        rounds: &[RoundReport],
+        verification: Vec<RunReport>,
+    ) -> Result<Vec<RunReport>, RoutineError> {
         let abs_deg = |runs: &[RunReport]| -> Vec<(Direction, f64)> {
             runs.iter()
                 .map(|r| (r.direction, r.heading_error_deg.abs()))
@@ -611,56 +676,87 @@ impl Calibration<'_> {
         params: &WheelParams,
     ) -> Result<Vec<RunReport>, RoutineError> {
         self.progress.stage = Stage::of(phase);
-        let cfg = self.cfg;
         let of = per_direction * 2;
         self.ui.event(&RoutineEvent::Plan {
             motions: of as u64 * 8,
+            robot_time_s: of as f64 * square_motion_time_s(self.cfg),
         });
         let mut out = Vec::with_capacity(of);
-        let mut index = 0;
         for direction in [Direction::Cw, Direction::Ccw] {
             for _ in 0..per_direction {
-                index += 1;
-                let cmd = SquareCommand {
-                    side_m: cfg.side_m,
-                    direction,
-                    max_speed_m_s: cfg.max_speed_m_s,
-                    max_rate_rad_s: cfg.max_rate_rad_s,
-                    heading_samples: cfg.heading_samples,
-                    settle: Duration::from_secs_f64(cfg.settle_s),
-                    stream_period: Duration::from_millis(cfg.telemetry_ms.max(1)),
-                };
-                self.realign().await?;
-                let start = self.truth.map(|t| t.pose());
-                let rec = {
-                    let ui = &mut *self.ui;
-                    let on_motion = move |motion| {
-                        ui.event(&RoutineEvent::Motion {
-                            phase,
-                            run: index,
-                            of,
-                            direction,
-                            motion,
-                        })
-                    };
-                    cancellable(self.cancel, run_square(&self.base, &cmd, on_motion)).await?
-                };
-                self.pool_rest_noise(&rec);
-                let mut run = RunReport::new(phase, &rec, params, start, self.truth);
-                if let Some(s) = cfg.gyro_scale_error {
-                    run.remove_gyro_scale(s, cfg.side_m);
-                }
-                // Measured is kept, even a square the next check refuses.
-                self.progress.runs.push(run.clone());
-                check_plausible(&rec, &run, params, self.ui)?;
-                self.ui.event(&RoutineEvent::RunDone {
-                    heading_error_deg: run.heading_error_deg,
-                });
+                let run = self
+                    .drive_square(phase, direction, out.len() + 1, of, params)
+                    .await?;
                 out.push(run);
             }
         }
         Ok(out)
     }
+
+    /// **Moves the robot**: one square (after turning back to the first square's heading),
+    /// measured, kept in the progress and checked for plausibility; `index` of `of` in its
+    /// phase.
+    async fn drive_square(
+        &mut self,
+        phase: Phase,
+        direction: Direction,
+        index: usize,
+        of: usize,
+        params: &WheelParams,
+    ) -> Result<RunReport, RoutineError> {
+        let cfg = self.cfg;
+        let cmd = SquareCommand {
+            side_m: cfg.side_m,
+            direction,
+            max_speed_m_s: cfg.max_speed_m_s,
+            max_rate_rad_s: cfg.max_rate_rad_s,
+            heading_samples: cfg.heading_samples,
+            settle: Duration::from_secs_f64(cfg.settle_s),
+            stream_period: Duration::from_millis(cfg.telemetry_ms.max(1)),
+        };
+        self.realign().await?;
+        let start = self.truth.map(|t| t.pose());
+        let rec = {
+            let ui = &mut *self.ui;
+            let on_motion = move |motion| {
+                ui.event(&RoutineEvent::Motion {
+                    phase,
+                    run: index,
+                    of,
+                    direction,
+                    motion,
+                    duration_s: motion_time_s(cfg, motion),
+                })
+            };
+            cancellable(self.cancel, run_square(&self.base, &cmd, on_motion)).await?
+        };
+        self.pool_rest_noise(&rec);
+        let mut run = RunReport::new(phase, &rec, params, start, self.truth);
+        if let Some(s) = cfg.gyro_scale_error {
+            run.remove_gyro_scale(s, cfg.side_m);
+        }
+        // Measured is kept, even a square the next check refuses.
+        self.progress.runs.push(run.clone());
+        check_plausible(&rec, &run, params, self.ui)?;
+        self.ui.event(&RoutineEvent::RunDone {
+            heading_error_deg: run.heading_error_deg,
+        });
+        Ok(run)
+    }
+}
+
+/// Robot time of motion `motion` (1..=8, legs odd) of a square at the speed limits (s).
+fn motion_time_s(cfg: &RoutineConfig, motion: usize) -> f64 {
+    if motion % 2 == 1 {
+        cfg.side_m / cfg.max_speed_m_s
+    } else {
+        std::f64::consts::FRAC_PI_2 / cfg.max_rate_rad_s
+    }
+}
+
+/// Robot time of a square's eight motions at the speed limits (s).
+fn square_motion_time_s(cfg: &RoutineConfig) -> f64 {
+    (1..=8).map(|k| motion_time_s(cfg, k)).sum()
 }
 
 /// What a gyro's scale error does to the estimate, for a heading that is or may be integrated
@@ -1031,25 +1127,41 @@ fn check_plausible(
     Ok(())
 }
 
-fn square_test(cfg: &RoutineConfig, params: &WheelParams, runs: &[RunReport]) -> SquareTest {
+/// The square test of `runs`; each run's heading error at rest carries the variance the
+/// heading noise gives it (`heading_noise_rad` per reading, `heading_samples` averaged at each
+/// end), the floor under its stated standard error ([`planning`]).
+fn square_test(
+    cfg: &RoutineConfig,
+    params: &WheelParams,
+    runs: &[RunReport],
+    heading_noise_rad: f64,
+) -> SquareTest {
+    let noise = (heading_noise_rad > 0.0)
+        .then(|| heading_error_sigma(heading_noise_rad, cfg.heading_samples).powi(2));
     SquareTest::from_runs(
         cfg.side_m,
         params.wheelbase_m,
-        runs.iter().map(|r| (r.direction, r.measurement())),
+        runs.iter().map(|r| {
+            let mut m = r.measurement();
+            m.noise_variance_rad2 = noise;
+            (r.direction, m)
+        }),
     )
 }
 
+/// The Cramér–Rao bound's standard errors for `runs` per direction.
 fn cramer_rao_std(
     cfg: &RoutineConfig,
     e: &Estimate,
     heading_noise_rad: f64,
     wheelbase_m: f64,
+    runs: usize,
 ) -> Option<[f64; 2]> {
     let design = TestDesign {
         side_m: cfg.side_m,
         wheelbase_m,
-        runs_cw: cfg.runs_per_direction,
-        runs_ccw: cfg.runs_per_direction,
+        runs_cw: runs,
+        runs_ccw: runs,
         heading_error_sigma_rad: heading_error_sigma(heading_noise_rad, cfg.heading_samples),
     };
     cramer_rao_bound(e.e_b, e.e_d, cfg.split_convention(), &design)

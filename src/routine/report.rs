@@ -270,6 +270,10 @@ pub struct RoundReport {
     pub converged: bool,
     /// Why it did.
     pub converged_because: Option<String>,
+    /// Why its squares stopped, when they stop at a target precision
+    /// ([`super::planning::stop`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub stopped_because: Option<String>,
     /// Parameters proposed from this round (absent when converged).
     pub params_after: Option<WheelParams>,
     /// Whether they were written.
@@ -319,6 +323,9 @@ pub struct Report {
     /// What the compass swing measured (removed from every reading after it), when it ran.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub swing: Option<crate::calibration::swing::SwingFit>,
+    /// The plan shown before the robot moved ([`super::planning`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub plan: Option<crate::calibration::plan::Plan>,
 }
 
 /// `E_max,sys` of runs with true final positions (simulation only), see
@@ -377,6 +384,7 @@ impl Report {
             diagnostics: base.drive.diagnostics(),
             warnings,
             swing: None,
+            plan: None,
         }
     }
 }

@@ -96,6 +96,21 @@ pub fn sim_base(compass_sigma_deg: f64, seed: u64) -> SimBase {
     SimBase::new(Simulator::new(truth(), nominal(), noise, seed).expect("valid simulator"))
 }
 
+/// The routine on the in-process base `sim`, with it as the ground truth, unattended.
+pub async fn routine_on(
+    sim: &SimBase,
+    cfg: &odocal::routine::config::RoutineConfig,
+) -> Result<odocal::routine::Report, odocal::routine::RoutineError> {
+    odocal::routine::run(
+        &odocal::base::Base::single(sim.clone()),
+        cfg,
+        Some(sim),
+        &mut odocal::routine::Unattended,
+        &tokio_util::sync::CancellationToken::new(),
+    )
+    .await
+}
+
 /// An empty scratch directory unique to this test process.
 pub fn scratch(name: &str) -> PathBuf {
     let d = std::env::temp_dir().join(format!("odocal-test-{name}-{}", std::process::id()));

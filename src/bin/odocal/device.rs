@@ -424,27 +424,38 @@ pub async fn status(port: PortArgs) -> CliResult {
 pub struct HeadingArgs {
     #[command(flatten)]
     port: PortArgs,
-    /// Readings to average (circular mean).
+    /// Readings to average (circular mean); with two or more, their σ is printed too (the
+    /// noise per reading `odocal plan` needs: hold the robot still).
     #[arg(long, default_value_t = 1)]
     samples: usize,
 }
 
 /// Runs `odocal heading`.
 pub async fn heading(args: HeadingArgs) -> CliResult {
+    use odocal::routine::heading::{circular_mean, circular_std, readings};
     let source = odocal::spec::open_heading(&args.port.port, args.port.baud).await?;
-    let mean = odocal::routine::heading::mean_heading(source.as_ref(), args.samples).await?;
+    let all = readings(source.as_ref(), args.samples).await?;
+    let mean = circular_mean(&all);
+    // The noise per reading at rest: what `odocal plan --heading-sigma-deg` wants.
+    let sigma = (all.len() > 1).then(|| circular_std(&all));
     if args.port.json {
         return print_json(&json!({
             "heading_rad": mean,
             "heading_deg": mean.to_degrees(),
-            "samples": args.samples.max(1),
+            "samples": all.len(),
+            "sigma_rad": sigma,
+            "sigma_deg": sigma.map(f64::to_degrees),
         }));
     }
     println!(
-        "heading {:.3}° ({:.6} rad, counter-clockwise positive, mean of {})",
+        "heading {:.3}° ({:.6} rad, counter-clockwise positive, mean of {}){}",
         mean.to_degrees(),
         mean,
-        args.samples.max(1)
+        all.len(),
+        sigma.map_or(String::new(), |s| format!(
+            "; σ {:.3}° per reading (odocal plan --heading-sigma-deg)",
+            s.to_degrees()
+        ))
     );
     Ok(())
 }

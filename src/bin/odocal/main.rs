@@ -2,6 +2,7 @@
 
 mod device;
 mod estimate;
+mod plan;
 mod ports;
 mod prompt;
 mod replay;
@@ -34,6 +35,9 @@ enum Command {
     /// Recalibrate a real robot: --port (odocal protocol) or --base rosbridge://… (moves it;
     /// asks first unless --yes).
     Calibrate(routine::CalibrateArgs),
+    /// Plan a calibration (moves nothing): from the floor, the heading noise and a target
+    /// precision, the side, squares, robot time and predicted standard errors.
+    Plan(plan::Args),
     /// Run a routine file (TOML); `port = "mock"` runs it on the simulated robot.
     Run(routine::RunArgs),
     /// Export a calibration report for other software (ros2_control).
@@ -302,6 +306,7 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Demo(args) => block_on(routine::demo(args)),
         Command::Calibrate(args) => block_on(routine::calibrate(args)),
+        Command::Plan(args) => plan::run(args),
         Command::Run(args) => block_on(routine::run_file(args)),
         Command::Export(args) => routine::export(args),
         Command::Track(args) => block_on(track::track(args)),

@@ -4,6 +4,7 @@ use crate::print_json;
 use crate::robot::RobotArgs;
 use indicatif::{ProgressBar, ProgressStyle};
 use odocal::base::Base;
+use odocal::calibration::plan::duration_text;
 use odocal::calibration::Method;
 use odocal::demo::{run_demo, DemoOptions};
 use odocal::kinematics::SplitConvention;
@@ -17,17 +18,24 @@ use std::path::PathBuf;
 
 type CliResult = Result<(), Box<dyn std::error::Error>>;
 
-/// Progress bar and questions on the terminal (stderr), answers from stdin.
+/// Progress bar and questions on the terminal (stderr), answers from stdin. The bar counts
+/// robot time (tenths of a second of motion at the speed limits), so its ETA is the robot's.
 struct TerminalUi {
     bar: Option<ProgressBar>,
+    /// Robot time the bar has counted (s), kept exact between its whole ticks.
+    counted_s: f64,
     quiet: bool,
     assume_yes: bool,
 }
+
+/// Ticks of the progress bar per second of robot time.
+const TICKS_PER_S: f64 = 10.0;
 
 impl TerminalUi {
     fn new(quiet: bool, assume_yes: bool) -> Self {
         TerminalUi {
             bar: None,
+            counted_s: 0.0,
             quiet,
             assume_yes,
         }
@@ -61,19 +69,25 @@ impl RoutineUi for TerminalUi {
         match event {
             RoutineEvent::Stage(s) => self.say(&format!("· {s}")),
             RoutineEvent::Warning(w) => self.say(&format!("warning: {w}")),
-            RoutineEvent::Plan { motions } => {
+            RoutineEvent::Plan { robot_time_s, .. } => {
                 if let Some(b) = self.bar.take() {
                     b.finish_and_clear();
                 }
+                self.counted_s = 0.0;
                 if !self.quiet && std::io::stderr().is_terminal() {
-                    let bar = ProgressBar::new(*motions);
+                    let bar = ProgressBar::new((robot_time_s * TICKS_PER_S).round() as u64);
                     bar.set_style(
                         ProgressStyle::with_template(
-                            "{bar:30} {pos}/{len} motions · {msg} · ETA {eta}",
+                            "{bar:30} {msg} · robot time {prefix} · ETA {eta}",
                         )
                         .unwrap_or_else(|_| ProgressStyle::default_bar()),
                     );
                     self.bar = Some(bar);
+                }
+            }
+            RoutineEvent::Extend { robot_time_s, .. } => {
+                if let Some(b) = &self.bar {
+                    b.inc_length((robot_time_s * TICKS_PER_S).round() as u64);
                 }
             }
             RoutineEvent::Motion {
@@ -82,14 +96,22 @@ impl RoutineUi for TerminalUi {
                 of,
                 direction,
                 motion,
+                duration_s,
             } => {
+                self.counted_s += duration_s;
                 if let Some(b) = &self.bar {
                     let what = if motion % 2 == 1 { "leg" } else { "turn" };
                     b.set_message(format!(
                         "{phase}: run {run}/{of} {direction}, {what} {}/4",
                         motion.div_ceil(2)
                     ));
-                    b.inc(1);
+                    let length_s = b.length().unwrap_or(0) as f64 / TICKS_PER_S;
+                    b.set_prefix(format!(
+                        "{} of {}",
+                        duration_text(self.counted_s),
+                        duration_text(length_s)
+                    ));
+                    b.set_position((self.counted_s * TICKS_PER_S).round() as u64);
                 }
             }
             RoutineEvent::Realigned { turn_rad } => {
@@ -235,6 +257,13 @@ pub struct DemoArgs {
     /// Allow parameter changes of up to 100 % (a simulated skid-steer robot, --true-eb 1.5).
     #[arg(long)]
     allow_large_change: bool,
+    /// Stop each round's squares once the stated standard error of E_b is at most this (as
+    /// `calibrate --target-eb-std`).
+    #[arg(long)]
+    target_eb_std: Option<f64>,
+    /// As --target-eb-std, for E_d.
+    #[arg(long)]
+    target_ed_std: Option<f64>,
     #[command(flatten)]
     sensor: crate::HeadingModelArgs,
 }
@@ -259,6 +288,9 @@ pub async fn demo(args: DemoArgs) -> CliResult {
         opts.routine.allow_large_change = true;
         opts.routine.max_change = 1.0;
     }
+    opts.routine.target_e_b_std = args.target_eb_std;
+    opts.routine.target_e_d_std = args.target_ed_std;
+    opts.routine.validate()?;
     if !args.json {
         eprintln!(
             "odocal demo: a simulated robot (E_b {}, E_d {}, D {} m, b {} m, compass σ {}°) on a \
@@ -278,36 +310,86 @@ pub async fn demo(args: DemoArgs) -> CliResult {
     finish(&report, Some(&args.report_dir), args.json)
 }
 
-/// Routine settings that can be given as flags (they override a routine file).
+/// The settings that decide what a calibration drives and costs: `calibrate` and `plan` take
+/// them alike (they override a routine file).
 #[derive(Debug, Clone, clap::Args)]
-pub struct RoutineFlags {
-    /// Square side (m).
-    #[arg(long)]
-    side_m: Option<f64>,
-    /// Squares per direction per round.
+pub struct ShapeFlags {
+    /// Squares per direction per round [default: 5].
     #[arg(long)]
     runs: Option<usize>,
-    /// Straight-leg speed limit (m/s, at most 1.0).
+    /// Straight-leg speed limit (m/s, at most 1.0) [default: 0.2].
     #[arg(long)]
     max_speed_m_s: Option<f64>,
-    /// Turn-rate limit (rad/s, at most 3.0).
+    /// Turn-rate limit (rad/s, at most 3.0) [default: 0.5].
     #[arg(long)]
     max_rate_rad_s: Option<f64>,
-    /// Pause before each heading reading for the base to settle (s).
+    /// Pause before each heading reading for the base to settle (s) [default: 0.5].
     #[arg(long)]
     settle_s: Option<f64>,
-    /// Heading readings averaged at rest before and after each square.
+    /// Heading readings averaged at rest before and after each square [default: 5].
     #[arg(long)]
     heading_samples: Option<usize>,
     /// Estimator to write: umbmark, lee, heading-only, jung-chung, exact, legs or
     /// matched-legs. Default: with the heading along the legs, matched-legs for a compass or
     /// an IMU of unknown kind, legs for a gyro or a reference; else exact.
     #[arg(long)]
-    method: Option<String>,
+    method: Option<Method>,
     /// Skip the compass swing (two slow full turns in place each way before the squares,
     /// which measure the compass's deviation and remove it from every reading).
     #[arg(long)]
     no_swing: bool,
+    /// Verification squares per direction [default: 3].
+    #[arg(long)]
+    verification_runs: Option<usize>,
+    /// Most calibration rounds [default: 3].
+    #[arg(long)]
+    max_rounds: Option<usize>,
+    /// Drive squares in clockwise and counter-clockwise pairs until the written estimate's
+    /// stated standard error of E_b is at most this (--runs is then unused); a later round
+    /// only when the first wrote, stopping once it confirms (its squares are the verification).
+    #[arg(long)]
+    target_eb_std: Option<f64>,
+    /// As --target-eb-std, for E_d (both when both are given).
+    #[arg(long)]
+    target_ed_std: Option<f64>,
+    /// With a target, the most squares per direction a round may drive [default: 20].
+    #[arg(long)]
+    max_runs: Option<usize>,
+}
+
+impl ShapeFlags {
+    /// Sets what the flags give.
+    pub fn apply(&self, cfg: &mut RoutineConfig) {
+        macro_rules! set {
+            ($($f:ident => $t:ident),*) => { $(if let Some(v) = self.$f { cfg.$t = v; })* };
+        }
+        set!(runs => runs_per_direction, max_speed_m_s => max_speed_m_s,
+             max_rate_rad_s => max_rate_rad_s, verification_runs => verification_runs,
+             max_rounds => max_rounds, settle_s => settle_s,
+             heading_samples => heading_samples, max_runs => max_runs_per_direction);
+        for (flag, setting) in [
+            (self.target_eb_std, &mut cfg.target_e_b_std),
+            (self.target_ed_std, &mut cfg.target_e_d_std),
+        ] {
+            if flag.is_some() {
+                *setting = flag;
+            }
+        }
+        if self.method.is_some() {
+            cfg.method = self.method;
+        }
+        cfg.swing &= !self.no_swing;
+    }
+}
+
+/// Routine settings that can be given as flags (they override a routine file).
+#[derive(Debug, Clone, clap::Args)]
+pub struct RoutineFlags {
+    /// Square side (m).
+    #[arg(long)]
+    side_m: Option<f64>,
+    #[command(flatten)]
+    shape: ShapeFlags,
     /// Do not turn back to the first square's heading before each square.
     #[arg(long)]
     no_realign: bool,
@@ -325,17 +407,11 @@ pub struct RoutineFlags {
     /// Straight-line check: measured distance (m).
     #[arg(long, requires = "straight_commanded_m")]
     straight_measured_m: Option<f64>,
-    /// Verification squares per direction.
-    #[arg(long)]
-    verification_runs: Option<usize>,
     /// Also stop when |E_b − 1| and |E_d − 1| are below this [default: stop when a round's
     /// correction is not significant (within two standard errors) or would change the heading
     /// by less than 0.1° per square].
     #[arg(long)]
     tolerance: Option<f64>,
-    /// Most calibration rounds.
-    #[arg(long)]
-    max_rounds: Option<usize>,
     /// Estimate and report only; write nothing (with --yes: move without asking, still write
     /// nothing).
     #[arg(long)]
@@ -368,21 +444,14 @@ pub struct RoutineFlags {
 
 impl RoutineFlags {
     fn apply(&self, cfg: &mut RoutineConfig) -> Result<(), Box<dyn std::error::Error>> {
-        macro_rules! set {
-            ($($f:ident => $t:ident),*) => { $(if let Some(v) = self.$f.clone() { cfg.$t = v; })* };
+        if let Some(s) = self.side_m {
+            cfg.side_m = s;
         }
-        set!(side_m => side_m, runs => runs_per_direction, max_speed_m_s => max_speed_m_s,
-             max_rate_rad_s => max_rate_rad_s, verification_runs => verification_runs,
-             max_rounds => max_rounds, settle_s => settle_s,
-             heading_samples => heading_samples);
-        if let Some(m) = &self.method {
-            cfg.method = Some(m.parse::<Method>()?);
-        }
+        self.shape.apply(cfg);
         if let Some(t) = self.tolerance {
             cfg.tolerance = Some(t);
         }
         cfg.keep_worse |= self.keep_worse;
-        cfg.swing &= !self.no_swing;
         if let Some(g) = self.gyro_scale_error {
             cfg.gyro_scale_error = Some(g);
         }
@@ -469,11 +538,15 @@ async fn run_on(mut cfg: RoutineConfig, spec: BaseSpec, flags: &RoutineFlags) ->
     }
     if !flags.json {
         eprintln!(
-            "odocal calibrate: this MOVES THE ROBOT on {}: {} squares of {} m per direction \
-             per round at up to {} m/s. Ctrl-C stops it at any time.",
+            "odocal calibrate: this MOVES THE ROBOT on {}: squares of {} m, {} per direction \
+             per round, at up to {} m/s (the plan, with time and floor, follows the pre-flight \
+             checks). Ctrl-C stops it at any time.",
             spec.place(),
-            cfg.runs_per_direction,
             cfg.side_m,
+            match cfg.target() {
+                Some(_) => format!("until the target (at most {})", cfg.max_runs_per_direction),
+                None => cfg.runs_per_direction.to_string(),
+            },
             cfg.max_speed_m_s
         );
     }

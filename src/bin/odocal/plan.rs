@@ -1,0 +1,182 @@
+//! `odocal plan`: what a calibration will cost and reach before anything moves (it moves
+//! nothing): the side that fits the floor, the runs per direction, rounds, robot time and
+//! distance, and the predicted standard errors ([`odocal::calibration::plan`]).
+
+use crate::routine::ShapeFlags;
+use crate::{in_range, print_json};
+use odocal::calibration::plan::{Space, Target};
+use odocal::calibration::{HeadingKind, Method};
+use odocal::routine::config::RoutineConfig;
+use odocal::routine::planning::{expected_method, plan_of, Setting, DEFAULT_FOOTPRINT_M};
+use serde_json::json;
+
+type CliResult = Result<(), Box<dyn std::error::Error>>;
+
+/// Arguments of `odocal plan`.
+#[derive(Debug, clap::Args)]
+#[command(group(clap::ArgGroup::new("space").required(true).args(["floor_m", "side_max_m"])))]
+pub struct Args {
+    /// The free floor, WIDTH,LENGTH (m, either way round): the clockwise and counter-clockwise
+    /// squares lie either side of the first leg.
+    #[arg(long, value_name = "W,L")]
+    floor_m: Option<String>,
+    /// The longest square side to consider (m), instead of --floor-m.
+    #[arg(long)]
+    side_max_m: Option<f64>,
+    /// The heading sensor's noise per reading at rest (deg): `odocal heading --samples 50`
+    /// prints it.
+    #[arg(long)]
+    heading_sigma_deg: f64,
+    /// The wheelbase configured on the robot (m).
+    #[arg(long)]
+    wheelbase_m: f64,
+    /// What the heading sensor is (decides the default method and the compass swing):
+    /// magnetic, gyro, reference or unknown.
+    #[arg(long, default_value = "unknown")]
+    heading_kind: HeadingKind,
+    /// Heading readings per second [default: the telemetry rate, 50].
+    #[arg(long)]
+    heading_hz: Option<f64>,
+    /// The robot's largest width (m), added to the floor the squares need.
+    #[arg(long, default_value_t = DEFAULT_FOOTPRINT_M)]
+    footprint_m: f64,
+    /// Scatter of a run's heading error beyond the sensor's noise (deg), from an earlier
+    /// calibration of this robot on this floor (slip, bumps); 0 when unknown.
+    #[arg(long, default_value_t = 0.0)]
+    run_scatter_deg: f64,
+    /// Target RMS end-point error (m) of one square of the largest side the floor holds,
+    /// driven with the calibrated parameters (whatever side the plan drives).
+    #[arg(long)]
+    target_end_m: Option<f64>,
+    #[command(flatten)]
+    shape: ShapeFlags,
+    /// Print the plan as one JSON object.
+    #[arg(long)]
+    json: bool,
+}
+
+fn parse_floor(s: &str) -> Result<Space, String> {
+    let parts: Vec<&str> = s.split(',').map(str::trim).collect();
+    let [w, l] = parts.as_slice() else {
+        return Err(format!(
+            "--floor-m {s:?}: give WIDTH,LENGTH in metres, e.g. 5,9"
+        ));
+    };
+    let num = |v: &str| {
+        v.parse::<f64>()
+            .map_err(|_| format!("--floor-m {s:?}: {v:?} is not a number of metres"))
+    };
+    Ok(Space::Floor {
+        width_m: num(w)?,
+        length_m: num(l)?,
+    })
+}
+
+/// Runs `odocal plan`.
+pub fn run(args: Args) -> CliResult {
+    in_range("--heading-sigma-deg", args.heading_sigma_deg, 0.0, 45.0)?;
+    in_range("--run-scatter-deg", args.run_scatter_deg, 0.0, 45.0)?;
+    let space = match (&args.floor_m, args.side_max_m) {
+        (Some(f), _) => parse_floor(f)?,
+        (None, Some(s)) => Space::MaxSide(s),
+        (None, None) => return Err("give --floor-m W,L or --side-max-m".into()),
+    };
+    let mut cfg = RoutineConfig::default();
+    args.shape.apply(&mut cfg);
+    cfg.validate()?;
+    let setting = Setting {
+        space: Some(space),
+        footprint_m: args.footprint_m,
+        wheelbase_m: args.wheelbase_m,
+        heading_sigma_rad: args.heading_sigma_deg.to_radians(),
+        heading_kind: args.heading_kind,
+        readings_per_s: args.heading_hz,
+        run_scatter_rad: args.run_scatter_deg.to_radians(),
+    };
+    // An end-point target is the plan's alone: the routine stops on standard errors.
+    let with_end = |cfg: &RoutineConfig| -> Result<_, Box<dyn std::error::Error>> {
+        let mut input = odocal::routine::planning::plan_input(cfg, &setting);
+        input.target = Target {
+            end_point_m: args.target_end_m,
+            ..input.target
+        };
+        Ok(odocal::calibration::plan::plan(&input)?)
+    };
+    let plan = with_end(&cfg)?;
+    // Today's fixed plan on the same floor, for comparison.
+    let fixed_cfg = RoutineConfig {
+        target_e_b_std: None,
+        target_e_d_std: None,
+        ..cfg.clone()
+    };
+    let fixed = plan_of(&fixed_cfg, &setting)?;
+    let method = expected_method(&cfg, args.heading_kind);
+    if args.json {
+        print_json(&json!({
+            "side_m": plan.side_m,
+            "runs_per_direction": plan.runs_per_direction,
+            "rounds": plan.rounds,
+            "squares": plan.squares,
+            "robot_time_s": plan.robot_time_s,
+            "distance_m": plan.distance_m,
+            "predicted_std_e_b": plan.predicted_std_e_b,
+            "predicted_std_e_d": plan.predicted_std_e_d,
+            "plan": plan,
+            "fixed_plan": fixed,
+            "moves": false,
+        }))?;
+    } else {
+        println!(
+            "odocal plan (moves nothing): {method} is the estimate written (heading {}, σ {}° \
+             per reading); a target stops the rounds once reached (calibrate --target-eb-std)",
+            args.heading_kind, args.heading_sigma_deg
+        );
+        println!("{plan}");
+        if plan.sequential {
+            println!(
+                "without a target ({} per direction, confirmed, verified): {} squares, {}, E_b \
+                 ± {:.2e}, E_d ± {:.2e}",
+                fixed.runs_per_direction,
+                fixed.squares,
+                odocal::calibration::plan::duration_text(fixed.robot_time_s),
+                fixed.predicted_std_e_b,
+                fixed.predicted_std_e_d
+            );
+        }
+        let mut flags = format!("--side-m {}", plan.side_m);
+        for (flag, v) in [
+            ("--target-eb-std", cfg.target_e_b_std),
+            ("--target-ed-std", cfg.target_e_d_std),
+        ] {
+            if let Some(v) = v {
+                flags.push_str(&format!(" {flag} {v}"));
+            }
+        }
+        if !plan.sequential {
+            flags.push_str(&format!(" --runs {}", plan.runs_per_direction));
+        } else if args.target_end_m.is_some() && cfg.target().is_none() {
+            // The routine stops on standard errors: the end-point target's, as the plan
+            // predicts them.
+            flags.push_str(&format!(
+                " --target-eb-std {:.2e} --target-ed-std {:.2e}",
+                plan.predicted_std_e_b, plan.predicted_std_e_d
+            ));
+        }
+        println!("to drive it: odocal calibrate … {flags}");
+        if matches!(method, Method::Legs | Method::MatchedLegs) {
+            println!(
+                "(the leg methods' prediction counts every reading along a leg as independent: \
+                 a sensor that filters averages less)"
+            );
+        }
+    }
+    if !plan.target_reached {
+        return Err(format!(
+            "the target is not reached within {} runs per direction: more floor, more readings \
+             at rest (--heading-samples), a quieter heading sensor or --max-runs",
+            cfg.max_runs_per_direction
+        )
+        .into());
+    }
+    Ok(())
+}
