@@ -22,7 +22,7 @@ pub use device::{
     CompassConvention, DeviceCounters, MockConfig, MockDevice, MockError, MAX_EVENTS_PER_STEP,
 };
 pub use serve::{
-    heading_sensor, lock, serve, spawn_duplex, spawn_pty, FaultConfig, ServeEnd, SharedDevice,
+    lock, separate_compass, serve, spawn_duplex, spawn_pty, FaultConfig, ServeEnd, SharedDevice,
     TimeMode,
 };
 

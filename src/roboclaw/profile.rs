@@ -236,10 +236,11 @@ fn read_bounded(path: &Path) -> Result<String, ProfileError> {
 
 /// The profile's text as an editable document (comments and layout kept).
 fn document(text: &str, path: &Path) -> Result<toml_edit::DocumentMut, ProfileError> {
-    text.parse().map_err(|e: toml_edit::TomlError| ProfileError::Invalid {
-        path: path.to_path_buf(),
-        message: e.to_string(),
-    })
+    text.parse()
+        .map_err(|e: toml_edit::TomlError| ProfileError::Invalid {
+            path: path.to_path_buf(),
+            message: e.to_string(),
+        })
 }
 
 /// `text` with the geometry set to `p`'s diameters and wheelbase, everything else untouched.

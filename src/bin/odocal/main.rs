@@ -114,7 +114,8 @@ impl ConventionArgs {
 #[derive(Debug, Clone, clap::Args)]
 pub struct MockCompassArgs {
     /// Also serve an NMEA 0183 compass on the robot, on a pseudo-terminal of its own (printed
-    /// as nmea:PATH on the next line).
+    /// as nmea:PATH on the next line): a second sensor, the true heading with its own noise,
+    /// sharing none of the robot's own heading sensor's errors.
     #[arg(long)]
     nmea: bool,
     /// Sentences per second of robot time of the --nmea compass.

@@ -365,7 +365,7 @@ pub async fn mock(args: MockArgs) -> Result<(), Box<dyn std::error::Error>> {
     println!("{}", server.url());
     let _compass = args
         .compass
-        .spawn(server.heading_sensor(), args.time_scale)?;
+        .spawn(server.separate_compass(), args.time_scale)?;
     eprintln!(
         "mock rosbridge: a ROS 2 robot with diff_drive_controller (true E_b {}, E_d {}) on {}; \
          /joint_states, /odom, /imu; obeys {} ({}). Ctrl-C{} stops it.",
