@@ -5,8 +5,8 @@
 use crate::robot::RobotArgs;
 use odocal::base::HeadingKind;
 use odocal::calibration::gyro::scale_from_spin;
-use odocal::roboclaw::profile::{save_heading, HeadingSection};
 use odocal::kinematics::wrap_angle;
+use odocal::roboclaw::profile::{save_heading, HeadingSection};
 use odocal::routine::heading::mean_heading;
 use odocal::routine::spin::run_spin;
 use odocal::routine::swing::{run_swing, SwingCommand};
