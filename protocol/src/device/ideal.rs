@@ -85,6 +85,8 @@ pub struct IdealBoard {
     heading_rad: f64,
     m_per_count: [f64; 2],
     wheelbase_m: f64,
+    /// Device seconds per second of the host's clock (see [`IdealBoard::with_host_time_scale`]).
+    host_time_scale: f64,
 }
 
 impl IdealBoard {
@@ -101,7 +103,23 @@ impl IdealBoard {
                 PI * si.right_wheel_diameter_m / si.counts_per_wheel_rev,
             ],
             wheelbase_m: si.wheelbase_m,
+            host_time_scale: 1.0,
         }
+    }
+
+    /// The same board for a host whose clock runs `scale` times slower than this board's (a
+    /// simulation in sped-up time): watchdog timeouts, which measure host silence, stretch by
+    /// it. Ignored unless finite and positive.
+    pub fn with_host_time_scale(mut self, scale: f64) -> Self {
+        if scale.is_finite() && scale > 0.0 {
+            self.host_time_scale = scale;
+        }
+        self
+    }
+
+    /// The board's clock (µs).
+    pub fn now(&self) -> u64 {
+        self.now_us
     }
 
     /// Each wheel's exact position (counts since the last encoder reset).
@@ -161,6 +179,10 @@ impl Board for IdealBoard {
             valid: true,
             sensor_status: 1,
         }
+    }
+
+    fn watchdog_timeout_us(&self, timeout_ms: u16) -> u64 {
+        libm::round(f64::from(timeout_ms) * 1000.0 * self.host_time_scale) as u64
     }
 }
 

@@ -269,6 +269,18 @@ fn refuse<T>(code: NackCode, detail: u8) -> Result<T, Nack> {
     Err(Nack { code, detail })
 }
 
+/// The field checks of MOVE_STRAIGHT and TURN_IN_PLACE: the size (field 0) non-zero and at
+/// most `max`, the speed or rate (field 1) non-zero and within the device's `limit`.
+fn motion_fields(size: u32, max: u32, rate: u16, limit: u16) -> Result<(), Nack> {
+    if size == 0 || size > max {
+        return refuse(NackCode::OutOfRange, 0);
+    }
+    if rate == 0 || rate > limit {
+        return refuse(NackCode::OutOfRange, 1);
+    }
+    Ok(())
+}
+
 /// CRC-16 of a parameter block's 20 bytes (GET_PARAMS, SAVE_PARAMS).
 pub fn block_crc(b: &ParamsBlock) -> u16 {
     let mut bytes = [0u8; <ParamsBlock as Payload>::LEN];
@@ -771,6 +783,28 @@ impl<B: Board, S: ParamStorage> Device<B, S> {
         })
     }
 
+    /// Accepts a MOVE_STRAIGHT or TURN_IN_PLACE whose fields passed: wheel arcs (m), and its
+    /// size (µm or µrad) at `rate` (mm/s or mrad/s), which gives its time.
+    fn accept_counts(
+        &mut self,
+        arcs_m: [f64; 2],
+        size: u32,
+        rate: u16,
+        mode: MotionMode,
+    ) -> Result<MotionAccepted, Nack> {
+        let [left, right] = self.counts(arcs_m).ok_or(Nack {
+            code: NackCode::OutOfRange,
+            detail: 0,
+        })?;
+        let duration_us = (u64::from(size) * 1000).div_ceil(u64::from(rate.max(1)));
+        let travel = Travel::Counts {
+            left,
+            right,
+            duration_us,
+        };
+        self.accept(travel, mode)
+    }
+
     fn info(&self) -> DeviceInfo {
         let mut capabilities = capability::TELEMETRY
             | capability::WATCHDOG
@@ -866,27 +900,15 @@ impl<B: Board, S: ParamStorage> Device<B, S> {
                 mode,
             }) => {
                 let d = distance_um.unsigned_abs();
-                if d == 0 || d > MAX_DISTANCE_UM {
-                    return refuse(NackCode::OutOfRange, 0);
-                }
-                if max_speed_mm_s == 0 || max_speed_mm_s > self.config.max_speed_mm_s {
-                    return refuse(NackCode::OutOfRange, 1);
-                }
+                motion_fields(
+                    d,
+                    MAX_DISTANCE_UM,
+                    max_speed_mm_s,
+                    self.config.max_speed_mm_s,
+                )?;
                 let arc = units::um_to_m(distance_um);
-                let [left, right] = self.counts([arc, arc]).ok_or(Nack {
-                    code: NackCode::OutOfRange,
-                    detail: 0,
-                })?;
-                let duration_us = (u64::from(d) * 1000).div_ceil(u64::from(max_speed_mm_s));
-                self.accept(
-                    Travel::Counts {
-                        left,
-                        right,
-                        duration_us,
-                    },
-                    mode,
-                )
-                .map(Response::MoveStraight)
+                self.accept_counts([arc, arc], d, max_speed_mm_s, mode)
+                    .map(Response::MoveStraight)
             }
             Request::TurnInPlace(TurnInPlaceRequest {
                 angle_urad,
@@ -894,28 +916,16 @@ impl<B: Board, S: ParamStorage> Device<B, S> {
                 mode,
             }) => {
                 let a = angle_urad.unsigned_abs();
-                if a == 0 || a > MAX_ANGLE_URAD {
-                    return refuse(NackCode::OutOfRange, 0);
-                }
-                if max_rate_mrad_s == 0 || max_rate_mrad_s > self.config.max_rate_mrad_s {
-                    return refuse(NackCode::OutOfRange, 1);
-                }
+                motion_fields(
+                    a,
+                    MAX_ANGLE_URAD,
+                    max_rate_mrad_s,
+                    self.config.max_rate_mrad_s,
+                )?;
                 // Right wheel +angle·b/2, left −angle·b/2 (SPEC.md §5).
                 let half = 0.5 * units::urad_to_rad(angle_urad) * self.active.to_si().wheelbase_m;
-                let [left, right] = self.counts([0.0 - half, 0.0 + half]).ok_or(Nack {
-                    code: NackCode::OutOfRange,
-                    detail: 0,
-                })?;
-                let duration_us = (u64::from(a) * 1000).div_ceil(u64::from(max_rate_mrad_s));
-                self.accept(
-                    Travel::Counts {
-                        left,
-                        right,
-                        duration_us,
-                    },
-                    mode,
-                )
-                .map(Response::TurnInPlace)
+                self.accept_counts([0.0 - half, 0.0 + half], a, max_rate_mrad_s, mode)
+                    .map(Response::TurnInPlace)
             }
             Request::WheelSpeed(WheelSpeedRequest {
                 left_mm_s,

@@ -67,7 +67,7 @@ fn ask(question: &str) -> Result<String, Box<dyn std::error::Error>> {
     Ok(line.trim().to_string())
 }
 
-fn confirm(yes: bool, what: &str) -> CliResult {
+pub fn confirm(yes: bool, what: &str) -> CliResult {
     if yes
         || matches!(
             ask(&format!("{what} Is the area clear? [y/N]"))?.as_str(),
