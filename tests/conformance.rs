@@ -7,7 +7,7 @@
 mod common;
 
 use odocal::hal::conformance::{run_clocked, Outcome};
-use odocal::mock::kit::{kit, spawn_kit_pty};
+use odocal::mock::kit::{kit, kit_config, spawn_kit_pty};
 use odocal::protocol::device::{
     Board, Device, DeviceConfig, DriveCommand, HeadingReading, IdealBoard, RamStorage,
     SimulatedBoard,
@@ -139,11 +139,7 @@ async fn a_device_whose_watchdog_never_trips_fails_the_watchdog_rules_only() {
     let scale: f64 = SCALE.parse().unwrap();
     let config = DeviceConfig {
         firmware_id: FirmwareId::new("late-watchdog").unwrap(),
-        firmware_version: 1,
-        serial_number: 7,
-        max_speed_mm_s: 1000,
-        max_rate_mrad_s: 4000,
-        factory: robot(),
+        ..kit_config(robot())
     };
     let board = LateWatchdog(IdealBoard::new(&robot()).with_host_time_scale(scale));
     let device = Device::new(board, RamStorage::default(), config).unwrap();

@@ -200,14 +200,7 @@ fn the_default_method_does_not_depend_on_the_machines_load() {
         .collect();
     let (mut mock, lines) = common::spawn_server_lines(
         "mock-roboclaw",
-        &[
-            "--profile",
-            profile_s,
-            "--compass-hz",
-            "20",
-            "--compass-sigma-deg",
-            "0.1",
-        ],
+        &["--profile", profile_s, "--compass-hz", "20", "--compass-sigma-deg", "0.1"],
         2,
     );
     let heading = format!("{}?baud=115200", lines[1]);

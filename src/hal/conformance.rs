@@ -24,7 +24,7 @@
 //! motion is answered again and runs once, a retry answered from the cache feeds the
 //! watchdog; and at the end, that the stored parameter copy is what it was.
 
-use crate::protocol::device::{Device as KitDevice, ParamStorage, SimulatedBoard, Sink};
+use crate::protocol::device::{Device as KitDevice, ParamStorage, SimulatedBoard, VecSink};
 use crate::protocol::frame::{Frame, FrameKind, VERSION};
 use crate::protocol::message::{
     capability, id, DeviceInfo, GetParamsRequest, HelloRequest, MotionMode, MotionState,
@@ -368,42 +368,45 @@ impl Device {
         else {
             return sent;
         };
-        let capped = |v: u16, limit: u16| if v == 0 { 0 } else { v.min(limit) };
-        let long = |size: u32, limit: u32, rate: u16| -> (u32, f64) {
-            let ms = f64::from(size) / f64::from(rate.max(1));
-            if size == 0 || size > limit || rate == 0 || ms <= LONG_MS as f64 || wait {
-                (size, ms)
-            } else {
-                (
-                    (u64::from(rate) * LONG_MS).min(u64::from(limit)) as u32,
-                    LONG_MS as f64,
-                )
+        // A motion of `size` (µm or µrad, signed) at `rate` (mm/s or mrad/s): the rate capped,
+        // the size cut to LONG_MS unless it is out of range or to be kept whole (`wait`).
+        let mut motion = |size: i32, rate: u16, cap: u16, max: u32| -> (i32, u16) {
+            let rate = if rate == 0 { 0 } else { rate.min(cap) };
+            let abs = size.unsigned_abs();
+            let ms = f64::from(abs) / f64::from(rate.max(1));
+            sent.expected_ms = ms;
+            sent.stop_at_once = wait && ms > LONG_MS as f64;
+            if abs == 0 || abs > max || rate == 0 || ms <= LONG_MS as f64 || wait {
+                return (size, rate);
             }
+            sent.expected_ms = LONG_MS as f64;
+            let cut = (u64::from(rate) * LONG_MS).min(u64::from(max)) as i32;
+            (cut * size.signum(), rate)
         };
         let adapted = match request {
             Request::MoveStraight(m) => {
-                let speed = capped(m.max_speed_mm_s, self.speed_mm_s);
-                let (d, ms) = long(m.distance_um.unsigned_abs(), 100_000_000, speed);
-                sent.expected_ms = ms;
-                sent.stop_at_once = wait && ms > LONG_MS as f64;
+                let (distance_um, max_speed_mm_s) = motion(
+                    m.distance_um,
+                    m.max_speed_mm_s,
+                    self.speed_mm_s,
+                    crate::protocol::device::MAX_DISTANCE_UM,
+                );
                 Request::MoveStraight(MoveStraightRequest {
-                    distance_um: (d as i32) * m.distance_um.signum(),
-                    max_speed_mm_s: speed,
+                    distance_um,
+                    max_speed_mm_s,
                     mode: m.mode,
                 })
             }
             Request::TurnInPlace(t) => {
-                let rate = capped(t.max_rate_mrad_s, self.rate_mrad_s);
-                let (a, ms) = long(
-                    t.angle_urad.unsigned_abs(),
+                let (angle_urad, max_rate_mrad_s) = motion(
+                    t.angle_urad,
+                    t.max_rate_mrad_s,
+                    self.rate_mrad_s,
                     crate::protocol::device::MAX_ANGLE_URAD,
-                    rate,
                 );
-                sent.expected_ms = ms;
-                sent.stop_at_once = wait && ms > LONG_MS as f64;
                 Request::TurnInPlace(TurnInPlaceRequest {
-                    angle_urad: (a as i32) * t.angle_urad.signum(),
-                    max_rate_mrad_s: rate,
+                    angle_urad,
+                    max_rate_mrad_s,
                     mode: t.mode,
                 })
             }
@@ -686,17 +689,6 @@ impl<S: AsyncRead + AsyncWrite + Unpin + Send> Target for Live<'_, S> {
     }
 }
 
-/// A sink that keeps every frame.
-#[derive(Default)]
-struct Frames(Vec<Frame>);
-
-impl Sink for Frames {
-    fn send(&mut self, frame: &Frame) -> bool {
-        self.0.push(*frame);
-        true
-    }
-}
-
 /// A device built on the kit, in process, its clock held by the harness (the clock hook of
 /// SPEC.md §7): its board's clock moves only when a step says.
 pub struct Clocked<B, S>(pub KitDevice<B, S>);
@@ -709,14 +701,14 @@ where
 {
     async fn send(&mut self, frame: &Frame, until_idle: bool) -> Result<Exchange, String> {
         let d = &mut self.0;
-        let mut out = Frames::default();
+        let mut out = VecSink::default();
         d.handle_frame(frame, &mut out);
         let at = out
-            .0
+            .frames
             .iter()
             .position(|f| f.kind != FrameKind::Event)
             .ok_or_else(|| format!("no answer to {}", message_name(frame.msg)))?;
-        let answer = out.0.remove(at);
+        let answer = out.frames.remove(at);
         if until_idle {
             // The host waits for the base: it counts as present, the watchdog cannot trip.
             d.hold_watchdog(true);
@@ -725,22 +717,22 @@ where
                 let Some(left) = d.remaining_us(now) else {
                     return Err("an open-ended WHEEL_SPEED never becomes idle".into());
                 };
-                d.advance_to(now + left.max(1), &mut Frames::default());
+                d.advance_to(now + left.max(1), &mut VecSink::default());
             }
             d.hold_watchdog(false);
         }
         Ok(Exchange {
-            events: out.0,
+            events: out.frames,
             answer,
         })
     }
 
     async fn advance(&mut self, ms: u64, _late: bool) -> Result<Vec<Frame>, String> {
         let d = &mut self.0;
-        let mut out = Frames::default();
+        let mut out = VecSink::default();
         let now = d.board_mut().now_us();
         d.advance_to(now + ms * 1000, &mut out);
-        Ok(out.0)
+        Ok(out.frames)
     }
 }
 

@@ -17,7 +17,7 @@ use crate::kinematics::{wrap_angle, WheelParams};
 use crate::protocol::device::ideal::encoder_reading;
 use crate::protocol::device::{
     Board, Device, DeviceConfig, DriveCommand, HeadingReading, IdealWheels, ParamStorage,
-    SimulatedBoard, Sink, StorageError, QUEUE_CAPACITY,
+    SimulatedBoard, StorageError, VecSink, QUEUE_CAPACITY,
 };
 use crate::protocol::frame::Frame;
 use crate::protocol::message::{FirmwareId, Nack, NackCode, Packet, ParamsBlock, Status};
@@ -320,17 +320,10 @@ impl ParamStorage for FileStorage {
 
 /// The frames one call returns: answers, and events up to [`MAX_EVENTS_PER_STEP`] (beyond it
 /// telemetry is skipped as a link would lose it).
-#[derive(Default)]
-struct Frames(Vec<Frame>);
-
-impl Sink for Frames {
-    fn send(&mut self, frame: &Frame) -> bool {
-        self.0.push(*frame);
-        true
-    }
-
-    fn has_room(&self) -> bool {
-        self.0.len() < MAX_EVENTS_PER_STEP
+fn frames() -> VecSink {
+    VecSink {
+        frames: Vec::new(),
+        telemetry_limit: MAX_EVENTS_PER_STEP,
     }
 }
 
@@ -469,10 +462,10 @@ impl MockDevice {
 
     /// Handles one received frame; returns the frames to send (the answer, if any).
     pub fn handle(&mut self, frame: &Frame) -> Vec<Frame> {
-        let mut out = Frames::default();
+        let mut out = frames();
         self.kit.handle_frame(frame, &mut out);
         self.sync_configured();
-        out.0
+        out.frames
     }
 
     /// Why the non-volatile copy was discarded at power-up (unreadable, not a parameter block,
@@ -520,10 +513,10 @@ impl MockDevice {
     /// Moves device time forward by `dt_s`: executes motions, checks the watchdog, and returns
     /// the events to send (telemetry at its period, motion-done).
     pub fn advance(&mut self, dt_s: f64) -> Vec<Frame> {
-        let mut out = Frames::default();
+        let mut out = frames();
         let end = self.now_us() + (dt_s.max(0.0) * 1e6).round() as u64;
         self.kit.advance_to(end, &mut out);
-        out.0
+        out.frames
     }
 
     /// Runs every queued motion to completion (virtual time) and returns the events; an

@@ -26,16 +26,25 @@ pub fn kit(
     robot: ParamsBlock,
     time_scale: f64,
 ) -> Result<Device<IdealBoard, RamStorage>, super::MockError> {
-    let config = DeviceConfig {
+    let board = IdealBoard::new(&robot).with_host_time_scale(time_scale);
+    Ok(Device::new(
+        board,
+        RamStorage::default(),
+        kit_config(robot),
+    )?)
+}
+
+/// What the kit device reports at HELLO (`odocal-kit`, limits 1 m/s and 4 rad/s), with
+/// `robot` as its factory parameters.
+pub fn kit_config(robot: ParamsBlock) -> DeviceConfig {
+    DeviceConfig {
         firmware_id: FirmwareId::new("odocal-kit").unwrap_or_else(|_| unreachable!()),
         firmware_version: 0x01_00_00,
         serial_number: 0x0DC0_0002,
         max_speed_mm_s: 1000,
         max_rate_mrad_s: 4000,
         factory: robot,
-    };
-    let board = IdealBoard::new(&robot).with_host_time_scale(time_scale);
-    Ok(Device::new(board, RamStorage::default(), config)?)
+    }
 }
 
 /// [`kit`], shared for a server.

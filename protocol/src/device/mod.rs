@@ -205,6 +205,39 @@ impl<F: FnMut(&[u8]) -> bool> Sink for ByteSink<F> {
     }
 }
 
+/// A [`Sink`] that keeps every frame (hosts, tests, simulators), telemetry only up to
+/// `telemetry_limit` frames held (beyond it samples are skipped, as a link would lose them).
+#[cfg(feature = "std")]
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct VecSink {
+    /// The frames sent, in order.
+    pub frames: std::vec::Vec<Frame>,
+    /// Most frames held while telemetry is still sent.
+    pub telemetry_limit: usize,
+}
+
+#[cfg(feature = "std")]
+impl Default for VecSink {
+    fn default() -> Self {
+        VecSink {
+            frames: std::vec::Vec::new(),
+            telemetry_limit: usize::MAX,
+        }
+    }
+}
+
+#[cfg(feature = "std")]
+impl Sink for VecSink {
+    fn send(&mut self, frame: &Frame) -> bool {
+        self.frames.push(*frame);
+        true
+    }
+
+    fn has_room(&self) -> bool {
+        self.frames.len() < self.telemetry_limit
+    }
+}
+
 /// What HELLO reports and the factory parameters.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct DeviceConfig {
@@ -1050,5 +1083,189 @@ impl<B: SimulatedBoard, S: ParamStorage> Device<B, S> {
                 .map_or(end_us, |d| d.clamp(now + 1, end_us));
             self.board.advance_to(next);
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::message::MotionAccepted;
+
+    const ROBOT: ParamsBlock = ParamsBlock {
+        left_wheel_diameter_nm: 150_000_000,
+        right_wheel_diameter_nm: 150_000_000,
+        wheelbase_nm: 390_000_000,
+        counts_per_wheel_rev_micro: 4_096_000_000,
+    };
+
+    fn device() -> Device<IdealBoard, RamStorage> {
+        let config = DeviceConfig {
+            firmware_id: FirmwareId::new("test").unwrap(),
+            firmware_version: 1,
+            serial_number: 1,
+            max_speed_mm_s: 1000,
+            max_rate_mrad_s: 4000,
+            factory: ROBOT,
+        };
+        Device::new(IdealBoard::new(&ROBOT), RamStorage::default(), config).unwrap()
+    }
+
+    /// The frames a device sent, in a fixed buffer.
+    struct Out {
+        frames: [Option<Frame>; 8],
+        n: usize,
+    }
+
+    impl Out {
+        fn new() -> Self {
+            Out {
+                frames: [None; 8],
+                n: 0,
+            }
+        }
+
+        fn packets(&self) -> impl Iterator<Item = Packet> + '_ {
+            self.frames[..self.n]
+                .iter()
+                .flatten()
+                .filter_map(|f| Packet::from_frame(f).ok())
+        }
+
+        fn response(&self) -> Option<Response> {
+            self.packets().find_map(|p| match p.body {
+                crate::message::Body::Response { response } => Some(response),
+                _ => None,
+            })
+        }
+
+        fn nack(&self) -> Option<Nack> {
+            self.packets().find_map(|p| match p.body {
+                crate::message::Body::Nack { nack, .. } => Some(nack),
+                _ => None,
+            })
+        }
+    }
+
+    impl Sink for Out {
+        fn send(&mut self, frame: &Frame) -> bool {
+            if self.n < self.frames.len() {
+                self.frames[self.n] = Some(*frame);
+                self.n += 1;
+                true
+            } else {
+                false
+            }
+        }
+    }
+
+    fn send(d: &mut Device<IdealBoard, RamStorage>, seq: u8, request: Request) -> Out {
+        let mut out = Out::new();
+        d.handle_frame(&Packet::request(seq, request).to_frame(), &mut out);
+        out
+    }
+
+    fn move_m(mm: i32) -> Request {
+        Request::MoveStraight(MoveStraightRequest {
+            distance_um: mm * 1000,
+            max_speed_mm_s: 100,
+            mode: MotionMode::Queue,
+        })
+    }
+
+    #[test]
+    fn a_retried_motion_is_answered_from_the_cache_and_runs_once() {
+        let mut d = device();
+        let first = send(&mut d, 5, move_m(100)).response();
+        let again = send(&mut d, 5, move_m(100)).response();
+        assert_eq!(
+            first,
+            Some(Response::MoveStraight(MotionAccepted {
+                queue_depth: 1,
+                motion_id: 1
+            }))
+        );
+        assert_eq!(again, first);
+        assert_eq!(
+            (d.stats().motions_accepted, d.stats().replayed_answers),
+            (1, 1)
+        );
+        // Run it: one MOTION_DONE, one completed motion, the wheels on their targets.
+        let mut out = Out::new();
+        d.advance_to(2_000_000, &mut out);
+        let done = out.packets().filter(|p| {
+            p.body
+                == crate::message::Body::Event {
+                    event: Event::MotionDone(MotionDone {
+                        motion_id: 1,
+                        completed_motions: 1,
+                    }),
+                }
+        });
+        assert_eq!(done.count(), 1);
+        // 0.1 m on 0.15 m wheels of 4096 counts: 869.2 counts, rounded.
+        assert_eq!(d.board_mut().encoders(), (869, 869));
+        assert_eq!(d.status().completed_motions, 1);
+        // A new sequence number is a new request.
+        assert!(send(&mut d, 6, move_m(100)).response().is_some());
+        assert_eq!(d.stats().motions_accepted, 2);
+    }
+
+    #[test]
+    fn a_silent_host_trips_the_watchdog_and_motions_wait_for_a_heartbeat() {
+        let mut d = device();
+        let arm = Request::ConfigureWatchdog(WatchdogTimeout { timeout_ms: 100 });
+        assert!(send(&mut d, 1, arm).response().is_some());
+        assert!(send(&mut d, 2, move_m(1000)).response().is_some());
+        d.advance_to(99_000, &mut Out::new());
+        assert!(d.is_moving(), "fed at 0 ms, 100 ms timeout");
+        d.advance_to(150_000, &mut Out::new());
+        let s = d.status();
+        assert_eq!(
+            (s.motion_state, s.watchdog_state, s.fault_flags),
+            (
+                MotionState::Idle,
+                WatchdogState::Tripped,
+                fault::WATCHDOG_TRIPPED
+            )
+        );
+        // 100 ms of 100 mm/s: the base stopped after 1 cm, not 1 m.
+        let (l, _) = d.board_mut().encoders();
+        assert!((80..=90).contains(&l), "{l}");
+        assert_eq!(
+            send(&mut d, 3, move_m(10)).nack().map(|n| n.code),
+            Some(NackCode::InvalidState)
+        );
+        assert!(send(&mut d, 4, Request::Heartbeat).response().is_some());
+        assert_eq!(d.status().watchdog_state, WatchdogState::Armed);
+        assert!(send(&mut d, 5, move_m(10)).response().is_some());
+    }
+
+    #[test]
+    fn a_partial_frame_is_dropped_after_the_inter_byte_gap() {
+        let mut d = device();
+        let mut wire = [0u8; MAX_FRAME];
+        let n = Packet::request(9, Request::GetStatus)
+            .to_frame()
+            .encode(&mut wire)
+            .unwrap();
+        let mut out = Out::new();
+        // Half a frame, then 30 ms of silence, then a whole one: the half is discarded by the
+        // gap (resynchronisation would have dropped it byte by byte, and counted them).
+        d.receive(&wire[..4], &mut out);
+        d.advance_to(30_000, &mut out);
+        d.receive(&wire[..n], &mut out);
+        assert_eq!(out.packets().count(), 1);
+        assert!(matches!(out.response(), Some(Response::GetStatus(_))));
+        assert_eq!(d.decoder_stats().bytes_dropped, 0);
+        // A frame split 5 ms apart is one frame.
+        let n = Packet::request(10, Request::GetStatus)
+            .to_frame()
+            .encode(&mut wire)
+            .unwrap();
+        let mut out = Out::new();
+        d.receive(&wire[..4], &mut out);
+        d.advance_to(35_000, &mut out);
+        d.receive(&wire[4..n], &mut out);
+        assert_eq!(out.packets().count(), 1);
     }
 }
