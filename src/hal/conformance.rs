@@ -5,9 +5,10 @@
 //! independent generator), replayed over the port with their expectations as written, except
 //! where real time and a real robot make that impossible:
 //!
-//! - **No clock hook.** "Advance n ms" is a silent wait, "until idle" waits for the motion's
-//!   MOTION_DONE. A rule that needs device time held or thousands of motions (7.3's id wrap)
-//!   is skipped, said as such.
+//! - **No clock hook.** "Advance n ms" is a silent wait, "until idle" reads the status until
+//!   the base is idle. A rule that needs device time held or thousands of motions (7.3's id
+//!   wrap) is skipped, said as such; so is a rule that sends an optional message the device
+//!   does not report in HELLO's capabilities (SPEC.md §8).
 //! - **Not a fresh device.** Before each rule the base is stopped and settled, the watchdog
 //!   and telemetry are turned off, the parameters in use at the start are written back (never
 //!   saved), a safety watchdog is armed and HELLO clears the retry cache. Motion ids and
@@ -57,6 +58,9 @@ const ANSWER_TIMEOUT: Duration = Duration::from_millis(700);
 /// How long after a wait events are still taken as sent during it (their timestamps are
 /// checked).
 const LATE_EVENTS: Duration = Duration::from_millis(300);
+
+/// How often the status is read while waiting for the base to become idle.
+const STATUS_POLL: Duration = Duration::from_millis(50);
 
 /// The lowest speed limit: the vectors' short motions must complete within their windows.
 pub const MIN_SPEED_M_S: f64 = 0.05;
@@ -204,7 +208,9 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Wire<S> {
     /// Sends `bytes` (a request) and waits for its answer, sending it again once (a safe
     /// retry: same sequence number) if none comes; `None` if none ever does.
     async fn exchange(&mut self, bytes: &[u8]) -> std::io::Result<Option<Exchange>> {
-        let (seq, msg) = (bytes[5], bytes[6]);
+        let (Some(&seq), Some(&msg)) = (bytes.get(5), bytes.get(6)) else {
+            return Ok(None);
+        };
         let mut events = Vec::new();
         for _ in 0..2 {
             self.stream.write_all(bytes).await?;
@@ -599,17 +605,57 @@ fn telemetry_within(events: &[Frame], span_us: u64) -> usize {
         .unwrap_or(0)
 }
 
+/// A step's request: the first of a `[request, answer]` pair, or its `send`.
+fn request_of(step: &Value) -> &Value {
+    match step.as_array() {
+        Some(pair) => pair.first().unwrap_or(&Value::Null),
+        None => &step["send"],
+    }
+}
+
+/// A step's expected answer.
+fn answer_of(step: &Value) -> &Value {
+    match step.as_array() {
+        Some(pair) => pair.get(1).unwrap_or(&Value::Null),
+        None => &step["answer"],
+    }
+}
+
+/// The optional message a rule sends that the device does not report having (SPEC.md §8).
+fn missing_capability(steps: &[Value], capabilities: u32) -> Option<String> {
+    let optional = [
+        (id::WHEEL_SPEED, capability::WHEEL_SPEED, 4),
+        (id::CONFIGURE_TELEMETRY, capability::TELEMETRY, 1),
+        (id::CONFIGURE_WATCHDOG, capability::WATCHDOG, 2),
+        (id::HEARTBEAT, capability::WATCHDOG, 2),
+    ];
+    let sent = steps
+        .iter()
+        .flat_map(|s| request_of(s).as_str().and_then(|h| vector_frame(h).ok()));
+    for frame in sent {
+        if let Some((msg, _, bit)) = optional
+            .iter()
+            .find(|(msg, cap, _)| *msg == frame.msg && capabilities & cap == 0)
+        {
+            return Some(format!(
+                "the rule sends {}, and the device does not report that capability (HELLO \
+                 capability bit {bit})",
+                message_name(*msg)
+            ));
+        }
+    }
+    None
+}
+
 /// Whether a rule needs a device that never saved its parameters (it expects GET_PARAMS of
 /// the stored copy to be refused STORAGE_FAILURE).
 fn needs_nothing_saved(steps: &[Value]) -> bool {
     steps.iter().any(|s| {
-        s.as_array().is_some_and(|pair| {
-            pair[1]["code"] == "STORAGE_FAILURE"
-                && pair[0]
-                    .as_str()
-                    .and_then(|h| vector_frame(h).ok())
-                    .is_some_and(|f| f.msg == id::GET_PARAMS && f.payload().first() == Some(&1))
-        })
+        answer_of(s)["code"] == "STORAGE_FAILURE"
+            && request_of(s)
+                .as_str()
+                .and_then(|h| vector_frame(h).ok())
+                .is_some_and(|f| f.msg == id::GET_PARAMS && f.payload().first() == Some(&1))
     })
 }
 
@@ -656,24 +702,20 @@ impl<S: AsyncRead + AsyncWrite + Unpin + Send> Target for Live<'_, S> {
             self.w.stop_and_settle().await.map_err(|e| e.to_string())?;
             return Ok(ex);
         }
-        // "Until idle": until this motion's MOTION_DONE.
-        let motion_id = match Packet::from_frame(&ex.answer).map(|p| p.body) {
-            Ok(Body::Response {
-                response: Response::MoveStraight(a) | Response::TurnInPlace(a),
-            }) => Some(a.motion_id),
-            _ => None,
-        };
+        // "Until idle", the host present: the status polled until the base is idle.
         let limit = self.dev.wall(sent.expected_ms * 1.5 + 2000.0) + Duration::from_secs(1);
         let until = Instant::now() + limit;
         loop {
-            let Some(f) = self.w.next(until).await.map_err(io)? else {
-                return Err(format!(
-                    "{what} accepted but no MOTION_DONE within {limit:?}"
-                ));
-            };
-            let done = motion_done_of(std::slice::from_ref(&f));
-            if done.iter().any(|d| motion_id.is_none_or(|m| m == d.0)) {
+            tokio::time::sleep(STATUS_POLL).await;
+            let s = self.w.status().await.map_err(|e| e.to_string())?;
+            if s.motion_state == MotionState::Idle && s.queue_depth == 0 {
                 return Ok(ex);
+            }
+            if Instant::now() > until {
+                return Err(format!(
+                    "{what} accepted but the base is still {:?} after {limit:?}",
+                    s.motion_state
+                ));
             }
         }
     }
@@ -760,7 +802,7 @@ async fn run_steps(
         }
         // `[request, answer]` runs until idle; `send` does not; `repeat` sends a cycle.
         let (requests, want, until_idle) = match (step.as_array(), step["repeat"].as_u64()) {
-            (Some(pair), _) => (vec![pair[0].clone()], &pair[1], true),
+            (Some(_), _) => (vec![request_of(step).clone()], answer_of(step), true),
             (None, Some(n)) => {
                 let cycle = step["send_cycle"].as_array().cloned().unwrap_or_default();
                 let all = cycle.iter().cycle().take(n as usize).cloned().collect();
@@ -808,6 +850,10 @@ async fn run_rule<S: AsyncRead + AsyncWrite + Unpin + Send>(
             "needs the clock hook: {n} motions in a row (run the vectors against the device \
              with its clock held, SPEC.md §7)"
         ));
+        return Ok(result);
+    }
+    if let Some(why) = missing_capability(steps, dev.info.capabilities) {
+        result.reason = Some(why);
         return Ok(result);
     }
     if saved_copy && needs_nothing_saved(steps) {
