@@ -964,8 +964,8 @@ async fn retries_feed_the_watchdog<S: AsyncRead + AsyncWrite + Unpin + Send>(
     w: &mut Wire<S>,
     dev: &Device,
 ) -> Result<Result<(), String>, ConformanceError> {
-    const TIMEOUT_MS: u16 = 200;
-    const RETRYING: Duration = Duration::from_millis(600);
+    const TIMEOUT_MS: u16 = 500;
+    const RETRYING: Duration = Duration::from_millis(1500);
     dev.fresh(w).await?;
     let timeout = WatchdogTimeout {
         timeout_ms: TIMEOUT_MS,
@@ -986,14 +986,14 @@ async fn retries_feed_the_watchdog<S: AsyncRead + AsyncWrite + Unpin + Send>(
         if w.exchange(&status).await?.is_none() {
             return Ok(Err("no answer to a retried GET_STATUS".into()));
         }
-        tokio::time::sleep(Duration::from_millis(u64::from(TIMEOUT_MS) / 4)).await;
+        tokio::time::sleep(Duration::from_millis(u64::from(TIMEOUT_MS) / 10)).await;
     }
     let s = w.status().await?;
     let outcome = if s.watchdog_state == WatchdogState::Tripped {
         Err(format!(
             "the watchdog ({TIMEOUT_MS} ms) tripped while the same GET_STATUS was retried every \
              {} ms",
-            TIMEOUT_MS / 4
+            TIMEOUT_MS / 10
         ))
     } else if s.motion_state != MotionState::Moving {
         Err(format!(

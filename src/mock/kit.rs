@@ -104,13 +104,15 @@ where
         let mut out = Outbox::default();
         {
             let mut d = lock_kit(&device);
-            d.advance_to(clock(), &mut out);
             if let Some(n) = received {
-                // The kit measures its inter-byte gap on its own clock, so in sped-up time a
-                // frame split across reads more than 20 ms / `time_scale` apart is dropped
-                // (the host's retry gets through).
+                // The bytes arrived since the clock was last moved: they are taken as of then,
+                // so a server starved by a busy machine does not see its host as silent. The
+                // kit measures its inter-byte gap on its own clock, so in sped-up time a frame
+                // split across reads more than 20 ms / `time_scale` apart is dropped (the
+                // host's retry gets through).
                 d.receive(&chunk[..n], &mut out);
             }
+            d.advance_to(clock(), &mut out);
         }
         if !out.0.is_empty() {
             wr.write_all(&out.0).await?;
