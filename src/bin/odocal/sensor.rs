@@ -71,7 +71,7 @@ pub struct SpinArgs {
     json: bool,
 }
 
-fn confirm(yes: bool, what: &str) -> CliResult {
+pub fn confirm(yes: bool, what: &str) -> CliResult {
     if yes || crate::prompt::yes(&format!("{what} Is the area clear?")) {
         Ok(())
     } else {
