@@ -4,7 +4,7 @@
 //! parameters checked against the simulated truth in the two combinations a heading observes.
 //!
 //! `cargo run --release --example heading_sensors [-- SEEDS]` (default 4 seeds; every deviating
-//! case starts from a different azimuth per seed). The README's "Your heading sensor" table is
+//! case starts from a different azimuth per seed). The table in docs/estimation.md ("Your heading sensor") is
 //! this output.
 
 use odocal::base::Base;

@@ -551,7 +551,7 @@ impl FromStr for HeadingKind {
 /// With the heading along the legs: `matched-legs` for a sensor that may deviate (a compass):
 /// it compares legs that point the same way, so a deviation curve cancels ([`matched_legs`]);
 /// `legs` for a gyro or a reference, which cannot deviate and where comparing the first and
-/// last legs uses more of the square (see [`legs`] and the README's real-data scoreboard).
+/// last legs uses more of the square (see [`legs`] and the real-data scoreboard in docs/research.md).
 /// Both leave out the start transient real robots show. With final headings only, `exact`.
 /// `None` never happens today; it is kept so a caller handles a test no method can use.
 pub fn default_method(
