@@ -274,7 +274,18 @@ fn demo_json_reports_a_tenfold_improvement_and_writes_files() {
         );
     }
     assert!(html.contains("<th>method</th>") && html.contains("(chosen)"));
-    opens_in_a_browser_with_its_plots_and_fetches_nothing(&dir.join("report.html"));
+    // Every run of round 1 and of the verification is a trace on the paths plot (two, with
+    // the simulation's true path).
+    let runs = on_disk["rounds"][0]["runs"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .chain(on_disk["verification"].as_array().unwrap());
+    let traces: usize = runs
+        .map(|r| 1 + usize::from(r["true_path"].is_array()))
+        .sum();
+    assert!(traces >= 16, "{traces}");
+    opens_in_a_browser_with_its_plots_and_fetches_nothing(&dir.join("report.html"), traces);
     // The report exports for ros2_control.
     let yaml = dir.join("diff_drive.yaml");
     let (ok, _, err) = odocal(&[
@@ -892,8 +903,9 @@ fn chromium() -> Option<PathBuf> {
 
 /// Opens `page` in headless Chromium (with no network: nothing may be fetched) and reads back
 /// what the page itself saw once loaded: how many plots, how many drawn at a real size, how
-/// many resources were fetched. Skipped, with a notice, where no browser is installed.
-fn opens_in_a_browser_with_its_plots_and_fetches_nothing(page: &std::path::Path) {
+/// many run traces the first (the paths) shows on screen, how many resources were fetched.
+/// Skipped, with a notice, where no browser is installed.
+fn opens_in_a_browser_with_its_plots_and_fetches_nothing(page: &std::path::Path, traces: usize) {
     let Some(browser) = chromium() else {
         eprintln!("NOTICE: no headless Chromium; report.html checked by structure only");
         return;
@@ -908,8 +920,10 @@ fn opens_in_a_browser_with_its_plots_and_fetches_nothing(page: &std::path::Path)
              const svgs = [...document.querySelectorAll('svg')]; \
              const drawn = svgs.filter(s => { const r = s.getBoundingClientRect(); \
                return r.width > 200 && r.height > 150; }).length; \
+             const traces = [...svgs[0].querySelectorAll('polyline')].filter(p => \
+               p.points.length > 2 && p.getBoundingClientRect().width > 10).length; \
              document.body.setAttribute('data-probe', \
-               `svgs=${svgs.length} drawn=${drawn} \
+               `svgs=${svgs.length} drawn=${drawn} traces=${traces} \
                 fetched=${performance.getEntriesByType('resource').length}`); \
              });</script></body>",
         ),
@@ -944,7 +958,11 @@ fn opens_in_a_browser_with_its_plots_and_fetches_nothing(page: &std::path::Path)
                 String::from_utf8_lossy(&out.stderr)
             )
         });
-    assert_eq!(seen, "svgs=3 drawn=3 fetched=0", "report.html in Chromium");
+    assert_eq!(
+        seen,
+        format!("svgs=3 drawn=3 traces={traces} fetched=0"),
+        "report.html in Chromium"
+    );
     let _ = std::fs::remove_file(&probe);
     let _ = std::fs::remove_dir_all(&profile);
 }
