@@ -510,3 +510,55 @@ fn odocal_swing_prints_the_compass_deviation_and_its_flag() {
         );
     }
 }
+
+/// `odocal spin --reference` on a ROS robot whose IMU integrates a gyro 1 % fast, with an NMEA
+/// compass beside it (the mocks at 20 times real speed): the compass tells where the robot
+/// stopped, no floor mark is needed, and the scale is measured within 0.1 % — so `E_b`, which
+/// carries it one to one, is within 0.1 % once it is given.
+#[test]
+fn a_compass_beside_a_gyro_measures_its_scale_in_a_spin() {
+    let dir = common::scratch("spin-reference");
+    std::fs::create_dir_all(&dir).unwrap();
+    let yaml = dir.join("diff_drive.yaml");
+    std::fs::write(&yaml, common::DIFF_DRIVE_YAML).unwrap();
+    let yaml_s = yaml.to_str().unwrap();
+    let (mut server, lines) = common::spawn_server_lines(
+        "mock-rosbridge",
+        &[
+            "--ros-yaml",
+            yaml_s,
+            "--port",
+            "0",
+            "--time-scale",
+            "20",
+            "--heading-sensor",
+            "gyro",
+            "--gyro-scale-error",
+            "0.01",
+            "--compass-sigma-deg",
+            "0.05",
+            "--nmea",
+            "--nmea-sigma-deg",
+            "0.2",
+        ],
+        2,
+    );
+    let reference = format!("{}?baud=115200", lines[1]);
+    let v = common::odocal_json(&[
+        "spin",
+        "--base",
+        &lines[0],
+        "--ros-yaml",
+        yaml_s,
+        "--reference",
+        &reference,
+        "--turns",
+        "3",
+        "--yes",
+        "--json",
+    ]);
+    let _ = server.kill();
+    assert_eq!(v["past_mark_from"], "reference", "{v}");
+    let s = v["gyro_scale_error"].as_f64().unwrap();
+    assert!((s - 0.01).abs() < 1e-3, "measured {s}: {v}");
+}

@@ -355,6 +355,17 @@ impl<const N: usize> FrameDecoder<N> {
         self.stats
     }
 
+    /// Bytes held that are not yet a frame (the start of one, or garbage still being scanned).
+    pub fn buffered(&self) -> usize {
+        self.len
+    }
+
+    /// Discards the bytes held: a partial frame whose sender paused longer than the inter-byte
+    /// gap of SPEC.md §2.1 (the host restarted mid-frame).
+    pub fn clear(&mut self) {
+        self.len = 0;
+    }
+
     /// Feeds received bytes; calls `on_frame` for every complete valid frame, in order.
     pub fn feed(&mut self, mut bytes: &[u8], mut on_frame: impl FnMut(Frame)) {
         while !bytes.is_empty() {

@@ -1,7 +1,8 @@
 //! The odocal serial wire protocol of `SPEC.md`: frames, their CRC and a resynchronising
 //! decoder ([`frame`]), the typed messages of SPEC.md §5 ([`message`], described once in a
 //! table from which ids, lengths, encoding and decoding follow), and the conversion between SI
-//! units and the wire's fixed point ([`units`]).
+//! units and the wire's fixed point ([`units`]), and the device side for firmware authors
+//! ([`device`]: the protocol's state machine over a small board trait).
 //!
 //! The core is `#![no_std]` and needs no allocator: frames live in fixed-size buffers and
 //! [`frame::FrameDecoder`] resynchronises inside a buffer of the caller's size, so firmware can
@@ -32,6 +33,7 @@ extern crate std;
 
 #[cfg(feature = "tokio")]
 pub mod codec;
+pub mod device;
 pub mod frame;
 pub mod message;
 pub mod units;

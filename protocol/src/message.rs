@@ -127,6 +127,32 @@ pub mod id {
     ];
     /// Every event id.
     pub const EVENTS: [u8; 2] = [TELEMETRY, MOTION_DONE];
+
+    /// The name SPEC.md §5 gives message `msg` ("MOVE_STRAIGHT"), if it defines one.
+    pub const fn name(msg: u8) -> Option<&'static str> {
+        Some(match msg {
+            HELLO => "HELLO",
+            GET_PARAMS => "GET_PARAMS",
+            SET_PARAMS => "SET_PARAMS",
+            SAVE_PARAMS => "SAVE_PARAMS",
+            RESTORE_DEFAULTS => "RESTORE_DEFAULTS",
+            LOAD_PARAMS => "LOAD_PARAMS",
+            RESET_ODOMETRY => "RESET_ODOMETRY",
+            MOVE_STRAIGHT => "MOVE_STRAIGHT",
+            TURN_IN_PLACE => "TURN_IN_PLACE",
+            WHEEL_SPEED => "WHEEL_SPEED",
+            STOP => "STOP",
+            GET_STATUS => "GET_STATUS",
+            READ_ENCODERS => "READ_ENCODERS",
+            READ_HEADING => "READ_HEADING",
+            CONFIGURE_TELEMETRY => "CONFIGURE_TELEMETRY",
+            TELEMETRY => "TELEMETRY",
+            MOTION_DONE => "MOTION_DONE",
+            CONFIGURE_WATCHDOG => "CONFIGURE_WATCHDOG",
+            HEARTBEAT => "HEARTBEAT",
+            _ => return None,
+        })
+    }
 }
 
 /// Payload sizes as in SPEC.md §5: of a request, a response or a NACK of request `msg`, or of

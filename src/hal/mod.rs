@@ -7,9 +7,11 @@
 //! one twice. Errors come in two layers: [`LinkError`] (the link or the protocol failed) and
 //! [`HalError::Nack`] (the device understood and said no). Telemetry arrives on a broadcast
 //! channel with encoder counts and device time unwrapped on the host ([`Client::subscribe`]).
-//! [`base`] makes a client a drive, a heading source and a parameter store of the seam.
+//! [`base`] makes a client a drive, a heading source and a parameter store of the seam;
+//! [`conformance`] checks a device against SPEC.md §7 over a raw link, in real time.
 
 pub mod base;
+pub mod conformance;
 pub mod error;
 pub mod link;
 

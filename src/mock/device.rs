@@ -1,4 +1,11 @@
-//! The mock device's firmware: protocol semantics (SPEC.md §3) on top of the simulator.
+//! The mock device's firmware: the device kit of the protocol crate
+//! ([`crate::protocol::device`]) over a board that is the simulator.
+//!
+//! Everything the protocol asks of a device (retry cache, watchdog, motion queue, telemetry,
+//! parameter copies) is the kit's, exactly as a firmware built on it gets it; what is the
+//! mock's own is the board ([`SimBoard`]: the simulator's robot, its encoders and heading
+//! sensor, with the noise and the compass conventions of [`MockConfig`]) and the storage
+//! ([`FileStorage`]: a JSON file, or memory, that can be made to fail).
 //!
 //! [`MockDevice::handle`] takes one decoded frame and returns the frames the device sends back;
 //! [`MockDevice::advance`] moves device time forward, executing queued motions and emitting
@@ -7,26 +14,24 @@
 
 pub use super::error::MockError;
 use crate::kinematics::{wrap_angle, WheelParams};
-use crate::protocol::frame::{Frame, FrameKind, CRC16, MAJOR, MINOR};
-use crate::protocol::message::{
-    capability, fault, DeviceInfo, Encoders, Event, FirmwareId, GetParamsRequest, Heading,
-    HelloRequest, MotionAccepted, MotionDone, MotionMode, MotionState, MoveStraightRequest, Nack,
-    NackCode, Packet, ParamSource, ParamsBlock, Request, Response, RestoreDefaultsRequest,
-    RestoreTarget, SavedCrc, Status, StoredParams, Telemetry, TelemetryPeriod, TurnInPlaceRequest,
-    WatchdogState, WatchdogTimeout, WheelSpeedRequest,
+use crate::protocol::device::ideal::encoder_reading;
+use crate::protocol::device::{
+    Board, Device, DeviceConfig, DriveCommand, HeadingReading, IdealWheels, ParamStorage,
+    SimulatedBoard, StorageError, VecSink, QUEUE_CAPACITY,
 };
-use crate::protocol::{units, Payload, Writer};
+use crate::protocol::frame::Frame;
+use crate::protocol::message::{FirmwareId, Nack, NackCode, Packet, ParamsBlock, Status};
+use crate::protocol::units;
 use crate::sim::sensor::HeadingModel;
-use crate::sim::{Motion, MotionPlan, NoiseModel, SimError, Simulator};
+use crate::sim::{MotionPlan, NoiseModel, SimError, Simulator};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
 use serde::{Deserialize, Serialize};
-use std::collections::VecDeque;
 use std::path::PathBuf;
 
-/// Deepest motion queue the mock accepts (SPEC.md requires at least 4).
-pub const QUEUE_DEPTH: usize = 8;
+/// Deepest motion queue the mock accepts (SPEC.md requires at least 4): the kit's.
+pub const QUEUE_DEPTH: usize = QUEUE_CAPACITY;
 
 /// How the mock's heading sensor reports.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
@@ -98,24 +103,6 @@ impl MockConfig {
     }
 }
 
-/// One queued or executing motion.
-#[derive(Debug, Clone, Copy)]
-struct ActiveMotion {
-    id: u16,
-    plan: MotionPlan,
-    duration_s: f64,
-    elapsed_s: f64,
-}
-
-/// The remembered last request and its answer (SPEC.md §3, safe retries).
-#[derive(Debug, Clone)]
-struct LastRequest {
-    seq: u8,
-    msg: u8,
-    crc: u16,
-    answer: Frame,
-}
-
 /// Counters a test can read to check the device's behaviour.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize)]
 pub struct DeviceCounters {
@@ -142,54 +129,214 @@ pub struct DeviceCounters {
 /// is skipped and counted.
 pub const MAX_EVENTS_PER_STEP: usize = 50_000;
 
-/// The mock device's state.
+/// How long virtual time runs an open-ended WHEEL_SPEED before [`MockDevice::run_until_idle`]
+/// stops it (s).
+const OPEN_ENDED_S: f64 = 3600.0;
+
+/// The simulator as the kit's board: its robot turns the wheels as commanded, its encoders and
+/// heading sensor report, its clock is the mock's device time.
 #[derive(Debug)]
-pub struct MockDevice {
-    config: MockConfig,
+pub struct SimBoard {
     sim: Simulator,
+    /// Draws of the heading noise (the simulator's own RNG draws slip and sensor errors).
     rng: ChaCha8Rng,
-    stored: Option<ParamsBlock>,
-    /// Why the non-volatile file was discarded at power-up, if it was.
-    storage_discarded: Option<String>,
-    queue: VecDeque<ActiveMotion>,
-    next_motion_id: u16,
-    completed_motions: u32,
+    compass: CompassConvention,
+    compass_sigma_rad: f64,
     now_us: u64,
-    telemetry_period_us: u64,
-    next_telemetry_us: u64,
-    sample_index: u32,
-    event_seq: u8,
-    watchdog_timeout_us: u64,
+    wheels: IdealWheels,
+    /// The motion being executed and its slip (drawn once per motion).
+    motion_id: Option<u16>,
+    slip: (f64, f64),
+    /// The last heading the sensor gave (µrad), reported with a lost reading.
+    last_heading_urad: i32,
     /// Wall-clock seconds per device second of the host watching this device (see
     /// [`MockDevice::set_host_time_scale`]).
     host_time_scale: f64,
-    watchdog_state: WatchdogState,
-    last_request_us: u64,
-    fault_flags: u16,
-    last: Option<LastRequest>,
-    counters: DeviceCounters,
-    /// The last heading the sensor gave (µrad), reported with a lost reading.
-    last_heading_urad: i32,
 }
 
-fn block(p: &WheelParams) -> ParamsBlock {
-    // Parameters inside the mock were validated on the way in, so they always fit the wire.
-    ParamsBlock::try_from(p).unwrap_or(ParamsBlock {
-        left_wheel_diameter_nm: 0,
-        right_wheel_diameter_nm: 0,
-        wheelbase_nm: 0,
-        counts_per_wheel_rev_micro: 0,
-    })
+impl SimBoard {
+    /// The device clock (µs since power-up).
+    pub fn now(&self) -> u64 {
+        self.now_us
+    }
+
+    fn position(&self) -> [f64; 2] {
+        let (l, r) = self.sim.encoder_counts();
+        [l, r]
+    }
 }
 
-fn block_crc(b: &ParamsBlock) -> u16 {
-    let mut bytes = [0u8; <ParamsBlock as Payload>::LEN];
-    b.put(&mut Writer::new(&mut bytes));
-    CRC16.checksum(&bytes)
+impl Board for SimBoard {
+    fn now_us(&mut self) -> u64 {
+        self.now_us
+    }
+
+    fn drive(&mut self, command: &DriveCommand) {
+        if self.motion_id != Some(command.motion_id) {
+            self.motion_id = Some(command.motion_id);
+            self.slip = self.sim.slip_factors();
+        }
+        let position = self.position();
+        self.wheels.command(command, position);
+    }
+
+    fn stop(&mut self) {
+        self.wheels.stop();
+    }
+
+    fn at_rest(&mut self) -> bool {
+        self.wheels.at_rest(self.position())
+    }
+
+    fn encoders(&mut self) -> (i32, i32) {
+        let [l, r] = self.position();
+        (encoder_reading(l), encoder_reading(r))
+    }
+
+    fn reset_encoders(&mut self) {
+        self.wheels.stop();
+        self.sim.reset_encoders();
+    }
+
+    fn heading(&mut self) -> HeadingReading {
+        let n = if self.compass_sigma_rad > 0.0 {
+            Normal::new(0.0, self.compass_sigma_rad).map_or(0.0, |d| d.sample(&mut self.rng))
+        } else {
+            0.0
+        };
+        self.sim.set_time(self.now_us as f64 * 1e-6);
+        let reading = match self.sim.heading_reading_with(n) {
+            None => None,
+            Some(mut h) => {
+                if self.compass == CompassConvention::Clockwise {
+                    h = wrap_angle(-h);
+                }
+                // A wrapped heading always fits the µrad field.
+                self.last_heading_urad = units::rad_to_urad("heading", h).unwrap_or(0);
+                Some(self.last_heading_urad)
+            }
+        };
+        // A lost reading is reported invalid, with the last value.
+        HeadingReading {
+            heading_urad: reading.unwrap_or(self.last_heading_urad),
+            valid: reading.is_some(),
+            sensor_status: u8::from(reading.is_some()),
+        }
+    }
+
+    fn watchdog_timeout_us(&self, timeout_ms: u16) -> u64 {
+        // The watchdog watches the host, whose clock is the wall clock: when device time runs
+        // `scale` times faster, its timeout spans as much more device time.
+        (f64::from(timeout_ms) * 1000.0 * self.host_time_scale).round() as u64
+    }
 }
 
-fn nack<T>(code: NackCode, detail: u8) -> Result<T, Nack> {
-    Err(Nack { code, detail })
+impl SimulatedBoard for SimBoard {
+    fn advance_to(&mut self, now_us: u64) {
+        let dt_s = now_us.saturating_sub(self.now_us) as f64 * 1e-6;
+        self.now_us = self.now_us.max(now_us);
+        self.sim.set_time(self.now_us as f64 * 1e-6);
+        let before = self.position();
+        let after = self.wheels.step(dt_s, before);
+        let (left_counts, right_counts) = (after[0] - before[0], after[1] - before[1]);
+        if left_counts != 0.0 || right_counts != 0.0 {
+            let truth = *self.sim.truth();
+            let plan = MotionPlan {
+                left_counts,
+                right_counts,
+                left_arc_m: left_counts * truth.left_m_per_count() * self.slip.0,
+                right_arc_m: right_counts * truth.right_m_per_count() * self.slip.1,
+            };
+            self.sim.advance_plan(&plan, 0.0, 1.0);
+        }
+    }
+}
+
+/// The mock's non-volatile parameter copy: a JSON file if a path is configured (written beside
+/// its final name and renamed over it, so a crash leaves the old or the new copy), memory
+/// otherwise; every write fails if the configuration says so.
+#[derive(Debug)]
+pub struct FileStorage {
+    path: Option<PathBuf>,
+    fails: bool,
+    memory: Option<ParamsBlock>,
+    /// Why the copy was discarded at the last power-up, if it was.
+    discarded: Option<String>,
+}
+
+impl FileStorage {
+    fn read(&mut self, path: &std::path::Path) -> Option<ParamsBlock> {
+        // A missing file means "never saved"; an unreadable or invalid one is discarded like a
+        // copy failing its CRC (SPEC.md §7.9), but said, not silently.
+        let text = match crate::io::read_bounded(path, crate::io::MAX_TEXT_FILE) {
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return None,
+            Err(e) => {
+                self.discarded = Some(format!("{}: {e}", path.display()));
+                return None;
+            }
+            Ok(text) => text,
+        };
+        match serde_json::from_str::<ParamsBlock>(&text) {
+            Err(e) => {
+                self.discarded = Some(format!("{}: not a parameter block ({e})", path.display()));
+                None
+            }
+            Ok(b) => match b.validate() {
+                Ok(()) => Some(b),
+                Err(field) => {
+                    self.discarded =
+                        Some(format!("{}: field {field} out of range", path.display()));
+                    None
+                }
+            },
+        }
+    }
+}
+
+impl ParamStorage for FileStorage {
+    fn load(&mut self) -> Option<ParamsBlock> {
+        self.discarded = None;
+        match self.path.clone() {
+            Some(path) => self.read(&path),
+            None => self.memory,
+        }
+    }
+
+    fn save(&mut self, block: &ParamsBlock) -> Result<(), StorageError> {
+        if self.fails {
+            return Err(StorageError);
+        }
+        if let Some(path) = &self.path {
+            let tmp = path.with_extension("tmp");
+            let text = serde_json::to_string_pretty(block).map_err(|_| StorageError)?;
+            std::fs::write(&tmp, text)
+                .and_then(|()| std::fs::rename(&tmp, path))
+                .map_err(|_| StorageError)?;
+        }
+        self.memory = Some(*block);
+        Ok(())
+    }
+}
+
+/// The frames one call returns: answers, and events up to [`MAX_EVENTS_PER_STEP`] (beyond it
+/// telemetry is skipped as a link would lose it).
+fn frames() -> VecSink {
+    VecSink {
+        frames: Vec::new(),
+        telemetry_limit: MAX_EVENTS_PER_STEP,
+    }
+}
+
+/// The mock device: the kit over the simulator.
+#[derive(Debug)]
+pub struct MockDevice {
+    kit: Device<SimBoard, FileStorage>,
+}
+
+fn block(p: &WheelParams) -> Option<ParamsBlock> {
+    ParamsBlock::try_from(p)
+        .ok()
+        .filter(|b| b.validate().is_ok())
 }
 
 impl MockDevice {
@@ -197,216 +344,134 @@ impl MockDevice {
     /// factory defaults.
     pub fn new(config: MockConfig) -> Result<Self, MockError> {
         // The factory parameters must be ones the device could report and accept on the wire.
-        if !ParamsBlock::try_from(&config.factory).is_ok_and(|b| b.validate().is_ok()) {
-            return Err(MockError::FactoryOutOfRange(config.factory));
-        }
-        // A missing file means "never saved"; an unreadable or invalid one is discarded like a
-        // copy failing its CRC (SPEC.md §7.9), but said, not silently.
-        let mut storage_discarded = None;
-        let stored = match config.storage_path.as_ref() {
-            None => None,
-            Some(p) => match crate::io::read_bounded(p, crate::io::MAX_TEXT_FILE) {
-                Err(e) if e.kind() == std::io::ErrorKind::NotFound => None,
-                Err(e) => {
-                    storage_discarded = Some(format!("{}: {e}", p.display()));
-                    None
-                }
-                Ok(text) => match serde_json::from_str::<ParamsBlock>(&text) {
-                    Err(e) => {
-                        storage_discarded =
-                            Some(format!("{}: not a parameter block ({e})", p.display()));
-                        None
-                    }
-                    Ok(b) => match b.validate() {
-                        Ok(()) => Some(b),
-                        Err(field) => {
-                            storage_discarded =
-                                Some(format!("{}: field {field} out of range", p.display()));
-                            None
-                        }
-                    },
-                },
-            },
-        };
-        let active = stored.map_or(config.factory, |b| WheelParams::from(&b));
+        let factory = block(&config.factory).ok_or(MockError::FactoryOutOfRange(config.factory))?;
         // The firmware counts whole encoder counts: targets are rounded (SPEC.md §7.6),
         // whatever the noise model says.
         let noise = NoiseModel {
             quantise_encoders: true,
             ..config.noise
         };
-        let sim = Simulator::new(config.truth, active, noise, config.seed)?
+        let sim = Simulator::new(config.truth, config.factory, noise, config.seed)?
             .with_heading_model(config.heading_model)?;
-        Ok(MockDevice {
-            rng: ChaCha8Rng::seed_from_u64(config.seed ^ 0x7E1E_3E7F),
+        let board = SimBoard {
             sim,
-            stored,
-            storage_discarded,
-            queue: VecDeque::new(),
-            next_motion_id: 1,
-            completed_motions: 0,
+            rng: ChaCha8Rng::seed_from_u64(config.seed ^ 0x7E1E_3E7F),
+            compass: config.compass,
+            compass_sigma_rad: config.noise.compass_sigma_rad,
             now_us: 0,
-            telemetry_period_us: 0,
-            next_telemetry_us: 0,
-            sample_index: 0,
-            event_seq: 0,
-            watchdog_timeout_us: 0,
-            host_time_scale: 1.0,
-            watchdog_state: WatchdogState::Disabled,
-            last_request_us: 0,
-            fault_flags: 0,
-            last: None,
-            counters: DeviceCounters::default(),
+            wheels: IdealWheels::default(),
+            motion_id: None,
+            slip: (1.0, 1.0),
             last_heading_urad: 0,
-            config,
-        })
+            host_time_scale: 1.0,
+        };
+        let storage = FileStorage {
+            path: config.storage_path.clone(),
+            fails: config.storage_fails,
+            memory: None,
+            discarded: None,
+        };
+        let limit = |v: Result<u16, units::UnitError>| v.unwrap_or(u16::MAX).max(1);
+        let device_config = DeviceConfig {
+            firmware_id: FirmwareId::new("odocal-mock").unwrap_or_else(|_| unreachable!()),
+            firmware_version: (env!("CARGO_PKG_VERSION_MAJOR").parse::<u32>().unwrap_or(0) << 16)
+                | (env!("CARGO_PKG_VERSION_MINOR").parse::<u32>().unwrap_or(0) << 8),
+            serial_number: config.serial_number,
+            max_speed_mm_s: limit(units::m_s_to_mm_s("speed limit", config.max_speed_m_s)),
+            max_rate_mrad_s: limit(units::rad_s_to_mrad_s("rate limit", config.max_rate_rad_s)),
+            factory,
+        };
+        let mut device = MockDevice {
+            kit: Device::new(board, storage, device_config)?,
+        };
+        device.sync_configured();
+        Ok(device)
+    }
+
+    /// The simulator's controller uses the parameters the kit holds active.
+    fn sync_configured(&mut self) {
+        let active = WheelParams::from(&self.kit.active());
+        if *self.kit.board().sim.configured() != active {
+            // Active parameters passed SPEC.md §4.1's ranges, which the simulator accepts.
+            let _ = self.kit.board_mut().sim.set_configured(active);
+        }
     }
 
     /// Simulates a power cycle: RAM parameters are lost, the stored copy (or factory) is loaded,
     /// motion, telemetry and watchdog settings reset. The robot stays where it is.
     pub fn power_cycle(&mut self) -> Result<(), MockError> {
-        let active = self
-            .stored
-            .map_or(self.config.factory, |b| WheelParams::from(&b));
-        self.sim.set_configured(active)?;
-        self.queue.clear();
-        self.telemetry_period_us = 0;
-        self.watchdog_timeout_us = 0;
-        self.watchdog_state = WatchdogState::Disabled;
-        self.fault_flags = 0;
-        self.last = None;
+        self.kit.power_cycle();
+        self.sync_configured();
         Ok(())
+    }
+
+    /// The kit device inside (its statistics, its receiver).
+    pub fn kit(&self) -> &Device<SimBoard, FileStorage> {
+        &self.kit
     }
 
     /// The parameters motions use now.
     pub fn active_params(&self) -> WheelParams {
-        *self.sim.configured()
+        WheelParams::from(&self.kit.active())
     }
 
     /// The non-volatile copy, if one was saved.
     pub fn stored_params(&self) -> Option<WheelParams> {
-        self.stored.map(|b| WheelParams::from(&b))
+        self.kit.stored().map(|b| WheelParams::from(&b))
     }
 
     /// The simulator (true pose, true parameters).
     pub fn sim(&self) -> &Simulator {
-        &self.sim
+        &self.kit.board().sim
     }
 
     /// Mutable simulator access (tests place the robot).
     pub fn sim_mut(&mut self) -> &mut Simulator {
-        &mut self.sim
+        &mut self.kit.board_mut().sim
     }
 
     /// What the device has done.
     pub fn counters(&self) -> DeviceCounters {
-        self.counters
+        let s = self.kit.stats();
+        DeviceCounters {
+            executed_requests: s.executed_requests,
+            replayed_answers: s.replayed_answers,
+            motions_accepted: s.motions_accepted,
+            motions_completed: s.motions_completed,
+            watchdog_trips: s.watchdog_trips,
+            stops: s.stop_requests,
+            telemetry_samples: s.telemetry_sent,
+            telemetry_over_bound: s.telemetry_unsent,
+        }
     }
 
     /// The device clock (µs since power-up).
     pub fn now_us(&self) -> u64 {
-        self.now_us
+        self.kit.board().now()
     }
 
     /// Whether a motion is executing or queued.
     pub fn is_moving(&self) -> bool {
-        !self.queue.is_empty()
+        self.kit.is_moving()
     }
 
     /// Status as GET_STATUS reports it.
     pub fn status(&self) -> Status {
-        Status {
-            motion_state: if self.queue.is_empty() {
-                MotionState::Idle
-            } else {
-                MotionState::Moving
-            },
-            queue_depth: self.queue.len().min(255) as u8,
-            current_motion_id: self.queue.front().map_or(0, |m| m.id),
-            completed_motions: self.completed_motions,
-            fault_flags: self.fault_flags,
-            watchdog_state: self.watchdog_state,
-            uptime_ms: (self.now_us / 1000) as u32,
-        }
-    }
-
-    /// A heading reading now (µrad) and whether the sensor gave one (a lost reading is
-    /// reported invalid, with the last value).
-    fn heading_urad(&mut self) -> (i32, bool) {
-        let noise = self.config.noise;
-        let n = if noise.compass_sigma_rad > 0.0 {
-            Normal::new(0.0, noise.compass_sigma_rad).map_or(0.0, |d| d.sample(&mut self.rng))
-        } else {
-            0.0
-        };
-        self.sim.set_time(self.now_us as f64 * 1e-6);
-        let Some(mut h) = self.sim.heading_reading_with(n) else {
-            return (self.last_heading_urad, false);
-        };
-        if self.config.compass == CompassConvention::Clockwise {
-            h = wrap_angle(-h);
-        }
-        // A wrapped heading always fits the µrad field.
-        self.last_heading_urad = units::rad_to_urad("heading", h).unwrap_or(0);
-        (self.last_heading_urad, true)
-    }
-
-    fn encoders(&self) -> (i32, i32) {
-        let (l, r) = self.sim.encoder_counts();
-        // Cumulative counters wrap modulo 2^32 on the wire (SPEC.md §4).
-        (l.round() as i64 as i32, r.round() as i64 as i32)
-    }
-
-    fn next_event_seq(&mut self) -> u8 {
-        let s = self.event_seq;
-        self.event_seq = self.event_seq.wrapping_add(1);
-        s
+        self.kit.status()
     }
 
     /// Handles one received frame; returns the frames to send (the answer, if any).
     pub fn handle(&mut self, frame: &Frame) -> Vec<Frame> {
-        if frame.kind != FrameKind::Request {
-            return Vec::new();
-        }
-        // Any accepted request feeds the watchdog.
-        self.last_request_us = self.now_us;
-        let crc = CRC16.checksum(frame.payload());
-        if let Some(last) = &self.last {
-            if last.seq == frame.seq && last.msg == frame.msg && last.crc == crc {
-                self.counters.replayed_answers += 1;
-                return vec![last.answer];
-            }
-        }
-        self.counters.executed_requests += 1;
-        let answer = match Packet::from_frame(frame) {
-            Ok(Packet {
-                body: crate::protocol::Body::Request { request },
-                ..
-            }) => match self.execute(&request) {
-                Ok(response) => Packet::response(frame.seq, response),
-                Err(n) => Packet::nack(frame.seq, frame.msg, n),
-            },
-            Ok(_) => return Vec::new(),
-            Err(e) => Packet::nack(frame.seq, frame.msg, e.nack()),
-        };
-        let answer = answer.to_frame();
-        if frame.msg == crate::protocol::message::id::HELLO {
-            self.last = None;
-        } else {
-            self.last = Some(LastRequest {
-                seq: frame.seq,
-                msg: frame.msg,
-                crc,
-                answer,
-            });
-        }
-        vec![answer]
+        let mut out = frames();
+        self.kit.handle_frame(frame, &mut out);
+        self.sync_configured();
+        out.frames
     }
 
     /// Why the non-volatile copy was discarded at power-up (unreadable, not a parameter block,
     /// out of range), if it was: the device then started from its factory defaults.
     pub fn storage_discarded(&self) -> Option<&str> {
-        self.storage_discarded.as_deref()
+        self.kit.storage().discarded.as_deref()
     }
 
     /// Tells the device that its time runs `scale` times faster than the host's (the mock
@@ -414,7 +479,7 @@ impl MockDevice {
     /// stretched by it. Ignored unless finite and positive.
     pub fn set_host_time_scale(&mut self, scale: f64) {
         if scale.is_finite() && scale > 0.0 {
-            self.host_time_scale = scale;
+            self.kit.board_mut().host_time_scale = scale;
         }
     }
 
@@ -433,431 +498,45 @@ impl MockDevice {
         .into()
     }
 
-    fn execute(&mut self, request: &Request) -> Result<Response, Nack> {
-        match *request {
-            Request::Hello(HelloRequest {
-                host_major,
-                host_min_minor,
-            }) => {
-                if host_major != MAJOR || MINOR < host_min_minor {
-                    // SPEC 1.1: the detail tells the host which version this device speaks.
-                    return nack(NackCode::VersionMismatch, (MAJOR << 4) | MINOR);
-                }
-                Ok(Response::Hello(DeviceInfo {
-                    major: MAJOR,
-                    minor: MINOR,
-                    firmware_id: FirmwareId::new("odocal-mock").unwrap_or_else(|_| unreachable!()),
-                    firmware_version: (env!("CARGO_PKG_VERSION_MAJOR").parse::<u32>().unwrap_or(0)
-                        << 16)
-                        | (env!("CARGO_PKG_VERSION_MINOR").parse::<u32>().unwrap_or(0) << 8),
-                    capabilities: capability::HEADING
-                        | capability::TELEMETRY
-                        | capability::WATCHDOG
-                        | capability::STORAGE
-                        | capability::WHEEL_SPEED
-                        | capability::MOTION_QUEUE,
-                    serial_number: self.config.serial_number,
-                    max_speed_mm_s: units::m_s_to_mm_s("speed limit", self.config.max_speed_m_s)
-                        .unwrap_or(u16::MAX),
-                    max_rate_mrad_s: units::rad_s_to_mrad_s(
-                        "rate limit",
-                        self.config.max_rate_rad_s,
-                    )
-                    .unwrap_or(u16::MAX),
-                }))
-            }
-            Request::GetParams(GetParamsRequest { source }) => {
-                let (params, stored_crc) = match source {
-                    ParamSource::Active => (block(&self.active_params()), 0),
-                    ParamSource::Stored => match self.stored {
-                        Some(b) => (b, block_crc(&b)),
-                        None => return nack(NackCode::StorageFailure, 0),
-                    },
-                    ParamSource::Factory => (block(&self.config.factory), 0),
-                };
-                Ok(Response::GetParams(StoredParams {
-                    source,
-                    params,
-                    stored_crc,
-                }))
-            }
-            Request::SetParams(b) => {
-                if let Err(field) = b.validate() {
-                    return nack(NackCode::OutOfRange, field);
-                }
-                if self.is_moving() {
-                    return nack(NackCode::InvalidState, 0xFF);
-                }
-                self.set_active(b)?;
-                Ok(Response::SetParams(block(&self.active_params())))
-            }
-            Request::SaveParams => {
-                if self.is_moving() {
-                    return nack(NackCode::InvalidState, 0xFF);
-                }
-                let b = block(&self.active_params());
-                self.store(b)?;
-                Ok(Response::SaveParams(SavedCrc {
-                    stored_crc: block_crc(&b),
-                }))
-            }
-            Request::RestoreDefaults(RestoreDefaultsRequest { target }) => {
-                if self.is_moving() {
-                    return nack(NackCode::InvalidState, 0xFF);
-                }
-                let b = block(&self.config.factory);
-                self.set_active(b)?;
-                if target == RestoreTarget::ActiveAndStored {
-                    self.store(b)?;
-                }
-                Ok(Response::RestoreDefaults(b))
-            }
-            Request::LoadParams => {
-                if self.is_moving() {
-                    return nack(NackCode::InvalidState, 0xFF);
-                }
-                let b = self.stored.unwrap_or(block(&self.config.factory));
-                self.set_active(b)?;
-                Ok(Response::LoadParams(b))
-            }
-            Request::ResetOdometry => {
-                if self.is_moving() {
-                    return nack(NackCode::InvalidState, 0xFF);
-                }
-                self.sim.reset_encoders();
-                Ok(Response::ResetOdometry)
-            }
-            Request::MoveStraight(MoveStraightRequest {
-                distance_um,
-                max_speed_mm_s,
-                mode,
-            }) => {
-                let distance_m = units::um_to_m(distance_um);
-                if distance_um == 0 || distance_um.unsigned_abs() > 100_000_000 {
-                    return nack(NackCode::OutOfRange, 0);
-                }
-                let speed = units::mm_s_to_m_s(i32::from(max_speed_mm_s));
-                if max_speed_mm_s == 0 || speed > self.config.max_speed_m_s + 1e-9 {
-                    return nack(NackCode::OutOfRange, 1);
-                }
-                self.accept_motion(
-                    Motion::Straight { distance_m },
-                    distance_m.abs() / speed,
-                    mode,
-                )
-                .map(Response::MoveStraight)
-            }
-            Request::TurnInPlace(TurnInPlaceRequest {
-                angle_urad,
-                max_rate_mrad_s,
-                mode,
-            }) => {
-                let angle_rad = units::urad_to_rad(angle_urad);
-                if angle_urad == 0 || angle_rad.abs() > 4.0 * std::f64::consts::PI {
-                    return nack(NackCode::OutOfRange, 0);
-                }
-                let rate = units::mrad_s_to_rad_s(max_rate_mrad_s);
-                if max_rate_mrad_s == 0 || rate > self.config.max_rate_rad_s + 1e-9 {
-                    return nack(NackCode::OutOfRange, 1);
-                }
-                self.accept_motion(
-                    Motion::TurnInPlace { angle_rad },
-                    angle_rad.abs() / rate,
-                    mode,
-                )
-                .map(Response::TurnInPlace)
-            }
-            Request::WheelSpeed(WheelSpeedRequest {
-                left_mm_s,
-                right_mm_s,
-                duration_ms,
-            }) => {
-                let limit = self.config.max_speed_m_s + 1e-9;
-                let (l, r) = (
-                    units::mm_s_to_m_s(i32::from(left_mm_s)),
-                    units::mm_s_to_m_s(i32::from(right_mm_s)),
-                );
-                if l.abs() > limit {
-                    return nack(NackCode::OutOfRange, 0);
-                }
-                if r.abs() > limit {
-                    return nack(NackCode::OutOfRange, 1);
-                }
-                if self.watchdog_state == WatchdogState::Tripped {
-                    return nack(NackCode::InvalidState, 0xFF);
-                }
-                // "Until the next command" runs an hour; STOP, a new motion or the watchdog
-                // end it sooner. In virtual time that would be an hour of driving at once, so
-                // the mock's virtual mode needs a duration (see `serve`).
-                let t = if duration_ms == 0 {
-                    3600.0
-                } else {
-                    f64::from(duration_ms) / 1e3
-                };
-                self.queue.clear();
-                self.accept_motion(
-                    Motion::Wheels {
-                        left_m: l * t,
-                        right_m: r * t,
-                    },
-                    t,
-                    MotionMode::Replace,
-                )?;
-                Ok(Response::WheelSpeed)
-            }
-            Request::Stop => {
-                self.counters.stops += 1;
-                self.stop();
-                Ok(Response::Stop)
-            }
-            Request::GetStatus => Ok(Response::GetStatus(self.status())),
-            Request::ReadEncoders => {
-                let (left_counts, right_counts) = self.encoders();
-                Ok(Response::ReadEncoders(Encoders {
-                    timestamp_us: self.now_us as u32,
-                    left_counts,
-                    right_counts,
-                }))
-            }
-            Request::ReadHeading => {
-                let (heading_urad, valid) = self.heading_urad();
-                Ok(Response::ReadHeading(Heading {
-                    timestamp_us: self.now_us as u32,
-                    heading_urad,
-                    valid,
-                    sensor_status: u8::from(valid),
-                }))
-            }
-            Request::ConfigureTelemetry(TelemetryPeriod { period_ms }) => {
-                if period_ms != 0 && !(5..=1000).contains(&period_ms) {
-                    return nack(NackCode::OutOfRange, 0);
-                }
-                self.telemetry_period_us = u64::from(period_ms) * 1000;
-                self.next_telemetry_us = self.now_us;
-                Ok(Response::ConfigureTelemetry(TelemetryPeriod { period_ms }))
-            }
-            Request::ConfigureWatchdog(WatchdogTimeout { timeout_ms }) => {
-                if timeout_ms != 0 && !(50..=10_000).contains(&timeout_ms) {
-                    return nack(NackCode::OutOfRange, 0);
-                }
-                // The watchdog watches the host, whose clock is the wall clock: when device time
-                // runs `scale` times faster, its timeout spans as much more device time.
-                self.watchdog_timeout_us =
-                    (f64::from(timeout_ms) * 1000.0 * self.host_time_scale).round() as u64;
-                self.watchdog_state = if timeout_ms == 0 {
-                    WatchdogState::Disabled
-                } else {
-                    WatchdogState::Armed
-                };
-                self.fault_flags &= !fault::WATCHDOG_TRIPPED;
-                Ok(Response::ConfigureWatchdog(WatchdogTimeout { timeout_ms }))
-            }
-            Request::Heartbeat => {
-                if self.watchdog_state == WatchdogState::Tripped {
-                    self.watchdog_state = WatchdogState::Armed;
-                    self.fault_flags &= !fault::WATCHDOG_TRIPPED;
-                }
-                Ok(Response::Heartbeat)
-            }
-        }
-    }
-
-    fn set_active(&mut self, b: ParamsBlock) -> Result<(), Nack> {
-        self.sim
-            .set_configured(WheelParams::from(&b))
-            .map_err(|_| Nack {
-                code: NackCode::OutOfRange,
-                detail: 0xFF,
-            })
-    }
-
-    /// Writes the non-volatile copy atomically: the file is written beside its final name and
-    /// renamed over it, so a crash leaves either the old or the new copy.
-    fn store(&mut self, b: ParamsBlock) -> Result<(), Nack> {
-        if self.config.storage_fails {
-            return nack(NackCode::StorageFailure, 0xFF);
-        }
-        if let Some(path) = &self.config.storage_path {
-            let tmp = path.with_extension("tmp");
-            let text = serde_json::to_string_pretty(&b).map_err(|_| Nack {
-                code: NackCode::StorageFailure,
-                detail: 0xFF,
-            })?;
-            std::fs::write(&tmp, text)
-                .and_then(|()| std::fs::rename(&tmp, path))
-                .map_err(|_| Nack {
-                    code: NackCode::StorageFailure,
-                    detail: 0xFF,
-                })?;
-        }
-        self.stored = Some(b);
-        Ok(())
-    }
-
-    fn accept_motion(
-        &mut self,
-        motion: Motion,
-        duration_s: f64,
-        mode: MotionMode,
-    ) -> Result<MotionAccepted, Nack> {
-        if self.watchdog_state == WatchdogState::Tripped {
-            return nack(NackCode::InvalidState, 0xFF);
-        }
-        if mode == MotionMode::Replace {
-            self.queue.clear();
-        }
-        if self.queue.len() >= QUEUE_DEPTH {
-            return nack(NackCode::Busy, 0xFF);
-        }
-        let plan = self.sim.plan(&motion).map_err(|_| Nack {
-            code: NackCode::OutOfRange,
-            detail: 0,
-        })?;
-        let id = self.next_motion_id;
-        self.next_motion_id = self.next_motion_id.wrapping_add(1).max(1);
-        self.queue.push_back(ActiveMotion {
-            id,
-            plan,
-            duration_s,
-            elapsed_s: 0.0,
-        });
-        self.counters.motions_accepted += 1;
-        Ok(MotionAccepted {
-            queue_depth: self.queue.len() as u8,
-            motion_id: id,
-        })
-    }
-
     /// Stops at once: the executing motion ends where the robot is, the queue is cleared.
     pub fn stop(&mut self) {
-        self.queue.clear();
+        self.kit.stop();
     }
 
-    /// Time until the queue is empty (s).
+    /// Time until the queue is empty (s); infinite while an open-ended WHEEL_SPEED runs.
     pub fn remaining_motion_s(&self) -> f64 {
-        self.queue
-            .iter()
-            .map(|m| (m.duration_s - m.elapsed_s).max(0.0))
-            .sum()
+        self.kit
+            .remaining_us(self.now_us())
+            .map_or(f64::INFINITY, |us| us as f64 * 1e-6)
     }
 
     /// Moves device time forward by `dt_s`: executes motions, checks the watchdog, and returns
     /// the events to send (telemetry at its period, motion-done).
     pub fn advance(&mut self, dt_s: f64) -> Vec<Frame> {
-        let mut events = Vec::new();
-        let end_us = self.now_us + (dt_s.max(0.0) * 1e6).round() as u64;
-        while self.now_us < end_us {
-            if self.telemetry_period_us > 0 && self.now_us >= self.next_telemetry_us {
-                self.next_telemetry_us += self.telemetry_period_us;
-                self.emit_telemetry(&mut events);
-                continue;
-            }
-            // Step to the next thing that happens: a telemetry sample, the end of a motion,
-            // the watchdog deadline, or the end of this advance.
-            let mut step_end = end_us;
-            if self.telemetry_period_us > 0 {
-                step_end = step_end.min(self.next_telemetry_us);
-            }
-            if let Some(m) = self.queue.front() {
-                let left_us = ((m.duration_s - m.elapsed_s).max(0.0) * 1e6).ceil() as u64;
-                step_end = step_end.min(self.now_us + left_us.max(1));
-            }
-            if self.watchdog_state == WatchdogState::Armed && !self.queue.is_empty() {
-                let deadline = self.last_request_us + self.watchdog_timeout_us;
-                step_end = step_end.min(deadline.max(self.now_us + 1));
-            }
-            let dt = (step_end - self.now_us) as f64 * 1e-6;
-            self.now_us = step_end;
-            self.sim.set_time(self.now_us as f64 * 1e-6);
-            if let Some(m) = self.queue.front_mut() {
-                let from = m.elapsed_s / m.duration_s;
-                m.elapsed_s = (m.elapsed_s + dt).min(m.duration_s);
-                let to = m.elapsed_s / m.duration_s;
-                let (plan, done, id) = (m.plan, m.elapsed_s >= m.duration_s - 1e-9, m.id);
-                self.sim.advance_plan(&plan, from, to);
-                if done {
-                    self.queue.pop_front();
-                    self.completed_motions = self.completed_motions.wrapping_add(1);
-                    self.counters.motions_completed += 1;
-                    let seq = self.next_event_seq();
-                    events.push(
-                        Packet::event(
-                            seq,
-                            Event::MotionDone(MotionDone {
-                                motion_id: id,
-                                completed_motions: self.completed_motions,
-                            }),
-                        )
-                        .to_frame(),
-                    );
-                }
-            }
-            if self.watchdog_state == WatchdogState::Armed
-                && !self.queue.is_empty()
-                && self.now_us >= self.last_request_us + self.watchdog_timeout_us
-            {
-                self.stop();
-                self.watchdog_state = WatchdogState::Tripped;
-                self.fault_flags |= fault::WATCHDOG_TRIPPED;
-                self.counters.watchdog_trips += 1;
-            }
-            if self.telemetry_period_us > 0 && self.now_us >= self.next_telemetry_us {
-                self.next_telemetry_us += self.telemetry_period_us;
-                self.emit_telemetry(&mut events);
-            }
-        }
-        events
+        let mut out = frames();
+        let end = self.now_us() + (dt_s.max(0.0) * 1e6).round() as u64;
+        self.kit.advance_to(end, &mut out);
+        out.frames
     }
 
-    /// Runs every queued motion to completion (virtual time) and returns the events.
+    /// Runs every queued motion to completion (virtual time) and returns the events; an
+    /// open-ended WHEEL_SPEED runs an hour and is then stopped.
     ///
     /// Virtual time passes only while the host waits for it, so the host counts as present
     /// throughout: the watchdog cannot trip here (it guards real-time operation).
     pub fn run_until_idle(&mut self) -> Vec<Frame> {
         let mut events = Vec::new();
+        self.kit.hold_watchdog(true);
         while self.is_moving() {
-            let dt = self.remaining_motion_s().max(1e-6);
-            let armed = self.watchdog_state;
-            if armed == WatchdogState::Armed {
-                self.watchdog_state = WatchdogState::Disabled;
+            match self.kit.remaining_us(self.now_us()) {
+                Some(us) => events.extend(self.advance(us.max(1) as f64 * 1e-6)),
+                None => {
+                    events.extend(self.advance(OPEN_ENDED_S));
+                    self.kit.stop();
+                }
             }
-            events.extend(self.advance(dt));
-            self.watchdog_state = armed;
-            self.last_request_us = self.now_us;
         }
+        self.kit.hold_watchdog(false);
         events
-    }
-
-    /// Appends a telemetry sample to `events`, unless the step already holds
-    /// [`MAX_EVENTS_PER_STEP`]: a valid request sequence (5 ms telemetry, a 100 m move at
-    /// 1 mm/s) asks for 2·10⁷ samples at once in virtual time. Beyond the bound a sample is
-    /// skipped as a link would lose it (its index is used up, so the host counts it lost).
-    fn emit_telemetry(&mut self, events: &mut Vec<Frame>) {
-        if events.len() < MAX_EVENTS_PER_STEP {
-            events.extend(self.telemetry_frame());
-        } else {
-            self.sample_index = self.sample_index.wrapping_add(1);
-            self.counters.telemetry_over_bound += 1;
-        }
-    }
-
-    fn telemetry_frame(&mut self) -> Option<Frame> {
-        self.counters.telemetry_samples += 1;
-        let (left_counts, right_counts) = self.encoders();
-        let status = self.status();
-        let (heading_urad, heading_valid) = self.heading_urad();
-        let t = Telemetry {
-            sample_index: self.sample_index,
-            timestamp_us: self.now_us as u32,
-            left_counts,
-            right_counts,
-            heading_urad,
-            heading_valid,
-            motion_state: status.motion_state,
-            queue_depth: status.queue_depth,
-        };
-        self.sample_index = self.sample_index.wrapping_add(1);
-        let seq = self.next_event_seq();
-        Some(Packet::event(seq, Event::Telemetry(t)).to_frame())
     }
 }

@@ -12,6 +12,9 @@ pub enum MockError {
     /// The factory parameters cannot travel on the wire (SPEC.md §4.1).
     #[error("factory parameters {0:?} are outside the protocol's ranges (SPEC.md §4.1)")]
     FactoryOutOfRange(WheelParams),
+    /// The device kit refused the configuration.
+    #[error("device: {0}")]
+    Device(#[from] crate::protocol::device::ConfigError),
     /// A fault specification (`corrupt=0.01,drop=0.05,…`) that cannot be used.
     #[error("faults: {0}")]
     Faults(String),

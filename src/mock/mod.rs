@@ -2,12 +2,14 @@
 //!
 //! [`device`] is firmware that speaks `protocol/SPEC.md` (protocol semantics, motion,
 //! telemetry, non-volatile parameters, a watchdog, seeded faults); [`mod@serve`] puts it on an
-//! in-memory duplex or a real pseudo-terminal, in virtual or scaled real time. [`sim_base`] is
+//! in-memory duplex or a real pseudo-terminal, in virtual or scaled real time. [`kit`] is the
+//! protocol crate's device kit as it comes (an ideal board) on a pseudo-terminal. [`sim_base`] is
 //! the same simulator as a [`crate::base`] backend in process, with no protocol at all;
 //! [`rosbridge`] is a ROS 2 robot behind a mock rosbridge server on a loopback socket.
 
 pub mod device;
 pub mod error;
+pub mod kit;
 pub mod nmea;
 pub mod pty;
 pub mod roboclaw;
@@ -22,7 +24,7 @@ pub use device::{
     CompassConvention, DeviceCounters, MockConfig, MockDevice, MockError, MAX_EVENTS_PER_STEP,
 };
 pub use serve::{
-    heading_sensor, lock, serve, spawn_duplex, spawn_pty, FaultConfig, ServeEnd, SharedDevice,
+    lock, separate_compass, serve, spawn_duplex, spawn_pty, FaultConfig, ServeEnd, SharedDevice,
     TimeMode,
 };
 

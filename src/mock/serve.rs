@@ -18,11 +18,12 @@ pub const INTER_BYTE_GAP: Duration = Duration::from_millis(20);
 /// A device shared between its server task and observers (tests, the CLI).
 pub type SharedDevice = Arc<Mutex<MockDevice>>;
 
-/// The device's heading sensor (its errors included), for a mock compass mounted on its
-/// robot ([`super::nmea`]).
-pub fn heading_sensor(device: &SharedDevice) -> super::nmea::HeadingFn {
+/// A second sensor on the device's robot (the `--nmea` compass beside its own): the true
+/// heading, to which the compass adds only its own noise. It shares none of the device's own
+/// sensor's errors, so a gyro can be measured against it.
+pub fn separate_compass(device: &SharedDevice) -> super::nmea::HeadingFn {
     let device = device.clone();
-    Arc::new(move || lock(&device).sim_mut().heading_reading())
+    Arc::new(move || Some(lock(&device).sim().pose().heading_rad))
 }
 
 /// Locks a shared device; a panic elsewhere while holding the lock does not make the device's

@@ -234,15 +234,22 @@ fn read_bounded(path: &Path) -> Result<String, ProfileError> {
     })
 }
 
+/// The profile's text as an editable document (comments and layout kept).
+fn document(text: &str, path: &Path) -> Result<toml_edit::DocumentMut, ProfileError> {
+    text.parse()
+        .map_err(|e: toml_edit::TomlError| ProfileError::Invalid {
+            path: path.to_path_buf(),
+            message: e.to_string(),
+        })
+}
+
 /// `text` with the geometry set to `p`'s diameters and wheelbase, everything else untouched.
 pub fn with_geometry(text: &str, p: &WheelParams, path: &Path) -> Result<String, ProfileError> {
     let invalid = |message: String| ProfileError::Invalid {
         path: path.to_path_buf(),
         message,
     };
-    let mut doc: toml_edit::DocumentMut = text
-        .parse()
-        .map_err(|e: toml_edit::TomlError| invalid(e.to_string()))?;
+    let mut doc = document(text, path)?;
     let g = doc
         .get_mut("geometry")
         .and_then(|g| g.as_table_like_mut())
@@ -285,9 +292,7 @@ pub fn with_heading(
         path: path.to_path_buf(),
         message,
     };
-    let mut doc: toml_edit::DocumentMut = text
-        .parse()
-        .map_err(|e: toml_edit::TomlError| invalid(e.to_string()))?;
+    let mut doc = document(text, path)?;
     let table = doc
         .entry("heading")
         .or_insert(toml_edit::table())

@@ -51,18 +51,18 @@ impl NoisePool {
         }
     }
 
-    /// Whether this rest's spread could come from readings of noise `sigma_rad` alone: its
-    /// sample variance within the 99.9 % quantile of σ²·χ²ₖ/k (Wilson–Hilferty). A rest
-    /// beyond it was not at rest (the robot still settling, a bump); its readings say nothing
-    /// about the sensor.
-    pub fn consistent_with(&self, sigma_rad: f64) -> bool {
-        if self.dof == 0 || sigma_rad.is_nan() || sigma_rad <= 0.0 {
+    /// Whether this rest's spread could come from the same noise as `reference` (the
+    /// pre-flight's readings): the ratio of their variances within the 99.9 % point of
+    /// F(dof, reference dof) (Paulson's approximation), so a reference that by chance came out
+    /// low flags nothing extra. A rest beyond it was not at rest (the robot still settling, a
+    /// bump); its readings say nothing about the sensor.
+    pub fn consistent_with(&self, reference: &NoisePool) -> bool {
+        let sigma = reference.std_rad();
+        if self.dof == 0 || reference.dof == 0 || sigma.is_nan() || sigma <= 0.0 {
             return true;
         }
-        let k = self.dof as f64;
-        let h = 2.0 / (9.0 * k);
-        let chi2_999 = k * (1.0 - h + 3.09 * h.sqrt()).powi(3);
-        self.sum_sq_rad2 <= sigma_rad * sigma_rad * chi2_999
+        let ratio = self.std_rad().powi(2) / (sigma * sigma);
+        ratio <= f_quantile_999(self.dof as f64, reference.dof as f64)
     }
 
     /// The pooled standard deviation of one reading (rad); 0 without degrees of freedom.
@@ -73,6 +73,21 @@ impl NoisePool {
             (self.sum_sq_rad2 / self.dof as f64).sqrt()
         }
     }
+}
+
+/// The 99.9 % point of the F distribution with `d1` and `d2` degrees of freedom, by
+/// Paulson's normal approximation of F^(1/3) (a few per cent high from d1 = 2 on, so a rest
+/// is flagged a little less often than one in a thousand, never more).
+fn f_quantile_999(d1: f64, d2: f64) -> f64 {
+    const Z2: f64 = 3.090_232 * 3.090_232;
+    let (c1, c2) = (2.0 / (9.0 * d1), 2.0 / (9.0 * d2));
+    let (a, b) = (1.0 - c2, 1.0 - c1);
+    let qa = a * a - Z2 * c2;
+    let disc = (a * b).powi(2) - qa * (b * b - Z2 * c1);
+    if qa <= 0.0 || disc < 0.0 {
+        return f64::INFINITY;
+    }
+    ((a * b + disc.sqrt()) / qa).powi(3)
 }
 
 /// The heading at rest: the circular mean of its readings and their spread.
@@ -156,13 +171,18 @@ mod tests {
     #[test]
     fn a_rest_that_moved_is_told_from_one_that_is_noisy() {
         let sigma = 0.01;
-        // Four readings at ±σ: consistent; the same rest drifting 5σ across is not.
+        let known = |dof: usize| NoisePool {
+            sum_sq_rad2: sigma * sigma * dof as f64,
+            dof,
+        };
+        // Four readings at ±σ: consistent; the same rest drifting 6σ across is not.
         let quiet = NoisePool::of(&[0.5 - sigma, 0.5 + sigma, 0.5 - sigma, 0.5 + sigma]);
-        assert!(quiet.consistent_with(sigma));
+        assert!(quiet.consistent_with(&known(49)));
         let drifting =
             NoisePool::of(&[0.5, 0.5 + 2.0 * sigma, 0.5 + 4.0 * sigma, 0.5 + 6.0 * sigma]);
-        assert!(!drifting.consistent_with(sigma));
-        // The 99.9 % point of χ²₄ is 18.47: just inside and just outside.
+        assert!(!drifting.consistent_with(&known(49)));
+        // Against a σ known exactly, the 99.9 % point of χ²₄/4 (18.47/4): just inside, just
+        // outside; against 49 readings, F(4, 49)'s (about 5.5) lets the second through.
         let inside = NoisePool {
             sum_sq_rad2: 18.3 * sigma * sigma,
             dof: 4,
@@ -171,6 +191,34 @@ mod tests {
             sum_sq_rad2: 19.0 * sigma * sigma,
             dof: 4,
         };
-        assert!(inside.consistent_with(sigma) && !outside.consistent_with(sigma));
+        let exact = known(1_000_000);
+        assert!(inside.consistent_with(&exact) && !outside.consistent_with(&exact));
+        assert!(outside.consistent_with(&known(49)));
+        let beyond = NoisePool {
+            sum_sq_rad2: 25.0 * sigma * sigma,
+            dof: 4,
+        };
+        assert!(!beyond.consistent_with(&known(49)));
+    }
+
+    #[test]
+    fn f_quantiles_are_close_to_the_tables() {
+        // Printed tables' 99.9 % points: F(8, 40) 4.00, F(4, 40) 5.70, F(4, 60) 5.31,
+        // F(2, 120) 7.32, and F(8, ∞) = χ²₈/8 = 3.27.
+        for (d1, d2, want) in [
+            (8.0, 40.0, 4.00),
+            (4.0, 40.0, 5.70),
+            (4.0, 60.0, 5.31),
+            (2.0, 120.0, 7.32),
+            (8.0, 1e7, 3.27),
+        ] {
+            let got = f_quantile_999(d1, d2);
+            // High by up to 6 % (F(8, 40)), never low: a rest is flagged a little less often.
+            let r = got / want;
+            assert!(
+                (0.99..1.07).contains(&r),
+                "F({d1}, {d2}) = {got}, table {want}"
+            );
+        }
     }
 }

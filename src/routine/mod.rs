@@ -168,7 +168,7 @@ pub async fn run(
         tx,
         progress: Progress::default(),
         noise: heading::NoisePool::default(),
-        preflight_noise_rad: 0.0,
+        preflight_noise: heading::NoisePool::default(),
         moving_rests: 0,
         warnings: Vec::new(),
         start_heading_rad: None,
@@ -194,8 +194,8 @@ struct Calibration<'a> {
     progress: Progress,
     /// The spread of every rest's readings so far: the heading sensor's noise.
     noise: heading::NoisePool,
-    /// The pre-flight's σ, which every rest after is judged against (rad).
-    preflight_noise_rad: f64,
+    /// The pre-flight's readings' spread, which every rest after is judged against.
+    preflight_noise: heading::NoisePool,
     /// Rests whose readings spread beyond the sensor's noise: the robot had not settled.
     moving_rests: usize,
     warnings: Vec<String>,
@@ -373,7 +373,7 @@ impl Calibration<'_> {
             other => other?,
         };
         self.noise = heading::NoisePool::of(&readings);
-        self.preflight_noise_rad = self.noise.std_rad();
+        self.preflight_noise = self.noise;
         self.stage(format!(
             "heading noise at rest: {:.3}° (σ of {} readings; refined by every rest that follows)",
             self.noise.std_rad().to_degrees(),
@@ -406,7 +406,7 @@ impl Calibration<'_> {
     /// Adds a square's readings at rest to the noise estimate, unless their spread shows the
     /// robot was still moving (judged against the pre-flight's σ), which is counted instead.
     fn pool_rest_noise(&mut self, rec: &SquareRecord) {
-        if rec.rest_noise.consistent_with(self.preflight_noise_rad) {
+        if rec.rest_noise.consistent_with(&self.preflight_noise) {
             self.noise = self.noise.plus(rec.rest_noise);
         } else {
             self.moving_rests += 1;

@@ -369,6 +369,16 @@ impl Simulator {
         self.advance_plan(&plan, 0.0, 1.0)
     }
 
+    /// Draws the slip of one motion: the factors (left, right) by which each wheel's true
+    /// travel differs from its commanded travel, 1 without slip noise.
+    pub fn slip_factors(&mut self) -> (f64, f64) {
+        let slip = self.noise.wheel_slip_sigma;
+        (
+            1.0 + gaussian(&mut self.rng, slip),
+            1.0 + gaussian(&mut self.rng, slip),
+        )
+    }
+
     /// Executes one motion open-loop and moves the true robot.
     pub fn execute(&mut self, motion: &Motion) -> Result<MotionOutcome, SimError> {
         let plan = self.plan(motion)?;

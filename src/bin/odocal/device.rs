@@ -97,7 +97,7 @@ pub async fn mock_device(args: MockArgs) -> CliResult {
     };
     let _compass = args
         .compass
-        .spawn(odocal::mock::heading_sensor(&device), scale)?;
+        .spawn(odocal::mock::separate_compass(&device), scale)?;
     if let Some(link) = &args.link {
         std::fs::write(link, format!("{}\n", server.path))?;
     }

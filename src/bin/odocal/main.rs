@@ -1,5 +1,6 @@
 //! The `odocal` command line: parses arguments, calls the library, prints tables or JSON.
 
+mod conformance;
 mod device;
 mod estimate;
 mod plan;
@@ -54,6 +55,12 @@ enum Command {
     Replay(replay::Args),
     /// Serve a simulated robot base on a new pseudo-terminal (prints its path first).
     MockDevice(device::MockArgs),
+    /// Check a device against the protocol's rules (SPEC.md §7) in real time: moves the robot
+    /// (short motions at low speed; asks first unless --yes).
+    Conformance(conformance::Args),
+    /// Serve the protocol crate's device kit (an ideal robot) on a new pseudo-terminal.
+    #[command(hide = true)]
+    KitDevice(conformance::KitArgs),
     /// Read, write, save or restore the controller's kinematic parameters.
     Params {
         #[command(subcommand)]
@@ -114,7 +121,8 @@ impl ConventionArgs {
 #[derive(Debug, Clone, clap::Args)]
 pub struct MockCompassArgs {
     /// Also serve an NMEA 0183 compass on the robot, on a pseudo-terminal of its own (printed
-    /// as nmea:PATH on the next line).
+    /// as nmea:PATH on the next line): a second sensor, the true heading with its own noise,
+    /// sharing none of the robot's own heading sensor's errors.
     #[arg(long)]
     nmea: bool,
     /// Sentences per second of robot time of the --nmea compass.
@@ -315,6 +323,8 @@ fn main() -> ExitCode {
         Command::Simulate(args) => simulate::run(args),
         Command::Replay(args) => replay::run(args),
         Command::MockDevice(args) => block_on(device::mock_device(args)),
+        Command::Conformance(args) => block_on(conformance::run(args)),
+        Command::KitDevice(args) => block_on(conformance::kit_device(args)),
         Command::Params { command } => block_on(device::params(command)),
         Command::Status(port) => block_on(device::status(port)),
         Command::Heading(args) => block_on(device::heading(args)),

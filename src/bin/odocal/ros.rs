@@ -153,7 +153,7 @@ pub fn run(args: BagArgs) -> Result<(), Box<dyn std::error::Error>> {
         )?);
     }
     let nominal = nominal_of_first.unwrap_or((f64::NAN, f64::NAN));
-    let pooled = pool_bags(&reports, nominal, args.convention, args.heading_kind)?;
+    let pooled = bag::pool(&reports, nominal, args.convention, args.heading_kind)?;
     if args.json {
         if let [report] = reports.as_slice() {
             let mut v = serde_json::to_value(report)?;
@@ -207,65 +207,6 @@ pub fn run(args: BagArgs) -> Result<(), Box<dyn std::error::Error>> {
         println!("default method (what calibrate would write): {m}");
     }
     Ok(())
-}
-
-/// Every bag's estimates pooled.
-struct PooledBags {
-    methods: odocal::calibration::pool::PooledMethods,
-    estimates: Vec<bag::BagEstimate>,
-    default_method: Option<odocal::calibration::Method>,
-}
-
-fn pool_bags(
-    reports: &[bag::BagReport],
-    nominal: (f64, f64),
-    convention: SplitConvention,
-    kind: odocal::calibration::HeadingKind,
-) -> Result<PooledBags, Box<dyn std::error::Error>> {
-    use odocal::calibration::pool::{pool_methods, RecordingEstimates};
-    let per: Vec<Vec<_>> = reports
-        .iter()
-        .map(|r| r.estimates.iter().map(|e| e.estimate.clone()).collect())
-        .collect();
-    let recordings: Vec<_> = reports
-        .iter()
-        .zip(&per)
-        .map(|(r, estimates)| {
-            let count = |d| r.runs.iter().filter(|run| run.direction == d).count();
-            RecordingEstimates {
-                name: r.file.display().to_string(),
-                configured: r.configured,
-                estimates,
-                runs_per_direction: count(odocal::kinematics::Direction::Cw)
-                    .min(count(odocal::kinematics::Direction::Ccw)),
-            }
-        })
-        .collect();
-    let target = reports
-        .first()
-        .map(|r| r.configured)
-        .ok_or("no bag given")?;
-    let methods = pool_methods(&recordings, &target, convention)?;
-    let estimates = methods
-        .estimates
-        .iter()
-        .map(|e| {
-            Ok(bag::BagEstimate {
-                multipliers: bag::multipliers(&e.correction.apply(&target)?, nominal),
-                estimate: e.clone(),
-            })
-        })
-        .collect::<Result<Vec<_>, odocal::kinematics::KinematicsError>>()?;
-    let all_legs = reports
-        .iter()
-        .all(|r| r.runs.iter().all(|run| run.leg_heading_error_rad.is_some()));
-    let default_method = odocal::calibration::default_method(all_legs, false, kind)
-        .filter(|m| methods.estimates.iter().any(|e| e.method == *m));
-    Ok(PooledBags {
-        methods,
-        estimates,
-        default_method,
-    })
 }
 
 fn print_bag(report: &bag::BagReport, ros: &RosArgs) {
@@ -424,7 +365,7 @@ pub async fn mock(args: MockArgs) -> Result<(), Box<dyn std::error::Error>> {
     println!("{}", server.url());
     let _compass = args
         .compass
-        .spawn(server.heading_sensor(), args.time_scale)?;
+        .spawn(server.separate_compass(), args.time_scale)?;
     eprintln!(
         "mock rosbridge: a ROS 2 robot with diff_drive_controller (true E_b {}, E_d {}) on {}; \
          /joint_states, /odom, /imu; obeys {} ({}). Ctrl-C{} stops it.",

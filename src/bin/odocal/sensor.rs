@@ -5,10 +5,12 @@
 use crate::robot::RobotArgs;
 use odocal::base::HeadingKind;
 use odocal::calibration::gyro::scale_from_spin;
+use odocal::kinematics::wrap_angle;
 use odocal::roboclaw::profile::{save_heading, HeadingSection};
+use odocal::routine::heading::mean_heading;
 use odocal::routine::spin::run_spin;
 use odocal::routine::swing::{run_swing, SwingCommand};
-use odocal::spec::{RobotSection, StoreSpec};
+use odocal::spec::{HeadingSpec, RobotSection, StoreSpec};
 use serde_json::json;
 use std::time::Duration;
 
@@ -53,9 +55,14 @@ pub struct SpinArgs {
     #[arg(long, default_value_t = 10)]
     heading_samples: usize,
     /// How far past the start mark the robot stopped (deg, in the direction it turned;
-    /// negative when short of it). Asked for when not given.
+    /// negative when short of it). Asked for when not given and there is no --reference.
     #[arg(long, allow_hyphen_values = true)]
     past_mark_deg: Option<f64>,
+    /// A compass that sees the same turn (a heading spec, e.g. nmea:PORT): it tells where the
+    /// robot stopped instead of a floor mark. Over whole turns its deviation is the same at
+    /// both ends.
+    #[arg(long, conflicts_with = "past_mark_deg")]
+    reference: Option<String>,
     /// Turn without asking first.
     #[arg(long)]
     yes: bool,
@@ -64,7 +71,7 @@ pub struct SpinArgs {
     json: bool,
 }
 
-fn confirm(yes: bool, what: &str) -> CliResult {
+pub fn confirm(yes: bool, what: &str) -> CliResult {
     if yes || crate::prompt::yes(&format!("{what} Is the area clear?")) {
         Ok(())
     } else {
@@ -199,11 +206,28 @@ pub async fn spin(args: SpinArgs) -> CliResult {
         .into());
     }
     let base = args.robot.spec(RobotSection::default())?.open().await?;
+    let reference = match &args.reference {
+        Some(text) => Some(
+            text.parse::<HeadingSpec>()?
+                .open()
+                .await?
+                .ok_or("--reference: give a heading source of its own (nmea:PORT…), not drive")?,
+        ),
+        None => None,
+    };
+    let reference_before = match &reference {
+        Some(r) => Some(mean_heading(r.as_ref(), args.heading_samples).await?),
+        None => None,
+    };
     confirm(
         args.yes,
         &format!(
-            "Mark the robot's heading on the floor (a line along its side). It will turn in \
-             place {} full turn(s) {} at up to {} rad/s.",
+            "{}It will turn in place {} full turn(s) {} at up to {} rad/s.",
+            if reference.is_some() {
+                ""
+            } else {
+                "Mark the robot's heading on the floor (a line along its side). "
+            },
             args.turns.unsigned_abs(),
             if args.turns > 0 {
                 "counter-clockwise"
@@ -220,9 +244,14 @@ pub async fn spin(args: SpinArgs) -> CliResult {
             return Err("interrupted: the robot was stopped".into());
         }
     };
-    let past_deg = match args.past_mark_deg {
-        Some(d) => d,
-        None => crate::prompt::answer(
+    let sign = f64::from(args.turns.signum());
+    let past_deg = match (args.past_mark_deg, &reference, reference_before) {
+        (Some(d), _, _) => d,
+        (None, Some(r), Some(before)) => {
+            let after = mean_heading(r.as_ref(), args.heading_samples).await?;
+            sign * wrap_angle(after - before).to_degrees()
+        }
+        _ => crate::prompt::answer(
             "How far past the mark did it stop, in degrees, in the direction it turned \
              (negative if short of it)?",
         )?
@@ -241,6 +270,7 @@ pub async fn spin(args: SpinArgs) -> CliResult {
             serde_json::to_string_pretty(&json!({
                 "spin": record,
                 "past_mark_deg": past_deg,
+                "past_mark_from": if reference.is_some() { "reference" } else { "mark" },
                 "gyro_scale_error": s,
             }))?
         );

@@ -291,11 +291,11 @@ impl MockRosbridge {
         lock(&self.state)
     }
 
-    /// The robot's heading sensor (its errors included), for a mock compass mounted on it
-    /// ([`super::nmea`]).
-    pub fn heading_sensor(&self) -> super::nmea::HeadingFn {
+    /// A second sensor on the robot (the `--nmea` compass beside its IMU): the true heading, to
+    /// which the compass adds only its own noise; it shares none of the IMU's errors.
+    pub fn separate_compass(&self) -> super::nmea::HeadingFn {
         let state = self.state.clone();
-        Arc::new(move || lock(&state).sim.heading_reading())
+        Arc::new(move || Some(lock(&state).sim.pose().heading_rad))
     }
 
     /// rosbridge crashes: every connection drops and nothing listens; the robot keeps running.

@@ -7,12 +7,15 @@ use super::{BagData, BagError, BagOptions, JointSample};
 use crate::calibration::online::{
     Excitation, GateStats, OnlineConfig, OnlineEstimate, ScaleSource,
 };
+use crate::calibration::pool::{pool_methods, PooledMethods, RecordingEstimates};
 use crate::calibration::recording::{Clocks, HeadingSample, Recording, TravelSample, Validity};
 use crate::calibration::segment::{find_squares, RunSegment, SegmentOptions};
 use crate::calibration::time_offset::TimeOffset;
 use crate::calibration::tracker::Tracker;
-use crate::calibration::{estimate_all, Estimate, Method, RunMeasurement, SquareTest};
-use crate::kinematics::{wrap_angle, SplitConvention, WheelParams};
+use crate::calibration::{
+    default_method, estimate_all, Estimate, HeadingKind, Method, RunMeasurement, SquareTest,
+};
+use crate::kinematics::{wrap_angle, Direction, SplitConvention, WheelParams};
 use crate::ros::yaml::{Multipliers, RAD_PER_REV};
 use serde::Serialize;
 use std::path::{Path, PathBuf};
@@ -454,4 +457,68 @@ mod tests {
         assert!((exact.multipliers.wheel_separation_multiplier - 0.976).abs() < 1e-6);
         std::fs::remove_dir_all(&dir).unwrap();
     }
+}
+
+/// Several bags of one robot, every method's estimates pooled ([`pool_methods`]) onto the
+/// first bag's configured parameters.
+#[derive(Debug, Clone, Serialize)]
+pub struct PooledBags {
+    /// The pooled estimates, and the methods some bag could not estimate.
+    pub methods: PooledMethods,
+    /// Each pooled estimate with its multipliers.
+    pub estimates: Vec<BagEstimate>,
+    /// What `calibrate` would write, when every bag supports it.
+    pub default_method: Option<Method>,
+}
+
+/// Pools the estimates of `reports` (bags of one robot whose heading sensor is `kind`);
+/// multipliers are relative to `nominal` (wheel radius, separation).
+pub fn pool(
+    reports: &[BagReport],
+    nominal: (f64, f64),
+    convention: SplitConvention,
+    kind: HeadingKind,
+) -> Result<PooledBags, BagError> {
+    let per: Vec<Vec<Estimate>> = reports
+        .iter()
+        .map(|r| r.estimates.iter().map(|e| e.estimate.clone()).collect())
+        .collect();
+    let recordings: Vec<RecordingEstimates<'_>> = reports
+        .iter()
+        .zip(&per)
+        .map(|(r, estimates)| {
+            let count = |d| r.runs.iter().filter(|run| run.direction == d).count();
+            RecordingEstimates {
+                name: r.file.display().to_string(),
+                configured: r.configured,
+                estimates,
+                runs_per_direction: count(Direction::Cw).min(count(Direction::Ccw)),
+            }
+        })
+        .collect();
+    let target = reports
+        .first()
+        .map(|r| r.configured)
+        .ok_or(BagError::NoBags)?;
+    let methods = pool_methods(&recordings, &target, convention)?;
+    let estimates = methods
+        .estimates
+        .iter()
+        .map(|e| {
+            Ok(BagEstimate {
+                multipliers: multipliers(&e.correction.apply(&target)?, nominal),
+                estimate: e.clone(),
+            })
+        })
+        .collect::<Result<Vec<_>, BagError>>()?;
+    let all_legs = reports
+        .iter()
+        .all(|r| r.runs.iter().all(|run| run.leg_heading_error_rad.is_some()));
+    let default_method = default_method(all_legs, false, kind)
+        .filter(|m| methods.estimates.iter().any(|e| e.method == *m));
+    Ok(PooledBags {
+        methods,
+        estimates,
+        default_method,
+    })
 }

@@ -28,8 +28,8 @@ pub mod sqlite3;
 pub mod writer;
 
 pub use analyse::{
-    analyse, find_runs, infer_geometry, multipliers, BagEstimate, BagReport, BagRun,
-    GeometrySource, InferredGeometry,
+    analyse, find_runs, infer_geometry, multipliers, pool, BagEstimate, BagReport, BagRun,
+    GeometrySource, InferredGeometry, PooledBags,
 };
 pub use decode::{read_bag, read_bag_bytes};
 
@@ -190,6 +190,15 @@ ROS 1 serialization"
         #[source]
         source: WireError,
     },
+    /// No bag was given to pool.
+    #[error("no bag given")]
+    NoBags,
+    /// The bags' estimates could not be pooled or applied.
+    #[error("pooling the bags: {0}")]
+    Pool(#[from] crate::calibration::CalibrationError),
+    /// A pooled estimate makes no physical parameters.
+    #[error("pooling the bags: {0}")]
+    Params(#[from] crate::kinematics::KinematicsError),
     /// The wheel joints cannot be identified.
     #[error("cannot tell the wheel joints in `{topic}` (names: {}); give them (--left-joint/--right-joint or the YAML's left/right_wheel_names)", names.join(", "))]
     Joints {
@@ -362,8 +371,10 @@ pub trait Container {
     /// Every channel, when the container lists them before its messages (an index or a
     /// summary); `None` when they are only learnt while reading.
     fn channels(&self) -> Option<Vec<Channel>>;
-    /// The key-value metadata record `name`, when the container has one.
-    fn metadata(&self, name: &str) -> Option<BTreeMap<String, String>>;
+    /// The key-value metadata record `name`, when the container has one (most have none).
+    fn metadata(&self, _name: &str) -> Option<BTreeMap<String, String>> {
+        None
+    }
     /// Hands every message to `each`, in the container's order; an error of `each` ends it.
     fn messages(
         &self,

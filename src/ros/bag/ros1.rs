@@ -332,10 +332,6 @@ impl Container for Ros1Bag {
         self.indexed.as_ref().map(|c| c.values().cloned().collect())
     }
 
-    fn metadata(&self, _name: &str) -> Option<BTreeMap<String, String>> {
-        None
-    }
-
     fn messages(
         &self,
         each: &mut dyn FnMut(RawMessage<'_>) -> Result<(), BagError>,

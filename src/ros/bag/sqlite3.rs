@@ -227,10 +227,6 @@ impl Container for Sqlite3Bag {
         Some(self.topics.values().cloned().collect())
     }
 
-    fn metadata(&self, _name: &str) -> Option<BTreeMap<String, String>> {
-        None
-    }
-
     fn messages(
         &self,
         each: &mut dyn FnMut(RawMessage<'_>) -> Result<(), BagError>,

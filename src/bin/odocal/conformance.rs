@@ -1,0 +1,165 @@
+//! `odocal conformance` (**moves the robot**) and the hidden `odocal kit-device`: a device
+//! checked against SPEC.md §7 in real time, and the protocol crate's device kit served as one.
+
+type CliResult = Result<(), Box<dyn std::error::Error>>;
+use odocal::hal::conformance::{self, Options, Outcome, RuleResult};
+use odocal::protocol::message::ParamsBlock;
+use std::path::PathBuf;
+
+/// Arguments of `odocal conformance`.
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// Serial port of the device (e.g. /dev/ttyUSB0, or the path `odocal mock-device` printed).
+    #[arg(long)]
+    port: String,
+    /// Baud rate.
+    #[arg(long, default_value_t = 115_200)]
+    baud: u32,
+    /// Wheel speed limit of every motion (m/s, 0.05 to 1); turn rates follow from it and the
+    /// wheelbase.
+    #[arg(long, default_value_t = 0.1)]
+    max_speed_m_s: f64,
+    /// Check only this SPEC section (e.g. 7.3; repeatable).
+    #[arg(long = "rule")]
+    rules: Vec<String>,
+    /// The device's clock runs this many times faster than the wall clock: a simulator such as
+    /// `odocal mock-device --real-time K` (1 for hardware).
+    #[arg(long, default_value_t = 1.0)]
+    time_scale: f64,
+    /// Print JSON instead of one line per rule.
+    #[arg(long)]
+    json: bool,
+    /// Do not ask before moving the robot.
+    #[arg(long)]
+    yes: bool,
+}
+
+fn line(r: &RuleResult) -> String {
+    let outcome = match r.outcome {
+        Outcome::Pass => "PASS",
+        Outcome::Fail => "FAIL",
+        Outcome::Skip => "SKIP",
+    };
+    let reason = r
+        .reason
+        .as_deref()
+        .map_or_else(String::new, |why| format!(" — {why}"));
+    format!("{outcome}  §{:<5} {}{reason}", r.section, r.rule)
+}
+
+/// Stops the base on its own link (after an error or Ctrl-C ended the checks' link).
+async fn stop_base(port: &str, baud: u32) {
+    match odocal::hal::open_port(port, baud).await {
+        Ok((client, _)) => {
+            if let Err(e) = client.stop().await {
+                eprintln!("warning: STOP failed: {e}");
+            }
+            client.close().await;
+        }
+        Err(e) => eprintln!("warning: could not reopen {port} to send STOP: {e}"),
+    }
+}
+
+/// Runs `odocal conformance`: **moves the robot**.
+pub async fn run(args: Args) -> CliResult {
+    let options = Options {
+        max_speed_m_s: args.max_speed_m_s,
+        time_scale: args.time_scale,
+        only: args.rules.clone(),
+    };
+    crate::in_range(
+        "--max-speed-m-s",
+        args.max_speed_m_s,
+        conformance::MIN_SPEED_M_S,
+        1.0,
+    )?;
+    crate::in_range("--time-scale", args.time_scale, 1.0, 100.0)?;
+    crate::sensor::confirm(
+        args.yes,
+        &format!(
+            "odocal conformance MOVES THE ROBOT: short drives and turns in place (one of them \
+             up to two full turns, stopped at once) at up to {} m/s per wheel, for a minute or \
+             so. Ctrl-C stops the base.",
+            args.max_speed_m_s
+        ),
+    )?;
+    let json = args.json;
+    let checks = conformance::run_port(&args.port, args.baud, &options, |r| {
+        if !json {
+            println!("{}", line(r));
+        }
+    });
+    let report = tokio::select! {
+        r = checks => r,
+        _ = tokio::signal::ctrl_c() => {
+            stop_base(&args.port, args.baud).await;
+            return Err("interrupted: the base was stopped".into());
+        }
+    };
+    let report = match report {
+        Ok(r) => r,
+        Err(e) => {
+            stop_base(&args.port, args.baud).await;
+            return Err(format!("conformance stopped: {e} (the base was stopped)").into());
+        }
+    };
+    let (pass, fail, skip) = (
+        report.count(Outcome::Pass),
+        report.count(Outcome::Fail),
+        report.count(Outcome::Skip),
+    );
+    if json {
+        crate::print_json(&serde_json::to_value(&report)?)?;
+    } else {
+        println!(
+            "{} ({}): {pass} passed, {fail} failed, {skip} skipped",
+            report.device.firmware_id, args.port
+        );
+    }
+    if fail > 0 {
+        return Err(format!("{fail} rule(s) failed").into());
+    }
+    Ok(())
+}
+
+/// Arguments of the hidden `odocal kit-device`.
+#[derive(Debug, clap::Args)]
+pub struct KitArgs {
+    /// Run the device's clock this many times faster than the wall clock.
+    #[arg(long, default_value_t = 1.0)]
+    real_time: f64,
+    /// Also write the terminal's path to this file.
+    #[arg(long)]
+    link: Option<PathBuf>,
+    /// Serve until Ctrl-C only (by default closing stdin also stops the device).
+    #[arg(long)]
+    ignore_stdin: bool,
+}
+
+/// Runs `odocal kit-device`: the protocol crate's device kit over its ideal board (a robot
+/// with 0.15 m wheels, a 0.39 m wheelbase and 4096 counts per revolution) on a new
+/// pseudo-terminal, whose path it prints first.
+pub async fn kit_device(args: KitArgs) -> CliResult {
+    crate::in_range("--real-time", args.real_time, 0.01, 1000.0)?;
+    let robot = ParamsBlock {
+        left_wheel_diameter_nm: 150_000_000,
+        right_wheel_diameter_nm: 150_000_000,
+        wheelbase_nm: 390_000_000,
+        counts_per_wheel_rev_micro: 4_096_000_000,
+    };
+    let device = odocal::mock::kit::kit_device(robot, args.real_time)?;
+    let server = odocal::mock::kit::spawn_kit_pty(device, args.real_time)?;
+    println!("{}", server.path);
+    if let Some(link) = &args.link {
+        std::fs::write(link, format!("{}\n", server.path))?;
+    }
+    eprintln!(
+        "kit device on {} (real time ×{}); Ctrl-C to stop",
+        server.path, args.real_time
+    );
+    crate::serve_until_stopped(args.ignore_stdin).await;
+    if let Some(link) = &args.link {
+        let _ = std::fs::remove_file(link);
+    }
+    Ok(())
+}
