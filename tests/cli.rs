@@ -966,3 +966,87 @@ fn opens_in_a_browser_with_its_plots_and_fetches_nothing(page: &std::path::Path,
     let _ = std::fs::remove_file(&probe);
     let _ = std::fs::remove_dir_all(&profile);
 }
+
+/// `calibrate --help` states every default: each option that takes a value either shows
+/// `[default: …]` or is one that has none (a port, a file, a target, a measurement).
+#[test]
+fn calibrate_help_states_every_default() {
+    let (ok, help, err) = odocal(&["calibrate", "--help"]);
+    assert!(ok, "{err}");
+    let no_default = [
+        "--port",
+        "--base",
+        "--heading",
+        "--profile",
+        "--compass-deviation-deg",
+        "--ros-yaml",
+        "--config",
+        "--target-eb-std",
+        "--target-ed-std",
+        "--gyro-scale-error",
+        "--straight-commanded-m",
+        "--straight-measured-m",
+    ];
+    // Options start a line with "-"; their help runs on until the next one.
+    let mut blocks: Vec<String> = Vec::new();
+    for line in help.lines() {
+        if line.trim_start().starts_with('-') {
+            blocks.push(String::new());
+        }
+        if let Some(b) = blocks.last_mut() {
+            b.push_str(line.trim());
+            b.push(' ');
+        }
+    }
+    let mut checked = 0;
+    for block in &blocks {
+        let name = block
+            .split_whitespace()
+            .find(|w| w.starts_with("--"))
+            .unwrap();
+        if !block.contains(" <") || no_default.contains(&name) {
+            continue;
+        }
+        checked += 1;
+        assert!(
+            block.contains("[default: "),
+            "{name} shows no default: {block}"
+        );
+    }
+    assert!(checked >= 25, "only {checked} options with a value");
+    assert!(help.contains("--side-m <SIDE_M>"), "{help}");
+}
+
+#[test]
+fn completions_and_man_pages_are_generated() {
+    let (ok, bash, err) = odocal(&["completions", "bash"]);
+    assert!(ok, "{err}");
+    assert!(
+        bash.contains("calibrate") && bash.contains("complete -F"),
+        "{bash}"
+    );
+    for shell in ["zsh", "fish", "powershell", "elvish"] {
+        let (ok, script, err) = odocal(&["completions", shell]);
+        assert!(ok && script.contains("calibrate"), "{shell}: {err}");
+    }
+    let (ok, _, err) = odocal(&["completions", "tcsh"]);
+    assert!(!ok && err.contains("possible values"), "{err}");
+    let (ok, page, err) = odocal(&["man"]);
+    assert!(ok, "{err}");
+    assert!(
+        page.starts_with(".TH odocal 1"),
+        "{}",
+        &page[..page.len().min(200)]
+    );
+    assert!(page.contains("calibrate"), "{page}");
+    let dir = scratch("man");
+    let (ok, _, err) = odocal(&["man", "--out", dir.to_str().unwrap()]);
+    assert!(ok, "{err}");
+    let calibrate = std::fs::read_to_string(dir.join("odocal-calibrate.1")).unwrap();
+    assert!(
+        calibrate.starts_with(".TH odocal-calibrate 1"),
+        "{calibrate}"
+    );
+    assert!(calibrate.contains("default"), "{calibrate}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
