@@ -967,8 +967,55 @@ fn opens_in_a_browser_with_its_plots_and_fetches_nothing(page: &std::path::Path,
     let _ = std::fs::remove_dir_all(&profile);
 }
 
-/// `calibrate --help` states every default: each option that takes a value either shows
-/// `[default: …]` or is one that has none (a port, a file, a target, a measurement).
+/// An option's help as one line (clap wraps it over several), with its name and whether it
+/// takes a value.
+struct OptionHelp {
+    name: String,
+    takes_value: bool,
+    text: String,
+}
+
+/// The options in a `--help` page: each starts a line with `-` and runs on until the next.
+fn options_in(help: &str) -> Vec<OptionHelp> {
+    let mut texts: Vec<String> = Vec::new();
+    for line in help.lines() {
+        if line.trim_start().starts_with('-') {
+            texts.push(String::new());
+        }
+        if let Some(t) = texts.last_mut() {
+            t.push_str(line.trim());
+            t.push(' ');
+        }
+    }
+    texts
+        .into_iter()
+        .filter_map(|text| {
+            let mut words = text.split_whitespace();
+            let name = words.find(|w| w.starts_with("--"))?.trim_end_matches(',');
+            let takes_value = words.next().is_some_and(|w| w.starts_with('<'));
+            Some(OptionHelp {
+                name: name.to_string(),
+                takes_value,
+                text: text.clone(),
+            })
+        })
+        .collect()
+}
+
+/// The subcommands a `--help` page lists (not `help`).
+fn subcommands_in(help: &str) -> Vec<String> {
+    help.lines()
+        .skip_while(|l| !l.starts_with("Commands:"))
+        .skip(1)
+        .take_while(|l| l.starts_with("  "))
+        .filter_map(|l| l.split_whitespace().next())
+        .filter(|c| *c != "help")
+        .map(str::to_string)
+        .collect()
+}
+
+/// `calibrate --help` states every default: each option that takes a value shows
+/// `[default: …]` unless it is one that has none (a port, a file, a target, a measurement).
 #[test]
 fn calibrate_help_states_every_default() {
     let (ok, help, err) = odocal(&["calibrate", "--help"]);
@@ -987,66 +1034,109 @@ fn calibrate_help_states_every_default() {
         "--straight-commanded-m",
         "--straight-measured-m",
     ];
-    // Options start a line with "-"; their help runs on until the next one.
-    let mut blocks: Vec<String> = Vec::new();
-    for line in help.lines() {
-        if line.trim_start().starts_with('-') {
-            blocks.push(String::new());
-        }
-        if let Some(b) = blocks.last_mut() {
-            b.push_str(line.trim());
-            b.push(' ');
+    let options: Vec<OptionHelp> = options_in(&help)
+        .into_iter()
+        .filter(|o| o.takes_value)
+        .collect();
+    for o in &options {
+        let shown = o.text.contains("[default: ");
+        if no_default.contains(&o.name.as_str()) {
+            // The list stays true: an option given a default leaves it.
+            assert!(!shown, "{} has a default now: {}", o.name, o.text);
+        } else {
+            assert!(shown, "{} shows no default: {}", o.name, o.text);
         }
     }
-    let mut checked = 0;
-    for block in &blocks {
-        let name = block
-            .split_whitespace()
-            .find(|w| w.starts_with("--"))
-            .unwrap();
-        if !block.contains(" <") || no_default.contains(&name) {
-            continue;
-        }
-        checked += 1;
-        assert!(
-            block.contains("[default: "),
-            "{name} shows no default: {block}"
-        );
+    // Every exempt option is still there, and the page was read: side, runs, speeds, method…
+    for name in no_default {
+        assert!(options.iter().any(|o| o.name == name), "no {name}: {help}");
     }
-    assert!(checked >= 25, "only {checked} options with a value");
-    assert!(help.contains("--side-m <SIDE_M>"), "{help}");
+    assert!(options.len() > no_default.len() + 20, "{help}");
+}
+
+/// In every subcommand's help, an option that takes a value and has a default states it the one
+/// way, `[default: …]`, where a reader (and the man page) looks for it, never in prose.
+#[test]
+fn every_default_in_help_is_stated_the_same_way() {
+    let mut pages = vec![Vec::<String>::new()];
+    let mut seen = 0;
+    while let Some(path) = pages.pop() {
+        let args: Vec<&str> = path.iter().map(String::as_str).chain(["--help"]).collect();
+        let (ok, help, err) = odocal(&args);
+        assert!(ok, "{args:?}: {err}");
+        seen += 1;
+        for o in options_in(&help).iter().filter(|o| o.takes_value) {
+            // "(default: …)", "Default: …", "by default …", but not "the factory defaults".
+            let prose = o.text.replace("[default: ", "").to_lowercase();
+            assert!(
+                !prose.contains("default:") && !prose.contains("by default"),
+                "odocal {} {}: {}",
+                path.join(" "),
+                o.name,
+                o.text
+            );
+        }
+        for sub in subcommands_in(&help) {
+            pages.push(path.iter().cloned().chain([sub]).collect());
+        }
+    }
+    // odocal, its subcommands, and those of params.
+    assert!(seen > 25, "only {seen} help pages");
 }
 
 #[test]
 fn completions_and_man_pages_are_generated() {
     let (ok, bash, err) = odocal(&["completions", "bash"]);
     assert!(ok, "{err}");
-    assert!(
-        bash.contains("calibrate") && bash.contains("complete -F"),
-        "{bash}"
-    );
+    // The script completes the subcommands and their flags.
+    assert!(bash.contains("complete -F"), "{bash}");
+    for word in ["calibrate", "mock-roboclaw", "completions", "--side-m"] {
+        assert!(bash.contains(word), "no {word} in the bash script");
+    }
     for shell in ["zsh", "fish", "powershell", "elvish"] {
         let (ok, script, err) = odocal(&["completions", shell]);
         assert!(ok && script.contains("calibrate"), "{shell}: {err}");
     }
     let (ok, _, err) = odocal(&["completions", "tcsh"]);
     assert!(!ok && err.contains("possible values"), "{err}");
+
+    // roff: a title line, then the sections, the subcommands among them.
     let (ok, page, err) = odocal(&["man"]);
     assert!(ok, "{err}");
     assert!(
-        page.starts_with(".TH odocal 1"),
-        "{}",
-        &page[..page.len().min(200)]
+        page.lines().any(|l| l.starts_with(".TH odocal 1")),
+        "{page}"
     );
-    assert!(page.contains("calibrate"), "{page}");
+    for section in [".SH NAME", ".SH SYNOPSIS", ".SH SUBCOMMANDS"] {
+        assert!(page.contains(section), "no {section}: {page}");
+    }
+    assert!(page.contains("odocal\\-calibrate(1)"), "{page}");
+
+    // --out: one page per subcommand (and per nested one), each its own roff document.
     let dir = scratch("man");
-    let (ok, _, err) = odocal(&["man", "--out", dir.to_str().unwrap()]);
+    let (ok, out, err) = odocal(&["man", "--out", dir.to_str().unwrap()]);
     assert!(ok, "{err}");
+    assert!(out.contains(dir.to_str().unwrap()), "{out}");
+    let (_, help, _) = odocal(&["--help"]);
+    let mut expected: Vec<String> = subcommands_in(&help)
+        .iter()
+        .map(|c| format!("odocal-{c}.1"))
+        .collect();
+    expected.push("odocal.1".into());
+    expected.push("odocal-params-restore.1".into());
+    for name in &expected {
+        let text =
+            std::fs::read_to_string(dir.join(name)).unwrap_or_else(|e| panic!("{name}: {e}"));
+        let title = format!(".TH {} 1", name.trim_end_matches(".1"));
+        assert!(
+            text.lines().any(|l| l.starts_with(&title)),
+            "{name}: {text}"
+        );
+    }
     let calibrate = std::fs::read_to_string(dir.join("odocal-calibrate.1")).unwrap();
     assert!(
-        calibrate.starts_with(".TH odocal-calibrate 1"),
+        calibrate.contains("\\-\\-side\\-m") && calibrate.contains("[default: 4]"),
         "{calibrate}"
     );
-    assert!(calibrate.contains("default"), "{calibrate}");
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -61,6 +61,21 @@ async fn headings_are_never_returned_twice_and_motions_wait_for_the_robot() {
     let a = HeadingSource::read(&robot).await.unwrap();
     let b = HeadingSource::read(&robot).await.unwrap();
     assert!(b.time_s > a.time_s, "{a:?} then {b:?}");
+    // Polled four times per compass reading, the stream still gives each reading once, and
+    // none is lost: 50 Hz for one second.
+    let mut stream = robot
+        .stream(Duration::from_millis(5))
+        .await
+        .unwrap()
+        .unwrap();
+    tokio::time::sleep(Duration::from_secs(1)).await;
+    let mut times = Vec::new();
+    while let Ok(s) = stream.try_recv() {
+        times.push(s.time_s);
+    }
+    drop(stream);
+    assert!(times.windows(2).all(|w| w[1] > w[0]), "{times:?}");
+    assert!((49..=51).contains(&times.len()), "{times:?}");
     // A motion returns once the robot has done it: 0.5 m at 0.25 m/s takes two seconds.
     let start = tokio::time::Instant::now();
     robot.move_straight(0.5, 0.25).await.unwrap();
@@ -92,6 +107,15 @@ async fn the_robot_stops_on_its_watchdog_and_refusals_are_typed() {
     assert!(!moving);
     let x = sim.lock().unwrap().pose().x_m;
     assert!((0.1..0.2).contains(&x), "the robot drove {x} m");
+    // The emergency stop needs no answer and stops a motion at once.
+    robot.ok("MOVE 2 0.5").await.unwrap();
+    tokio::time::sleep(Duration::from_millis(200)).await;
+    robot.emergency_stop();
+    let (.., moving) = robot.encoders().await.unwrap();
+    assert!(!moving);
+    tokio::time::sleep(Duration::from_millis(200)).await;
+    let x2 = sim.lock().unwrap().pose().x_m;
+    assert!((x2 - x - 0.1).abs() < 0.01, "0.1 m more, not {}", x2 - x);
     // Parameters round-trip exactly; what was saved reads back.
     let p = WheelParams::nominal(0.151, 0.3812345678, 4096.0);
     assert_eq!(ParamStore::write(&robot, &p).await.unwrap(), p);
