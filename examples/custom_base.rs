@@ -193,18 +193,6 @@ impl LineRobot {
     }
 }
 
-/// A speed or rate limit the robot can be sent.
-fn limit(what: &str, v: f64) -> Result<f64, BaseError> {
-    if v.is_finite() && v > 0.0 {
-        Ok(v)
-    } else {
-        Err(BaseError::InvalidArgument {
-            component: "drive".into(),
-            reason: format!("{what} must be positive, got {v}"),
-        })
-    }
-}
-
 #[async_trait]
 impl Drive for LineRobot {
     fn info(&self) -> ComponentInfo {
@@ -219,11 +207,11 @@ impl Drive for LineRobot {
         Ok(Some(timeout))
     }
     async fn move_straight(&self, d: f64, v: f64) -> Result<Option<Achieved>, BaseError> {
-        let v = limit("speed limit", v)?;
+        let v = BaseError::check_limit("drive", "speed limit", v)?;
         self.motion(format!("MOVE {d} {v}"), d.abs() / v).await
     }
     async fn turn_in_place(&self, a: f64, w: f64) -> Result<Option<Achieved>, BaseError> {
-        let w = limit("turn-rate limit", w)?;
+        let w = BaseError::check_limit("drive", "turn-rate limit", w)?;
         self.motion(format!("TURN {a} {w}"), a.abs() / w).await
     }
     async fn stop(&self) -> Result<(), BaseError> {

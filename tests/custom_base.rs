@@ -95,6 +95,14 @@ async fn the_robot_stops_on_its_watchdog_and_refusals_are_typed() {
         .arm_watchdog(Duration::from_millis(300))
         .await
         .unwrap();
+    // A limit that is no limit is refused here, before anything is sent.
+    for bad in [0.0, -0.2, f64::NAN, f64::INFINITY] {
+        match robot.move_straight(1.0, bad).await {
+            Err(BaseError::InvalidArgument { reason, .. }) => assert!(reason.contains("speed")),
+            other => panic!("{bad}: {other:?}"),
+        }
+    }
+    assert!(!robot.encoders().await.unwrap().3);
     // A second motion while one is under way is refused by the robot, not garbled.
     robot.ok("MOVE 2 0.5").await.unwrap();
     match robot.ok("MOVE 1 0.5").await {
