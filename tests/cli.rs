@@ -274,7 +274,18 @@ fn demo_json_reports_a_tenfold_improvement_and_writes_files() {
         );
     }
     assert!(html.contains("<th>method</th>") && html.contains("(chosen)"));
-    opens_in_a_browser_with_its_plots_and_fetches_nothing(&dir.join("report.html"));
+    // Every run of round 1 and of the verification is a trace on the paths plot (two, with
+    // the simulation's true path).
+    let runs = on_disk["rounds"][0]["runs"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .chain(on_disk["verification"].as_array().unwrap());
+    let traces: usize = runs
+        .map(|r| 1 + usize::from(r["true_path"].is_array()))
+        .sum();
+    assert!(traces >= 16, "{traces}");
+    opens_in_a_browser_with_its_plots_and_fetches_nothing(&dir.join("report.html"), traces);
     // The report exports for ros2_control.
     let yaml = dir.join("diff_drive.yaml");
     let (ok, _, err) = odocal(&[
@@ -892,8 +903,9 @@ fn chromium() -> Option<PathBuf> {
 
 /// Opens `page` in headless Chromium (with no network: nothing may be fetched) and reads back
 /// what the page itself saw once loaded: how many plots, how many drawn at a real size, how
-/// many resources were fetched. Skipped, with a notice, where no browser is installed.
-fn opens_in_a_browser_with_its_plots_and_fetches_nothing(page: &std::path::Path) {
+/// many run traces the first (the paths) shows on screen, how many resources were fetched.
+/// Skipped, with a notice, where no browser is installed.
+fn opens_in_a_browser_with_its_plots_and_fetches_nothing(page: &std::path::Path, traces: usize) {
     let Some(browser) = chromium() else {
         eprintln!("NOTICE: no headless Chromium; report.html checked by structure only");
         return;
@@ -908,8 +920,10 @@ fn opens_in_a_browser_with_its_plots_and_fetches_nothing(page: &std::path::Path)
              const svgs = [...document.querySelectorAll('svg')]; \
              const drawn = svgs.filter(s => { const r = s.getBoundingClientRect(); \
                return r.width > 200 && r.height > 150; }).length; \
+             const traces = [...svgs[0].querySelectorAll('polyline')].filter(p => \
+               p.points.length > 2 && p.getBoundingClientRect().width > 10).length; \
              document.body.setAttribute('data-probe', \
-               `svgs=${svgs.length} drawn=${drawn} \
+               `svgs=${svgs.length} drawn=${drawn} traces=${traces} \
                 fetched=${performance.getEntriesByType('resource').length}`); \
              });</script></body>",
         ),
@@ -944,7 +958,185 @@ fn opens_in_a_browser_with_its_plots_and_fetches_nothing(page: &std::path::Path)
                 String::from_utf8_lossy(&out.stderr)
             )
         });
-    assert_eq!(seen, "svgs=3 drawn=3 fetched=0", "report.html in Chromium");
+    assert_eq!(
+        seen,
+        format!("svgs=3 drawn=3 traces={traces} fetched=0"),
+        "report.html in Chromium"
+    );
     let _ = std::fs::remove_file(&probe);
     let _ = std::fs::remove_dir_all(&profile);
+}
+
+/// An option's help as one line (clap wraps it over several), with its name and whether it
+/// takes a value.
+struct OptionHelp {
+    name: String,
+    takes_value: bool,
+    text: String,
+}
+
+/// The options in a `--help` page: each starts a line with `-` and runs on until the next.
+fn options_in(help: &str) -> Vec<OptionHelp> {
+    let mut texts: Vec<String> = Vec::new();
+    for line in help.lines() {
+        if line.trim_start().starts_with('-') {
+            texts.push(String::new());
+        }
+        if let Some(t) = texts.last_mut() {
+            t.push_str(line.trim());
+            t.push(' ');
+        }
+    }
+    texts
+        .into_iter()
+        .filter_map(|text| {
+            let mut words = text.split_whitespace();
+            let name = words.find(|w| w.starts_with("--"))?.trim_end_matches(',');
+            let takes_value = words.next().is_some_and(|w| w.starts_with('<'));
+            Some(OptionHelp {
+                name: name.to_string(),
+                takes_value,
+                text: text.clone(),
+            })
+        })
+        .collect()
+}
+
+/// The subcommands a `--help` page lists (not `help`).
+fn subcommands_in(help: &str) -> Vec<String> {
+    help.lines()
+        .skip_while(|l| !l.starts_with("Commands:"))
+        .skip(1)
+        .take_while(|l| l.starts_with("  "))
+        .filter_map(|l| l.split_whitespace().next())
+        .filter(|c| *c != "help")
+        .map(str::to_string)
+        .collect()
+}
+
+/// `calibrate --help` states every default: each option that takes a value shows
+/// `[default: …]` unless it is one that has none (a port, a file, a target, a measurement).
+#[test]
+fn calibrate_help_states_every_default() {
+    let (ok, help, err) = odocal(&["calibrate", "--help"]);
+    assert!(ok, "{err}");
+    let no_default = [
+        "--port",
+        "--base",
+        "--heading",
+        "--profile",
+        "--compass-deviation-deg",
+        "--ros-yaml",
+        "--config",
+        "--target-eb-std",
+        "--target-ed-std",
+        "--gyro-scale-error",
+        "--straight-commanded-m",
+        "--straight-measured-m",
+    ];
+    let options: Vec<OptionHelp> = options_in(&help)
+        .into_iter()
+        .filter(|o| o.takes_value)
+        .collect();
+    for o in &options {
+        let shown = o.text.contains("[default: ");
+        if no_default.contains(&o.name.as_str()) {
+            // The list stays true: an option given a default leaves it.
+            assert!(!shown, "{} has a default now: {}", o.name, o.text);
+        } else {
+            assert!(shown, "{} shows no default: {}", o.name, o.text);
+        }
+    }
+    // Every exempt option is still there, and the page was read: side, runs, speeds, method…
+    for name in no_default {
+        assert!(options.iter().any(|o| o.name == name), "no {name}: {help}");
+    }
+    assert!(options.len() > no_default.len() + 20, "{help}");
+}
+
+/// In every subcommand's help, an option that takes a value and has a default states it the one
+/// way, `[default: …]`, where a reader (and the man page) looks for it, never in prose.
+#[test]
+fn every_default_in_help_is_stated_the_same_way() {
+    let mut pages = vec![Vec::<String>::new()];
+    let mut seen = 0;
+    while let Some(path) = pages.pop() {
+        let args: Vec<&str> = path.iter().map(String::as_str).chain(["--help"]).collect();
+        let (ok, help, err) = odocal(&args);
+        assert!(ok, "{args:?}: {err}");
+        seen += 1;
+        for o in options_in(&help).iter().filter(|o| o.takes_value) {
+            // "(default: …)", "Default: …", "by default …", but not "the factory defaults".
+            let prose = o.text.replace("[default: ", "").to_lowercase();
+            assert!(
+                !prose.contains("default:") && !prose.contains("by default"),
+                "odocal {} {}: {}",
+                path.join(" "),
+                o.name,
+                o.text
+            );
+        }
+        for sub in subcommands_in(&help) {
+            pages.push(path.iter().cloned().chain([sub]).collect());
+        }
+    }
+    // odocal, its subcommands, and those of params.
+    assert!(seen > 25, "only {seen} help pages");
+}
+
+#[test]
+fn completions_and_man_pages_are_generated() {
+    let (ok, bash, err) = odocal(&["completions", "bash"]);
+    assert!(ok, "{err}");
+    // The script completes the subcommands and their flags.
+    assert!(bash.contains("complete -F"), "{bash}");
+    for word in ["calibrate", "mock-roboclaw", "completions", "--side-m"] {
+        assert!(bash.contains(word), "no {word} in the bash script");
+    }
+    for shell in ["zsh", "fish", "powershell", "elvish"] {
+        let (ok, script, err) = odocal(&["completions", shell]);
+        assert!(ok && script.contains("calibrate"), "{shell}: {err}");
+    }
+    let (ok, _, err) = odocal(&["completions", "tcsh"]);
+    assert!(!ok && err.contains("possible values"), "{err}");
+
+    // roff: a title line, then the sections, the subcommands among them.
+    let (ok, page, err) = odocal(&["man"]);
+    assert!(ok, "{err}");
+    assert!(
+        page.lines().any(|l| l.starts_with(".TH odocal 1")),
+        "{page}"
+    );
+    for section in [".SH NAME", ".SH SYNOPSIS", ".SH SUBCOMMANDS"] {
+        assert!(page.contains(section), "no {section}: {page}");
+    }
+    assert!(page.contains("odocal\\-calibrate(1)"), "{page}");
+
+    // --out: one page per subcommand (and per nested one), each its own roff document.
+    let dir = scratch("man");
+    let (ok, out, err) = odocal(&["man", "--out", dir.to_str().unwrap()]);
+    assert!(ok, "{err}");
+    assert!(out.contains(dir.to_str().unwrap()), "{out}");
+    let (_, help, _) = odocal(&["--help"]);
+    let mut expected: Vec<String> = subcommands_in(&help)
+        .iter()
+        .map(|c| format!("odocal-{c}.1"))
+        .collect();
+    expected.push("odocal.1".into());
+    expected.push("odocal-params-restore.1".into());
+    for name in &expected {
+        let text =
+            std::fs::read_to_string(dir.join(name)).unwrap_or_else(|e| panic!("{name}: {e}"));
+        let title = format!(".TH {} 1", name.trim_end_matches(".1"));
+        assert!(
+            text.lines().any(|l| l.starts_with(&title)),
+            "{name}: {text}"
+        );
+    }
+    let calibrate = std::fs::read_to_string(dir.join("odocal-calibrate.1")).unwrap();
+    assert!(
+        calibrate.contains("\\-\\-side\\-m") && calibrate.contains("[default: 4]"),
+        "{calibrate}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
 }

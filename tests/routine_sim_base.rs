@@ -81,6 +81,178 @@ async fn the_whole_routine_runs_on_an_in_process_base() {
     let c = sim.counters();
     assert_eq!(c.writes, c.commits, "every write was committed");
     assert!(c.motions >= 8 * 10 * 2 + 8 * 6, "{c:?}");
+    // The report names the method written, why, and what its ± is.
+    let md = odocal::report::markdown(&report);
+    let first = &report.rounds[0];
+    assert!(first.written && !report.rounds[1].written);
+    let head = format!(
+        "Written: the `{}` estimate of round 1: {}.",
+        first.chosen.method, first.chosen_because
+    );
+    assert!(md.contains(&head), "{md}");
+    assert!(first.chosen_because.contains("the default"), "{first:?}");
+    assert!(
+        md.contains("± is the standard error from the scatter of the 5 squares per direction"),
+        "{md}"
+    );
+    the_plots_show_every_run_by_direction_on_equal_axes(&report);
+}
+
+/// An SVG element's attribute.
+fn attr<'a>(element: &'a str, name: &str) -> Option<&'a str> {
+    element
+        .split(&format!(" {name}=\""))
+        .nth(1)
+        .and_then(|rest| rest.split('"').next())
+}
+
+/// `(stroke, pixels)` of every `<polyline>` with more than two points (a run's trace; legend
+/// samples and the zero line have two), in drawing order.
+fn traces(svg: &str) -> Vec<(String, Vec<[f64; 2]>)> {
+    svg.split("<polyline")
+        .skip(1)
+        .filter_map(|e| {
+            let pts: Vec<[f64; 2]> = attr(e, "points")?
+                .split_whitespace()
+                .map(|xy| {
+                    let (x, y) = xy.split_once(',').unwrap();
+                    [x.parse().unwrap(), y.parse().unwrap()]
+                })
+                .collect();
+            (pts.len() > 2).then(|| (attr(e, "stroke").unwrap().to_string(), pts))
+        })
+        .collect()
+}
+
+/// The centres of every filled `<circle>`, in drawing order.
+fn dots(svg: &str) -> Vec<[f64; 2]> {
+    svg.split("<circle")
+        .skip(1)
+        .filter(|e| attr(e, "fill") != Some("none"))
+        .map(|e| {
+            let c = |n| attr(e, n).unwrap().parse().unwrap();
+            [c("cx"), c("cy")]
+        })
+        .collect()
+}
+
+/// The hue (degrees) of an SVG colour `#RRGGBB`.
+fn hue(colour: &str) -> f64 {
+    let c = |i: usize| f64::from(u8::from_str_radix(&colour[1 + 2 * i..3 + 2 * i], 16).unwrap());
+    let (r, g, b) = (c(0), c(1), c(2));
+    (3f64.sqrt() * (g - b))
+        .atan2(2.0 * r - g - b)
+        .to_degrees()
+        .rem_euclid(360.0)
+}
+
+/// Pixels per metre across and up, from the same points in metres and in pixels.
+fn px_per_m(metres: &[[f64; 2]], pixels: &[[f64; 2]]) -> [f64; 2] {
+    let span = |pts: &[[f64; 2]], i: usize| {
+        let (lo, hi) = pts.iter().fold((f64::MAX, f64::MIN), |(lo, hi), p| {
+            (lo.min(p[i]), hi.max(p[i]))
+        });
+        hi - lo
+    };
+    [0, 1].map(|i| span(pixels, i) / span(metres, i))
+}
+
+/// The report's plots as a robotics engineer reads them: every run of round 1 and of the
+/// verification drawn (true path and odometry), one colour per direction, a metre as long
+/// across as up in paths and end points, and the verification's heading errors on a scale of
+/// their own.
+fn the_plots_show_every_run_by_direction_on_equal_axes(report: &Report) {
+    use odocal::kinematics::Direction;
+    let dir = common::scratch("plots");
+    std::fs::create_dir_all(&dir).unwrap();
+    odocal::report::plots::write_all(report, &dir).unwrap();
+    let read = |f: &str| std::fs::read_to_string(dir.join(f)).unwrap();
+    let runs: Vec<_> = report.rounds[0]
+        .runs
+        .iter()
+        .chain(&report.verification)
+        .collect();
+    assert!(runs.len() >= 16, "{} runs", runs.len());
+
+    // Paths: the true paths, then the odometry, each round 1's runs then the verification's.
+    let drawn = traces(&read("paths.svg"));
+    let expected: Vec<(Direction, &[[f64; 2]])> = runs
+        .iter()
+        .map(|r| (r.direction, r.true_path.as_deref().unwrap()))
+        .chain(
+            runs.iter()
+                .map(|r| (r.direction, r.odometry_path.as_slice())),
+        )
+        .collect();
+    assert_eq!(drawn.len(), expected.len(), "every run's two traces drawn");
+    // One colour per direction: one hue, lighter before than after.
+    let mut hues: [Vec<f64>; 2] = [Vec::new(), Vec::new()];
+    let scale = px_per_m(expected[0].1, &drawn[0].1)[0];
+    for ((stroke, pixels), (direction, metres)) in drawn.iter().zip(&expected) {
+        // A clockwise square lies to the right of its first leg: below its start on screen.
+        let below = pixels.iter().map(|p| p[1] - pixels[0][1]).sum::<f64>() > 0.0;
+        assert_eq!(
+            below,
+            *direction == Direction::Cw,
+            "{direction} drawn the other way"
+        );
+        hues[usize::from(*direction == Direction::Ccw)].push(hue(stroke));
+        for s in px_per_m(metres, pixels) {
+            assert!(
+                (s / scale - 1.0).abs() < 0.02,
+                "{s:.1} px/m against {scale:.1}: paths drawn out of shape"
+            );
+        }
+    }
+    let range = |h: &[f64]| {
+        h.iter().fold(f64::MIN, |a, &b| a.max(b)) - h.iter().fold(f64::MAX, |a, &b| a.min(b))
+    };
+    assert!(range(&hues[0]) < 4.0 && range(&hues[1]) < 4.0, "{hues:?}");
+    assert!((hues[0][0] - hues[1][0]).abs() > 60.0, "{hues:?}");
+    let strokes: std::collections::BTreeSet<&str> = drawn.iter().map(|t| t.0.as_str()).collect();
+    assert_eq!(
+        strokes.len(),
+        4,
+        "each direction before and after: {strokes:?}"
+    );
+
+    // End points: round 1's then the verification's, clockwise first; legend dots after.
+    let ends = dots(&read("end_points.svg"));
+    for (k, runs) in [&report.rounds[0].runs, &report.verification]
+        .into_iter()
+        .enumerate()
+    {
+        let metres: Vec<[f64; 2]> = [Direction::Cw, Direction::Ccw]
+            .iter()
+            .flat_map(|d| {
+                runs.iter()
+                    .filter(move |r| r.direction == *d)
+                    .map(|r| r.true_final_xy_m.unwrap())
+            })
+            .collect();
+        let skip = if k == 0 {
+            0
+        } else {
+            report.rounds[0].runs.len()
+        };
+        let [x, y] = px_per_m(&metres, &ends[skip..skip + metres.len()]);
+        assert!(
+            (x / y - 1.0).abs() < 0.03,
+            "end points {k}: {x:.1} px/m across, {y:.1} px/m up"
+        );
+    }
+
+    // Heading errors: every run a dot (and two in the legend); the verification's, a tenth of
+    // a degree or so, spread over its own panel instead of flat beside round 1's 20°.
+    let heads = dots(&read("heading_errors.svg"));
+    let all: usize =
+        report.rounds.iter().map(|r| r.runs.len()).sum::<usize>() + report.verification.len();
+    assert_eq!(heads.len(), all + 2);
+    let after = &heads[all - report.verification.len()..all];
+    let spread = after.iter().map(|p| p[1]).fold(f64::MIN, f64::max)
+        - after.iter().map(|p| p[1]).fold(f64::MAX, f64::min);
+    assert!(spread > 60.0, "the verification's errors span {spread} px");
+    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[tokio::test]
@@ -172,6 +344,12 @@ async fn a_dry_run_moves_but_writes_nothing() {
     assert!(report.rounds[0].params_after.is_some());
     assert_eq!(sim.counters().writes, 0);
     assert_eq!(sim.committed(), Some(nominal()));
+    let md = odocal::report::markdown(&report);
+    let head = format!(
+        "Nothing written: round 1's `{}` estimate was not written: a dry run.",
+        report.rounds[0].chosen.method
+    );
+    assert!(md.contains(&head), "{md}");
 }
 
 #[tokio::test]
@@ -208,40 +386,22 @@ async fn a_report_without_ground_truth_has_no_empty_rows_and_reads_as_words() {
             .count();
         assert_eq!(whole_with_point, 0, "{}", file.display());
     }
-    // Equal scales on the paths plot: the first line drawn is round 1's first CW square as the
-    // odometry saw it, and a metre spans as many pixels across as up.
-    let svg = std::fs::read_to_string(dir.join("paths.svg")).unwrap();
-    let pixels: Vec<[f64; 2]> = svg
-        .split("points=\"")
-        .skip(1)
-        .map(|rest| {
-            rest.split('"')
-                .next()
-                .unwrap()
-                .split_whitespace()
-                .map(|xy| {
-                    let (x, y) = xy.split_once(',').unwrap();
-                    [x.parse().unwrap(), y.parse().unwrap()]
-                })
-                .collect::<Vec<[f64; 2]>>()
-        })
-        .find(|line| line.len() > 2)
-        .expect("a path is drawn");
-    let metres = &report.rounds[0].runs[0].odometry_path;
-    let span = |pts: &[[f64; 2]], i: usize| {
-        let (lo, hi) = pts.iter().fold((f64::MAX, f64::MIN), |(lo, hi), p| {
-            (lo.min(p[i]), hi.max(p[i]))
-        });
-        hi - lo
-    };
-    let (x_scale, y_scale) = (
-        span(&pixels, 0) / span(metres, 0),
-        span(&pixels, 1) / span(metres, 1),
-    );
-    assert!(
-        (x_scale / y_scale - 1.0).abs() < 0.02,
-        "{x_scale:.1} px/m across, {y_scale:.1} px/m up: the square is drawn out of shape"
-    );
+    // Without a truth the odometry alone: every run of round 1 and the verification, on
+    // equal scales.
+    let drawn = traces(&std::fs::read_to_string(dir.join("paths.svg")).unwrap());
+    let runs: Vec<_> = report.rounds[0]
+        .runs
+        .iter()
+        .chain(&report.verification)
+        .collect();
+    assert_eq!(drawn.len(), runs.len());
+    for (run, (_, pixels)) in runs.iter().zip(&drawn) {
+        let [x_scale, y_scale] = px_per_m(&run.odometry_path, pixels);
+        assert!(
+            (x_scale / y_scale - 1.0).abs() < 0.02,
+            "{x_scale:.1} px/m across, {y_scale:.1} px/m up: the square is drawn out of shape"
+        );
+    }
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
@@ -289,6 +449,15 @@ async fn a_correction_within_its_own_noise_is_not_written() {
     let why = report.rounds[0].converged_because.clone().unwrap();
     assert!(why.contains("not significant"), "{why}");
     assert_eq!(sim.configured(), nominal());
+    // The report says nothing was written and why, and that one square has no ±.
+    let md = odocal::report::markdown(&report);
+    let head = format!(
+        "Nothing written: round 1's `{}` estimate needs no correction ({why})",
+        chosen.method
+    );
+    assert!(md.contains(&head), "{md}");
+    assert!(md.contains("No ± with 1 square(s) per direction"), "{md}");
+    assert!(md.contains("Cramér–Rao bound (E_b"), "{md}");
 }
 
 /// "Never worse": the leg method forced on a compass with a large deviation (which it cannot

@@ -103,4 +103,17 @@ impl BaseError {
             source: Box::new(source),
         }
     }
+
+    /// `value` when it is a usable speed or turn-rate limit (positive and finite); else the
+    /// [`BaseError::InvalidArgument`] of `component` naming `what`.
+    pub fn check_limit(component: &str, what: &str, value: f64) -> Result<f64, BaseError> {
+        if value.is_finite() && value > 0.0 {
+            Ok(value)
+        } else {
+            Err(BaseError::InvalidArgument {
+                component: component.into(),
+                reason: format!("{what} must be positive and finite, got {value}"),
+            })
+        }
+    }
 }

@@ -567,6 +567,25 @@ pub fn default_method(
     })
 }
 
+/// Why [`default_method`] picks `method`, as a clause for reports.
+pub fn default_method_reason(method: Method) -> &'static str {
+    match method {
+        Method::MatchedLegs => {
+            "the default with the heading along the legs from a sensor that may deviate (a \
+             compass, or an IMU of unknown kind): it compares legs pointing the same way, so a \
+             deviation cancels"
+        }
+        Method::Legs => {
+            "the default with the heading along the legs from a sensor that cannot deviate (a \
+             gyro or a reference): the first leg against the last, past the start transient"
+        }
+        _ => {
+            "the default when the heading along the legs was not recorded in both directions: \
+             the exact inversion of the headings at rest"
+        }
+    }
+}
+
 /// One method's estimate or the reason it has none.
 pub type MethodResult = (Method, Result<Estimate, CalibrationError>);
 

@@ -195,17 +195,6 @@ fn info(what: &str) -> ComponentInfo {
     }
 }
 
-fn check_limit(what: &str, v: f64) -> Result<(), BaseError> {
-    if v.is_finite() && v > 0.0 {
-        Ok(())
-    } else {
-        Err(BaseError::InvalidArgument {
-            component: "drive".into(),
-            reason: format!("{what} must be positive and finite, got {v}"),
-        })
-    }
-}
-
 #[async_trait]
 impl Drive for SimBase {
     fn info(&self) -> ComponentInfo {
@@ -226,7 +215,7 @@ impl Drive for SimBase {
         distance_m: f64,
         max_speed_m_s: f64,
     ) -> Result<Option<Achieved>, BaseError> {
-        check_limit("speed limit", max_speed_m_s)?;
+        BaseError::check_limit("drive", "speed limit", max_speed_m_s)?;
         let duration = distance_m.abs() / max_speed_m_s;
         self.execute(Motion::Straight { distance_m }, duration)
             .await?;
@@ -238,7 +227,7 @@ impl Drive for SimBase {
         angle_rad: f64,
         max_rate_rad_s: f64,
     ) -> Result<Option<Achieved>, BaseError> {
-        check_limit("turn-rate limit", max_rate_rad_s)?;
+        BaseError::check_limit("drive", "turn-rate limit", max_rate_rad_s)?;
         let duration = angle_rad.abs() / max_rate_rad_s;
         self.execute(Motion::TurnInPlace { angle_rad }, duration)
             .await?;

@@ -7,7 +7,9 @@ pub mod plots;
 pub mod ros2;
 
 use crate::io::create_new;
-use crate::routine::report::{params_table, Report};
+use crate::kinematics::Direction;
+use crate::routine::config::WritePolicy;
+use crate::routine::report::{params_table, Report, RoundReport};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
@@ -59,24 +61,20 @@ pub fn markdown(report: &Report) -> String {
     );
     let _ = writeln!(
         s,
-        "Squares of {} m, {} per direction per round, method `{}`, convention `{}`, \
-         write-back {}. Backup of the original parameters: `{}`.\n",
+        "Squares of {} m, {} per direction per round, convention `{}`, write-back {}. Backup \
+         of the original parameters: `{}`.\n",
         report.config.side_m,
         report.config.runs_per_direction,
-        report
-            .rounds
-            .first()
-            .map_or("none", |r| r.chosen.method.name()),
         report.config.split_convention().name(),
         report.config.write_back.describe(),
         report.backup_path.display()
     );
+    let _ = writeln!(s, "{}\n", written_line(report));
     let _ = writeln!(
         s,
-        "Heading noise at rest: {:.3}°. Converged: {}. Written: {}.\n",
+        "Heading noise at rest: {:.3}°. Converged: {}.\n",
         report.heading_noise_rad.to_degrees(),
         report.converged,
-        report.written
     );
     let _ = writeln!(
         s,
@@ -118,9 +116,7 @@ pub fn markdown(report: &Report) -> String {
                 f(e.e_d_std_err)
             );
         }
-        if let Some([b, d]) = r.cramer_rao_std {
-            let _ = writeln!(s, "\nCramér–Rao bound (std): E_b {b:.5}, E_d {d:.5}.");
-        }
+        let _ = writeln!(s, "\n{}", plus_minus(r, report.config.heading_samples));
         let _ = writeln!(
             s,
             "\n{}\n",
@@ -162,6 +158,82 @@ pub fn markdown(report: &Report) -> String {
          ![end points](end_points.svg)\n"
     );
     s
+}
+
+/// Which method's estimate was written, from which round(s), and why; or why nothing was.
+fn written_line(report: &Report) -> String {
+    let written: Vec<&RoundReport> = report.rounds.iter().filter(|r| r.written).collect();
+    if let Some(last) = written.last() {
+        let mut methods: Vec<String> = written
+            .iter()
+            .map(|r| format!("`{}`", r.chosen.method))
+            .collect();
+        methods.dedup();
+        let rounds: Vec<String> = written.iter().map(|r| r.round.to_string()).collect();
+        return format!(
+            "Written: the {} estimate of round{} {}: {}.",
+            methods.join(" then "),
+            if rounds.len() > 1 { "s" } else { "" },
+            rounds.join(", "),
+            last.chosen_because
+        );
+    }
+    let why = match report.rounds.last() {
+        None => "no round finished".to_string(),
+        Some(r) if r.converged => format!(
+            "round {}'s `{}` estimate needs no correction ({})",
+            r.round,
+            r.chosen.method,
+            r.converged_because.as_deref().unwrap_or("within tolerance")
+        ),
+        Some(r) => format!(
+            "round {}'s `{}` estimate was {}",
+            r.round,
+            r.chosen.method,
+            match report.config.write_back {
+                WritePolicy::DryRun => "not written: a dry run",
+                _ => "declined",
+            }
+        ),
+    };
+    format!("Nothing written: {why}.")
+}
+
+/// What a round's ± is, beside the Cramér–Rao bound, in a sentence.
+fn plus_minus(r: &RoundReport, heading_samples: usize) -> String {
+    let per_direction = [Direction::Cw, Direction::Ccw]
+        .map(|d| r.runs.iter().filter(|run| run.direction == d).count())
+        .into_iter()
+        .min()
+        .unwrap_or(0);
+    let bound = r.cramer_rao_std.map_or(String::new(), |[b, d]| {
+        format!(
+            "the Cramér–Rao bound (E_b {b:.5}, E_d {d:.5}) is the least any method can reach \
+             from the headings at rest ({heading_samples} readings at each end of each square)"
+        )
+    });
+    if r.chosen.e_b_std_err.is_none() {
+        return format!(
+            "No ± with {per_direction} square(s) per direction (no scatter to measure){}.",
+            if bound.is_empty() {
+                String::new()
+            } else {
+                format!("; {bound}, and stands in for it")
+            }
+        );
+    }
+    format!(
+        "± is the standard error from the scatter of the {per_direction} squares per direction, \
+         never below what the heading sensor's noise gives for the headings a method uses{}.",
+        if bound.is_empty() {
+            String::new()
+        } else {
+            format!(
+                "; {bound}, which `legs` and `matched-legs` go below by averaging every reading \
+                 along the legs"
+            )
+        }
+    )
 }
 
 /// Escapes text for HTML.

@@ -30,7 +30,9 @@ use crate::base::{Base, BaseError, HeadingKind, MotionGuard};
 use crate::calibration::plan::Plan;
 use crate::calibration::swing::SwingFit;
 use crate::calibration::uncertainty::{cramer_rao_bound, heading_error_sigma, TestDesign};
-use crate::calibration::{default_method, estimate_all, Estimate, Method, SquareTest};
+use crate::calibration::{
+    default_method, default_method_reason, estimate_all, Estimate, Method, SquareTest,
+};
 use crate::kinematics::{wrap_angle, Direction, WheelParams};
 use config::{RoutineConfig, WritePolicy};
 use planning::Stop;
@@ -453,7 +455,7 @@ impl Calibration<'_> {
                 Err(e) => failures.push((method, e.to_string())),
             }
         }
-        let method = self.choose(&test);
+        let (method, chosen_because) = self.choose(&test);
         let chosen = estimates
             .iter()
             .find(|e| e.method == method)
@@ -488,6 +490,7 @@ impl Calibration<'_> {
             estimates,
             failures,
             chosen,
+            chosen_because,
             cramer_rao_std: crb,
             converged: converged_because.is_some(),
             converged_because,
@@ -497,12 +500,15 @@ impl Calibration<'_> {
         })
     }
 
-    /// The method to write: the configured one, or the data's default ([`default_method`]),
-    /// saying when some runs lacked the heading along the legs.
-    fn choose(&mut self, test: &SquareTest) -> Method {
+    /// The method to write and why: the configured one, or the data's default
+    /// ([`default_method`]), saying when some runs lacked the heading along the legs.
+    fn choose(&mut self, test: &SquareTest) -> (Method, String) {
         let m = self.method_for(test);
         if self.cfg.method.is_some() {
-            return m;
+            return (
+                m,
+                "named in the settings (--method or the routine file)".into(),
+            );
         }
         let (without, of) = test.runs_without_leg_headings();
         if !matches!(m, Method::Legs | Method::MatchedLegs) {
@@ -518,7 +524,7 @@ impl Calibration<'_> {
                 of - without
             ));
         }
-        m
+        (m, default_method_reason(m).into())
     }
 
     /// The method to write for `test`, without a word (see [`Calibration::choose`]).

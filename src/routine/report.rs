@@ -264,6 +264,9 @@ pub struct RoundReport {
     pub failures: Vec<(Method, String)>,
     /// The configured method's estimate.
     pub chosen: Estimate,
+    /// Why that method: named in the settings, or the default for the data and the sensor
+    /// ([`crate::calibration::default_method_reason`]).
+    pub chosen_because: String,
     /// Cramér–Rao bound on the std of (E_b, E_d) for the measured heading noise.
     pub cramer_rao_std: Option<[f64; 2]>,
     /// Whether this round ended the calibration ([`super::convergence`]).

@@ -85,6 +85,20 @@ enum Command {
     MockRosbridge(ros::MockArgs),
     /// Serve a mock RoboClaw and a mock NMEA compass of one simulated robot on two PTYs.
     MockRoboclaw(roboclaw::MockArgs),
+    /// Print a completion script for a shell (bash, zsh, fish, powershell, elvish), e.g.
+    /// `odocal completions bash > ~/.local/share/bash-completion/completions/odocal`.
+    Completions {
+        /// The shell.
+        #[arg(value_enum)]
+        shell: clap_complete::Shell,
+    },
+    /// Print the man page (roff) on stdout, or write one page per subcommand into --out.
+    Man {
+        /// A directory to write odocal.1 and odocal-SUBCOMMAND.1 into (created if missing;
+        /// pages already there are replaced).
+        #[arg(long)]
+        out: Option<std::path::PathBuf>,
+    },
 }
 
 /// Convention flags shared by the subcommands that estimate.
@@ -283,6 +297,19 @@ pub async fn serve_until_stopped(ignore_stdin: bool) {
     }
 }
 
+/// `odocal man`: the page of `odocal` on stdout, or every page into `out`.
+fn man(out: Option<std::path::PathBuf>) -> Result<(), Box<dyn std::error::Error>> {
+    match out {
+        Some(dir) => {
+            std::fs::create_dir_all(&dir)?;
+            clap_mangen::generate_to(command(), &dir)?;
+            println!("wrote the man pages into {}", dir.display());
+        }
+        None => clap_mangen::Man::new(command()).render(&mut std::io::stdout().lock())?,
+    }
+    Ok(())
+}
+
 /// Runs an async command on a fresh runtime.
 fn block_on(
     fut: impl std::future::Future<Output = Result<(), Box<dyn std::error::Error>>>,
@@ -334,6 +361,11 @@ fn main() -> ExitCode {
         Command::Bag(args) => ros::run(args),
         Command::MockRosbridge(args) => block_on(ros::mock(args)),
         Command::MockRoboclaw(args) => block_on(roboclaw::mock(args)),
+        Command::Completions { shell } => {
+            clap_complete::generate(shell, &mut command(), "odocal", &mut std::io::stdout());
+            Ok(())
+        }
+        Command::Man { out } => man(out),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -15,7 +15,7 @@ pub struct Args {
     /// different configured parameters: they are pooled in physical terms).
     #[arg(long, required = true)]
     dataset: Vec<PathBuf>,
-    /// Sets (square or free) to evaluate on; repeatable. Default: the calibration sets.
+    /// Sets (square or free) to evaluate on; repeatable [default: the calibration sets].
     #[arg(long)]
     evaluate: Vec<PathBuf>,
     #[command(flatten)]

@@ -65,8 +65,8 @@ pub struct MockArgs {
     /// Robot seconds per wall-clock second.
     #[arg(long, default_value_t = 1.0)]
     time_scale: f64,
-    /// Answer only this packet address (128–135), as a controller on a shared TTL serial bus;
-    /// by default every address is answered, as a RoboClaw on USB does.
+    /// Answer only this packet address (128–135), as a controller on a shared TTL serial bus
+    /// [default: every address, as a RoboClaw on USB].
     #[arg(long, value_parser = clap::value_parser!(u8).range(128..=135))]
     address: Option<u8>,
     /// Probability that a write's acknowledgement is lost.

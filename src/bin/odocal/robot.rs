@@ -59,7 +59,7 @@ pub struct RosFlags {
     /// Publish geometry_msgs/TwistStamped instead of Twist.
     #[arg(long)]
     twist_stamped: bool,
-    /// Where the drive's odometry comes from: joint-states (default) or odom.
+    /// Where the drive's odometry comes from: joint-states or odom [default: joint-states].
     #[arg(long)]
     wheel_source: Option<String>,
     /// Joint states topic [default: /joint_states].

@@ -26,10 +26,12 @@ pub struct RosArgs {
     /// The controller's odometry topic (nav_msgs/Odometry).
     #[arg(long, default_value = "/odom")]
     pub odom_topic: String,
-    /// Left wheel joint name (default: the YAML's left_wheel_names, or the one name with "left").
+    /// Left wheel joint name [default: the YAML's first left_wheel_names, else the one name
+    /// with "left"].
     #[arg(long)]
     pub left_joint: Option<String>,
-    /// Right wheel joint name.
+    /// Right wheel joint name [default: the YAML's first right_wheel_names, else the one name
+    /// with "right"].
     #[arg(long)]
     pub right_joint: Option<String>,
 }
@@ -68,7 +70,7 @@ pub struct BagArgs {
     /// repeatable.
     #[arg(long = "range")]
     ranges: Vec<String>,
-    /// Square side (m); default: the bag's metadata, else the mean leg length by odometry.
+    /// Square side (m) [default: the bag's metadata, else the mean leg length by odometry].
     #[arg(long)]
     side_m: Option<f64>,
     /// Shortest rest (s) that separates one run from the next.

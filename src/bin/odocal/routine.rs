@@ -330,8 +330,8 @@ pub struct ShapeFlags {
     #[arg(long)]
     heading_samples: Option<usize>,
     /// Estimator to write: umbmark, lee, heading-only, jung-chung, exact, legs or
-    /// matched-legs. Default: with the heading along the legs, matched-legs for a compass or
-    /// an IMU of unknown kind, legs for a gyro or a reference; else exact.
+    /// matched-legs [default: with the heading along the legs, matched-legs for a compass or
+    /// an IMU of unknown kind, legs for a gyro or a reference; else exact].
     #[arg(long)]
     method: Option<Method>,
     /// Skip the compass swing (two slow full turns in place each way before the squares,
@@ -385,7 +385,7 @@ impl ShapeFlags {
 /// Routine settings that can be given as flags (they override a routine file).
 #[derive(Debug, Clone, clap::Args)]
 pub struct RoutineFlags {
-    /// Square side (m).
+    /// Square side (m) [default: 4].
     #[arg(long)]
     side_m: Option<f64>,
     #[command(flatten)]
@@ -398,7 +398,7 @@ pub struct RoutineFlags {
     #[arg(long, allow_hyphen_values = true)]
     gyro_scale_error: Option<f64>,
     /// Diameter split for estimation and write-back: left-nominal, mean-preserving or
-    /// measured-scale:COMMANDED_M,MEASURED_M.
+    /// measured-scale:COMMANDED_M,MEASURED_M [default: left-nominal].
     #[arg(long)]
     convention: Option<SplitConvention>,
     /// Straight-line check: commanded distance (m); with --straight-measured-m.
@@ -419,8 +419,8 @@ pub struct RoutineFlags {
     /// Answer yes to every question: move, and write unless --dry-run.
     #[arg(long)]
     yes: bool,
-    /// Refuse to write any parameter changed by more than this fraction (default 0.1; at most
-    /// 0.25 unless --allow-large-change).
+    /// Refuse to write any parameter changed by more than this fraction, at most 0.25 unless
+    /// --allow-large-change [default: 0.1; 1.0 with --allow-large-change].
     #[arg(long)]
     max_change: Option<f64>,
     /// Keep the written parameters even when verification does not show them clearly better
@@ -428,13 +428,16 @@ pub struct RoutineFlags {
     #[arg(long)]
     keep_worse: bool,
     /// Allow changes of up to 100 % (skid-steer robots need wheelbase multipliers of 1.5–1.9);
-    /// asks you to type LARGE unless --yes. Default --max-change then 1.0.
+    /// asks you to type LARGE unless --yes.
     #[arg(long)]
     allow_large_change: bool,
-    /// Where to write the backup (default: the report directory, or here).
+    /// Where to write the backup [default: --report-dir when given, else the current
+    /// directory].
     #[arg(long)]
     backup_dir: Option<PathBuf>,
-    /// Where to write report.json, report.md and the plots.
+    /// Where to write report.json, report.md, report.html and the plots (a new directory
+    /// beside an earlier report, never over it) [default: odocal-report on a robot; none on
+    /// the simulated one].
     #[arg(long)]
     report_dir: Option<PathBuf>,
     /// Print the whole report as one JSON object.
@@ -639,7 +642,7 @@ pub struct ExportArgs {
         default_value = "diff_drive_controller"
     )]
     controller: String,
-    /// Which estimate to export (default: the result's default method, else exact).
+    /// Which estimate to export [default: the result's default method, else exact].
     #[arg(long)]
     method: Option<String>,
     /// Merge into an existing --ros2 file (its multipliers change; the original is kept beside

@@ -120,7 +120,7 @@ pub struct RecordArgs {
     /// Requested sample period (ms).
     #[arg(long, default_value_t = 20)]
     period_ms: u64,
-    /// Stop after this long (default: until Ctrl-C, or the end of the --drive path).
+    /// Stop after this long [default: until Ctrl-C, or the end of the --drive path].
     #[arg(long)]
     duration_s: Option<f64>,
     #[command(flatten)]
@@ -219,7 +219,7 @@ pub struct TrackArgs {
     /// Live: requested sample period (ms).
     #[arg(long, default_value_t = 20)]
     period_ms: u64,
-    /// Live: stop after this long (default: until Ctrl-C, or the end of the --drive path).
+    /// Live: stop after this long [default: until Ctrl-C, or the end of the --drive path].
     #[arg(long)]
     duration_s: Option<f64>,
     #[command(flatten)]
