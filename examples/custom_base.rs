@@ -87,7 +87,7 @@ async fn main() -> Result<(), Box<dyn std::error::Error>> {
         write_back: WritePolicy::Yes,
         confirm_motion: false,
         settle_s: 0.0,
-        backup_dir: dir.clone(),
+        backup_dir: Some(dir.clone()),
         ..RoutineConfig::default()
     };
     let report = run(

@@ -22,14 +22,14 @@ fn temp_dir(name: &str) -> std::path::PathBuf {
 
 fn demo_options(name: &str) -> DemoOptions {
     let mut opts = DemoOptions::default();
-    opts.routine.backup_dir = temp_dir(name);
+    opts.routine.backup_dir = Some(temp_dir(name));
     opts
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_demo_calibrates_verifies_and_writes_its_report() {
     let mut opts = demo_options("demo");
-    let report_dir = opts.routine.backup_dir.join("report");
+    let report_dir = opts.routine.backup_dir.clone().unwrap().join("report");
     opts.routine.report_dir = Some(report_dir.clone());
     let (report, device) = run_demo(&opts, &mut Unattended, &CancellationToken::new())
         .await
