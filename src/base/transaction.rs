@@ -369,43 +369,140 @@ fn write_backup(dir: &Path, backup: &BackupFile) -> Result<PathBuf, BaseError> {
     crate::io::create_stamped(&dir, &prefix, ".json", text.as_bytes()).map_err(|e| err(&dir, e))
 }
 
-/// Whether `store` is the store `backup` was taken from: the same kind and, for a device, the
-/// same id (firmware and serial number); for a file store, the same file (compared as
-/// canonical paths: a backup records it absolute, an older one as it was given) and the same
-/// section (a YAML's controller).
-pub fn same_store(backup: &BackupFile, store: &dyn ParamStore) -> bool {
-    let here = store.info();
-    if here.kind != backup.store.kind {
-        return false;
-    }
-    let Some(file) = store.file() else {
-        return here.id == backup.store.id;
-    };
-    let then = backup.file.clone().or_else(|| {
-        backup
-            .store
-            .details
-            .get("file")
-            .and_then(serde_json::Value::as_str)
-            .map(PathBuf::from)
-    });
-    let canonical = |p: &Path| std::fs::canonicalize(p).unwrap_or_else(|_| p.to_path_buf());
-    then.is_some_and(|t| canonical(&t) == canonical(&file))
-        && here.details.get("controller") == backup.store.details.get("controller")
+/// Why a backup file cannot be restored to a store.
+#[derive(Debug, thiserror::Error)]
+pub enum BackupError {
+    /// The file cannot be read (missing, not a regular file, too large).
+    #[error("cannot read the backup {path}: {source}")]
+    Read {
+        /// The backup file.
+        path: PathBuf,
+        /// Why.
+        #[source]
+        source: std::io::Error,
+    },
+    /// The file is not a backup odocal wrote (not JSON, or fields missing or of the wrong type).
+    #[error("{path} is not a backup odocal wrote: {source}")]
+    Malformed {
+        /// The backup file.
+        path: PathBuf,
+        /// Where and why it does not parse.
+        #[source]
+        source: serde_json::Error,
+    },
+    /// The parameters in it are not a robot's (a zero or negative size, not finite).
+    #[error("{path} holds parameters no robot has: {source}")]
+    Invalid {
+        /// The backup file.
+        path: PathBuf,
+        /// Which parameter and why.
+        #[source]
+        source: crate::kinematics::KinematicsError,
+    },
+    /// It was taken from another kind of store (a controller's backup offered to a robot
+    /// profile, say): never restored.
+    #[error(
+        "{path} was taken from a store of kind `{backup_kind}` (`{backup_id}`), this is \
+         `{kind}` (`{id}`): a backup is restored only to the kind of store it came from"
+    )]
+    OtherKind {
+        /// The backup file.
+        path: PathBuf,
+        /// The kind of store it was taken from.
+        backup_kind: String,
+        /// Which one.
+        backup_id: String,
+        /// The kind of store it was offered to.
+        kind: String,
+        /// Which one.
+        id: String,
+    },
+    /// It was taken from another store of the same kind (another device, file or
+    /// controller): restored only when the caller says so.
+    #[error(
+        "{path} was taken from {kind} `{backup_id}`, this is `{id}`: not restored \
+         (--any-device to restore it anyway)"
+    )]
+    OtherStore {
+        /// The backup file.
+        path: PathBuf,
+        /// The kind of both stores.
+        kind: String,
+        /// The store it was taken from.
+        backup_id: String,
+        /// The store it was offered to.
+        id: String,
+    },
 }
 
-/// Reads a backup file written by [`Transaction::begin`].
-pub fn read_backup(path: &Path) -> Result<BackupFile, BaseError> {
-    let err = |source: std::io::Error| BaseError::Backup {
-        path: path.to_path_buf(),
-        source,
+/// Whether `store` is the store `backup` (read from `path`) was taken from: the same kind
+/// ([`BackupError::OtherKind`] if not) and, for a device, the same id (firmware and serial
+/// number); for a file store, the same file (compared as canonical paths: a backup records it
+/// absolute, an older one as it was given) and the same section (a YAML's controller)
+/// ([`BackupError::OtherStore`] if not).
+pub fn check_store(
+    backup: &BackupFile,
+    path: &Path,
+    store: &dyn ParamStore,
+) -> Result<(), BackupError> {
+    let here = store.info();
+    if here.kind != backup.store.kind {
+        return Err(BackupError::OtherKind {
+            path: path.to_path_buf(),
+            backup_kind: backup.store.kind.clone(),
+            backup_id: backup.store.id.clone(),
+            kind: here.kind,
+            id: here.id,
+        });
+    }
+    let same = match store.file() {
+        None => here.id == backup.store.id,
+        Some(file) => {
+            let then = backup.file.clone().or_else(|| {
+                backup
+                    .store
+                    .details
+                    .get("file")
+                    .and_then(serde_json::Value::as_str)
+                    .map(PathBuf::from)
+            });
+            let canonical = |p: &Path| std::fs::canonicalize(p).unwrap_or_else(|_| p.to_path_buf());
+            then.is_some_and(|t| canonical(&t) == canonical(&file))
+                && here.details.get("controller") == backup.store.details.get("controller")
+        }
     };
-    let text = crate::io::read_bounded(path, crate::io::MAX_TEXT_FILE).map_err(err)?;
-    let backup: BackupFile = serde_json::from_str(&text)
-        .map_err(|e| err(std::io::Error::new(std::io::ErrorKind::InvalidData, e)))?;
+    if same {
+        Ok(())
+    } else {
+        Err(BackupError::OtherStore {
+            path: path.to_path_buf(),
+            kind: here.kind,
+            backup_id: backup.store.id.clone(),
+            id: here.id,
+        })
+    }
+}
+
+/// Reads a backup file written by [`Transaction::back_up`] (or [`backup_store`]): bounded,
+/// parsed, and its parameters checked.
+pub fn read_backup(path: &Path) -> Result<BackupFile, BackupError> {
+    let text = crate::io::read_bounded(path, crate::io::MAX_TEXT_FILE).map_err(|source| {
+        BackupError::Read {
+            path: path.to_path_buf(),
+            source,
+        }
+    })?;
+    let backup: BackupFile =
+        serde_json::from_str(&text).map_err(|source| BackupError::Malformed {
+            path: path.to_path_buf(),
+            source,
+        })?;
     backup
         .active
         .validate()
-        .map_err(|e| err(std::io::Error::new(std::io::ErrorKind::InvalidData, e)))?;
+        .map_err(|source| BackupError::Invalid {
+            path: path.to_path_buf(),
+            source,
+        })?;
     Ok(backup)
 }

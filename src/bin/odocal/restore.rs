@@ -5,7 +5,9 @@
 //! parameters are written, read back, committed and read back.
 
 use crate::device::print_params;
-use odocal::base::transaction::{read_backup, same_store, BackupFile, Rollback, Transaction};
+use odocal::base::transaction::{
+    check_store, read_backup, BackupError, BackupFile, Rollback, Transaction,
+};
 use odocal::base::{same_within, ParamStore};
 use odocal::spec::{StoreLocation, ODOCAL_BAUD};
 use serde_json::json;
@@ -99,19 +101,13 @@ pub async fn restore_onto(
 ) -> CliResult {
     let here = store.info();
     let from = how.from.display();
-    if !same_store(backup, store.as_ref()) {
-        if !how.any_device {
-            return Err(format!(
-                "{from} was taken from {} `{}`, this is {} `{}`: not restored (--any-device to \
-                 restore it anyway)",
-                backup.store.kind, backup.store.id, here.kind, here.id
-            )
-            .into());
-        }
-        eprintln!(
-            "warning: restoring a backup of {} `{}` onto {} `{}`",
-            backup.store.kind, backup.store.id, here.kind, here.id
-        );
+    match check_store(backup, how.from, store.as_ref()) {
+        Ok(()) => {}
+        Err(BackupError::OtherStore { backup_id, .. }) if how.any_device => eprintln!(
+            "warning: restoring a backup of {} `{backup_id}` onto `{}`",
+            here.kind, here.id
+        ),
+        Err(e) => return Err(e.into()),
     }
     let target = backup.active;
     let current = store.read().await?;
