@@ -29,21 +29,26 @@ fn name(path: &Path) -> String {
     path.file_name().unwrap().to_string_lossy().into_owned()
 }
 
-/// A readable UTC time in a backup's name, `2026-11-25T14-03-07Z`, and no epoch milliseconds.
+/// A readable UTC time at the end of a backup's name (`…2026-11-25T14-03-07Z.json`, or
+/// `…Z-2.json` for a second one in the same second), and no epoch milliseconds.
 fn assert_utc_name(path: &Path, prefix: &str) {
     let name = name(path);
-    let stamp = name
-        .strip_prefix(prefix)
-        .unwrap_or_else(|| panic!("{name} starts with {prefix}"));
-    let bytes = stamp.as_bytes();
+    assert!(name.starts_with(prefix), "{name} starts with {prefix}");
+    let stem = name.strip_suffix(".json").unwrap_or(&name);
+    let stem = match stem.rsplit_once('-') {
+        Some((head, n)) if n.parse::<u32>().is_ok() && head.ends_with('Z') => head,
+        _ => stem,
+    };
+    let stamp = &stem[stem.len().saturating_sub(20)..];
+    let b = stamp.as_bytes();
     assert!(
-        stamp.len() >= 20
-            && bytes[4] == b'-'
-            && bytes[10] == b'T'
-            && bytes[13] == b'-'
-            && bytes[19] == b'Z'
+        b.len() == 20
+            && b[4] == b'-'
+            && b[10] == b'T'
+            && b[13] == b'-'
+            && b[19] == b'Z'
             && stamp[..4].parse::<u32>().is_ok_and(|y| y >= 2024),
-        "{name}: not a readable UTC time after {prefix}"
+        "{name}: no readable UTC time at its end"
     );
 }
 
@@ -315,4 +320,26 @@ async fn a_second_backup_in_the_same_second_keeps_the_first() {
         std::fs::remove_file(&second).unwrap();
     }
     panic!("no two backups landed in the same second in five tries");
+}
+
+#[test]
+fn two_demo_runs_keep_their_backups_in_their_own_report_directories() {
+    let root = scratch("restore-demo-dirs");
+    let dir = root.join("report");
+    let d = dir.to_str().unwrap();
+    for _ in 0..2 {
+        let (ok, _, err) = odocal(&["demo", "--report-dir", d, "--seed", "4"]);
+        assert!(ok, "{err}");
+    }
+    for run in [dir.clone(), root.join("report-2")] {
+        let backups: Vec<_> = files(&run)
+            .into_iter()
+            .filter(|f| name(f).starts_with("odocal-backup-"))
+            .collect();
+        assert_eq!(backups.len(), 1, "{run:?}: {backups:?}");
+        assert_utc_name(&backups[0], "odocal-backup-");
+        assert!(run.join("report.json").is_file(), "{run:?}");
+    }
+    assert_eq!(files(&root).len(), 2, "nothing else: {:?}", files(&root));
+    std::fs::remove_dir_all(&root).unwrap();
 }
