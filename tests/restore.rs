@@ -60,6 +60,15 @@ fn changed(p: &WheelParams) -> WheelParams {
     c
 }
 
+/// A new scratch directory `name` holding the test robot's profile; returns both.
+fn profile_in(name: &str) -> (PathBuf, PathBuf) {
+    let dir = scratch(name);
+    std::fs::create_dir_all(&dir).unwrap();
+    let profile = dir.join("robot.toml");
+    std::fs::write(&profile, common::ROBOCLAW_PROFILE).unwrap();
+    (dir, profile)
+}
+
 type Open = fn(&Path) -> Arc<dyn ParamStore>;
 
 fn open_profile(path: &Path) -> Arc<dyn ParamStore> {
@@ -228,10 +237,7 @@ fn a_controller_over_a_pty_is_restored_from_its_backup() {
 
 #[tokio::test]
 async fn malformed_backups_and_backups_of_another_kind_are_refused_clearly() {
-    let dir = scratch("restore-refused");
-    std::fs::create_dir_all(&dir).unwrap();
-    let profile = dir.join("robot.toml");
-    std::fs::write(&profile, common::ROBOCLAW_PROFILE).unwrap();
+    let (dir, profile) = profile_in("restore-refused");
     let yaml = dir.join("diff_drive.yaml");
     std::fs::write(&yaml, common::DIFF_DRIVE_YAML).unwrap();
     let (good, _) = backup_store(open_profile(&profile).as_ref(), &dir)
@@ -296,10 +302,7 @@ async fn malformed_backups_and_backups_of_another_kind_are_refused_clearly() {
 
 #[tokio::test]
 async fn a_second_backup_in_the_same_second_keeps_the_first() {
-    let dir = scratch("restore-same-second");
-    std::fs::create_dir_all(&dir).unwrap();
-    let profile = dir.join("robot.toml");
-    std::fs::write(&profile, common::ROBOCLAW_PROFILE).unwrap();
+    let (dir, profile) = profile_in("restore-same-second");
     let store = open_profile(&profile);
     // Taken back to back they almost always share a second; when the clock ticks between
     // them, try again (a few times at most).
