@@ -525,7 +525,7 @@ pub async fn calibrate_simulated_robot(
         telemetry_ms: 50,
         write_back: WritePolicy::Yes,
         confirm_motion: false,
-        backup_dir: dir.clone(),
+        backup_dir: Some(dir.clone()),
         ..RoutineConfig::default()
     };
     let report = run(

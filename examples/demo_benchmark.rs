@@ -17,7 +17,7 @@ async fn main() -> Result<(), Box<dyn std::error::Error>> {
             seed,
             ..DemoOptions::default()
         };
-        opts.routine.backup_dir = std::env::temp_dir().join("odocal-demo-bench");
+        opts.routine.backup_dir = Some(std::env::temp_dir().join("odocal-demo-bench"));
         let t = Instant::now();
         let (report, device) = run_demo(&opts, &mut Unattended, &CancellationToken::new()).await?;
         times.push(t.elapsed().as_secs_f64());

@@ -74,7 +74,9 @@ async fn calibrate(
         settle_s: 0.0,
         write_back: WritePolicy::Yes,
         confirm_motion: false,
-        backup_dir: std::env::temp_dir().join(format!("odocal-sensors-{}", std::process::id())),
+        backup_dir: Some(
+            std::env::temp_dir().join(format!("odocal-sensors-{}", std::process::id())),
+        ),
         ..RoutineConfig::default()
     };
     (case.tweak)(&mut routine);

@@ -47,7 +47,7 @@ async fn main() -> Result<(), Box<dyn std::error::Error>> {
                 confirm_motion: false,
                 verification_runs: 1,
                 method: Some(Method::Exact),
-                backup_dir: backups.clone(),
+                backup_dir: Some(backups.clone()),
                 ..RoutineConfig::default()
             };
             let truth = MockTruth(device.clone());

@@ -38,7 +38,7 @@ async fn main() -> Result<(), Box<dyn std::error::Error>> {
         runs_per_direction: 4,
         write_back: WritePolicy::Yes,
         settle_s: 0.0,
-        backup_dir: std::env::temp_dir().join("odocal-example"),
+        backup_dir: Some(std::env::temp_dir().join("odocal-example")),
         ..RoutineConfig::default()
     };
     let cancel = CancellationToken::new();

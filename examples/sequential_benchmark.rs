@@ -40,7 +40,7 @@ fn settings(target_e_b_std: Option<f64>) -> RoutineConfig {
         write_back: WritePolicy::Yes,
         confirm_motion: false,
         settle_s: 0.0,
-        backup_dir: std::env::temp_dir().join("odocal-sequential-bench"),
+        backup_dir: Some(std::env::temp_dir().join("odocal-sequential-bench")),
         ..RoutineConfig::default()
     }
 }

@@ -69,7 +69,7 @@ impl Default for DemoOptions {
                 write_back: WritePolicy::Yes,
                 confirm_motion: false,
                 settle_s: 0.0,
-                backup_dir: std::env::temp_dir().join("odocal-demo"),
+                backup_dir: Some(std::env::temp_dir().join("odocal-demo")),
                 ..RoutineConfig::default()
             },
         }

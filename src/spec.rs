@@ -15,15 +15,18 @@
 //! | drive | `PORT` or `odocal:PORT[?baud=115200]` (odocal's protocol); `rosbridge://HOST:PORT` or `ws://HOST:PORT` (ROS, with `[robot.ros]` settings); `roboclaw:PORT[?address=128&baud=38400]`; `mock` (the built-in simulated robot) |
 //! | heading | `drive` (the drive's own); `nmea:PORT[?baud=4800]` |
 //! | store | `drive` (the drive's own); `profile:PATH` (a robot profile, for a drive that keeps no parameters) |
+//! | a store on its own ([`StoreLocation`]: `odocal restore --to`) | a controller's `PORT` (or `odocal:PORT?baud=…`); `profile:PATH`; `ros-yaml:PATH[?controller=diff_drive_controller]` (a controller's ros2_control YAML) |
 
 use crate::base::adjusted::Adjusted;
 use crate::base::heading_backend::{HeadingBackend, PortSpec};
-use crate::base::{Base, BaseError, HeadingKind, HeadingSource, ParamStore};
+use crate::base::transaction::BackupFile;
+use crate::base::{Base, BaseError, HeadingKind, HeadingSource, ParamFile, ParamStore};
 use crate::hal::HalError;
 use crate::kinematics::Deviation;
 use crate::roboclaw::client::{RoboClaw, RoboClawConfig, RoboClawError};
-use crate::roboclaw::profile::{ProfileError, ProfileStore};
+use crate::roboclaw::profile::{ProfileError, ProfileFile, ProfileStore};
 use crate::ros::live::{RosBaseConfig, RosBaseError};
+use crate::ros::yaml::{YamlError, YamlStore};
 use crate::routine::config::{key_line, parse_table, table_error, ConfigError, RoutineConfig};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -68,6 +71,9 @@ pub enum SpecError {
     /// A robot profile could not be read.
     #[error(transparent)]
     Profile(#[from] ProfileError),
+    /// A controller's YAML could not be read.
+    #[error(transparent)]
+    Yaml(#[from] YamlError),
     /// A heading source could not be opened.
     #[error(transparent)]
     Heading(#[from] BaseError),
@@ -592,13 +598,132 @@ pub async fn open_heading(text: &str, baud: u32) -> Result<Arc<dyn HeadingSource
 }
 
 /// Opens a parameter store alone: an odocal-protocol controller's port, or a file store
-/// (`profile:PATH`).
+/// (`profile:PATH`, `ros-yaml:PATH?controller=NAME`); see [`StoreLocation`].
 pub async fn open_store(text: &str, baud: u32) -> Result<Arc<dyn ParamStore>, SpecError> {
-    if let Ok(StoreSpec::Profile(path)) = text.parse::<StoreSpec>() {
-        return Ok(Arc::new(ProfileStore::open(&path)?));
+    StoreLocation::parse(text, baud)?.open().await
+}
+
+/// The controller a `ros-yaml:` store names unless told.
+pub const DEFAULT_CONTROLLER: &str = "diff_drive_controller";
+
+/// A parameter store on its own, as `odocal restore --to` names it and a backup records it:
+/// opened without a drive, to read or restore its parameters.
+#[derive(Debug, Clone, PartialEq)]
+pub enum StoreLocation {
+    /// A controller of our protocol on a serial port (its memory and storage).
+    Odocal {
+        /// The port.
+        port: String,
+        /// Its baud rate.
+        baud: u32,
+    },
+    /// A robot profile (`profile:PATH`).
+    Profile(PathBuf),
+    /// The `diff_drive_controller` section of a ros2_control YAML
+    /// (`ros-yaml:PATH[?controller=NAME]`): its multipliers, as [`YamlStore`] writes them.
+    RosYaml {
+        /// The file.
+        path: PathBuf,
+        /// The controller (its section).
+        controller: String,
+    },
+}
+
+impl StoreLocation {
+    /// Parses `profile:PATH`, `ros-yaml:PATH[?controller=NAME]`, or an odocal-protocol
+    /// controller's port (`PORT` or `odocal:PORT?baud=…`; `baud` unless the text gives one).
+    pub fn parse(text: &str, baud: u32) -> Result<Self, SpecError> {
+        let text = text.trim();
+        if let Ok(StoreSpec::Profile(path)) = text.parse::<StoreSpec>() {
+            return Ok(StoreLocation::Profile(path));
+        }
+        if let Some(parts) = scheme_parts(text, "ros-yaml", &["controller"]) {
+            let spec = parts?;
+            return Ok(StoreLocation::RosYaml {
+                controller: option(text, &spec, "controller", DEFAULT_CONTROLLER.to_string())?,
+                path: spec.port.into(),
+            });
+        }
+        match text.parse::<DriveSpec>() {
+            Ok(DriveSpec::Odocal { port, baud: b }) => Ok(StoreLocation::Odocal {
+                port,
+                baud: if text.contains("baud=") { b } else { baud },
+            }),
+            _ => Err(parse_err(
+                text,
+                "not a parameter store: give the port of an odocal-protocol controller, \
+                 profile:PATH or ros-yaml:PATH[?controller=NAME]",
+            )),
+        }
     }
-    let hint = "give the port of an odocal-protocol controller or profile:PATH";
-    Ok(Arc::new(open_controller(text, baud, hint).await?))
+
+    /// Where the store a backup was taken from is: the file it records (absolute; in older
+    /// backups, as it was given) or a controller's port (at `baud`). A store odocal cannot
+    /// open by itself (the simulated robot, a live ROS controller's running parameters) is
+    /// an error that asks for `--to`.
+    pub fn of_backup(backup: &BackupFile, baud: u32) -> Result<Self, SpecError> {
+        let details = &backup.store.details;
+        let detail = |key: &str| details.get(key).and_then(serde_json::Value::as_str);
+        let file = backup
+            .file
+            .clone()
+            .or_else(|| detail("file").map(PathBuf::from));
+        let unknown = |what: &str| {
+            SpecError::Combination(format!(
+                "the backup of {} `{}` does not say {what}: give the store with --to",
+                backup.store.kind, backup.store.id
+            ))
+        };
+        match backup.store.kind.as_str() {
+            crate::hal::base::KIND => Ok(StoreLocation::Odocal {
+                port: detail("port")
+                    .ok_or_else(|| unknown("which port the controller was on"))?
+                    .into(),
+                baud,
+            }),
+            kind if kind == ProfileFile.kind() => Ok(StoreLocation::Profile(
+                file.ok_or_else(|| unknown("which file"))?,
+            )),
+            crate::ros::yaml::KIND => Ok(StoreLocation::RosYaml {
+                path: file.ok_or_else(|| unknown("which file"))?,
+                controller: detail("controller")
+                    .ok_or_else(|| unknown("which controller"))?
+                    .into(),
+            }),
+            kind => Err(SpecError::Combination(format!(
+                "odocal cannot open a store of kind `{kind}` (`{}`) by itself: give one with \
+                 --to (a controller's port, profile:PATH or ros-yaml:PATH?controller=NAME)",
+                backup.store.id
+            ))),
+        }
+    }
+
+    /// **Connects to the store** (a controller: the handshake; a file: read and parsed).
+    pub async fn open(&self) -> Result<Arc<dyn ParamStore>, SpecError> {
+        Ok(match self {
+            StoreLocation::Odocal { port, baud } => {
+                Arc::new(crate::hal::open_port(port, *baud).await?.0)
+            }
+            StoreLocation::Profile(path) => Arc::new(ProfileStore::open(path)?),
+            StoreLocation::RosYaml { path, controller } => {
+                Arc::new(YamlStore::open(path, controller)?)
+            }
+        })
+    }
+}
+
+impl std::fmt::Display for StoreLocation {
+    /// The text form [`StoreLocation::parse`] reads.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            StoreLocation::Odocal { port, baud } if *baud == ODOCAL_BAUD => f.write_str(port),
+            StoreLocation::Odocal { port, baud } => write!(f, "odocal:{port}?baud={baud}"),
+            StoreLocation::Profile(path) => write!(f, "profile:{}", path.display()),
+            StoreLocation::RosYaml { path, controller } => {
+                write!(f, "ros-yaml:{}?controller={controller}", path.display())
+            }
+        }
+    }
 }
 
 /// An odocal-protocol controller named by a drive spec (its `baud=` over `baud`), or an error
@@ -669,6 +794,109 @@ mod tests {
         }
         assert!("nmea:/dev/x?baud=fast".parse::<HeadingSpec>().is_err());
         assert!("/dev/ttyUSB0".parse::<HeadingSpec>().is_err());
+    }
+
+    #[test]
+    fn stores_on_their_own_parse_print_and_are_found_from_a_backup() {
+        use serde_json::json;
+        for (text, want) in [
+            (
+                "/dev/ttyUSB0",
+                StoreLocation::Odocal {
+                    port: "/dev/ttyUSB0".into(),
+                    baud: 57_600,
+                },
+            ),
+            (
+                "profile:/r/robot.toml",
+                StoreLocation::Profile("/r/robot.toml".into()),
+            ),
+            (
+                "ros-yaml:/c/d.yaml",
+                StoreLocation::RosYaml {
+                    path: "/c/d.yaml".into(),
+                    controller: DEFAULT_CONTROLLER.into(),
+                },
+            ),
+            (
+                "ros-yaml:/c/d.yaml?controller=ns/ctrl",
+                StoreLocation::RosYaml {
+                    path: "/c/d.yaml".into(),
+                    controller: "ns/ctrl".into(),
+                },
+            ),
+        ] {
+            let got = StoreLocation::parse(text, 57_600).unwrap();
+            assert_eq!(got, want, "{text}");
+            assert_eq!(
+                StoreLocation::parse(&got.to_string(), 57_600).unwrap(),
+                want
+            );
+        }
+        for bad in [
+            "ros-yaml:",
+            "ros-yaml:/c.yaml?ctrl=x",
+            "rosbridge://h:1",
+            "mock",
+        ] {
+            let e = StoreLocation::parse(bad, ODOCAL_BAUD)
+                .unwrap_err()
+                .to_string();
+            assert!(e.starts_with(&format!("{bad:?}")), "{e}");
+        }
+        let backup = |kind: &str, details: serde_json::Value, file: Option<&str>| BackupFile {
+            odocal_version: "0".into(),
+            store: crate::base::ComponentInfo {
+                kind: kind.into(),
+                id: "x".into(),
+                details,
+            },
+            taken_utc: None,
+            file: file.map(PathBuf::from),
+            active: crate::kinematics::WheelParams::nominal(0.15, 0.39, 4096.0),
+            committed: None,
+        };
+        assert_eq!(
+            StoreLocation::of_backup(
+                &backup("odocal-protocol", json!({"port": "/dev/pts/3"}), None),
+                ODOCAL_BAUD
+            )
+            .unwrap()
+            .to_string(),
+            "/dev/pts/3"
+        );
+        // The absolute file the backup records, else (older backups) the one in its details.
+        assert_eq!(
+            StoreLocation::of_backup(
+                &backup(
+                    "robot-profile",
+                    json!({"file": "robot.toml"}),
+                    Some("/r/robot.toml")
+                ),
+                ODOCAL_BAUD
+            )
+            .unwrap(),
+            StoreLocation::Profile("/r/robot.toml".into())
+        );
+        assert_eq!(
+            StoreLocation::of_backup(
+                &backup(
+                    "ros2-control-yaml",
+                    json!({"file": "d.yaml", "controller": "c"}),
+                    None
+                ),
+                ODOCAL_BAUD
+            )
+            .unwrap(),
+            StoreLocation::RosYaml {
+                path: "d.yaml".into(),
+                controller: "c".into()
+            }
+        );
+        let e = StoreLocation::of_backup(&backup("simulated", json!(null), None), ODOCAL_BAUD)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("--to"), "{e}");
     }
 
     #[test]

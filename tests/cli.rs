@@ -246,14 +246,7 @@ fn demo_json_reports_a_tenfold_improvement_and_writes_files() {
         .unwrap()
         .iter()
         .any(|e| e["method"] == "exact"));
-    for f in [
-        "report.json",
-        "report.md",
-        "report.html",
-        "paths.svg",
-        "heading_errors.svg",
-        "end_points.svg",
-    ] {
+    for f in odocal::report::REPORT_FILES {
         assert!(dir.join(f).is_file(), "{f} not written");
     }
     // report.html stands alone: plots inline, nothing fetched, tags balanced (checked by

@@ -290,7 +290,7 @@ async fn a_gyro_scale_error_is_named_and_a_spin_test_removes_it() {
         )
     };
     let routine = |name: &str| RoutineConfig {
-        backup_dir: common::scratch(name),
+        backup_dir: Some(common::scratch(name)),
         settle_s: 0.0,
         ..common::quick_routine(&common::scratch(name))
     };

@@ -318,7 +318,7 @@ async fn a_device_that_does_not_come_back_is_reported_as_unknown_with_the_way_ba
         text.contains("reconnecting failed") && text.contains("no device on the port"),
         "{text}"
     );
-    assert!(text.contains("odocal params restore --from"), "{text}");
+    assert!(text.contains("odocal restore "), "{text}");
     assert_ne!(o.after_power_up, common::nominal(), "the SAVE had landed");
 }
 

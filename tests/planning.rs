@@ -24,7 +24,7 @@ fn settings(method: Option<Method>) -> RoutineConfig {
         settle_s: 0.0,
         write_back: WritePolicy::DryRun,
         confirm_motion: false,
-        backup_dir: common::scratch("planning"),
+        backup_dir: Some(common::scratch("planning")),
         ..RoutineConfig::default()
     }
 }
@@ -125,7 +125,7 @@ async fn a_target_stops_the_squares_and_the_confirming_round_verifies() {
         target_e_b_std: Some(1e-4),
         write_back: WritePolicy::Yes,
         confirm_motion: false,
-        backup_dir: common::scratch("planning-target"),
+        backup_dir: Some(common::scratch("planning-target")),
         ..RoutineConfig::default()
     };
     let report = common::routine_on(&sim, &cfg)

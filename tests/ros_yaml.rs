@@ -86,7 +86,8 @@ fn calibrated(cfg: &DiffDriveConfig) -> WheelParams {
     }
 }
 
-/// The copies of `file` odocal made beside it.
+/// The copies of `file` odocal made beside it (its text as it was; the transaction's JSON
+/// backups, `….json`, sit beside it too and are not among them).
 fn backups_beside(file: &Path) -> Vec<PathBuf> {
     let name = file.file_name().unwrap().to_string_lossy().into_owned();
     let mut found: Vec<PathBuf> = std::fs::read_dir(file.parent().unwrap())
@@ -96,6 +97,7 @@ fn backups_beside(file: &Path) -> Vec<PathBuf> {
             e.file_name()
                 .to_string_lossy()
                 .starts_with(&format!("{name}.odocal-backup-"))
+                && !e.file_name().to_string_lossy().ends_with(".json")
         })
         .map(|e| e.path())
         .collect();
@@ -113,6 +115,9 @@ async fn calibrate_through(store: Arc<dyn ParamStore>, file: &Path, name: &str, 
         .await
         .unwrap_or_else(|e| panic!("{name}: {e}"));
     assert_eq!(*tx.original(), cfg.effective(), "{name}");
+    // A file store's backup goes beside its file, whatever directory is given.
+    assert_eq!(tx.backup_path().and_then(Path::parent), file.parent());
+    assert!(!backups.exists(), "{name}");
     tx.apply(&calibrated(&cfg))
         .await
         .unwrap_or_else(|e| panic!("{name}: {e}"));

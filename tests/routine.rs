@@ -22,14 +22,14 @@ fn temp_dir(name: &str) -> std::path::PathBuf {
 
 fn demo_options(name: &str) -> DemoOptions {
     let mut opts = DemoOptions::default();
-    opts.routine.backup_dir = temp_dir(name);
+    opts.routine.backup_dir = Some(temp_dir(name));
     opts
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_demo_calibrates_verifies_and_writes_its_report() {
     let mut opts = demo_options("demo");
-    let report_dir = opts.routine.backup_dir.join("report");
+    let report_dir = opts.routine.backup_dir.clone().unwrap().join("report");
     opts.routine.report_dir = Some(report_dir.clone());
     let (report, device) = run_demo(&opts, &mut Unattended, &CancellationToken::new())
         .await
@@ -149,6 +149,8 @@ async fn declining_to_move_or_to_write_changes_nothing() {
     let mut opts = demo_options("decline");
     opts.routine.write_back = WritePolicy::Ask;
     opts.routine.confirm_motion = true;
+    let dir = opts.routine.backup_dir.clone().unwrap();
+    opts.routine.report_dir = Some(dir.join("report"));
     let mut ui = Scripted {
         answers: vec![false],
         questions: Vec::new(),
@@ -162,6 +164,8 @@ async fn declining_to_move_or_to_write_changes_nothing() {
         "{err}"
     );
     assert!(ui.questions[0].contains("may it move"));
+    // Declined before the robot moved: no backup, no partial report, no directory.
+    assert!(!dir.exists(), "declining leaves nothing behind");
     // Allowed to move, not to write.
     let mut ui = Scripted {
         answers: vec![true, false],
@@ -178,6 +182,18 @@ async fn declining_to_move_or_to_write_changes_nothing() {
     );
     assert!(!report.written);
     assert_eq!(lock(&device).active_params(), opts.nominal);
+    // Once it moved, the backup was taken (into the backup directory, none elsewhere).
+    assert_eq!(
+        std::fs::read_dir(&dir).unwrap().count(),
+        2,
+        "the backup and report/"
+    );
+    assert!(
+        report.backup_path.starts_with(&dir),
+        "{:?}",
+        report.backup_path
+    );
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 fn real_time_device(storage_fails: bool) -> Arc<Mutex<MockDevice>> {

@@ -43,7 +43,7 @@ fn routine(name: &str) -> RoutineConfig {
         write_back: WritePolicy::Yes,
         confirm_motion: false,
         settle_s: 0.0,
-        backup_dir: dir,
+        backup_dir: Some(dir),
         ..RoutineConfig::default()
     }
 }
@@ -632,7 +632,7 @@ async fn a_failed_run_leaves_a_partial_report_with_every_square_measured() {
     )
     .await
     .unwrap_err();
-    let partial: Vec<_> = std::fs::read_dir(&cfg.backup_dir)
+    let partial: Vec<_> = std::fs::read_dir(cfg.backup_dir.as_ref().unwrap())
         .unwrap()
         .filter_map(|e| e.ok().map(|e| e.path()))
         .filter(|p| {

@@ -197,6 +197,10 @@ impl<F: ParamFile> ParamStore for FileStore<F> {
         FILE_RESOLUTION
     }
 
+    fn file(&self) -> Option<PathBuf> {
+        Some(self.path.clone())
+    }
+
     /// The dry merge: the file parses, `params` render into it and read back, and its
     /// directory takes the backup and the replacement's temporary file.
     async fn check_write(&self, params: &WheelParams) -> Result<(), BaseError> {

@@ -207,6 +207,13 @@ pub trait ParamStore: Send + Sync {
         let _ = params;
         Ok(())
     }
+
+    /// The file the parameters live in, for a store that is a file (a robot profile, a
+    /// controller's YAML): its backups and a run's partial reports go beside it
+    /// ([`transaction::store_place`]). `None` for a device (the default).
+    fn file(&self) -> Option<std::path::PathBuf> {
+        None
+    }
 }
 
 /// Where the robot truly is: known only in simulation, where it gives reports true end points,

@@ -1,12 +1,19 @@
 //! The only way parameters get written: a transaction over a [`ParamStore`].
 //!
-//! [`Transaction::begin`] reads what the store holds, proves the store could take a write (a
-//! dry run: a file that cannot be rewritten is refused before the robot moves), and writes it
-//! to a new backup file before anything else (created exclusively: an earlier backup is never overwritten, a symlink never
-//! followed). [`Transaction::apply`] writes, reads back, commits and reads back the committed
-//! copy; [`Transaction::rollback`] puts the original back, in use and, if a commit may have
+//! [`Transaction::prepare`] reads what the store holds and proves the store could take a write
+//! (a dry run: a file that cannot be rewritten is refused before the robot moves), creating
+//! nothing; [`Transaction::back_up`] then writes what it holds to a new backup file (created
+//! exclusively: an earlier backup is never overwritten, a symlink never followed), so that a
+//! caller can ask its user in between and leave no file behind when the answer is no.
+//! [`Transaction::begin`] is both at once. [`Transaction::apply`] (refused until the backup
+//! exists) writes, reads back, commits and reads back the committed copy;
+//! [`Transaction::rollback`] puts the original back, in use and, if a commit may have
 //! happened, committed too. Callers decide *whether* to write (policy, bounds, confirmation);
 //! this file decides *how*.
+//!
+//! Backups live in one place per store: beside the file for a store that is a file
+//! (`robot.toml.odocal-backup-2026-11-25T14-03-07Z.json`), else in the directory the caller
+//! gives (`odocal-backup-<store id>-<UTC time>.json`); a second in the same second gets `-2`.
 
 use super::{same_within, BaseError, ComponentInfo, ParamStore};
 use crate::kinematics::WheelParams;
@@ -25,6 +32,14 @@ pub struct BackupFile {
     pub odocal_version: String,
     /// The store the parameters came from.
     pub store: ComponentInfo,
+    /// When it was taken (UTC, ISO 8601); absent in older backups.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub taken_utc: Option<String>,
+    /// The store's file, as an absolute path, for a store that is a file
+    /// ([`ParamStore::file`]): where `odocal restore` finds it again. Absent for a device, and
+    /// in older backups (whose `store.details.file` is as it was given).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub file: Option<PathBuf>,
     /// The parameters in use when the backup was taken.
     pub active: WheelParams,
     /// The committed copy, when the store has one.
@@ -46,7 +61,7 @@ pub enum Rollback {
 pub struct Transaction {
     store: Arc<dyn ParamStore>,
     original: WheelParams,
-    backup_path: PathBuf,
+    backup_path: Option<PathBuf>,
     written: bool,
     committed: bool,
     last_written: Option<WheelParams>,
@@ -78,35 +93,63 @@ impl std::fmt::Display for Holds {
 }
 
 impl Transaction {
-    /// Reads the store, proves that it could take a write of what it holds
-    /// ([`ParamStore::check_write`]: a file that cannot be rewritten is refused here, before
-    /// anything depends on it), and writes the backup into `backup_dir` (created if needed).
-    /// Nothing is written to the store.
-    pub async fn begin(
+    /// Reads the store and proves that it could take a write of `params` (of what it holds,
+    /// when `None`) ([`ParamStore::check_write`]: a file that cannot be rewritten is refused
+    /// here, before anything depends on it). Creates no file and writes nothing: the backup
+    /// comes with [`Transaction::back_up`], which [`Transaction::apply`] waits for.
+    pub async fn prepare(
         store: Arc<dyn ParamStore>,
-        backup_dir: &Path,
+        params: Option<&WheelParams>,
     ) -> Result<Transaction, BaseError> {
-        store.check_write(&store.read().await?).await?;
-        let (backup_path, backup) = backup_store(store.as_ref(), backup_dir).await?;
-        let original = backup.active;
+        let original = store.read().await?;
+        store.check_write(params.unwrap_or(&original)).await?;
         Ok(Transaction {
             store,
             original,
-            backup_path,
+            backup_path: None,
             written: false,
             committed: false,
             last_written: None,
         })
     }
 
-    /// The parameters the store held at the start.
+    /// Writes what the store holds now to a new backup file: beside the store's file, or in
+    /// `dir` (created if needed) for a store that is not a file ([`backup_store`]). The
+    /// original is what the backup holds. Once only: a second call returns the first backup.
+    pub async fn back_up(&mut self, dir: &Path) -> Result<PathBuf, BaseError> {
+        if let Some(path) = &self.backup_path {
+            return Ok(path.clone());
+        }
+        let (path, backup) = backup_store(self.store.as_ref(), dir).await?;
+        self.original = backup.active;
+        self.backup_path = Some(path.clone());
+        Ok(path)
+    }
+
+    /// [`Transaction::prepare`] and [`Transaction::back_up`] at once: proves the store could
+    /// take a write of what it holds, and backs it up. Nothing is written to the store.
+    pub async fn begin(
+        store: Arc<dyn ParamStore>,
+        backup_dir: &Path,
+    ) -> Result<Transaction, BaseError> {
+        let mut tx = Transaction::prepare(store, None).await?;
+        tx.back_up(backup_dir).await?;
+        Ok(tx)
+    }
+
+    /// The parameters the store held at the start (when backed up: what the backup holds).
     pub fn original(&self) -> &WheelParams {
         &self.original
     }
 
-    /// The backup file.
-    pub fn backup_path(&self) -> &Path {
-        &self.backup_path
+    /// The backup file, once [`Transaction::back_up`] wrote it.
+    pub fn backup_path(&self) -> Option<&Path> {
+        self.backup_path.as_deref()
+    }
+
+    /// The store.
+    pub fn store(&self) -> &Arc<dyn ParamStore> {
+        &self.store
     }
 
     /// Continues with `store`, a fresh connection to the same store (after the link to the
@@ -120,9 +163,10 @@ impl Transaction {
         self.written
     }
 
-    /// Writes `params`, reads them back, commits, and reads back the committed copy. Returns
-    /// the parameters as the store holds them (rounded to its resolution).
-    pub async fn apply(&mut self, params: &WheelParams) -> Result<WheelParams, BaseError> {
+    /// Writes `params` to the copy in use and reads them back, without committing (a device's
+    /// RAM; a file store only stages them). Returns them as the store holds them.
+    pub async fn write_in_use(&mut self, params: &WheelParams) -> Result<WheelParams, BaseError> {
+        self.require_backup()?;
         let resolution = self.store.resolution();
         // Marked before the call: a cancelled or failed write may still have landed.
         let before = (self.written, self.last_written);
@@ -145,6 +189,14 @@ impl Transaction {
                 read: Some(read),
             });
         }
+        Ok(read)
+    }
+
+    /// Writes `params`, reads them back, commits, and reads back the committed copy. Returns
+    /// the parameters as the store holds them (rounded to its resolution).
+    pub async fn apply(&mut self, params: &WheelParams) -> Result<WheelParams, BaseError> {
+        let read = self.write_in_use(params).await?;
+        let resolution = self.store.resolution();
         match self.store.commit().await {
             Ok(()) => self.committed = true,
             // A refusal leaves the committed copy as it was (SPEC.md §5 SAVE_PARAMS is atomic;
@@ -163,6 +215,17 @@ impl Transaction {
                 copy: "committed",
                 written: *params,
                 read: other,
+            }),
+        }
+    }
+
+    /// Nothing is written before the backup exists.
+    fn require_backup(&self) -> Result<(), BaseError> {
+        match self.backup_path {
+            Some(_) => Ok(()),
+            None => Err(BaseError::Backup {
+                path: PathBuf::new(),
+                source: std::io::Error::other("no backup was taken (Transaction::back_up)"),
             }),
         }
     }
@@ -230,8 +293,9 @@ impl Transaction {
     }
 }
 
-/// Reads `store` and writes what it holds to a new backup file in `dir`; returns the file and
-/// its content. Used by [`Transaction::begin`] and by tools that change a store by other means
+/// Reads `store` and writes what it holds to a new backup file: beside the store's file for a
+/// store that is a file ([`ParamStore::file`]), else in `dir`; returns the file and its
+/// content. Used by [`Transaction::back_up`] and by tools that change a store by other means
 /// (a device's factory reset).
 pub async fn backup_store(
     store: &dyn ParamStore,
@@ -241,14 +305,35 @@ pub async fn backup_store(
     // A committed copy that cannot be read (never saved, corrupt) must not block a backup of
     // what is in use; the backup then records none.
     let committed = store.read_committed().await.ok().flatten();
+    let file = store.file().map(|f| std::path::absolute(&f).unwrap_or(f));
     let backup = BackupFile {
         odocal_version: env!("CARGO_PKG_VERSION").into(),
         store: store.info(),
+        taken_utc: Some(crate::io::utc_time()),
+        file,
         active,
         committed,
     };
     let path = write_backup(dir, &backup)?;
     Ok((path, backup))
+}
+
+/// Where files of kind `beside` about a store go (its backups, a run's partial reports), and
+/// the start of their names: beside the store's `file` (`robot.toml.<beside>-`) for a store
+/// that is a file, else in `dir` (`<alone>-`). One place per store.
+pub fn store_place(
+    file: Option<&Path>,
+    dir: &Path,
+    beside: &str,
+    alone: &str,
+) -> (PathBuf, String) {
+    match file {
+        Some(f) => (
+            crate::io::dir_of(f).to_path_buf(),
+            format!("{}.{beside}-", crate::io::file_name_of(f)),
+        ),
+        None => (dir.to_path_buf(), format!("{alone}-")),
+    }
 }
 
 /// A file-name-safe form of a store id.
@@ -265,45 +350,159 @@ fn sanitise(id: &str) -> String {
     }
 }
 
-/// Creates a new backup file in `dir`; never replaces an existing file or follows a link.
+/// Creates a new backup file at the store's place ([`store_place`]); never replaces an
+/// existing file or follows a link.
 fn write_backup(dir: &Path, backup: &BackupFile) -> Result<PathBuf, BaseError> {
-    let stem = format!(
-        "odocal-backup-{}-{}",
-        sanitise(&backup.store.id),
-        crate::io::stamp_ms()
+    let (dir, prefix) = store_place(
+        backup.file.as_deref(),
+        dir,
+        "odocal-backup",
+        &format!("odocal-backup-{}", sanitise(&backup.store.id)),
     );
     let err = |path: &Path, source: std::io::Error| BaseError::Backup {
         path: path.to_path_buf(),
         source,
     };
-    std::fs::create_dir_all(dir).map_err(|e| err(dir, e))?;
+    std::fs::create_dir_all(&dir).map_err(|e| err(&dir, e))?;
     let text =
-        serde_json::to_string_pretty(backup).map_err(|e| err(dir, std::io::Error::other(e)))?;
-    crate::io::create_unique(
-        |n| {
-            if n == 0 {
-                dir.join(format!("{stem}.json"))
-            } else {
-                dir.join(format!("{stem}-{n}.json"))
-            }
-        },
-        text.as_bytes(),
-    )
-    .map_err(|e| err(dir, e))
+        serde_json::to_string_pretty(backup).map_err(|e| err(&dir, std::io::Error::other(e)))?;
+    crate::io::create_stamped(&dir, &prefix, ".json", text.as_bytes()).map_err(|e| err(&dir, e))
 }
 
-/// Reads a backup file written by [`Transaction::begin`].
-pub fn read_backup(path: &Path) -> Result<BackupFile, BaseError> {
-    let err = |source: std::io::Error| BaseError::Backup {
-        path: path.to_path_buf(),
-        source,
+/// Why a backup file cannot be restored to a store.
+#[derive(Debug, thiserror::Error)]
+pub enum BackupError {
+    /// The file cannot be read (missing, not a regular file, too large).
+    #[error("cannot read the backup {path}: {source}")]
+    Read {
+        /// The backup file.
+        path: PathBuf,
+        /// Why.
+        #[source]
+        source: std::io::Error,
+    },
+    /// The file is not a backup odocal wrote (not JSON, or fields missing or of the wrong type).
+    #[error("{path} is not a backup odocal wrote: {source}")]
+    Malformed {
+        /// The backup file.
+        path: PathBuf,
+        /// Where and why it does not parse.
+        #[source]
+        source: serde_json::Error,
+    },
+    /// The parameters in it are not a robot's (a zero or negative size, not finite).
+    #[error("{path} holds parameters no robot has: {source}")]
+    Invalid {
+        /// The backup file.
+        path: PathBuf,
+        /// Which parameter and why.
+        #[source]
+        source: crate::kinematics::KinematicsError,
+    },
+    /// It was taken from another kind of store (a controller's backup offered to a robot
+    /// profile, say): never restored.
+    #[error(
+        "{path} was taken from a store of kind `{backup_kind}` (`{backup_id}`), this is \
+         `{kind}` (`{id}`): a backup is restored only to the kind of store it came from"
+    )]
+    OtherKind {
+        /// The backup file.
+        path: PathBuf,
+        /// The kind of store it was taken from.
+        backup_kind: String,
+        /// Which one.
+        backup_id: String,
+        /// The kind of store it was offered to.
+        kind: String,
+        /// Which one.
+        id: String,
+    },
+    /// It was taken from another store of the same kind (another device, file or
+    /// controller): restored only when the caller says so.
+    #[error(
+        "{path} was taken from {kind} `{backup_id}`, this is `{id}`: not restored \
+         (--any-device to restore it anyway)"
+    )]
+    OtherStore {
+        /// The backup file.
+        path: PathBuf,
+        /// The kind of both stores.
+        kind: String,
+        /// The store it was taken from.
+        backup_id: String,
+        /// The store it was offered to.
+        id: String,
+    },
+}
+
+/// Whether `store` is the store `backup` (read from `path`) was taken from: the same kind
+/// ([`BackupError::OtherKind`] if not) and, for a device, the same id (firmware and serial
+/// number); for a file store, the same file (compared as canonical paths: a backup records it
+/// absolute, an older one as it was given) and the same section (a YAML's controller)
+/// ([`BackupError::OtherStore`] if not).
+pub fn check_store(
+    backup: &BackupFile,
+    path: &Path,
+    store: &dyn ParamStore,
+) -> Result<(), BackupError> {
+    let here = store.info();
+    if here.kind != backup.store.kind {
+        return Err(BackupError::OtherKind {
+            path: path.to_path_buf(),
+            backup_kind: backup.store.kind.clone(),
+            backup_id: backup.store.id.clone(),
+            kind: here.kind,
+            id: here.id,
+        });
+    }
+    let same = match store.file() {
+        None => here.id == backup.store.id,
+        Some(file) => {
+            let then = backup.file.clone().or_else(|| {
+                backup
+                    .store
+                    .details
+                    .get("file")
+                    .and_then(serde_json::Value::as_str)
+                    .map(PathBuf::from)
+            });
+            let canonical = |p: &Path| std::fs::canonicalize(p).unwrap_or_else(|_| p.to_path_buf());
+            then.is_some_and(|t| canonical(&t) == canonical(&file))
+                && here.details.get("controller") == backup.store.details.get("controller")
+        }
     };
-    let text = crate::io::read_bounded(path, crate::io::MAX_TEXT_FILE).map_err(err)?;
-    let backup: BackupFile = serde_json::from_str(&text)
-        .map_err(|e| err(std::io::Error::new(std::io::ErrorKind::InvalidData, e)))?;
+    if same {
+        Ok(())
+    } else {
+        Err(BackupError::OtherStore {
+            path: path.to_path_buf(),
+            kind: here.kind,
+            backup_id: backup.store.id.clone(),
+            id: here.id,
+        })
+    }
+}
+
+/// Reads a backup file written by [`Transaction::back_up`] (or [`backup_store`]): bounded,
+/// parsed, and its parameters checked.
+pub fn read_backup(path: &Path) -> Result<BackupFile, BackupError> {
+    let text = crate::io::read_bounded(path, crate::io::MAX_TEXT_FILE).map_err(|source| {
+        BackupError::Read {
+            path: path.to_path_buf(),
+            source,
+        }
+    })?;
+    let backup: BackupFile =
+        serde_json::from_str(&text).map_err(|source| BackupError::Malformed {
+            path: path.to_path_buf(),
+            source,
+        })?;
     backup
         .active
         .validate()
-        .map_err(|e| err(std::io::Error::new(std::io::ErrorKind::InvalidData, e)))?;
+        .map_err(|source| BackupError::Invalid {
+            path: path.to_path_buf(),
+            source,
+        })?;
     Ok(backup)
 }

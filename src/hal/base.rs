@@ -12,7 +12,8 @@ use async_trait::async_trait;
 use std::time::Duration;
 use tokio::sync::{broadcast, mpsc};
 
-const KIND: &str = "odocal-protocol";
+/// The kind a controller of our protocol gives in its descriptions (and backups).
+pub const KIND: &str = "odocal-protocol";
 
 fn to_base(component: &'static str, what: &'static str) -> impl Fn(HalError) -> BaseError {
     move |e| match e {

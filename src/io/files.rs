@@ -43,16 +43,47 @@ pub fn dir_of(path: &Path) -> &Path {
 /// Proves that a new file can be created in `dir` (and removed again): what a backup beside a
 /// file and an atomic replacement need, checked before anything depends on it.
 pub fn probe_dir(dir: &Path) -> std::io::Result<()> {
-    let probe = dir.join(format!(".odocal-write-check-{}", std::process::id()));
+    // Unique within the process too: threads probe the same directory at once.
+    static PROBES: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+    let n = PROBES.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    let probe = dir.join(format!(".odocal-write-check-{}-{n}", std::process::id()));
     create_new(&probe, b"")?;
     std::fs::remove_file(&probe)
 }
 
-/// Milliseconds since the Unix epoch, for file names that sort by time.
-pub fn stamp_ms() -> u128 {
-    std::time::SystemTime::now()
+/// The time now in UTC, ISO 8601 to the second: `2026-11-25T14:03:07Z`.
+pub fn utc_time() -> String {
+    let secs = std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0, |d| d.as_millis())
+        .map_or(0, |d| d.as_secs());
+    utc_time_of(secs)
+}
+
+/// The time now in UTC as a file name may carry it: `2026-11-25T14-03-07Z` ([`utc_time`] with
+/// `-` for `:`, which some file systems refuse), so that names sort by time.
+pub fn utc_stamp() -> String {
+    utc_time().replace(':', "-")
+}
+
+/// [`utc_time`] of `secs` seconds after the Unix epoch.
+pub fn utc_time_of(secs: u64) -> String {
+    let (days, rest) = (secs / 86_400, secs % 86_400);
+    // Days to a proleptic Gregorian date: H. Hinnant's `civil_from_days`, for days ≥ 0.
+    let z = days + 719_468;
+    let era = z / 146_097;
+    let doe = z % 146_097;
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let day = doy - (153 * mp + 2) / 5 + 1;
+    let month = if mp < 10 { mp + 3 } else { mp - 9 };
+    let year = yoe + era * 400 + u64::from(month <= 2);
+    format!(
+        "{year:04}-{month:02}-{day:02}T{:02}:{:02}:{:02}Z",
+        rest / 3600,
+        rest % 3600 / 60,
+        rest % 60
+    )
 }
 
 /// Creates `path` new with `bytes`, synced: never replaces a file and never follows a link
@@ -68,7 +99,7 @@ pub fn create_new(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
 
 /// Creates the first free one of `name(0)`, `name(1)`, … (up to 1000) with `bytes`
 /// ([`create_new`]); returns its path. For backups and reports that must never overwrite one
-/// another, even when two are made in the same millisecond.
+/// another, even when two are made in the same second.
 pub fn create_unique(name: impl Fn(u32) -> PathBuf, bytes: &[u8]) -> std::io::Result<PathBuf> {
     for n in 0..1000 {
         let candidate = name(n);
@@ -84,22 +115,95 @@ pub fn create_unique(name: impl Fn(u32) -> PathBuf, bytes: &[u8]) -> std::io::Re
     ))
 }
 
-/// Copies `path` to a new `<path>.odocal-backup-<ms>[-n]` beside it, never overwriting.
-pub fn backup_beside(path: &Path) -> std::io::Result<PathBuf> {
-    let stamp = stamp_ms();
-    let text = read_bounded_bytes(path, super::MAX_TEXT_FILE)?;
+/// Creates `<dir>/<prefix><UTC time><suffix>` new with `bytes` ([`utc_stamp`]), or, when a
+/// file of that name exists (two in one second), `…<UTC time>-2<suffix>`, `-3`, …; returns
+/// its path. Never replaces a file or follows a link.
+pub fn create_stamped(
+    dir: &Path,
+    prefix: &str,
+    suffix: &str,
+    bytes: &[u8],
+) -> std::io::Result<PathBuf> {
+    let stamp = utc_stamp();
     create_unique(
         |n| {
-            let mut name = path.as_os_str().to_owned();
-            name.push(if n == 0 {
-                format!(".odocal-backup-{stamp}")
-            } else {
-                format!(".odocal-backup-{stamp}-{n}")
-            });
-            PathBuf::from(name)
+            dir.join(match n {
+                0 => format!("{prefix}{stamp}{suffix}"),
+                n => format!("{prefix}{stamp}-{}{suffix}", n + 1),
+            })
         },
-        &text,
+        bytes,
     )
+}
+
+/// The name of the file `path` names, for names built on it (`robot.toml` →
+/// `robot.toml.odocal-backup-…`).
+pub fn file_name_of(path: &Path) -> String {
+    path.file_name()
+        .map_or_else(|| "file".into(), |n| n.to_string_lossy().into_owned())
+}
+
+/// Copies `path` to a new `<path>.odocal-backup-<UTC time>[-n]` beside it ([`create_stamped`]).
+pub fn backup_beside(path: &Path) -> std::io::Result<PathBuf> {
+    let text = read_bounded_bytes(path, super::MAX_TEXT_FILE)?;
+    let prefix = format!("{}.odocal-backup-", file_name_of(path));
+    create_stamped(dir_of(path), &prefix, "", &text)
+}
+
+/// Proves, creating nothing that stays, that `dir` could take new files: it is a directory
+/// that takes a new file, or it does not exist yet and its nearest existing ancestor is such a
+/// directory (where it would be created). Declining a run then leaves no directory behind.
+pub fn probe_dir_to_be(dir: &Path) -> std::io::Result<()> {
+    let mut at = dir;
+    loop {
+        match std::fs::metadata(at) {
+            Ok(m) if m.is_dir() => return probe_dir(at),
+            Ok(_) => {
+                return Err(std::io::Error::new(
+                    std::io::ErrorKind::NotADirectory,
+                    format!("{} exists and is not a directory", at.display()),
+                ))
+            }
+            // Up to the nearest ancestor that exists; a bare name is in `.`.
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound && at != Path::new(".") => {
+                at = dir_of(at);
+            }
+            Err(e) => return Err(e),
+        }
+    }
+}
+
+/// A directory for one run's files: `dir` (created if needed) when it holds none of `taken`
+/// (not even as a link), else the first of `dir-2`, `dir-3`, … that can be created new. An
+/// earlier run's directory is never written into.
+pub fn fresh_dir(dir: &Path, taken: &[&str]) -> std::io::Result<PathBuf> {
+    let holds = |d: &Path| {
+        taken
+            .iter()
+            .any(|f| std::fs::symlink_metadata(d.join(f)).is_ok())
+    };
+    if !dir.exists() {
+        std::fs::create_dir_all(dir)?;
+        return Ok(dir.to_path_buf());
+    }
+    if dir.is_dir() && !holds(dir) {
+        return Ok(dir.to_path_buf());
+    }
+    let name = dir
+        .file_name()
+        .map_or_else(|| "report".into(), |n| n.to_string_lossy().into_owned());
+    for n in 2..10_000 {
+        let candidate = dir.with_file_name(format!("{name}-{n}"));
+        match std::fs::create_dir(&candidate) {
+            Ok(()) => return Ok(candidate),
+            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => continue,
+            Err(e) => return Err(e),
+        }
+    }
+    Err(std::io::Error::new(
+        std::io::ErrorKind::AlreadyExists,
+        format!("{}: no free directory name", dir.display()),
+    ))
 }
 
 /// Opens a file to read at most `max_bytes` of it: only a regular file (a device node such as
@@ -139,4 +243,49 @@ pub fn read_bounded_bytes(path: &Path, max_bytes: u64) -> std::io::Result<Vec<u8
 pub fn read_bounded(path: &Path, max_bytes: u64) -> std::io::Result<String> {
     String::from_utf8(read_bounded_bytes(path, max_bytes)?)
         .map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidData, e))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn utc_stamps_are_calendar_dates_that_sort() {
+        // Checked against `date -u -d @SECS +%FT%TZ`.
+        assert_eq!(utc_time_of(0), "1970-01-01T00:00:00Z");
+        assert_eq!(utc_time_of(951_782_400), "2000-02-29T00:00:00Z");
+        assert_eq!(utc_time_of(1_709_251_199), "2024-02-29T23:59:59Z");
+        assert_eq!(utc_time_of(1_795_611_787), "2026-11-25T13:03:07Z");
+        assert_eq!(utc_time_of(4_102_444_800), "2100-01-01T00:00:00Z");
+        assert!(utc_time_of(1_795_611_787) < utc_time_of(1_795_611_788));
+        assert!(!utc_stamp().contains(':'), "{}", utc_stamp());
+    }
+
+    #[test]
+    fn stamped_files_never_replace_one_another() {
+        let dir = std::env::temp_dir().join(format!("odocal-stamped-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let a = create_stamped(&dir, "x.", ".json", b"1").unwrap();
+        let b = create_stamped(&dir, "x.", ".json", b"2").unwrap();
+        assert_ne!(a, b);
+        assert_eq!(std::fs::read(&a).unwrap(), b"1");
+        let name = file_name_of(&b);
+        assert!(name.starts_with("x.") && name.ends_with(".json"), "{name}");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn a_directory_to_be_is_probed_without_being_made() {
+        let base = std::env::temp_dir().join(format!("odocal-to-be-{}", std::process::id()));
+        std::fs::create_dir_all(&base).unwrap();
+        let deep = base.join("a/b/c");
+        probe_dir_to_be(&deep).unwrap();
+        assert!(!base.join("a").exists(), "nothing was created");
+        assert_eq!(std::fs::read_dir(&base).unwrap().count(), 0);
+        let file = base.join("f");
+        std::fs::write(&file, "x").unwrap();
+        assert!(probe_dir_to_be(&file.join("d")).is_err());
+        assert!(probe_dir_to_be(&file).is_err());
+        std::fs::remove_dir_all(&base).unwrap();
+    }
 }

@@ -334,47 +334,13 @@ pub fn html(report: &Report, svgs: &[(String, String)]) -> String {
     )
 }
 
-/// Every file a report directory receives.
-pub const REPORT_FILES: [&str; 6] = [
-    "report.json",
-    "report.md",
-    "report.html",
-    "paths.svg",
-    "heading_errors.svg",
-    "end_points.svg",
-];
+pub use crate::routine::report::REPORT_FILES;
 
 /// Where a report goes: `dir` when it holds none of [`REPORT_FILES`] (not even as a link),
 /// else the first of `dir-2`, `dir-3`, … that can be created new. An earlier report is never
 /// replaced and a planted link is never followed.
 pub fn fresh_report_dir(dir: &Path) -> std::io::Result<PathBuf> {
-    let taken = |d: &Path| {
-        REPORT_FILES
-            .iter()
-            .any(|f| std::fs::symlink_metadata(d.join(f)).is_ok())
-    };
-    if !dir.exists() {
-        std::fs::create_dir_all(dir)?;
-        return Ok(dir.to_path_buf());
-    }
-    if dir.is_dir() && !taken(dir) {
-        return Ok(dir.to_path_buf());
-    }
-    let name = dir
-        .file_name()
-        .map_or_else(|| "report".into(), |n| n.to_string_lossy().into_owned());
-    for n in 2..10_000 {
-        let candidate = dir.with_file_name(format!("{name}-{n}"));
-        match std::fs::create_dir(&candidate) {
-            Ok(()) => return Ok(candidate),
-            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => continue,
-            Err(e) => return Err(e),
-        }
-    }
-    Err(std::io::Error::new(
-        std::io::ErrorKind::AlreadyExists,
-        format!("{}: no free report directory name", dir.display()),
-    ))
+    crate::io::fresh_dir(dir, &REPORT_FILES)
 }
 
 /// Writes `report.json`, `report.md`, (with the `plots` feature) the SVG plots and

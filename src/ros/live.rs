@@ -1215,6 +1215,10 @@ impl ParamStore for RosStore {
         self.yaml.resolution()
     }
 
+    fn file(&self) -> Option<std::path::PathBuf> {
+        self.yaml.file()
+    }
+
     async fn check_write(&self, params: &WheelParams) -> Result<(), BaseError> {
         self.yaml.check_write(params).await?;
         if self.set_live {

@@ -22,7 +22,7 @@
 //! without changing something else (an alias, an anchor used elsewhere, a tag other than
 //! `!!float`, a value over several lines) is refused, naming the line. The file is replaced
 //! atomically, and the first replacement in a session first copies the original beside it
-//! (`<file>.odocal-backup-<ms>`, created exclusively).
+//! (`<file>.odocal-backup-<UTC time>`, created exclusively).
 
 mod locate;
 mod tree;
@@ -797,12 +797,15 @@ pub struct ControllerYaml {
     pub controller: String,
 }
 
+/// The kind of store a controller's YAML is, in descriptions and backups.
+pub const KIND: &str = "ros2-control-yaml";
+
 impl ParamFile for ControllerYaml {
     type Content = DiffDriveConfig;
     type Error = YamlError;
 
     fn kind(&self) -> &'static str {
-        "ros2-control-yaml"
+        KIND
     }
 
     fn id(&self, path: &Path) -> String {

@@ -102,8 +102,10 @@ pub struct RoutineConfig {
     pub watchdog_ms: u64,
     /// Telemetry period (ms), 0 for none (no odometry traces, no compass-sign check).
     pub telemetry_ms: u64,
-    /// Where the parameter backup is written.
-    pub backup_dir: PathBuf,
+    /// Where the parameter backup of a store that is not a file (a device) is written; `None`:
+    /// the report directory (or `.` without one). A file store's backup always goes beside
+    /// its file.
+    pub backup_dir: Option<PathBuf>,
     /// Where reports and plots are written, if anywhere.
     pub report_dir: Option<PathBuf>,
 }
@@ -135,7 +137,7 @@ impl Default for RoutineConfig {
             keep_worse: false,
             watchdog_ms: 500,
             telemetry_ms: 20,
-            backup_dir: PathBuf::from("."),
+            backup_dir: None,
             report_dir: None,
         }
     }

@@ -86,7 +86,7 @@ fn restore_advice(active: &Holds, committed: &Holds, backup: &std::path::Path) -
             "The robot holds its original parameters: nothing to restore.".into()
         }
         _ => format!(
-            "Restore them with `odocal params restore --from {} --stored` (or by hand).",
+            "Restore them with `odocal restore {}` (or by hand).",
             backup.display()
         ),
     }
@@ -110,7 +110,7 @@ mod tests {
         assert!(text.contains("in use the new parameters"), "{text}");
         assert!(text.contains("committed unknown (no answer)"), "{text}");
         assert!(
-            text.contains("odocal params restore --from /tmp/odocal-backup-x.json --stored"),
+            text.contains("odocal restore /tmp/odocal-backup-x.json"),
             "{text}"
         );
     }

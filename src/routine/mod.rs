@@ -1,9 +1,10 @@
 //! The scripted recalibration: from a mis-calibrated base to written, committed and verified
 //! parameters, safely, on any [`Base`].
 //!
-//! [`run`] drives a base through: a backup of its parameters once the store has shown it can
-//! take a write (a [`Transaction`], before anything else), pre-flight checks (drive faults, heading validity and noise at rest, the
-//! watchdog), calibration rounds of CW and CCW squares ([`square`]; each checked for
+//! [`run`] drives a base through: proof that the store can take a write (a [`Transaction`],
+//! before anything else), pre-flight checks (drive faults, heading validity and noise at rest,
+//! the watchdog), the user's leave to move, a backup of the parameters (before the robot first
+//! moves; declining leaves no file behind), calibration rounds of CW and CCW squares ([`square`]; each checked for
 //! plausibility, including the compass's sign convention against the commanded turns),
 //! estimation with every method, bounded write-back through the transaction under the
 //! configured policy, iteration until converged, and verification squares. Any error or
@@ -26,7 +27,7 @@ pub use report::Report;
 use crate::base::adjusted::Adjusted;
 use crate::base::transaction::Transaction;
 pub use crate::base::GroundTruth;
-use crate::base::{Base, BaseError, HeadingKind, MotionGuard};
+use crate::base::{Base, BaseError, HeadingKind, MotionGuard, ParamStore};
 use crate::calibration::plan::Plan;
 use crate::calibration::swing::SwingFit;
 use crate::calibration::uncertainty::{cramer_rao_bound, heading_error_sigma, TestDesign};
@@ -145,19 +146,16 @@ pub async fn run(
     cfg.validate()?;
     // Every place the run will write must take a file before the robot moves or a parameter
     // changes: a report that cannot be written after a write-back would leave the user
-    // without the record of what was done.
-    check_output_dir(&cfg.backup_dir)?;
+    // without the record of what was done. Nothing is created yet: a run declined at the
+    // first question leaves no file and no directory behind.
+    check_output_dir(&device_dir(cfg, None))?;
     if let Some(dir) = &cfg.report_dir {
         check_output_dir(dir)?;
     }
     ui.event(&RoutineEvent::Stage(
-        "reading the robot's parameters, proving they can be written back, backing them up".into(),
+        "reading the robot's parameters and proving they can be written back".into(),
     ));
-    let tx = cancellable(
-        cancel,
-        Transaction::begin(base.store.clone(), &cfg.backup_dir),
-    )
-    .await?;
+    let tx = cancellable(cancel, Transaction::prepare(base.store.clone(), None)).await?;
     let base = base.clone();
     let mut run = Calibration {
         base,
@@ -166,6 +164,7 @@ pub async fn run(
         ui,
         cancel,
         tx,
+        report_dir: None,
         progress: Progress::default(),
         noise: heading::NoisePool::default(),
         preflight_noise: heading::NoisePool::default(),
@@ -181,6 +180,18 @@ pub async fn run(
     }
 }
 
+/// Where the files of a store that is not a file go (its backup; a run's partial report
+/// when there is no report directory): the configured backup directory, else the report
+/// directory (`claimed`: this run's), else `.`.
+fn device_dir(cfg: &RoutineConfig, claimed: Option<&std::path::Path>) -> std::path::PathBuf {
+    cfg.backup_dir
+        .as_deref()
+        .or(claimed)
+        .or(cfg.report_dir.as_deref())
+        .unwrap_or(std::path::Path::new("."))
+        .to_path_buf()
+}
+
 /// One calibration run on a base: the steps of the procedure, each a method of its own.
 struct Calibration<'a> {
     /// The caller's base; its heading source wrapped once a swing measured a deviation.
@@ -189,8 +200,11 @@ struct Calibration<'a> {
     truth: Option<&'a dyn GroundTruth>,
     ui: &'a mut dyn RoutineUi,
     cancel: &'a CancellationToken,
-    /// The one write path: backed up before anything else, rolled back on failure.
+    /// The one write path: proven writable before anything else, backed up before the robot
+    /// first moves, rolled back on failure.
     tx: Transaction,
+    /// This run's report directory, once claimed ([`Calibration::claim_report_dir`]).
+    report_dir: Option<std::path::PathBuf>,
     progress: Progress,
     /// The spread of every rest's readings so far: the heading sensor's noise.
     noise: heading::NoisePool,
@@ -214,6 +228,7 @@ impl Calibration<'_> {
         self.preflight().await?;
         self.make_plan();
         self.confirm_motion()?;
+        self.back_up().await?;
         let original = *self.tx.original();
         self.swing(&original).await?;
         let mut current = original;
@@ -278,7 +293,10 @@ impl Calibration<'_> {
             &self.base,
             self.cfg,
             original,
-            self.tx.backup_path().to_path_buf(),
+            self.tx
+                .backup_path()
+                .map(std::path::Path::to_path_buf)
+                .unwrap_or_default(),
             current,
             self.noise.std_rad(),
             rounds,
@@ -289,6 +307,7 @@ impl Calibration<'_> {
         );
         report.swing = self.swing.take();
         report.plan = self.plan.take();
+        report.report_dir = self.report_dir.clone();
         Ok(report)
     }
 
@@ -411,6 +430,37 @@ impl Calibration<'_> {
         } else {
             self.moving_rests += 1;
         }
+    }
+
+    /// The report directory this run writes to: the configured one when no earlier report
+    /// holds it, else `dir-2`, `dir-3`, … (created now; `None` without one). Claimed before
+    /// the backup, so that a second run's backup never lands in the first one's directory.
+    fn claim_report_dir(&mut self) -> Result<Option<std::path::PathBuf>, RoutineError> {
+        if self.report_dir.is_none() {
+            if let Some(dir) = &self.cfg.report_dir {
+                let claimed = crate::io::fresh_dir(dir, &report::REPORT_FILES).map_err(|e| {
+                    RoutineError::Output {
+                        path: dir.clone(),
+                        reason: e.to_string(),
+                    }
+                })?;
+                self.report_dir = Some(claimed);
+            }
+        }
+        Ok(self.report_dir.clone())
+    }
+
+    /// Backs the parameters up, once the robot may move and before it does: beside the
+    /// store's file, or in the backup or this run's report directory.
+    async fn back_up(&mut self) -> Result<(), RoutineError> {
+        let claimed = self.claim_report_dir()?;
+        let dir = device_dir(self.cfg, claimed.as_deref());
+        let path = cancellable(self.cancel, self.tx.back_up(&dir)).await?;
+        self.stage(format!(
+            "backed up the robot's parameters to {}",
+            path.display()
+        ));
+        Ok(())
     }
 
     /// Asks before the robot first moves (unless the settings say not to).
@@ -601,18 +651,42 @@ impl Calibration<'_> {
         // short; this covers everything else), then undo any write.
         let _ = tokio::time::timeout(Duration::from_secs(2), self.base.drive.stop()).await;
         let err = undo(&self.base, &mut self.tx, err).await;
+        // Declined before the robot moved: nothing happened, and nothing is left behind.
+        if matches!(err, RoutineError::Declined(_)) && self.progress.runs.is_empty() {
+            return err;
+        }
         // Nothing measured is thrown away: the squares driven so far, where it stopped and
-        // why, beside the backup or in the report directory.
-        let cfg = self.cfg;
-        let dir = cfg.report_dir.as_ref().unwrap_or(&cfg.backup_dir);
-        let written = write_partial(
-            &self.base,
-            cfg,
-            &self.progress,
-            &err,
-            dir,
-            self.tx.backup_path(),
-        );
+        // why, with the store's files (beside a file store; for a device, in the report
+        // directory or with the backup).
+        let written = match self.claim_report_dir() {
+            Ok(claimed) => {
+                let dir = match &claimed {
+                    Some(d) => d.clone(),
+                    None => device_dir(self.cfg, None),
+                };
+                let (dir, prefix) = crate::base::transaction::store_place(
+                    ParamStore::file(self.base.store.as_ref()).as_deref(),
+                    &dir,
+                    "odocal-partial-report",
+                    "partial-report",
+                );
+                write_partial(
+                    &self.base,
+                    self.cfg,
+                    &self.progress,
+                    &err,
+                    (&dir, &prefix),
+                    self.tx.backup_path(),
+                )
+                .map_err(|e| {
+                    format!(
+                        "the partial report could not be written to {}: {e}",
+                        dir.display()
+                    )
+                })
+            }
+            Err(e) => Err(format!("the partial report could not be written: {e}")),
+        };
         self.ui.event(&RoutineEvent::Warning(match written {
             Ok(path) => format!(
                 "{} square(s) measured before the failure ({}) are in {}",
@@ -620,10 +694,7 @@ impl Calibration<'_> {
                 self.progress.stage,
                 path.display()
             ),
-            Err(e) => format!(
-                "the partial report could not be written to {}: {e}",
-                dir.display()
-            ),
+            Err(e) => e,
         }));
         err
     }
@@ -865,19 +936,19 @@ pub struct Progress {
     pub runs: Vec<RunReport>,
 }
 
-/// Writes `partial-report-<ms>.json` (created new) into `dir`: the phase, the error, what the
-/// robot's parameters are now ([`ParamsAfterFailure`]) and the backup, the base (its port) and
-/// its link diagnostics (requests, retries, the last request), the settings and every square
-/// measured, so the run can be estimated from or understood.
+/// Writes `<prefix><UTC time>.json` (created new) into `dir` (`place`): the phase, the error,
+/// what the robot's parameters are now ([`ParamsAfterFailure`]) and the backup, the base (its
+/// port) and its link diagnostics (requests, retries, the last request), the settings and
+/// every square measured, so the run can be estimated from or understood.
 fn write_partial(
     base: &Base,
     cfg: &RoutineConfig,
     progress: &Progress,
     err: &RoutineError,
-    dir: &std::path::Path,
-    backup: &std::path::Path,
+    place: (&std::path::Path, &str),
+    backup: Option<&std::path::Path>,
 ) -> std::io::Result<std::path::PathBuf> {
-    let stamp = crate::io::stamp_ms();
+    let (dir, prefix) = place;
     let value = serde_json::json!({
         "odocal_version": env!("CARGO_PKG_VERSION"),
         "error": err.to_string(),
@@ -891,19 +962,12 @@ fn write_partial(
     });
     let text = serde_json::to_string_pretty(&value).map_err(std::io::Error::other)?;
     std::fs::create_dir_all(dir)?;
-    crate::io::create_unique(
-        |n| {
-            dir.join(if n == 0 {
-                format!("partial-report-{stamp}.json")
-            } else {
-                format!("partial-report-{stamp}-{n}.json")
-            })
-        },
-        text.as_bytes(),
-    )
+    crate::io::create_stamped(dir, prefix, ".json", text.as_bytes())
 }
 
-/// Creates `dir` if needed and proves a new file can be created in it (and removed again).
+/// Proves that a new file could be created in `dir`, creating nothing that stays: it is a
+/// directory that takes one, or does not exist yet and would be created where one can be
+/// ([`crate::io::probe_dir_to_be`]).
 pub fn check_output_dir(dir: &std::path::Path) -> Result<(), RoutineError> {
     let fail = |reason: String| RoutineError::Output {
         path: dir.to_path_buf(),
@@ -912,8 +976,8 @@ pub fn check_output_dir(dir: &std::path::Path) -> Result<(), RoutineError> {
     if dir.exists() && !dir.is_dir() {
         return Err(fail("it exists and is not a directory".into()));
     }
-    std::fs::create_dir_all(dir).map_err(|e| fail(e.to_string()))?;
-    crate::io::probe_dir(dir).map_err(|e| fail(format!("a new file cannot be created there ({e})")))
+    crate::io::probe_dir_to_be(dir)
+        .map_err(|e| fail(format!("a new file cannot be created there ({e})")))
 }
 
 /// How long reopening a store after its link was lost may take (a board that resets when its
@@ -958,7 +1022,7 @@ async fn undo(base: &Base, tx: &mut Transaction, err: RoutineError) -> RoutineEr
                 source: Box::new(err),
                 restore_error: Box::new(e),
                 reconnect_error,
-                backup: tx.backup_path().into(),
+                backup: tx.backup_path().unwrap_or(std::path::Path::new("")).into(),
                 active,
                 committed,
             }
@@ -1213,10 +1277,12 @@ fn check_bounds(
 }
 
 /// Writes `new` under the routine's safety rules, for callers outside the routine (the online
-/// estimator's write-back): a [`Transaction`] backs the store up to `backup_dir` first;
-/// changes beyond `max_change` are refused; it asks unless `policy` is `Yes` (and writes
-/// nothing for `DryRun`); it writes, reads back, commits, reads back the committed copy, and
-/// rolls back on any failure. Returns the parameters as the store holds them and the backup.
+/// estimator's write-back): the store must show it can take them; changes beyond
+/// `max_change` are refused; it asks unless `policy` is `Yes` (and writes nothing for
+/// `DryRun`; declining leaves no file behind); a [`Transaction`] backs the store up (beside
+/// its file, or into `backup_dir`), writes, reads back, commits, reads back the committed
+/// copy, and rolls back on any failure. Returns the parameters as the store holds them and
+/// the backup.
 pub async fn write_parameters(
     base: &Base,
     new: &WheelParams,
@@ -1226,14 +1292,15 @@ pub async fn write_parameters(
     ui: &mut dyn RoutineUi,
     cancel: &CancellationToken,
 ) -> Result<(WheelParams, std::path::PathBuf), RoutineError> {
-    let mut tx = cancellable(cancel, Transaction::begin(base.store.clone(), backup_dir)).await?;
+    let mut tx = cancellable(cancel, Transaction::prepare(base.store.clone(), Some(new))).await?;
     let current = *tx.original();
     check_bounds(max_change, &current, new)?;
     if !authorise(policy, ui, &current, new) {
         return Err(RoutineError::Declined("parameters not written".into()));
     }
+    let backup = cancellable(cancel, tx.back_up(backup_dir)).await?;
     match cancellable(cancel, tx.apply(new)).await {
-        Ok(applied) => Ok((applied, tx.backup_path().to_path_buf())),
+        Ok(applied) => Ok((applied, backup)),
         Err(e) => Err(undo(base, &mut tx, e).await),
     }
 }

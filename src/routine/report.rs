@@ -329,7 +329,22 @@ pub struct Report {
     /// The plan shown before the robot moved ([`super::planning`]).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub plan: Option<crate::calibration::plan::Plan>,
+    /// The directory this run's report goes to: the configured one, or `dir-N` when an
+    /// earlier report holds it (claimed before the robot moved, so that this run's backup is
+    /// there too).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub report_dir: Option<PathBuf>,
 }
+
+/// Every file a report directory receives.
+pub const REPORT_FILES: [&str; 6] = [
+    "report.json",
+    "report.md",
+    "report.html",
+    "paths.svg",
+    "heading_errors.svg",
+    "end_points.svg",
+];
 
 /// `E_max,sys` of runs with true final positions (simulation only), see
 /// [`crate::calibration::e_max_sys`].
@@ -388,6 +403,7 @@ impl Report {
             warnings,
             swing: None,
             plan: None,
+            report_dir: None,
         }
     }
 }

@@ -235,7 +235,7 @@ pub fn quick_routine(dir: &std::path::Path) -> odocal::routine::config::RoutineC
         verification_runs: 2,
         write_back: odocal::routine::config::WritePolicy::Yes,
         confirm_motion: false,
-        backup_dir: dir.join("backups"),
+        backup_dir: Some(dir.join("backups")),
         ..odocal::routine::config::RoutineConfig::default()
     }
 }
@@ -252,7 +252,7 @@ pub fn virtual_routine(backup_dir: PathBuf) -> odocal::routine::config::RoutineC
         settle_s: 0.0,
         write_back: odocal::routine::config::WritePolicy::Yes,
         verification_runs: 1,
-        backup_dir,
+        backup_dir: Some(backup_dir),
         ..odocal::routine::config::RoutineConfig::default()
     }
 }

@@ -205,7 +205,8 @@ pub enum ParamsCommand {
     },
 }
 
-fn print_params(p: &WheelParams, json_out: bool, extra: serde_json::Value) -> CliResult {
+/// Prints parameters as a table, or as JSON with `extra`'s fields.
+pub fn print_params(p: &WheelParams, json_out: bool, extra: serde_json::Value) -> CliResult {
     if json_out {
         let mut v = serde_json::to_value(p)?;
         if let (Some(obj), Some(extra)) = (v.as_object_mut(), extra.as_object()) {
@@ -305,8 +306,8 @@ pub async fn params(cmd: ParamsCommand) -> CliResult {
     }
 }
 
-/// `params restore --from FILE`: the backup is read and validated first, then compared with what
-/// the device holds; nothing is written unless they differ and the user agrees.
+/// `params restore --from FILE`: `odocal restore FILE --to PORT` ([`crate::restore`]), to RAM
+/// only unless `--stored`.
 async fn restore_from(
     port: &PortArgs,
     file: &std::path::Path,
@@ -315,79 +316,18 @@ async fn restore_from(
     stored: bool,
     backup_dir: &std::path::Path,
 ) -> CliResult {
-    use odocal::base::ParamStore;
-    let from_file = odocal::base::transaction::read_backup(file)?;
+    let backup = odocal::base::transaction::read_backup(file)?;
     let client = port.connect().await?;
-    let here = ParamStore::info(&client);
-    if from_file.store.kind != here.kind || from_file.store.id != here.id {
-        if !any_device {
-            return Err(format!(
-                "{} was taken from {} `{}`, this is {} `{}`: not restored (--any-device to \
-                 restore it anyway)",
-                file.display(),
-                from_file.store.kind,
-                from_file.store.id,
-                here.kind,
-                here.id
-            )
-            .into());
-        }
-        eprintln!(
-            "warning: restoring a backup of {} `{}` onto `{}`",
-            from_file.store.kind, from_file.store.id, here.id
-        );
-    }
-    let current = client.get_params(ParamSource::Active).await?;
-    eprintln!(
-        "{} (taken by odocal {}):\n{}",
-        file.display(),
-        from_file.odocal_version,
-        odocal::routine::report::params_table(&current, &from_file.active)
-    );
-    if current == from_file.active && !stored {
-        eprintln!("the device already holds these parameters: nothing to write");
-        return print_params(&current, port.json, json!({ "written": false }));
-    }
-    if !yes {
-        let question = format!(
-            "write them to the device{}?",
-            if stored { " and its storage" } else { "" }
-        );
-        if !crate::prompt::yes(&question) {
-            return Err("not restored: declined".into());
-        }
-    }
-    // Either way the current parameters are backed up first, into a new file.
-    let (applied, saved_to) = if stored {
-        // Write, read back, save, read back the stored copy; rolled back on any failure.
-        let mut tx = odocal::base::transaction::Transaction::begin(
-            std::sync::Arc::new(client.clone()),
-            backup_dir,
-        )
-        .await?;
-        eprintln!(
-            "backed up the current parameters to {}",
-            tx.backup_path().display()
-        );
-        let applied = tx.apply(&from_file.active).await?;
-        (applied, tx.backup_path().to_path_buf())
-    } else {
-        let saved_to = backup(&client, backup_dir).await?;
-        (client.set_params(&from_file.active).await?, saved_to)
+    let how = crate::restore::Restore {
+        from: file,
+        dry_run: false,
+        yes,
+        any_device,
+        commit: stored,
+        backup_dir: backup_dir.to_path_buf(),
+        json: port.json,
     };
-    eprintln!(
-        "restored{}",
-        if stored {
-            " and saved"
-        } else {
-            " to RAM; run `odocal params save` to keep them across power cycles"
-        }
-    );
-    print_params(
-        &applied,
-        port.json,
-        json!({ "backup": saved_to, "restored_from": file, "written": true }),
-    )
+    crate::restore::restore_onto(Arc::new(client), &backup, &how).await
 }
 
 /// Runs `odocal status`.

@@ -7,6 +7,7 @@ mod plan;
 mod ports;
 mod prompt;
 mod replay;
+mod restore;
 mod roboclaw;
 mod robot;
 mod ros;
@@ -66,6 +67,9 @@ enum Command {
         #[command(subcommand)]
         command: device::ParamsCommand,
     },
+    /// Put a backup odocal wrote back into its store (a controller, a robot profile, a
+    /// controller's YAML) or another (--to): shows old → new, asks, backs up what is there first.
+    Restore(restore::RestoreArgs),
     /// Show the device's status.
     Status(device::PortArgs),
     /// Read the heading (counter-clockwise positive).
@@ -353,6 +357,7 @@ fn main() -> ExitCode {
         Command::Conformance(args) => block_on(conformance::run(args)),
         Command::KitDevice(args) => block_on(conformance::kit_device(args)),
         Command::Params { command } => block_on(device::params(command)),
+        Command::Restore(args) => block_on(restore::restore(args)),
         Command::Status(port) => block_on(device::status(port)),
         Command::Heading(args) => block_on(device::heading(args)),
         Command::Swing(args) => block_on(sensor::swing(args)),

@@ -223,7 +223,8 @@ fn print_outcome(report: &Report, json_out: bool, files: &[PathBuf]) -> CliResul
 }
 
 fn finish(report: &Report, report_dir: Option<&PathBuf>, json_out: bool) -> CliResult {
-    let files = match report_dir {
+    // The directory the run claimed before it moved (its backup is there), else the one asked.
+    let files = match report.report_dir.as_ref().or(report_dir) {
         Some(d) => odocal::report::write_dir(report, d)?,
         None => Vec::new(),
     };
@@ -282,7 +283,8 @@ pub async fn demo(args: DemoArgs) -> CliResult {
     }
     opts.faults.seed = args.seed;
     opts.heading_model = args.sensor.model()?;
-    opts.routine.backup_dir = args.report_dir.clone();
+    // The backup goes into this run's report directory (a second run's is `…-2`).
+    opts.routine.backup_dir = None;
     opts.routine.report_dir = Some(args.report_dir.clone());
     if args.allow_large_change {
         opts.routine.allow_large_change = true;
@@ -431,8 +433,8 @@ pub struct RoutineFlags {
     /// asks you to type LARGE unless --yes.
     #[arg(long)]
     allow_large_change: bool,
-    /// Where to write the backup [default: --report-dir when given, else the current
-    /// directory].
+    /// Where to write the backup of a device's parameters [default: the report directory]; a
+    /// robot profile's or a YAML's always goes beside the file.
     #[arg(long)]
     backup_dir: Option<PathBuf>,
     /// Where to write report.json, report.md, report.html and the plots (a new directory
@@ -493,10 +495,9 @@ impl RoutineFlags {
         }
         if let Some(d) = &self.report_dir {
             cfg.report_dir = Some(d.clone());
-            cfg.backup_dir = d.clone();
         }
         if let Some(d) = &self.backup_dir {
-            cfg.backup_dir = d.clone();
+            cfg.backup_dir = Some(d.clone());
         }
         cfg.validate()?;
         Ok(())

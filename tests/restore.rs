@@ -1,0 +1,348 @@
+//! `odocal restore BACKUP`: a backup put back into the store it came from — a controller of
+//! our protocol over a PTY, a robot profile, a controller's YAML — through the one write path
+//! (a new backup of what is there first, then write, read back, commit, read back). A dry run
+//! and a declined prompt write nothing and leave no file behind; a malformed backup, or one of
+//! another kind of store, is refused with a clear error; two backups taken in the same second
+//! are two files.
+
+mod common;
+
+use common::{odocal, odocal_json, scratch, spawn_mock};
+use odocal::base::transaction::{backup_store, read_backup, BackupError, Transaction};
+use odocal::base::{same_within, ParamStore};
+use odocal::kinematics::WheelParams;
+use odocal::roboclaw::profile::ProfileStore;
+use odocal::ros::yaml::YamlStore;
+use std::collections::BTreeSet;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+/// The files in `dir`.
+fn files(dir: &Path) -> BTreeSet<PathBuf> {
+    std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .collect()
+}
+
+fn name(path: &Path) -> String {
+    path.file_name().unwrap().to_string_lossy().into_owned()
+}
+
+/// A readable UTC time at the end of a backup's name (`…2026-11-25T14-03-07Z.json`, or
+/// `…Z-2.json` for a second one in the same second), and no epoch milliseconds.
+fn assert_utc_name(path: &Path, prefix: &str) {
+    let name = name(path);
+    assert!(name.starts_with(prefix), "{name} starts with {prefix}");
+    let stem = name.strip_suffix(".json").unwrap_or(&name);
+    let stem = match stem.rsplit_once('-') {
+        Some((head, n)) if n.parse::<u32>().is_ok() && head.ends_with('Z') => head,
+        _ => stem,
+    };
+    let stamp = &stem[stem.len().saturating_sub(20)..];
+    let b = stamp.as_bytes();
+    assert!(
+        b.len() == 20
+            && b[4] == b'-'
+            && b[10] == b'T'
+            && b[13] == b'-'
+            && b[19] == b'Z'
+            && stamp[..4].parse::<u32>().is_ok_and(|y| y >= 2024),
+        "{name}: no readable UTC time at its end"
+    );
+}
+
+/// A calibration's worth of change: a wider wheelbase and a smaller right wheel.
+fn changed(p: &WheelParams) -> WheelParams {
+    let mut c = *p;
+    c.wheelbase_m *= 1.03;
+    c.right_wheel_diameter_m *= 0.99;
+    c
+}
+
+/// A new scratch directory `name` holding the test robot's profile; returns both.
+fn profile_in(name: &str) -> (PathBuf, PathBuf) {
+    let dir = scratch(name);
+    std::fs::create_dir_all(&dir).unwrap();
+    let profile = dir.join("robot.toml");
+    std::fs::write(&profile, common::ROBOCLAW_PROFILE).unwrap();
+    (dir, profile)
+}
+
+type Open = fn(&Path) -> Arc<dyn ParamStore>;
+
+fn open_profile(path: &Path) -> Arc<dyn ParamStore> {
+    Arc::new(ProfileStore::open(path).unwrap())
+}
+
+fn open_yaml(path: &Path) -> Arc<dyn ParamStore> {
+    Arc::new(YamlStore::open(path, "diff_drive_controller").unwrap())
+}
+
+/// A file store's round trip: a backup of its original parameters beside it, then a change
+/// through a transaction; `odocal restore` of that backup shows, declines, and restores.
+async fn file_store_is_restored(test: &str, file_name: &str, text: &str, open: Open) {
+    let dir = scratch(test);
+    std::fs::create_dir_all(&dir).unwrap();
+    let file = dir.join(file_name);
+    std::fs::write(&file, text).unwrap();
+    let store = open(&file);
+    let resolution = store.resolution();
+    let original = store.read().await.unwrap();
+    // The backup goes beside the file whatever directory is given.
+    let mut tx = Transaction::begin(store.clone(), &dir.join("elsewhere"))
+        .await
+        .unwrap();
+    let backup = tx.backup_path().unwrap().to_path_buf();
+    assert_eq!(backup.parent(), Some(dir.as_path()));
+    assert!(!dir.join("elsewhere").exists());
+    assert_utc_name(&backup, &format!("{file_name}.odocal-backup-"));
+    let backup_text = std::fs::read(&backup).unwrap();
+    tx.apply(&changed(&original)).await.unwrap();
+    drop(tx);
+    let b = backup.to_str().unwrap();
+    let changed_text = std::fs::read(&file).unwrap();
+    let before = files(&dir);
+
+    // A dry run shows old → new and writes nothing, makes nothing.
+    let (ok, _, err) = odocal(&["restore", b, "--dry-run"]);
+    assert!(ok, "{err}");
+    assert!(
+        err.contains("wheelbase") && err.contains("dry run"),
+        "{err}"
+    );
+    assert_eq!(std::fs::read(&file).unwrap(), changed_text);
+    assert_eq!(files(&dir), before);
+    // Declined (stdin is empty): nothing written, no backup, no file left behind.
+    let (ok, _, err) = odocal(&["restore", b]);
+    assert!(!ok && err.contains("declined"), "{err}");
+    assert!(
+        err.contains("wheelbase"),
+        "the change is shown first: {err}"
+    );
+    assert_eq!(std::fs::read(&file).unwrap(), changed_text);
+    assert_eq!(files(&dir), before);
+
+    // Restored: the file holds the backup's parameters; what it held is in a new backup
+    // beside it, and the first backup is as it was.
+    let out = odocal_json(&["restore", b, "--yes", "--json"]);
+    assert_eq!(out["written"], true, "{out}");
+    let restored = open(&file).read().await.unwrap();
+    assert!(
+        same_within(&restored, &original, &resolution),
+        "{restored:?} vs {original:?}"
+    );
+    let second = PathBuf::from(out["backup"].as_str().unwrap());
+    assert_eq!(second.parent(), Some(dir.as_path()));
+    assert_utc_name(&second, &format!("{file_name}.odocal-backup-"));
+    assert_ne!(second, backup);
+    let kept = read_backup(&second).unwrap();
+    assert!(same_within(&kept.active, &changed(&original), &resolution));
+    assert_eq!(std::fs::read(&backup).unwrap(), backup_text);
+    let prefix = format!("{file_name}.odocal-backup-");
+    for new in files(&dir).difference(&before) {
+        assert!(name(new).starts_with(&prefix), "a stray file: {new:?}");
+    }
+    // Again: the store holds them already, nothing is written or made.
+    let now = files(&dir);
+    let out = odocal_json(&["restore", b, "--yes", "--json"]);
+    assert_eq!(out["written"], false, "{out}");
+    assert_eq!(files(&dir), now);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[tokio::test]
+async fn a_robot_profile_is_restored_from_its_backup() {
+    file_store_is_restored(
+        "restore-profile",
+        "robot.toml",
+        common::ROBOCLAW_PROFILE,
+        open_profile,
+    )
+    .await;
+}
+
+#[tokio::test]
+async fn a_controller_yaml_is_restored_from_its_backup() {
+    file_store_is_restored(
+        "restore-yaml",
+        "diff_drive.yaml",
+        common::DIFF_DRIVE_YAML,
+        open_yaml,
+    )
+    .await;
+}
+
+#[test]
+fn a_controller_over_a_pty_is_restored_from_its_backup() {
+    let dir = scratch("restore-device");
+    std::fs::create_dir_all(&dir).unwrap();
+    let d = dir.to_str().unwrap();
+    let (mut mock, port) = spawn_mock(&[]);
+    let get = |source: &str| {
+        odocal_json(&[
+            "params", "get", "--port", &port, "--source", source, "--json",
+        ])["wheelbase_m"]
+            .as_f64()
+            .unwrap()
+    };
+    let original = get("active");
+    let (ok, _, err) = odocal(&[
+        "params",
+        "set",
+        "--port",
+        &port,
+        "--wheelbase-m",
+        "0.41",
+        "--backup-dir",
+        d,
+    ]);
+    assert!(ok, "{err}");
+    let before = files(&dir);
+    assert_eq!(before.len(), 1, "{before:?}");
+    let backup = before.iter().next().unwrap().clone();
+    assert!(name(&backup).starts_with("odocal-backup-"), "{backup:?}");
+    let b = backup.to_str().unwrap();
+
+    let (ok, _, err) = odocal(&["restore", b, "--dry-run"]);
+    assert!(ok && err.contains("dry run"), "{err}");
+    assert_eq!(get("active"), 0.41);
+    let (ok, _, err) = odocal(&["restore", b]);
+    assert!(!ok && err.contains("declined"), "{err}");
+    assert_eq!(get("active"), 0.41);
+    assert_eq!(files(&dir), before, "declining leaves no file");
+
+    // The port is found in the backup; the device's backup goes beside the one restored.
+    let out = odocal_json(&["restore", b, "--yes", "--json"]);
+    assert_eq!(out["written"], true, "{out}");
+    assert_eq!(get("active"), original);
+    assert_eq!(get("stored"), original, "committed");
+    let second = PathBuf::from(out["backup"].as_str().unwrap());
+    assert_eq!(second.parent(), Some(dir.as_path()));
+    assert_eq!(read_backup(&second).unwrap().active.wheelbase_m, 0.41);
+    assert_eq!(files(&dir).len(), 2);
+
+    // A backup of another controller is refused, naming the way to force it.
+    let mut other = read_backup(&second).unwrap();
+    other.store.id = "someone-else-1234".into();
+    let foreign = dir.join("foreign.json");
+    std::fs::write(&foreign, serde_json::to_string(&other).unwrap()).unwrap();
+    let (ok, _, err) = odocal(&["restore", foreign.to_str().unwrap(), "--yes"]);
+    assert!(!ok && err.contains("--any-device"), "{err}");
+    assert_eq!(get("active"), original);
+    drop(mock.stdin.take());
+    let _ = mock.wait();
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[tokio::test]
+async fn malformed_backups_and_backups_of_another_kind_are_refused_clearly() {
+    let (dir, profile) = profile_in("restore-refused");
+    let yaml = dir.join("diff_drive.yaml");
+    std::fs::write(&yaml, common::DIFF_DRIVE_YAML).unwrap();
+    let (good, _) = backup_store(open_profile(&profile).as_ref(), &dir)
+        .await
+        .unwrap();
+    let cases: [(&str, String, &str); 4] = [
+        (
+            "not-json.json",
+            "not json at all".into(),
+            "is not a backup odocal wrote",
+        ),
+        (
+            "junk.json",
+            "{\"active\": 3}".into(),
+            "is not a backup odocal wrote",
+        ),
+        (
+            "negative.json",
+            std::fs::read_to_string(&good)
+                .unwrap()
+                .replace("\"wheelbase_m\": 0.39", "\"wheelbase_m\": -0.39"),
+            "no robot has",
+        ),
+        ("missing.json", String::new(), "cannot read the backup"),
+    ];
+    for (file, text, says) in &cases {
+        let path = dir.join(file);
+        if !text.is_empty() {
+            std::fs::write(&path, text).unwrap();
+        }
+        let typed = read_backup(&path).unwrap_err();
+        assert!(
+            matches!(
+                (&typed, *file),
+                (BackupError::Malformed { .. }, "not-json.json" | "junk.json")
+                    | (BackupError::Invalid { .. }, "negative.json")
+                    | (BackupError::Read { .. }, "missing.json")
+            ),
+            "{file}: {typed:?}"
+        );
+        let (ok, _, err) = odocal(&["restore", path.to_str().unwrap(), "--yes"]);
+        assert!(
+            !ok && err.contains(file) && err.contains(says),
+            "{file}: {err}"
+        );
+    }
+    // A profile's backup offered to a YAML: another kind of store, refused even when forced.
+    let yaml_text = std::fs::read(&yaml).unwrap();
+    let to = format!("ros-yaml:{}", yaml.display());
+    let g = good.to_str().unwrap();
+    let (ok, _, err) = odocal(&["restore", g, "--to", &to, "--yes", "--any-device"]);
+    assert!(
+        !ok && err.contains("robot-profile") && err.contains("ros2-control-yaml"),
+        "{err}"
+    );
+    assert_eq!(std::fs::read(&yaml).unwrap(), yaml_text);
+    // A store that is not one.
+    let (ok, _, err) = odocal(&["restore", g, "--to", "mock", "--yes"]);
+    assert!(!ok && err.contains("not a parameter store"), "{err}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[tokio::test]
+async fn a_second_backup_in_the_same_second_keeps_the_first() {
+    let (dir, profile) = profile_in("restore-same-second");
+    let store = open_profile(&profile);
+    // Taken back to back they almost always share a second; when the clock ticks between
+    // them, try again (a few times at most).
+    for _ in 0..5 {
+        let (first, _) = backup_store(store.as_ref(), &dir).await.unwrap();
+        let first_text = std::fs::read(&first).unwrap();
+        let (second, _) = backup_store(store.as_ref(), &dir).await.unwrap();
+        assert_ne!(first, second);
+        assert_eq!(std::fs::read(&first).unwrap(), first_text, "first kept");
+        let same_second = name(&first).replace(".json", "-2.json");
+        if name(&second) == same_second {
+            assert!(read_backup(&second).is_ok());
+            std::fs::remove_dir_all(&dir).unwrap();
+            return;
+        }
+        // Another second: the names are freed for the next try.
+        std::fs::remove_file(&first).unwrap();
+        std::fs::remove_file(&second).unwrap();
+    }
+    panic!("no two backups landed in the same second in five tries");
+}
+
+#[test]
+fn two_demo_runs_keep_their_backups_in_their_own_report_directories() {
+    let root = scratch("restore-demo-dirs");
+    let dir = root.join("report");
+    let d = dir.to_str().unwrap();
+    for _ in 0..2 {
+        let (ok, _, err) = odocal(&["demo", "--report-dir", d, "--seed", "4"]);
+        assert!(ok, "{err}");
+    }
+    for run in [dir.clone(), root.join("report-2")] {
+        let backups: Vec<_> = files(&run)
+            .into_iter()
+            .filter(|f| name(f).starts_with("odocal-backup-"))
+            .collect();
+        assert_eq!(backups.len(), 1, "{run:?}: {backups:?}");
+        assert_utc_name(&backups[0], "odocal-backup-");
+        assert!(run.join("report.json").is_file(), "{run:?}");
+    }
+    assert_eq!(files(&root).len(), 2, "nothing else: {:?}", files(&root));
+    std::fs::remove_dir_all(&root).unwrap();
+}
