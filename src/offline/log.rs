@@ -328,19 +328,24 @@ mod tests {
     use crate::calibration::recording::Validity;
     use crate::protocol::message::MotionState;
 
-    #[test]
-    fn logs_round_trip_and_bad_lines_are_named() {
-        let dir = std::env::temp_dir().join(format!("odocal-log-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        let path = dir.join("t.jsonl");
-        let header = LogHeader {
+    /// A log's header for the tests: nominal 0.15 m wheels, 0.39 m wheelbase, 20 ms samples.
+    fn test_header() -> LogHeader {
+        LogHeader {
             odocal_version: "x".into(),
             device: None,
             params: WheelParams::nominal(0.15, 0.39, 4096.0),
             period_ms: 20,
             base: None,
             clocks: Clocks::Shared,
-        };
+        }
+    }
+
+    #[test]
+    fn logs_round_trip_and_bad_lines_are_named() {
+        let dir = std::env::temp_dir().join(format!("odocal-log-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("t.jsonl");
+        let header = test_header();
         let sample = TelemetrySample {
             sample_index: 7,
             device_time_s: 0.14,
@@ -410,14 +415,7 @@ mod tests {
         let dir = std::env::temp_dir().join(format!("odocal-log-bad-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let path = dir.join("t.jsonl");
-        let header = LogHeader {
-            odocal_version: "x".into(),
-            device: None,
-            params: WheelParams::nominal(0.15, 0.39, 4096.0),
-            period_ms: 20,
-            base: None,
-            clocks: Clocks::Shared,
-        };
+        let header = test_header();
         let sample = |i: u32, t: f64, l: i64| TelemetrySample {
             sample_index: i,
             device_time_s: t,

@@ -386,9 +386,9 @@ mod tests {
         bag_with(compression, true)
     }
 
-    /// [`bag`], its chunk without the connection record when `conn_in_chunk` is false.
-    fn bag_with(compression: &str, conn_in_chunk: bool) -> Vec<u8> {
-        let conn = record(
+    /// The connection record of `/imu` (`sensor_msgs/Imu`, connection 3).
+    fn imu_connection() -> Vec<u8> {
+        record(
             &[
                 ("op", &[OP_CONNECTION]),
                 ("conn", &3u32.to_le_bytes()),
@@ -399,7 +399,12 @@ mod tests {
                 ("type", b"sensor_msgs/Imu"),
                 ("md5sum", b"x"),
             ]),
-        );
+        )
+    }
+
+    /// [`bag`], its chunk without the connection record when `conn_in_chunk` is false.
+    fn bag_with(compression: &str, conn_in_chunk: bool) -> Vec<u8> {
+        let conn = imu_connection();
         let inner = [
             if conn_in_chunk {
                 conn.clone()
@@ -507,19 +512,7 @@ mod tests {
             .unwrap()
             + 10;
         no_index[at..at + 8].copy_from_slice(&[0; 8]);
-        let conn_len = record(
-            &[
-                ("op", &[OP_CONNECTION]),
-                ("conn", &3u32.to_le_bytes()),
-                ("topic", b"/imu"),
-            ],
-            &header(&[
-                ("topic", b"/imu"),
-                ("type", b"sensor_msgs/Imu"),
-                ("md5sum", b"x"),
-            ]),
-        )
-        .len();
+        let conn_len = imu_connection().len();
         no_index.truncate(no_index.len() - conn_len);
         assert!(matches!(
             read(no_index),
