@@ -104,10 +104,8 @@ fn run(args: &[String]) -> Value {
 #[test]
 fn track_on_the_roboclaw_and_compass_agrees_with_its_squares_and_replays() {
     let _one = one_at_a_time();
-    let dir = common::scratch("any-roboclaw");
-    std::fs::create_dir_all(&dir).unwrap();
-    let profile = dir.join("robot.toml");
-    std::fs::write(&profile, common::ROBOCLAW_PROFILE).unwrap();
+    let (dir, profile) =
+        common::scratch_with("any-roboclaw", "robot.toml", common::ROBOCLAW_PROFILE);
     let profile_s = profile.to_str().unwrap().to_string();
     let (mut mock, lines) = common::spawn_server_lines(
         "mock-roboclaw",
@@ -164,10 +162,7 @@ fn track_on_the_roboclaw_and_compass_agrees_with_its_squares_and_replays() {
 #[test]
 fn on_a_ros_robot_track_agrees_with_its_squares_and_a_compass_can_replace_its_imu() {
     let _one = one_at_a_time();
-    let dir = common::scratch("any-ros");
-    std::fs::create_dir_all(&dir).unwrap();
-    let yaml = dir.join("diff_drive.yaml");
-    std::fs::write(&yaml, common::DIFF_DRIVE_YAML).unwrap();
+    let (dir, yaml) = common::scratch_with("any-ros", "diff_drive.yaml", common::DIFF_DRIVE_YAML);
     let yaml_s = yaml.to_str().unwrap().to_string();
     let (mut server, lines) = common::spawn_server_lines(
         "mock-rosbridge",

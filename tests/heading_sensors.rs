@@ -164,10 +164,7 @@ async fn roboclaw_case(name: &'static str, e_b: f64, e_d: f64, dev: &'static str
     use odocal::nmea::NmeaCompass;
     use odocal::roboclaw::client::{RoboClaw, RoboClawConfig};
     use odocal::roboclaw::profile::{Profile, ProfileStore};
-    let dir = common::scratch(name);
-    std::fs::create_dir_all(&dir).unwrap();
-    let path = dir.join("robot.toml");
-    std::fs::write(&path, common::ROBOCLAW_PROFILE).unwrap();
+    let (dir, path) = common::scratch_with(name, "robot.toml", common::ROBOCLAW_PROFILE);
     let mut truth = WheelParams::from_ratios(
         &common::nominal(),
         e_b,
@@ -232,10 +229,8 @@ async fn a_ros_robot_with_a_deviating_imu_and_its_real_noise() {
     use odocal::mock::rosbridge::{MockRosConfig, MockRosbridge};
     use odocal::ros::live::{connect, RosBaseConfig};
     use odocal::ros::yaml::DiffDriveConfig;
-    let dir = common::scratch("ros-deviation");
-    std::fs::create_dir_all(&dir).unwrap();
-    let yaml = dir.join("diff_drive.yaml");
-    std::fs::write(&yaml, common::DIFF_DRIVE_YAML).unwrap();
+    let (dir, yaml) =
+        common::scratch_with("ros-deviation", "diff_drive.yaml", common::DIFF_DRIVE_YAML);
     let controller = DiffDriveConfig::load(&yaml, "diff_drive_controller").unwrap();
     let mut cfg =
         MockRosConfig::with_ratios(controller, common::TRUE_E_B, common::TRUE_E_D).unwrap();
@@ -416,10 +411,7 @@ async fn a_gyro_with_its_scale_given_verifies_over_our_protocol() {
 /// real speed): the curve it prints is the compass's, and so is the flag that gives it back.
 #[test]
 fn odocal_swing_prints_the_compass_deviation_and_its_flag() {
-    let dir = common::scratch("swing-cli");
-    std::fs::create_dir_all(&dir).unwrap();
-    let profile = dir.join("robot.toml");
-    std::fs::write(&profile, common::ROBOCLAW_PROFILE).unwrap();
+    let (_, profile) = common::scratch_with("swing-cli", "robot.toml", common::ROBOCLAW_PROFILE);
     let profile_s = profile.to_str().unwrap();
     let (mut mock, lines) = common::spawn_server_lines(
         "mock-roboclaw",
@@ -527,10 +519,8 @@ fn odocal_swing_prints_the_compass_deviation_and_its_flag() {
 /// carries it one to one, is within 0.1 % once it is given.
 #[test]
 fn a_compass_beside_a_gyro_measures_its_scale_in_a_spin() {
-    let dir = common::scratch("spin-reference");
-    std::fs::create_dir_all(&dir).unwrap();
-    let yaml = dir.join("diff_drive.yaml");
-    std::fs::write(&yaml, common::DIFF_DRIVE_YAML).unwrap();
+    let (_, yaml) =
+        common::scratch_with("spin-reference", "diff_drive.yaml", common::DIFF_DRIVE_YAML);
     let yaml_s = yaml.to_str().unwrap();
     let (mut server, lines) = common::spawn_server_lines(
         "mock-rosbridge",

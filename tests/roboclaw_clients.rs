@@ -17,10 +17,7 @@ fn basicmicro_passes_its_conformance_checks_against_the_mock() {
     let Some(python) = common::client_python() else {
         return;
     };
-    let dir = common::scratch("basicmicro");
-    std::fs::create_dir_all(&dir).unwrap();
-    let profile = dir.join("robot.toml");
-    std::fs::write(&profile, common::ROBOCLAW_PROFILE).unwrap();
+    let (_, profile) = common::scratch_with("basicmicro", "robot.toml", common::ROBOCLAW_PROFILE);
     let (mut mock, lines) = common::spawn_server_lines(
         "mock-roboclaw",
         &[

@@ -12,10 +12,7 @@ fn roslibpy_passes_its_conformance_checks_against_the_mock() {
     let Some(python) = common::client_python() else {
         return;
     };
-    let dir = common::scratch("roslibpy");
-    std::fs::create_dir_all(&dir).unwrap();
-    let yaml = dir.join("diff_drive.yaml");
-    std::fs::write(&yaml, common::DIFF_DRIVE_YAML).unwrap();
+    let (_, yaml) = common::scratch_with("roslibpy", "diff_drive.yaml", common::DIFF_DRIVE_YAML);
     let (mut server, lines) = common::spawn_server_lines(
         "mock-rosbridge",
         &["--ros-yaml", yaml.to_str().unwrap(), "--port", "0"],

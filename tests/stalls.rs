@@ -130,41 +130,50 @@ fn our_protocol_survives_host_stalls_and_late_answers() {
     }
 }
 
+/// Starts `mock-roboclaw` for `profile` (a 20 Hz compass of σ 0.1°, plus `extra`); the
+/// process and the `calibrate` arguments that reach it, with the report in `dir`.
+fn roboclaw(
+    dir: &std::path::Path,
+    profile: &std::path::Path,
+    extra: &[&str],
+) -> (std::process::Child, Vec<String>) {
+    let profile = profile.to_str().unwrap();
+    let mut mock_args = vec![
+        "--profile",
+        profile,
+        "--compass-hz",
+        "20",
+        "--compass-sigma-deg",
+        "0.1",
+    ];
+    mock_args.extend(extra);
+    let (mock, lines) = common::spawn_server_lines("mock-roboclaw", &mock_args, 2);
+    let args = [
+        "calibrate",
+        "--base",
+        &lines[0],
+        "--heading",
+        &format!("{}?baud=115200", lines[1]),
+        "--profile",
+        profile,
+        "--report-dir",
+        dir.join("report").to_str().unwrap(),
+    ]
+    .map(String::from)
+    .to_vec();
+    (mock, args)
+}
+
 #[test]
 fn a_roboclaw_survives_host_and_device_stalls_and_late_answers() {
     for (stop_device, delay_ms) in [(false, "0"), (true, "0"), (false, "40")] {
-        let dir = common::scratch(&format!("stall-roboclaw-{stop_device}"));
-        std::fs::create_dir_all(&dir).unwrap();
-        let profile = dir.join("robot.toml");
-        std::fs::write(&profile, common::ROBOCLAW_PROFILE).unwrap();
-        let profile_s = profile.to_str().unwrap();
-        let (mut mock, lines) = common::spawn_server_lines(
-            "mock-roboclaw",
-            &[
-                "--profile",
-                profile_s,
-                "--compass-hz",
-                "20",
-                "--compass-sigma-deg",
-                "0.1",
-                "--answer-delay-ms",
-                delay_ms,
-            ],
-            2,
+        let (dir, profile) = common::scratch_with(
+            &format!("stall-roboclaw-{stop_device}"),
+            "robot.toml",
+            common::ROBOCLAW_PROFILE,
         );
-        let heading = format!("{}?baud=115200", lines[1]);
-        let report = dir.join("report");
-        let mut args = vec![
-            "calibrate",
-            "--base",
-            &lines[0],
-            "--heading",
-            &heading,
-            "--profile",
-            profile_s,
-            "--report-dir",
-            report.to_str().unwrap(),
-        ];
+        let (mut mock, args) = roboclaw(&dir, &profile, &["--answer-delay-ms", delay_ms]);
+        let mut args: Vec<&str> = args.iter().map(String::as_str).collect();
         args.extend(SHORT);
         let device = stop_device.then(|| mock.id());
         let stalls = if delay_ms == "0" { 5 } else { 0 };
@@ -185,11 +194,8 @@ fn a_roboclaw_survives_host_and_device_stalls_and_late_answers() {
 /// completely its heading stream covered it.
 #[test]
 fn the_default_method_does_not_depend_on_the_machines_load() {
-    let dir = common::scratch("stall-loaded");
-    std::fs::create_dir_all(&dir).unwrap();
-    let profile = dir.join("robot.toml");
-    std::fs::write(&profile, common::ROBOCLAW_PROFILE).unwrap();
-    let profile_s = profile.to_str().unwrap();
+    let (dir, profile) =
+        common::scratch_with("stall-loaded", "robot.toml", common::ROBOCLAW_PROFILE);
     let spinners: Vec<std::process::Child> = (0..2)
         .map(|_| {
             Command::new("sh")
@@ -198,31 +204,8 @@ fn the_default_method_does_not_depend_on_the_machines_load() {
                 .expect("sh runs")
         })
         .collect();
-    let (mut mock, lines) = common::spawn_server_lines(
-        "mock-roboclaw",
-        &[
-            "--profile",
-            profile_s,
-            "--compass-hz",
-            "20",
-            "--compass-sigma-deg",
-            "0.1",
-        ],
-        2,
-    );
-    let heading = format!("{}?baud=115200", lines[1]);
-    let report = dir.join("report");
-    let mut args = vec![
-        "calibrate",
-        "--base",
-        &lines[0],
-        "--heading",
-        &heading,
-        "--profile",
-        profile_s,
-        "--report-dir",
-        report.to_str().unwrap(),
-    ];
+    let (mut mock, args) = roboclaw(&dir, &profile, &[]);
+    let mut args: Vec<&str> = args.iter().map(String::as_str).collect();
     args.extend(SHORT);
     let (v, _) = stalled(&args, None, 0, Duration::ZERO, 0);
     for mut s in spinners {

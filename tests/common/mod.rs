@@ -118,6 +118,15 @@ pub fn scratch(name: &str) -> PathBuf {
     d
 }
 
+/// A new [`scratch`] directory holding `file` with `contents`: the directory and the file.
+pub fn scratch_with(name: &str, file: &str, contents: &str) -> (PathBuf, PathBuf) {
+    let dir = scratch(name);
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join(file);
+    std::fs::write(&path, contents).unwrap();
+    (dir, path)
+}
+
 /// The OptiOdom data set's root if it holds `sub` (`square`, `free`). Missing data fails the
 /// test when `CI` is set, and skips it with a notice otherwise.
 pub fn optiodom(sub: &str) -> Option<PathBuf> {
