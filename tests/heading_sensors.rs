@@ -113,6 +113,35 @@ async fn a_deviating_compass_over_our_protocol_is_calibrated_from_any_azimuth() 
     }
 }
 
+/// A compass as it comes: it loses 5 % of its readings, rounds to 0.1°, reads 1° off while the
+/// motors drive and has a deviation of 2°: the routine completes (a lost reading at rest only
+/// thins the average) and writes both combinations within 0.1 % of the truth.
+#[tokio::test(start_paused = true)]
+async fn a_compass_that_loses_rounds_and_feels_the_motors_is_still_calibrated() {
+    let model = HeadingModel {
+        loss: 0.05,
+        quantum_rad: 0.1f64.to_radians(),
+        motor_offset_rad: 1f64.to_radians(),
+        ..deviating("1.5,-1,0.8,0.5")
+    };
+    let (report, truth) = over_our_protocol(
+        "lossy-compass",
+        common::TRUE_E_B,
+        common::TRUE_E_D,
+        model,
+        0.4,
+        |_| {},
+    )
+    .await;
+    assert_within(
+        &report,
+        &truth,
+        1e-3,
+        "lossy, quantised, motor-disturbed compass",
+    );
+    assert!(report.rounds.iter().all(|r| !r.runs.is_empty()));
+}
+
 /// A robot about 50° off per square (E_b 0.95, E_d 1.05 on 1 m sides), compass σ 0.2°: the
 /// written combinations within 0.03 % of the truth and every verification square within 0.3°.
 #[tokio::test(start_paused = true)]

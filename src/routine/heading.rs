@@ -116,15 +116,48 @@ pub async fn readings_within(
     Ok(out)
 }
 
-/// `n` (at least 1) valid readings; an invalid one fails with its reason.
+/// Invalid readings in a row that are taken as lost samples, not a failed sensor, whatever
+/// the time they took: a sensor that drops 5 % of its samples loses three in a row about once
+/// in 8000 readings, ten practically never.
+pub const LOST_IN_A_ROW: usize = 10;
+
+/// How long a sensor may go without one valid reading (once two in a row were invalid) before
+/// it is taken as failed: a compass that stopped sending is named within seconds, not after
+/// [`LOST_IN_A_ROW`] of its own staleness waits.
+pub const SILENT_FOR: std::time::Duration = std::time::Duration::from_secs(2);
+
+/// `n` (at least 1) valid readings. An invalid reading is a lost sample and is skipped (the
+/// average is thinner, not wrong); the sensor is taken as failed, with the last reason, after
+/// [`LOST_IN_A_ROW`] invalid readings in a row, or two in a row with no valid reading for
+/// [`SILENT_FOR`].
 pub async fn readings(source: &dyn HeadingSource, n: usize) -> Result<Vec<f64>, RoutineError> {
     let mut out = Vec::with_capacity(n.max(1));
-    for _ in 0..n.max(1) {
+    let mut in_a_row = 0usize;
+    let mut last_valid = tokio::time::Instant::now();
+    while out.len() < n.max(1) {
         let h = source.read().await?;
-        if let crate::base::Validity::Invalid(reason) = h.validity {
-            return Err(BaseError::HeadingInvalid { reason }.into());
+        match h.validity {
+            crate::base::Validity::Valid if h.heading_rad.is_finite() => {
+                in_a_row = 0;
+                last_valid = tokio::time::Instant::now();
+                out.push(h.heading_rad);
+            }
+            validity => {
+                in_a_row += 1;
+                if in_a_row >= LOST_IN_A_ROW
+                    || (in_a_row >= 2 && last_valid.elapsed() >= SILENT_FOR)
+                {
+                    let reason = match validity {
+                        crate::base::Validity::Invalid(reason) => reason,
+                        crate::base::Validity::Valid => "the reading is not a number".into(),
+                    };
+                    return Err(BaseError::HeadingInvalid {
+                        reason: format!("{reason} ({in_a_row} invalid readings in a row)"),
+                    }
+                    .into());
+                }
+            }
         }
-        out.push(h.heading_rad);
     }
     Ok(out)
 }
