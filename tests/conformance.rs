@@ -7,12 +7,12 @@
 mod common;
 
 use odocal::hal::conformance::{run_clocked, Outcome};
-use odocal::mock::kit::{kit, kit_config, spawn_kit_pty};
+use odocal::mock::kit::{kit, kit_config, serve_kit, spawn_kit_pty};
 use odocal::protocol::device::{
     Board, Device, DeviceConfig, DriveCommand, HeadingReading, IdealBoard, RamStorage,
     SimulatedBoard,
 };
-use odocal::protocol::message::{FirmwareId, ParamsBlock};
+use odocal::protocol::message::{heading_status, FirmwareId, ParamsBlock};
 use serde_json::Value;
 use std::process::Command;
 use std::sync::{Arc, Mutex};
@@ -101,36 +101,113 @@ fn the_device_kit_passes_conformance_on_a_pty() {
     assert_conforms(ok, &report, "kit-device");
 }
 
-/// The ideal board with a watchdog that waits a hundred times too long.
-struct LateWatchdog(IdealBoard);
+/// The ideal board with one defect: a watchdog that waits `watchdog_factor` times too long, or
+/// a compass that takes a reading only every `compass_period_us` (each reading one µrad on
+/// from the last, so that two are told apart) and answers "not new" in between.
+struct Tweaked {
+    ideal: IdealBoard,
+    watchdog_factor: u64,
+    compass_period_us: Option<u64>,
+    /// The last reading: when it was taken, its value, whether it has been answered.
+    sample: Option<(u64, i32, bool)>,
+}
 
-impl Board for LateWatchdog {
-    fn now_us(&mut self) -> u64 {
-        self.0.now_us()
-    }
-    fn drive(&mut self, command: &DriveCommand) {
-        self.0.drive(command);
-    }
-    fn stop(&mut self) {
-        self.0.stop();
-    }
-    fn encoders(&mut self) -> (i32, i32) {
-        self.0.encoders()
-    }
-    fn reset_encoders(&mut self) {
-        self.0.reset_encoders();
-    }
-    fn heading(&mut self) -> HeadingReading {
-        self.0.heading()
-    }
-    fn watchdog_timeout_us(&self, timeout_ms: u16) -> u64 {
-        100 * self.0.watchdog_timeout_us(timeout_ms)
+impl Tweaked {
+    fn new(ideal: IdealBoard) -> Self {
+        Tweaked {
+            ideal,
+            watchdog_factor: 1,
+            compass_period_us: None,
+            sample: None,
+        }
     }
 }
 
-impl SimulatedBoard for LateWatchdog {
+impl Board for Tweaked {
+    fn now_us(&mut self) -> u64 {
+        self.ideal.now_us()
+    }
+    fn drive(&mut self, command: &DriveCommand) {
+        self.ideal.drive(command);
+    }
+    fn stop(&mut self) {
+        self.ideal.stop();
+    }
+    fn encoders(&mut self) -> (i32, i32) {
+        self.ideal.encoders()
+    }
+    fn reset_encoders(&mut self) {
+        self.ideal.reset_encoders();
+    }
+    fn heading(&mut self) -> HeadingReading {
+        let Some(period) = self.compass_period_us else {
+            return self.ideal.heading();
+        };
+        let now = self.ideal.now_us();
+        let (taken, value, answered) = match self.sample {
+            Some((at, v, answered)) if now < at + period => (at, v, answered),
+            Some((at, v, _)) => (at + period * ((now - at) / period), v + 1, false),
+            None => (now, self.ideal.heading().heading_urad, false),
+        };
+        self.sample = Some((taken, value, true));
+        HeadingReading {
+            heading_urad: value,
+            valid: true,
+            sensor_status: heading_status::CALIBRATED
+                | if answered { heading_status::NOT_NEW } else { 0 },
+        }
+    }
+    fn watchdog_timeout_us(&self, timeout_ms: u16) -> u64 {
+        self.watchdog_factor * self.ideal.watchdog_timeout_us(timeout_ms)
+    }
+}
+
+impl SimulatedBoard for Tweaked {
     fn advance_to(&mut self, now_us: u64) {
-        self.0.advance_to(now_us);
+        self.ideal.advance_to(now_us);
+    }
+}
+
+/// A device whose compass reads at 10 Hz, asked far faster: the host reads again while the
+/// device answers "not new" (SPEC §5, READ_HEADING bit 3), so five readings are five samples
+/// at least 0.4 s apart, never one sample five times; a compass that never takes another
+/// reading gives an invalid one, named, after the host has waited for it.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn readings_of_a_slow_compass_are_distinct_samples() {
+    use odocal::base::HeadingSource;
+    for period_us in [100_000, u64::MAX / 4] {
+        let mut board = Tweaked::new(IdealBoard::new(&robot()));
+        board.compass_period_us = Some(period_us);
+        let device = Device::new(board, RamStorage::default(), kit_config(robot())).unwrap();
+        let (host, dev) = tokio::io::duplex(4096);
+        tokio::spawn(serve_kit(Arc::new(Mutex::new(device)), dev, 1.0));
+        let (client, _) = odocal::hal::Client::connect(host, Default::default())
+            .await
+            .unwrap();
+        let start = std::time::Instant::now();
+        let mut values = Vec::new();
+        for _ in 0..5 {
+            let h = client.read().await.unwrap();
+            if period_us > 1_000_000 && !values.is_empty() {
+                match &h.validity {
+                    odocal::base::Validity::Invalid(why) => {
+                        assert!(why.contains("no new reading"), "{why}");
+                        break;
+                    }
+                    other => panic!("a compass that took no new reading read {other:?}"),
+                }
+            }
+            assert!(h.validity.is_valid(), "{:?}", h.validity);
+            values.push(h.heading_rad);
+        }
+        if period_us > 1_000_000 {
+            assert_eq!(values.len(), 1);
+            assert!(start.elapsed() >= std::time::Duration::from_millis(1400));
+            continue;
+        }
+        values.dedup();
+        assert_eq!(values.len(), 5, "{values:?}");
+        assert!(start.elapsed() >= std::time::Duration::from_millis(400));
     }
 }
 
@@ -141,7 +218,8 @@ async fn a_device_whose_watchdog_never_trips_fails_the_watchdog_rules_only() {
         firmware_id: FirmwareId::new("late-watchdog").unwrap(),
         ..kit_config(robot())
     };
-    let board = LateWatchdog(IdealBoard::new(&robot()).with_host_time_scale(scale));
+    let mut board = Tweaked::new(IdealBoard::new(&robot()).with_host_time_scale(scale));
+    board.watchdog_factor = 100;
     let device = Device::new(board, RamStorage::default(), config).unwrap();
     let server = spawn_kit_pty(Arc::new(Mutex::new(device)), scale).unwrap();
     let path = server.path.clone();

@@ -521,6 +521,18 @@ pub mod capability {
     pub const MOTION_QUEUE: u32 = 1 << 5;
 }
 
+/// Bits of [`Heading::sensor_status`] (SPEC.md §5, READ_HEADING).
+pub mod heading_status {
+    /// The sensor is calibrated.
+    pub const CALIBRATED: u8 = 1 << 0;
+    /// The sensor senses a magnetic disturbance.
+    pub const MAGNETIC_DISTURBANCE: u8 = 1 << 1;
+    /// The sensor does not respond.
+    pub const NOT_RESPONDING: u8 = 1 << 2;
+    /// No reading since the previous READ_HEADING was answered: the fields repeat that one.
+    pub const NOT_NEW: u8 = 1 << 3;
+}
+
 /// Fault bits of [`Status::fault_flags`].
 pub mod fault {
     /// Motor over-current.
@@ -670,7 +682,7 @@ wire_struct!(
         pub heading_urad: i32,
         /// Whether the reading may be used.
         pub valid: bool,
-        /// Sensor status bits.
+        /// Sensor status bits ([`heading_status`]).
         pub sensor_status: u8,
     }
 );

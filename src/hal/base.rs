@@ -7,7 +7,9 @@ use crate::base::{
     SampleStream, TravelSample, Validity, STREAM_CAPACITY,
 };
 use crate::kinematics::WheelParams;
-use crate::protocol::message::{capability, fault, MotionAccepted, MotionMode, ParamSource};
+use crate::protocol::message::{
+    capability, fault, heading_status, MotionAccepted, MotionMode, ParamSource,
+};
 use async_trait::async_trait;
 use std::time::Duration;
 use tokio::sync::{broadcast, mpsc};
@@ -254,6 +256,12 @@ fn motion_limit(expected_s: f64) -> Duration {
     Duration::from_secs_f64(if s.is_finite() { s.min(86_400.0) } else { 2.0 })
 }
 
+/// How long a heading sensor that answers "not new" is waited for (a sensor of 1 Hz or more).
+const NEW_HEADING_WITHIN: Duration = Duration::from_millis(1500);
+
+/// How often it is asked meanwhile.
+const NEW_HEADING_POLL: Duration = Duration::from_millis(5);
+
 #[async_trait]
 impl HeadingSource for Client {
     fn info(&self) -> ComponentInfo {
@@ -261,10 +269,29 @@ impl HeadingSource for Client {
     }
 
     async fn read(&self) -> Result<HeadingSample, BaseError> {
-        let h = self
-            .read_heading()
-            .await
-            .map_err(to_base("heading", "a heading read"))?;
+        // A device whose sensor has taken no reading since its last answer says so (SPEC.md
+        // §5, READ_HEADING bit 3): read again until it has, so that readings at rest are
+        // distinct samples.
+        let asked = tokio::time::Instant::now();
+        let h = loop {
+            let h = self
+                .read_heading()
+                .await
+                .map_err(to_base("heading", "a heading read"))?;
+            if h.sensor_status & heading_status::NOT_NEW == 0 {
+                break h;
+            }
+            if asked.elapsed() >= NEW_HEADING_WITHIN {
+                return Ok(HeadingSample {
+                    time_s: crate::protocol::units::us_to_s(u64::from(h.timestamp_us)),
+                    heading_rad: h.heading_rad,
+                    validity: Validity::Invalid(format!(
+                        "the device's heading sensor took no new reading within {NEW_HEADING_WITHIN:?}"
+                    )),
+                });
+            }
+            tokio::time::sleep(NEW_HEADING_POLL).await;
+        };
         Ok(HeadingSample {
             time_s: crate::protocol::units::us_to_s(u64::from(h.timestamp_us)),
             heading_rad: h.heading_rad,

@@ -99,7 +99,9 @@ pub struct HeadingReading {
     pub heading_urad: i32,
     /// Whether the reading may be used.
     pub valid: bool,
-    /// Sensor status bits: 0 calibrated, 1 magnetic disturbance, 2 not responding.
+    /// Sensor status bits ([`crate::message::heading_status`]): 0 calibrated, 1 magnetic
+    /// disturbance, 2 not responding, 3 not new (the sensor has taken no reading since the
+    /// previous answer: a board reading a cached sample sets it, SPEC.md §5).
     pub sensor_status: u8,
 }
 
@@ -150,7 +152,8 @@ pub trait Board {
     /// Zeroes both encoder counters (RESET_ODOMETRY).
     fn reset_encoders(&mut self);
 
-    /// A heading reading now.
+    /// The sensor's newest reading; [`crate::message::heading_status::NOT_NEW`] set if it is
+    /// the one answered last time.
     fn heading(&mut self) -> HeadingReading;
 
     /// Whether the board has a heading sensor (HELLO capability bit 0).
