@@ -687,3 +687,47 @@ async fn reconnecting_a_port_frees_it_from_the_old_link_and_reopens_the_device()
         "the old link is closed"
     );
 }
+
+/// A slow adapter (30 ms before every answer) on a link that expects answers within 10 ms:
+/// the first exchange measures it, and from then on no request is sent twice; the watchdog
+/// the device acknowledged is what the link's budget follows (virtual time).
+#[tokio::test(start_paused = true)]
+async fn a_slow_adapter_is_measured_and_costs_no_retries() {
+    let faults = FaultConfig {
+        latency: Duration::from_millis(30),
+        ..FaultConfig::default()
+    };
+    let (stream, _task) = spawn_duplex(device(0.1, 4), TimeMode::Virtual, faults);
+    let config = LinkConfig {
+        response_time: Duration::from_millis(5),
+        margin: Duration::from_millis(5),
+        ..LinkConfig::default()
+    };
+    let (client, _) = Client::connect(stream, config).await.unwrap();
+    // HELLO was retried (30 ms > its 12 ms deadline); its answer bounds the latency, and the
+    // next exchanges measure it.
+    for _ in 0..3 {
+        client.read_heading().await.unwrap();
+    }
+    let measured = client.stats();
+    let latency = measured.adapter_latency_us.expect("measured");
+    assert!((27_000..31_000).contains(&latency), "{latency} µs");
+    for _ in 0..20 {
+        client.read_heading().await.unwrap();
+    }
+    let applied = client
+        .configure_watchdog(Some(Duration::from_millis(4000)))
+        .await
+        .unwrap();
+    assert_eq!(applied, Duration::from_millis(4000));
+    let stats = client.stats();
+    assert_eq!(stats.retries, measured.retries, "{stats:?}");
+    assert_eq!(stats.watchdog_ms, 4000);
+    // The budget of a request covers the watchdog: the host outlasts the device's own stop.
+    let budget = config.budget(&Request::GetStatus, Duration::from_millis(4000));
+    assert!(budget > Duration::from_millis(4000), "{budget:?}");
+    assert_eq!(
+        config.budget(&Request::GetStatus, Duration::ZERO),
+        config.retry_budget
+    );
+}

@@ -1,12 +1,15 @@
 //! The task that owns the link: one request in flight, retries with the same sequence number,
 //! responses matched by sequence number, events fanned out to subscribers.
 //!
-//! A request is retried until it has been tried `retries + 1` times **and** `retry_budget` has
-//! passed since it was first sent: on a link that loses half the attempts (1 % of bytes
-//! corrupted and 5 % of frames lost both ways make most frames of 30 bytes a coin toss), a
-//! fixed count of six fails one request in 64, and a calibration sends hundreds. Retries reuse
-//! the sequence number, so the device answers a repeated motion from its cache and never runs
-//! it twice.
+//! A request is retried until it has been tried `retries + 1` times **and** its budget has
+//! passed since it was first sent: `retry_budget`, or the device's watchdog plus one deadline
+//! if that is longer, so the host gives up only once the device has stopped by itself. Each
+//! attempt waits for transmission, the device's answer time and twice the latency measured on
+//! the link (the shortest answer seen beyond transmission). Budgets, not counts: on a link that
+//! loses half the attempts (1 % of bytes corrupted and 5 % of frames lost both ways make most
+//! frames of 30 bytes a coin toss), a fixed count of six fails one request in 64, and a
+//! calibration sends hundreds. Retries reuse the sequence number, so the device answers a
+//! repeated motion from its cache and never runs it twice.
 
 use super::{HalError, LinkError, LinkStats, TelemetrySample};
 use crate::kinematics::wrap_angle;
@@ -62,16 +65,31 @@ impl LinkConfig {
     /// How long to wait for the answer to `request`: both frames' transmission time at the
     /// baud rate, plus the device's response time from SPEC.md §3, plus the margin.
     pub fn deadline(&self, request: &Request) -> Duration {
+        let device = match request.msg() {
+            id::SAVE_PARAMS | id::RESTORE_DEFAULTS => self.storage_time,
+            _ => self.response_time,
+        };
+        self.wire_time(request) + device + self.margin
+    }
+
+    /// Both frames' transmission time at the baud rate (10 bits per byte).
+    pub fn wire_time(&self, request: &Request) -> Duration {
         let msg = request.msg();
         let req = payload_len(FrameKind::Request, msg).unwrap_or(0) + 9;
         let resp = payload_len(FrameKind::Response, msg).unwrap_or(0) + 9;
         let bits = 10.0 * (req + resp) as f64;
-        let wire = Duration::from_secs_f64(bits / f64::from(self.baud.max(1)));
-        let device = match msg {
-            id::SAVE_PARAMS | id::RESTORE_DEFAULTS => self.storage_time,
-            _ => self.response_time,
-        };
-        wire + device + self.margin
+        Duration::from_secs_f64(bits / f64::from(self.baud.max(1)))
+    }
+
+    /// The retry budget of a request while the device's watchdog is `watchdog` (zero: off):
+    /// at least [`LinkConfig::retry_budget`], and at least the watchdog plus one deadline, so
+    /// that the host gives up on a silent link only once the device has stopped by itself.
+    pub fn budget(&self, request: &Request, watchdog: Duration) -> Duration {
+        if watchdog.is_zero() {
+            self.retry_budget
+        } else {
+            self.retry_budget.max(watchdog + self.deadline(request))
+        }
     }
 }
 
@@ -239,7 +257,7 @@ impl Link {
                         {
                             self.stats.retries.fetch_add(1, Ordering::Relaxed);
                             p.attempts += 1;
-                            p.deadline = Instant::now() + self.config.deadline(&p.request);
+                            p.deadline = Instant::now() + self.deadline(&p.request);
                             if let Err(e) = write(&mut wr, &p.bytes).await {
                                 closed = Some(e);
                             }
@@ -272,9 +290,12 @@ impl Link {
         self.stats.requests.fetch_add(1, Ordering::Relaxed);
         let now = Instant::now();
         Ok(Pending {
-            deadline: now + self.config.deadline(&request),
+            deadline: now + self.deadline(&request),
             first_sent: now,
-            budget: self.config.retry_budget,
+            budget: self.config.budget(
+                &request,
+                Duration::from_millis(self.stats.watchdog_ms.load(Ordering::Relaxed)),
+            ),
             request,
             seq,
             bytes,
@@ -283,6 +304,45 @@ impl Link {
             resend_new_seq: false,
             reply,
         })
+    }
+
+    /// The deadline of one attempt: [`LinkConfig::deadline`] plus twice the latency measured
+    /// on this link (a USB adapter adds 1–16 ms each way), so that a slow adapter is not
+    /// taken for a lost frame.
+    fn deadline(&self, request: &Request) -> Duration {
+        let measured = self.stats.adapter_latency_us.load(Ordering::Relaxed);
+        let latency = if measured == u64::MAX {
+            self.stats.latency_bound_us.load(Ordering::Relaxed)
+        } else {
+            measured
+        };
+        self.config.deadline(request) + 2 * Duration::from_micros(latency.min(1_000_000))
+    }
+
+    /// What an answer tells of the link: the time beyond transmission, and the watchdog
+    /// timeout the device acknowledged. The shortest time seen on a first attempt is the
+    /// adapter's latency plus the device's quickest turnaround. A retried request's answer may
+    /// be to any attempt: its time from the first is only an upper bound, used until a first
+    /// attempt is answered (deadlines too long for a while rather than retries forever on a
+    /// link slower than every deadline).
+    fn measured(&self, p: &Pending, response: &Response) {
+        let beyond = p
+            .first_sent
+            .elapsed()
+            .saturating_sub(self.config.wire_time(&p.request));
+        let us = u64::try_from(beyond.as_micros()).unwrap_or(u64::MAX - 1);
+        if p.attempts == 1 {
+            self.stats
+                .adapter_latency_us
+                .fetch_min(us, Ordering::Relaxed);
+        } else {
+            self.stats.latency_bound_us.fetch_max(us, Ordering::Relaxed);
+        }
+        if let Response::ConfigureWatchdog(w) = response {
+            self.stats
+                .watchdog_ms
+                .store(u64::from(w.timeout_ms), Ordering::Relaxed);
+        }
     }
 
     fn dispatch(
@@ -309,6 +369,7 @@ impl Link {
                 match pending.take_if(|p| p.seq == packet.seq && p.request.msg() == response.msg())
                 {
                     Some(p) => {
+                        self.measured(&p, &response);
                         if let Some(r) = p.reply {
                             let _ = r.send(Ok(response));
                         }

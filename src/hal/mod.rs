@@ -56,7 +56,7 @@ pub const STATUS_POLL: Duration = Duration::from_millis(250);
 pub const HEARTBEAT_EVERY: Duration = Duration::from_millis(100);
 
 /// Counters of the link's health.
-#[derive(Debug, Default)]
+#[derive(Debug)]
 pub struct LinkStats {
     /// Requests sent (first attempts, including BUSY resends).
     pub requests: AtomicU64,
@@ -78,6 +78,14 @@ pub struct LinkStats {
     pub telemetry_dropped: AtomicU64,
     /// Valid frames received of any kind (a sign of life of the device).
     pub frames_received: AtomicU64,
+    /// The shortest answer time beyond transmission seen so far (µs; `u64::MAX` before the
+    /// first): what the adapter and the device's turnaround add to every exchange.
+    pub adapter_latency_us: AtomicU64,
+    /// The watchdog timeout the device last acknowledged (ms; 0: off).
+    pub watchdog_ms: AtomicU64,
+    /// The longest time beyond transmission from a retried request's first attempt to its
+    /// answer (µs): the latency used while no first attempt has been answered.
+    pub latency_bound_us: AtomicU64,
 }
 
 /// A snapshot of [`LinkStats`].
@@ -103,6 +111,31 @@ pub struct LinkStatsSnapshot {
     pub telemetry_dropped: u64,
     /// See [`LinkStats::frames_received`].
     pub frames_received: u64,
+    /// See [`LinkStats::adapter_latency_us`] (`None` before the first answer).
+    pub adapter_latency_us: Option<u64>,
+    /// See [`LinkStats::watchdog_ms`].
+    pub watchdog_ms: u64,
+}
+
+impl Default for LinkStats {
+    fn default() -> Self {
+        let z = || AtomicU64::new(0);
+        LinkStats {
+            requests: z(),
+            retries: z(),
+            timeouts: z(),
+            busy: z(),
+            stale_answers: z(),
+            undecodable: z(),
+            decoder_dropped_bytes: z(),
+            telemetry_received: z(),
+            telemetry_dropped: z(),
+            frames_received: z(),
+            adapter_latency_us: AtomicU64::new(u64::MAX),
+            watchdog_ms: z(),
+            latency_bound_us: z(),
+        }
+    }
 }
 
 impl LinkStats {
@@ -119,6 +152,8 @@ impl LinkStats {
             telemetry_received: g(&self.telemetry_received),
             telemetry_dropped: g(&self.telemetry_dropped),
             frames_received: g(&self.frames_received),
+            adapter_latency_us: Some(g(&self.adapter_latency_us)).filter(|&l| l != u64::MAX),
+            watchdog_ms: g(&self.watchdog_ms),
         }
     }
 }
