@@ -53,17 +53,10 @@ pub const MAX_WAIT: Duration = Duration::from_secs(15);
 /// How long to await a fresh reading: 2.5 median intervals of `arrivals`, at least `min`,
 /// at most [`MAX_WAIT`]; [`FIRST_WAIT`] (or `min`) before two sentences have arrived.
 pub fn wait_for_fresh(arrivals: &VecDeque<Instant>, min: Duration) -> Duration {
-    let mut gaps: Vec<Duration> = arrivals
-        .iter()
-        .zip(arrivals.iter().skip(1))
-        .map(|(a, b)| b.duration_since(*a))
-        .collect();
-    if gaps.is_empty() {
-        return FIRST_WAIT.max(min);
+    match interval(arrivals) {
+        None => FIRST_WAIT.max(min),
+        Some(median) => median.mul_f64(2.5).clamp(min, MAX_WAIT.max(min)),
     }
-    gaps.sort();
-    let median = gaps[gaps.len() / 2];
-    median.mul_f64(2.5).clamp(min, MAX_WAIT.max(min))
 }
 
 impl NmeaCompass {
@@ -133,6 +126,7 @@ async fn read_sentences<S: AsyncRead + Unpin>(mut stream: S, out: Outputs) {
             Ok(0) | Err(_) => return,
             Ok(n) => n,
         };
+        let mut burst: Vec<f64> = Vec::new();
         for &b in &chunk[..n] {
             // CR LF, LF alone and CR alone all end a sentence; the empty line between CR and
             // LF is nothing.
@@ -164,22 +158,7 @@ async fn read_sentences<S: AsyncRead + Unpin>(mut stream: S, out: Outputs) {
                     }
                     chosen = Some(kind);
                     st.0.headings += 1;
-                    drop(st);
-                    let now = Instant::now();
-                    let sample = HeadingSample {
-                        time_s: crate::base::host_time_s(),
-                        heading_rad: azimuth_to_heading(azimuth),
-                        validity: Validity::Valid,
-                    };
-                    {
-                        let mut a = out.arrivals.lock().unwrap_or_else(|p| p.into_inner());
-                        a.push_back(now);
-                        while a.len() > RATE_WINDOW {
-                            a.pop_front();
-                        }
-                    }
-                    out.streams.send(&sample);
-                    let _ = out.tx.send(Some((now, sample)));
+                    burst.push(azimuth_to_heading(azimuth));
                 }
                 Err(NmeaError::Other(_)) => st.0.ignored += 1,
                 Err(e @ NmeaError::Checksum { .. }) => {
@@ -192,7 +171,54 @@ async fn read_sentences<S: AsyncRead + Unpin>(mut stream: S, out: Outputs) {
                 }
             }
         }
+        publish(&out, &burst);
     }
+}
+
+/// Publishes the headings of one read from the port. More than one at once is a backlog (the
+/// host was stalled, the adapter held them): they were sent at the compass's own pace, so
+/// each is stamped back from now at its observed interval (never before the previous one),
+/// not all at one instant, which would read as a gap in the stream and a pile-up after it.
+fn publish(out: &Outputs, headings: &[f64]) {
+    let Some(last) = headings.len().checked_sub(1) else {
+        return;
+    };
+    let now = Instant::now();
+    let now_s = crate::base::host_time_s();
+    let mut arrivals = out.arrivals.lock().unwrap_or_else(|p| p.into_inner());
+    let interval = interval(&arrivals).unwrap_or_default();
+    let previous = arrivals.back().copied();
+    for (i, &heading_rad) in headings.iter().enumerate() {
+        let back = interval * u32::try_from(last - i).unwrap_or(u32::MAX);
+        let mut at = now.checked_sub(back).unwrap_or(now);
+        if let Some(p) = previous {
+            at = at.max(p);
+        }
+        let sample = HeadingSample {
+            time_s: now_s - now.duration_since(at).as_secs_f64(),
+            heading_rad,
+            validity: Validity::Valid,
+        };
+        arrivals.push_back(at);
+        while arrivals.len() > RATE_WINDOW {
+            arrivals.pop_front();
+        }
+        out.streams.send(&sample);
+        if i == last {
+            let _ = out.tx.send(Some((at, sample)));
+        }
+    }
+}
+
+/// The median interval between `arrivals`, if two have arrived.
+fn interval(arrivals: &VecDeque<Instant>) -> Option<Duration> {
+    let mut gaps: Vec<Duration> = arrivals
+        .iter()
+        .zip(arrivals.iter().skip(1))
+        .map(|(a, b)| b.duration_since(*a))
+        .collect();
+    gaps.sort();
+    gaps.get(gaps.len() / 2).copied()
 }
 
 #[async_trait]
@@ -215,7 +241,9 @@ impl HeadingSource for NmeaCompass {
         let mut rx = self.latest.clone();
         let fresh = tokio::time::timeout(
             wait,
-            rx.wait_for(|h| h.as_ref().is_some_and(|(at, _)| *at >= asked)),
+            // Strictly after: under a clock that does not move between two calls (a paused
+            // test clock, a coarse timer) one sentence must not be read twice.
+            rx.wait_for(|h| h.as_ref().is_some_and(|(at, _)| *at > asked)),
         )
         .await;
         match fresh {
@@ -268,6 +296,35 @@ impl HeadingSource for NmeaCompass {
 mod tests {
     use super::*;
     use crate::nmea::sentence::sentence;
+
+    /// Ten sentences at 10 Hz, then a stall of the host: the next five arrive in one read and
+    /// are stamped 0.1 s apart, ending now, as the compass sent them.
+    #[tokio::test(start_paused = true)]
+    async fn a_backlog_read_at_once_keeps_the_compass_pace() {
+        use tokio::io::AsyncWriteExt;
+        let (mut tx, rx) = tokio::io::duplex(4096);
+        let compass = NmeaCompass::new(rx, "test", Duration::from_millis(100));
+        let mut stream = compass.stream(Duration::ZERO).await.unwrap().unwrap();
+        let line = |deg: f64| sentence("HEHDT", &format!("{deg:.1},T"));
+        for i in 0..10 {
+            tx.write_all(line(f64::from(i)).as_bytes()).await.unwrap();
+            tokio::time::sleep(Duration::from_millis(100)).await;
+        }
+        tokio::time::sleep(Duration::from_millis(400)).await;
+        let backlog: String = (10..15).map(|i| line(f64::from(i))).collect();
+        tx.write_all(backlog.as_bytes()).await.unwrap();
+        tokio::time::sleep(Duration::from_millis(10)).await;
+        let mut times = Vec::new();
+        while let Ok(Some(h)) = tokio::time::timeout(Duration::from_millis(1), stream.recv()).await
+        {
+            times.push(h.time_s);
+        }
+        assert_eq!(times.len(), 15, "{times:?}");
+        for w in times[10..].windows(2) {
+            assert!(((w[1] - w[0]) - 0.1).abs() < 1e-3, "{times:?}");
+        }
+        assert!(times[10] > times[9], "{times:?}");
+    }
 
     #[tokio::test]
     async fn a_stream_gives_fresh_readings_and_stale_ones_say_why() {

@@ -371,10 +371,16 @@ impl RoboClaw {
     }
 
     /// The firmware version string (the handshake: a RoboClaw answers it, others do not).
+    /// Asked at least three times and for the link's budget, so that a host stalled while it
+    /// connects does not take a RoboClaw for another device.
     pub async fn version(&self) -> Result<String, RoboClawError> {
         let after = self.deadline(52);
-        let attempts = 3;
-        for attempt in 1..=attempts {
+        let started = tokio::time::Instant::now();
+        let budget = self.budget();
+        let mut attempts = 0;
+        while attempts < 3 || started.elapsed() < budget {
+            attempts += 1;
+            let attempt = attempts;
             let mut port = self.port.lock().await;
             let quiet = if attempt == 1 {
                 Duration::from_millis(1)
