@@ -945,9 +945,9 @@ impl RosDrive {
     /// topics of a velocity type.
     async fn diagnose_still(&self, witnessed: &Option<Vec<f64>>) -> NotMoving {
         let client = &self.commander.client;
-        let ask = |service: &'static str, args: Value| async move {
+        let ask = |service: &'static str, kind: &'static str, args: Value| async move {
             client
-                .call_service(service, "rosapi_msgs/srv/Any", args, DIAGNOSIS_CALL_TIMEOUT)
+                .call_service(service, kind, args, DIAGNOSIS_CALL_TIMEOUT)
                 .await
                 .ok()
         };
@@ -958,9 +958,17 @@ impl RosDrive {
             types::TWIST
         };
         let (listed, subscribers, all) = tokio::join!(
-            ask("/rosapi/topic_type", json!({ "topic": topic })),
-            ask("/rosapi/subscribers", json!({ "topic": topic })),
-            ask("/rosapi/topics", json!({})),
+            ask(
+                "/rosapi/topic_type",
+                "rosapi_msgs/srv/TopicType",
+                json!({ "topic": topic })
+            ),
+            ask(
+                "/rosapi/subscribers",
+                "rosapi_msgs/srv/Subscribers",
+                json!({ "topic": topic })
+            ),
+            ask("/rosapi/topics", "rosapi_msgs/srv/Topics", json!({})),
         );
         let mut notes = Vec::new();
         match listed

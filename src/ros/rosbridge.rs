@@ -6,6 +6,7 @@
 //! state is shared: once the server goes away every call fails with [`RosbridgeError::Closed`]
 //! and every subscription ends.
 
+use super::fragment::Defragmenter;
 use futures_util::{SinkExt, StreamExt};
 use serde_json::{json, Value};
 use std::collections::HashMap;
@@ -140,6 +141,7 @@ impl RosbridgeClient {
         });
         let (t, p, f) = (topics.clone(), pending.clone(), foreign.clone());
         tokio::spawn(async move {
+            let mut fragments = Defragmenter::default();
             let reason = loop {
                 match source.next().await {
                     None => break "the server closed the connection".to_string(),
@@ -149,7 +151,9 @@ impl RosbridgeClient {
                             format!("the server closed the connection: {}", f.reason)
                         })
                     }
-                    Some(Ok(Message::Text(text))) => dispatch(text.as_str(), &t, &p, &f),
+                    Some(Ok(Message::Text(text))) => {
+                        dispatch(text.as_str(), &t, &p, &f, Some(&mut fragments))
+                    }
                     Some(Ok(Message::Binary(b))) => {
                         note_foreign(&f, format!("{} binary bytes", b.len()))
                     }
@@ -308,6 +312,7 @@ fn dispatch(
     topics: &Topics,
     pending: &Pending,
     foreign: &Mutex<(u64, Option<String>)>,
+    fragments: Option<&mut Defragmenter>,
 ) {
     // rosbridge writes NaN and infinities inside fixed-size float arrays as bare tokens
     // (rosbridge_suite #916): not JSON, but a message all the same.
@@ -341,6 +346,15 @@ fn dispatch(
                 });
             }
         }
+        // A server may fragment what it sends (its own fragment_size): the whole message is
+        // dispatched once its last piece is in.
+        // (A fragment inside a fragmented message is refused: `fragments` is then `None`.)
+        Some("fragment") => match fragments.map(|d| d.feed(&v)) {
+            Some(Ok(Some(whole))) => dispatch(&whole, topics, pending, foreign, None),
+            Some(Ok(None)) => {}
+            Some(Err(e)) => note_foreign(foreign, e.to_string()),
+            None => note_foreign(foreign, "a fragment inside a fragmented message".into()),
+        },
         Some(_) => {}
         None => note_foreign(foreign, format!("JSON without an \"op\": {text}")),
     }

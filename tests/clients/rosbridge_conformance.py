@@ -31,7 +31,8 @@ _on_message = RosBridgeProtocol.on_message
 def _tap(self, payload):
     msg = json.loads(payload.decode("utf8"))
     frames.append(msg)
-    if msg.get("op") == "status" or (msg.get("op") == "service_response" and "id" not in msg):
+    if msg.get("op") in ("status", "fragment") or (
+            msg.get("op") == "service_response" and "id" not in msg):
         return None
     return _on_message(self, payload)
 
@@ -166,6 +167,34 @@ try:
     ros.send_on_ready(roslibpy.Message({"op": "advertise_service", "service": "/x", "type": "std_srvs/srv/Empty"}))
     time.sleep(0.5)
     check("advertise_service is refused with a status", since(n, "status"), since(n, "status")[:1])
+    # Fragments (ROSBRIDGE_PROTOCOL.md 3.1): a subscription with fragment_size 100 gets each
+    # odometry message in pieces that join into the publish operation; a call sent in pieces
+    # is answered.
+    n = len(frames)
+    ros.send_on_ready(roslibpy.Message({"op": "subscribe", "id": "frag", "topic": "/odom",
+                                        "type": "nav_msgs/msg/Odometry", "fragment_size": 100}))
+    time.sleep(0.6)
+    ros.send_on_ready(roslibpy.Message({"op": "unsubscribe", "id": "frag", "topic": "/odom"}))
+    time.sleep(0.3)
+    pieces = since(n, "fragment")
+    first = [p for p in pieces if pieces and p["id"] == pieces[0]["id"]]
+    joined = None
+    if first and len(first) == first[0]["total"]:
+        joined = json.loads("".join(p["data"] for p in sorted(first, key=lambda p: p["num"])))
+    check("fragment_size splits a message into pieces that join",
+          joined and joined.get("op") == "publish" and joined.get("topic") == "/odom"
+          and all(len(p["data"]) <= 100 for p in first), (len(pieces), first[:1]))
+    call = json.dumps({"op": "call_service", "id": "in-pieces", "service": "/rosapi/get_time",
+                       "args": {}})
+    n = len(frames)
+    parts = [call[i:i + 20] for i in range(0, len(call), 20)]
+    for i, part in reversed(list(enumerate(parts))):
+        ros.send_on_ready(roslibpy.Message({"op": "fragment", "id": "c1", "data": part, "num": i,
+                                            "total": len(parts)}))
+    time.sleep(0.5)
+    resp = [f for f in since(n, "service_response") if f.get("id") == "in-pieces"]
+    check("a call sent in fragments is answered", resp and resp[0]["result"], resp[:1])
+
     ros.send_on_ready(roslibpy.Message({"op": "set_level", "level": "none"}))
     n = len(frames)
     ros.send_on_ready(roslibpy.Message({"op": "no_such_op"}))

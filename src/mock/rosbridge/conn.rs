@@ -3,13 +3,16 @@
 //! `rosbridge_server` applies them (the fastest throttle and the shortest queue of a topic's
 //! subscriptions; a throttled message is dropped, a queue drops its oldest), advertisements,
 //! publications, service calls, and `status` messages for what it refuses, at the level the
-//! client set with `set_level` (`error` until then).
+//! client set with `set_level` (`error` until then). A subscription's `fragment_size` (the
+//! smallest of a topic's) splits longer messages into `fragment` operations, and fragments
+//! from the client are put together ([`crate::ros::fragment`]).
 //!
 //! Each message of a topic goes to a connection once, whatever its number of subscriptions,
 //! without a subscription id (the client fans it out), as the real server does.
 
 use super::services::{call_service, topic_types};
 use super::{lock, MockRosConfig, MockRosState, Outgoing};
+use crate::ros::fragment::{self, Defragmenter};
 use crate::ros::msg::{types, Twist, TwistStamped};
 use futures_util::stream::SplitSink;
 use futures_util::{SinkExt, StreamExt};
@@ -49,6 +52,7 @@ struct Subscription {
     id: Option<Value>,
     throttle: Duration,
     queue_length: usize,
+    fragment_size: Option<usize>,
 }
 
 /// A topic this connection subscribes to, with its subscriptions and delivery state.
@@ -74,6 +78,14 @@ impl Subscribed {
             .map(|s| s.queue_length)
             .min()
             .unwrap_or_default()
+    }
+
+    /// The smallest `fragment_size` any subscription asked for.
+    fn fragment_size(&self) -> Option<usize> {
+        self.subscriptions
+            .iter()
+            .filter_map(|s| s.fragment_size)
+            .min()
     }
 
     fn window_open(&self, now: Instant) -> bool {
@@ -119,6 +131,9 @@ struct Connection {
     sink: Sink,
     subscribed: BTreeMap<String, Subscribed>,
     level: Option<Level>,
+    fragments: Defragmenter,
+    /// Ids given to fragmented messages.
+    fragmented: u64,
 }
 
 /// `pkg/msg/Type` for `pkg/Type` or `pkg/msg/Type`.
@@ -148,6 +163,8 @@ pub(super) async fn serve(
         sink,
         subscribed: BTreeMap::new(),
         level: Some(Level::Error),
+        fragments: Defragmenter::default(),
+        fragmented: 0,
     };
     let mut tick = tokio::time::interval(Duration::from_millis(10));
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
@@ -188,13 +205,37 @@ impl Connection {
         // Transport latency: no message leaves earlier than this after it was made.
         tokio::time::sleep_until(at + self.cfg.latency).await;
         let out = sub.offer(msg, Instant::now());
+        let fragment_size = sub.fragment_size();
         for m in out {
-            let text = self.publish_text(topic, m);
-            if !self.send_text(text).await {
+            if !self.send_published(topic, m, fragment_size).await {
                 return false;
             }
         }
         true
+    }
+
+    /// A `publish` to this connection, in fragments of `fragment_size` characters if it is
+    /// longer (rosbridge's `Fragmentation`).
+    async fn send_published(
+        &mut self,
+        topic: &str,
+        msg: Value,
+        fragment_size: Option<usize>,
+    ) -> bool {
+        let text = self.publish_text(topic, msg);
+        match fragment_size {
+            Some(size) if text.chars().count() > size => {
+                self.fragmented += 1;
+                let id = format!("{topic}#{}", self.fragmented);
+                for piece in fragment::split(&text, size, &id) {
+                    if !self.send(piece).await {
+                        return false;
+                    }
+                }
+                true
+            }
+            _ => self.send_text(text).await,
+        }
     }
 
     async fn release_queues(&mut self) -> bool {
@@ -202,12 +243,11 @@ impl Connection {
         let mut out = Vec::new();
         for (topic, sub) in &mut self.subscribed {
             for m in sub.release(now) {
-                out.push((topic.clone(), m));
+                out.push((topic.clone(), m, sub.fragment_size()));
             }
         }
-        for (topic, m) in out {
-            let text = self.publish_text(&topic, m);
-            if !self.send_text(text).await {
+        for (topic, m, fragment_size) in out {
+            if !self.send_published(&topic, m, fragment_size).await {
                 return false;
             }
         }
@@ -292,6 +332,21 @@ impl Connection {
                 let reply = call_service(&op, &self.cfg, &self.state);
                 self.send(reply).await
             }
+            ("fragment", _) => match self.fragments.feed(&op) {
+                // The whole operation, once its last piece is in (a fragment of fragments is
+                // refused as an unknown operation would be).
+                Ok(Some(whole)) => match serde_json::from_str::<Value>(&whole) {
+                    Ok(inner) if inner.get("op").and_then(Value::as_str) != Some("fragment") => {
+                        Box::pin(self.handle(&whole)).await
+                    }
+                    _ => {
+                        let msg = "fragment: the reassembled message is not an operation".into();
+                        self.refuse(msg, &op).await
+                    }
+                },
+                Ok(None) => true,
+                Err(e) => self.refuse(format!("fragment: {e}"), &op).await,
+            },
             ("set_level", _) => {
                 match op.get("level").and_then(Value::as_str) {
                     Some("error") => self.level = Some(Level::Error),
@@ -310,7 +365,7 @@ impl Connection {
             (other, _) => {
                 let msg = format!(
                     "{other}: not an operation this server offers (subscribe, unsubscribe, \
-                     advertise, unadvertise, publish, call_service, set_level)"
+                     advertise, unadvertise, publish, call_service, set_level, fragment)"
                 );
                 self.refuse(msg, &op).await
             }
@@ -342,12 +397,18 @@ impl Connection {
             id: op.get("id").cloned(),
             throttle: Duration::from_millis(ms("throttle_rate")),
             queue_length: usize::try_from(ms("queue_length")).unwrap_or(usize::MAX),
+            fragment_size: op
+                .get("fragment_size")
+                .and_then(Value::as_u64)
+                .and_then(|n| usize::try_from(n).ok())
+                .filter(|&n| n > 0),
         };
         let entry = self.subscribed.entry(topic).or_default();
         match entry
             .subscriptions
             .iter_mut()
-            .find(|s| s.id.is_some() && s.id == sub.id)
+            // Keyed by id as rosbridge keys them: subscriptions without one share the key None.
+            .find(|s| s.id == sub.id)
         {
             Some(same) => *same = sub,
             None => entry.subscriptions.push(sub),
@@ -455,6 +516,7 @@ mod tests {
             id: None,
             throttle: Duration::from_millis(throttle_ms),
             queue_length,
+            fragment_size: None,
         }
     }
 

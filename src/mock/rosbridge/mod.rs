@@ -248,7 +248,7 @@ impl MockRosbridge {
             .map_or(0.0, |d| d.as_secs_f64());
         let state = Arc::new(Mutex::new(MockRosState {
             sim,
-            params: services::controller_parameters(&cfg.controller),
+            params: services::controller_parameters(&cfg.controller, cfg.cmd_vel_stamped),
             advertised: Default::default(),
             epoch_s,
             controller: cfg.controller.clone(),

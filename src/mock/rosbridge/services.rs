@@ -112,8 +112,8 @@ impl ParamValue {
 }
 
 /// The parameters `diff_drive_controller` (ros2_controllers, Humble) declares, with the YAML's
-/// values where it gives them.
-pub fn controller_parameters(c: &DiffDriveConfig) -> BTreeMap<String, ParamValue> {
+/// values where it gives them; `use_stamped_vel` says which twist its `cmd_vel` takes.
+pub fn controller_parameters(c: &DiffDriveConfig, stamped: bool) -> BTreeMap<String, ParamValue> {
     use ParamValue::*;
     let mut p: BTreeMap<std::string::String, ParamValue> = [
         ("left_wheel_names", StringArray(c.left_wheel_names.clone())),
@@ -149,7 +149,7 @@ pub fn controller_parameters(c: &DiffDriveConfig) -> BTreeMap<String, ParamValue
         ),
         ("publish_limited_velocity", Bool(false)),
         ("velocity_rolling_window_size", Integer(10)),
-        ("use_stamped_vel", Bool(true)),
+        ("use_stamped_vel", Bool(stamped)),
         ("publish_rate", Double(50.0)),
         ("use_sim_time", Bool(false)),
     ]
@@ -289,7 +289,9 @@ fn services(cfg: &MockRosConfig) -> Vec<(String, String)> {
                         .map(|f| f.to_ascii_uppercase().to_string() + c.as_str())
                         .unwrap_or_default()
                 })
-                .collect::<String>();
+                .collect::<String>()
+                // rosapi spells it GetROSVersion.
+                .replace("Ros", "ROS");
             (format!("/rosapi/{s}"), format!("rosapi_msgs/srv/{kind}"))
         })
         .collect();
