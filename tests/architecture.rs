@@ -59,8 +59,16 @@ fn files_with(sources: &[(PathBuf, String)], needle: &str) -> Vec<String> {
 /// Whether `tight` (a line without white space) holds `(…r…-…l…)`: a parenthesised difference
 /// whose first term names a right wheel and whose second a left one.
 fn right_minus_left(tight: &str) -> bool {
-    let names_right = |t: &str| t.contains("_r") || t.starts_with('r') || t.contains("right");
-    let names_left = |t: &str| t.contains("_l") || t.starts_with('l') || t.contains("left");
+    // A name of the right wheel: `s_r`, `r…`, `right…`, or a scaled one (`ur*…`, `u_r*…`).
+    let scaled = |t: &str, side: char| {
+        t.split('*')
+            .next()
+            .is_some_and(|f| f.len() <= 3 && f.ends_with(side) && f != "0")
+    };
+    let names_right =
+        |t: &str| t.contains("_r") || t.starts_with('r') || t.contains("right") || scaled(t, 'r');
+    let names_left =
+        |t: &str| t.contains("_l") || t.starts_with('l') || t.contains("left") || scaled(t, 'l');
     tight.match_indices('(').any(|(i, _)| {
         let inner = &tight[i + 1..];
         let Some(end) = inner.find(')') else {

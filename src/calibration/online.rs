@@ -619,7 +619,8 @@ mod tests {
         let (ul, ur, b) = (0.99, 1.01, f.config().configured.wheelbase_m);
         for i in start..start + n {
             f.predict_travel(step.0, step.1);
-            *heading += (ur * step.1 - ul * step.0) / b;
+            *heading +=
+                crate::kinematics::Displacement::of_wheels(ul * step.0, ur * step.1, b).turn_rad;
             f.update_heading(wrap_angle(*heading + glitch(i)));
         }
     }

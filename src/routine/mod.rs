@@ -37,7 +37,7 @@ use crate::calibration::{
 use crate::kinematics::{wrap_angle, Direction, WheelParams};
 use config::{RoutineConfig, WritePolicy};
 use planning::Stop;
-use report::{Phase, RoundReport, RunReport, Stage};
+use report::{Outcome, Phase, RoundReport, RunReport, Stage};
 use square::{run_square, SquareCommand, SquareRecord};
 use std::sync::Arc;
 use std::time::Duration;
@@ -221,6 +221,14 @@ struct Calibration<'a> {
     plan: Option<Plan>,
 }
 
+/// What the rounds left: each round's report, the parameters in use now, whether the last
+/// round converged.
+struct Rounds {
+    reports: Vec<RoundReport>,
+    current: WheelParams,
+    converged: bool,
+}
+
 impl Calibration<'_> {
     /// The procedure: pre-flight, rounds (each written when allowed) until converged,
     /// verification, judgement.
@@ -231,57 +239,8 @@ impl Calibration<'_> {
         self.back_up().await?;
         let original = *self.tx.original();
         self.swing(&original).await?;
-        let mut current = original;
-        let mut rounds = Vec::new();
-        let mut converged = false;
-        for round in 1..=self.cfg.max_rounds {
-            let mut rr = self.round(round, &current).await?;
-            if let Some(why) = &rr.converged_because {
-                self.stage(format!(
-                    "converged: E_b {:.5}, E_d {:.5}: {why}",
-                    rr.chosen.e_b, rr.chosen.e_d
-                ));
-                converged = true;
-                rounds.push(rr);
-                break;
-            }
-            let proposed = rr.chosen.correction.apply(&current)?;
-            check_bounds(self.cfg.max_change, &original, &proposed)?;
-            rr.params_after = Some(proposed);
-            if !self.authorise_write(&current, &proposed) {
-                rounds.push(rr);
-                break;
-            }
-            self.progress.stage = Stage::WriteBack { round };
-            // From here on, the parameters are what the store reports (rounded to its
-            // resolution).
-            current = cancellable(self.cancel, self.tx.apply(&proposed)).await?;
-            rr.written = true;
-            rounds.push(rr);
-        }
-        if !converged && self.tx.written() {
-            self.warn(format!(
-                "not converged after {} round(s) (the last correction was still significant); \
-                 the last estimate was written",
-                self.cfg.max_rounds
-            ));
-        }
-        let verification = match rounds.last().filter(|r| {
-            // A later round of a sequential run that confirmed the written parameters was
-            // driven with the parameters that stay: its squares are the verification.
-            self.cfg.target().is_some() && converged && r.round > 1 && r.params_before == current
-        }) {
-            Some(last) => {
-                self.stage(
-                    "verification: the confirming round's squares, driven with the written \
-                     parameters"
-                        .into(),
-                );
-                let runs = last.runs.clone();
-                self.judged(&rounds, runs)?
-            }
-            None => self.verify(&current, &rounds).await?,
-        };
+        let rounds = self.rounds(&original).await?;
+        let verification = self.verification(&rounds).await?;
         if self.moving_rests > 0 {
             self.warn(format!(
                 "{} rest(s) spread beyond the heading sensor's noise (the robot had not settled): \
@@ -292,23 +251,94 @@ impl Calibration<'_> {
         let mut report = Report::assemble(
             &self.base,
             self.cfg,
-            original,
-            self.tx
-                .backup_path()
-                .map(std::path::Path::to_path_buf)
-                .unwrap_or_default(),
-            current,
-            self.noise.std_rad(),
-            rounds,
-            verification,
-            converged,
-            self.tx.written(),
-            std::mem::take(&mut self.warnings),
+            Outcome {
+                original_params: original,
+                backup_path: self
+                    .tx
+                    .backup_path()
+                    .map(std::path::Path::to_path_buf)
+                    .unwrap_or_default(),
+                final_params: rounds.current,
+                heading_noise_rad: self.noise.std_rad(),
+                rounds: rounds.reports,
+                verification,
+                converged: rounds.converged,
+                written: self.tx.written(),
+                warnings: std::mem::take(&mut self.warnings),
+            },
         );
         report.swing = self.swing.take();
         report.plan = self.plan.take();
         report.report_dir = self.report_dir.clone();
         Ok(report)
+    }
+
+    /// The rounds from `original`: each measured, then written when its correction is
+    /// significant and allowed, until one converges (or the user declines, or
+    /// `max_rounds`).
+    async fn rounds(&mut self, original: &WheelParams) -> Result<Rounds, RoutineError> {
+        let mut current = *original;
+        let mut reports = Vec::new();
+        let mut converged = false;
+        for round in 1..=self.cfg.max_rounds {
+            let mut rr = self.round(round, &current).await?;
+            if let Some(why) = &rr.converged_because {
+                self.stage(format!(
+                    "converged: E_b {:.5}, E_d {:.5}: {why}",
+                    rr.chosen.e_b, rr.chosen.e_d
+                ));
+                converged = true;
+                reports.push(rr);
+                break;
+            }
+            let proposed = rr.chosen.correction.apply(&current)?;
+            check_bounds(self.cfg.max_change, original, &proposed)?;
+            rr.params_after = Some(proposed);
+            if !self.authorise_write(&current, &proposed) {
+                reports.push(rr);
+                break;
+            }
+            self.progress.stage = Stage::WriteBack { round };
+            // From here on, the parameters are what the store reports (rounded to its
+            // resolution).
+            current = cancellable(self.cancel, self.tx.apply(&proposed)).await?;
+            rr.written = true;
+            reports.push(rr);
+        }
+        if !converged && self.tx.written() {
+            self.warn(format!(
+                "not converged after {} round(s) (the last correction was still significant); \
+                 the last estimate was written",
+                self.cfg.max_rounds
+            ));
+        }
+        Ok(Rounds {
+            reports,
+            current,
+            converged,
+        })
+    }
+
+    /// The verification squares, judged: a sequential run's confirming round when it was
+    /// driven with the parameters that stay, otherwise squares driven now.
+    async fn verification(&mut self, rounds: &Rounds) -> Result<Vec<RunReport>, RoutineError> {
+        let confirming = rounds.reports.last().filter(|r| {
+            self.cfg.target().is_some()
+                && rounds.converged
+                && r.round > 1
+                && r.params_before == rounds.current
+        });
+        match confirming {
+            Some(last) => {
+                self.stage(
+                    "verification: the confirming round's squares, driven with the written \
+                     parameters"
+                        .into(),
+                );
+                self.judged(&rounds.reports, last.runs.clone())
+            }
+            None => self.verify(&rounds.current, &rounds.reports).await,
+        }
     }
 
     /// **Moves the robot**: the compass swing ([`RoutineConfig::swing`]); a deviation it

@@ -363,44 +363,45 @@ fn mean_abs_heading_deg(runs: &[RunReport]) -> Option<f64> {
         .then(|| runs.iter().map(|r| r.heading_error_deg.abs()).sum::<f64>() / runs.len() as f64)
 }
 
+/// What a calibration ended with, for [`Report::assemble`].
+pub(super) struct Outcome {
+    pub original_params: WheelParams,
+    pub backup_path: PathBuf,
+    pub final_params: WheelParams,
+    pub heading_noise_rad: f64,
+    pub rounds: Vec<RoundReport>,
+    pub verification: Vec<RunReport>,
+    pub converged: bool,
+    pub written: bool,
+    pub warnings: Vec<String>,
+}
+
 impl Report {
-    #[allow(clippy::too_many_arguments)]
-    pub(super) fn assemble(
-        base: &Base,
-        cfg: &RoutineConfig,
-        original_params: WheelParams,
-        backup_path: PathBuf,
-        final_params: WheelParams,
-        heading_noise_rad: f64,
-        rounds: Vec<RoundReport>,
-        verification: Vec<RunReport>,
-        converged: bool,
-        written: bool,
-        warnings: Vec<String>,
-    ) -> Self {
-        let first = rounds.first().map(|r| r.runs.as_slice()).unwrap_or(&[]);
+    pub(super) fn assemble(base: &Base, cfg: &RoutineConfig, o: Outcome) -> Self {
+        let first = o.rounds.first().map(|r| r.runs.as_slice()).unwrap_or(&[]);
         Report {
             odocal_version: env!("CARGO_PKG_VERSION").into(),
             base: base.info(),
             config: cfg.clone(),
-            original_params,
-            backup_path,
-            final_params,
-            heading_noise_rad,
+            original_params: o.original_params,
+            backup_path: o.backup_path,
+            final_params: o.final_params,
+            heading_noise_rad: o.heading_noise_rad,
             e_max_sys_before_m: e_max_sys(first),
-            e_max_sys_after_m: e_max_sys(&verification),
+            e_max_sys_after_m: e_max_sys(&o.verification),
             mean_abs_heading_error_before_deg: mean_abs_heading_deg(first).unwrap_or(0.0),
-            mean_abs_heading_error_after_deg: mean_abs_heading_deg(&verification),
-            estimates: rounds
+            mean_abs_heading_error_after_deg: mean_abs_heading_deg(&o.verification),
+            estimates: o
+                .rounds
                 .last()
                 .map(|r| r.estimates.clone())
                 .unwrap_or_default(),
-            rounds,
-            verification,
-            converged,
-            written,
+            rounds: o.rounds,
+            verification: o.verification,
+            converged: o.converged,
+            written: o.written,
             diagnostics: base.drive.diagnostics(),
-            warnings,
+            warnings: o.warnings,
             swing: None,
             plan: None,
             report_dir: None,

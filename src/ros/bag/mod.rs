@@ -406,7 +406,7 @@ pub struct FileFormat {
 }
 
 /// Every single-file container format odocal reads.
-pub const FILE_FORMATS: [FileFormat; 3] = [
+pub const FILE_FORMATS: &[FileFormat] = &[
     FileFormat {
         name: "MCAP",
         magic: mcap::MAGIC,
