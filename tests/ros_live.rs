@@ -771,3 +771,38 @@ async fn unused_fields_never_cost_a_message_and_a_silent_rosapi_costs_no_time() 
         );
     }
 }
+
+/// `odocal heading` reads a ROS robot's IMU through the whole base (`--base rosbridge://…`):
+/// fifty distinct messages at rest, whose spread is the mock IMU's σ 0.3° within 30 % (what
+/// `odocal plan --heading-sigma-deg` wants from a ROS user).
+#[test]
+fn odocal_heading_reads_a_ros_robots_imu_and_its_noise() {
+    let _one_at_a_time = END_TO_END.blocking_lock();
+    let (_dir, yaml) = yaml_file("ros-heading");
+    let yaml_s = yaml.to_str().unwrap();
+    let (mut server, url) = common::spawn_server(
+        "mock-rosbridge",
+        &[
+            "--ros-yaml",
+            yaml_s,
+            "--port",
+            "0",
+            "--compass-sigma-deg",
+            "0.3",
+        ],
+    );
+    let v = common::odocal_json(&[
+        "heading",
+        "--base",
+        &url,
+        "--ros-yaml",
+        yaml_s,
+        "--samples",
+        "50",
+        "--json",
+    ]);
+    let _ = server.kill();
+    assert_eq!(v["samples"], 50, "{v}");
+    let sigma = v["sigma_deg"].as_f64().unwrap_or(f64::NAN);
+    assert!((0.21..=0.39).contains(&sigma), "{v}");
+}

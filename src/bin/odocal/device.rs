@@ -359,26 +359,42 @@ pub async fn status(port: PortArgs) -> CliResult {
     Ok(())
 }
 
-/// Arguments of `odocal heading`.
+/// Arguments of `odocal heading`: a heading sensor alone (`--port nmea:PORT`, `--heading
+/// nmea:PORT`, or an odocal-protocol controller's `--port`), or any robot's own (`--base
+/// rosbridge://HOST:PORT --ros-yaml …` reads its IMU).
 #[derive(Debug, clap::Args)]
 pub struct HeadingArgs {
     #[command(flatten)]
-    port: PortArgs,
+    robot: crate::robot::RobotArgs,
     /// Readings to average (circular mean); with two or more, their σ is printed too (the
     /// noise per reading `odocal plan` needs: hold the robot still).
     #[arg(long, default_value_t = 1)]
     samples: usize,
+    /// Print JSON instead of text.
+    #[arg(long)]
+    json: bool,
 }
 
 /// Runs `odocal heading`.
 pub async fn heading(args: HeadingArgs) -> CliResult {
     use odocal::routine::heading::{circular_mean, circular_std, readings};
-    let source = odocal::spec::open_heading(&args.port.port, args.port.baud).await?;
+    // The whole robot is kept open while its sensor is read.
+    let mut _robot = None;
+    let source = match args.robot.heading_alone() {
+        Some((text, baud)) => odocal::spec::open_heading(&text, baud).await?,
+        None => {
+            let spec = args.robot.spec(odocal::spec::RobotSection::default())?;
+            let base = spec.open().await?;
+            let heading = base.heading.clone();
+            _robot = Some(base);
+            heading
+        }
+    };
     let all = readings(source.as_ref(), args.samples).await?;
     let mean = circular_mean(&all);
     // The noise per reading at rest: what `odocal plan --heading-sigma-deg` wants.
     let sigma = (all.len() > 1).then(|| circular_std(&all));
-    if args.port.json {
+    if args.json {
         return print_json(&json!({
             "heading_rad": mean,
             "heading_deg": mean.to_degrees(),

@@ -126,6 +126,18 @@ impl RosFlags {
 }
 
 impl RobotArgs {
+    /// A heading sensor to read without opening the robot (`odocal heading`): `--heading`, or
+    /// `--port` (a heading spec, or an odocal-protocol controller) when there is no `--base`;
+    /// with its baud rate.
+    pub fn heading_alone(&self) -> Option<(String, u32)> {
+        let baud = self.baud.unwrap_or(odocal::hal::DEFAULT_BAUD);
+        match (&self.heading, &self.port, &self.base) {
+            (Some(h), _, _) => Some((h.clone(), baud)),
+            (None, Some(p), None) => Some((p.clone(), baud)),
+            _ => None,
+        }
+    }
+
     /// The robot: a routine file's section (if any) with these flags laid over it.
     pub fn spec(&self, file: RobotSection) -> Result<BaseSpec, Error> {
         let ros = match (file.ros.clone(), self.ros.any()) {
