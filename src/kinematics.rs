@@ -272,6 +272,19 @@ impl Direction {
             Direction::Ccw => 1.0,
         }
     }
+
+    /// The direction of a square whose whole turn was `turn_rad` (rad, unwrapped): within
+    /// `tolerance_rad` of −2π clockwise, of +2π counter-clockwise; otherwise not a square.
+    pub fn of_square_turn(turn_rad: f64, tolerance_rad: f64) -> Option<Direction> {
+        let full = 2.0 * std::f64::consts::PI;
+        if (turn_rad + full).abs() < tolerance_rad {
+            Some(Direction::Cw)
+        } else if (turn_rad - full).abs() < tolerance_rad {
+            Some(Direction::Ccw)
+        } else {
+            None
+        }
+    }
 }
 
 /// A planar pose: position (m) and counter-clockwise heading (rad, wrapped to `(-π, π]`).

@@ -586,8 +586,40 @@ fn a_compass_beside_a_gyro_measures_its_scale_in_a_spin() {
         "--yes",
         "--json",
     ]);
-    let _ = server.kill();
     assert_eq!(v["past_mark_from"], "reference", "{v}");
     let s = v["gyro_scale_error"].as_f64().unwrap();
     assert!((s - 0.01).abs() < 1e-3, "measured {s}: {v}");
+    // With the scale it measured, the gyro calibrates the robot: both combinations within
+    // 0.1 % of the truth (the mock's robot, E_b 0.976 and E_d 0.992 on the YAML's geometry).
+    let scale = format!("{s}");
+    let mut args = vec![
+        "calibrate",
+        "--base",
+        &lines[0],
+        "--ros-yaml",
+        yaml_s,
+        "--gyro-scale-error",
+        &scale,
+    ];
+    args.extend(common::QUICK_FLAGS);
+    args.extend(["--dry-run", "--json"]);
+    let report = common::odocal_json(&args);
+    let _ = server.kill();
+    let nominal = odocal::ros::yaml::DiffDriveConfig::load(&yaml, "diff_drive_controller")
+        .unwrap()
+        .effective();
+    let truth = WheelParams::from_ratios(
+        &nominal,
+        common::TRUE_E_B,
+        common::TRUE_E_D,
+        &odocal::kinematics::SplitConvention::LeftNominal,
+    )
+    .unwrap();
+    let round = &report["rounds"][0]["params_after"];
+    let written: WheelParams = serde_json::from_value(round.clone()).unwrap();
+    let (d, b) = common::combination_errors(&written, &truth);
+    assert!(
+        d.abs() < 1e-3 && b.abs() < 1e-3,
+        "D_R/D_L {d:+.2e}, b/D {b:+.2e} with the measured scale {s}"
+    );
 }

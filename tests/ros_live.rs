@@ -391,13 +391,9 @@ fn calibrate_base_rosbridge_end_to_end_from_the_command_line() {
     let _one_at_a_time = END_TO_END.blocking_lock();
     let (dir, yaml) = yaml_file("ros-cli");
     let yaml_s = yaml.to_str().unwrap();
-    let (mut server, url) = common::spawn_server(
-        "mock-rosbridge",
+    let (mut server, url) = common::spawn_ros_mock(
+        yaml_s,
         &[
-            "--ros-yaml",
-            yaml_s,
-            "--port",
-            "0",
             "--time-scale",
             "20",
             "--compass-sigma-deg",
@@ -780,17 +776,7 @@ fn odocal_heading_reads_a_ros_robots_imu_and_its_noise() {
     let _one_at_a_time = END_TO_END.blocking_lock();
     let (_dir, yaml) = yaml_file("ros-heading");
     let yaml_s = yaml.to_str().unwrap();
-    let (mut server, url) = common::spawn_server(
-        "mock-rosbridge",
-        &[
-            "--ros-yaml",
-            yaml_s,
-            "--port",
-            "0",
-            "--compass-sigma-deg",
-            "0.3",
-        ],
-    );
+    let (mut server, url) = common::spawn_ros_mock(yaml_s, &["--compass-sigma-deg", "0.3"]);
     let v = common::odocal_json(&[
         "heading",
         "--base",

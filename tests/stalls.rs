@@ -100,8 +100,10 @@ const SHORT: [&str; 20] = [
 ];
 
 #[test]
-fn our_protocol_survives_host_stalls_and_late_answers() {
-    for (faults, stalls) in [("", 5), ("latency-ms=40", 0)] {
+fn our_protocol_survives_host_and_device_stalls_and_late_answers() {
+    for (faults, stalls, stop_device) in
+        [("", 5, false), ("", 5, true), ("latency-ms=40", 0, false)]
+    {
         let mut mock_args = vec![
             "--real-time",
             "1",
@@ -114,18 +116,20 @@ fn our_protocol_survives_host_stalls_and_late_answers() {
             mock_args.extend(["--faults", faults]);
         }
         let (mut mock, port) = common::spawn_mock(&mock_args);
-        let dir = common::scratch(&format!("stall-odocal-{stalls}"));
+        let dir = common::scratch(&format!("stall-odocal-{stalls}-{stop_device}"));
         let report = dir.join("report");
         let mut args = vec!["calibrate", "--port", &port, "--report-dir"];
         args.push(report.to_str().unwrap());
         args.extend(SHORT);
-        let (v, landed) = stalled(&args, None, stalls, Duration::from_millis(300), 7);
+        let device = stop_device.then(|| mock.id());
+        let (v, landed) = stalled(&args, device, stalls, Duration::from_millis(300), 7);
         drop(mock.stdin.take());
         let _ = mock.wait();
         assert_eq!(landed, stalls, "every stall landed while it ran");
+        let whose = if stop_device { "device" } else { "host" };
         assert_right(
             &v,
-            &format!("our protocol, faults {faults:?}, {stalls} stalls"),
+            &format!("our protocol, faults {faults:?}, {stalls} {whose} stalls"),
         );
     }
 }

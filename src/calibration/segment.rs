@@ -12,7 +12,7 @@ use super::legs::{classify, LegMeasurement, Phase};
 use super::recording::Track;
 use crate::kinematics::{wrap_angle, Direction, Displacement};
 use serde::Serialize;
-use std::f64::consts::{FRAC_PI_4, PI};
+use std::f64::consts::FRAC_PI_4;
 
 /// Longest stretch of rest before and after a run whose readings are averaged (s).
 pub const REST_WINDOW_S: f64 = 1.0;
@@ -195,11 +195,7 @@ pub fn find_squares(
     for (s, e) in episodes {
         let (t_start, t_end) = (inc[s].from_s, inc[e - 1].to_s);
         let turn: f64 = inc[s..e].iter().map(|x| x.dth).sum();
-        let direction = if (turn + 2.0 * PI).abs() < FRAC_PI_4 {
-            Direction::Cw
-        } else if (turn - 2.0 * PI).abs() < FRAC_PI_4 {
-            Direction::Ccw
-        } else {
+        let Some(direction) = Direction::of_square_turn(turn, FRAC_PI_4) else {
             skipped.push(format!(
                 "{t_start:.1}–{t_end:.1} s: turns {:.0}°, not a square (±360°)",
                 turn.to_degrees()

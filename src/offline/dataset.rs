@@ -471,11 +471,7 @@ impl OptiOdomSet {
         let mut runs = Vec::with_capacity(self.runs.len());
         for run in &self.runs {
             let end = run.replay(&self.configured);
-            let direction = if (end.truth_turn_rad + 2.0 * PI).abs() < 0.5 * PI {
-                Direction::Cw
-            } else if (end.truth_turn_rad - 2.0 * PI).abs() < 0.5 * PI {
-                Direction::Ccw
-            } else {
+            let Some(direction) = Direction::of_square_turn(end.truth_turn_rad, 0.5 * PI) else {
                 return Err(DatasetError::NotASquareRun {
                     set: self.id.clone(),
                     run: run.name.clone(),

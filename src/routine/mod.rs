@@ -366,7 +366,8 @@ impl Calibration<'_> {
                 let [a1, b1, a2, b2] = fit.deviation.0.map(f64::to_degrees);
                 self.stage(format!(
                     "compass deviation up to {:.2}° (A1 {a1:+.2}°, B1 {b1:+.2}°, A2 {a2:+.2}°, \
-                     B2 {b2:+.2}°; residual {:.2}°): removed from every reading from here on",
+                     B2 {b2:+.2}°; residual {:.2}°): removed from every reading from here on \
+                     (kept in the report; `odocal swing --save` keeps a curve in a robot profile)",
                     fit.amplitude_rad.to_degrees(),
                     fit.residual_rms_rad.to_degrees()
                 ));

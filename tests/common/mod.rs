@@ -203,6 +203,14 @@ pub fn spawn_server(command: &str, args: &[&str]) -> (std::process::Child, Strin
     (child, lines.remove(0))
 }
 
+/// `odocal mock-rosbridge` serving the robot of the controller YAML `yaml` on a free loopback
+/// port, with `extra` flags; the process and its `rosbridge://` URL.
+pub fn spawn_ros_mock(yaml: &str, extra: &[&str]) -> (std::process::Child, String) {
+    let mut args = vec!["--ros-yaml", yaml, "--port", "0"];
+    args.extend(extra);
+    spawn_server("mock-rosbridge", &args)
+}
+
 /// [`spawn_server`] for a server that prints `n` lines (paths or URLs) first.
 pub fn spawn_server_lines(
     command: &str,
