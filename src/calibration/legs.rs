@@ -49,6 +49,63 @@ pub fn classify(ds: f64, dth: f64, dt: f64, b: f64) -> Phase {
     }
 }
 
+/// Legs shorter than this (m) are not legs (a nudge, a correction).
+pub const MIN_LEG_M: f64 = 0.05;
+/// Turns smaller than this (rad) are not corners.
+pub const MIN_TURN_RAD: f64 = 0.2;
+
+/// A stretch of one kind of motion: the intervals of it (by index) and how far it went (m for
+/// a leg, rad for a turn).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Piece {
+    /// [`Phase::Straight`] or [`Phase::Turn`].
+    pub phase: Phase,
+    /// The intervals that make it, in order (rests inside it not among them).
+    pub intervals: Vec<usize>,
+    /// Forward travel (a leg, m) or turn (a turn, rad).
+    pub amount: f64,
+}
+
+/// Splits a run's intervals — each `(ds, dth, dt)`: forward travel (m), turn (rad) and length
+/// (s) — into legs and turns, the one segmentation of the crate: consecutive intervals of one
+/// kind make a piece, the other kind ends it, and a rest inside a piece (a pause) neither ends
+/// nor adds to it. Legs of at most [`MIN_LEG_M`] and turns of at most [`MIN_TURN_RAD`] are
+/// dropped (a nudge, a correction).
+pub fn pieces(
+    intervals: impl IntoIterator<Item = (f64, f64, f64)>,
+    wheelbase_m: f64,
+) -> Vec<Piece> {
+    let mut out: Vec<Piece> = Vec::new();
+    let mut current: Option<Piece> = None;
+    for (i, (ds, dth, dt)) in intervals.into_iter().enumerate() {
+        let phase = classify(ds, dth, dt, wheelbase_m);
+        let amount = match phase {
+            Phase::Rest => continue,
+            Phase::Straight => ds,
+            Phase::Turn => dth,
+        };
+        match &mut current {
+            Some(p) if p.phase == phase => {
+                p.intervals.push(i);
+                p.amount += amount;
+            }
+            _ => {
+                out.extend(current.replace(Piece {
+                    phase,
+                    intervals: vec![i],
+                    amount,
+                }));
+            }
+        }
+    }
+    out.extend(current);
+    out.retain(|p| match p.phase {
+        Phase::Straight => p.amount.abs() > MIN_LEG_M,
+        _ => p.amount.abs() > MIN_TURN_RAD,
+    });
+    out
+}
+
 /// One sample of a run: time (s), odometry travel and turn since the previous sample (m, rad),
 /// and the heading error now: heading sensor minus odometry heading (rad, unwrapped).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -62,9 +119,6 @@ pub struct LegSample {
     /// Heading sensor minus odometry heading (rad, unwrapped).
     pub error_rad: f64,
 }
-
-/// Legs shorter than this (m) are not legs (a nudge, a correction).
-const MIN_LEG_M: f64 = 0.05;
 
 /// One leg as the heading along it measured: the mean of the heading error over the leg
 /// (heading sensor minus odometry, rad) and the mean of the odometry's turn and distance from
@@ -155,27 +209,20 @@ impl LegMeasurement {
 /// The heading error between the middle of the first and the last of exactly four legs, or
 /// `None` when the run does not have four legs.
 pub fn leg_measurement(samples: &[LegSample], wheelbase_m: f64) -> Option<LegMeasurement> {
-    // Legs as index ranges of samples, rests inside a leg ignored.
-    let mut legs: Vec<(Vec<usize>, f64)> = Vec::new();
-    let mut current: Option<(Vec<usize>, f64)> = None;
-    for i in 1..samples.len() {
-        let s = &samples[i];
-        match classify(s.ds, s.dth, s.t - samples[i - 1].t, wheelbase_m) {
-            Phase::Straight => {
-                let leg = current.get_or_insert_with(|| (vec![i - 1], 0.0));
-                leg.0.push(i);
-                leg.1 += s.ds;
-            }
-            Phase::Turn => {
-                if let Some(leg) = current.take() {
-                    legs.push(leg);
-                }
-            }
-            Phase::Rest => {}
-        }
-    }
-    legs.extend(current);
-    legs.retain(|(_, len)| len.abs() > MIN_LEG_M);
+    // Legs as the samples that end their intervals, and the one before the first.
+    let steps = samples
+        .windows(2)
+        .map(|w| (w[1].ds, w[1].dth, w[1].t - w[0].t));
+    let legs: Vec<Vec<usize>> = pieces(steps, wheelbase_m)
+        .into_iter()
+        .filter(|p| p.phase == Phase::Straight)
+        .map(|p| {
+            let first = p.intervals.first().copied().unwrap_or(0);
+            std::iter::once(first)
+                .chain(p.intervals.iter().map(|i| i + 1))
+                .collect()
+        })
+        .collect();
     if legs.len() != 4 {
         return None;
     }
@@ -195,7 +242,7 @@ pub fn leg_measurement(samples: &[LegSample], wheelbase_m: f64) -> Option<LegMea
         idx.iter().map(|&i| f(i)).sum::<f64>() / idx.len() as f64
     };
     let leg = |k: usize| {
-        let idx = &legs[k].0;
+        let idx = &legs[k];
         let x: Vec<f64> = idx.iter().map(|&i| cumulative[i].distance_m).collect();
         let y: Vec<f64> = idx.iter().map(|&i| samples[i].error_rad).collect();
         LegMean {

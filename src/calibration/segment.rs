@@ -8,7 +8,7 @@
 //! turn over the run — a real run does not turn exactly ±360°, so this removes the
 //! controller's execution error, as the live routine does with the drive's reported turn.
 
-use super::legs::{classify, LegMeasurement, Phase};
+use super::legs::{classify, pieces, LegMeasurement, Phase};
 use super::recording::Track;
 use crate::kinematics::{wrap_angle, Direction, Displacement};
 use serde::Serialize;
@@ -16,11 +16,6 @@ use std::f64::consts::FRAC_PI_4;
 
 /// Longest stretch of rest before and after a run whose readings are averaged (s).
 pub const REST_WINDOW_S: f64 = 1.0;
-
-/// Legs shorter than this (m) are not legs (a nudge, a correction).
-const MIN_LEG_M: f64 = 0.05;
-/// Turns smaller than this (rad) are not corners.
-const MIN_TURN_RAD: f64 = 0.2;
 
 /// How to find runs.
 #[derive(Debug, Clone, PartialEq)]
@@ -141,28 +136,19 @@ fn episodes(
     (out, notes)
 }
 
-/// Legs (m) and corners (rad) of a run: consecutive intervals of one kind merged (a rest
-/// inside splits them).
+/// Legs (m) and corners (rad) of a run ([`pieces`]).
 fn legs_and_turns(inc: &[Interval], wheelbase_m: f64) -> (Vec<f64>, Vec<f64>) {
     let (mut legs, mut turns) = (Vec::new(), Vec::new());
-    let mut close = |cur: Option<(Phase, f64)>| match cur {
-        Some((Phase::Straight, acc)) if acc.abs() > MIN_LEG_M => legs.push(acc),
-        Some((Phase::Turn, acc)) if acc.abs() > MIN_TURN_RAD => turns.push(acc),
-        _ => {}
-    };
-    let mut cur: Option<(Phase, f64)> = None;
-    for x in inc {
-        let p = classify(x.ds, x.dth, x.to_s - x.from_s, wheelbase_m);
-        let amount = if p == Phase::Turn { x.dth } else { x.ds };
-        cur = match cur {
-            Some((q, acc)) if q == p => Some((q, acc + amount)),
-            other => {
-                close(other);
-                Some((p, amount))
-            }
-        };
+    for p in pieces(
+        inc.iter().map(|x| (x.ds, x.dth, x.to_s - x.from_s)),
+        wheelbase_m,
+    ) {
+        if p.phase == Phase::Turn {
+            turns.push(p.amount);
+        } else {
+            legs.push(p.amount);
+        }
     }
-    close(cur);
     (legs, turns)
 }
 
