@@ -25,6 +25,10 @@ use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
 use tokio::sync::{broadcast, mpsc, oneshot};
 use tokio::time::Instant;
 
+/// The fewest attempts a request's budget allows at its own deadline: on a line that loses
+/// half the exchanges, twelve fail one request in four thousand (six: one in 64).
+pub const MIN_ATTEMPTS: u32 = 12;
+
 /// Link timing and retry policy.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct LinkConfig {
@@ -82,13 +86,17 @@ impl LinkConfig {
     }
 
     /// The retry budget of a request while the device's watchdog is `watchdog` (zero: off):
-    /// at least [`LinkConfig::retry_budget`], and at least the watchdog plus one deadline, so
-    /// that the host gives up on a silent link only once the device has stopped by itself.
+    /// at least [`LinkConfig::retry_budget`]; at least [`MIN_ATTEMPTS`] deadlines, so that a
+    /// request with a long answer time (SAVE_PARAMS: 500 ms) is tried as often on a lossy
+    /// line as a quick one; and at least the watchdog plus one deadline, so that the host gives
+    /// up on a silent link only once the device has stopped by itself.
     pub fn budget(&self, request: &Request, watchdog: Duration) -> Duration {
+        let deadline = self.deadline(request);
+        let budget = self.retry_budget.max(MIN_ATTEMPTS * deadline);
         if watchdog.is_zero() {
-            self.retry_budget
+            budget
         } else {
-            self.retry_budget.max(watchdog + self.deadline(request))
+            budget.max(watchdog + deadline)
         }
     }
 }
@@ -199,7 +207,10 @@ impl Link {
                 }
             }
             let deadline = pending.as_ref().map(|p| p.deadline);
+            // In a fixed order (commands, then what arrived, then a deadline): the same bytes
+            // give the same exchanges, so a simulated link's losses repeat run after run.
             tokio::select! {
+                biased;
                 cmd = commands.recv() => match cmd {
                     Some(Command::Close) | None => {
                         for (_, _, reply) in queue.drain(..) {

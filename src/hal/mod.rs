@@ -609,6 +609,7 @@ impl Client {
         let mut last_poll = start;
         loop {
             tokio::select! {
+                biased;
                 ev = done.recv() => match ev {
                     Ok(d) if d.motion_id == motion_id || reached(d.completed_motions) => {
                         return Ok(());

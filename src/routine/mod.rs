@@ -126,8 +126,10 @@ async fn cancellable<T, E: Into<RoutineError>>(
     fut: impl std::future::Future<Output = Result<T, E>>,
 ) -> Result<T, RoutineError> {
     tokio::select! {
-        r = fut => r.map_err(Into::into),
+        // Cancellation first, and a fixed order: the same run twice takes the same turns.
+        biased;
         () = cancel.cancelled() => Err(RoutineError::Cancelled),
+        r = fut => r.map_err(Into::into),
     }
 }
 
