@@ -27,7 +27,7 @@ use serde::{Deserialize, Serialize};
 
 /// One recording's estimate with the parameters configured while it was recorded.
 #[derive(Debug, Clone, PartialEq)]
-pub struct Recording<'a> {
+pub struct ConfiguredEstimate<'a> {
     /// A name for reports (set id, bag file).
     pub name: String,
     /// Parameters configured on the controller during the recording.
@@ -142,7 +142,7 @@ fn pool_log(y: &[f64], se: &[Option<f64>], runs: &[usize]) -> PooledLog {
 }
 
 /// Pools one method's estimates from several recordings of one robot.
-pub fn pool(recordings: &[Recording<'_>]) -> Result<Pooled, CalibrationError> {
+pub fn pool(recordings: &[ConfiguredEstimate<'_>]) -> Result<Pooled, CalibrationError> {
     let first = recordings.first().ok_or(CalibrationError::Unsupported(
         "pooling needs at least one recording".into(),
     ))?;
@@ -216,7 +216,7 @@ pub fn pool_methods(
         let mut lacking = Vec::new();
         for r in recordings {
             match r.estimates.iter().find(|e| e.method == method) {
-                Some(e) => per.push(Recording {
+                Some(e) => per.push(ConfiguredEstimate {
                     name: r.name.clone(),
                     configured: r.configured,
                     estimate: e,
@@ -331,13 +331,13 @@ mod tests {
         // Correction factors differ by far more than their errors…
         assert!((ea.e_b - eb.e_b).abs() > 0.01);
         let recs = [
-            Recording {
+            ConfiguredEstimate {
                 name: "a".into(),
                 configured: cfg_a,
                 estimate: &ea,
                 runs_per_direction: 3,
             },
-            Recording {
+            ConfiguredEstimate {
                 name: "b".into(),
                 configured: cfg_b,
                 estimate: &eb,
@@ -377,7 +377,7 @@ mod tests {
         let recs: Vec<_> = es
             .iter()
             .enumerate()
-            .map(|(i, e)| Recording {
+            .map(|(i, e)| ConfiguredEstimate {
                 name: format!("{i}"),
                 configured: cfg,
                 estimate: e,
@@ -402,13 +402,13 @@ mod tests {
         let cfg = WheelParams::nominal(0.084, 0.2, 2796.8);
         let (a, b) = (estimate(1.00, 1.0, Some(0.004)), estimate(1.01, 1.0, None));
         let recs = [
-            Recording {
+            ConfiguredEstimate {
                 name: "a".into(),
                 configured: cfg,
                 estimate: &a,
                 runs_per_direction: 4,
             },
-            Recording {
+            ConfiguredEstimate {
                 name: "b".into(),
                 configured: cfg,
                 estimate: &b,
@@ -422,7 +422,7 @@ mod tests {
         c.method = Method::Exact;
         let mixed = [
             recs[0].clone(),
-            Recording {
+            ConfiguredEstimate {
                 estimate: &c,
                 ..recs[1].clone()
             },

@@ -262,6 +262,7 @@ impl Calibration<'_> {
                     .unwrap_or_default(),
                 final_params: rounds.current,
                 heading_noise_rad: self.noise.std_rad(),
+                preflight_heading_noise_rad: self.preflight_noise.std_rad(),
                 rounds: rounds.reports,
                 verification,
                 converged: rounds.converged,

@@ -301,6 +301,10 @@ pub struct Report {
     /// Heading noise at rest (σ of single readings, rad), pooled over the pre-flight's
     /// readings and every rest's.
     pub heading_noise_rad: f64,
+    /// Heading noise the pre-flight measured before anything moved (σ of single readings at
+    /// rest, rad; what it printed).
+    #[serde(default)]
+    pub preflight_heading_noise_rad: f64,
     /// Calibration rounds.
     pub rounds: Vec<RoundReport>,
     /// Verification squares (after writing).
@@ -369,6 +373,7 @@ pub(super) struct Outcome {
     pub backup_path: PathBuf,
     pub final_params: WheelParams,
     pub heading_noise_rad: f64,
+    pub preflight_heading_noise_rad: f64,
     pub rounds: Vec<RoundReport>,
     pub verification: Vec<RunReport>,
     pub converged: bool,
@@ -387,6 +392,7 @@ impl Report {
             backup_path: o.backup_path,
             final_params: o.final_params,
             heading_noise_rad: o.heading_noise_rad,
+            preflight_heading_noise_rad: o.preflight_heading_noise_rad,
             e_max_sys_before_m: e_max_sys(first),
             e_max_sys_after_m: e_max_sys(&o.verification),
             mean_abs_heading_error_before_deg: mean_abs_heading_deg(first).unwrap_or(0.0),
