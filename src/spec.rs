@@ -393,19 +393,50 @@ impl RobotSection {
             (None, None) => StoreSpec::Drive,
         };
         let mut spec = BaseSpec::new(drive, heading, store)?;
-        if let Some(k) = &self.heading_kind {
-            spec.heading_kind = Some(k.parse().map_err(|reason: String| SpecError::Parse {
-                text: k.clone(),
-                reason,
-            })?);
-        }
-        if let Some(d) = &self.compass_deviation_deg {
-            spec.deviation = d.parse().map_err(|reason: String| SpecError::Parse {
-                text: d.clone(),
-                reason,
-            })?;
-        }
+        (spec.heading_kind, spec.deviation) = self.heading_flags()?;
         Ok(spec)
+    }
+
+    /// The heading kind and deviation these keys give (none: `None`, no deviation).
+    fn heading_flags(&self) -> Result<(Option<HeadingKind>, Deviation), SpecError> {
+        let error = |text: &String| {
+            let text = text.clone();
+            move |reason: String| SpecError::Parse { text, reason }
+        };
+        let kind = match &self.heading_kind {
+            Some(k) => Some(k.parse().map_err(error(k))?),
+            None => None,
+        };
+        let deviation = match &self.compass_deviation_deg {
+            Some(d) => d.parse().map_err(error(d))?,
+            None => Deviation::default(),
+        };
+        Ok((kind, deviation))
+    }
+
+    /// Opens the heading sensor `text` alone (`nmea:PORT…`, or an odocal-protocol
+    /// controller's port at `baud`), with these keys' heading kind and deviation applied, and a
+    /// robot profile's saved curve when the keys name a profile and give none: what `odocal
+    /// heading` reads without opening the robot.
+    pub async fn open_heading_alone(
+        &self,
+        text: &str,
+        baud: u32,
+    ) -> Result<Arc<dyn HeadingSource>, SpecError> {
+        let source = open_heading(text, baud).await?;
+        let (mut kind, mut deviation) = self.heading_flags()?;
+        if let Some(path) = &self.profile {
+            let section = crate::roboclaw::profile::Profile::load(path)?.heading;
+            kind = kind.or(section.kind);
+            if deviation.is_zero() {
+                deviation = section.deviation();
+            }
+        }
+        Ok(if kind.is_some() || !deviation.is_zero() {
+            Arc::new(Adjusted::new(source, kind, deviation))
+        } else {
+            source
+        })
     }
 }
 

@@ -103,13 +103,13 @@ fn the_device_kit_passes_conformance_on_a_pty() {
 
 /// The ideal board with one defect: a watchdog that waits `watchdog_factor` times too long, or
 /// a compass that takes a reading only every `compass_period_us` (each reading one µrad on
-/// from the last, so that two are told apart) and answers "not new" in between.
+/// from the last, so that two are told apart; numbered by [`Board::heading_sample`]).
 struct Tweaked {
     ideal: IdealBoard,
     watchdog_factor: u64,
     compass_period_us: Option<u64>,
-    /// The last reading: when it was taken, its value, whether it has been answered.
-    sample: Option<(u64, i32, bool)>,
+    /// The last reading: when it was taken, its number, its value.
+    sample: Option<(u64, u32, i32)>,
 }
 
 impl Tweaked {
@@ -120,6 +120,18 @@ impl Tweaked {
             compass_period_us: None,
             sample: None,
         }
+    }
+
+    /// The compass's newest reading: a new one once its period has passed.
+    fn sample(&mut self, period: u64) -> (u32, i32) {
+        let now = self.ideal.now_us();
+        let (taken, number, value) = match self.sample {
+            Some((at, n, v)) if now < at + period => (at, n, v),
+            Some((at, n, v)) => (at + period * ((now - at) / period), n + 1, v + 1),
+            None => (now, 0, self.ideal.heading().heading_urad),
+        };
+        self.sample = Some((taken, number, value));
+        (number, value)
     }
 }
 
@@ -140,22 +152,18 @@ impl Board for Tweaked {
         self.ideal.reset_encoders();
     }
     fn heading(&mut self) -> HeadingReading {
-        let Some(period) = self.compass_period_us else {
-            return self.ideal.heading();
-        };
-        let now = self.ideal.now_us();
-        let (taken, value, answered) = match self.sample {
-            Some((at, v, answered)) if now < at + period => (at, v, answered),
-            Some((at, v, _)) => (at + period * ((now - at) / period), v + 1, false),
-            None => (now, self.ideal.heading().heading_urad, false),
-        };
-        self.sample = Some((taken, value, true));
-        HeadingReading {
-            heading_urad: value,
-            valid: true,
-            sensor_status: heading_status::CALIBRATED
-                | if answered { heading_status::NOT_NEW } else { 0 },
+        match self.compass_period_us {
+            None => self.ideal.heading(),
+            Some(period) => HeadingReading {
+                heading_urad: self.sample(period).1,
+                valid: true,
+                sensor_status: heading_status::CALIBRATED,
+            },
         }
+    }
+    fn heading_sample(&mut self) -> Option<u32> {
+        let period = self.compass_period_us?;
+        Some(self.sample(period).0)
     }
     fn watchdog_timeout_us(&self, timeout_ms: u16) -> u64 {
         self.watchdog_factor * self.ideal.watchdog_timeout_us(timeout_ms)
@@ -168,10 +176,10 @@ impl SimulatedBoard for Tweaked {
     }
 }
 
-/// A device whose compass reads at 10 Hz, asked far faster: the host reads again while the
-/// device answers "not new" (SPEC §5, READ_HEADING bit 3), so five readings are five samples
-/// at least 0.4 s apart, never one sample five times; a compass that never takes another
-/// reading gives an invalid one, named, after the host has waited for it.
+/// A device whose compass reads at 10 Hz, asked far faster and streaming telemetry: the host
+/// reads again while the device answers "not new" (SPEC §5, READ_HEADING bit 3), so five
+/// readings are five samples at least 0.4 s apart, never one sample five times; a compass that
+/// never takes another reading gives an invalid one, named, after the host has waited for it.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn readings_of_a_slow_compass_are_distinct_samples() {
     use odocal::base::HeadingSource;
@@ -182,6 +190,12 @@ async fn readings_of_a_slow_compass_are_distinct_samples() {
         let (host, dev) = tokio::io::duplex(4096);
         tokio::spawn(serve_kit(Arc::new(Mutex::new(device)), dev, 1.0));
         let (client, _) = odocal::hal::Client::connect(host, Default::default())
+            .await
+            .unwrap();
+        // Telemetry reads the compass too, 50 times a second: it takes no sample from the
+        // host's reads.
+        client
+            .configure_telemetry(Some(std::time::Duration::from_millis(20)))
             .await
             .unwrap();
         let start = std::time::Instant::now();

@@ -704,9 +704,10 @@ async fn a_slow_adapter_is_measured_and_costs_no_retries() {
         ..LinkConfig::default()
     };
     let (client, _) = Client::connect(stream, config).await.unwrap();
-    // HELLO was retried (30 ms > its 12 ms deadline); its answer bounds the latency, and the
-    // next exchanges measure it.
-    for _ in 0..3 {
+    // HELLO was retried (30 ms > its 12 ms deadline), and so are the first reads (this mock
+    // answers one request at a time, so each retry queues 30 ms more): their answers bound
+    // the latency, and the next exchanges measure it.
+    for _ in 0..6 {
         client.read_heading().await.unwrap();
     }
     let measured = client.stats();

@@ -61,6 +61,27 @@ fn heading_reads_five_samples_from_compasses_at_any_rate() {
         );
         let port = format!("{}?baud=115200", lines[1]);
         let v = common::odocal_json(&["heading", "--port", &port, "--samples", "5", "--json"]);
+        if hz == "10" {
+            // A deviation given on the command line is removed from what is read (B1 10°:
+            // d(ψ) = 10°·cos ψ), as calibrate removes it.
+            let corrected = common::odocal_json(&[
+                "heading",
+                "--port",
+                &port,
+                "--samples",
+                "5",
+                "--compass-deviation-deg",
+                "0,10,0,0",
+                "--json",
+            ]);
+            let (raw, fixed) = (
+                v["heading_deg"].as_f64().unwrap(),
+                corrected["heading_deg"].as_f64().unwrap(),
+            );
+            let removed = raw - fixed;
+            let want = 10.0 * raw.to_radians().cos();
+            assert!((removed - want).abs() < 0.5, "{raw}° → {fixed}°: {removed} vs {want}");
+        }
         if hz == "50" {
             // Fifty readings at rest give the noise per reading `odocal plan` wants: the
             // mock's 0.2°, within three of the estimate's standard errors (10 %).

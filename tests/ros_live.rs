@@ -769,8 +769,9 @@ async fn unused_fields_never_cost_a_message_and_a_silent_rosapi_costs_no_time() 
 }
 
 /// `odocal heading` reads a ROS robot's IMU through the whole base (`--base rosbridge://…`):
-/// fifty distinct messages at rest, whose spread is the mock IMU's σ 0.3° within 30 % (what
-/// `odocal plan --heading-sigma-deg` wants from a ROS user).
+/// a hundred distinct messages at rest, whose spread is the mock IMU's σ 0.3° within 30 % (four
+/// of the estimate's standard errors; what `odocal plan --heading-sigma-deg` wants from a ROS
+/// user).
 #[test]
 fn odocal_heading_reads_a_ros_robots_imu_and_its_noise() {
     let _one_at_a_time = END_TO_END.blocking_lock();
@@ -784,11 +785,11 @@ fn odocal_heading_reads_a_ros_robots_imu_and_its_noise() {
         "--ros-yaml",
         yaml_s,
         "--samples",
-        "50",
+        "100",
         "--json",
     ]);
     let _ = server.kill();
-    assert_eq!(v["samples"], 50, "{v}");
+    assert_eq!(v["samples"], 100, "{v}");
     let sigma = v["sigma_deg"].as_f64().unwrap_or(f64::NAN);
     assert!((0.21..=0.39).contains(&sigma), "{v}");
 }

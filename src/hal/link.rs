@@ -130,6 +130,8 @@ struct Pending {
     bytes: Vec<u8>,
     deadline: Instant,
     first_sent: Instant,
+    /// Whether a retried answer's time bounds the link's latency.
+    measures_link: bool,
     budget: Duration,
     attempts: u32,
     busy_left: u32,
@@ -182,6 +184,9 @@ impl Link {
                         Ok(mut p) => {
                             if let Some(b) = budget {
                                 p.budget = b;
+                                // A budget of its own (HELLO while a board boots): its answer
+                                // time is the board's, not the link's.
+                                p.measures_link = false;
                             }
                             pending = Some(p);
                         }
@@ -303,6 +308,7 @@ impl Link {
         Ok(Pending {
             deadline: now + self.deadline(&request),
             first_sent: now,
+            measures_link: true,
             budget: self.config.budget(
                 &request,
                 Duration::from_millis(self.stats.watchdog_ms.load(Ordering::Relaxed)),
@@ -346,7 +352,7 @@ impl Link {
             self.stats
                 .adapter_latency_us
                 .fetch_min(us, Ordering::Relaxed);
-        } else {
+        } else if p.measures_link {
             self.stats.latency_bound_us.fetch_max(us, Ordering::Relaxed);
         }
         if let Response::ConfigureWatchdog(w) = response {

@@ -12,6 +12,7 @@ use crate::base::{
     Validity,
 };
 use async_trait::async_trait;
+use futures_util::FutureExt;
 use std::collections::VecDeque;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
@@ -42,6 +43,8 @@ pub struct NmeaCompass {
     arrivals: Arc<Mutex<VecDeque<Instant>>>,
 }
 
+/// The most bytes taken as one burst (about a hundred sentences).
+const MAX_BURST: usize = 8192;
 /// Arrivals kept to judge the compass's rate.
 const RATE_WINDOW: usize = 9;
 /// How long a first reading is awaited, before the compass's rate is known: a compass at
@@ -126,8 +129,22 @@ async fn read_sentences<S: AsyncRead + Unpin>(mut stream: S, out: Outputs) {
             Ok(0) | Err(_) => return,
             Ok(n) => n,
         };
+        // What is already waiting is read with it, so a backlog longer than one read is one
+        // burst (and is stamped as one).
+        let mut bytes = chunk[..n].to_vec();
+        let mut ended = false;
+        while bytes.len() < MAX_BURST {
+            match stream.read(&mut chunk).now_or_never() {
+                Some(Ok(0) | Err(_)) => {
+                    ended = true;
+                    break;
+                }
+                Some(Ok(m)) => bytes.extend_from_slice(&chunk[..m]),
+                None => break,
+            }
+        }
         let mut burst: Vec<f64> = Vec::new();
-        for &b in &chunk[..n] {
+        for &b in &bytes {
             // CR LF, LF alone and CR alone all end a sentence; the empty line between CR and
             // LF is nothing.
             if b != b'\n' && b != b'\r' {
@@ -172,6 +189,9 @@ async fn read_sentences<S: AsyncRead + Unpin>(mut stream: S, out: Outputs) {
             }
         }
         publish(&out, &burst);
+        if ended {
+            return;
+        }
     }
 }
 
@@ -311,7 +331,16 @@ mod tests {
             tokio::time::sleep(Duration::from_millis(100)).await;
         }
         tokio::time::sleep(Duration::from_millis(400)).await;
-        let backlog: String = (10..15).map(|i| line(f64::from(i))).collect();
+        // Longer than one read of the port (256 bytes), padded as a talker may pad.
+        let backlog: String = (10..15)
+            .map(|i| {
+                sentence(
+                    "HEHDT",
+                    &format!("{:.1},T,{}", f64::from(i), "0".repeat(40)),
+                )
+            })
+            .collect();
+        assert!(backlog.len() > 256);
         tx.write_all(backlog.as_bytes()).await.unwrap();
         tokio::time::sleep(Duration::from_millis(10)).await;
         let mut times = Vec::new();

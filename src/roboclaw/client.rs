@@ -115,6 +115,8 @@ const HOST_SLACK: Duration = Duration::from_millis(20);
 const CRC_ATTEMPTS: u32 = 3;
 /// The controller's own answer time (≥ 1 ms at 38400 baud and below, manual).
 const DEVICE_TIME: Duration = Duration::from_millis(2);
+/// The longest a port is drained before a transaction.
+const DRAIN_AT_MOST: Duration = Duration::from_millis(500);
 
 /// What the link has learnt about itself: the adapter's latency and the budget.
 #[derive(Debug)]
@@ -228,10 +230,13 @@ impl RoboClaw {
 
     /// Discards bytes that arrive within `quiet` of each other: whatever a late answer left in
     /// the port, or the rest of a broken one.
+    /// Reads and drops bytes until the port has been quiet for `quiet`, or for at most
+    /// [`DRAIN_AT_MOST`] (a port that streams without pause is not waited out).
     async fn drain(port: &mut Box<dyn Port>, quiet: Duration) {
         let mut junk = [0u8; 64];
+        let until = tokio::time::Instant::now() + DRAIN_AT_MOST;
         while let Ok(Ok(n)) = tokio::time::timeout(quiet, port.read(&mut junk)).await {
-            if n == 0 {
+            if n == 0 || tokio::time::Instant::now() >= until {
                 break;
             }
         }

@@ -12,6 +12,11 @@ use tokio::time::Instant;
 pub const MAX_IN_FLIGHT: usize = 32;
 /// The largest reassembled message (bytes of JSON text).
 pub const MAX_MESSAGE_BYTES: usize = 16 << 20;
+/// The most fragments one message may have.
+pub const MAX_FRAGMENTS: usize = 1 << 18;
+/// What each fragment counts against [`MAX_MESSAGE_BYTES`] besides its data (an empty piece
+/// still costs its keeping).
+const PIECE_OVERHEAD: usize = 64;
 /// A message whose next fragment does not come within this is dropped.
 pub const FRAGMENT_TIMEOUT: Duration = Duration::from_secs(10);
 
@@ -81,13 +86,24 @@ impl Defragmenter {
             .get("data")
             .and_then(Value::as_str)
             .ok_or(FragmentError::Field("data"))?;
+        // rosbridge_suite long computed `total` with Python 3's true division
+        // (`(len - 1) / size + 1`, 2.99 for two pieces): a number's whole part is the count.
         let index = |key: &'static str| {
             op.get(key)
-                .and_then(Value::as_u64)
+                .and_then(|v| match v.as_u64() {
+                    Some(n) => Some(n),
+                    None => v
+                        .as_f64()
+                        .filter(|f| f.is_finite() && *f >= 0.0 && *f < 1e15)
+                        .map(|f| f.floor() as u64),
+                })
                 .and_then(|n| usize::try_from(n).ok())
                 .ok_or(FragmentError::Field(key))
         };
         let (num, total) = (index("num")?, index("total")?);
+        if total == 0 || total > MAX_FRAGMENTS {
+            return Err(FragmentError::Field("total"));
+        }
         let now = Instant::now();
         self.partial
             .retain(|_, p| now.duration_since(p.last) < FRAGMENT_TIMEOUT);
@@ -118,8 +134,11 @@ impl Defragmenter {
                 expected,
             });
         }
-        let before = partial.pieces.get(&num).map_or(0, String::len);
-        let bytes = partial.bytes - before + data.len();
+        let before = partial
+            .pieces
+            .get(&num)
+            .map_or(0, |p| p.len() + PIECE_OVERHEAD);
+        let bytes = partial.bytes - before + data.len() + PIECE_OVERHEAD;
         if bytes > MAX_MESSAGE_BYTES {
             self.partial.remove(&id);
             return Err(FragmentError::TooLarge);
@@ -169,6 +188,19 @@ mod tests {
             d.feed(&json!({"op": "fragment", "id": "x", "num": 0, "total": 2})),
             Err(FragmentError::Field("data"))
         );
+        assert_eq!(
+            d.feed(&json!({"op": "fragment", "id": "y", "data": "", "num": 0, "total": 1e12})),
+            Err(FragmentError::Field("total"))
+        );
+    }
+
+    /// rosbridge_suite under Python 3 wrote `total` as a float (2.99 for two pieces).
+    #[tokio::test]
+    async fn a_float_total_counts_its_whole_part() {
+        let mut d = Defragmenter::default();
+        let piece = |num: usize, data: &str| json!({"op": "fragment", "id": "f", "data": data, "num": num, "total": 2.99});
+        assert_eq!(d.feed(&piece(1, "def")).unwrap(), None);
+        assert_eq!(d.feed(&piece(0, "abc")).unwrap().as_deref(), Some("abcdef"));
     }
 
     #[tokio::test(start_paused = true)]

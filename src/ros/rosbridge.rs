@@ -359,3 +359,39 @@ fn dispatch(
         None => note_foreign(foreign, format!("JSON without an \"op\": {text}")),
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A server's publish in fragments (ids and totals as rosbridge_suite writes them, the
+    /// pieces out of order) reaches the topic's subscribers once its last piece is in; a
+    /// fragment inside a fragmented message is counted as foreign, not followed.
+    #[tokio::test]
+    async fn fragments_from_the_server_make_one_message() {
+        let topics: Topics = Arc::default();
+        let pending: Pending = Arc::default();
+        let foreign = Mutex::new((0, None));
+        let (tx, mut rx) = broadcast::channel(4);
+        lock(&topics).insert("/imu".into(), tx);
+        let text = json!({"op": "publish", "topic": "/imu", "msg": {"x": 1.5}}).to_string();
+        let mut pieces = super::super::fragment::split(&text, 10, "7");
+        pieces.swap(0, 1);
+        let mut d = Defragmenter::default();
+        for p in &pieces {
+            assert!(rx.try_recv().is_err());
+            dispatch(&p.to_string(), &topics, &pending, &foreign, Some(&mut d));
+        }
+        assert_eq!(rx.try_recv().unwrap(), json!({"x": 1.5}));
+        assert_eq!(lock(&foreign).0, 0);
+        let nested = super::super::fragment::split(&pieces[0].to_string(), 1000, "8");
+        dispatch(
+            &nested[0].to_string(),
+            &topics,
+            &pending,
+            &foreign,
+            Some(&mut d),
+        );
+        assert_eq!(lock(&foreign).0, 1);
+    }
+}

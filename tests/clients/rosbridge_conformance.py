@@ -167,14 +167,16 @@ try:
     ros.send_on_ready(roslibpy.Message({"op": "advertise_service", "service": "/x", "type": "std_srvs/srv/Empty"}))
     time.sleep(0.5)
     check("advertise_service is refused with a status", since(n, "status"), since(n, "status")[:1])
-    # Fragments (ROSBRIDGE_PROTOCOL.md 3.1): a subscription with fragment_size 100 gets each
-    # odometry message in pieces that join into the publish operation; a call sent in pieces
-    # is answered.
+    # Fragments (ROSBRIDGE_PROTOCOL.md 3.1): an operation's fragment_size becomes the
+    # connection's, so a subscription with fragment_size 100 gets each odometry message in
+    # pieces that join into the publish operation (a large one given with the unsubscription
+    # ends that); a call sent in pieces is answered.
     n = len(frames)
     ros.send_on_ready(roslibpy.Message({"op": "subscribe", "id": "frag", "topic": "/odom",
                                         "type": "nav_msgs/msg/Odometry", "fragment_size": 100}))
     time.sleep(0.6)
-    ros.send_on_ready(roslibpy.Message({"op": "unsubscribe", "id": "frag", "topic": "/odom"}))
+    ros.send_on_ready(roslibpy.Message({"op": "unsubscribe", "id": "frag", "topic": "/odom",
+                                        "fragment_size": 10000000}))
     time.sleep(0.3)
     pieces = since(n, "fragment")
     first = [p for p in pieces if pieces and p["id"] == pieces[0]["id"]]

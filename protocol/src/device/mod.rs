@@ -59,11 +59,11 @@ pub use storage::{ParamStorage, RamStorage, StorageError};
 
 use crate::frame::{Frame, FrameDecoder, FrameKind, CRC16, MAJOR, MAX_FRAME, MINOR};
 use crate::message::{
-    capability, fault, id, DeviceInfo, Encoders, Event, FirmwareId, GetParamsRequest, Heading,
-    HelloRequest, MotionAccepted, MotionDone, MotionMode, MotionState, MoveStraightRequest, Nack,
-    NackCode, Packet, ParamSource, ParamsBlock, Request, Response, RestoreDefaultsRequest,
-    RestoreTarget, SavedCrc, Status, StoredParams, Telemetry, TelemetryPeriod, TurnInPlaceRequest,
-    WatchdogState, WatchdogTimeout, WheelSpeedRequest,
+    capability, fault, heading_status, id, DeviceInfo, Encoders, Event, FirmwareId,
+    GetParamsRequest, Heading, HelloRequest, MotionAccepted, MotionDone, MotionMode, MotionState,
+    MoveStraightRequest, Nack, NackCode, Packet, ParamSource, ParamsBlock, Request, Response,
+    RestoreDefaultsRequest, RestoreTarget, SavedCrc, Status, StoredParams, Telemetry,
+    TelemetryPeriod, TurnInPlaceRequest, WatchdogState, WatchdogTimeout, WheelSpeedRequest,
 };
 use crate::units;
 use crate::wire::{Payload, Writer};
@@ -100,8 +100,8 @@ pub struct HeadingReading {
     /// Whether the reading may be used.
     pub valid: bool,
     /// Sensor status bits ([`crate::message::heading_status`]): 0 calibrated, 1 magnetic
-    /// disturbance, 2 not responding, 3 not new (the sensor has taken no reading since the
-    /// previous answer: a board reading a cached sample sets it, SPEC.md §5).
+    /// disturbance, 2 not responding (bit 3, not new, is the device's: see
+    /// [`Board::heading_sample`]).
     pub sensor_status: u8,
 }
 
@@ -152,9 +152,16 @@ pub trait Board {
     /// Zeroes both encoder counters (RESET_ODOMETRY).
     fn reset_encoders(&mut self);
 
-    /// The sensor's newest reading; [`crate::message::heading_status::NOT_NEW`] set if it is
-    /// the one answered last time.
+    /// The sensor's newest reading.
     fn heading(&mut self) -> HeadingReading;
+
+    /// A number that changes with every new sample of the heading sensor (a counter, the
+    /// sample's time), for a sensor slower than the host's requests: READ_HEADING then flags a
+    /// sample it has already answered ([`crate::message::heading_status::NOT_NEW`]) and the
+    /// host reads again. `None` (the default): every reading is a new one.
+    fn heading_sample(&mut self) -> Option<u32> {
+        None
+    }
 
     /// Whether the board has a heading sensor (HELLO capability bit 0).
     fn has_heading(&self) -> bool {
@@ -359,6 +366,8 @@ pub struct Device<B, S> {
     at_rest: bool,
     /// The board's clock when last read (µs).
     now_us: u64,
+    /// The heading sample READ_HEADING last answered ([`Board::heading_sample`]).
+    heading_answered: Option<u32>,
     retry: RetryCache,
     stats: DeviceStats,
 }
@@ -390,6 +399,7 @@ impl<B: Board, S: ParamStorage> Device<B, S> {
             board_faults: 0,
             at_rest: true,
             now_us: 0,
+            heading_answered: None,
             retry: RetryCache::new(),
             stats: DeviceStats::default(),
         };
@@ -1020,11 +1030,20 @@ impl<B: Board, S: ParamStorage> Device<B, S> {
             }
             Request::ReadHeading => {
                 let h = self.board.heading();
+                // The same sample as the last answer is flagged (SPEC.md §5): the host reads
+                // again. Telemetry reads the sensor too and does not count.
+                let sample = self.board.heading_sample();
+                let repeated = sample.is_some() && sample == self.heading_answered;
+                self.heading_answered = sample;
                 Ok(Response::ReadHeading(Heading {
                     timestamp_us: now as u32,
                     heading_urad: h.heading_urad,
                     valid: h.valid,
-                    sensor_status: h.sensor_status,
+                    sensor_status: if repeated {
+                        h.sensor_status | heading_status::NOT_NEW
+                    } else {
+                        h.sensor_status
+                    },
                 }))
             }
             Request::ConfigureTelemetry(TelemetryPeriod { period_ms }) => {

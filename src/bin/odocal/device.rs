@@ -381,7 +381,7 @@ pub async fn heading(args: HeadingArgs) -> CliResult {
     // The whole robot is kept open while its sensor is read.
     let mut _robot = None;
     let source = match args.robot.heading_alone() {
-        Some((text, baud)) => odocal::spec::open_heading(&text, baud).await?,
+        Some((text, baud)) => args.robot.section().open_heading_alone(&text, baud).await?,
         None => {
             let spec = args.robot.spec(odocal::spec::RobotSection::default())?;
             let base = spec.open().await?;

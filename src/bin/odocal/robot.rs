@@ -138,6 +138,20 @@ impl RobotArgs {
         }
     }
 
+    /// The robot section of these flags alone (no routine file).
+    pub fn section(&self) -> RobotSection {
+        RobotSection {
+            drive: self.port.clone().or_else(|| self.base.clone()),
+            baud: self.baud,
+            heading: self.heading.clone(),
+            store: None,
+            profile: self.profile.clone(),
+            ros: None,
+            heading_kind: self.heading_kind.clone(),
+            compass_deviation_deg: self.compass_deviation_deg.clone(),
+        }
+    }
+
     /// The robot: a routine file's section (if any) with these flags laid over it.
     pub fn spec(&self, file: RobotSection) -> Result<BaseSpec, Error> {
         let ros = match (file.ros.clone(), self.ros.any()) {
@@ -146,14 +160,8 @@ impl RobotArgs {
             (None, false) => None,
         };
         let flags = RobotSection {
-            drive: self.port.clone().or_else(|| self.base.clone()),
-            baud: self.baud,
-            heading: self.heading.clone(),
-            store: None,
-            profile: self.profile.clone(),
             ros,
-            heading_kind: self.heading_kind.clone(),
-            compass_deviation_deg: self.compass_deviation_deg.clone(),
+            ..self.section()
         };
         Ok(file.over(flags).spec()?)
     }

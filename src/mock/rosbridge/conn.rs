@@ -3,9 +3,10 @@
 //! `rosbridge_server` applies them (the fastest throttle and the shortest queue of a topic's
 //! subscriptions; a throttled message is dropped, a queue drops its oldest), advertisements,
 //! publications, service calls, and `status` messages for what it refuses, at the level the
-//! client set with `set_level` (`error` until then). A subscription's `fragment_size` (the
-//! smallest of a topic's) splits longer messages into `fragment` operations, and fragments
-//! from the client are put together ([`crate::ros::fragment`]).
+//! client set with `set_level` (`error` until then). As in rosbridge_suite, the
+//! `fragment_size` of any operation becomes the connection's: everything it sends that is
+//! longer goes out as `fragment` operations; fragments from the client are put together
+//! ([`crate::ros::fragment`]).
 //!
 //! Each message of a topic goes to a connection once, whatever its number of subscriptions,
 //! without a subscription id (the client fans it out), as the real server does.
@@ -52,7 +53,6 @@ struct Subscription {
     id: Option<Value>,
     throttle: Duration,
     queue_length: usize,
-    fragment_size: Option<usize>,
 }
 
 /// A topic this connection subscribes to, with its subscriptions and delivery state.
@@ -78,14 +78,6 @@ impl Subscribed {
             .map(|s| s.queue_length)
             .min()
             .unwrap_or_default()
-    }
-
-    /// The smallest `fragment_size` any subscription asked for.
-    fn fragment_size(&self) -> Option<usize> {
-        self.subscriptions
-            .iter()
-            .filter_map(|s| s.fragment_size)
-            .min()
     }
 
     fn window_open(&self, now: Instant) -> bool {
@@ -132,6 +124,9 @@ struct Connection {
     subscribed: BTreeMap<String, Subscribed>,
     level: Option<Level>,
     fragments: Defragmenter,
+    /// The `fragment_size` the client last gave in any operation: what the connection sends
+    /// longer than it goes in fragments.
+    fragment_size: Option<usize>,
     /// Ids given to fragmented messages.
     fragmented: u64,
 }
@@ -164,6 +159,7 @@ pub(super) async fn serve(
         subscribed: BTreeMap::new(),
         level: Some(Level::Error),
         fragments: Defragmenter::default(),
+        fragment_size: None,
         fragmented: 0,
     };
     let mut tick = tokio::time::interval(Duration::from_millis(10));
@@ -193,8 +189,27 @@ impl Connection {
         self.send_text(v.to_string()).await
     }
 
+    /// Sends `text`, in `fragment` operations when it is longer than the connection's
+    /// `fragment_size` (rosbridge's `Protocol.send`).
     async fn send_text(&mut self, text: String) -> bool {
-        self.sink.send(Message::text(text)).await.is_ok()
+        match self.fragment_size {
+            Some(size) if text.chars().count() > size => {
+                self.fragmented += 1;
+                let id = format!("fragmented-{}", self.fragmented);
+                for piece in fragment::split(&text, size, &id) {
+                    if self
+                        .sink
+                        .send(Message::text(piece.to_string()))
+                        .await
+                        .is_err()
+                    {
+                        return false;
+                    }
+                }
+                true
+            }
+            _ => self.sink.send(Message::text(text)).await.is_ok(),
+        }
     }
 
     /// A published message, as this connection's subscriptions let it through.
@@ -205,37 +220,13 @@ impl Connection {
         // Transport latency: no message leaves earlier than this after it was made.
         tokio::time::sleep_until(at + self.cfg.latency).await;
         let out = sub.offer(msg, Instant::now());
-        let fragment_size = sub.fragment_size();
         for m in out {
-            if !self.send_published(topic, m, fragment_size).await {
+            let text = self.publish_text(topic, m);
+            if !self.send_text(text).await {
                 return false;
             }
         }
         true
-    }
-
-    /// A `publish` to this connection, in fragments of `fragment_size` characters if it is
-    /// longer (rosbridge's `Fragmentation`).
-    async fn send_published(
-        &mut self,
-        topic: &str,
-        msg: Value,
-        fragment_size: Option<usize>,
-    ) -> bool {
-        let text = self.publish_text(topic, msg);
-        match fragment_size {
-            Some(size) if text.chars().count() > size => {
-                self.fragmented += 1;
-                let id = format!("{topic}#{}", self.fragmented);
-                for piece in fragment::split(&text, size, &id) {
-                    if !self.send(piece).await {
-                        return false;
-                    }
-                }
-                true
-            }
-            _ => self.send_text(text).await,
-        }
     }
 
     async fn release_queues(&mut self) -> bool {
@@ -243,11 +234,12 @@ impl Connection {
         let mut out = Vec::new();
         for (topic, sub) in &mut self.subscribed {
             for m in sub.release(now) {
-                out.push((topic.clone(), m, sub.fragment_size()));
+                out.push((topic.clone(), m));
             }
         }
-        for (topic, m, fragment_size) in out {
-            if !self.send_published(&topic, m, fragment_size).await {
+        for (topic, m) in out {
+            let text = self.publish_text(&topic, m);
+            if !self.send_text(text).await {
                 return false;
             }
         }
@@ -302,6 +294,10 @@ impl Connection {
                 .status(Level::Error, "a message without \"op\"".into(), None)
                 .await;
         };
+        // As rosbridge does: any operation's fragment_size becomes the connection's.
+        if let Some(size) = op.get("fragment_size").and_then(Value::as_u64) {
+            self.fragment_size = usize::try_from(size).ok().filter(|&n| n > 0);
+        }
         let topic = op.get("topic").and_then(Value::as_str).map(String::from);
         match (name, topic) {
             ("subscribe", Some(topic)) => self.subscribe(&op, topic).await,
@@ -397,11 +393,6 @@ impl Connection {
             id: op.get("id").cloned(),
             throttle: Duration::from_millis(ms("throttle_rate")),
             queue_length: usize::try_from(ms("queue_length")).unwrap_or(usize::MAX),
-            fragment_size: op
-                .get("fragment_size")
-                .and_then(Value::as_u64)
-                .and_then(|n| usize::try_from(n).ok())
-                .filter(|&n| n > 0),
         };
         let entry = self.subscribed.entry(topic).or_default();
         match entry
@@ -516,7 +507,6 @@ mod tests {
             id: None,
             throttle: Duration::from_millis(throttle_ms),
             queue_length,
-            fragment_size: None,
         }
     }
 
