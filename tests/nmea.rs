@@ -80,7 +80,10 @@ fn heading_reads_five_samples_from_compasses_at_any_rate() {
             );
             let removed = raw - fixed;
             let want = 10.0 * raw.to_radians().cos();
-            assert!((removed - want).abs() < 0.5, "{raw}° → {fixed}°: {removed} vs {want}");
+            assert!(
+                (removed - want).abs() < 0.5,
+                "{raw}° → {fixed}°: {removed} vs {want}"
+            );
         }
         if hz == "50" {
             // Fifty readings at rest give the noise per reading `odocal plan` wants: the
