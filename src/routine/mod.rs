@@ -115,9 +115,8 @@ impl RoutineUi for Unattended {
 pub const IMPLAUSIBLE_HEADING_RAD: f64 = std::f64::consts::FRAC_PI_4;
 
 /// Readings the pre-flight takes at rest: at least the first, up to the second while
-/// [`PREFLIGHT_BUDGET`] lasts (a hundred state σ within ±30 % all but 3 times in 100 000;
-/// fifty, 997 times in 1000; ten, 8 in 10).
-pub const PREFLIGHT_READINGS: (usize, usize) = (10, 100);
+/// [`PREFLIGHT_BUDGET`] lasts (fifty state σ within ±30 % 997 times in 1000; ten, 8 in 10).
+pub const PREFLIGHT_READINGS: (usize, usize) = (10, 50);
 
 /// How long the pre-flight goes on reading at rest once it has the least number.
 pub const PREFLIGHT_BUDGET: Duration = Duration::from_secs(5);
