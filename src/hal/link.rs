@@ -76,13 +76,12 @@ impl LinkConfig {
         self.wire_time(request) + device + self.margin
     }
 
-    /// Both frames' transmission time at the baud rate (10 bits per byte).
+    /// Both frames' transmission time at the baud rate.
     pub fn wire_time(&self, request: &Request) -> Duration {
         let msg = request.msg();
         let req = payload_len(FrameKind::Request, msg).unwrap_or(0) + 9;
         let resp = payload_len(FrameKind::Response, msg).unwrap_or(0) + 9;
-        let bits = 10.0 * (req + resp) as f64;
-        Duration::from_secs_f64(bits / f64::from(self.baud.max(1)))
+        crate::io::serial::transmission(req + resp, self.baud)
     }
 
     /// The retry budget of a request while the device's watchdog is `watchdog` (zero: off):
@@ -327,13 +326,10 @@ impl Link {
     /// on this link (a USB adapter adds 1–16 ms each way), so that a slow adapter is not
     /// taken for a lost frame.
     fn deadline(&self, request: &Request) -> Duration {
-        let measured = self.stats.adapter_latency_us.load(Ordering::Relaxed);
-        let latency = if measured == u64::MAX {
-            self.stats.latency_bound_us.load(Ordering::Relaxed)
-        } else {
-            measured
-        };
-        self.config.deadline(request) + 2 * Duration::from_micros(latency.min(1_000_000))
+        let latency = self.stats.adapter_latency().unwrap_or_else(|| {
+            Duration::from_micros(self.stats.latency_bound_us.load(Ordering::Relaxed))
+        });
+        self.config.deadline(request) + 2 * latency.min(Duration::from_secs(1))
     }
 
     /// What an answer tells of the link: the time beyond transmission, and the watchdog
@@ -347,12 +343,10 @@ impl Link {
             .first_sent
             .elapsed()
             .saturating_sub(self.config.wire_time(&p.request));
-        let us = u64::try_from(beyond.as_micros()).unwrap_or(u64::MAX - 1);
         if p.attempts == 1 {
-            self.stats
-                .adapter_latency_us
-                .fetch_min(us, Ordering::Relaxed);
+            self.stats.record_latency(beyond);
         } else if p.measures_link {
+            let us = u64::try_from(beyond.as_micros()).unwrap_or(u64::MAX);
             self.stats.latency_bound_us.fetch_max(us, Ordering::Relaxed);
         }
         if let Response::ConfigureWatchdog(w) = response {

@@ -204,7 +204,7 @@ impl RoboClaw {
     /// their transmission, the controller's answer time, twice the adapter's latency (there
     /// and back) and a host's scheduling slice.
     fn deadline(&self, bytes: usize) -> Duration {
-        Duration::from_secs_f64(10.0 * bytes as f64 / f64::from(self.cfg.baud))
+        crate::io::serial::transmission(bytes, self.cfg.baud)
             + DEVICE_TIME
             + 2 * self.latency()
             + HOST_SLACK
@@ -218,7 +218,7 @@ impl RoboClaw {
         for _ in 0..5 {
             let started = tokio::time::Instant::now();
             self.read(cmd::READ_MAIN_BATTERY, 2).await?;
-            let wire = Duration::from_secs_f64(10.0 * 6.0 / f64::from(self.cfg.baud));
+            let wire = crate::io::serial::transmission(6, self.cfg.baud);
             worst = worst.max(started.elapsed().saturating_sub(wire + DEVICE_TIME));
         }
         // Half the round trip is one way; allow the slowest seen, at least a millisecond.
@@ -228,10 +228,9 @@ impl RoboClaw {
         Ok(latency)
     }
 
-    /// Discards bytes that arrive within `quiet` of each other: whatever a late answer left in
-    /// the port, or the rest of a broken one.
-    /// Reads and drops bytes until the port has been quiet for `quiet`, or for at most
-    /// [`DRAIN_AT_MOST`] (a port that streams without pause is not waited out).
+    /// Discards bytes that arrive within `quiet` of each other — whatever a late answer left
+    /// in the port, or the rest of a broken one — for at most [`DRAIN_AT_MOST`] (a port that
+    /// streams without pause is not waited out).
     async fn drain(port: &mut Box<dyn Port>, quiet: Duration) {
         let mut junk = [0u8; 64];
         let until = tokio::time::Instant::now() + DRAIN_AT_MOST;
@@ -385,9 +384,8 @@ impl RoboClaw {
         let mut attempts = 0;
         while attempts < 3 || started.elapsed() < budget {
             attempts += 1;
-            let attempt = attempts;
             let mut port = self.port.lock().await;
-            let quiet = if attempt == 1 {
+            let quiet = if attempts == 1 {
                 Duration::from_millis(1)
             } else {
                 after
