@@ -273,34 +273,31 @@ impl HeadingSource for Client {
         // §5, READ_HEADING bit 3): read again until it has, so that readings at rest are
         // distinct samples.
         let asked = tokio::time::Instant::now();
-        let h = loop {
+        loop {
             let h = self
                 .read_heading()
                 .await
                 .map_err(to_base("heading", "a heading read"))?;
-            if h.sensor_status & heading_status::NOT_NEW == 0 {
-                break h;
+            let repeated = h.sensor_status & heading_status::NOT_NEW != 0;
+            if repeated && asked.elapsed() < NEW_HEADING_WITHIN {
+                tokio::time::sleep(NEW_HEADING_POLL).await;
+                continue;
             }
-            if asked.elapsed() >= NEW_HEADING_WITHIN {
-                return Ok(HeadingSample {
-                    time_s: crate::protocol::units::us_to_s(u64::from(h.timestamp_us)),
-                    heading_rad: h.heading_rad,
-                    validity: Validity::Invalid(format!(
-                        "the device's heading sensor took no new reading within {NEW_HEADING_WITHIN:?}"
-                    )),
-                });
-            }
-            tokio::time::sleep(NEW_HEADING_POLL).await;
-        };
-        Ok(HeadingSample {
-            time_s: crate::protocol::units::us_to_s(u64::from(h.timestamp_us)),
-            heading_rad: h.heading_rad,
-            validity: if h.valid {
+            let validity = if repeated {
+                Validity::Invalid(format!(
+                    "the device's heading sensor took no new reading within {NEW_HEADING_WITHIN:?}"
+                ))
+            } else if h.valid {
                 Validity::Valid
             } else {
                 Validity::Invalid(format!("sensor status {:#04x}", h.sensor_status))
-            },
-        })
+            };
+            return Ok(HeadingSample {
+                time_s: crate::protocol::units::us_to_s(u64::from(h.timestamp_us)),
+                heading_rad: h.heading_rad,
+                validity,
+            });
+        }
     }
 
     async fn stream(

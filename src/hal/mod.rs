@@ -56,7 +56,7 @@ pub const STATUS_POLL: Duration = Duration::from_millis(250);
 pub const HEARTBEAT_EVERY: Duration = Duration::from_millis(100);
 
 /// Counters of the link's health.
-#[derive(Debug)]
+#[derive(Debug, Default)]
 pub struct LinkStats {
     /// Requests sent (first attempts, including BUSY resends).
     pub requests: AtomicU64,
@@ -78,8 +78,9 @@ pub struct LinkStats {
     pub telemetry_dropped: AtomicU64,
     /// Valid frames received of any kind (a sign of life of the device).
     pub frames_received: AtomicU64,
-    /// The shortest answer time beyond transmission seen so far (µs; `u64::MAX` before the
-    /// first): what the adapter and the device's turnaround add to every exchange.
+    /// The shortest answer time beyond transmission seen so far, plus one (µs; 0 before the
+    /// first): what the adapter and the device's turnaround add to every exchange. Read it
+    /// with [`LinkStats::adapter_latency`].
     pub adapter_latency_us: AtomicU64,
     /// The watchdog timeout the device last acknowledged (ms; 0: off).
     pub watchdog_ms: AtomicU64,
@@ -117,28 +118,27 @@ pub struct LinkStatsSnapshot {
     pub watchdog_ms: u64,
 }
 
-impl Default for LinkStats {
-    fn default() -> Self {
-        let z = || AtomicU64::new(0);
-        LinkStats {
-            requests: z(),
-            retries: z(),
-            timeouts: z(),
-            busy: z(),
-            stale_answers: z(),
-            undecodable: z(),
-            decoder_dropped_bytes: z(),
-            telemetry_received: z(),
-            telemetry_dropped: z(),
-            frames_received: z(),
-            adapter_latency_us: AtomicU64::new(u64::MAX),
-            watchdog_ms: z(),
-            latency_bound_us: z(),
+impl LinkStats {
+    /// The adapter's latency as measured so far (`None` before the first answer).
+    pub fn adapter_latency(&self) -> Option<Duration> {
+        match self.adapter_latency_us.load(Ordering::Relaxed) {
+            0 => None,
+            l => Some(Duration::from_micros(l - 1)),
         }
     }
-}
 
-impl LinkStats {
+    /// Takes an answer time beyond transmission on a first attempt: the shortest is kept.
+    fn record_latency(&self, beyond: Duration) {
+        let stored = u64::try_from(beyond.as_micros())
+            .unwrap_or(u64::MAX - 1)
+            .saturating_add(1);
+        let _ = self
+            .adapter_latency_us
+            .fetch_update(Ordering::Relaxed, Ordering::Relaxed, |now| {
+                (now == 0 || stored < now).then_some(stored)
+            });
+    }
+
     fn snapshot(&self) -> LinkStatsSnapshot {
         let g = |a: &AtomicU64| a.load(Ordering::Relaxed);
         LinkStatsSnapshot {
@@ -152,7 +152,9 @@ impl LinkStats {
             telemetry_received: g(&self.telemetry_received),
             telemetry_dropped: g(&self.telemetry_dropped),
             frames_received: g(&self.frames_received),
-            adapter_latency_us: Some(g(&self.adapter_latency_us)).filter(|&l| l != u64::MAX),
+            adapter_latency_us: self
+                .adapter_latency()
+                .map(|l| u64::try_from(l.as_micros()).unwrap_or(u64::MAX)),
             watchdog_ms: g(&self.watchdog_ms),
         }
     }
