@@ -424,20 +424,30 @@ impl RobotSection {
         baud: u32,
     ) -> Result<Arc<dyn HeadingSource>, SpecError> {
         let source = open_heading(text, baud).await?;
-        let (mut kind, mut deviation) = self.heading_flags()?;
-        if let Some(path) = &self.profile {
-            let section = crate::roboclaw::profile::Profile::load(path)?.heading;
-            kind = kind.or(section.kind);
-            if deviation.is_zero() {
-                deviation = section.deviation();
-            }
-        }
-        Ok(if kind.is_some() || !deviation.is_zero() {
-            Arc::new(Adjusted::new(source, kind, deviation))
-        } else {
-            source
-        })
+        let (kind, deviation) = self.heading_flags()?;
+        let (kind, deviation) = with_profile(kind, deviation, self.profile.as_deref())?;
+        Ok(Adjusted::wrap(source, kind, deviation))
     }
+}
+
+/// A heading kind and deviation given (by flags or keys), completed by what the robot profile
+/// at `profile` keeps in its `[heading]` table: its kind when none was given, its curve when no
+/// deviation was.
+fn with_profile(
+    kind: Option<HeadingKind>,
+    deviation: Deviation,
+    profile: Option<&std::path::Path>,
+) -> Result<(Option<HeadingKind>, Deviation), SpecError> {
+    let Some(path) = profile else {
+        return Ok((kind, deviation));
+    };
+    let section = crate::roboclaw::profile::Profile::load(path)?.heading;
+    let deviation = if deviation.is_zero() {
+        section.deviation()
+    } else {
+        deviation
+    };
+    Ok((kind.or(section.kind), deviation))
 }
 
 impl BaseSpec {
@@ -488,15 +498,11 @@ impl BaseSpec {
     /// What the heading sensor is and the deviation removed from its readings: the spec's
     /// (a flag's), else the robot profile's (a swing saved there).
     pub fn heading_correction(&self) -> Result<(Option<HeadingKind>, Deviation), SpecError> {
-        let (mut kind, mut deviation) = (self.heading_kind, self.deviation);
-        if let StoreSpec::Profile(path) = &self.store {
-            let section = crate::roboclaw::profile::Profile::load(path)?.heading;
-            kind = kind.or(section.kind);
-            if deviation.is_zero() {
-                deviation = section.deviation();
-            }
-        }
-        Ok((kind, deviation))
+        let profile = match &self.store {
+            StoreSpec::Profile(path) => Some(path.as_path()),
+            StoreSpec::Drive => None,
+        };
+        with_profile(self.heading_kind, self.deviation, profile)
     }
 
     /// **Connects to the robot** (it does not move): opens the drive, and the heading source
@@ -547,9 +553,7 @@ impl BaseSpec {
         if let Some(heading) = own_heading {
             base.heading = heading;
         }
-        if heading_kind.is_some() || !deviation.is_zero() {
-            base.heading = Arc::new(Adjusted::new(base.heading.clone(), heading_kind, deviation));
-        }
+        base.heading = Adjusted::wrap(base.heading.clone(), heading_kind, deviation);
         Ok(base)
     }
 }

@@ -38,6 +38,20 @@ impl Adjusted {
         }
     }
 
+    /// `inner` declared of `kind` and corrected for `deviation`, or `inner` itself when
+    /// neither is given.
+    pub fn wrap(
+        inner: Arc<dyn HeadingSource>,
+        kind: Option<HeadingKind>,
+        deviation: Deviation,
+    ) -> Arc<dyn HeadingSource> {
+        if kind.is_none() && deviation.is_zero() {
+            inner
+        } else {
+            Arc::new(Adjusted::new(inner, kind, deviation))
+        }
+    }
+
     /// The deviation removed from every reading, shared: a swing that measures a new one sets
     /// it here and every reading from then on (streams already open included) is corrected by
     /// it.
