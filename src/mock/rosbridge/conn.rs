@@ -282,13 +282,15 @@ impl Connection {
 
     /// One operation from the client.
     async fn handle(&mut self, text: &str) -> bool {
-        let Ok(op) = serde_json::from_str::<Value>(text) else {
-            let msg = format!(
-                "cannot parse {:?} as JSON",
-                text.chars().take(80).collect::<String>()
-            );
-            return self.status(Level::Error, msg, None).await;
-        };
+        match parse(text) {
+            Ok(op) => self.operation(op, false).await,
+            Err(msg) => self.status(Level::Error, msg, None).await,
+        }
+    }
+
+    /// One parsed operation; `reassembled` when it came in fragments (a fragment inside one
+    /// is refused).
+    async fn operation(&mut self, op: Value, reassembled: bool) -> bool {
         let Some(name) = op.get("op").and_then(Value::as_str) else {
             return self
                 .status(Level::Error, "a message without \"op\"".into(), None)
@@ -328,18 +330,14 @@ impl Connection {
                 let reply = call_service(&op, &self.cfg, &self.state);
                 self.send(reply).await
             }
-            ("fragment", _) => match self.fragments.feed(&op) {
-                // The whole operation, once its last piece is in (a fragment of fragments is
-                // refused as an unknown operation would be).
-                Ok(Some(whole)) => match serde_json::from_str::<Value>(&whole) {
-                    Ok(inner) if inner.get("op").and_then(Value::as_str) != Some("fragment") => {
-                        Box::pin(self.handle(&whole)).await
-                    }
-                    _ => {
-                        let msg = "fragment: the reassembled message is not an operation".into();
-                        self.refuse(msg, &op).await
-                    }
-                },
+            ("fragment", _) if reassembled => {
+                let msg = "fragment: a fragment inside a fragmented message".into();
+                self.refuse(msg, &op).await
+            }
+            // The whole operation, once its last piece is in.
+            ("fragment", _) => match self.fragments.feed(&op).map(|w| w.map(|w| parse(&w))) {
+                Ok(Some(Ok(inner))) => Box::pin(self.operation(inner, true)).await,
+                Ok(Some(Err(msg))) => self.refuse(format!("fragment: {msg}"), &op).await,
                 Ok(None) => true,
                 Err(e) => self.refuse(format!("fragment: {e}"), &op).await,
             },
@@ -467,6 +465,16 @@ impl Connection {
 
 /// A message read as rosbridge reads it into a ROS type: a field the type does not have is an
 /// error (missing ones keep their defaults).
+/// An operation's JSON, or why it is none.
+fn parse(text: &str) -> Result<Value, String> {
+    serde_json::from_str(text).map_err(|_| {
+        format!(
+            "cannot parse {:?} as JSON",
+            text.chars().take(80).collect::<String>()
+        )
+    })
+}
+
 fn strict<T: serde::de::DeserializeOwned + Default + serde::Serialize>(
     msg: &Value,
 ) -> Result<T, String> {
