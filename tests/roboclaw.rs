@@ -201,6 +201,30 @@ async fn something_else_on_the_port_is_not_a_roboclaw() {
     );
 }
 
+/// A port that never stops sending (a GPS, a console at the wrong baud) is named as not a
+/// RoboClaw in bounded time: draining it before each attempt does not wait for a quiet that
+/// never comes.
+#[tokio::test(start_paused = true)]
+async fn a_port_that_never_stops_sending_is_not_a_roboclaw_in_bounded_time() {
+    let (host, mut dev) = tokio::io::duplex(1024);
+    tokio::spawn(async move {
+        use tokio::io::AsyncWriteExt;
+        while dev.write_all(b"$GPGGA,chatter\r\n").await.is_ok() {
+            tokio::time::sleep(std::time::Duration::from_millis(1)).await;
+        }
+    });
+    let claw = RoboClaw::new(host, RoboClawConfig::default(), "/dev/ttyUSB9").unwrap();
+    let (_dir, path) = profile_file("roboclaw-chatter");
+    let profile = Arc::new(std::sync::RwLock::new(Profile::load(&path).unwrap()));
+    let connect = RoboClawDrive::connect(claw, profile);
+    let err = match tokio::time::timeout(std::time::Duration::from_secs(60), connect).await {
+        Err(_) => panic!("still draining a chattering port after 60 s"),
+        Ok(Err(e)) => e.to_string(),
+        Ok(Ok(_)) => panic!("chatter is not a RoboClaw"),
+    };
+    assert!(err.contains("not a RoboClaw"), "{err}");
+}
+
 #[test]
 fn calibrate_a_roboclaw_base_from_the_command_line_on_pseudo_terminals() {
     let (dir, path) = profile_file("roboclaw-cli");

@@ -194,6 +194,20 @@ mod tests {
         );
     }
 
+    /// A message that would outgrow [`MAX_MESSAGE_BYTES`] is dropped with its pieces, and
+    /// its id starts afresh.
+    #[tokio::test]
+    async fn a_message_too_large_is_refused_and_forgotten() {
+        let mut d = Defragmenter::default();
+        let half = "x".repeat(MAX_MESSAGE_BYTES / 2);
+        let piece = |num: usize| json!({"op": "fragment", "id": "big", "data": half, "num": num, "total": 3});
+        assert_eq!(d.feed(&piece(0)).unwrap(), None);
+        assert_eq!(d.feed(&piece(1)), Err(FragmentError::TooLarge));
+        assert!(d.partial.is_empty());
+        let small = json!({"op": "fragment", "id": "big", "data": "ok", "num": 0, "total": 1});
+        assert_eq!(d.feed(&small).unwrap().as_deref(), Some("ok"));
+    }
+
     /// rosbridge_suite under Python 3 wrote `total` as a float (2.99 for two pieces).
     #[tokio::test]
     async fn a_float_total_counts_its_whole_part() {

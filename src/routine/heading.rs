@@ -179,7 +179,87 @@ pub async fn at_rest(source: &dyn HeadingSource, n: usize) -> Result<Rest, Routi
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::base::{ComponentInfo, HeadingSample, SampleStream, Validity};
     use std::f64::consts::PI;
+    use std::sync::atomic::{AtomicUsize, Ordering};
+    use std::time::Duration;
+
+    /// A sensor whose `k`-th reading (from 0) is valid when `valid(k)`, each taking `took`.
+    struct Scripted {
+        valid: fn(usize) -> bool,
+        took: Duration,
+        reads: AtomicUsize,
+    }
+
+    impl Scripted {
+        fn new(valid: fn(usize) -> bool, took: Duration) -> Self {
+            Scripted {
+                valid,
+                took,
+                reads: AtomicUsize::new(0),
+            }
+        }
+    }
+
+    #[async_trait::async_trait]
+    impl HeadingSource for Scripted {
+        fn info(&self) -> ComponentInfo {
+            ComponentInfo {
+                kind: "scripted".into(),
+                id: String::new(),
+                details: serde_json::Value::Null,
+            }
+        }
+        async fn read(&self) -> Result<HeadingSample, BaseError> {
+            tokio::time::sleep(self.took).await;
+            let k = self.reads.fetch_add(1, Ordering::Relaxed);
+            Ok(HeadingSample {
+                time_s: k as f64,
+                heading_rad: 0.1 * k as f64,
+                validity: if (self.valid)(k) {
+                    Validity::Valid
+                } else {
+                    Validity::Invalid("lost".into())
+                },
+            })
+        }
+        async fn stream(
+            &self,
+            _period: Duration,
+        ) -> Result<Option<SampleStream<HeadingSample>>, BaseError> {
+            Ok(None)
+        }
+    }
+
+    fn failure(r: Result<Vec<f64>, RoutineError>) -> String {
+        match r {
+            Err(RoutineError::Base(BaseError::HeadingInvalid { reason })) => reason,
+            other => panic!("expected an invalid heading, got {other:?}"),
+        }
+    }
+
+    /// Lost readings are skipped, however many, while valid ones keep coming; ten lost in a
+    /// row fail with the sensor's reason; so do two when no valid one came for 2 s.
+    #[tokio::test(start_paused = true)]
+    async fn lost_readings_thin_the_average_and_a_silent_sensor_fails_in_time() {
+        let every_third = Scripted::new(|k| k % 3 == 2, Duration::from_millis(10));
+        let got = readings(&every_third, 4).await.unwrap();
+        assert_eq!(got.len(), 4);
+        assert!(
+            (got[0] - 0.2).abs() < 1e-12 && (got[3] - 1.1).abs() < 1e-12,
+            "{got:?}"
+        );
+
+        let dead = Scripted::new(|_| false, Duration::from_millis(1));
+        let why = failure(readings(&dead, 3).await);
+        assert!(why.contains("lost") && why.contains("10 invalid"), "{why}");
+        assert_eq!(dead.reads.load(Ordering::Relaxed), LOST_IN_A_ROW);
+
+        let slow_and_dead = Scripted::new(|k| k == 0, Duration::from_millis(1500));
+        let why = failure(readings(&slow_and_dead, 3).await);
+        assert!(why.contains("2 invalid"), "{why}");
+        assert_eq!(slow_and_dead.reads.load(Ordering::Relaxed), 3);
+    }
 
     #[test]
     fn the_mean_of_headings_across_the_seam_stays_near_pi() {
