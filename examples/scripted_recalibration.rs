@@ -23,7 +23,9 @@ impl RoutineUi for Printer {
         match event {
             RoutineEvent::Stage(s) => println!("· {s}"),
             RoutineEvent::Warning(w) => println!("warning: {w}"),
-            RoutineEvent::RunDone { heading_error_deg } => {
+            RoutineEvent::RunDone {
+                heading_error_deg, ..
+            } => {
                 println!("  square done: heading error {heading_error_deg:+.3}°")
             }
             _ => {}

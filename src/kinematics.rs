@@ -139,6 +139,20 @@ pub struct WheelParams {
     pub counts_per_wheel_rev: f64,
 }
 
+impl std::fmt::Display for WheelParams {
+    /// `left wheel 0.150000 m, right wheel 0.148800 m, wheelbase 0.380659 m, 4096 counts/rev`.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "left wheel {:.6} m, right wheel {:.6} m, wheelbase {:.6} m, {} counts/rev",
+            self.left_wheel_diameter_m,
+            self.right_wheel_diameter_m,
+            self.wheelbase_m,
+            self.counts_per_wheel_rev
+        )
+    }
+}
+
 impl WheelParams {
     /// Equal wheels of `wheel_diameter_m` on a `wheelbase_m` base.
     pub fn nominal(wheel_diameter_m: f64, wheelbase_m: f64, counts_per_wheel_rev: f64) -> Self {

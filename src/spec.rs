@@ -19,7 +19,7 @@
 
 use crate::base::adjusted::Adjusted;
 use crate::base::heading_backend::{HeadingBackend, PortSpec};
-use crate::base::transaction::BackupFile;
+use crate::base::transaction::{BackupError, BackupFile};
 use crate::base::{Base, BaseError, HeadingKind, HeadingSource, ParamFile, ParamStore};
 use crate::hal::HalError;
 use crate::kinematics::Deviation;
@@ -30,7 +30,7 @@ use crate::ros::yaml::{YamlError, YamlStore};
 use crate::routine::config::{key_line, parse_table, table_error, ConfigError, RoutineConfig};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::str::FromStr;
 use std::sync::Arc;
 
@@ -77,6 +77,9 @@ pub enum SpecError {
     /// A heading source could not be opened.
     #[error(transparent)]
     Heading(#[from] BaseError),
+    /// A backup file could not be read.
+    #[error(transparent)]
+    Backup(#[from] BackupError),
 }
 
 fn parse_err(text: &str, reason: impl Into<String>) -> SpecError {
@@ -692,6 +695,69 @@ impl StoreLocation {
         }
     }
 
+    /// Reads any backup odocal wrote: a backup record ([`crate::base::transaction::read_backup`]),
+    /// or a copy of a file made beside it (`robot.toml.odocal-backup-<UTC time>`, what odocal
+    /// before 0.2 wrote beside a profile or a controller's YAML on every write). A copy is read
+    /// as a record of the file it is named after, holding the copy's whole text; its format is
+    /// found by reading it (a profile, else `controller`'s section of a YAML, by default
+    /// `diff_drive_controller`).
+    pub fn read_backup(path: &Path, controller: Option<&str>) -> Result<BackupFile, SpecError> {
+        let record = crate::base::transaction::read_backup(path);
+        let (Err(BackupError::Malformed { .. }), Some(file)) = (&record, copied_file(path)) else {
+            return Ok(record?);
+        };
+        let text = crate::io::read_bounded(path, crate::io::MAX_TEXT_FILE).map_err(|source| {
+            BackupError::Read {
+                path: path.to_path_buf(),
+                source,
+            }
+        })?;
+        let file = std::path::absolute(&file).unwrap_or(file);
+        let (store, active) = match ProfileFile.parse(&text, path) {
+            Ok(profile) => (
+                crate::base::ComponentInfo {
+                    kind: ProfileFile.kind().into(),
+                    id: ProfileFile.id(&file),
+                    details: ProfileFile.details(&file),
+                },
+                ProfileFile::params(&profile),
+            ),
+            Err(profile_error) => {
+                let format = crate::ros::yaml::ControllerYaml {
+                    controller: controller.unwrap_or(DEFAULT_CONTROLLER).into(),
+                };
+                let config = format.parse(&text, path).map_err(|yaml_error| {
+                    SpecError::Combination(format!(
+                        "{} is named like a copy odocal made of {}, but reads neither as a robot                          profile ({profile_error}) nor as a controller's YAML ({yaml_error})",
+                        path.display(),
+                        file.display()
+                    ))
+                })?;
+                (
+                    crate::base::ComponentInfo {
+                        kind: format.kind().into(),
+                        id: format.id(&file),
+                        details: format.details(&file),
+                    },
+                    crate::ros::yaml::ControllerYaml::params(&config),
+                )
+            }
+        };
+        active.validate().map_err(|source| BackupError::Invalid {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        Ok(BackupFile {
+            odocal_version: "before 0.2 (a copy of the file)".into(),
+            store,
+            taken_utc: None,
+            file: Some(file),
+            active,
+            committed: Some(active),
+            text: Some(text),
+        })
+    }
+
     /// Where the store a backup was taken from is: the file it records (absolute; in older
     /// backups, as it was given) or a controller's port (at `baud`). A store odocal cannot
     /// open by itself (the simulated robot, a live ROS controller's running parameters) is
@@ -745,6 +811,18 @@ impl StoreLocation {
             }
         })
     }
+}
+
+/// The file `path` is a copy of, when it is named like one (`<file>.odocal-backup-<UTC time>`
+/// or `…-<n>`, no `.json`), in the same directory.
+fn copied_file(path: &Path) -> Option<PathBuf> {
+    let name = path.file_name()?.to_str()?;
+    let (file, stamp) = name.rsplit_once(".odocal-backup-")?;
+    let stamped = !file.is_empty()
+        && !stamp.ends_with(".json")
+        && stamp.starts_with(|c: char| c.is_ascii_digit())
+        && stamp.contains('T');
+    stamped.then(|| crate::io::dir_of(path).join(file))
 }
 
 impl std::fmt::Display for StoreLocation {
@@ -890,6 +968,7 @@ mod tests {
             file: file.map(PathBuf::from),
             active: crate::kinematics::WheelParams::nominal(0.15, 0.39, 4096.0),
             committed: None,
+            text: None,
         };
         assert_eq!(
             StoreLocation::of_backup(

@@ -222,6 +222,20 @@ fn on_a_ros_robot_track_agrees_with_its_squares_and_a_compass_can_replace_its_im
     args.extend(["--report-dir", report_dir.to_str().unwrap(), "--json"].map(String::from));
     let calibrated = run(&args);
     let _ = server.kill();
+    // The run's backup, in its report directory, puts the YAML back as it was.
+    let backup = calibrated["backup_path"].as_str().unwrap().to_string();
+    assert_eq!(
+        std::path::Path::new(&backup).parent(),
+        Some(report_dir.as_path())
+    );
+    let written_text = std::fs::read_to_string(&yaml).unwrap();
+    let (ok, _, err) = common::odocal(&["restore", &backup, "--yes"]);
+    assert!(ok, "{err}");
+    assert_eq!(
+        std::fs::read_to_string(&yaml).unwrap(),
+        common::DIFF_DRIVE_YAML
+    );
+    std::fs::write(&yaml, written_text).unwrap();
     assert_agree(&track, &squares);
     assert_replays(&track, &log, &filter);
     assert_eq!(calibrated["base"]["drive"]["kind"], "rosbridge");
@@ -269,6 +283,16 @@ fn our_controller_with_a_separate_nmea_compass_calibrates_end_to_end() {
     let report_dir = dir.join("report");
     args.extend(["--report-dir", report_dir.to_str().unwrap(), "--json"]);
     let v = common::odocal_json(&args);
+    // The run's backup restores the controller (both copies) while it is still there.
+    let backup = v["backup_path"].as_str().unwrap().to_string();
+    let restored = common::odocal_json(&["restore", &backup, "--yes", "--json"]);
+    assert_eq!(restored["written"], true, "{restored}");
+    for source in ["active", "stored"] {
+        let p = common::odocal_json(&[
+            "params", "get", "--port", &lines[0], "--source", source, "--json",
+        ]);
+        assert_eq!(p["wheelbase_m"].as_f64(), Some(0.39), "{source}: {p}");
+    }
     drop(mock.stdin.take());
     let _ = mock.wait();
     assert_eq!(v["base"]["drive"]["kind"], "odocal-protocol");

@@ -494,7 +494,7 @@ fn odocal_swing_prints_the_compass_deviation_and_its_flag() {
         std::fs::read_to_string(&profile).unwrap(),
         common::ROBOCLAW_PROFILE
     );
-    // --save keeps the curve in the profile (the file copied beside itself first), and a
+    // --save keeps the curve in the profile (backed up beside it first), and a
     // swing after it measures what is left on top of the saved curve: nearly nothing, and the
     // whole curve it reports is still the compass's.
     let swing = |extra: &[&str]| {
@@ -515,12 +515,24 @@ fn odocal_swing_prints_the_compass_deviation_and_its_flag() {
     let saved = swing(&["--save"]);
     let kept = odocal::roboclaw::profile::Profile::load(&profile).unwrap();
     let backup = saved["profile_backup"].as_str().unwrap();
-    assert_eq!(
-        std::fs::read_to_string(backup).unwrap(),
-        common::ROBOCLAW_PROFILE
-    );
+    let record = odocal::base::transaction::read_backup(std::path::Path::new(backup)).unwrap();
+    assert_eq!(record.text.as_deref(), Some(common::ROBOCLAW_PROFILE));
     let after = swing(&[]);
     let _ = mock.kill();
+    // The saved curve is undone by restoring that backup: the profile is as it was.
+    let saved_text = std::fs::read_to_string(&profile).unwrap();
+    let (ok, _, err) = common::odocal(&["restore", backup, "--dry-run"]);
+    assert!(
+        ok && err.contains("[heading]"),
+        "the change is shown: {err}"
+    );
+    assert_eq!(std::fs::read_to_string(&profile).unwrap(), saved_text);
+    let (ok, _, err) = common::odocal(&["restore", backup, "--yes"]);
+    assert!(ok, "{err}");
+    assert_eq!(
+        std::fs::read_to_string(&profile).unwrap(),
+        common::ROBOCLAW_PROFILE
+    );
     let residual = &after["fit"]["deviation"];
     let whole: Deviation = after["compass_deviation_deg"]
         .as_str()

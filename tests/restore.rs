@@ -79,8 +79,9 @@ fn open_yaml(path: &Path) -> Arc<dyn ParamStore> {
     Arc::new(YamlStore::open(path, "diff_drive_controller").unwrap())
 }
 
-/// A file store's round trip: a backup of its original parameters beside it, then a change
-/// through a transaction; `odocal restore` of that backup shows, declines, and restores.
+/// A file store's round trip: a backup of its original parameters where the caller asks (a
+/// run's report directory), then a change through a transaction; `odocal restore` of that
+/// backup shows, declines, and puts the whole file back as it was, byte for byte.
 async fn file_store_is_restored(test: &str, file_name: &str, text: &str, open: Open) {
     let dir = scratch(test);
     std::fs::create_dir_all(&dir).unwrap();
@@ -89,14 +90,13 @@ async fn file_store_is_restored(test: &str, file_name: &str, text: &str, open: O
     let store = open(&file);
     let resolution = store.resolution();
     let original = store.read().await.unwrap();
-    // The backup goes beside the file whatever directory is given.
-    let mut tx = Transaction::begin(store.clone(), &dir.join("elsewhere"))
-        .await
-        .unwrap();
+    // The backup goes where it is asked to (a run's report directory), named after the file.
+    let report = dir.join("report");
+    let mut tx = Transaction::begin(store.clone(), &report).await.unwrap();
     let backup = tx.backup_path().unwrap().to_path_buf();
-    assert_eq!(backup.parent(), Some(dir.as_path()));
-    assert!(!dir.join("elsewhere").exists());
+    assert_eq!(backup.parent(), Some(report.as_path()));
     assert_utc_name(&backup, &format!("{file_name}.odocal-backup-"));
+    assert_eq!(read_backup(&backup).unwrap().text.as_deref(), Some(text));
     let backup_text = std::fs::read(&backup).unwrap();
     tx.apply(&changed(&original)).await.unwrap();
     drop(tx);
@@ -123,10 +123,11 @@ async fn file_store_is_restored(test: &str, file_name: &str, text: &str, open: O
     assert_eq!(std::fs::read(&file).unwrap(), changed_text);
     assert_eq!(files(&dir), before);
 
-    // Restored: the file holds the backup's parameters; what it held is in a new backup
-    // beside it, and the first backup is as it was.
+    // Restored: the file is as it was, byte for byte; what it held is in a new backup beside
+    // it, and the first backup is as it was.
     let out = odocal_json(&["restore", b, "--yes", "--json"]);
     assert_eq!(out["written"], true, "{out}");
+    assert_eq!(std::fs::read_to_string(&file).unwrap(), text);
     let restored = open(&file).read().await.unwrap();
     assert!(
         same_within(&restored, &original, &resolution),
@@ -345,4 +346,54 @@ fn two_demo_runs_keep_their_backups_in_their_own_report_directories() {
     }
     assert_eq!(files(&root).len(), 2, "nothing else: {:?}", files(&root));
     std::fs::remove_dir_all(&root).unwrap();
+}
+
+/// Copies of a file that earlier versions of odocal made beside it on every write
+/// (`robot.toml.odocal-backup-<UTC time>`, no `.json`) restore too: the file is found by the
+/// copy's name, its format by reading it, and it goes back whole.
+#[tokio::test]
+async fn copies_earlier_versions_made_beside_the_file_restore() {
+    for (test, file_name, text, open) in [
+        (
+            "restore-copy-profile",
+            "robot.toml",
+            common::ROBOCLAW_PROFILE,
+            open_profile as Open,
+        ),
+        (
+            "restore-copy-yaml",
+            "diff_drive.yaml",
+            common::DIFF_DRIVE_YAML,
+            open_yaml as Open,
+        ),
+    ] {
+        let dir = scratch(test);
+        std::fs::create_dir_all(&dir).unwrap();
+        let file = dir.join(file_name);
+        std::fs::write(&file, text).unwrap();
+        let copy = dir.join(format!("{file_name}.odocal-backup-2026-11-01T10-00-00Z"));
+        std::fs::write(&copy, text).unwrap();
+        // A calibration since: new parameters in the file.
+        let store = open(&file);
+        let original = store.read().await.unwrap();
+        let mut tx = Transaction::begin(store, &dir.join("report"))
+            .await
+            .unwrap();
+        tx.apply(&changed(&original)).await.unwrap();
+        let calibrated = std::fs::read_to_string(&file).unwrap();
+        let c = copy.to_str().unwrap();
+        let (ok, _, err) = odocal(&["restore", c, "--dry-run"]);
+        assert!(
+            ok && err.contains("wheelbase") && err.contains("dry run"),
+            "{err}"
+        );
+        assert_eq!(std::fs::read_to_string(&file).unwrap(), calibrated);
+        let out = odocal_json(&["restore", c, "--yes", "--json"]);
+        assert_eq!(out["written"], true, "{out}");
+        assert_eq!(std::fs::read_to_string(&file).unwrap(), text);
+        // What the file held is kept in a backup of today's format beside it.
+        let kept = read_backup(Path::new(out["backup"].as_str().unwrap())).unwrap();
+        assert_eq!(kept.text.as_deref(), Some(calibrated.as_str()));
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 }

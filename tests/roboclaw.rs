@@ -107,19 +107,26 @@ async fn a_roboclaw_and_a_compass_calibrate_the_robot_and_write_its_profile() {
         text.contains("# test robot") && text.contains("left_channel = \"M2\""),
         "{text}"
     );
-    let backups = std::fs::read_dir(&dir)
+    // One backup for the write, where the run was told to keep it (not in the profile's
+    // folder), named after the profile and holding it whole.
+    let beside: Vec<_> = std::fs::read_dir(&dir)
         .unwrap()
         .filter_map(|e| e.ok())
-        .filter(|e| {
-            e.file_name()
-                .to_string_lossy()
-                .starts_with("robot.toml.odocal-backup-")
-                // The text as it was; the transaction's JSON backup is beside it too.
-                && !e.file_name().to_string_lossy().ends_with(".json")
-        })
-        .count();
-    assert_eq!(backups, 1);
-    assert_eq!(report.backup_path.parent(), Some(dir.as_path()));
+        .filter(|e| e.file_name().to_string_lossy().contains("odocal-backup"))
+        .collect();
+    assert!(beside.is_empty(), "nothing beside the profile");
+    assert_eq!(
+        report.backup_path.parent(),
+        Some(dir.join("backups").as_path())
+    );
+    assert!(report
+        .backup_path
+        .file_name()
+        .unwrap()
+        .to_string_lossy()
+        .starts_with("robot.toml.odocal-backup-"));
+    let record = odocal::base::transaction::read_backup(&report.backup_path).unwrap();
+    assert_eq!(record.text.as_deref(), Some(PROFILE));
     assert!(!robot(&robot_state).moving());
 }
 
@@ -267,6 +274,22 @@ fn calibrate_a_roboclaw_base_from_the_command_line_on_pseudo_terminals() {
         common::odocal_json(&args)
     };
     let _ = mock.kill();
+    // The run's backup is in its report directory, not beside the profile, and restores the
+    // profile as it was.
+    let backup = v["backup_path"].as_str().unwrap().to_string();
+    assert_eq!(
+        std::path::Path::new(&backup).parent(),
+        Some(report_dir.as_path())
+    );
+    let calibrated = std::fs::read_to_string(&path).unwrap();
+    assert_ne!(calibrated, common::ROBOCLAW_PROFILE);
+    let (ok, _, err) = common::odocal(&["restore", &backup, "--yes"]);
+    assert!(ok, "{err}");
+    assert_eq!(
+        std::fs::read_to_string(&path).unwrap(),
+        common::ROBOCLAW_PROFILE
+    );
+    std::fs::write(&path, &calibrated).unwrap();
     let before = v["mean_abs_heading_error_before_deg"].as_f64().unwrap();
     let after = v["mean_abs_heading_error_after_deg"].as_f64().unwrap();
     assert!(after * 10.0 < before, "{before}° → {after}°");

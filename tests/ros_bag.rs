@@ -320,16 +320,28 @@ wheel_radius: 0.075\n    publish_rate: 50.0\n";
         odocal::ros::yaml::DiffDriveConfig::parse(&text, "diff_drive_controller", &yaml).unwrap();
     assert!((cfg.separation_multiplier - 0.976).abs() < 1e-5, "{text}");
     assert!((cfg.right_radius_multiplier - 0.992).abs() < 1e-5, "{text}");
-    let backups = std::fs::read_dir(&dir)
+    let backups: Vec<_> = std::fs::read_dir(&dir)
         .unwrap()
         .filter_map(|e| e.ok())
-        .filter(|e| {
-            e.file_name()
+        .map(|e| e.path())
+        .filter(|p| {
+            p.file_name()
+                .unwrap()
                 .to_string_lossy()
                 .starts_with("controllers.yaml.odocal-backup-")
         })
-        .count();
-    assert_eq!(backups, 1);
+        .collect();
+    assert_eq!(backups.len(), 1, "one backup for one write: {backups:?}");
+    // The backup export wrote is one `odocal restore` takes: a dry run writes nothing, the
+    // real run puts the file back byte for byte.
+    let backup = backups[0].to_str().unwrap();
+    assert!(out.contains(&format!("odocal restore {backup}")), "{out}");
+    let (ok, _, err) = odocal(&["restore", backup, "--dry-run"]);
+    assert!(ok && err.contains("dry run"), "{err}");
+    assert_eq!(std::fs::read_to_string(&yaml).unwrap(), text);
+    let (ok, _, err) = odocal(&["restore", backup, "--yes"]);
+    assert!(ok, "{err}");
+    assert_eq!(std::fs::read_to_string(&yaml).unwrap(), original);
     // `estimate --json` exports too; into a new file, which is then never replaced silently.
     let est = dir.join("est.json");
     let (ok, est_json, err) = odocal(&[

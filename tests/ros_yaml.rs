@@ -86,23 +86,30 @@ fn calibrated(cfg: &DiffDriveConfig) -> WheelParams {
     }
 }
 
-/// The copies of `file` odocal made beside it (its text as it was; the transaction's JSON
-/// backups, `….json`, sit beside it too and are not among them).
-fn backups_beside(file: &Path) -> Vec<PathBuf> {
+/// The backups of `file` odocal wrote into `dir` (`<file name>.odocal-backup-….json`), each
+/// with the whole file as it was.
+fn backups_in(dir: &Path, file: &Path) -> Vec<String> {
     let name = file.file_name().unwrap().to_string_lossy().into_owned();
-    let mut found: Vec<PathBuf> = std::fs::read_dir(file.parent().unwrap())
-        .unwrap()
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return Vec::new();
+    };
+    let mut found: Vec<PathBuf> = entries
         .filter_map(|e| e.ok())
         .filter(|e| {
             e.file_name()
                 .to_string_lossy()
                 .starts_with(&format!("{name}.odocal-backup-"))
-                && !e.file_name().to_string_lossy().ends_with(".json")
         })
         .map(|e| e.path())
         .collect();
     found.sort();
     found
+        .iter()
+        .map(|b| {
+            let record = odocal::base::transaction::read_backup(b).unwrap();
+            record.text.expect("a file's backup holds the file")
+        })
+        .collect()
 }
 
 /// The routine's path through `store` on the copy `file` of layout `name`: pre-flight and
@@ -115,9 +122,11 @@ async fn calibrate_through(store: Arc<dyn ParamStore>, file: &Path, name: &str, 
         .await
         .unwrap_or_else(|e| panic!("{name}: {e}"));
     assert_eq!(*tx.original(), cfg.effective(), "{name}");
-    // A file store's backup goes beside its file, whatever directory is given.
-    assert_eq!(tx.backup_path().and_then(Path::parent), file.parent());
-    assert!(!backups.exists(), "{name}");
+    // The backup goes where the caller asks (a run's report directory), none beside the file.
+    assert_eq!(
+        tx.backup_path().and_then(Path::parent),
+        Some(backups.as_path())
+    );
     tx.apply(&calibrated(&cfg))
         .await
         .unwrap_or_else(|e| panic!("{name}: {e}"));
@@ -126,12 +135,12 @@ async fn calibrate_through(store: Arc<dyn ParamStore>, file: &Path, name: &str, 
         read(&fixture(&format!("expected/{name}"))),
         "{name}: only the multipliers change"
     );
-    let backups = backups_beside(file);
-    assert_eq!(backups.len(), 1, "{name}: {backups:?}");
-    assert_eq!(
-        read(&backups[0]),
-        read(&fixture(name)),
-        "{name}: the original"
+    let kept = backups_in(&backups, file);
+    assert_eq!(kept.len(), 1, "{name}");
+    assert_eq!(kept[0], read(&fixture(name)), "{name}: the original");
+    assert!(
+        backups_in(file.parent().unwrap(), file).is_empty(),
+        "{name}"
     );
     let back = DiffDriveConfig::load(file, controller).unwrap();
     assert_eq!(
@@ -230,9 +239,10 @@ fn export_merges_into_every_layout_changing_only_the_multipliers() {
             read(&fixture(&format!("expected/{name}"))),
             "{name}: only the multipliers change"
         );
-        let backups = backups_beside(&file);
-        assert_eq!(backups.len(), 1, "{name}");
-        assert_eq!(read(&backups[0]), read(&fixture(name)), "{name}");
+        // One backup for the write, beside the file, holding it as it was.
+        let kept = backups_in(&dir, &file);
+        assert_eq!(kept.len(), 1, "{name}");
+        assert_eq!(kept[0], read(&fixture(name)), "{name}");
     }
 }
 
@@ -316,7 +326,10 @@ async fn files_that_cannot_be_kept_are_refused_with_the_reason_and_nothing_is_wr
         ]);
         assert!(!ok && says_all(&err), "{name}: {err}");
         assert_eq!(read(&file), read(&fixture(name)), "{name}: unchanged");
-        assert!(backups_beside(&file).is_empty(), "{name}");
+        assert!(
+            backups_in(file.parent().unwrap(), &file).is_empty(),
+            "{name}"
+        );
     }
     assert!(
         !dir.join("backups").exists(),

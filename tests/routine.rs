@@ -403,8 +403,8 @@ async fn calibrate_completes_on_a_lossy_link_twenty_seeds_out_of_twenty() {
             true
         }
         fn event(&mut self, event: &RoutineEvent) {
-            if matches!(event, RoutineEvent::Realigned { .. }) {
-                self.0 += 1;
+            if let RoutineEvent::Realigned { turns, .. } = event {
+                self.0 += u64::from(*turns);
             }
         }
     }

@@ -62,6 +62,17 @@ pub enum FrameKind {
     Event = 3,
 }
 
+impl core::fmt::Display for FrameKind {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(match self {
+            FrameKind::Request => "request",
+            FrameKind::Response => "response",
+            FrameKind::Nack => "NACK",
+            FrameKind::Event => "event",
+        })
+    }
+}
+
 impl FrameKind {
     /// The kind for a KIND byte, if defined.
     pub const fn from_byte(b: u8) -> Option<Self> {

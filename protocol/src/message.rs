@@ -19,7 +19,7 @@ use crate::wire::{Payload, Reader, Writer};
 #[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
 pub enum MessageError {
     /// No message with this id exists for this frame kind.
-    #[error("unknown {kind:?} message id 0x{msg:02X}")]
+    #[error("unknown {kind} message id 0x{msg:02X}")]
     UnknownMessage {
         /// The frame kind.
         kind: FrameKind,
@@ -182,6 +182,12 @@ macro_rules! wire_enum {
                 match b { $($val => Some($name::$var),)+ _ => None }
             }
         }
+        impl core::fmt::Display for $name {
+            /// The variant's name in snake case (`active_and_stored`), as serde writes it.
+            fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+                write_snake(f, match self { $($name::$var => stringify!($var)),+ })
+            }
+        }
         impl Payload for $name {
             const LEN: usize = 1;
             fn put(&self, w: &mut Writer<'_>) {
@@ -193,6 +199,18 @@ macro_rules! wire_enum {
             }
         }
     };
+}
+
+/// Writes a CamelCase name in snake case (`ActiveAndStored` → `active_and_stored`).
+fn write_snake(f: &mut core::fmt::Formatter<'_>, name: &str) -> core::fmt::Result {
+    use core::fmt::Write as _;
+    for (i, c) in name.chars().enumerate() {
+        if c.is_ascii_uppercase() && i > 0 {
+            f.write_char('_')?;
+        }
+        f.write_char(c.to_ascii_lowercase())?;
+    }
+    Ok(())
 }
 
 /// Declares a payload struct from its field list; the list is the wire layout.
@@ -256,6 +274,22 @@ pub enum NackCode {
     VersionMismatch,
     /// A code this version does not know.
     Other(u8),
+}
+
+impl core::fmt::Display for NackCode {
+    /// The code's name as SPEC.md §3.1 spells it (`OUT_OF_RANGE`), or its byte (`code 0x09`).
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(match self {
+            NackCode::UnknownMessage => "UNKNOWN_MESSAGE",
+            NackCode::BadLength => "BAD_LENGTH",
+            NackCode::OutOfRange => "OUT_OF_RANGE",
+            NackCode::InvalidState => "INVALID_STATE",
+            NackCode::Busy => "BUSY",
+            NackCode::StorageFailure => "STORAGE_FAILURE",
+            NackCode::VersionMismatch => "VERSION_MISMATCH",
+            NackCode::Other(b) => return write!(f, "code 0x{b:02X}"),
+        })
+    }
 }
 
 impl NackCode {

@@ -81,7 +81,7 @@ pub enum BaseError {
         source: std::io::Error,
     },
     /// What was written did not read back.
-    #[error("read-back mismatch ({copy}): wrote {written:?}, store reports {read:?}")]
+    #[error("read-back mismatch ({copy}): wrote {written}, the store reports {}", read.as_ref().map_or_else(|| "nothing".to_string(), ToString::to_string))]
     ReadBack {
         /// `in use` or `committed`.
         copy: &'static str,

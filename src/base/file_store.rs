@@ -5,9 +5,10 @@
 //! `write` stages: it renders the new text in memory, parses it back, and updates the
 //! geometry a drive counts with ([`FileStore::shared`]), so the new parameters take effect at
 //! once; `check_write` does the same without staging, and probes the directory, so that a file
-//! that cannot be written is known before anything depends on it. `commit` renders again from the file as it is then, copies the original beside it
-//! the first time (a backup created new, never overwriting one) and replaces the file
-//! atomically. Nothing is ever half-written: the file is either the old text or the new.
+//! that cannot be written is known before anything depends on it. `commit` renders again from
+//! the file as it is then and replaces the file atomically. Nothing is ever half-written: the
+//! file is either the old text or the new. The backup is the transaction's
+//! ([`super::transaction`]), which holds the whole file: one backup per write.
 
 use super::{BaseError, ComponentInfo, ParamStore};
 use crate::kinematics::WheelParams;
@@ -55,7 +56,6 @@ pub struct FileStore<F: ParamFile> {
     format: F,
     path: PathBuf,
     staged: Mutex<Option<WheelParams>>,
-    backup: Mutex<Option<PathBuf>>,
     content: Arc<RwLock<F::Content>>,
 }
 
@@ -73,7 +73,6 @@ impl<F: ParamFile> FileStore<F> {
             format,
             path: path.to_path_buf(),
             staged: Mutex::new(None),
-            backup: Mutex::new(None),
             content: Arc::new(RwLock::new(content)),
         })
     }
@@ -91,11 +90,6 @@ impl<F: ParamFile> FileStore<F> {
     /// The content in use (staged parameters included), shared with a drive.
     pub fn shared(&self) -> Arc<RwLock<F::Content>> {
         self.content.clone()
-    }
-
-    /// The copy of the file made before its first replacement, if any.
-    pub fn file_backup(&self) -> Option<PathBuf> {
-        lock(&self.backup).clone()
     }
 
     fn err(&self, e: impl std::error::Error + Send + Sync + 'static) -> BaseError {
@@ -178,12 +172,6 @@ impl<F: ParamFile> ParamStore for FileStore<F> {
             return Ok(());
         };
         let (text, _) = self.rendered(&p)?;
-        {
-            let mut backup = lock(&self.backup);
-            if backup.is_none() {
-                *backup = Some(crate::io::backup_beside(&self.path).map_err(|e| self.err(e))?);
-            }
-        }
         crate::io::replace_atomically(&self.path, &text).map_err(|e| self.err(e))?;
         *lock(&self.staged) = None;
         Ok(())
@@ -202,11 +190,11 @@ impl<F: ParamFile> ParamStore for FileStore<F> {
     }
 
     /// The dry merge: the file parses, `params` render into it and read back, and its
-    /// directory takes the backup and the replacement's temporary file.
+    /// directory takes the replacement's temporary file.
     async fn check_write(&self, params: &WheelParams) -> Result<(), BaseError> {
         self.check_params(params)?;
         self.rendered(params)?;
-        // The backup beside the file and the replacement's temporary file are new files there.
+        // The replacement's temporary file is a new file there.
         let dir = crate::io::dir_of(&self.path);
         crate::io::probe_dir(dir).map_err(|e| BaseError::Unwritable {
             component: format!(

@@ -11,9 +11,12 @@
 //! happened, committed too. Callers decide *whether* to write (policy, bounds, confirmation);
 //! this file decides *how*.
 //!
-//! Backups live in one place per store: beside the file for a store that is a file
-//! (`robot.toml.odocal-backup-2026-11-25T14-03-07Z.json`), else in the directory the caller
-//! gives (`odocal-backup-<store id>-<UTC time>.json`); a second in the same second gets `-2`.
+//! One backup format for every store, a JSON [`BackupFile`]; for a store that is a file it
+//! holds the whole file as well, so that `odocal restore` undoes every change odocal made to
+//! it. A backup goes into the directory the caller gives (a run's report directory; beside
+//! the file for a command that writes one file, [`backup_dir_for`]), named after the file for a
+//! store that is a file (`robot.toml.odocal-backup-2026-11-25T14-03-07Z.json`), else after the
+//! store (`odocal-backup-<store id>-<UTC time>.json`); a second in the same second gets `-2`.
 
 use super::{same_within, BaseError, ComponentInfo, ParamStore};
 use crate::kinematics::WheelParams;
@@ -44,6 +47,11 @@ pub struct BackupFile {
     pub active: WheelParams,
     /// The committed copy, when the store has one.
     pub committed: Option<WheelParams>,
+    /// The store's whole file as it was, for a store that is a file: `odocal restore` puts it
+    /// back as it was (every change odocal made to it undone, not only the parameters). Absent
+    /// for a device, and in older backups (whose parameters are restored alone).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub text: Option<String>,
 }
 
 /// What a rollback achieved.
@@ -65,6 +73,11 @@ pub struct Transaction {
     written: bool,
     committed: bool,
     last_written: Option<WheelParams>,
+    /// The store's whole file as the backup holds it, for a store that is a file.
+    original_text: Option<String>,
+    /// Whether a whole text was written ([`Transaction::apply_text`]): the rollback then puts
+    /// the file's original text back, byte for byte.
+    text_written: bool,
 }
 
 /// What one copy of the parameters was found to hold after a failed rollback.
@@ -86,7 +99,7 @@ impl std::fmt::Display for Holds {
         match self {
             Holds::Original => f.write_str("the original parameters"),
             Holds::New => f.write_str("the new parameters"),
-            Holds::Other(p) => write!(f, "other parameters ({p:?})"),
+            Holds::Other(p) => write!(f, "other parameters ({p})"),
             Holds::Unknown(why) => write!(f, "unknown ({why})"),
         }
     }
@@ -110,11 +123,13 @@ impl Transaction {
             written: false,
             committed: false,
             last_written: None,
+            original_text: None,
+            text_written: false,
         })
     }
 
-    /// Writes what the store holds now to a new backup file: beside the store's file, or in
-    /// `dir` (created if needed) for a store that is not a file ([`backup_store`]). The
+    /// Writes what the store holds now to a new backup file in `dir` (created if needed;
+    /// [`backup_store`]). The
     /// original is what the backup holds. Once only: a second call returns the first backup.
     pub async fn back_up(&mut self, dir: &Path) -> Result<PathBuf, BaseError> {
         if let Some(path) = &self.backup_path {
@@ -122,6 +137,7 @@ impl Transaction {
         }
         let (path, backup) = backup_store(self.store.as_ref(), dir).await?;
         self.original = backup.active;
+        self.original_text = backup.text;
         self.backup_path = Some(path.clone());
         Ok(path)
     }
@@ -219,6 +235,43 @@ impl Transaction {
         }
     }
 
+    /// Puts `text` back as the whole of the store's file (a backup's [`BackupFile::text`]:
+    /// every change odocal made to the file is undone, not only the parameters), then reads
+    /// the file back: it must hold `expected`. For a store that is a file only; the rollback
+    /// puts the file's original text back byte for byte.
+    pub async fn apply_text(
+        &mut self,
+        text: &str,
+        expected: &WheelParams,
+    ) -> Result<WheelParams, BaseError> {
+        self.require_backup()?;
+        let Some(file) = self.store.file() else {
+            return Err(BaseError::InvalidArgument {
+                component: format!("store {}", self.store.info().id),
+                reason: "a whole file can only be restored to a store that is a file".into(),
+            });
+        };
+        // Atomic: a failed replacement changed nothing, and no rollback is owed for it.
+        crate::io::replace_atomically(&file, text).map_err(|source| BaseError::Unwritable {
+            component: format!("store {}", file.display()),
+            source: Box::new(source),
+        })?;
+        self.written = true;
+        self.committed = true;
+        self.text_written = true;
+        self.last_written = Some(*expected);
+        let resolution = self.store.resolution();
+        let stored = self.store.read_committed().await?;
+        match stored {
+            Some(s) if same_within(&s, expected, &resolution) => Ok(s),
+            other => Err(BaseError::ReadBack {
+                copy: "committed",
+                written: *expected,
+                read: other,
+            }),
+        }
+    }
+
     /// Nothing is written before the backup exists.
     fn require_backup(&self) -> Result<(), BaseError> {
         match self.backup_path {
@@ -267,6 +320,20 @@ impl Transaction {
         if !self.written {
             return Ok(Rollback::NothingWritten);
         }
+        if let (true, Some(text), Some(file)) = (
+            self.text_written,
+            self.original_text.as_deref(),
+            self.store.file(),
+        ) {
+            crate::io::replace_atomically(&file, text).map_err(|source| BaseError::Unwritable {
+                component: format!("store {}", file.display()),
+                source: Box::new(source),
+            })?;
+            self.written = false;
+            self.committed = false;
+            self.text_written = false;
+            return Ok(Rollback::RestoredAndCommitted);
+        }
         let undo = async {
             self.store.write(&self.original).await?;
             if self.committed {
@@ -293,9 +360,8 @@ impl Transaction {
     }
 }
 
-/// Reads `store` and writes what it holds to a new backup file: beside the store's file for a
-/// store that is a file ([`ParamStore::file`]), else in `dir`; returns the file and its
-/// content. Used by [`Transaction::back_up`] and by tools that change a store by other means
+/// Reads `store` and writes what it holds (and, for a store that is a file, the whole file) to
+/// a new backup file in `dir`; returns the file and its content. Used by [`Transaction::back_up`] and by tools that change a store by other means
 /// (a device's factory reset).
 pub async fn backup_store(
     store: &dyn ParamStore,
@@ -306,6 +372,17 @@ pub async fn backup_store(
     // what is in use; the backup then records none.
     let committed = store.read_committed().await.ok().flatten();
     let file = store.file().map(|f| std::path::absolute(&f).unwrap_or(f));
+    let text = match &file {
+        Some(f) => Some(
+            crate::io::read_bounded(f, crate::io::MAX_TEXT_FILE).map_err(|source| {
+                BaseError::Backup {
+                    path: f.clone(),
+                    source,
+                }
+            })?,
+        ),
+        None => None,
+    };
     let backup = BackupFile {
         odocal_version: env!("CARGO_PKG_VERSION").into(),
         store: store.info(),
@@ -313,26 +390,28 @@ pub async fn backup_store(
         file,
         active,
         committed,
+        text,
     };
     let path = write_backup(dir, &backup)?;
     Ok((path, backup))
 }
 
-/// Where files of kind `beside` about a store go (its backups, a run's partial reports), and
-/// the start of their names: beside the store's `file` (`robot.toml.<beside>-`) for a store
-/// that is a file, else in `dir` (`<alone>-`). One place per store.
-pub fn store_place(
-    file: Option<&Path>,
-    dir: &Path,
-    beside: &str,
-    alone: &str,
-) -> (PathBuf, String) {
+/// The start of the names of files of kind `kind` about a store (its backups, a run's partial
+/// reports): `robot.toml.<kind>-` for a store that is the file `robot.toml`, else
+/// `<alone>-`.
+pub fn store_prefix(file: Option<&Path>, kind: &str, alone: &str) -> String {
     match file {
-        Some(f) => (
-            crate::io::dir_of(f).to_path_buf(),
-            format!("{}.{beside}-", crate::io::file_name_of(f)),
-        ),
-        None => (dir.to_path_buf(), format!("{alone}-")),
+        Some(f) => format!("{}.{kind}-", crate::io::file_name_of(f)),
+        None => format!("{alone}-"),
+    }
+}
+
+/// Where a command that writes one store and has no run directory of its own keeps the
+/// backup: beside the store's file for a store that is a file, else `fallback`.
+pub fn backup_dir_for(store: &dyn ParamStore, fallback: &Path) -> PathBuf {
+    match store.file() {
+        Some(f) => crate::io::dir_of(&f).to_path_buf(),
+        None => fallback.to_path_buf(),
     }
 }
 
@@ -350,12 +429,11 @@ fn sanitise(id: &str) -> String {
     }
 }
 
-/// Creates a new backup file at the store's place ([`store_place`]); never replaces an
-/// existing file or follows a link.
+/// Creates a new backup file in `dir` ([`store_prefix`]); never replaces an existing file or
+/// follows a link, and leaves no empty file when the write fails.
 fn write_backup(dir: &Path, backup: &BackupFile) -> Result<PathBuf, BaseError> {
-    let (dir, prefix) = store_place(
+    let prefix = store_prefix(
         backup.file.as_deref(),
-        dir,
         "odocal-backup",
         &format!("odocal-backup-{}", sanitise(&backup.store.id)),
     );
@@ -363,10 +441,62 @@ fn write_backup(dir: &Path, backup: &BackupFile) -> Result<PathBuf, BaseError> {
         path: path.to_path_buf(),
         source,
     };
-    std::fs::create_dir_all(&dir).map_err(|e| err(&dir, e))?;
+    std::fs::create_dir_all(dir).map_err(|e| err(dir, e))?;
     let text =
-        serde_json::to_string_pretty(backup).map_err(|e| err(&dir, std::io::Error::other(e)))?;
-    crate::io::create_stamped(&dir, &prefix, ".json", text.as_bytes()).map_err(|e| err(&dir, e))
+        serde_json::to_string_pretty(backup).map_err(|e| err(dir, std::io::Error::other(e)))?;
+    crate::io::create_stamped(dir, &prefix, ".json", text.as_bytes()).map_err(|e| err(dir, e))
+}
+
+/// The lines that differ between a file as it is `now` and as it was `then` (a backup's
+/// text), in order, `-` for a line that goes and `+` for one that comes back: what a restore of
+/// the whole file changes. Empty when the texts are equal.
+pub fn text_changes(now: &str, then: &str) -> Vec<String> {
+    let a: Vec<&str> = now.lines().collect();
+    let b: Vec<&str> = then.lines().collect();
+    // Common prefix and suffix first: a restore usually changes a few lines of a long file.
+    let pre = a.iter().zip(&b).take_while(|(x, y)| x == y).count();
+    let suf = a[pre..]
+        .iter()
+        .rev()
+        .zip(b[pre..].iter().rev())
+        .take_while(|(x, y)| x == y)
+        .count();
+    let (a, b) = (&a[pre..a.len() - suf], &b[pre..b.len() - suf]);
+    // A longest common subsequence over what is left, when small enough to be cheap; else
+    // every line of the middle is shown as changed.
+    let mut out = Vec::new();
+    if a.len().saturating_mul(b.len()) <= 1 << 20 {
+        let mut l = vec![vec![0u32; b.len() + 1]; a.len() + 1];
+        for i in (0..a.len()).rev() {
+            for j in (0..b.len()).rev() {
+                l[i][j] = if a[i] == b[j] {
+                    l[i + 1][j + 1] + 1
+                } else {
+                    l[i + 1][j].max(l[i][j + 1])
+                };
+            }
+        }
+        let (mut i, mut j) = (0, 0);
+        while i < a.len() || j < b.len() {
+            if i < a.len() && j < b.len() && a[i] == b[j] {
+                (i, j) = (i + 1, j + 1);
+            } else if j == b.len() || (i < a.len() && l[i + 1][j] >= l[i][j + 1]) {
+                out.push(format!("- {}", a[i]));
+                i += 1;
+            } else {
+                out.push(format!("+ {}", b[j]));
+                j += 1;
+            }
+        }
+    } else {
+        out.extend(a.iter().map(|x| format!("- {x}")));
+        out.extend(b.iter().map(|x| format!("+ {x}")));
+    }
+    if now != then && out.is_empty() {
+        // Only line endings or a final newline differ.
+        out.push("(line endings or the final newline)".into());
+    }
+    out
 }
 
 /// Why a backup file cannot be restored to a store.

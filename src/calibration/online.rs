@@ -130,6 +130,16 @@ pub enum Observed {
     No,
 }
 
+impl std::fmt::Display for Observed {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Observed::Yes => "observed",
+            Observed::Weakly => "weakly observed",
+            Observed::No => "not observed",
+        })
+    }
+}
+
 impl Observed {
     fn from_ratio(r: f64) -> Self {
         if r < 0.2 {

@@ -22,7 +22,7 @@ fn to_base(component: &'static str, what: &'static str) -> impl Fn(HalError) -> 
         HalError::Nack { nack, .. } => BaseError::Refused {
             component: component.into(),
             what: what.into(),
-            reason: format!("{:?} (field {})", nack.code, nack.detail),
+            reason: format!("{} (field {})", nack.code, nack.detail),
         },
         HalError::InvalidArgument(reason) => BaseError::InvalidArgument {
             component: component.into(),

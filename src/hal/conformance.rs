@@ -271,7 +271,7 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Wire<S> {
             .await?
             .map_err(|nack| ConformanceError::Setup {
                 what,
-                why: format!("refused {:?} (detail {})", nack.code, nack.detail),
+                why: format!("refused {} (detail {})", nack.code, nack.detail),
             })
     }
 
@@ -298,7 +298,7 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Wire<S> {
                 return Err(ConformanceError::Setup {
                     what: "STOP",
                     why: format!(
-                        "the base is still {:?} 3 s after STOP (fault flags {:#06x})",
+                        "the base is still {} 3 s after STOP (fault flags {:#06x})",
                         s.motion_state, s.fault_flags
                     ),
                 });
@@ -537,7 +537,7 @@ fn check_answer(answer: &Frame, want: &Value, counters: &mut Counters) -> Result
             Ok(())
         }
         (Body::Nack { nack, .. }, _) => Err(format!(
-            "refused {:?} (detail {}), expected a {want_kind}",
+            "refused {} (detail {}), expected a {want_kind}",
             nack.code, nack.detail
         )),
         (body, _) => Err(format!("answered {body:?}, expected a {want_kind}")),
@@ -713,8 +713,9 @@ impl<S: AsyncRead + AsyncWrite + Unpin + Send> Target for Live<'_, S> {
             }
             if Instant::now() > until {
                 return Err(format!(
-                    "{what} accepted but the base is still {:?} after {limit:?}",
-                    s.motion_state
+                    "{what} accepted but the base is still {} after {:.1} s",
+                    s.motion_state,
+                    limit.as_secs_f64()
                 ));
             }
         }
@@ -997,7 +998,7 @@ async fn retries_feed_the_watchdog<S: AsyncRead + AsyncWrite + Unpin + Send>(
         ))
     } else if s.motion_state != MotionState::Moving {
         Err(format!(
-            "the {run_ms:.0} ms motion ended early: {:?}",
+            "the {run_ms:.0} ms motion ended early: {}",
             s.motion_state
         ))
     } else {

@@ -79,7 +79,7 @@ pub enum HalError {
     #[error(transparent)]
     Link(#[from] LinkError),
     /// The device answered NACK.
-    #[error("device refused message 0x{msg:02X}: {:?} (field {})", nack.code, nack.detail)]
+    #[error("device refused message 0x{msg:02X}: {} (field {})", nack.code, nack.detail)]
     Nack {
         /// The refused message id.
         msg: u8,

@@ -93,8 +93,13 @@ pub fn create_new(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
         .write(true)
         .create_new(true)
         .open(path)?;
-    f.write_all(bytes)?;
-    f.sync_all()
+    let written = f.write_all(bytes).and_then(|()| f.sync_all());
+    if written.is_err() {
+        // A full disk must not leave an empty or cut-off file that reads as a backup.
+        drop(f);
+        let _ = std::fs::remove_file(path);
+    }
+    written
 }
 
 /// Creates the first free one of `name(0)`, `name(1)`, … (up to 1000) with `bytes`
@@ -141,13 +146,6 @@ pub fn create_stamped(
 pub fn file_name_of(path: &Path) -> String {
     path.file_name()
         .map_or_else(|| "file".into(), |n| n.to_string_lossy().into_owned())
-}
-
-/// Copies `path` to a new `<path>.odocal-backup-<UTC time>[-n]` beside it ([`create_stamped`]).
-pub fn backup_beside(path: &Path) -> std::io::Result<PathBuf> {
-    let text = read_bounded_bytes(path, super::MAX_TEXT_FILE)?;
-    let prefix = format!("{}.odocal-backup-", file_name_of(path));
-    create_stamped(dir_of(path), &prefix, "", &text)
 }
 
 /// Proves, creating nothing that stays, that `dir` could take new files: it is a directory

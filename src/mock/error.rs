@@ -10,7 +10,7 @@ pub enum MockError {
     #[error(transparent)]
     Sim(#[from] SimError),
     /// The factory parameters cannot travel on the wire (SPEC.md §4.1).
-    #[error("factory parameters {0:?} are outside the protocol's ranges (SPEC.md §4.1)")]
+    #[error("factory parameters ({0}) are outside the protocol's ranges (SPEC.md §4.1)")]
     FactoryOutOfRange(WheelParams),
     /// The device kit refused the configuration.
     #[error("device: {0}")]

@@ -18,6 +18,16 @@ pub enum Kind {
     Hdm,
 }
 
+impl std::fmt::Display for Kind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Kind::Hdt => "HDT",
+            Kind::Hdg => "HDG",
+            Kind::Hdm => "HDM",
+        })
+    }
+}
+
 /// A sentence that gives no heading.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum NmeaError {
@@ -36,7 +46,7 @@ pub enum NmeaError {
     #[error("`{0}` is not a heading sentence")]
     Other(String),
     /// A heading sentence whose fields are empty or malformed.
-    #[error("{kind:?}: {reason}")]
+    #[error("{kind}: {reason}")]
     Field {
         /// The sentence type.
         kind: Kind,

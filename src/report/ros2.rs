@@ -2,12 +2,14 @@
 //!
 //! Any result odocal prints as JSON can be exported — a routine report (`demo`, `calibrate`,
 //! `run`), `estimate`, `track` or `bag` — and either merged into the controller's existing
-//! YAML (only the multipliers change; the file is backed up beside itself and replaced
-//! atomically) or written as a new file (never over an existing one).
+//! YAML (only the multipliers change; through the one transaction: backed up beside it, as
+//! every write odocal makes, then replaced atomically and read back) or written as a new file
+//! (never over an existing one).
 
-use crate::io::{backup_beside, replace_atomically};
+use crate::base::transaction::Transaction;
+use crate::base::ParamStore;
 use crate::kinematics::WheelParams;
-use crate::ros::yaml::{merge_multipliers, DiffDriveConfig};
+use crate::ros::yaml::YamlStore;
 use serde_json::Value;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -41,6 +43,17 @@ pub enum ExportError {
     /// The target YAML is unusable.
     #[error(transparent)]
     Yaml(#[from] crate::ros::yaml::YamlError),
+    /// The target YAML could not be backed up, written or read back.
+    #[error("{source} ({undone}; the original is in {})", backup.as_ref().map_or_else(|| "the file still".into(), |b| b.display().to_string()))]
+    Store {
+        /// Why.
+        #[source]
+        source: Box<crate::base::BaseError>,
+        /// What the rollback achieved.
+        undone: String,
+        /// The backup, once taken.
+        backup: Option<PathBuf>,
+    },
     /// Writing failed.
     #[error("{}: {source}", path.display())]
     Io {
@@ -131,7 +144,7 @@ pub enum Exported {
     Created,
     /// Merged into an existing controller YAML; the original is at `backup`.
     Merged {
-        /// The copy of the file as it was.
+        /// The backup of the file as it was (`odocal restore` takes it).
         backup: PathBuf,
     },
 }
@@ -170,25 +183,49 @@ fn check_plausible(cal: &Calibration) -> Result<(), ExportError> {
 }
 
 /// Writes `cal` for `controller` into `path`: merged into an existing YAML (multipliers only,
-/// backup beside, atomic replace) or a new file (never replacing anything). A
-/// calibration that scales a parameter beyond [`MAX_FACTOR`] is refused.
-pub fn export(path: &Path, controller: &str, cal: &Calibration) -> Result<Exported, ExportError> {
+/// through a [`Transaction`]: backed up beside the file, replaced atomically, read back,
+/// rolled back on failure) or a new file (never replacing anything). A calibration that scales
+/// a parameter beyond [`MAX_FACTOR`] is refused.
+pub async fn export(
+    path: &Path,
+    controller: &str,
+    cal: &Calibration,
+) -> Result<Exported, ExportError> {
     check_plausible(cal)?;
     let io = |source| ExportError::Io {
         path: path.to_path_buf(),
         source,
     };
     if path.exists() {
-        let text = crate::io::read_bounded(path, crate::io::MAX_TEXT_FILE).map_err(io)?;
-        let cfg = DiffDriveConfig::parse(&text, controller, path)?;
-        let merged = merge_multipliers(
-            &text,
-            controller,
-            &cfg.multipliers_for(&cal.calibrated),
-            path,
-        )?;
-        let backup = backup_beside(path).map_err(io)?;
-        replace_atomically(path, &merged).map_err(io)?;
+        let failed = |source, undone: &str, backup: Option<&Path>| ExportError::Store {
+            source: Box::new(source),
+            undone: undone.into(),
+            backup: backup.map(Path::to_path_buf),
+        };
+        let store = std::sync::Arc::new(YamlStore::open(path, controller)?);
+        let current = store
+            .read()
+            .await
+            .map_err(|e| failed(e, "nothing was changed", None))?;
+        // A ROS robot's wheel angles are radians: the count stays the file's own.
+        let new = WheelParams {
+            counts_per_wheel_rev: current.counts_per_wheel_rev,
+            ..cal.calibrated
+        };
+        let mut tx = Transaction::prepare(store, Some(&new))
+            .await
+            .map_err(|e| failed(e, "nothing was changed", None))?;
+        let backup = tx
+            .back_up(crate::io::dir_of(path))
+            .await
+            .map_err(|e| failed(e, "nothing was changed", None))?;
+        if let Err(e) = tx.apply(&new).await {
+            let undone = match tx.rollback().await {
+                Ok(_) => "the file is as it was".to_string(),
+                Err(r) => format!("putting the original back failed too: {r}"),
+            };
+            return Err(failed(e, &undone, Some(&backup)));
+        }
         return Ok(Exported::Merged { backup });
     }
     let text = ros2_diff_drive_yaml(controller, &cal.configured, &cal.calibrated);

@@ -26,8 +26,9 @@
 //! ```
 //!
 //! Writing back changes only the three geometry values (or, for a swing, the `[heading]`
-//! table), in place (comments and everything else stay, `toml_edit`), after copying the file
-//! beside itself, and replaces it atomically.
+//! table), in place (comments and everything else stay, `toml_edit`), after a backup of the
+//! whole file beside it (the one backup format, [`crate::base::transaction`]), and replaces it
+//! atomically.
 
 use crate::base::{FileStore, HeadingKind, ParamFile};
 use crate::kinematics::{Deviation, WheelParams};
@@ -318,16 +319,19 @@ pub fn with_heading(
 }
 
 /// **Rewrites the profile at `path`** with its `[heading]` table set to `heading`: the file
-/// is copied beside itself first (a new file, never replacing an earlier copy), then replaced
-/// atomically. Returns the copy's path.
-pub fn save_heading(path: &Path, heading: &HeadingSection) -> Result<PathBuf, ProfileError> {
+/// is backed up beside itself first (a backup `odocal restore` takes, never replacing an
+/// earlier one), then replaced atomically. Returns the backup's path.
+pub async fn save_heading(path: &Path, heading: &HeadingSection) -> Result<PathBuf, ProfileError> {
     let io = |source| ProfileError::Io {
         path: path.to_path_buf(),
         source,
     };
     let text = read_bounded(path)?;
     let out = with_heading(&text, heading, path)?;
-    let backup = crate::io::files::backup_beside(path).map_err(io)?;
+    let store = ProfileStore::open(path)?;
+    let (backup, _) = crate::base::transaction::backup_store(&store, crate::io::dir_of(path))
+        .await
+        .map_err(|e| io(std::io::Error::other(e.to_string())))?;
     crate::io::files::replace_atomically(path, &out).map_err(io)?;
     Ok(backup)
 }

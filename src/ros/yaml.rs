@@ -21,8 +21,7 @@
 //! meant, everything else unchanged ([`merge_multipliers`]). What cannot be changed in place
 //! without changing something else (an alias, an anchor used elsewhere, a tag other than
 //! `!!float`, a value over several lines) is refused, naming the line. The file is replaced
-//! atomically, and the first replacement in a session first copies the original beside it
-//! (`<file>.odocal-backup-<UTC time>`, created exclusively).
+//! atomically, after the transaction's backup (which holds the whole file) was taken.
 
 mod locate;
 mod tree;

@@ -80,17 +80,33 @@ pub enum RoutineEvent {
     },
     /// A run finished with this heading error (deg).
     RunDone {
+        /// The phase (`round 1`, `verification`).
+        phase: Phase,
+        /// Run number in its phase (1-based).
+        run: usize,
+        /// Runs in this phase.
+        of: usize,
+        /// Its direction.
+        direction: Direction,
         /// Heading error (deg).
         heading_error_deg: f64,
     },
     /// The robot turned in place back to the first square's heading before a square
     /// ([`RoutineConfig::realign`]).
     Realigned {
-        /// The turn commanded (rad, counter-clockwise positive as [`crate::base::Drive::turn_in_place`]).
+        /// The turns commanded, summed (rad, counter-clockwise positive as
+        /// [`crate::base::Drive::turn_in_place`]).
         turn_rad: f64,
+        /// How far from the first square's heading the robot is left (rad, by the sensor).
+        left_rad: f64,
+        /// Turns commanded (1, or 2 when the first left more than the tolerance).
+        turns: u32,
     },
     /// Something looks wrong but the routine goes on.
     Warning(String),
+    /// The run stopped before it finished (an error, Ctrl-C, a refusal): where the robot and
+    /// its parameters are now. The last thing the routine reports.
+    Ended(Ending),
 }
 
 /// How the routine talks to its user.
@@ -150,7 +166,12 @@ pub async fn run(
     // changes: a report that cannot be written after a write-back would leave the user
     // without the record of what was done. Nothing is created yet: a run declined at the
     // first question leaves no file and no directory behind.
-    check_output_dir(&device_dir(cfg, None))?;
+    check_output_dir(&run_dir(
+        cfg,
+        None,
+        ParamStore::file(base.store.as_ref()).as_deref(),
+        true,
+    ))?;
     if let Some(dir) = &cfg.report_dir {
         check_output_dir(dir)?;
     }
@@ -182,14 +203,24 @@ pub async fn run(
     }
 }
 
-/// Where the files of a store that is not a file go (its backup; a run's partial report
-/// when there is no report directory): the configured backup directory, else the report
-/// directory (`claimed`: this run's), else `.`.
-fn device_dir(cfg: &RoutineConfig, claimed: Option<&std::path::Path>) -> std::path::PathBuf {
-    cfg.backup_dir
-        .as_deref()
-        .or(claimed)
-        .or(cfg.report_dir.as_deref())
+/// Where a run's own files go: its backup into the configured backup directory, else the
+/// report directory (`claimed`: this run's), else beside the store's file (`file`), else `.`;
+/// its partial report (`backup` false) into the report directory first. A calibration from
+/// the command line always has a report directory, so nothing lands in the user's
+/// configuration folder unless asked to.
+fn run_dir(
+    cfg: &RoutineConfig,
+    claimed: Option<&std::path::Path>,
+    file: Option<&std::path::Path>,
+    backup: bool,
+) -> std::path::PathBuf {
+    let report = claimed.or(cfg.report_dir.as_deref());
+    let first = match backup {
+        true => cfg.backup_dir.as_deref().or(report),
+        false => report.or(cfg.backup_dir.as_deref()),
+    };
+    first
+        .or(file.map(crate::io::dir_of))
         .unwrap_or(std::path::Path::new("."))
         .to_path_buf()
 }
@@ -484,11 +515,12 @@ impl Calibration<'_> {
         Ok(self.report_dir.clone())
     }
 
-    /// Backs the parameters up, once the robot may move and before it does: beside the
-    /// store's file, or in the backup or this run's report directory.
+    /// Backs the parameters up, once the robot may move and before it does, into the run's
+    /// one place for its files ([`run_dir`]).
     async fn back_up(&mut self) -> Result<(), RoutineError> {
         let claimed = self.claim_report_dir()?;
-        let dir = device_dir(self.cfg, claimed.as_deref());
+        let file = ParamStore::file(self.base.store.as_ref());
+        let dir = run_dir(self.cfg, claimed.as_deref(), file.as_deref(), true);
         let path = cancellable(self.cancel, self.tx.back_up(&dir)).await?;
         self.stage(format!(
             "backed up the robot's parameters to {}",
@@ -683,24 +715,42 @@ impl Calibration<'_> {
     async fn fail(mut self, err: RoutineError) -> RoutineError {
         // Stop first (the guard in run_square has already asked for a stop if a square was cut
         // short; this covers everything else), then undo any write.
-        let _ = tokio::time::timeout(Duration::from_secs(2), self.base.drive.stop()).await;
+        let robot = match tokio::time::timeout(STOP_TIMEOUT, self.base.drive.stop()).await {
+            Ok(Ok(())) => RobotAfterStop::Stopped,
+            Ok(Err(e)) => RobotAfterStop::NotReached(e.to_string()),
+            Err(_) => RobotAfterStop::NotReached(format!(
+                "no answer to the stop within {} s",
+                STOP_TIMEOUT.as_secs()
+            )),
+        };
+        let wrote = self.tx.written();
         let err = undo(&self.base, &mut self.tx, err).await;
-        // Declined before the robot moved: nothing happened, and nothing is left behind.
-        if matches!(err, RoutineError::Declined(_)) && self.progress.runs.is_empty() {
+        let mut ending = Ending {
+            robot,
+            parameters: ParamsAfterFailure::of(&err),
+            backup: self.tx.backup_path().map(std::path::Path::to_path_buf),
+        };
+        // Nothing driven and nothing written: nothing happened, and nothing is left behind
+        // (the backup of a store this run never changed, a report directory it made).
+        if self.progress.runs.is_empty() && !wrote {
+            if let Some(backup) = ending.backup.take() {
+                let _ = std::fs::remove_file(&backup);
+            }
+            if let Some(dir) = &self.report_dir {
+                // Only when empty: an earlier run's files are never touched.
+                let _ = std::fs::remove_dir(dir);
+            }
+            self.ui.event(&RoutineEvent::Ended(ending));
             return err;
         }
         // Nothing measured is thrown away: the squares driven so far, where it stopped and
-        // why, with the store's files (beside a file store; for a device, in the report
-        // directory or with the backup).
+        // why, in the run's one place for its files ([`run_dir`]).
         let written = match self.claim_report_dir() {
             Ok(claimed) => {
-                let dir = match &claimed {
-                    Some(d) => d.clone(),
-                    None => device_dir(self.cfg, None),
-                };
-                let (dir, prefix) = crate::base::transaction::store_place(
-                    ParamStore::file(self.base.store.as_ref()).as_deref(),
-                    &dir,
+                let file = ParamStore::file(self.base.store.as_ref());
+                let dir = run_dir(self.cfg, claimed.as_deref(), file.as_deref(), false);
+                let prefix = crate::base::transaction::store_prefix(
+                    file.as_deref(),
                     "odocal-partial-report",
                     "partial-report",
                 );
@@ -730,6 +780,7 @@ impl Calibration<'_> {
             ),
             Err(e) => e,
         }));
+        self.ui.event(&RoutineEvent::Ended(ending));
         err
     }
 
@@ -753,6 +804,8 @@ impl Calibration<'_> {
         };
         // Twice at most: the second turn takes out what the drive's own error left.
         let mut off = wrap_angle(target - now);
+        let mut turned = None;
+        let mut turns = 0;
         for _ in 0..2 {
             if off.abs() < REALIGN_WITHIN_RAD {
                 break;
@@ -764,7 +817,8 @@ impl Calibration<'_> {
             )
             .await?;
             guard.disarm();
-            self.ui.event(&RoutineEvent::Realigned { turn_rad: off });
+            turned = Some(turned.unwrap_or(0.0) + off);
+            turns += 1;
             if self.cfg.settle_s > 0.0 {
                 tokio::time::sleep(Duration::from_secs_f64(self.cfg.settle_s)).await;
             }
@@ -774,6 +828,13 @@ impl Calibration<'_> {
             )
             .await?;
             off = wrap_angle(target - now);
+        }
+        if let Some(turn_rad) = turned {
+            self.ui.event(&RoutineEvent::Realigned {
+                turn_rad,
+                left_rad: off,
+                turns,
+            });
         }
         Ok(())
     }
@@ -850,6 +911,10 @@ impl Calibration<'_> {
         self.progress.runs.push(run.clone());
         check_plausible(&rec, &run, params, self.ui)?;
         self.ui.event(&RoutineEvent::RunDone {
+            phase,
+            run: index,
+            of,
+            direction,
             heading_error_deg: run.heading_error_deg,
         });
         Ok(run)
@@ -1106,6 +1171,69 @@ impl ParamsAfterFailure {
                 committed: committed.clone(),
             },
             _ => ParamsAfterFailure::Untouched,
+        }
+    }
+}
+
+/// How long the stop after a failure may take before the robot is reported unreachable.
+const STOP_TIMEOUT: Duration = Duration::from_secs(2);
+
+/// Where the robot is after a run that stopped.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+#[serde(rename_all = "snake_case", tag = "state", content = "detail")]
+pub enum RobotAfterStop {
+    /// The drive took the stop.
+    Stopped,
+    /// The stop could not be sent or was not taken (why).
+    NotReached(String),
+}
+
+/// How a run that stopped left the robot and its parameters ([`RoutineEvent::Ended`]): the
+/// two lines a user reads last, each saying what to do next where there is something to do.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct Ending {
+    /// Where the robot is.
+    pub robot: RobotAfterStop,
+    /// What the store holds.
+    pub parameters: ParamsAfterFailure,
+    /// The backup this run took and kept, if any.
+    pub backup: Option<std::path::PathBuf>,
+}
+
+impl std::fmt::Display for Ending {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match &self.robot {
+            RobotAfterStop::Stopped => f.write_str("robot: stopped")?,
+            RobotAfterStop::NotReached(why) => write!(
+                f,
+                "robot: NOT confirmed stopped ({why}); its own watchdog stops it when the host \
+                 goes silent: check that it has, and stop it by hand if not"
+            )?,
+        }
+        let backup = self.backup.as_ref().map(|b| b.display().to_string());
+        match (&self.parameters, &backup) {
+            (ParamsAfterFailure::Untouched, Some(b)) => write!(
+                f,
+                "\nparameters: untouched (nothing was written; the backup taken before is {b})"
+            ),
+            (ParamsAfterFailure::Untouched, None) => {
+                f.write_str("\nparameters: untouched (nothing was written)")
+            }
+            (ParamsAfterFailure::Restored { committed, .. }, _) => write!(
+                f,
+                "\nparameters: restored to what they were before the run ({})",
+                if *committed {
+                    "in use and stored"
+                } else {
+                    "in use; the stored copy was never changed"
+                }
+            ),
+            (ParamsAfterFailure::RestoreFailed { active, committed }, b) => write!(
+                f,
+                "\nparameters: NOT restored: in use {active}, stored {committed}; put them back \
+                 with `odocal restore {}` once the robot answers",
+                b.as_deref().unwrap_or("BACKUP")
+            ),
         }
     }
 }

@@ -437,5 +437,13 @@ pub fn params_table(old: &WheelParams, new: &WheelParams) -> String {
             (b / a - 1.0) * 100.0
         );
     }
+    // Written too when it changes (a restore may carry another count), so it is shown.
+    if old.counts_per_wheel_rev != new.counts_per_wheel_rev {
+        let _ = writeln!(
+            s,
+            "  {:<26} {:>12.3} → {:>12.3}",
+            "counts per wheel revolution", old.counts_per_wheel_rev, new.counts_per_wheel_rev
+        );
+    }
     s
 }

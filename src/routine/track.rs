@@ -38,6 +38,21 @@ pub enum DrivePath {
     },
 }
 
+impl std::fmt::Display for DrivePath {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            DrivePath::Squares { side_m } => write!(
+                f,
+                "squares of {side_m} m side (alternately clockwise and counter-clockwise)"
+            ),
+            DrivePath::Wander { area_m } => write!(
+                f,
+                "straight stretches and turns inside a square of {area_m} m side"
+            ),
+        }
+    }
+}
+
 impl FromStr for DrivePath {
     type Err = String;
 

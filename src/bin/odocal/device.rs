@@ -2,6 +2,7 @@
 
 use crate::print_json;
 use clap::Subcommand;
+use odocal::base::transaction::Transaction;
 use odocal::hal::{open_port, Client};
 use odocal::kinematics::WheelParams;
 use odocal::mock::{
@@ -116,7 +117,18 @@ pub async fn mock_device(args: MockArgs) -> CliResult {
     );
     crate::serve_until_stopped(args.ignore_stdin).await;
     let counters = lock(&device).counters();
-    eprintln!("mock device stopped: {counters:?}");
+    eprintln!(
+        "mock device stopped: {} requests executed ({} retries answered again), {} of {} \
+         motions completed, {} STOP(s), {} watchdog trip(s), {} telemetry samples ({} not sent)",
+        counters.executed_requests,
+        counters.replayed_answers,
+        counters.motions_completed,
+        counters.motions_accepted,
+        counters.stops,
+        counters.watchdog_trips,
+        counters.telemetry_samples,
+        counters.telemetry_over_bound
+    );
     if let Some(link) = &args.link {
         let _ = std::fs::remove_file(link);
     }
@@ -252,7 +264,7 @@ pub async fn params(cmd: ParamsCommand) -> CliResult {
             counts_per_rev,
             backup_dir,
         } => {
-            let client = port.connect().await?;
+            let client = Arc::new(port.connect().await?);
             let current = client.get_params(ParamSource::Active).await?;
             let wanted = WheelParams {
                 left_wheel_diameter_m: left_wheel_diameter_m
@@ -264,8 +276,21 @@ pub async fn params(cmd: ParamsCommand) -> CliResult {
             };
             wanted.validate()?;
             odocal::hal::wire_params(&wanted)?;
-            let saved_to = backup(&client, &backup_dir).await?;
-            let applied = client.set_params(&wanted).await?;
+            // The one write path: backed up, written, read back, rolled back on failure.
+            let mut tx = Transaction::prepare(client.clone(), Some(&wanted)).await?;
+            let saved_to = tx.back_up(&backup_dir).await?;
+            eprintln!("backed up the current parameters to {}", saved_to.display());
+            let applied = match tx.write_in_use(&wanted).await {
+                Ok(applied) => applied,
+                Err(e) => {
+                    return Err(format!(
+                        "not written: {e} ({}; the earlier parameters are in {})",
+                        crate::restore::roll_back(&mut tx).await,
+                        saved_to.display()
+                    )
+                    .into())
+                }
+            };
             eprintln!("written to RAM; run `odocal params save` to keep them across power cycles");
             print_params(&applied, port.json, json!({ "backup": saved_to }))
         }
@@ -316,7 +341,7 @@ async fn restore_from(
     stored: bool,
     backup_dir: &std::path::Path,
 ) -> CliResult {
-    let backup = odocal::base::transaction::read_backup(file)?;
+    let backup = odocal::spec::StoreLocation::read_backup(file, None)?;
     let client = port.connect().await?;
     let how = crate::restore::Restore {
         from: file,
@@ -325,6 +350,7 @@ async fn restore_from(
         any_device,
         commit: stored,
         backup_dir: backup_dir.to_path_buf(),
+        backup_dir_given: true,
         json: port.json,
     };
     crate::restore::restore_onto(Arc::new(client), &backup, &how).await
@@ -350,11 +376,11 @@ pub async fn status(port: PortArgs) -> CliResult {
         "{} (protocol {}.{}, serial {:#x})",
         info.firmware_id, info.major, info.minor, info.serial_number
     );
-    println!("motion state       {:?}", s.motion_state);
+    println!("motion state       {}", s.motion_state);
     println!("queue depth        {}", s.queue_depth);
     println!("completed motions  {}", s.completed_motions);
     println!("fault flags        {:#06x}", s.fault_flags);
-    println!("watchdog           {:?}", s.watchdog_state);
+    println!("watchdog           {}", s.watchdog_state);
     println!("uptime             {:.1} s", f64::from(s.uptime_ms) / 1e3);
     Ok(())
 }

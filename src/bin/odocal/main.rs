@@ -347,7 +347,7 @@ fn main() -> ExitCode {
         Command::Calibrate(args) => block_on(routine::calibrate(args)),
         Command::Plan(args) => plan::run(args),
         Command::Run(args) => block_on(routine::run_file(args)),
-        Command::Export(args) => routine::export(args),
+        Command::Export(args) => block_on(routine::export(args)),
         Command::Track(args) => block_on(track::track(args)),
         Command::Record(args) => block_on(track::record(args)),
         Command::Estimate(args) => estimate::run(args),

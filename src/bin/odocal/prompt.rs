@@ -20,18 +20,40 @@ pub fn yes(question: &str) -> bool {
         .is_ok_and(|a| matches!(a.as_str(), "y" | "Y" | "yes" | "YES"))
 }
 
-/// A token cancelled by Ctrl-C, which also prints `note` (what odocal does about it) when
-/// given.
+/// A token cancelled by Ctrl-C, and on Unix by SIGTERM and SIGHUP as well (what a service
+/// manager, `timeout`, `docker stop`, a closed SSH session or terminal send): each is handled
+/// as Ctrl-C is, so the robot is stopped and the parameters restored. Prints `note` (what
+/// odocal does about it) when given.
 pub fn ctrl_c_token(note: Option<&'static str>) -> CancellationToken {
     let token = CancellationToken::new();
     let t = token.clone();
     tokio::spawn(async move {
-        if tokio::signal::ctrl_c().await.is_ok() {
+        if let Some(name) = signal().await {
             if let Some(note) = note {
-                eprintln!("\nCtrl-C: {note}");
+                eprintln!("\n{name}: {note}");
             }
             t.cancel();
         }
     });
     token
+}
+
+/// Waits for the first of Ctrl-C, SIGTERM and SIGHUP; its name, or `None` when no signal can
+/// be waited for.
+async fn signal() -> Option<&'static str> {
+    #[cfg(unix)]
+    {
+        use tokio::signal::unix::{signal, SignalKind};
+        if let (Ok(mut term), Ok(mut hup)) = (
+            signal(SignalKind::terminate()),
+            signal(SignalKind::hangup()),
+        ) {
+            return tokio::select! {
+                r = tokio::signal::ctrl_c() => r.ok().map(|()| "Ctrl-C"),
+                _ = term.recv() => Some("SIGTERM"),
+                _ = hup.recv() => Some("SIGHUP"),
+            };
+        }
+    }
+    tokio::signal::ctrl_c().await.ok().map(|()| "Ctrl-C")
 }

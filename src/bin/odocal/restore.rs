@@ -2,11 +2,12 @@
 //! store they came from (a controller, a robot profile, a controller's YAML) or another one
 //! (`--to`), through the same transaction as a calibration: the store is proven writable, the
 //! user sees old → new and agrees, what it holds now is backed up first, then the backup's
-//! parameters are written, read back, committed and read back.
+//! parameters are written, read back, committed and read back. A backup of a file restored to
+//! that same file puts the whole file back as it was (the lines that change are shown).
 
 use crate::device::print_params;
 use odocal::base::transaction::{
-    check_store, read_backup, BackupError, BackupFile, Rollback, Transaction,
+    backup_dir_for, check_store, text_changes, BackupError, BackupFile, Rollback, Transaction,
 };
 use odocal::base::{same_within, ParamStore};
 use odocal::spec::{StoreLocation, ODOCAL_BAUD};
@@ -16,10 +17,14 @@ use std::sync::Arc;
 
 type CliResult = Result<(), Box<dyn std::error::Error>>;
 
+/// How many changed lines of a file a restore shows before asking.
+const MAX_SHOWN: usize = 20;
+
 /// Arguments of `odocal restore`.
 #[derive(Debug, clap::Args)]
 pub struct RestoreArgs {
-    /// A backup odocal wrote (`…odocal-backup-<UTC time>.json`).
+    /// A backup odocal wrote (`…odocal-backup-<UTC time>.json`, or a copy of a file named
+    /// `<file>.odocal-backup-<UTC time>` that earlier versions made beside it).
     backup: PathBuf,
     /// The store to restore to: a controller's port (odocal protocol), `profile:PATH` or
     /// `ros-yaml:PATH[?controller=NAME]` [default: the store the backup was taken from].
@@ -37,8 +42,8 @@ pub struct RestoreArgs {
     /// Restore a backup taken from another store (another device, file or controller).
     #[arg(long)]
     any_device: bool,
-    /// Where the backup of a controller's current parameters goes [default: beside BACKUP];
-    /// a file's is always beside the file.
+    /// Where the backup of what the store holds now goes [default: beside the store's file;
+    /// for a controller, beside BACKUP].
     #[arg(long)]
     backup_dir: Option<PathBuf>,
     /// Print JSON.
@@ -58,17 +63,29 @@ pub struct Restore<'a> {
     pub any_device: bool,
     /// Commit (storage, the file) too; else the copy in use only (a device's RAM).
     pub commit: bool,
-    /// Where a device's backup goes.
+    /// Where the backup goes for a store that is not a file (a file's goes beside it), unless
+    /// `backup_dir_given`.
     pub backup_dir: PathBuf,
+    /// `backup_dir` was asked for: it is used for a file's backup too.
+    pub backup_dir_given: bool,
     /// Print JSON.
     pub json: bool,
 }
 
 /// Runs `odocal restore`.
 pub async fn restore(args: RestoreArgs) -> CliResult {
-    let backup = read_backup(&args.backup)?;
-    let location = match &args.to {
-        Some(text) => StoreLocation::parse(text, args.baud)?,
+    let to = args
+        .to
+        .as_deref()
+        .map(|text| StoreLocation::parse(text, args.baud))
+        .transpose()?;
+    let controller = match &to {
+        Some(StoreLocation::RosYaml { controller, .. }) => Some(controller.as_str()),
+        _ => None,
+    };
+    let backup = StoreLocation::read_backup(&args.backup, controller)?;
+    let location = match to {
+        Some(location) => location,
         None => StoreLocation::of_backup(&backup, args.baud)
             .map_err(|e| format!("{}: {e}", args.backup.display()))?,
     };
@@ -82,6 +99,7 @@ pub async fn restore(args: RestoreArgs) -> CliResult {
         yes: args.yes,
         any_device: args.any_device,
         commit: true,
+        backup_dir_given: args.backup_dir.is_some(),
         backup_dir: args
             .backup_dir
             .unwrap_or_else(|| odocal::io::dir_of(&args.backup).to_path_buf()),
@@ -101,14 +119,17 @@ pub async fn restore_onto(
 ) -> CliResult {
     let here = store.info();
     let from = how.from.display();
-    match check_store(backup, how.from, store.as_ref()) {
-        Ok(()) => {}
-        Err(BackupError::OtherStore { backup_id, .. }) if how.any_device => eprintln!(
-            "warning: restoring a backup of {} `{backup_id}` onto `{}`",
-            here.kind, here.id
-        ),
+    let same_store = match check_store(backup, how.from, store.as_ref()) {
+        Ok(()) => true,
+        Err(BackupError::OtherStore { backup_id, .. }) if how.any_device => {
+            eprintln!(
+                "warning: restoring a backup of {} `{backup_id}` onto `{}` (its parameters only)",
+                here.kind, here.id
+            );
+            false
+        }
         Err(e) => return Err(e.into()),
-    }
+    };
     let target = backup.active;
     let current = store.read().await?;
     let resolution = store.resolution();
@@ -123,6 +144,30 @@ pub async fn restore_onto(
         here.id,
         odocal::routine::report::params_table(&current, &target)
     );
+    // The whole file goes back when the backup holds it and this is the file it came from.
+    let whole = match (&backup.text, store.file(), same_store) {
+        (Some(then), Some(file), true) => Some((
+            then.as_str(),
+            odocal::io::read_bounded(&file, odocal::io::MAX_TEXT_FILE)
+                .map_err(|e| format!("cannot read {}: {e}", file.display()))?,
+        )),
+        _ => None,
+    };
+    if let Some((then, now)) = &whole {
+        let changes = text_changes(now, then);
+        if !changes.is_empty() {
+            eprintln!(
+                "the whole file goes back as it was: {} line(s) change (- now, + restored)",
+                changes.len()
+            );
+            for line in changes.iter().take(MAX_SHOWN) {
+                eprintln!("  {line}");
+            }
+            if changes.len() > MAX_SHOWN {
+                eprintln!("  … and {} more", changes.len() - MAX_SHOWN);
+            }
+        }
+    }
     let committed_holds = !how.commit
         || store
             .read_committed()
@@ -139,7 +184,11 @@ pub async fn restore_onto(
             "dry_run": how.dry_run,
         })
     };
-    if same_within(&current, &target, &resolution) && committed_holds {
+    let holds_already = match &whole {
+        Some((then, now)) => then == now,
+        None => same_within(&current, &target, &resolution) && committed_holds,
+    };
+    if holds_already {
         eprintln!("the store already holds these parameters: nothing to write");
         return print_params(&current, how.json, extra(false));
     }
@@ -160,29 +209,26 @@ pub async fn restore_onto(
             return Err("not restored: declined".into());
         }
     }
-    let saved = tx.back_up(&how.backup_dir).await?;
-    eprintln!("backed up the current parameters to {}", saved.display());
-    let written = if how.commit {
-        tx.apply(&target).await
-    } else {
-        tx.write_in_use(&target).await
+    let dir = match how.backup_dir_given {
+        true => how.backup_dir.clone(),
+        false => backup_dir_for(tx.store().as_ref(), &how.backup_dir),
+    };
+    let saved = tx.back_up(&dir).await?;
+    eprintln!("backed up what the store holds now to {}", saved.display());
+    let written = match (&whole, how.commit) {
+        (Some((then, _)), _) => tx.apply_text(then, &target).await,
+        (None, true) => tx.apply(&target).await,
+        (None, false) => tx.write_in_use(&target).await,
     };
     let applied = match written {
         Ok(p) => p,
         Err(e) => {
-            let undone = match tx.rollback().await {
-                Ok(Rollback::NothingWritten) => "nothing was changed".to_string(),
-                Ok(Rollback::Restored) => "the earlier parameters are in use again".into(),
-                Ok(Rollback::RestoredAndCommitted) => {
-                    "the earlier parameters are in use and committed again".into()
-                }
-                Err(r) => format!("putting the earlier parameters back failed too: {r}"),
-            };
             return Err(format!(
-                "not restored: {e} ({undone}; the earlier parameters are in {})",
+                "not restored: {e} ({}; the earlier parameters are in {})",
+                roll_back(&mut tx).await,
                 saved.display()
             )
-            .into());
+            .into())
         }
     };
     eprintln!(
@@ -196,4 +242,16 @@ pub async fn restore_onto(
     let mut extra = extra(true);
     extra["backup"] = json!(saved);
     print_params(&applied, how.json, extra)
+}
+
+/// Rolls `tx` back after a failed write and says what the store holds then.
+pub async fn roll_back(tx: &mut Transaction) -> String {
+    match tx.rollback().await {
+        Ok(Rollback::NothingWritten) => "nothing was changed".to_string(),
+        Ok(Rollback::Restored) => "the earlier parameters are in use again".into(),
+        Ok(Rollback::RestoredAndCommitted) => {
+            "the earlier parameters are in use and committed again".into()
+        }
+        Err(r) => format!("putting the earlier parameters back failed too: {r}"),
+    }
 }

@@ -24,8 +24,26 @@ struct TerminalUi {
     bar: Option<ProgressBar>,
     /// Robot time the bar has counted (s), kept exact between its whole ticks.
     counted_s: f64,
+    /// Robot time this phase plans at the speed limits (s), extensions included.
+    planned_s: f64,
+    /// Where a run that stopped left the robot and its parameters.
+    ending: Option<odocal::routine::Ending>,
     quiet: bool,
     assume_yes: bool,
+}
+
+impl TerminalUi {
+    /// `err` with, when the run stopped after it started, the two lines that say where the
+    /// robot and its parameters are: the last lines the user reads.
+    fn ended(&mut self, err: impl std::error::Error + 'static) -> Box<dyn std::error::Error> {
+        if let Some(b) = self.bar.take() {
+            b.finish_and_clear();
+        }
+        match self.ending.take() {
+            Some(ending) => format!("{err}\n{ending}").into(),
+            None => err.into(),
+        }
+    }
 }
 
 /// Ticks of the progress bar per second of robot time.
@@ -36,6 +54,8 @@ impl TerminalUi {
         TerminalUi {
             bar: None,
             counted_s: 0.0,
+            planned_s: 0.0,
+            ending: None,
             quiet,
             assume_yes,
         }
@@ -74,6 +94,7 @@ impl RoutineUi for TerminalUi {
                     b.finish_and_clear();
                 }
                 self.counted_s = 0.0;
+                self.planned_s = *robot_time_s;
                 if !self.quiet && std::io::stderr().is_terminal() {
                     let bar = ProgressBar::new((robot_time_s * TICKS_PER_S).round() as u64);
                     bar.set_style(
@@ -86,6 +107,7 @@ impl RoutineUi for TerminalUi {
                 }
             }
             RoutineEvent::Extend { robot_time_s, .. } => {
+                self.planned_s += robot_time_s;
                 if let Some(b) = &self.bar {
                     b.inc_length((robot_time_s * TICKS_PER_S).round() as u64);
                 }
@@ -114,21 +136,35 @@ impl RoutineUi for TerminalUi {
                     b.set_position((self.counted_s * TICKS_PER_S).round() as u64);
                 }
             }
-            RoutineEvent::Realigned { turn_rad } => {
+            RoutineEvent::Realigned {
+                turn_rad, left_rad, ..
+            } => {
                 if self.bar.is_none() {
                     self.say(&format!(
-                        "  turned {:+.2}° back to the first square's heading",
-                        turn_rad.to_degrees()
+                        "  turned {:+.2}° back to the first square's heading ({:.2}° off now)",
+                        turn_rad.to_degrees(),
+                        left_rad.abs().to_degrees()
                     ));
                 }
             }
-            RoutineEvent::RunDone { heading_error_deg } => {
+            RoutineEvent::RunDone {
+                phase,
+                run,
+                of,
+                direction,
+                heading_error_deg,
+            } => {
                 if self.bar.is_none() {
+                    let left_s = (self.planned_s - self.counted_s).max(0.0);
                     self.say(&format!(
-                        "  run done: heading error {heading_error_deg:+.3}°"
+                        "  {phase}: square {run} of {of} ({direction}) done, heading error \
+                         {heading_error_deg:+.3}° · robot time {} so far, about {} left in this phase",
+                        duration_text(self.counted_s),
+                        duration_text(left_s)
                     ));
                 }
             }
+            RoutineEvent::Ended(ending) => self.ending = Some(ending.clone()),
         }
     }
 }
@@ -307,7 +343,10 @@ pub async fn demo(args: DemoArgs) -> CliResult {
     let mut ui = TerminalUi::new(args.json, true);
     let token =
         crate::prompt::ctrl_c_token(Some("stopping the robot and restoring the parameters…"));
-    let (report, _device) = run_demo(&opts, &mut ui, &token).await?;
+    let (report, _device) = match run_demo(&opts, &mut ui, &token).await {
+        Ok(done) => done,
+        Err(e) => return Err(ui.ended(e)),
+    };
     drop(ui);
     finish(&report, Some(&args.report_dir), args.json)
 }
@@ -433,8 +472,9 @@ pub struct RoutineFlags {
     /// asks you to type LARGE unless --yes.
     #[arg(long)]
     allow_large_change: bool,
-    /// Where to write the backup of a device's parameters [default: the report directory]; a
-    /// robot profile's or a YAML's always goes beside the file.
+    /// Where to write the backup of the robot's parameters (and a partial report if the run
+    /// stops) [default: this run's report directory; without one, beside a profile or YAML,
+    /// else the current directory].
     #[arg(long)]
     backup_dir: Option<PathBuf>,
     /// Where to write report.json, report.md, report.html and the plots (a new directory
@@ -561,7 +601,10 @@ async fn run_on(mut cfg: RoutineConfig, spec: BaseSpec, flags: &RoutineFlags) ->
     let mut ui = TerminalUi::new(flags.json, flags.yes);
     let token =
         crate::prompt::ctrl_c_token(Some("stopping the robot and restoring the parameters…"));
-    let report = run(&base, &cfg, None, &mut ui, &token).await?;
+    let report = match run(&base, &cfg, None, &mut ui, &token).await {
+        Ok(report) => report,
+        Err(e) => return Err(ui.ended(e)),
+    };
     drop(ui);
     finish(&report, cfg.report_dir.as_ref(), flags.json)
 }
@@ -577,7 +620,10 @@ async fn run_simulated(mut cfg: RoutineConfig, flags: &RoutineFlags) -> CliResul
     let mut ui = TerminalUi::new(flags.json, flags.yes);
     let token =
         crate::prompt::ctrl_c_token(Some("stopping the robot and restoring the parameters…"));
-    let (report, _) = run_demo(&opts, &mut ui, &token).await?;
+    let (report, _) = match run_demo(&opts, &mut ui, &token).await {
+        Ok(done) => done,
+        Err(e) => return Err(ui.ended(e)),
+    };
     drop(ui);
     finish(&report, cfg.report_dir.as_ref(), flags.json)
 }
@@ -632,8 +678,8 @@ pub struct ExportArgs {
     /// estimate, track or bag.
     #[arg(long, alias = "report")]
     from: PathBuf,
-    /// The ros2_control YAML: merged into if it exists (multipliers only, backup beside),
-    /// created otherwise.
+    /// The ros2_control YAML: merged into if it exists (multipliers only, backed up beside it
+    /// for `odocal restore`), created otherwise.
     #[arg(long)]
     ros2: PathBuf,
     /// The controller's name in the YAML.
@@ -646,14 +692,14 @@ pub struct ExportArgs {
     /// Which estimate to export [default: the result's default method, else exact].
     #[arg(long)]
     method: Option<String>,
-    /// Merge into an existing --ros2 file (its multipliers change; the original is kept beside
-    /// it as a backup). Without it an existing file is left alone.
+    /// Merge into an existing --ros2 file (its multipliers change; a backup `odocal restore`
+    /// takes goes beside it first). Without it an existing file is left alone.
     #[arg(long)]
     force: bool,
 }
 
 /// Runs `odocal export`.
-pub fn export(args: ExportArgs) -> CliResult {
+pub async fn export(args: ExportArgs) -> CliResult {
     use odocal::report::ros2::{calibration_of, export, Exported};
     let text = odocal::io::read_bounded(&args.from, odocal::io::MAX_TEXT_FILE)
         .map_err(|e| format!("cannot read {}: {e}", args.from.display()))?;
@@ -664,16 +710,16 @@ pub fn export(args: ExportArgs) -> CliResult {
     if args.ros2.exists() && !args.force {
         return Err(format!(
             "{} exists: not changed. --force merges the {} calibration's multipliers into it \
-             (everything else stays, the original is kept beside it as a backup)",
+             (everything else stays; a backup of it goes beside it, for `odocal restore`)",
             args.ros2.display(),
             cal.method
         )
         .into());
     }
-    match export(&args.ros2, &args.controller, &cal)? {
+    match export(&args.ros2, &args.controller, &cal).await? {
         Exported::Created => println!("wrote {} ({} calibration)", args.ros2.display(), cal.method),
         Exported::Merged { backup } => println!(
-            "merged the {} calibration's multipliers into {} (the original is {})",
+            "merged the {} calibration's multipliers into {} (undo: odocal restore {})",
             cal.method,
             args.ros2.display(),
             backup.display()

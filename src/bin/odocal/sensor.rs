@@ -27,8 +27,9 @@ pub struct SwingArgs {
     /// Turn-rate limit (rad/s): slow, so that a compass that filters keeps up.
     #[arg(long, default_value_t = 0.5)]
     rate_rad_s: f64,
-    /// Save the curve in the robot profile's [heading] table (a profile store only; the file
-    /// is copied beside itself first): every later command with this profile removes it.
+    /// Save the curve in the robot profile's [heading] table (a profile store only; backed up
+    /// beside it first, for `odocal restore`): every later command with this profile removes
+    /// it.
     #[arg(long)]
     save: bool,
     /// Turn without asking first.
@@ -135,7 +136,7 @@ pub async fn swing(args: SwingArgs) -> CliResult {
                 kind: (kind == HeadingKind::Magnetic).then_some(kind),
                 compass_deviation_deg: Some(total_deg),
             };
-            let backup = save_heading(path, &section)?;
+            let backup = save_heading(path, &section).await?;
             Some((path.clone(), backup))
         }
         None => None,

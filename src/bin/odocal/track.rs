@@ -68,7 +68,7 @@ async fn live(
     let path = drive.and_then(|d| d.drive);
     if let (Some(p), Some(d)) = (path, drive) {
         let question = format!(
-            "The robot will drive {} motions of {p:?} at up to {} m/s and {} rad/s. Is the \
+            "The robot will drive {} motions of {p} at up to {} m/s and {} rad/s. Is the \
              area clear and may it move?",
             d.motions, d.max_speed_m_s, d.max_rate_rad_s
         );
@@ -259,7 +259,12 @@ impl RoutineUi for StdinUi {
         tokio::task::block_in_place(|| crate::prompt::yes(question))
     }
     fn event(&mut self, event: &RoutineEvent) {
-        eprintln!("{event:?}");
+        match event {
+            RoutineEvent::Stage(s) => eprintln!("· {s}"),
+            RoutineEvent::Warning(w) => eprintln!("warning: {w}"),
+            // The write-back reports nothing else; a new event is shown where it is made.
+            _ => {}
+        }
     }
 }
 
@@ -374,7 +379,7 @@ pub async fn track(args: TrackArgs) -> CliResult {
         gate.rejected, gate.resets
     );
     println!(
-        "observed: E_b {:?} (σ {:.0} % of prior), E_d {:?} (σ {:.0} % of prior)",
+        "E_b {} (σ {:.0} % of the prior's), E_d {} (σ {:.0} % of the prior's)",
         excitation.e_b,
         100.0 * excitation.e_b_ratio,
         excitation.e_d,
