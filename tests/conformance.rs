@@ -31,13 +31,21 @@ fn robot() -> ParamsBlock {
 /// One real-time run at a time: they measure time on a machine of two shared cores.
 static REAL_TIME: Mutex<()> = Mutex::new(());
 
-/// Runs `odocal conformance --port port --json …`; its exit status and JSON report.
+/// Runs `odocal conformance --port port --json --time-scale 5 …`; its exit status and JSON
+/// report.
 fn conformance(port: &str, extra: &[&str]) -> (bool, Value) {
+    let mut args = vec!["--time-scale", SCALE];
+    args.extend(extra);
+    conformance_as(port, &args)
+}
+
+/// Runs `odocal conformance --port port --yes --json` with `args`; its exit status and JSON
+/// report.
+fn conformance_as(port: &str, args: &[&str]) -> (bool, Value) {
     let _one = REAL_TIME.lock().unwrap_or_else(|e| e.into_inner());
     let out = Command::new(env!("CARGO_BIN_EXE_odocal"))
         .args(["conformance", "--port", port, "--yes", "--json"])
-        .args(["--time-scale", SCALE])
-        .args(extra)
+        .args(args)
         .output()
         .expect("odocal runs");
     let report = serde_json::from_slice(&out.stdout).unwrap_or_else(|e| {
@@ -81,14 +89,69 @@ fn assert_conforms(ok: bool, report: &Value, who: &str) {
     assert!(passed.len() >= 17, "{who}: {passed:?}");
 }
 
+/// The words of the README's command line that starts with `start` (its comment dropped).
+fn readme_command(start: &str) -> Vec<String> {
+    let readme = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/README.md"))
+        .expect("README.md");
+    let line = readme
+        .lines()
+        .find(|l| l.starts_with(start))
+        .unwrap_or_else(|| panic!("the README has no line starting `{start}`"));
+    let command = line.split(" #").next().unwrap_or(line);
+    command.split_whitespace().map(String::from).collect()
+}
+
+/// `odocal mock-device` started as the README shows it before `odocal conformance`, and
+/// conformance run as the README shows it (the time scale measured, not given): it passes.
 #[test]
-fn the_mock_device_passes_conformance_on_a_pty() {
-    let (mut mock, port) = common::spawn_mock(&["--real-time", SCALE]);
-    let (ok, report) = conformance(&port, &[]);
+fn the_mock_device_as_the_readme_shows_it_passes_conformance() {
+    let mock_words = readme_command("odocal mock-device --real-time");
+    let mock_args: Vec<&str> = mock_words[2..].iter().map(String::as_str).collect();
+    let (mut mock, port) = common::spawn_mock(&mock_args);
+    let check = readme_command("odocal conformance --port /dev/pts/N");
+    // Beyond `conformance --port PATH`, less what `conformance_as` gives itself.
+    let extra: Vec<&str> = check[4..]
+        .iter()
+        .map(String::as_str)
+        .filter(|w| !matches!(*w, "--yes" | "--json"))
+        .collect();
+    assert_eq!(
+        check[4..].first().map(String::as_str),
+        Some("--yes"),
+        "{check:?}"
+    );
+    let (ok, report) = conformance_as(&port, &extra);
     let _ = mock.kill();
     let _ = mock.wait();
     assert_eq!(report["device"]["firmware_id"], "odocal-mock");
-    assert_conforms(ok, &report, "mock-device");
+    assert_conforms(ok, &report, "mock-device as the README shows it");
+}
+
+/// A mock device in virtual time (its motions end the moment they are accepted) cannot be
+/// checked against rules about time: refused at once, naming how to start one that can.
+#[test]
+fn a_device_whose_clock_stands_still_is_refused_with_the_way_to_start_one() {
+    let (mut mock, port) = common::spawn_mock(&[]);
+    let _one = REAL_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    let (ok, _, err) = common::odocal(&["conformance", "--port", &port, "--yes"]);
+    let _ = mock.kill();
+    let _ = mock.wait();
+    assert!(
+        !ok && err.contains("virtual time") && err.contains("--real-time 5"),
+        "{err}"
+    );
+}
+
+/// A given time scale that the device's clock contradicts is refused with the measured one.
+#[test]
+fn a_time_scale_the_clock_contradicts_is_refused_with_the_measured_one() {
+    let (mut mock, port) = common::spawn_mock(&["--real-time", SCALE]);
+    let _one = REAL_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    let (ok, _, err) =
+        common::odocal(&["conformance", "--port", &port, "--yes", "--time-scale", "1"]);
+    let _ = mock.kill();
+    let _ = mock.wait();
+    assert!(!ok && err.contains("--time-scale 5"), "{err}");
 }
 
 #[test]

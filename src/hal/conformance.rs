@@ -71,8 +71,10 @@ pub struct Options {
     /// Wheel speed limit (m/s), in [[`MIN_SPEED_M_S`], 1]; turn rates follow from it and the
     /// wheelbase.
     pub max_speed_m_s: f64,
-    /// Device seconds per second of wall clock (a simulator in sped-up time; 1 for hardware).
-    pub time_scale: f64,
+    /// Device seconds per second of wall clock (a simulator in sped-up time; 1 for hardware);
+    /// `None`: measured from the device's uptime ([`clock_rate`]). A given scale must agree
+    /// with the measured rate within 25 %.
+    pub time_scale: Option<f64>,
     /// Run only the rules whose section starts with one of these ("7.3"); all if empty.
     pub only: Vec<String>,
 }
@@ -81,7 +83,7 @@ impl Default for Options {
     fn default() -> Self {
         Options {
             max_speed_m_s: 0.1,
-            time_scale: 1.0,
+            time_scale: None,
             only: Vec::new(),
         }
     }
@@ -111,6 +113,20 @@ pub enum ConformanceError {
         what: &'static str,
         /// What came back.
         why: String,
+    },
+    /// The device's clock did not advance: a simulator in virtual time, whose motions end the
+    /// moment they are accepted; SPEC §7's rules are about time and cannot be checked.
+    #[error(
+        "the device's clock stood still for {waited_ms} ms (uptime {uptime_ms} ms): a simulator \
+         in virtual time, whose motions end the moment they are accepted, cannot be checked \
+         against SPEC §7's timing; start `odocal mock-device --real-time 5` (any scale up to \
+         100) and run conformance on it"
+    )]
+    ClockStill {
+        /// The device's uptime (ms).
+        uptime_ms: u32,
+        /// How long the host waited (ms).
+        waited_ms: u64,
     },
     /// The embedded vectors could not be read (a build defect).
     #[error("vectors.json: {0}")]
@@ -1009,6 +1025,48 @@ async fn retries_feed_the_watchdog<S: AsyncRead + AsyncWrite + Unpin + Send>(
 }
 
 /// The stored parameter copy as GET_PARAMS reports it (or its refusal).
+/// How long [`clock_rate`] watches the device's clock (wall time).
+const CLOCK_WATCH: Duration = Duration::from_millis(400);
+
+/// The device's clock rate: device milliseconds (STATUS `uptime_ms`) per wall-clock millisecond
+/// over [`CLOCK_WATCH`]; 1 for hardware, the speed-up of a simulator, 0 for one in virtual time.
+/// Returns the rate and the last uptime.
+async fn clock_rate<S: AsyncRead + AsyncWrite + Unpin>(
+    w: &mut Wire<S>,
+) -> Result<(f64, u32), ConformanceError> {
+    let t0 = Instant::now();
+    let first = w.status().await?.uptime_ms;
+    tokio::time::sleep(CLOCK_WATCH).await;
+    let last = w.status().await?.uptime_ms;
+    let wall_ms = t0.elapsed().as_secs_f64() * 1e3;
+    Ok((f64::from(last.wrapping_sub(first)) / wall_ms, last))
+}
+
+/// The scale the rules time themselves by: `given` when it agrees with the device's clock rate
+/// within 25 %, the measured rate (rounded, in [1, 100]) when none is given; a clock that
+/// stands still is [`ConformanceError::ClockStill`].
+async fn time_scale<S: AsyncRead + AsyncWrite + Unpin>(
+    w: &mut Wire<S>,
+    given: Option<f64>,
+) -> Result<f64, ConformanceError> {
+    let (rate, uptime_ms) = clock_rate(w).await?;
+    if rate < 0.05 {
+        return Err(ConformanceError::ClockStill {
+            uptime_ms,
+            waited_ms: CLOCK_WATCH.as_millis() as u64,
+        });
+    }
+    let measured = rate.round().clamp(1.0, 100.0);
+    match given {
+        None => Ok(measured),
+        Some(k) if (0.8..=1.25).contains(&(rate / k)) => Ok(k),
+        Some(k) => Err(ConformanceError::InvalidArgument(format!(
+            "--time-scale {k} was given, but the device's clock runs {rate:.2} times the wall \
+             clock: give --time-scale {measured}, or leave it out (it is measured)"
+        ))),
+    }
+}
+
 async fn stored<S: AsyncRead + AsyncWrite + Unpin>(
     w: &mut Wire<S>,
 ) -> Result<Result<Response, Nack>, ConformanceError> {
@@ -1033,11 +1091,12 @@ pub async fn run<S: AsyncRead + AsyncWrite + Unpin + Send>(
             options.max_speed_m_s
         )));
     }
-    if !(options.time_scale.is_finite() && (1.0..=100.0).contains(&options.time_scale)) {
-        return Err(ConformanceError::InvalidArgument(format!(
-            "the time scale must be in [1, 100], got {}",
-            options.time_scale
-        )));
+    if let Some(k) = options.time_scale {
+        if !(k.is_finite() && (1.0..=100.0).contains(&k)) {
+            return Err(ConformanceError::InvalidArgument(format!(
+                "the time scale must be in [1, 100], got {k}"
+            )));
+        }
     }
     let rules = device_rules()?;
     let mut w = Wire {
@@ -1069,6 +1128,7 @@ pub async fn run<S: AsyncRead + AsyncWrite + Unpin + Send>(
         }
     };
     let stored_before = stored(&mut w).await?;
+    let time_scale = time_scale(&mut w, options.time_scale).await?;
     let speed_mm_s = ((options.max_speed_m_s * 1e3) as u16).min(info.max_speed_mm_s);
     // A turn at rate ω drives each wheel at ω·b/2: the wheel speed limit caps it.
     let wheelbase_mm = f64::from(params.wheelbase_nm) * 1e-6;
@@ -1078,7 +1138,7 @@ pub async fn run<S: AsyncRead + AsyncWrite + Unpin + Send>(
         params,
         speed_mm_s,
         rate_mrad_s: (rate as u16).min(info.max_rate_mrad_s).max(1),
-        time_scale: options.time_scale,
+        time_scale,
     };
     let wanted = |section: &str| {
         options.only.is_empty() || options.only.iter().any(|o| section.starts_with(o.as_str()))

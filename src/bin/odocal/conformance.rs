@@ -23,9 +23,10 @@ pub struct Args {
     #[arg(long = "rule")]
     rules: Vec<String>,
     /// The device's clock runs this many times faster than the wall clock: a simulator such as
-    /// `odocal mock-device --real-time K` (1 for hardware).
-    #[arg(long, default_value_t = 1.0)]
-    time_scale: f64,
+    /// `odocal mock-device --real-time K` (1 for hardware) [default: measured from the
+    /// device's uptime].
+    #[arg(long)]
+    time_scale: Option<f64>,
     /// Print JSON instead of one line per rule.
     #[arg(long)]
     json: bool,
@@ -73,7 +74,9 @@ pub async fn run(args: Args) -> CliResult {
         conformance::MIN_SPEED_M_S,
         1.0,
     )?;
-    crate::in_range("--time-scale", args.time_scale, 1.0, 100.0)?;
+    if let Some(k) = args.time_scale {
+        crate::in_range("--time-scale", k, 1.0, 100.0)?;
+    }
     crate::sensor::confirm(
         args.yes,
         &format!(
@@ -117,7 +120,19 @@ pub async fn run(args: Args) -> CliResult {
         );
     }
     if fail > 0 {
-        return Err(format!("{fail} rule(s) failed").into());
+        let failed: Vec<String> = report
+            .rules
+            .iter()
+            .filter(|r| r.outcome == Outcome::Fail)
+            .map(|r| format!("§{} {}", r.section, r.rule))
+            .collect();
+        return Err(format!(
+            "{fail} rule(s) failed: {} (the reasons are {}; SPEC.md §7 says what each rule \
+             asks of the firmware)",
+            failed.join("; "),
+            if json { "in the JSON" } else { "above" }
+        )
+        .into());
     }
     Ok(())
 }

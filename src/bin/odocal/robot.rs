@@ -46,7 +46,7 @@ pub struct RobotArgs {
 #[derive(Debug, Clone, Default, clap::Args)]
 pub struct RosFlags {
     /// The controller's ros2_control YAML: the geometry is read from it and the calibrated
-    /// multipliers are written into it (backed up beside it first).
+    /// multipliers are written into it (backed up first, into the run's report directory).
     #[arg(long)]
     ros_yaml: Option<PathBuf>,
     /// The diff_drive_controller's name, `ns/name` to pick one namespace's [default:
