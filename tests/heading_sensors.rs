@@ -35,12 +35,25 @@ async fn over_our_protocol(
     psi0: f64,
     tweak: impl FnOnce(&mut RoutineConfig),
 ) -> (Report, WheelParams) {
+    over_a_link(name, e_b, e_d, model, psi0, FaultConfig::default(), tweak).await
+}
+
+/// [`over_our_protocol`] on a link with `faults`.
+async fn over_a_link(
+    name: &str,
+    e_b: f64,
+    e_d: f64,
+    model: HeadingModel,
+    psi0: f64,
+    faults: FaultConfig,
+    tweak: impl FnOnce(&mut RoutineConfig),
+) -> (Report, WheelParams) {
     let mut cfg = MockConfig::with_ratios(common::nominal(), e_b, e_d).unwrap();
     cfg.noise.compass_sigma_rad = 0.2f64.to_radians();
     cfg.heading_model = model;
     let device = Arc::new(Mutex::new(MockDevice::new(cfg).unwrap()));
     lock(&device).sim_mut().place(Pose::new(0.0, 0.0, psi0));
-    let (stream, _task) = spawn_duplex(device.clone(), TimeMode::Virtual, FaultConfig::default());
+    let (stream, _task) = spawn_duplex(device.clone(), TimeMode::Virtual, faults);
     let (client, _) = Client::connect(stream, LinkConfig::default())
         .await
         .unwrap();
@@ -111,6 +124,83 @@ async fn a_deviating_compass_over_our_protocol_is_calibrated_from_any_azimuth() 
             }
         }
     }
+}
+
+/// Issue 28: a compass swing on a link that corrupts 1 % of bytes and loses 5 % of frames both
+/// ways once fitted tens of degrees of deviation to a compass of 2–3°, applied it, and lost the
+/// run. Over such a link, on five seeds, the swing either finds the curve the compass has
+/// (every term within 0.1°) or is refused with its reason and never applied; the run completes
+/// either way and writes parameters within 0.1 % of the truth.
+#[tokio::test(start_paused = true)]
+async fn a_swing_on_a_lossy_link_is_right_or_refused_and_the_run_completes() {
+    let dev = "1,2,0,-2.5";
+    let want: Deviation = dev.parse().unwrap();
+    for seed in 0..5 {
+        let faults = FaultConfig {
+            corrupt_byte_rate: 0.01,
+            drop_frame_rate: 0.05,
+            seed,
+            ..FaultConfig::default()
+        };
+        let what = format!("lossy swing, seed {seed}");
+        let (report, truth) = over_a_link(
+            &format!("lossy-swing-{seed}"),
+            common::TRUE_E_B,
+            common::TRUE_E_D,
+            deviating(dev),
+            0.7,
+            faults,
+            |_| {},
+        )
+        .await;
+        assert_within(&report, &truth, 1e-3, &what);
+        let refused = report
+            .warnings
+            .iter()
+            .any(|w| w.starts_with("compass swing refused: "));
+        match &report.swing {
+            Some(fit) => {
+                assert!(!refused, "{what}: {:?}", report.warnings);
+                for k in 0..4 {
+                    assert!(
+                        (fit.deviation.0[k] - want.0[k]).abs() < 0.1f64.to_radians(),
+                        "{what}: {:?}",
+                        fit.deviation
+                    );
+                }
+            }
+            None => assert!(refused, "{what}: {:?}", report.warnings),
+        }
+    }
+}
+
+/// A compass that deviates by 17°: more than a swing takes as measured. The fit is refused
+/// with the reason and what to do, nothing is removed from the readings, and the run goes on
+/// to write parameters (the matched-leg method pairs legs by azimuth and needs no swing).
+#[tokio::test(start_paused = true)]
+async fn a_swing_of_an_implausible_size_is_refused_and_the_run_goes_on() {
+    let (report, _) = over_our_protocol(
+        "swing-too-large",
+        common::TRUE_E_B,
+        common::TRUE_E_D,
+        deviating("17,0,0,0"),
+        0.0,
+        |_| {},
+    )
+    .await;
+    assert!(report.swing.is_none());
+    let warning = report
+        .warnings
+        .iter()
+        .find(|w| w.starts_with("compass swing refused: "))
+        .unwrap_or_else(|| panic!("{:?}", report.warnings));
+    assert!(
+        warning.contains("a deviation of up to 17.0°")
+            && warning.contains("calibrate the compass itself")
+            && warning.ends_with("going on without a deviation correction"),
+        "{warning}"
+    );
+    assert!(report.written, "{:?}", report.warnings);
 }
 
 /// A compass as it comes: it loses 5 % of its readings, rounds to 0.1°, reads 1° off while the

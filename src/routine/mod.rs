@@ -376,9 +376,9 @@ impl Calibration<'_> {
     }
 
     /// **Moves the robot**: the compass swing ([`RoutineConfig::swing`]); a deviation it
-    /// measures is removed from every reading after. A base that cannot swing, or a swing
-    /// that does not fit, is a warning: the default method pairs legs by azimuth and does not
-    /// need it.
+    /// measures is removed from every reading after. A base that cannot swing, or a fit that
+    /// fails its checks (refused, never applied), is a warning and the run goes on: the
+    /// default method pairs legs by azimuth and does not need it.
     async fn swing(&mut self, params: &WheelParams) -> Result<(), RoutineError> {
         let kind = self.base.heading.kind();
         if !planning::swings(self.cfg, kind) {
@@ -390,6 +390,7 @@ impl Calibration<'_> {
             rate_rad_s: planning::swing_rate_rad_s(self.cfg),
             wheelbase_m: params.wheelbase_m,
             stream_period: Duration::from_millis(self.cfg.telemetry_ms.max(1)),
+            noise_std_rad: Some(self.noise.std_rad()).filter(|s| *s > 0.0),
         };
         self.stage(format!(
             "compass swing: two full turns in place each way at {:.2} rad/s (the heading is {kind})",
@@ -415,6 +416,9 @@ impl Calibration<'_> {
                 ));
                 self.swing = Some(fit);
             }
+            Err(swing::NoSwing::Refused(why)) => self.warn(format!(
+                "compass swing refused: {why}; going on without a deviation correction"
+            )),
             Err(why) => self.warn(format!("no compass swing: {why}")),
         }
         Ok(())

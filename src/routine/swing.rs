@@ -1,10 +1,14 @@
 //! The compass swing over the seam: full turns in place each way, the wheel travel and the
-//! heading streamed, and the deviation curve fitted ([`crate::calibration::swing`]).
+//! heading streamed, and the deviation curve fitted and checked ([`crate::calibration::swing`]).
+//!
+//! Each reading is paired with the odometry's turn at the reading's own time (the wheel travel
+//! is cumulative, so a lost travel sample only coarsens it), not a heading interpolated at the
+//! travel's times: across readings a lossy link lost, an interpolated heading is invented.
 
 use super::RoutineError;
 use crate::base::{Base, MotionGuard, SampleStream};
-use crate::calibration::recording::Recording;
-use crate::calibration::swing::{fit, SwingFit, SwingPoint};
+use crate::calibration::recording::{Recording, Track};
+use crate::calibration::swing::{fit, SwingError, SwingFit, SwingPoint};
 use std::f64::consts::TAU;
 use std::time::Duration;
 
@@ -19,6 +23,20 @@ pub struct SwingCommand {
     pub wheelbase_m: f64,
     /// Requested period of the streams.
     pub stream_period: Duration,
+    /// The compass's noise per reading at rest (rad), when known: what the fit's residual is
+    /// judged against.
+    pub noise_std_rad: Option<f64>,
+}
+
+/// Why a swing gave no deviation curve.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum NoSwing {
+    /// This base cannot swing (a stream it lacks, clocks that cannot be compared).
+    #[error("{0}")]
+    Unsupported(String),
+    /// The swing ran but its fit failed a check: never applied.
+    #[error("{0}")]
+    Refused(#[from] SwingError),
 }
 
 /// Slowest sensible default swing rate (rad/s): a turn in about 12.6 s.
@@ -57,17 +75,17 @@ fn drain<T>(rx: &mut SampleStream<T>) -> Vec<T> {
 
 /// **Moves the robot**: turns in place `turns_per_direction` full turns counter-clockwise,
 /// then as many clockwise (one motion per turn), and fits the compass's deviation from the
-/// readings. `Ok(Err(reason))` when this base cannot swing or the readings do not make a fit
-/// (the caller goes on without one); any error or a dropped future stops the base.
+/// readings. `Ok(Err(reason))` when this base cannot swing or the fit is refused (the caller
+/// goes on without one); any error or a dropped future stops the base.
 pub async fn run_swing(
     base: &Base,
     cmd: &SwingCommand,
-) -> Result<Result<SwingFit, String>, RoutineError> {
+) -> Result<Result<SwingFit, NoSwing>, RoutineError> {
     let mut turns = Vec::new();
     for sign in [1.0, -1.0] {
         let (mut travel, mut headings) = match streams(base, cmd.stream_period).await? {
             Ok(s) => s,
-            Err(why) => return Ok(Err(why)),
+            Err(why) => return Ok(Err(NoSwing::Unsupported(why))),
         };
         let guard = MotionGuard::new(&base.drive);
         for _ in 0..cmd.turns_per_direction {
@@ -85,24 +103,43 @@ pub async fn run_swing(
         };
         let track = recording.track(cmd.wheelbase_m);
         if !track.alignment.comparable {
-            return Ok(Err(
+            return Ok(Err(NoSwing::Unsupported(
                 "the heading's clock and the wheels' cannot be compared (separate devices whose \
                  stamps disagree)"
                     .into(),
-            ));
+            )));
         }
-        turns.push(
-            track
-                .points
-                .iter()
-                .filter_map(|p| {
-                    p.heading_rad.map(|h| SwingPoint {
-                        odometry_turn_rad: p.odometry_turn_rad,
-                        heading_rad: h,
-                    })
-                })
-                .collect::<Vec<_>>(),
-        );
+        turns.push(points_at_readings(&track));
     }
-    Ok(fit(&turns).map_err(|e| e.to_string()))
+    Ok(fit(&turns, cmd.noise_std_rad).map_err(NoSwing::from))
+}
+
+/// Every valid reading inside the travel's span, with the odometry's turn at its time
+/// (interpolated between the travel samples around it).
+fn points_at_readings(track: &Track) -> Vec<SwingPoint> {
+    let p = &track.points;
+    track
+        .readings
+        .iter()
+        .filter_map(|&(t, h)| {
+            let i = p.partition_point(|q| q.time_s <= t);
+            if i == 0 {
+                return None;
+            }
+            let a = &p[i - 1];
+            let phi = match p.get(i) {
+                Some(b) if b.time_s > a.time_s => {
+                    let f = (t - a.time_s) / (b.time_s - a.time_s);
+                    a.odometry_turn_rad + f * (b.odometry_turn_rad - a.odometry_turn_rad)
+                }
+                // Beyond the last travel sample: only a reading at its very time.
+                None if a.time_s < t => return None,
+                _ => a.odometry_turn_rad,
+            };
+            Some(SwingPoint {
+                odometry_turn_rad: phi,
+                heading_rad: h,
+            })
+        })
+        .collect()
 }

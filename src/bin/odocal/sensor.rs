@@ -117,6 +117,8 @@ pub async fn swing(args: SwingArgs) -> CliResult {
         rate_rad_s: args.rate_rad_s,
         wheelbase_m: params.wheelbase_m,
         stream_period: Duration::from_millis(20),
+        // Not measured here: the residual is judged against a fixed allowance.
+        noise_std_rad: None,
     };
     let fit = tokio::select! {
         r = run_swing(&base, &cmd) => r?,
@@ -125,7 +127,12 @@ pub async fn swing(args: SwingArgs) -> CliResult {
             return Err("interrupted: the robot was stopped".into());
         }
     }
-    .map_err(|why| format!("no swing: {why}"))?;
+    .map_err(|why| match why {
+        odocal::routine::swing::NoSwing::Refused(why) => {
+            format!("the swing's fit was refused, nothing was saved: {why}")
+        }
+        why => format!("no swing: {why}"),
+    })?;
     let total_deg: [f64; 4] =
         std::array::from_fn(|k| (applied.0[k] + fit.deviation.0[k]).to_degrees());
     let flag = total_deg.map(|c| format!("{c:.3}")).join(",");
