@@ -31,6 +31,8 @@ fn method<'a>(v: &'a Value, name: &str) -> &'a Value {
 fn simulate_json_reproduces_the_paper() {
     let v = json(&[
         "simulate",
+        "--heading-sigma-deg",
+        "0",
         "--true-eb",
         "0.976",
         "--true-ed",
@@ -464,12 +466,12 @@ fn record_says_why_nothing_was_recorded_and_records_from_a_real_time_mock() {
     let _ = mock.wait();
     assert!(!ok);
     assert!(
-        err.contains("no telemetry arrived") && err.contains("--real-time 1"),
+        err.contains("no telemetry arrived") && err.contains("--time-scale 1"),
         "{err}"
     );
     // In real time it streams at rest, and the log reads back.
     let out2 = dir.join("log2.jsonl");
-    let (mut mock, path) = spawn_mock(&["--real-time", "1"]);
+    let (mut mock, path) = spawn_mock(&["--time-scale", "1"]);
     let (ok, stdout, err) = odocal(&[
         "record",
         "--port",
@@ -720,10 +722,19 @@ fn routine_files_refuse_large_changes_unless_allowed() {
 fn numeric_flags_outside_their_physical_range_are_refused_before_anything_runs() {
     for (args, want) in [
         (
-            vec!["simulate", "--runs", "1000000000"],
+            vec![
+                "simulate",
+                "--heading-sigma-deg",
+                "0",
+                "--runs",
+                "1000000000",
+            ],
             "--runs must be in [1, 1000]",
         ),
-        (vec!["simulate", "--side-m", "1e308"], "--side-m must be in"),
+        (
+            vec!["simulate", "--heading-sigma-deg", "0", "--side-m", "1e308"],
+            "--side-m must be in",
+        ),
         (
             vec![
                 "estimate",
@@ -1132,4 +1143,36 @@ fn completions_and_man_pages_are_generated() {
         "{calibrate}"
     );
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A `--port` that is not a serial port (missing, a plain file, a directory, `/dev/null`) is
+/// named as such, pointing to `odocal ports`, before anything says that the robot will move.
+#[test]
+fn a_path_that_is_not_a_serial_port_is_named_before_anything_says_it_moves() {
+    let dir = scratch("not-a-port");
+    std::fs::create_dir_all(&dir).unwrap();
+    let file = dir.join("plain-file");
+    std::fs::write(&file, "").unwrap();
+    let missing = dir.join("ttyUSB9");
+    let cases = [
+        (file.to_str().unwrap().to_string(), "a regular file"),
+        (dir.to_str().unwrap().to_string(), "a directory"),
+        (missing.to_str().unwrap().to_string(), "does not exist"),
+        ("/dev/null".to_string(), "takes no serial settings"),
+    ];
+    for (port, says) in &cases {
+        for command in [
+            &["calibrate", "--port", port, "--yes"][..],
+            &["status", "--port", port],
+        ] {
+            let (ok, _, err) = odocal(command);
+            assert!(!ok, "{command:?}");
+            assert!(
+                err.contains(says) && err.contains("odocal ports"),
+                "{command:?}: {err}"
+            );
+            assert!(!err.contains("MOVES THE ROBOT"), "{command:?}: {err}");
+        }
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -105,7 +105,7 @@ fn readme_command(start: &str) -> Vec<String> {
 /// conformance run as the README shows it (the time scale measured, not given): it passes.
 #[test]
 fn the_mock_device_as_the_readme_shows_it_passes_conformance() {
-    let mock_words = readme_command("odocal mock-device --real-time");
+    let mock_words = readme_command("odocal mock-device --time-scale");
     let mock_args: Vec<&str> = mock_words[2..].iter().map(String::as_str).collect();
     let (mut mock, port) = common::spawn_mock(&mock_args);
     let check = readme_command("odocal conformance --port /dev/pts/N");
@@ -137,7 +137,7 @@ fn a_device_whose_clock_stands_still_is_refused_with_the_way_to_start_one() {
     let _ = mock.kill();
     let _ = mock.wait();
     assert!(
-        !ok && err.contains("virtual time") && err.contains("--real-time 5"),
+        !ok && err.contains("virtual time") && err.contains("--time-scale 5"),
         "{err}"
     );
 }
@@ -145,7 +145,7 @@ fn a_device_whose_clock_stands_still_is_refused_with_the_way_to_start_one() {
 /// A given time scale that the device's clock contradicts is refused with the measured one.
 #[test]
 fn a_time_scale_the_clock_contradicts_is_refused_with_the_measured_one() {
-    let (mut mock, port) = common::spawn_mock(&["--real-time", SCALE]);
+    let (mut mock, port) = common::spawn_mock(&["--time-scale", SCALE]);
     let _one = REAL_TIME.lock().unwrap_or_else(|e| e.into_inner());
     let (ok, _, err) =
         common::odocal(&["conformance", "--port", &port, "--yes", "--time-scale", "1"]);
@@ -156,7 +156,7 @@ fn a_time_scale_the_clock_contradicts_is_refused_with_the_measured_one() {
 
 #[test]
 fn the_device_kit_passes_conformance_on_a_pty() {
-    let (mut kit, port) = common::spawn_server("kit-device", &["--real-time", SCALE]);
+    let (mut kit, port) = common::spawn_server("kit-device", &["--time-scale", SCALE]);
     let (ok, report) = conformance(&port, &[]);
     let _ = kit.kill();
     let _ = kit.wait();

@@ -367,3 +367,34 @@ fn the_readme_quotes_every_file_size_bound() {
     }
     assert!(readme.contains("io::SIZE_BOUNDS"));
 }
+
+/// The sample files the README's try-it lines copy read as what they are: a robot profile and
+/// a controller's YAML of the same robot (D 0.15 m, b 0.39 m), each odocal can write back into.
+#[test]
+fn the_sample_profile_and_controller_yaml_read_as_the_same_robot() {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("examples");
+    let profile = odocal::roboclaw::profile::Profile::load(&root.join("robot.toml"))
+        .unwrap_or_else(|e| panic!("{e}"));
+    let yaml = odocal::ros::yaml::DiffDriveConfig::load(
+        &root.join("diff_drive.yaml"),
+        "diff_drive_controller",
+    )
+    .unwrap_or_else(|e| panic!("{e}"));
+    for p in [profile.params(), yaml.effective()] {
+        assert_eq!(
+            (
+                p.left_wheel_diameter_m,
+                p.right_wheel_diameter_m,
+                p.wheelbase_m
+            ),
+            (0.15, 0.15, 0.39)
+        );
+    }
+    let readme = std::fs::read_to_string(root.join("../README.md")).unwrap();
+    for file in ["examples/robot.toml", "examples/diff_drive.yaml"] {
+        assert!(
+            readme.contains(&format!("cp {file} ")),
+            "the README uses {file}"
+        );
+    }
+}

@@ -28,7 +28,16 @@ fn a_simulated_bag_gives_back_the_simulated_parameters() {
     let bag = dir.join("square.mcap");
     let bag_s = bag.to_str().unwrap();
     odocal_json(&[
-        "simulate", "--bag", bag_s, "--runs", "2", "--side-m", "2", "--json",
+        "simulate",
+        "--heading-sigma-deg",
+        "0",
+        "--bag",
+        bag_s,
+        "--runs",
+        "2",
+        "--side-m",
+        "2",
+        "--json",
     ]);
     let v = odocal_json(&["bag", bag_s, "--json"]);
     assert_eq!(v["runs"].as_array().unwrap().len(), 4, "{v}");
@@ -66,7 +75,7 @@ fn a_simulated_bag_gives_back_the_simulated_parameters() {
     assert_eq!(v["geometry"]["source"], "yaml");
     assert!((f(&method(&v, "exact")["e_b"]) - 0.976).abs() < 1e-6);
     // A bag is never overwritten.
-    let (ok, _, err) = odocal(&["simulate", "--bag", bag_s]);
+    let (ok, _, err) = odocal(&["simulate", "--heading-sigma-deg", "0", "--bag", bag_s]);
     assert!(!ok && err.contains("exists"), "{err}");
 }
 
@@ -211,7 +220,16 @@ fn bad_bags_and_files_are_named() {
     let bag = dir.join("s.mcap");
     let bag_s = bag.to_str().unwrap();
     odocal_json(&[
-        "simulate", "--bag", bag_s, "--runs", "1", "--side-m", "1", "--json",
+        "simulate",
+        "--heading-sigma-deg",
+        "0",
+        "--bag",
+        bag_s,
+        "--runs",
+        "1",
+        "--side-m",
+        "1",
+        "--json",
     ]);
     // A topic that is not there, but one of its type is: that one is used, and said so.
     let v = odocal_json(&["bag", bag_s, "--imu-topic", "/imu/data", "--json"]);
@@ -271,6 +289,8 @@ fn export_takes_any_result_and_merges_into_the_controller_yaml() {
     let bag = dir.join("s.mcap");
     odocal_json(&[
         "simulate",
+        "--heading-sigma-deg",
+        "0",
         "--bag",
         bag.to_str().unwrap(),
         "--runs",

@@ -228,7 +228,7 @@ async fn a_nack_on_save_restores_the_backup() {
             ..
         } => {
             assert!(!saved, "a refused save leaves the stored copy alone");
-            assert!(source.to_string().contains("StorageFailure"), "{source}");
+            assert!(source.to_string().contains("STORAGE_FAILURE"), "{source}");
         }
         other => panic!("expected a restored write, got {other}"),
     }

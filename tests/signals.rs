@@ -83,7 +83,7 @@ fn tree(dir: &Path) -> Vec<PathBuf> {
 }
 
 fn interrupted(case: &Case) {
-    let (mut mock, port) = common::spawn_mock(&["--real-time", "20", "--seed", "3"]);
+    let (mut mock, port) = common::spawn_mock(&["--time-scale", "20", "--seed", "3"]);
     let dir = common::scratch(&format!("signal-{}", case.name));
     std::fs::create_dir_all(&dir).unwrap();
     let mut args = vec!["calibrate", "--port", &port];

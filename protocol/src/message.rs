@@ -553,6 +553,10 @@ pub mod capability {
     pub const WHEEL_SPEED: u32 = 1 << 4;
     /// Queues motions.
     pub const MOTION_QUEUE: u32 = 1 << 5;
+    /// The heading sensor is magnetic (a compass, a 9-axis IMU's fused yaw): it may deviate.
+    pub const HEADING_MAGNETIC: u32 = 1 << 6;
+    /// The heading sensor integrates a gyro: its scale error enters `E_b` one to one.
+    pub const HEADING_GYRO: u32 = 1 << 7;
 }
 
 /// Bits of [`Heading::sensor_status`] (SPEC.md §5, READ_HEADING).
@@ -791,6 +795,14 @@ macro_rules! message_table {
                 match self {
                     $(Self::$uvar => id::$uid,)*
                     $(Self::$pvar(_) => id::$pid,)*
+                }
+            }
+
+            /// The message's name as SPEC.md spells it (`GET_STATUS`).
+            pub const fn name(&self) -> &'static str {
+                match id::name(self.msg()) {
+                    Some(name) => name,
+                    None => "an unnamed message",
                 }
             }
 

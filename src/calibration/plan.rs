@@ -107,7 +107,7 @@ pub struct PlanInput {
     pub wheelbase_m: f64,
     /// Where the bound is evaluated: the robot's `(E_b, E_d)` if known, else `(1, 1)`.
     pub ratios: (f64, f64),
-    /// Heading noise per reading (rad), as `odocal heading --samples N` measures it at rest.
+    /// Heading noise per reading (rad), as `odocal heading --heading-samples N` measures it at rest.
     pub heading_sigma_rad: f64,
     /// Readings averaged at rest before and after each square.
     pub readings_at_rest: usize,

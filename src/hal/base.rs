@@ -3,8 +3,8 @@
 
 use super::{Client, HalError, TelemetrySample};
 use crate::base::{
-    Achieved, BaseError, ComponentInfo, Drive, HeadingSample, HeadingSource, ParamStore, Preflight,
-    SampleStream, TravelSample, Validity, STREAM_CAPACITY,
+    Achieved, BaseError, ComponentInfo, Drive, HeadingKind, HeadingSample, HeadingSource,
+    ParamStore, Preflight, SampleStream, TravelSample, Validity, STREAM_CAPACITY,
 };
 use crate::kinematics::WheelParams;
 use crate::protocol::message::{
@@ -266,6 +266,21 @@ const NEW_HEADING_POLL: Duration = Duration::from_millis(5);
 impl HeadingSource for Client {
     fn info(&self) -> ComponentInfo {
         self.component_info()
+    }
+
+    /// What the device says its sensor is (HELLO capability bits 6 and 7).
+    fn kind(&self) -> HeadingKind {
+        use crate::protocol::message::capability;
+        let caps = self.device_info().capabilities;
+        match (
+            caps & capability::HEADING_MAGNETIC != 0,
+            caps & capability::HEADING_GYRO != 0,
+        ) {
+            (true, false) => HeadingKind::Magnetic,
+            (false, true) => HeadingKind::Gyro,
+            // Neither said, or both (a contradiction): not known.
+            _ => HeadingKind::Unknown,
+        }
     }
 
     async fn read(&self) -> Result<HeadingSample, BaseError> {

@@ -119,7 +119,7 @@ pub enum ConformanceError {
     #[error(
         "the device's clock stood still for {waited_ms} ms (uptime {uptime_ms} ms): a simulator \
          in virtual time, whose motions end the moment they are accepted, cannot be checked \
-         against SPEC §7's timing; start `odocal mock-device --real-time 5` (any scale up to \
+         against SPEC §7's timing; start `odocal mock-device --time-scale 5` (any scale up to \
          100) and run conformance on it"
     )]
     ClockStill {
@@ -270,9 +270,17 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Wire<S> {
         match Packet::from_frame(&ex.answer).map(|p| p.body) {
             Ok(Body::Response { response }) => Ok(Ok(response)),
             Ok(Body::Nack { nack, .. }) => Ok(Err(nack)),
-            other => Err(ConformanceError::Setup {
+            Ok(Body::Request { request }) => Err(ConformanceError::Setup {
                 what,
-                why: format!("undecodable answer {other:?}"),
+                why: format!("answered with a request ({})", request.name()),
+            }),
+            Ok(Body::Event { .. }) => Err(ConformanceError::Setup {
+                what,
+                why: "answered with an event".into(),
+            }),
+            Err(e) => Err(ConformanceError::Setup {
+                what,
+                why: format!("undecodable answer: {e}"),
             }),
         }
     }
@@ -296,7 +304,7 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Wire<S> {
             Response::GetStatus(s) => Ok(s),
             other => Err(ConformanceError::Setup {
                 what: "GET_STATUS",
-                why: format!("answered {other:?}"),
+                why: format!("answered {}", other.name()),
             }),
         }
     }
@@ -556,7 +564,15 @@ fn check_answer(answer: &Frame, want: &Value, counters: &mut Counters) -> Result
             "refused {} (detail {}), expected a {want_kind}",
             nack.code, nack.detail
         )),
-        (body, _) => Err(format!("answered {body:?}, expected a {want_kind}")),
+        (Body::Response { response }, _) => Err(format!(
+            "answered {}, expected a {want_kind}",
+            response.name()
+        )),
+        (Body::Request { request }, _) => Err(format!(
+            "answered with a request ({}), expected a {want_kind}",
+            request.name()
+        )),
+        (Body::Event { .. }, _) => Err(format!("answered with an event, expected a {want_kind}")),
     }
 }
 
@@ -593,8 +609,18 @@ fn check_motion_done(events: &[Frame], step: &Value, c: &mut Counters) -> Result
     if got == want {
         Ok(())
     } else {
+        let list = |v: &[(u16, u32)]| match v {
+            [] => "none".to_string(),
+            v => v
+                .iter()
+                .map(|(id, done)| format!("motion {id} (completed {done})"))
+                .collect::<Vec<_>>()
+                .join(", "),
+        };
         Err(format!(
-            "MOTION_DONE events (id, completed) {got:?}, expected {want:?}"
+            "MOTION_DONE events: {}, expected {}",
+            list(&got),
+            list(&want)
         ))
     }
 }
@@ -956,8 +982,9 @@ async fn retried_motion_runs_once<S: AsyncRead + AsyncWrite + Unpin + Send>(
     };
     if first.answer.to_bytes() != again.answer.to_bytes() {
         return Ok(Err(format!(
-            "the retry was answered {:?}, the request {:?}",
-            again.answer, first.answer
+            "the retry was answered {}, the request {} (frames in hex)",
+            hex(&again.answer.to_bytes()),
+            hex(&first.answer.to_bytes())
         )));
     }
     let mut events = first.events;
@@ -1025,6 +1052,15 @@ async fn retries_feed_the_watchdog<S: AsyncRead + AsyncWrite + Unpin + Send>(
 }
 
 /// The stored parameter copy as GET_PARAMS reports it (or its refusal).
+/// Bytes as hex pairs (`a5 01 …`), for frames in a reason.
+fn hex(bytes: &[u8]) -> String {
+    bytes
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect::<Vec<_>>()
+        .join(" ")
+}
+
 /// How long [`clock_rate`] watches the device's clock (wall time).
 const CLOCK_WATCH: Duration = Duration::from_millis(400);
 
@@ -1111,7 +1147,7 @@ pub async fn run<S: AsyncRead + AsyncWrite + Unpin + Send>(
         other => {
             return Err(ConformanceError::Setup {
                 what: "HELLO",
-                why: format!("answered {other:?}"),
+                why: format!("answered {}", other.name()),
             })
         }
     };
@@ -1123,7 +1159,7 @@ pub async fn run<S: AsyncRead + AsyncWrite + Unpin + Send>(
         other => {
             return Err(ConformanceError::Setup {
                 what: "GET_PARAMS",
-                why: format!("answered {other:?}"),
+                why: format!("answered {}", other.name()),
             })
         }
     };
@@ -1228,8 +1264,24 @@ pub async fn run<S: AsyncRead + AsyncWrite + Unpin + Send>(
         } else {
             Outcome::Fail
         },
-        reason: (!unchanged)
-            .then(|| format!("GET_PARAMS stored was {stored_before:?}, is now {stored_after:?}")),
+        reason: (!unchanged).then(|| {
+            let text = |r: &Result<Response, Nack>| match r {
+                Ok(Response::GetParams(p)) => format!(
+                    "left {} nm, right {} nm, wheelbase {} nm, {} µcounts/rev",
+                    p.params.left_wheel_diameter_nm,
+                    p.params.right_wheel_diameter_nm,
+                    p.params.wheelbase_nm,
+                    p.params.counts_per_wheel_rev_micro
+                ),
+                Ok(other) => format!("answered {}", other.name()),
+                Err(nack) => format!("refused {}", nack.code),
+            };
+            format!(
+                "GET_PARAMS stored was {}, is now {}",
+                text(&stored_before),
+                text(&stored_after)
+            )
+        }),
     };
     progress(&r);
     results.push(r);

@@ -261,7 +261,8 @@ macro_rules! expect {
         match $resp {
             $pat => Ok($out),
             other => Err(HalError::Link(LinkError::Protocol(format!(
-                "unexpected answer {other:?}"
+                "unexpected answer {}",
+                other.name()
             )))),
         }
     };
@@ -325,7 +326,9 @@ impl Client {
         let info = match hello {
             Ok(Response::Hello(info)) => info,
             Ok(other) => {
-                return Err(LinkError::Protocol(format!("HELLO answered with {other:?}")).into())
+                return Err(
+                    LinkError::Protocol(format!("HELLO answered with {}", other.name())).into(),
+                )
             }
             Err(HalError::Nack { nack, .. }) if nack.code == NackCode::VersionMismatch => {
                 // SPEC 1.1: the detail is the device's own VER byte; 0xFF from a 1.0 device.

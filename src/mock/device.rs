@@ -171,6 +171,15 @@ impl Board for SimBoard {
         self.now_us
     }
 
+    /// The simulated sensor's kind, as a real firmware would say it.
+    fn heading_kind(&self) -> u32 {
+        use crate::protocol::message::capability;
+        match self.sim.heading_model().kind {
+            crate::sim::sensor::SensorKind::Compass => capability::HEADING_MAGNETIC,
+            crate::sim::sensor::SensorKind::Gyro => capability::HEADING_GYRO,
+        }
+    }
+
     fn drive(&mut self, command: &DriveCommand) {
         if self.motion_id != Some(command.motion_id) {
             self.motion_id = Some(command.motion_id);

@@ -168,6 +168,12 @@ pub trait Board {
         true
     }
 
+    /// What its heading sensor is, as HELLO capability bits 6 and 7
+    /// ([`capability::HEADING_MAGNETIC`], [`capability::HEADING_GYRO`]); 0: not said.
+    fn heading_kind(&self) -> u32 {
+        0
+    }
+
     /// Fault bits the board detects ([`fault`]: motor over-current, encoder, heading sensor,
     /// storage, low battery). Bits in [`BLOCKING_FAULTS`] stop the base and refuse motions.
     fn faults(&mut self) -> u16 {
@@ -857,7 +863,9 @@ impl<B: Board, S: ParamStorage> Device<B, S> {
             | capability::WHEEL_SPEED
             | capability::MOTION_QUEUE;
         if self.board.has_heading() {
-            capabilities |= capability::HEADING;
+            capabilities |= capability::HEADING
+                | (self.board.heading_kind()
+                    & (capability::HEADING_MAGNETIC | capability::HEADING_GYRO));
         }
         if S::NON_VOLATILE {
             capabilities |= capability::STORAGE;

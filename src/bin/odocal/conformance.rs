@@ -23,7 +23,7 @@ pub struct Args {
     #[arg(long = "rule")]
     rules: Vec<String>,
     /// The device's clock runs this many times faster than the wall clock: a simulator such as
-    /// `odocal mock-device --real-time K` (1 for hardware) [default: measured from the
+    /// `odocal mock-device --time-scale K` (1 for hardware) [default: measured from the
     /// device's uptime].
     #[arg(long)]
     time_scale: Option<f64>,
@@ -141,7 +141,7 @@ pub async fn run(args: Args) -> CliResult {
 #[derive(Debug, clap::Args)]
 pub struct KitArgs {
     /// Run the device's clock this many times faster than the wall clock.
-    #[arg(long, default_value_t = 1.0)]
+    #[arg(long = "time-scale", alias = "real-time", default_value_t = 1.0)]
     real_time: f64,
     /// Also write the terminal's path to this file.
     #[arg(long)]
@@ -155,7 +155,7 @@ pub struct KitArgs {
 /// with 0.15 m wheels, a 0.39 m wheelbase and 4096 counts per revolution) on a new
 /// pseudo-terminal, whose path it prints first.
 pub async fn kit_device(args: KitArgs) -> CliResult {
-    crate::in_range("--real-time", args.real_time, 0.01, 1000.0)?;
+    crate::in_range("--time-scale", args.real_time, 0.01, 1000.0)?;
     let robot = ParamsBlock {
         left_wheel_diameter_nm: 150_000_000,
         right_wheel_diameter_nm: 150_000_000,

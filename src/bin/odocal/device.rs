@@ -1,6 +1,7 @@
 //! `odocal mock-device`, `params`, `status` and `heading`: the device-facing commands.
 
 use crate::print_json;
+use crate::SIM_HEADING_SIGMA_DEG;
 use clap::Subcommand;
 use odocal::base::transaction::Transaction;
 use odocal::hal::{open_port, Client};
@@ -30,8 +31,8 @@ pub struct MockArgs {
     /// Encoder counts per wheel revolution.
     #[arg(long, default_value_t = 4096.0)]
     counts_per_rev: f64,
-    /// Compass noise per reading (deg).
-    #[arg(long, default_value_t = 0.37)]
+    /// The simulated compass's noise per reading (deg; σ).
+    #[arg(long = "heading-sigma-deg", alias = "compass-sigma-deg", default_value_t = SIM_HEADING_SIGMA_DEG)]
     compass_sigma_deg: f64,
     /// Constant compass bias (deg).
     #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
@@ -42,8 +43,10 @@ pub struct MockArgs {
     /// Seed of the device's random draws.
     #[arg(long, default_value_t = 1)]
     seed: u64,
-    /// Run motions in scaled real time (device seconds per second) instead of virtual time.
-    #[arg(long)]
+    /// Run the device's clock this many times faster than the wall clock (1: real time, what
+    /// `conformance` needs) instead of in virtual time (motions end the moment they are
+    /// accepted; what `calibrate` on the mock is quickest with).
+    #[arg(long = "time-scale", alias = "real-time")]
     real_time: Option<f64>,
     /// Keep the non-volatile parameter copy in this file (survives restarts).
     #[arg(long)]
@@ -79,7 +82,7 @@ pub async fn mock_device(args: MockArgs) -> CliResult {
     }
     let time = match args.real_time {
         Some(scale) if scale.is_finite() && scale > 0.0 => TimeMode::RealTime { scale },
-        Some(scale) => return Err(format!("--real-time must be > 0, got {scale}").into()),
+        Some(scale) => return Err(format!("--time-scale must be > 0, got {scale}").into()),
         None => TimeMode::Virtual,
     };
     let device = MockDevice::new(cfg)?;
@@ -394,7 +397,7 @@ pub struct HeadingArgs {
     robot: crate::robot::RobotArgs,
     /// Readings to average (circular mean); with two or more, their σ is printed too (the
     /// noise per reading `odocal plan` needs: hold the robot still).
-    #[arg(long, default_value_t = 1)]
+    #[arg(long = "heading-samples", alias = "samples", default_value_t = 1)]
     samples: usize,
     /// Print JSON instead of text.
     #[arg(long)]

@@ -47,8 +47,9 @@ pub struct Args {
     /// Wheel diameter configured during the test (m); prints the corrected parameters.
     #[arg(long)]
     wheel_diameter_m: Option<f64>,
-    /// Compass noise per reading (deg); prints the Cramér–Rao bound for this test.
-    #[arg(long)]
+    /// The heading sensor's noise per reading (deg; σ); prints the Cramér–Rao bound for this
+    /// test.
+    #[arg(long = "heading-sigma-deg", alias = "compass-sigma-deg")]
     compass_sigma_deg: Option<f64>,
     /// Print one JSON object instead of a table.
     #[arg(long)]

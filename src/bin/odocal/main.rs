@@ -185,6 +185,10 @@ pub fn print_json(value: &serde_json::Value) -> Result<(), Box<dyn std::error::E
     Ok(())
 }
 
+/// The simulated heading sensor's noise per reading (deg, σ) every mock and simulation starts
+/// with unless told otherwise: a real compass's at rest (`--heading-sigma-deg`).
+pub const SIM_HEADING_SIGMA_DEG: f64 = 0.37;
+
 /// Checks a numeric flag against its documented physical range (inclusive), naming the flag.
 pub fn in_range(flag: &str, value: f64, lo: f64, hi: f64) -> Result<(), String> {
     if value.is_finite() && (lo..=hi).contains(&value) {

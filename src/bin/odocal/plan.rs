@@ -23,7 +23,7 @@ pub struct Args {
     /// The longest square side to consider (m), instead of --floor-m.
     #[arg(long)]
     side_max_m: Option<f64>,
-    /// The heading sensor's noise per reading at rest (deg): `odocal heading --samples 50`
+    /// The heading sensor's noise per reading at rest (deg): `odocal heading --heading-samples 50`
     /// prints it.
     #[arg(long)]
     heading_sigma_deg: f64,

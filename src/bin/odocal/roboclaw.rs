@@ -1,6 +1,7 @@
 //! RoboClaw controllers: `odocal status --port roboclaw:…` and `odocal mock-roboclaw`.
 
 use crate::print_json;
+use crate::SIM_HEADING_SIGMA_DEG;
 use odocal::roboclaw::client::{RoboClaw, RoboClawConfig};
 use odocal::roboclaw::profile::Profile;
 use serde_json::json;
@@ -53,8 +54,8 @@ pub struct MockArgs {
     profile: PathBuf,
     #[command(flatten)]
     truth: crate::TrueRobotArgs,
-    /// Compass noise per sentence (deg).
-    #[arg(long, default_value_t = 0.1)]
+    /// The simulated compass's noise per sentence (deg; σ).
+    #[arg(long = "heading-sigma-deg", alias = "compass-sigma-deg", default_value_t = SIM_HEADING_SIGMA_DEG)]
     compass_sigma_deg: f64,
     /// Compass sentences per second.
     #[arg(long, default_value_t = 10.0)]
@@ -91,7 +92,7 @@ pub async fn mock(args: MockArgs) -> CliResult {
     use odocal::mock::roboclaw::{spawn_ptys, MockRoboClawConfig};
     args.truth.check()?;
     crate::in_ranges(&[
-        ("--compass-sigma-deg", args.compass_sigma_deg, 0.0, 10.0),
+        ("--heading-sigma-deg", args.compass_sigma_deg, 0.0, 10.0),
         ("--compass-hz", args.compass_hz, 0.1, 100.0),
         ("--time-scale", args.time_scale, 0.01, 100.0),
         ("--lose-ack-rate", args.lose_ack_rate, 0.0, 1.0),

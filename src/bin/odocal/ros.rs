@@ -1,6 +1,7 @@
 //! `odocal bag` (and the ROS flags other commands share): calibrate from a ROS bag.
 
 use crate::print_json;
+use crate::SIM_HEADING_SIGMA_DEG;
 use odocal::kinematics::SplitConvention;
 use odocal::ros::bag::{self, BagOptions, GeometrySource, RosTopics};
 use odocal::ros::yaml::DiffDriveConfig;
@@ -315,13 +316,13 @@ pub struct MockArgs {
     /// The controller's name.
     #[arg(long, default_value = "diff_drive_controller")]
     controller: String,
-    /// Loopback port (0: any free one). The URL is printed on the first line.
-    #[arg(long, default_value_t = 9090)]
+    /// Loopback TCP port (0: any free one). The URL is printed on the first line.
+    #[arg(long = "tcp-port", alias = "port", default_value_t = 9090)]
     port: u16,
     #[command(flatten)]
     truth: crate::TrueRobotArgs,
-    /// IMU noise per reading (deg).
-    #[arg(long, default_value_t = 0.1)]
+    /// The simulated heading sensor's (IMU's) noise per reading (deg; σ).
+    #[arg(long = "heading-sigma-deg", alias = "compass-sigma-deg", default_value_t = SIM_HEADING_SIGMA_DEG)]
     compass_sigma_deg: f64,
     /// Robot seconds per wall-clock second (1: real time).
     #[arg(long, default_value_t = 1.0)]
@@ -330,7 +331,7 @@ pub struct MockArgs {
     #[arg(long, default_value = "/cmd_vel")]
     cmd_vel: String,
     /// The controller expects geometry_msgs/TwistStamped there (Jazzy's default), not Twist.
-    #[arg(long)]
+    #[arg(long = "twist-stamped", alias = "cmd-vel-stamped")]
     cmd_vel_stamped: bool,
     /// How /joint_states carries `effort`, as real robots send it: empty, zero, null (NaN as
     /// rosbridge writes it in a variable-length array) or nan (the bare token NaN, also in the
@@ -351,7 +352,7 @@ pub async fn mock(args: MockArgs) -> Result<(), Box<dyn std::error::Error>> {
     use odocal::mock::rosbridge::{MockRosConfig, MockRosbridge};
     args.truth.check()?;
     crate::in_ranges(&[
-        ("--compass-sigma-deg", args.compass_sigma_deg, 0.0, 10.0),
+        ("--heading-sigma-deg", args.compass_sigma_deg, 0.0, 10.0),
         ("--time-scale", args.time_scale, 0.01, 100.0),
     ])?;
     let controller = DiffDriveConfig::load(&args.ros_yaml, &args.controller)?;

@@ -2,6 +2,7 @@
 
 use crate::print_json;
 use crate::robot::RobotArgs;
+use crate::SIM_HEADING_SIGMA_DEG;
 use indicatif::{ProgressBar, ProgressStyle};
 use odocal::base::Base;
 use odocal::calibration::plan::duration_text;
@@ -276,8 +277,8 @@ pub struct DemoArgs {
     /// True E_d of the simulated robot.
     #[arg(long, default_value_t = 0.992)]
     true_ed: f64,
-    /// Compass noise per reading (deg).
-    #[arg(long, default_value_t = 0.37)]
+    /// The simulated compass's noise per reading (deg; σ).
+    #[arg(long = "heading-sigma-deg", alias = "compass-sigma-deg", default_value_t = SIM_HEADING_SIGMA_DEG)]
     compass_sigma_deg: f64,
     /// Seed of the simulated robot.
     #[arg(long, default_value_t = 1)]
@@ -580,6 +581,9 @@ async fn run_on(mut cfg: RoutineConfig, spec: BaseSpec, flags: &RoutineFlags) ->
     if cfg.report_dir.is_none() {
         cfg.report_dir = Some(PathBuf::from("odocal-report"));
     }
+    // Connected first (nothing moves yet): a wrong port is named before anything says that
+    // the robot will move.
+    let base = spec.open().await?;
     if !flags.json {
         eprintln!(
             "odocal calibrate: this MOVES THE ROBOT on {}: squares of {} m, {} per direction \
@@ -593,9 +597,6 @@ async fn run_on(mut cfg: RoutineConfig, spec: BaseSpec, flags: &RoutineFlags) ->
             },
             cfg.max_speed_m_s
         );
-    }
-    let base = spec.open().await?;
-    if !flags.json {
         eprintln!("{}", connected(&base));
     }
     let mut ui = TerminalUi::new(flags.json, flags.yes);

@@ -25,7 +25,7 @@ pub struct SwingArgs {
     #[arg(long, default_value_t = 2)]
     turns: u32,
     /// Turn-rate limit (rad/s): slow, so that a compass that filters keeps up.
-    #[arg(long, default_value_t = 0.5)]
+    #[arg(long = "max-rate-rad-s", alias = "rate-rad-s", default_value_t = 0.5)]
     rate_rad_s: f64,
     /// Save the curve in the robot profile's [heading] table (a profile store only; backed up
     /// beside it first, for `odocal restore`): every later command with this profile removes
@@ -50,7 +50,7 @@ pub struct SpinArgs {
     #[arg(long, default_value_t = 5)]
     turns: i32,
     /// Turn-rate limit (rad/s).
-    #[arg(long, default_value_t = 0.5)]
+    #[arg(long = "max-rate-rad-s", alias = "rate-rad-s", default_value_t = 0.5)]
     rate_rad_s: f64,
     /// Readings averaged at rest before and after.
     #[arg(long, default_value_t = 10)]
@@ -83,7 +83,7 @@ pub fn confirm(yes: bool, what: &str) -> CliResult {
 /// Runs `odocal swing`: **moves the robot** (turns in place).
 pub async fn swing(args: SwingArgs) -> CliResult {
     if !(args.rate_rad_s.is_finite() && args.rate_rad_s > 0.0 && args.rate_rad_s <= 3.0) {
-        return Err(format!("--rate-rad-s {}: must be in (0, 3]", args.rate_rad_s).into());
+        return Err(format!("--max-rate-rad-s {}: must be in (0, 3]", args.rate_rad_s).into());
     }
     if !(1..=10).contains(&args.turns) {
         return Err(format!("--turns {}: must be 1..=10", args.turns).into());
@@ -201,7 +201,7 @@ pub async fn swing(args: SwingArgs) -> CliResult {
 /// Runs `odocal spin`: **moves the robot** (turns in place), then asks where it stopped.
 pub async fn spin(args: SpinArgs) -> CliResult {
     if !(args.rate_rad_s.is_finite() && args.rate_rad_s > 0.0 && args.rate_rad_s <= 3.0) {
-        return Err(format!("--rate-rad-s {}: must be in (0, 3]", args.rate_rad_s).into());
+        return Err(format!("--max-rate-rad-s {}: must be in (0, 3]", args.rate_rad_s).into());
     }
     if !(1..=20).contains(&args.turns.unsigned_abs()) {
         return Err(format!("--turns {}: must be 1..=20 either way", args.turns).into());

@@ -1,5 +1,6 @@
 //! `odocal simulate`: the paper's simulation study on a configurable robot.
 
+use crate::SIM_HEADING_SIGMA_DEG;
 use crate::{pm, print_json, ConventionArgs};
 use odocal::kinematics::{SplitConvention, WheelParams};
 use odocal::offline::study::{run_trials, StudyConfig};
@@ -38,8 +39,9 @@ pub struct Args {
     /// Runs per direction (calibration and verification).
     #[arg(long, default_value_t = 1)]
     runs: usize,
-    /// Compass noise per reading (deg).
-    #[arg(long, default_value_t = 0.0)]
+    /// The simulated compass's noise per reading (deg; σ; 0 reproduces the paper's noise-free
+    /// tables).
+    #[arg(long = "heading-sigma-deg", alias = "compass-sigma-deg", default_value_t = SIM_HEADING_SIGMA_DEG)]
     compass_sigma_deg: f64,
     /// Constant compass bias (deg).
     #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
@@ -64,9 +66,9 @@ pub struct Args {
     json: bool,
     /// Instead of the study, write the simulated square test as a ROS 2 bag (MCAP) to this new
     /// file: /joint_states, /imu and /odom as a ROS robot would publish them, for `odocal bag`.
-    #[arg(long)]
+    #[arg(long = "write-bag", alias = "bag")]
     bag: Option<std::path::PathBuf>,
-    /// How the --bag's IMU errs (a deviation, a gyro's scale, a late or lossy stream).
+    /// How the --write-bag's IMU errs (a deviation, a gyro's scale, a late or lossy stream).
     #[command(flatten)]
     sensor: crate::HeadingModelArgs,
 }
@@ -126,7 +128,7 @@ pub fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
     in_range("--counts-per-rev", args.counts_per_rev, 1.0, 1e9)?;
     in_range("--true-eb", args.true_eb, 0.2, 5.0)?;
     in_range("--true-ed", args.true_ed, 0.5, 2.0)?;
-    in_range("--compass-sigma-deg", args.compass_sigma_deg, 0.0, 45.0)?;
+    in_range("--heading-sigma-deg", args.compass_sigma_deg, 0.0, 45.0)?;
     in_range("--compass-bias-deg", args.compass_bias_deg, -180.0, 180.0)?;
     in_range("--slip-sigma", args.slip_sigma, 0.0, 0.5)?;
     in_range("--position-sigma-m", args.position_sigma_m, 0.0, 10.0)?;

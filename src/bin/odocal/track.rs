@@ -43,7 +43,7 @@ pub struct DriveArgs {
     /// Seed of a wandering path.
     #[arg(long, default_value_t = 1)]
     seed: u64,
-    /// Answer yes: drive without asking (and write back without asking with --write-back).
+    /// Answer yes: drive without asking (`track --write-back`: also write without asking).
     #[arg(long)]
     yes: bool,
 }
@@ -173,7 +173,7 @@ pub async fn record(args: RecordArgs) -> CliResult {
             "no telemetry arrived in {:.1} s ({} written with its header only). The robot \
              answers but sends no wheel travel: a controller may stream only while the robot \
              moves (drive it while recording, or give --drive), and `odocal mock-device` in \
-             virtual time (the default) never advances while idle: start it with --real-time 1 \
+             virtual time (the default) never advances while idle: start it with --time-scale 1 \
              to record from it",
             args.duration_s.unwrap_or(f64::NAN),
             args.out.display()
