@@ -142,6 +142,7 @@ async fn main() -> Result<(), Box<dyn std::error::Error>> {
         heading_kind: HeadingKind::Magnetic,
         readings_per_s: None,
         run_scatter_rad: 0.0,
+        m_per_count: 0.0,
     };
     let planned = |t| plan_of(&settings(t), &setting);
     let (plan_fixed, plan_target) = (planned(None)?, planned(Some(target))?);

@@ -40,6 +40,7 @@ fn plan(cfg: &RoutineConfig) -> Plan {
         heading_kind: kind,
         readings_per_s: None,
         run_scatter_rad: 0.0,
+        m_per_count: 0.0,
     };
     plan_of(cfg, &setting).expect("a plan")
 }
@@ -164,4 +165,69 @@ async fn a_target_stops_the_squares_and_the_confirming_round_verifies() {
     // The written wheelbase is within three stated errors of the truth.
     let truth = common::truth().wheelbase_m / common::nominal().wheelbase_m;
     assert!((first.chosen.e_b - truth).abs() <= 3.0 * stated);
+}
+
+/// `odocal plan`'s text, from the binary as a user runs it.
+fn plan_text(args: &[&str]) -> String {
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_odocal"))
+        .arg("plan")
+        .args(args)
+        .output()
+        .expect("odocal runs");
+    assert!(
+        out.status.success(),
+        "odocal plan {args:?}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+#[test]
+fn plan_drives_the_largest_square_that_fits_and_speaks_of_a_target_only_when_given() {
+    // Issue 28: with a 5 × 9.5 m floor and an E_b target, plan chose 2.5 m squares though
+    // 4 m fit (4.9 × 9.3 m with a 0.5 m footprint and 10 % for drift), its "without a target"
+    // line switched to 4 m silently, and its first line spoke of a target when none was given.
+    let robot = [
+        "--floor-m",
+        "5,9.5",
+        "--heading-sigma-deg",
+        "0.37",
+        "--wheelbase-m",
+        "0.39",
+        "--heading-kind",
+        "magnetic",
+    ];
+    let with = plan_text(&[&robot[..], &["--target-eb-std", "3e-5"]].concat());
+    let lines: Vec<&str> = with.lines().collect();
+    assert!(lines[1].starts_with("squares of 4.00 m:"), "{with}");
+    assert!(
+        with.contains("the largest square that fits 5 × 9.5 m of floor"),
+        "{with}"
+    );
+    assert!(lines[0].contains("target is reached"), "{with}");
+    assert!(
+        with.contains("without a target, on the same 4.00 m squares"),
+        "{with}"
+    );
+    assert!(with.contains("--side-m 4 "), "{with}");
+    let without = plan_text(&robot);
+    let first = without.lines().next().unwrap_or_default();
+    assert!(!first.contains("target is reached"), "{first}");
+    assert!(!without.contains("without a target"), "{without}");
+    assert!(without
+        .lines()
+        .nth(1)
+        .is_some_and(|l| l.starts_with("squares of 4.00 m:")));
+    // The rounding to whole encoder counts is counted when the wheels are known.
+    let counted = plan_text(
+        &[
+            &robot[..],
+            &["--wheel-diameter-m", "0.15", "--counts-per-rev", "4096"],
+        ]
+        .concat(),
+    );
+    assert!(
+        counted.contains("from rounding every motion to whole encoder counts"),
+        "{counted}"
+    );
 }

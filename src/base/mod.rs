@@ -74,6 +74,14 @@ pub trait Drive: Send + Sync {
     /// Describes the drive.
     fn info(&self) -> ComponentInfo;
 
+    /// Whether the drive executes every motion as wheel targets in whole encoder counts, as
+    /// the parameters convert them (so each motion is off by up to half a count, the same
+    /// way every time: the plan counts it). A drive that follows velocity commands for a time
+    /// does not.
+    fn rounds_to_counts(&self) -> bool {
+        false
+    }
+
     /// Checks the drive can move: encoders answer, no faults.
     async fn preflight(&self) -> Result<Preflight, BaseError>;
 

@@ -56,8 +56,6 @@ pub const MIN_SIDE_M: f64 = 1.0;
 pub const MIN_RUNS_PER_DIRECTION: usize = 2;
 /// Floor added to every length of the squares for the drift of an uncalibrated robot.
 pub const DRIFT_FRACTION: f64 = 0.1;
-/// Steps of the sides a plan tries below the largest that fits (m).
-const SIDE_STEP_M: f64 = 0.5;
 
 /// How much floor there is.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
@@ -83,9 +81,9 @@ pub struct Target {
     pub e_b_std: Option<f64>,
     /// Standard error of `E_d`.
     pub e_d_std: Option<f64>,
-    /// RMS end-point error (m) of one square of the largest side the floor holds, driven with
-    /// the calibrated parameters (the larger direction's), from the standard errors (whatever
-    /// side the plan drives).
+    /// RMS end-point error (m) of one square of the plan's side driven with the calibrated
+    /// parameters (the larger direction's): the standard errors' part and the rounding to
+    /// whole encoder counts ([`Plan::predicted_end_point_m`]).
     pub end_point_m: Option<f64>,
 }
 
@@ -115,6 +113,10 @@ pub struct PlanInput {
     pub readings_per_s: f64,
     /// Scatter of each run's heading error beyond the sensor's noise (rad; 0 if unknown).
     pub run_scatter_rad: f64,
+    /// Wheel travel of one encoder count (m) when the drive rounds every motion's wheel
+    /// targets to whole counts, as a controller that counts wheel targets does; 0 when it does
+    /// not or it is unknown (the end point then leaves the rounding out).
+    pub m_per_count: f64,
     /// The estimate whose standard errors are predicted (the one the routine writes).
     pub method: Method,
     /// The diameter split.
@@ -211,9 +213,23 @@ pub struct Plan {
     pub predicted_std_e_b: f64,
     /// Predicted standard error of `E_d` after the first round.
     pub predicted_std_e_d: f64,
-    /// Predicted RMS end-point error of one square of the largest side that fits, driven with
-    /// the calibrated parameters (m).
+    /// Predicted RMS end-point error (m) of one square of `side_m` driven with the calibrated
+    /// parameters (the larger direction's): the standard errors' part and the rounding's, in
+    /// quadrature.
     pub predicted_end_point_m: f64,
+    /// The part of [`Plan::predicted_end_point_m`] from the standard errors of `E_b` and `E_d`
+    /// (m, RMS over calibrations).
+    pub end_point_from_estimate_m: f64,
+    /// The part from rounding every motion's wheel targets to whole encoder counts (m, RMS
+    /// over where the roundings fall; 0 when [`PlanInput::m_per_count`] is). For one robot and
+    /// one set of parameters the roundings are the same in every square: this part repeats
+    /// exactly, and no calibration removes it.
+    pub end_point_from_rounding_m: f64,
+    /// The most the rounding can move the end point (m): every wheel target off by half a
+    /// count the worst way.
+    pub end_point_rounding_max_m: f64,
+    /// Why this side: the floor, the longest side allowed, or the side asked for.
+    pub space: Space,
     /// Whether the prediction meets every target (always, without one).
     pub target_reached: bool,
 }
@@ -266,22 +282,112 @@ pub fn predicted_std(input: &PlanInput, side_m: f64, runs: usize) -> Result<(f64
 /// The end point of one square (m from its start) driven by a robot whose true parameters are
 /// `c` applied to the configured ones.
 fn square_end(c: &Correction, side_m: f64, wheelbase_m: f64, direction: Direction) -> [f64; 2] {
+    square_end_off(c, side_m, wheelbase_m, direction, [0.0; 4])
+}
+
+/// [`square_end`] with every leg's wheel targets off by `off[0]` (left) and `off[1]` (right),
+/// and every turn's by `off[2]` and `off[3]` (m of commanded wheel travel) in the
+/// counter-clockwise square: a controller that rounds its targets to whole counts rounds every
+/// leg alike and every turn alike, and the other direction's turns, the same targets negated,
+/// the other way.
+fn square_end_off(
+    c: &Correction,
+    side_m: f64,
+    wheelbase_m: f64,
+    direction: Direction,
+    off: [f64; 4],
+) -> [f64; 2] {
     let b_true = wheelbase_m * c.wheelbase_scale;
-    let turn = direction.turn_sign() * FRAC_PI_2 * 0.5 * wheelbase_m;
+    let sign = direction.turn_sign();
+    let turn = sign * FRAC_PI_2 * 0.5 * wheelbase_m;
     let mut pose = Pose::default();
     for _ in 0..4 {
         pose = pose.advance(
-            side_m * c.left_diameter_scale,
-            side_m * c.right_diameter_scale,
+            (side_m + off[0]) * c.left_diameter_scale,
+            (side_m + off[1]) * c.right_diameter_scale,
             b_true,
         );
         pose = pose.advance(
-            -turn * c.left_diameter_scale,
-            turn * c.right_diameter_scale,
+            (-turn + sign * off[2]) * c.left_diameter_scale,
+            (turn + sign * off[3]) * c.right_diameter_scale,
             b_true,
         );
     }
     [pose.x_m, pose.y_m]
+}
+
+/// Grid points per offset when [`rounding_end_point`] averages over the offsets.
+const ROUNDING_GRID: usize = 12;
+
+/// The end-point error (m) of a square of `side_m` from rounding each motion's wheel targets to
+/// whole counts of `m_per_count` (m of wheel travel): `(rms, max)` of the farther of the two
+/// directions' end points, as `E_max,sys` takes it.
+///
+/// Each leg's left and right targets and each turn's are rounded once (the four legs alike,
+/// the four turns alike; the clockwise turns the other way), each off by up to half a count:
+/// four offsets, spread evenly over `±m_per_count/2` as where a target falls within its count
+/// is unknown before the parameters are. The RMS is over them (a grid); the max puts every
+/// offset at half a count the worst way. For one robot the offsets are fixed by its
+/// parameters: its squares all end alike, and a calibration's written parameters move the
+/// offsets only when they move a target across half a count.
+pub fn rounding_end_point(side_m: f64, wheelbase_m: f64, m_per_count: f64) -> (f64, f64) {
+    if !(m_per_count.is_finite() && m_per_count > 0.0) {
+        return (0.0, 0.0);
+    }
+    let ideal = Correction {
+        left_diameter_scale: 1.0,
+        right_diameter_scale: 1.0,
+        wheelbase_scale: 1.0,
+    };
+    // The end point is linear in offsets this small (a count against metres of travel): one
+    // 2 × 4 map per direction.
+    let h = 1e-6;
+    let jacobian = |d: Direction| -> [[f64; 2]; 4] {
+        let mut jac = [[0.0; 2]; 4];
+        for (j, col) in jac.iter_mut().enumerate() {
+            let mut off = [0.0; 4];
+            off[j] = h;
+            let p = square_end_off(&ideal, side_m, wheelbase_m, d, off);
+            off[j] = -h;
+            let m = square_end_off(&ideal, side_m, wheelbase_m, d, off);
+            *col = [(p[0] - m[0]) / (2.0 * h), (p[1] - m[1]) / (2.0 * h)];
+        }
+        jac
+    };
+    let maps = [jacobian(Direction::Cw), jacobian(Direction::Ccw)];
+    // The farther direction's squared end point for offsets `u` (counts).
+    let farther = |u: [f64; 4]| {
+        maps.iter()
+            .map(|jac| {
+                let mut e = [0.0; 2];
+                for (col, uk) in jac.iter().zip(u) {
+                    e[0] += uk * m_per_count * col[0];
+                    e[1] += uk * m_per_count * col[1];
+                }
+                e[0] * e[0] + e[1] * e[1]
+            })
+            .fold(0.0, f64::max)
+    };
+    let n = ROUNDING_GRID;
+    let at = |i: usize| (i as f64 + 0.5) / n as f64 - 0.5;
+    let mut sum = 0.0;
+    for k in 0..n.pow(4) {
+        sum += farther([
+            at(k % n),
+            at(k / n % n),
+            at(k / n / n % n),
+            at(k / n / n / n),
+        ]);
+    }
+    let rms = (sum / n.pow(4) as f64).sqrt();
+    // The norm of a linear map is largest at a corner of the box of offsets.
+    let max = (0..16u32)
+        .map(|signs| {
+            let corner = |k: u32| if signs & (1 << k) == 0 { 0.5 } else { -0.5 };
+            farther([corner(0), corner(1), corner(2), corner(3)]).sqrt()
+        })
+        .fold(0.0, f64::max);
+    (rms, max)
 }
 
 /// RMS end-point error (m) of a square of `side_m` driven with parameters whose `E_b`, `E_d`
@@ -399,6 +505,12 @@ impl PlanInput {
                 non_negative(self.run_scatter_rad),
                 ">= 0",
             ),
+            (
+                "wheel travel per count",
+                self.m_per_count,
+                non_negative(self.m_per_count),
+                ">= 0 m",
+            ),
             ("speed", self.speed_m_s, positive(self.speed_m_s), "> 0 m/s"),
             (
                 "turn rate",
@@ -447,22 +559,35 @@ impl PlanInput {
 }
 
 /// The runs per direction that meet every target on squares of `side_m` (at least
-/// [`MIN_RUNS_PER_DIRECTION`]): the standard errors fall as `1/√n`.
-fn runs_needed(input: &PlanInput, side_m: f64, reference_m: f64) -> Result<usize, PlanError> {
+/// [`MIN_RUNS_PER_DIRECTION`]): the standard errors fall as `1/√n`; the rounding's part of the
+/// end point does not, so an end-point target at or below it is never reached (the most runs).
+fn runs_needed(input: &PlanInput, side_m: f64) -> Result<usize, PlanError> {
     let (b1, d1) = predicted_std(input, side_m, 1)?;
-    let e1 = end_point_rms(reference_m, input.wheelbase_m, b1, d1);
+    let e1 = end_point_rms(side_m, input.wheelbase_m, b1, d1);
+    let (rounding, _) = rounding_end_point(side_m, input.wheelbase_m, input.m_per_count);
     let need = |one: f64, target: Option<f64>| {
         target.map_or(0.0, |t| ((one / t).powi(2) * (1.0 - 1e-9)).ceil())
     };
     let t = input.target;
+    // What the estimate's part may leave of an end-point target after the rounding's.
+    let end_left = t.end_point_m.map(|e| {
+        let left = e * e - rounding * rounding;
+        if left > 0.0 {
+            left.sqrt()
+        } else {
+            f64::MIN_POSITIVE
+        }
+    });
     let n = need(b1, t.e_b_std)
         .max(need(d1, t.e_d_std))
-        .max(need(e1, t.end_point_m))
+        .max(need(e1, end_left))
         .min(1e6) as usize;
     Ok(n.max(MIN_RUNS_PER_DIRECTION))
 }
 
-/// Plans the square test: see the module.
+/// Plans the square test: see the module. The side is the largest the space holds, in tenths
+/// of a metre (or the side asked for): a longer side measures `E_d` and the end point better,
+/// costs nothing in `E_b`, and is the side the calibrated robot is judged on.
 pub fn plan(input: &PlanInput) -> Result<Plan, PlanError> {
     input.validate()?;
     let largest = largest_side(input.space, input.footprint_m);
@@ -481,54 +606,19 @@ pub fn plan(input: &PlanInput) -> Result<Plan, PlanError> {
         });
     }
     // Tenths of a metre: a side to mark on a floor.
-    let largest = if fixed_side {
+    let side_m = if fixed_side {
         largest
     } else {
-        (largest * 10.0).floor() / 10.0
+        (largest * 10.0 + 1e-9).floor() / 10.0
     };
-    let sequential = input.target.any();
-    let mut sides = vec![largest];
-    if sequential && !fixed_side {
-        let mut s = MIN_SIDE_M;
-        while s < largest - 1e-9 {
-            sides.push(s);
-            s += SIDE_STEP_M;
-        }
-    }
-    // Reached first, then the least robot time (the longer side on a tie); out of reach, the
-    // nearest.
-    let score = |p: &Plan| {
-        let t = input.target;
-        let ratio = [
-            t.e_b_std.map(|x| p.predicted_std_e_b / x),
-            t.e_d_std.map(|x| p.predicted_std_e_d / x),
-            t.end_point_m.map(|x| p.predicted_end_point_m / x),
-        ]
-        .into_iter()
-        .flatten()
-        .fold(0.0, f64::max);
-        if p.target_reached {
-            (0, p.robot_time_s)
-        } else {
-            (1, ratio)
-        }
-    };
-    let mut best = plan_for_side(input, sides[0], largest)?;
-    for &side in &sides[1..] {
-        let candidate = plan_for_side(input, side, largest)?;
-        let (a, b) = (score(&candidate), score(&best));
-        if a.0 < b.0 || (a.0 == b.0 && a.1 < b.1) {
-            best = candidate;
-        }
-    }
-    Ok(best)
+    plan_for_side(input, side_m)
 }
 
-/// The plan on squares of `side_m`; end points on squares of `reference_m`.
-fn plan_for_side(input: &PlanInput, side_m: f64, reference_m: f64) -> Result<Plan, PlanError> {
+/// The plan on squares of `side_m`.
+fn plan_for_side(input: &PlanInput, side_m: f64) -> Result<Plan, PlanError> {
     let sequential = input.target.any();
     let (runs, reached) = if sequential {
-        let n = runs_needed(input, side_m, reference_m)?;
+        let n = runs_needed(input, side_m)?;
         let max = input.max_runs_per_direction.max(MIN_RUNS_PER_DIRECTION);
         (n.min(max), n <= max)
     } else {
@@ -549,6 +639,9 @@ fn plan_for_side(input: &PlanInput, side_m: f64, reference_m: f64) -> Result<Pla
     };
     let max_squares = 2 * (input.max_rounds * max_per_round + input.verification_runs);
     let square_time_s = square_time_s(input, side_m);
+    let from_estimate = end_point_rms(side_m, input.wheelbase_m, std_e_b, std_e_d);
+    let (from_rounding, rounding_max) =
+        rounding_end_point(side_m, input.wheelbase_m, input.m_per_count);
     Ok(Plan {
         method: input.method,
         side_m,
@@ -566,7 +659,11 @@ fn plan_for_side(input: &PlanInput, side_m: f64, reference_m: f64) -> Result<Pla
         floor_m: floor_needed(side_m, input.footprint_m),
         predicted_std_e_b: std_e_b,
         predicted_std_e_d: std_e_d,
-        predicted_end_point_m: end_point_rms(reference_m, input.wheelbase_m, std_e_b, std_e_d),
+        predicted_end_point_m: from_estimate.hypot(from_rounding),
+        end_point_from_estimate_m: from_estimate,
+        end_point_from_rounding_m: from_rounding,
+        end_point_rounding_max_m: rounding_max,
+        space: input.space,
         target_reached: reached,
     })
 }
@@ -623,25 +720,58 @@ impl fmt::Display for Plan {
             self.max_squares,
             duration_text(self.max_robot_time_s),
         )?;
+        let why = match self.space {
+            Space::Floor { width_m, length_m } => format!(
+                "the largest square that fits {width_m} × {length_m} m of floor (a longer side \
+                 measures E_d and the end point better)"
+            ),
+            Space::MaxSide(s) => format!(
+                "the longest side allowed, {s} m (a longer side measures E_d and the end point \
+                 better)"
+            ),
+            Space::Side(_) => "the side asked for".to_string(),
+        };
         writeln!(
             f,
             "floor: {along:.1} m along the first leg × {across:.1} m across (both squares, the \
-             robot's footprint and 10 % for drift)"
+             robot's footprint and 10 % for drift): {why}"
         )?;
         write!(
             f,
-            "predicted standard errors ({}): E_b ± {:.2e}, E_d ± {:.2e}; end point of a square \
-             of the largest side ± {:.1} mm{}",
-            self.method,
-            self.predicted_std_e_b,
-            self.predicted_std_e_d,
-            1000.0 * self.predicted_end_point_m,
-            if self.target_reached {
-                ""
-            } else {
+            "predicted standard errors ({}): E_b ± {:.2e}, E_d ± {:.2e} (± one standard error \
+             after the first round)",
+            self.method, self.predicted_std_e_b, self.predicted_std_e_d,
+        )?;
+        let mm = |m: f64| 1000.0 * m;
+        if self.end_point_from_rounding_m > 0.0 {
+            write!(
+                f,
+                "\nend point of a {:.2} m square after calibration: {:.1} mm RMS, of which {:.1} \
+                 mm from those standard errors and {:.1} mm from rounding every motion to whole \
+                 encoder counts (the same in every square of one robot, never calibrated away; \
+                 at most {:.1} mm)",
+                self.side_m,
+                mm(self.predicted_end_point_m),
+                mm(self.end_point_from_estimate_m),
+                mm(self.end_point_from_rounding_m),
+                mm(self.end_point_rounding_max_m),
+            )?;
+        } else {
+            write!(
+                f,
+                "\nend point of a {:.2} m square after calibration: {:.1} mm RMS from those \
+                 standard errors (rounding to whole encoder counts not counted)",
+                self.side_m,
+                mm(self.predicted_end_point_m),
+            )?;
+        }
+        if !self.target_reached {
+            write!(
+                f,
                 " — the target is NOT reached within the most runs per direction"
-            }
-        )
+            )?;
+        }
+        Ok(())
     }
 }
 
@@ -659,6 +789,7 @@ mod tests {
             readings_at_rest: 1,
             readings_per_s: 50.0,
             run_scatter_rad: 0.0,
+            m_per_count: 0.0,
             method: Method::Exact,
             convention: SplitConvention::LeftNominal,
             speed_m_s: 0.2,
@@ -701,15 +832,16 @@ mod tests {
         // Today's default: 2 rounds of 5 + 5 and 3 + 3 verification.
         assert_eq!(fixed.squares, 26);
         assert_eq!(fixed.max_squares, 36);
-        // E_b hardly depends on the side (through the leg term, under left-nominal): the
-        // shortest square is the cheapest.
+        // E_b hardly depends on the side; it would be reached sooner on shorter squares, but the
+        // plan keeps the longest side allowed (E_d and the end point are better there): a
+        // target sets the runs, not the side.
         let (b5, d5) = predicted_std(&input(), 4.0, 5).unwrap();
         let eb = with(Target {
             e_b_std: Some(b5),
             ..Target::default()
         });
         assert!(eb.sequential && eb.target_reached);
-        assert_eq!(eb.side_m, MIN_SIDE_M);
+        assert_eq!((eb.side_m, eb.runs_per_direction), (4.0, 5));
         assert!(eb.predicted_std_e_b <= b5 * (1.0 + 1e-9));
         // E_d falls as 1/L: the longest side that fits.
         let ed = with(Target {
@@ -802,5 +934,100 @@ mod tests {
         // An error of E_b moves a square's end by about (π/2)·L·δ per corner's worth.
         let e = end_point_rms(4.0, 0.39, 1e-3, 0.0);
         assert!(e > 1e-3 && e < 0.05, "{e}");
+    }
+
+    #[test]
+    fn a_target_on_a_floor_drives_the_largest_square_that_fits_and_says_why() {
+        // The README's floor: 5 × 9.5 m holds two 4.0 m squares (4.9 × 9.3 m with a 0.5 m
+        // footprint and 10 % for drift); an E_b target sets the runs, not the side.
+        let p = plan(&PlanInput {
+            space: Space::Floor {
+                width_m: 5.0,
+                length_m: 9.5,
+            },
+            method: Method::MatchedLegs,
+            target: Target {
+                e_b_std: Some(3e-5),
+                ..Target::default()
+            },
+            ..input()
+        })
+        .unwrap();
+        assert_eq!(p.side_m, 4.0, "{p:?}");
+        assert!(p.target_reached && p.sequential);
+        let text = p.to_string();
+        assert!(
+            text.contains("the largest square that fits 5 × 9.5 m of floor"),
+            "{text}"
+        );
+        assert!(
+            text.contains("rounding to whole encoder counts not counted"),
+            "{text}"
+        );
+    }
+
+    #[test]
+    fn the_rounding_to_whole_counts_is_the_simulators() {
+        use crate::kinematics::WheelParams;
+        use crate::sim::{NoiseModel, Simulator};
+        // Robots calibrated perfectly (configured = true parameters), whose targets round to
+        // whole counts as the mock device's do: the end points left are the rounding's alone.
+        // Their diameters and wheelbases spread over many counts, so where each target falls
+        // within its count is spread evenly, as the prediction assumes.
+        let (side, counts) = (4.0, 4096.0);
+        let m_per_count = PI * 0.15 / counts;
+        let (rms, max) = rounding_end_point(side, 0.39, m_per_count);
+        let noise = NoiseModel {
+            quantise_encoders: true,
+            ..NoiseModel::default()
+        };
+        let golden = [0.618_034, 0.754_878, 0.569_840];
+        let mut ends = Vec::new();
+        for k in 1..=400 {
+            let u = |d: usize| (k as f64 * golden[d]).fract() - 0.5;
+            let p = WheelParams {
+                left_wheel_diameter_m: 0.15 * (1.0 + 2e-3 * u(0)),
+                right_wheel_diameter_m: 0.15 * (1.0 + 2e-3 * u(1)),
+                wheelbase_m: 0.39 * (1.0 + 2e-2 * u(2)),
+                counts_per_wheel_rev: counts,
+            };
+            let mut sim = Simulator::new(p, p, noise, 1).unwrap();
+            let end = [Direction::Cw, Direction::Ccw]
+                .into_iter()
+                .map(|d| sim.run_square(side, d).unwrap().final_pose.distance_m())
+                .fold(0.0, f64::max);
+            assert!(end <= max * 1.05, "{end} m beyond the most, {max} m");
+            ends.push(end);
+        }
+        let seen = (ends.iter().map(|e| e * e).sum::<f64>() / ends.len() as f64).sqrt();
+        assert!(
+            (seen / rms - 1.0).abs() < 0.2,
+            "RMS {seen} m, predicted {rms} m"
+        );
+        // Millimetres on the demo robot's 4 m squares, far above what its standard errors leave.
+        assert!(rms > 1e-3 && rms < 3e-3, "{rms}");
+        // Counted in the plan, in quadrature with the estimate's part.
+        let p = plan(&PlanInput {
+            m_per_count,
+            ..input()
+        })
+        .unwrap();
+        assert!((p.end_point_from_rounding_m - rms).abs() < 1e-12);
+        let total = p.end_point_from_estimate_m.hypot(rms);
+        assert!((p.predicted_end_point_m - total).abs() < 1e-12);
+        assert!(p
+            .to_string()
+            .contains("rounding every motion to whole encoder counts"));
+        // An end-point target below the rounding's part is never reached, however many runs.
+        let below = plan(&PlanInput {
+            m_per_count,
+            target: Target {
+                end_point_m: Some(rms * 0.9),
+                ..Target::default()
+            },
+            ..input()
+        })
+        .unwrap();
+        assert!(!below.target_reached, "{below:?}");
     }
 }

@@ -113,6 +113,11 @@ impl Drive for Client {
         self.component_info()
     }
 
+    fn rounds_to_counts(&self) -> bool {
+        // The device rounds every motion's wheel targets to whole counts (SPEC.md §7.6).
+        true
+    }
+
     async fn preflight(&self) -> Result<Preflight, BaseError> {
         let map = to_base("drive", "a status read");
         let status = self.status().await.map_err(&map)?;

@@ -201,6 +201,10 @@ impl Drive for SimBase {
         info("drive")
     }
 
+    fn rounds_to_counts(&self) -> bool {
+        self.state().sim.noise().quantise_encoders
+    }
+
     async fn preflight(&self) -> Result<Preflight, BaseError> {
         Ok(Preflight::default())
     }

@@ -234,6 +234,11 @@ impl RoboClawDrive {
 
 #[async_trait]
 impl Drive for RoboClawDrive {
+    fn rounds_to_counts(&self) -> bool {
+        // Buffered speed-and-distance commands take whole counts (see `counts` above).
+        true
+    }
+
     fn info(&self) -> ComponentInfo {
         let c = self.claw.config();
         ComponentInfo {

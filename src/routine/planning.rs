@@ -57,6 +57,20 @@ pub struct Setting {
     pub readings_per_s: Option<f64>,
     /// Scatter of each run's heading error beyond the sensor's noise (rad).
     pub run_scatter_rad: f64,
+    /// Wheel travel of one encoder count (m) when the drive rounds its motions to whole
+    /// counts, 0 when it does not or it is unknown ([`PlanInput::m_per_count`]).
+    pub m_per_count: f64,
+}
+
+/// The wheel travel of one count (m) for [`Setting::m_per_count`] when the drive rounds its
+/// motions to whole counts of `params` ([`crate::base::Drive::rounds_to_counts`]), else 0. The
+/// larger wheel's: its rounding moves the robot further.
+pub fn m_per_count_of(rounds_to_counts: bool, params: &WheelParams) -> f64 {
+    if rounds_to_counts {
+        params.left_m_per_count().max(params.right_m_per_count())
+    } else {
+        0.0
+    }
 }
 
 /// The method the routine will write with these settings and this sensor, before any square
@@ -102,6 +116,7 @@ pub fn plan_input(cfg: &RoutineConfig, s: &Setting) -> PlanInput {
             READINGS_PER_S_WITHOUT_TELEMETRY
         }),
         run_scatter_rad: s.run_scatter_rad,
+        m_per_count: s.m_per_count,
         method: expected_method(cfg, s.heading_kind),
         convention: cfg.convention,
         speed_m_s: cfg.max_speed_m_s,
@@ -219,6 +234,7 @@ impl super::Calibration<'_> {
             heading_kind: self.base.heading.kind(),
             readings_per_s: None,
             run_scatter_rad: 0.0,
+            m_per_count: m_per_count_of(self.base.drive.rounds_to_counts(), self.tx.original()),
         };
         match plan_of(self.cfg, &setting) {
             Ok(p) => {
@@ -351,6 +367,7 @@ mod tests {
             heading_kind: HeadingKind::Magnetic,
             readings_per_s: None,
             run_scatter_rad: 0.0,
+            m_per_count: 0.0,
         };
         let p = plan_of(&cfg, &s).unwrap();
         assert_eq!(p.method, Method::MatchedLegs);

@@ -14,15 +14,19 @@ type CliResult = Result<(), Box<dyn std::error::Error>>;
 
 /// Arguments of `odocal plan`.
 #[derive(Debug, clap::Args)]
-#[command(group(clap::ArgGroup::new("space").required(true).args(["floor_m", "side_max_m"])))]
+#[command(group(clap::ArgGroup::new("space").required(true).multiple(true).args(["floor_m", "side_max_m", "side_m"])))]
 pub struct Args {
     /// The free floor, WIDTH,LENGTH (m, either way round): the clockwise and counter-clockwise
     /// squares lie either side of the first leg.
     #[arg(long, value_name = "W,L")]
     floor_m: Option<String>,
     /// The longest square side to consider (m), instead of --floor-m.
-    #[arg(long)]
+    #[arg(long, conflicts_with = "floor_m")]
     side_max_m: Option<f64>,
+    /// Squares of exactly this side (m) instead of the largest that fits (with --floor-m: it
+    /// must fit).
+    #[arg(long, conflicts_with = "side_max_m")]
+    side_m: Option<f64>,
     /// The heading sensor's noise per reading at rest (deg): `odocal heading --heading-samples 50`
     /// prints it.
     #[arg(long)]
@@ -30,6 +34,14 @@ pub struct Args {
     /// The wheelbase configured on the robot (m).
     #[arg(long)]
     wheelbase_m: f64,
+    /// The wheel diameter configured on the robot (m): with --counts-per-rev, the end point
+    /// counts the rounding of every motion to whole encoder counts (a controller that drives to
+    /// wheel targets in counts: our protocol's devices, a RoboClaw).
+    #[arg(long, requires = "counts_per_rev")]
+    wheel_diameter_m: Option<f64>,
+    /// Encoder counts per wheel revolution (with --wheel-diameter-m).
+    #[arg(long, requires = "wheel_diameter_m")]
+    counts_per_rev: Option<f64>,
     /// What the heading sensor is (decides the default method and the compass swing):
     /// magnetic, gyro, reference or unknown.
     #[arg(long, default_value = "unknown")]
@@ -44,8 +56,8 @@ pub struct Args {
     /// calibration of this robot on this floor (slip, bumps); 0 when unknown.
     #[arg(long, default_value_t = 0.0)]
     run_scatter_deg: f64,
-    /// Target RMS end-point error (m) of one square of the largest side the floor holds,
-    /// driven with the calibrated parameters (whatever side the plan drives).
+    /// Target RMS end-point error (m) of one square of the plan's side driven with the
+    /// calibrated parameters (the rounding to whole encoder counts included when known).
     #[arg(long)]
     target_end_m: Option<f64>,
     #[command(flatten)]
@@ -72,14 +84,44 @@ fn parse_floor(s: &str) -> Result<Space, String> {
     })
 }
 
+/// Refuses a side whose two squares do not fit the floor, with what they need.
+fn side_fits(floor: Space, side_m: f64, footprint_m: f64) -> Result<(), String> {
+    let largest = odocal::calibration::plan::largest_side(floor, footprint_m);
+    if side_m <= largest + 1e-9 {
+        return Ok(());
+    }
+    let [along, across] = odocal::calibration::plan::floor_needed(side_m, footprint_m);
+    Err(format!(
+        "--side-m {side_m}: two squares of {side_m} m need {along:.1} × {across:.1} m of floor \
+         (with the robot's footprint and 10 % for drift); the floor given holds squares of at most {:.1} m: give \
+         a shorter --side-m or leave it out for the largest that fits",
+        (largest * 10.0).floor() / 10.0
+    ))
+}
+
 /// Runs `odocal plan`.
 pub fn run(args: Args) -> CliResult {
     in_range("--heading-sigma-deg", args.heading_sigma_deg, 0.0, 45.0)?;
     in_range("--run-scatter-deg", args.run_scatter_deg, 0.0, 45.0)?;
-    let space = match (&args.floor_m, args.side_max_m) {
-        (Some(f), _) => parse_floor(f)?,
-        (None, Some(s)) => Space::MaxSide(s),
-        (None, None) => return Err("give --floor-m W,L or --side-max-m".into()),
+    let floor = args.floor_m.as_deref().map(parse_floor).transpose()?;
+    let space = match (floor, args.side_max_m, args.side_m) {
+        (floor, _, Some(side)) => {
+            if let Some(floor) = floor {
+                side_fits(floor, side, args.footprint_m)?;
+            }
+            Space::Side(side)
+        }
+        (Some(floor), _, None) => floor,
+        (None, Some(s), None) => Space::MaxSide(s),
+        (None, None, None) => return Err("give --floor-m W,L, --side-max-m or --side-m".into()),
+    };
+    let m_per_count = match (args.wheel_diameter_m, args.counts_per_rev) {
+        (Some(d), Some(n)) => {
+            in_range("--wheel-diameter-m", d, 0.01, 2.0)?;
+            in_range("--counts-per-rev", n, 1.0, 1e9)?;
+            std::f64::consts::PI * d / n
+        }
+        _ => 0.0,
     };
     let mut cfg = RoutineConfig::default();
     args.shape.apply(&mut cfg);
@@ -92,6 +134,7 @@ pub fn run(args: Args) -> CliResult {
         heading_kind: args.heading_kind,
         readings_per_s: args.heading_hz,
         run_scatter_rad: args.run_scatter_deg.to_radians(),
+        m_per_count,
     };
     // An end-point target is the plan's alone: the routine stops on standard errors.
     let with_end = |cfg: &RoutineConfig| -> Result<_, Box<dyn std::error::Error>> {
@@ -121,6 +164,7 @@ pub fn run(args: Args) -> CliResult {
             "distance_m": plan.distance_m,
             "predicted_std_e_b": plan.predicted_std_e_b,
             "predicted_std_e_d": plan.predicted_std_e_d,
+            "predicted_end_point_m": plan.predicted_end_point_m,
             "plan": plan,
             "fixed_plan": fixed,
             "moves": false,
@@ -128,14 +172,44 @@ pub fn run(args: Args) -> CliResult {
     } else {
         println!(
             "odocal plan (moves nothing): {method} is the estimate written (heading {}, σ {}° \
-             per reading); a target stops the rounds once reached (calibrate --target-eb-std)",
-            args.heading_kind, args.heading_sigma_deg
+             per reading); {}",
+            args.heading_kind,
+            args.heading_sigma_deg,
+            if plan.sequential {
+                let mut targets = Vec::new();
+                if let Some(t) = cfg.target_e_b_std {
+                    targets.push(format!("E_b's standard error at most {t:e}"));
+                }
+                if let Some(t) = cfg.target_e_d_std {
+                    targets.push(format!("E_d's standard error at most {t:e}"));
+                }
+                if let Some(t) = args.target_end_m {
+                    targets.push(format!("an end point of {:.1} mm RMS", 1000.0 * t));
+                }
+                format!(
+                    "the rounds stop once the target is reached ({})",
+                    targets.join(", ")
+                )
+            } else {
+                "a fixed number of squares (--target-eb-std or --target-ed-std instead drives \
+                 them in pairs until the estimate is that precise)"
+                    .to_string()
+            }
         );
         println!("{plan}");
-        if plan.sequential {
+        if plan.end_point_from_rounding_m == 0.0 {
             println!(
-                "without a target ({} per direction, confirmed, verified): {} squares, {}, E_b \
-                 ± {:.2e}, E_d ± {:.2e}",
+                "(give --wheel-diameter-m and --counts-per-rev to count the rounding to whole \
+                 encoder counts of a controller that drives to wheel targets: millimetres on \
+                 4 m squares)"
+            );
+        }
+        if plan.sequential {
+            // The same side either way: only the number of squares differs.
+            println!(
+                "without a target, on the same {:.2} m squares ({} per direction, confirmed, \
+                 verified): {} squares, {}, E_b ± {:.2e}, E_d ± {:.2e}",
+                fixed.side_m,
                 fixed.runs_per_direction,
                 fixed.squares,
                 odocal::calibration::plan::duration_text(fixed.robot_time_s),
