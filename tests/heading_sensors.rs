@@ -707,7 +707,14 @@ fn a_compass_beside_a_gyro_measures_its_scale_in_a_spin() {
         &scale,
     ];
     args.extend(common::QUICK_FLAGS);
-    args.extend(["--dry-run", "--json"]);
+    // The report beside the test's YAML, not in the working directory.
+    let report_dir = yaml.with_file_name("report");
+    args.extend([
+        "--dry-run",
+        "--json",
+        "--report-dir",
+        report_dir.to_str().unwrap(),
+    ]);
     let report = common::odocal_json(&args);
     let _ = server.kill();
     let nominal = odocal::ros::yaml::DiffDriveConfig::load(&yaml, "diff_drive_controller")
