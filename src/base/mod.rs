@@ -217,8 +217,9 @@ pub trait ParamStore: Send + Sync {
     }
 
     /// The file the parameters live in, for a store that is a file (a robot profile, a
-    /// controller's YAML): its backups and a run's partial reports go beside it
-    /// ([`transaction::store_place`]). `None` for a device (the default).
+    /// controller's YAML): its backups and a run's partial reports are named after it
+    /// ([`transaction::store_prefix`]), and a command that writes it alone keeps its backup
+    /// beside it ([`transaction::backup_dir_for`]). `None` for a device (the default).
     fn file(&self) -> Option<std::path::PathBuf> {
         None
     }

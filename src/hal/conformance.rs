@@ -72,7 +72,7 @@ pub struct Options {
     /// wheelbase.
     pub max_speed_m_s: f64,
     /// Device seconds per second of wall clock (a simulator in sped-up time; 1 for hardware);
-    /// `None`: measured from the device's uptime ([`clock_rate`]). A given scale must agree
+    /// `None`: measured from the device's uptime (STATUS `uptime_ms`). A given scale must agree
     /// with the measured rate within 25 %.
     pub time_scale: Option<f64>,
     /// Run only the rules whose section starts with one of these ("7.3"); all if empty.
