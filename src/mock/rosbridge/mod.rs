@@ -361,8 +361,18 @@ async fn physics(
                 };
                 let (sl, sr) = g.travel_m(s.wheel_speed.0, s.wheel_speed.1);
                 let now = Displacement::of_wheels(sl, sr, g.wheelbase_m);
-                let step_to =
-                    |now: f64, want: f64, lim: f64| now + (want - now).clamp(-lim * dt, lim * dt);
+                // A ramp lands exactly on its target once the rest is within one step (plus
+                // rounding): counting down by `lim * dt` in floating point can otherwise leave a
+                // 1e-16 residue for one tick, a robot that is "still" but not at zero.
+                let step_to = |now: f64, want: f64, lim: f64| {
+                    let rest = want - now;
+                    let max = lim * dt;
+                    if rest.abs() <= max * (1.0 + 1e-9) {
+                        want
+                    } else {
+                        now + rest.clamp(-max, max)
+                    }
+                };
                 let (v1, w1) = (
                     step_to(now.distance_m, v, cfg.accel_limit_m_s2),
                     step_to(now.turn_rad, w, cfg.alpha_limit_rad_s2),
