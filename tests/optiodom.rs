@@ -215,6 +215,49 @@ fn pooled_leave_one_recording_out_the_default_method_is_honest_and_no_worse_than
     }
 }
 
+/// One robot's three sessions (231220200029, …0040, …0045: same configured geometry): pooled
+/// on two, the default method's prediction for the next session (`prediction_std`, the
+/// session-to-session spread included) covers the third session's own estimate at 2σ, for
+/// `E_b` and `E_d`; and a prediction is never narrower than the pooled mean's standard error.
+#[test]
+fn pooled_on_two_sessions_the_prediction_interval_covers_the_third() {
+    let Some(root) = data_root() else { return };
+    let ids = ["231220200029", "231220200040", "231220200045"];
+    let sets: Vec<OptiOdomSet> = ids
+        .iter()
+        .map(|id| OptiOdomSet::load(root.join("square").join(id)).expect("set loads"))
+        .collect();
+    let conv = SplitConvention::LeftNominal;
+    for (k, held) in sets.iter().enumerate() {
+        let others: Vec<OptiOdomSet> = sets
+            .iter()
+            .enumerate()
+            .filter(|(i, _)| *i != k)
+            .map(|(_, s)| s.clone())
+            .collect();
+        let pooled = replay(&others, &others, conv).unwrap();
+        let own = replay(std::slice::from_ref(held), std::slice::from_ref(held), conv).unwrap();
+        let method = pooled.default_method.expect("a default method");
+        assert_eq!(own.default_method, Some(method), "{}", held.id);
+        let p = pooled.pooled.iter().find(|p| p.method == method).unwrap();
+        let predicted = p.estimate_for(&held.configured, conv).unwrap();
+        let (sb, sd) = p.prediction_std(&predicted);
+        let (sb, sd) = (sb.expect("E_b prediction"), sd.expect("E_d prediction"));
+        assert!(sb >= predicted.e_b_std_err.unwrap() && sd >= predicted.e_d_std_err.unwrap());
+        let mine = own.estimates.iter().find(|e| e.method == method).unwrap();
+        for (q, got, want, s) in [
+            ("E_b", mine.e_b, predicted.e_b, sb),
+            ("E_d", mine.e_d, predicted.e_d, sd),
+        ] {
+            assert!(
+                (got - want).abs() <= 2.0 * s,
+                "held out {}: {method} {q} {got:.5} outside {want:.5} ± 2·{s:.5}",
+                held.id
+            );
+        }
+    }
+}
+
 #[test]
 fn impossible_ticks_backward_time_and_absurd_geometry_are_named() {
     let dir = common::scratch("bad-set-bounds");

@@ -737,3 +737,83 @@ fn what_is_not_a_bag_is_named_and_broken_bags_are_errors() {
         "{err}"
     );
 }
+
+/// One rule names the default method wherever the same data is calibrated: a simulated
+/// compass robot's bag gets what `calibrate` (here the demo's, on the same simulated compass)
+/// chooses, and a bag converted from a motion-capture set gets what `replay` chooses on the
+/// set, without being told what its IMU is (odocal writes that into the bags it makes).
+#[test]
+fn bag_replay_and_calibrate_name_the_same_default_method_for_the_same_data() {
+    let dir = scratch("bag-default-method");
+    std::fs::create_dir_all(&dir).unwrap();
+    let bag = dir.join("compass.mcap");
+    let bag_s = bag.to_str().unwrap();
+    odocal_json(&[
+        "simulate",
+        "--write-bag",
+        bag_s,
+        "--runs",
+        "2",
+        "--side-m",
+        "2",
+        "--json",
+    ]);
+    let from_bag = odocal_json(&["bag", bag_s, "--json"]);
+    let report_dir = dir.join("demo-report");
+    let demo = odocal_json(&[
+        "demo",
+        "--json",
+        "--report-dir",
+        report_dir.to_str().unwrap(),
+    ]);
+    let chosen = &demo["rounds"][0]["chosen"]["method"];
+    assert_eq!(
+        chosen, "matched-legs",
+        "{}",
+        demo["rounds"][0]["chosen_because"]
+    );
+    assert_eq!(&from_bag["default_method"], chosen, "{from_bag}");
+    let (ok, out, err) = odocal(&["bag", bag_s]);
+    assert!(ok, "{err}");
+    assert!(
+        out.contains("IMU yaw: magnetic (the bag's metadata)")
+            && out.contains("default method (what calibrate writes): matched-legs, the default"),
+        "{out}"
+    );
+
+    let Some(root) = common::optiodom("square") else {
+        return;
+    };
+    let set = root.join("square/231220200045");
+    let set_s = set.to_str().unwrap();
+    let converted = dir.join("set.mcap");
+    let (ok, _, err) = odocal(&[
+        "replay",
+        "--dataset",
+        set_s,
+        "--write-bag",
+        converted.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    let replayed = odocal_json(&["replay", "--dataset", set_s, "--json"]);
+    let from_bag = odocal_json(&[
+        "bag",
+        converted.to_str().unwrap(),
+        "--min-rest-s",
+        "1.5",
+        "--json",
+    ]);
+    assert_eq!(replayed["default_method"], "legs");
+    assert_eq!(from_bag["default_method"], replayed["default_method"]);
+    // Told otherwise, the user's word counts.
+    let told = odocal_json(&[
+        "bag",
+        converted.to_str().unwrap(),
+        "--min-rest-s",
+        "1.5",
+        "--heading-kind",
+        "magnetic",
+        "--json",
+    ]);
+    assert_eq!(told["default_method"], "matched-legs");
+}

@@ -136,10 +136,18 @@ pub fn estimate(
     let correction = convention.split(e_b, e_d, b)?;
     // Each direction's covariance: the scatter of its runs (two or more), with the noise along
     // the legs as a floor under the variances (see `super::standard_errors`).
-    let covariance = || -> Option<SMatrix<f64, 4, 4>> {
+    // With `noise_only`, the noise along the legs alone (one run in a direction: no scatter).
+    let covariance = |noise_only: bool| -> Option<SMatrix<f64, 4, 4>> {
         let mut cov = SMatrix::<f64, 4, 4>::zeros();
         for (offset, d) in [(0, &cw), (2, &ccw)] {
             let n = d.rows.len() as f64;
+            if noise_only {
+                let v = d.noise?;
+                for k in 0..2 {
+                    cov[(offset + k, offset + k)] = v[k];
+                }
+                continue;
+            }
             if d.rows.len() >= 2 {
                 for i in 0..2 {
                     for j in 0..2 {
@@ -162,7 +170,7 @@ pub fn estimate(
         }
         Some(cov)
     };
-    let std_err = covariance().and_then(|cov| {
+    let propagate = |cov: SMatrix<f64, 4, 4>| {
         let mut jac = SMatrix::<f64, 2, 4>::zeros();
         for k in 0..4 {
             let h = 1e-7 * theta[k].abs().max(1.0);
@@ -179,13 +187,13 @@ pub fn estimate(
         }
         let out = jac * cov * jac.transpose();
         Some((out[(0, 0)].max(0.0).sqrt(), out[(1, 1)].max(0.0).sqrt()))
-    });
-    Ok(Estimate::of(
-        Method::MatchedLegs,
-        correction,
-        std_err,
-        &convention,
-    ))
+    };
+    let std_err = covariance(false).and_then(propagate);
+    let noise = covariance(true).and_then(propagate);
+    Ok(
+        Estimate::of(Method::MatchedLegs, correction, std_err, &convention)
+            .with_noise_std_err(noise),
+    )
 }
 
 #[cfg(test)]

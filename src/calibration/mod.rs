@@ -21,6 +21,7 @@
 //! counter-clockwise positive, final minus start, wrapped. A compass azimuth is clockwise
 //! positive and must be negated before it gets here.
 
+pub mod agreement;
 pub mod error;
 pub mod exact;
 pub mod gyro;
@@ -406,6 +407,15 @@ pub struct Estimate {
     pub e_b_std_err: Option<f64>,
     /// Standard error of `e_d`, as `e_b_std_err`.
     pub e_d_std_err: Option<f64>,
+    /// With one run in a direction (no scatter to measure): the standard error of `e_b` that
+    /// the heading's measured noise alone gives. A lower bound: what changes from run to run on
+    /// a real floor (slip, a bump, the start) is not in it. `None` when there is a scatter, or
+    /// when the runs do not state their noise.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub e_b_noise_std_err: Option<f64>,
+    /// As `e_b_noise_std_err`, for `e_d`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub e_d_noise_std_err: Option<f64>,
     /// Factors to apply to the configured parameters.
     pub correction: Correction,
     /// The split convention used.
@@ -427,9 +437,21 @@ impl Estimate {
             e_d: correction.e_d(),
             e_b_std_err: std_err.map(|s| s.0),
             e_d_std_err: std_err.map(|s| s.1),
+            e_b_noise_std_err: None,
+            e_d_noise_std_err: None,
             correction,
             convention: convention.name().to_string(),
         }
+    }
+
+    /// The same estimate with the noise-only standard errors `(E_b, E_d)` that stand in when
+    /// there is no scatter; ignored when the estimate has a standard error already.
+    pub fn with_noise_std_err(mut self, noise: Option<(f64, f64)>) -> Estimate {
+        if self.e_b_std_err.is_none() && self.e_d_std_err.is_none() {
+            self.e_b_noise_std_err = noise.map(|n| n.0);
+            self.e_d_noise_std_err = noise.map(|n| n.1);
+        }
+        self
     }
 }
 
@@ -485,8 +507,9 @@ pub fn estimate(
     };
     let obs = MeanObservation::of(test);
     let correction = point(method, &obs, &ctx)?;
-    let std_err = standard_errors(method, test, &obs, &ctx);
-    Ok(Estimate::of(method, correction, std_err, &ctx.convention))
+    let std_err = standard_errors(method, test, &obs, &ctx, false);
+    let noise = standard_errors(method, test, &obs, &ctx, true);
+    Ok(Estimate::of(method, correction, std_err, &ctx.convention).with_noise_std_err(noise))
 }
 
 /// What a heading sensor measures, which decides what can go wrong with it.
@@ -612,20 +635,27 @@ pub fn estimate_all(
 /// direction states it ([`RunMeasurement::noise_variance_rad2`]): two runs' scatter is often
 /// far below the truth by chance. One run has no standard error: its noise alone would leave
 /// out what changes from run to run on a real floor (slip, a bump, the start), which on
-/// motion-capture recordings is most of it.
+/// motion-capture recordings is most of it. With `noise_only`, the errors the stated noise
+/// alone gives (every run of both directions must state it), for a test with one run in a
+/// direction ([`Estimate::e_b_noise_std_err`]).
 fn standard_errors(
     method: Method,
     test: &SquareTest,
     obs: &MeanObservation,
     ctx: &Context,
+    noise_only: bool,
 ) -> Option<(f64, f64)> {
     let mut cov = SMatrix::<f64, 6, 6>::zeros();
     for (offset, runs) in [(0, &test.cw), (3, &test.ccw)] {
         let n = runs.len() as f64;
+        let noise = noise_variance_of_mean(runs);
+        if noise_only {
+            cov[(offset, offset)] = noise?;
+            continue;
+        }
         if runs.len() < 2 {
             return None;
         }
-        let noise = noise_variance_of_mean(runs);
         let rows: Vec<[f64; 3]> = runs
             .iter()
             .map(|r| {

@@ -49,6 +49,14 @@ pub struct PooledLog {
     pub recording_spread: f64,
     /// Standard error of the pooled value counting both (`(Σ1/(v+τ̂²))^(−1/2)`).
     pub std_err: f64,
+    /// Standard deviation of the **next** recording's estimate of this robot around the pooled
+    /// value: `√(std_err² + τ̂² + ṽ)`, the pooled value's own error, the recording-to-recording
+    /// spread and one recording's scatter (`ṽ`, the median of the recordings' variances). What
+    /// a user should expect a new session to read (a prediction interval, Higgins, Thompson &
+    /// Spiegelhalter 2009, with the new session's own error added). NaN when no recording has a
+    /// scatter.
+    #[serde(default = "nan")]
+    pub prediction_std: f64,
     /// Per-recording values, in input order.
     pub per_recording: Vec<f64>,
     /// Per-recording standard errors used as weights.
@@ -84,6 +92,10 @@ fn physical(p: &WheelParams) -> (f64, f64) {
         (p.right_wheel_diameter_m / p.left_wheel_diameter_m).ln(),
         (p.wheelbase_m / mean_d).ln(),
     )
+}
+
+fn nan() -> f64 {
+    f64::NAN
 }
 
 fn pool_log(y: &[f64], se: &[Option<f64>], runs: &[usize]) -> PooledLog {
@@ -123,6 +135,17 @@ fn pool_log(y: &[f64], se: &[Option<f64>], runs: &[usize]) -> PooledLog {
     let sw_re: f64 = w_re.iter().sum();
     let mean = w_re.iter().zip(y).map(|(w, y)| w * y).sum::<f64>() / sw_re;
     let no_scatter = borrowed.is_none() && se.iter().all(Option::is_none);
+    let std_err = if no_scatter && y.len() < 2 {
+        f64::NAN
+    } else {
+        sw_re.sqrt().recip()
+    };
+    let mut sorted_v = v.clone();
+    sorted_v.sort_by(f64::total_cmp);
+    let typical_v = sorted_v
+        .get(sorted_v.len() / 2)
+        .copied()
+        .unwrap_or(f64::NAN);
     PooledLog {
         mean,
         run_to_run_std_err: if no_scatter {
@@ -131,10 +154,11 @@ fn pool_log(y: &[f64], se: &[Option<f64>], runs: &[usize]) -> PooledLog {
             sw.sqrt().recip()
         },
         recording_spread: tau2.sqrt(),
-        std_err: if no_scatter && y.len() < 2 {
+        std_err,
+        prediction_std: if no_scatter {
             f64::NAN
         } else {
-            sw_re.sqrt().recip()
+            (std_err * std_err + tau2 + typical_v).sqrt()
         },
         per_recording: y.to_vec(),
         per_recording_std_err: v.iter().map(|v| v.sqrt()).collect(),
@@ -256,6 +280,18 @@ impl Pooled {
         UncertaintyKind::of(self.recordings.len())
     }
 
+    /// The standard deviations `(E_b, E_d)` of the next recording's estimate against
+    /// `configured` ([`PooledLog::prediction_std`] on the scale of `estimate`, an
+    /// [`Pooled::estimate_for`] of the same configuration); `None` where no recording had a
+    /// scatter.
+    pub fn prediction_std(&self, estimate: &Estimate) -> (Option<f64>, Option<f64>) {
+        let finite = |x: f64| x.is_finite().then_some(x);
+        (
+            finite(self.ln_wheelbase_over_diameter.prediction_std * estimate.e_b),
+            finite(self.ln_ratio.prediction_std * estimate.e_d),
+        )
+    }
+
     /// The pooled robot as an estimate against `configured` (the parameters it will be written
     /// to), the absolute scale fixed by `convention` as for a single recording. Standard errors
     /// are the pooled ones (run-to-run and recording-to-recording, see the module).
@@ -281,6 +317,8 @@ impl Pooled {
             e_d: correction.e_d(),
             e_b_std_err: finite(self.ln_wheelbase_over_diameter.std_err * e_b),
             e_d_std_err: finite(self.ln_ratio.std_err * e_d),
+            e_b_noise_std_err: None,
+            e_d_noise_std_err: None,
             correction,
             convention: convention.name().to_string(),
         })
@@ -299,6 +337,8 @@ mod tests {
             e_d,
             e_b_std_err: se_b,
             e_d_std_err: se_b.map(|s| s / 10.0),
+            e_b_noise_std_err: None,
+            e_d_noise_std_err: None,
             correction: Correction {
                 left_diameter_scale: 1.0,
                 right_diameter_scale: e_d,

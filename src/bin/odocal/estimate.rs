@@ -1,6 +1,7 @@
 //! `odocal estimate`: calibrate from measurements typed in by hand.
 
-use crate::{pm, print_json, ConventionArgs};
+use crate::stated::{default_line, disagreement_lines, pm_b, pm_d, within_session_legend};
+use crate::{print_json, ConventionArgs};
 use odocal::calibration::uncertainty::{cramer_rao_bound, heading_error_sigma, TestDesign};
 use odocal::calibration::{self, Estimate, Method, RunMeasurement, SquareTest};
 use odocal::kinematics::WheelParams;
@@ -110,12 +111,23 @@ pub fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
             return Err(format!("{flag} must be at most {hi} m, got {v}").into());
         }
     }
-    let test = SquareTest {
+    let mut test = SquareTest {
         side_m: args.side_m,
         wheelbase_m: args.wheelbase_m,
         cw: runs(&args.cw_heading_deg, args.cw_xy_m.as_ref())?,
         ccw: runs(&args.ccw_heading_deg, args.ccw_xy_m.as_ref())?,
     };
+    // A stated sensor noise is each run's noise: a ± is never below what it gives (a few runs'
+    // scatter is often far below it by chance), and one run per direction still gets one.
+    if let Some(s) = args.compass_sigma_deg {
+        if !(s.is_finite() && s > 0.0 && s <= 45.0) {
+            return Err(format!("--heading-sigma-deg must be in (0, 45] deg, got {s}").into());
+        }
+        let v = heading_error_sigma(s.to_radians(), 1).powi(2);
+        for run in test.cw.iter_mut().chain(test.ccw.iter_mut()) {
+            run.noise_variance_rad2 = Some(v);
+        }
+    }
     let convention = args.convention.convention();
     let results: Vec<(Method, Result<Estimate, _>)> = if args.method == "all" {
         // Input no square test can produce is refused before anything is estimated.
@@ -203,26 +215,53 @@ pub fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
         test.ccw.len(),
         convention.name()
     );
+    let default = calibration::default_method(
+        test.has_leg_headings(),
+        test.has_positions(),
+        calibration::HeadingKind::Unknown,
+    );
     println!(
         "{:<13} {:>9} {:>10} {:>9} {:>10}",
-        "method", "E_b", "", "E_d", ""
+        "method", "E_b", "±", "E_d", "±"
     );
     for (e, _) in &rows {
         println!(
-            "{:<13} {:>9.6} {:>10} {:>9.6} {:>10}",
+            "{:<13} {:>9.6} {:>10} {:>9.6} {:>10}{}",
             e.method.name(),
             e.e_b,
-            pm(e.e_b_std_err),
+            pm_b(e),
             e.e_d,
-            pm(e.e_d_std_err)
+            pm_d(e),
+            if Some(e.method) == default {
+                "  (default)"
+            } else {
+                ""
+            }
         );
     }
-    if let Some(c) = crb {
-        println!(
-            "Cramér–Rao bound (std): E_b {:.5}, E_d {:.5}",
+    let estimates: Vec<Estimate> = rows.iter().map(|(e, _)| e.clone()).collect();
+    for line in within_session_legend(&estimates) {
+        println!("{line}");
+    }
+    match crb {
+        Some(c) => println!(
+            "Cramér–Rao bound (std): E_b {:.5}, E_d {:.5}: the least error any method can have \
+             from these headings with {} deg of noise per reading (no stated ± is below what \
+             that noise gives)",
             c[(0, 0)].sqrt(),
-            c[(1, 1)].sqrt()
-        );
+            c[(1, 1)].sqrt(),
+            args.compass_sigma_deg.unwrap_or(f64::NAN)
+        ),
+        None => println!(
+            "(give --heading-sigma-deg, the sensor's noise per reading, for the Cramér–Rao bound \
+             and a ± with one run per direction)"
+        ),
+    }
+    if let Some(m) = default {
+        println!("{}", default_line(m));
+    }
+    for line in disagreement_lines(default, &estimates) {
+        println!("{line}");
     }
     if configured.is_some() {
         println!("\ncorrected parameters (left D, right D, wheelbase, m):");

@@ -14,6 +14,7 @@ mod ros;
 mod routine;
 mod sensor;
 mod simulate;
+mod stated;
 mod track;
 
 use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
@@ -282,11 +283,6 @@ impl HeadingModelArgs {
             .map_err(|(name, value)| format!("heading sensor: {name} = {value} is out of range"))?;
         Ok(m)
     }
-}
-
-/// Formats an optional standard error as `± x` or blank.
-pub fn pm(std_err: Option<f64>) -> String {
-    std_err.map_or_else(String::new, |s| format!("± {s:.5}"))
 }
 
 /// Waits until Ctrl-C, or until stdin closes unless `ignore_stdin` (how a test or a script

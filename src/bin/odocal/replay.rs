@@ -1,8 +1,8 @@
 //! `odocal replay`: calibrate on recorded square sets of one robot (pooled), evaluate on
 //! recorded runs.
 
-use crate::{pm, print_json, ConventionArgs};
-use odocal::calibration::pool::UncertaintyKind;
+use crate::stated::{default_line, disagreement_lines, pm, pm_b, pm_d, within_session_legend};
+use crate::{print_json, ConventionArgs};
 use odocal::offline::dataset::{replay, OptiOdomSet};
 use serde_json::json;
 use std::path::PathBuf;
@@ -81,42 +81,59 @@ pub fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
         calib.configured.right_wheel_diameter_m,
         calib.configured.wheelbase_m
     );
-    println!(
-        "± is {}",
-        match report.uncertainty {
-            UncertaintyKind::RunToRun =>
-                "one standard error from run-to-run scatter (one recording: the recording-to-recording spread is unknown; pool several with repeated --dataset)",
-            UncertaintyKind::RunToRunAndRecordingToRecording =>
-                "one standard error from run-to-run scatter and the recording-to-recording spread (random-effects pooling)",
-        }
-    );
+    let pooled = report.datasets.len() > 1;
+    if pooled {
+        println!(
+            "± is one standard deviation of what the next session of this robot will read \
+             (a prediction: the pooled value's standard error, the session-to-session spread \
+             and one session's own scatter; --json has each quantity's std_err and \
+             prediction_std)"
+        );
+    }
     println!(
         "{:<13} {:>9} {:>10} {:>9} {:>10} {:>16}",
         "method", "E_b", "±", "E_d", "±", "E_b spread"
     );
     for (e, p) in report.estimates.iter().zip(&report.pooled) {
-        let spread = if report.datasets.len() > 1 {
+        let spread = if pooled {
             format!(
                 "{:.5}",
                 p.ln_wheelbase_over_diameter.recording_spread * e.e_b
             )
         } else {
-            "-".into()
+            "—".into()
         };
         let mark = if report.default_method == Some(e.method) {
             "  (default)"
         } else {
             ""
         };
+        let (b, d) = if pooled {
+            let (b, d) = p.prediction_std(e);
+            (pm(b), pm(d))
+        } else {
+            (pm_b(e), pm_d(e))
+        };
         println!(
             "{:<13} {:>9.5} {:>10} {:>9.5} {:>10} {:>16}{mark}",
             e.method.name(),
             e.e_b,
-            pm(e.e_b_std_err),
+            b,
             e.e_d,
-            pm(e.e_d_std_err),
+            d,
             spread
         );
+    }
+    if !pooled {
+        for line in within_session_legend(&report.estimates) {
+            println!("{line}");
+        }
+    }
+    if let Some(m) = report.default_method {
+        println!("{}", default_line(m));
+    }
+    for line in disagreement_lines(report.default_method, &report.estimates) {
+        println!("{line}");
     }
     for (m, e) in &report.failures {
         println!("{m}: not estimated: {e}");

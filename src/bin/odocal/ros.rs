@@ -1,7 +1,9 @@
 //! `odocal bag` (and the ROS flags other commands share): calibrate from a ROS bag.
 
 use crate::print_json;
+use crate::stated::{default_line, disagreement_lines, pm, pm_b, pm_d, within_session_legend};
 use crate::SIM_HEADING_SIGMA_DEG;
+use odocal::calibration::{HeadingKind, Method};
 use odocal::kinematics::SplitConvention;
 use odocal::ros::bag::{self, BagOptions, GeometrySource, RosTopics};
 use odocal::ros::yaml::DiffDriveConfig;
@@ -81,9 +83,10 @@ pub struct BagArgs {
     #[arg(long, default_value = "left-nominal")]
     convention: SplitConvention,
     /// What the IMU's yaw is: magnetic (a compass or a 9-axis fusion: it may deviate), gyro
-    /// (integrated), reference (ground truth) or unknown. It decides the default method.
-    #[arg(long, default_value = "unknown")]
-    heading_kind: odocal::calibration::HeadingKind,
+    /// (integrated), reference (ground truth) or unknown. It decides the default method
+    /// [default: what the bag's `odocal` metadata says (bags odocal wrote), else unknown].
+    #[arg(long)]
+    heading_kind: Option<odocal::calibration::HeadingKind>,
     /// Print one JSON object.
     #[arg(long)]
     json: bool,
@@ -130,8 +133,10 @@ pub fn run(args: BagArgs) -> Result<(), Box<dyn std::error::Error>> {
     }
     let mut reports = Vec::new();
     let mut nominal_of_first = None;
+    let mut kinds = Vec::new();
     for file in &args.files {
         let data = bag::read_bag(file, &opts)?;
+        kinds.push(data.heading_kind);
         let (configured, geometry, nominal) = match (&cfg, &args.ros.ros_yaml) {
             (Some(c), Some(yaml)) => (
                 c.effective(),
@@ -156,7 +161,13 @@ pub fn run(args: BagArgs) -> Result<(), Box<dyn std::error::Error>> {
         )?);
     }
     let nominal = nominal_of_first.unwrap_or((f64::NAN, f64::NAN));
-    let pooled = bag::pool(&reports, nominal, args.convention, args.heading_kind)?;
+    // The kind the user names, else the one every bag's metadata names, else unknown.
+    let (kind, kind_from) = match (args.heading_kind, kinds.first().copied().flatten()) {
+        (Some(k), _) => (k, "--heading-kind"),
+        (None, Some(k)) if kinds.iter().all(|x| *x == Some(k)) => (k, "the bag's metadata"),
+        _ => (HeadingKind::Unknown, "not stated: give --heading-kind"),
+    };
+    let pooled = bag::pool(&reports, nominal, args.convention, kind)?;
     if args.json {
         if let [report] = reports.as_slice() {
             let mut v = serde_json::to_value(report)?;
@@ -172,12 +183,15 @@ pub fn run(args: BagArgs) -> Result<(), Box<dyn std::error::Error>> {
         }));
     }
     for report in &reports {
-        print_bag(report, &args.ros);
+        print_bag(report, &args.ros, pooled.default_method);
     }
+    println!("IMU yaw: {kind} ({kind_from})");
     if reports.len() > 1 {
         println!(
-            "\npooled over {} bags, against {}'s configuration; ± is one standard error from \
-             run-to-run scatter and the bag-to-bag spread",
+            "\npooled over {} bags, against {}'s configuration; ± is one standard deviation of \
+             what the next bag of this robot will read (a prediction: the pooled value's \
+             standard error, the bag-to-bag spread and one bag's own scatter; --json has each \
+             quantity's std_err and prediction_std)",
             reports.len(),
             reports[0].file.display()
         );
@@ -191,13 +205,19 @@ pub fn run(args: BagArgs) -> Result<(), Box<dyn std::error::Error>> {
             } else {
                 ""
             };
+            let (b, d) = pooled
+                .methods
+                .pooled
+                .iter()
+                .find(|p| p.method == e.estimate.method)
+                .map_or((None, None), |p| p.prediction_std(&e.estimate));
             println!(
                 "{:<14}{:>11.6}{:>11}{:>11.6}{:>11}   {:>12.6}{:>12.6}{:>12.6}{mark}",
                 e.estimate.method.name(),
                 e.estimate.e_b,
-                crate::pm(e.estimate.e_b_std_err),
+                pm(b),
                 e.estimate.e_d,
-                crate::pm(e.estimate.e_d_std_err),
+                pm(d),
                 e.multipliers.wheel_separation_multiplier,
                 e.multipliers.left_wheel_radius_multiplier,
                 e.multipliers.right_wheel_radius_multiplier
@@ -206,13 +226,24 @@ pub fn run(args: BagArgs) -> Result<(), Box<dyn std::error::Error>> {
         for (m, bags) in &pooled.methods.missing {
             println!("{:<14}– not estimated on {}", m.name(), bags.join(", "));
         }
-    } else if let Some(m) = pooled.default_method {
-        println!("default method (what calibrate would write): {m}");
+    }
+    if let Some(m) = pooled.default_method {
+        println!("{}", default_line(m));
+    }
+    if reports.len() > 1 {
+        let estimates: Vec<_> = pooled
+            .estimates
+            .iter()
+            .map(|e| e.estimate.clone())
+            .collect();
+        for line in disagreement_lines(pooled.default_method, &estimates) {
+            println!("{line}");
+        }
     }
     Ok(())
 }
 
-fn print_bag(report: &bag::BagReport, ros: &RosArgs) {
+fn print_bag(report: &bag::BagReport, ros: &RosArgs, default: Option<Method>) {
     println!("== {}", report.file.display());
     match &report.geometry {
         GeometrySource::Yaml { file, controller } => println!(
@@ -254,31 +285,49 @@ fn print_bag(report: &bag::BagReport, ros: &RosArgs) {
         println!("note: {n}");
     }
     println!(
-        "\n{:<14}{:>11}{:>11}   {:>12}{:>12}{:>12}",
-        "method", "E_b", "E_d", "sep_mult", "left_mult", "right_mult"
+        "\n{:<14}{:>11}{:>11}{:>11}{:>11}   {:>12}{:>12}{:>12}",
+        "method", "E_b", "±", "E_d", "±", "sep_mult", "left_mult", "right_mult"
     );
     for e in &report.estimates {
         println!(
-            "{:<14}{:>11.6}{:>11.6}   {:>12.6}{:>12.6}{:>12.6}",
+            "{:<14}{:>11.6}{:>11}{:>11.6}{:>11}   {:>12.6}{:>12.6}{:>12.6}{}",
             e.estimate.method.name(),
             e.estimate.e_b,
+            pm_b(&e.estimate),
             e.estimate.e_d,
+            pm_d(&e.estimate),
             e.multipliers.wheel_separation_multiplier,
             e.multipliers.left_wheel_radius_multiplier,
-            e.multipliers.right_wheel_radius_multiplier
+            e.multipliers.right_wheel_radius_multiplier,
+            if default == Some(e.estimate.method) {
+                "  (default)"
+            } else {
+                ""
+            }
         );
+    }
+    let estimates: Vec<_> = report
+        .estimates
+        .iter()
+        .map(|e| e.estimate.clone())
+        .collect();
+    for line in within_session_legend(&estimates) {
+        println!("{line}");
+    }
+    for line in disagreement_lines(default, &estimates) {
+        println!("{line}");
     }
     for (m, why) in &report.failures {
         println!("{:<14}– {why}", m.name());
     }
     if let Some(o) = &report.online {
         println!(
-            "{:<14}{:>11.6}{:>11.6}   ± {:.5}, {:.5} (whole bag, {:.1} m driven, mean NIS {:.2})",
+            "{:<14}{:>11.6}{:>11}{:>11.6}{:>11}   (± is 1σ of the online filter over the whole bag, {:.1} m driven, mean NIS {:.2})",
             "online",
             o.e_b,
+            pm(Some(o.e_b_std)),
             o.e_d,
-            o.e_b_std,
-            o.e_d_std,
+            pm(Some(o.e_d_std)),
             o.distance_m,
             report.online_nis.unwrap_or(f64::NAN)
         );

@@ -210,24 +210,30 @@ fn print_outcome(report: &Report, json_out: bool, files: &[PathBuf]) -> CliResul
     if let Some(r) = report.rounds.last() {
         println!("estimates (round {}):", r.round);
         println!(
-            "{:<13} {:>9} {:>9} {:>9} {:>9}",
+            "{:<13} {:>9} {:>10} {:>9} {:>10}",
             "method", "E_b", "±", "E_d", "±"
         );
         for e in &r.estimates {
-            let f = |v: Option<f64>| v.map_or("–".into(), |v| format!("{v:.5}"));
             println!(
-                "{:<13} {:>9.6} {:>9} {:>9.6} {:>9}{}",
+                "{:<13} {:>9.6} {:>10} {:>9.6} {:>10}{}",
                 e.method.name(),
                 e.e_b,
-                f(e.e_b_std_err),
+                crate::stated::pm_b(e),
                 e.e_d,
-                f(e.e_d_std_err),
+                crate::stated::pm_d(e),
                 if e.method == r.chosen.method {
                     "  ← chosen"
                 } else {
                     ""
                 }
             );
+        }
+        for line in crate::stated::within_session_legend(&r.estimates) {
+            println!("{line}");
+        }
+        println!("chosen: {}, {}", r.chosen.method, r.chosen_because);
+        for line in crate::stated::disagreement_lines(Some(r.chosen.method), &r.estimates) {
+            println!("{line}");
         }
         println!();
     }

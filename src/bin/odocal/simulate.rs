@@ -1,7 +1,8 @@
 //! `odocal simulate`: the paper's simulation study on a configurable robot.
 
+use crate::stated::pm;
 use crate::SIM_HEADING_SIGMA_DEG;
-use crate::{pm, print_json, ConventionArgs};
+use crate::{print_json, ConventionArgs};
 use odocal::kinematics::{SplitConvention, WheelParams};
 use odocal::offline::study::{run_trials, StudyConfig};
 use odocal::sim::NoiseModel;

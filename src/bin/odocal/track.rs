@@ -278,6 +278,10 @@ pub async fn track(args: TrackArgs) -> CliResult {
         c
     };
     if !args.json {
+        println!(
+            "method online (the default with no squares to drive: an extended Kalman filter over \
+             every wheel and heading reading); ± is 1σ of the filter's covariance"
+        );
         println!("{:>9} {:>10}   estimate", "", "driven");
     }
     if args.write_back && (args.log.is_some() || args.dataset.is_some()) {
@@ -308,7 +312,7 @@ pub async fn track(args: TrackArgs) -> CliResult {
             )?),
             None => None,
         };
-        live(
+        let outcome = live(
             &b,
             &mut t,
             args.period_ms,
@@ -317,7 +321,24 @@ pub async fn track(args: TrackArgs) -> CliResult {
             log.as_mut(),
             |e| show(e, args.json, ""),
         )
-        .await?;
+        .await;
+        if let Err(e) = outcome {
+            // Ctrl-C or an error: what was estimated until then is still worth seeing.
+            if let Some(l) = log.as_mut() {
+                let _ = l.flush();
+            }
+            match t.estimate() {
+                Ok(last) if !args.json => {
+                    show(&last, false, "last");
+                    println!(
+                        "(the estimate when tracking stopped, ± 1σ of the online filter; \
+                         nothing written)"
+                    );
+                }
+                _ => {}
+            }
+            return Err(e);
+        }
         if let Some(l) = log.as_mut() {
             l.flush()?;
         }

@@ -372,6 +372,9 @@ pub fn read_container(bag: &dyn Container, opts: &BagOptions) -> Result<BagData,
             .metadata("odocal")
             .and_then(|m| m.get("side_m").and_then(|v| v.parse::<f64>().ok()))
             .filter(|s| s.is_finite() && *s > 0.0),
+        heading_kind: bag
+            .metadata("odocal")
+            .and_then(|m| m.get("heading_kind").and_then(|v| v.parse().ok())),
         notes,
     })
 }

@@ -337,6 +337,8 @@ pub struct BagData {
     pub messages: u64,
     /// `odocal.side_m` from the bag's metadata, if a tool of ours wrote it.
     pub side_m: Option<f64>,
+    /// `odocal.heading_kind` from the bag's metadata, if a tool of ours wrote it.
+    pub heading_kind: Option<crate::calibration::HeadingKind>,
     /// Choices made while reading (a topic found by its type).
     pub notes: Vec<String>,
 }

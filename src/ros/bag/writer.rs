@@ -124,11 +124,21 @@ impl BagWriter {
         self.write(types::ODOMETRY, t, &msg)
     }
 
-    /// Records the square side for `odocal bag` (metadata `odocal.side_m`).
-    pub fn side(&mut self, side_m: f64) -> Result<(), BagError> {
+    /// Records what `odocal bag` cannot find in the messages, in the metadata record `odocal`:
+    /// the square side (`side_m`) and what the IMU's yaw is (`heading_kind`: magnetic, gyro or
+    /// reference), which decides the default method as it does for `calibrate` and `replay`.
+    pub fn describe(
+        &mut self,
+        side_m: Option<f64>,
+        heading_kind: crate::calibration::HeadingKind,
+    ) -> Result<(), BagError> {
+        let mut record = BTreeMap::from([("heading_kind".to_string(), heading_kind.to_string())]);
+        if let Some(side_m) = side_m {
+            record.insert("side_m".to_string(), format!("{side_m}"));
+        }
         let metadata = mcap::records::Metadata {
             name: "odocal".into(),
-            metadata: BTreeMap::from([("side_m".to_string(), format!("{side_m}"))]),
+            metadata: record,
         };
         self.writer
             .write_metadata(&metadata)
@@ -191,7 +201,10 @@ pub fn write_simulated_bag(
     topics: &RosTopics,
 ) -> Result<u64, BagError> {
     let mut w = BagWriter::create(path, topics)?;
-    w.side(cfg.side_m)?;
+    w.describe(
+        Some(cfg.side_m),
+        crate::mock::heading_kind(sim.heading_model()),
+    )?;
     let configured = *sim.configured();
     let sub = (cfg.imu_hz / cfg.joint_hz).round().max(1.0) as u64;
     let dt = 1.0 / (cfg.joint_hz * sub as f64);
@@ -271,9 +284,8 @@ pub fn write_optiodom_bag(
     topics: &RosTopics,
 ) -> Result<u64, BagError> {
     let mut w = BagWriter::create(path, topics)?;
-    if let Some(side) = set.side_m {
-        w.side(side)?;
-    }
+    // Motion capture: the heading is the reference.
+    w.describe(set.side_m, crate::calibration::HeadingKind::Reference)?;
     let p = set.configured;
     let rad_per_count = RAD_PER_REV / p.counts_per_wheel_rev;
     // In radians the configured geometry is the same wheels with 2π "counts" per revolution.
