@@ -183,7 +183,7 @@ pub fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
     println!("E_max,sys before calibration: {before:.4} m");
     println!(
         "{:<13} {:>9} {:>10} {:>9} {:>10} {:>11} {:>11} {:>12}",
-        "method", "E_b", "", "E_d", "", "E_b err pp", "E_d err pp", "E_max,sys m"
+        "method", "E_b", "±", "E_d", "±", "E_b err pp", "E_d err pp", "E_max,sys m"
     );
     for s in &summaries {
         println!(

@@ -83,9 +83,8 @@ pub fn disagreement_lines(default: Option<Method>, estimates: &[Estimate]) -> Ve
         .map(|d| {
             format!(
                 "warning: {} and {} differ in {} by {:+.5} ({:.1} combined standard errors, more \
-                 than {DISAGREEMENT_SIGMAS}): beyond what both state, so at least one ± is too \
-                 small for this robot (the default, {}, models it best); pool several sessions \
-                 before relying on a ±",
+                 than {DISAGREEMENT_SIGMAS}): more than both state, so one of them is biased on \
+                 this robot or states too small a ±; {} is the default",
                 d.other, d.method, d.quantity, d.difference, d.sigmas, d.method
             )
         })
