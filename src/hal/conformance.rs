@@ -99,7 +99,7 @@ pub enum ConformanceError {
     #[error("the link failed: {0}")]
     Io(#[from] std::io::Error),
     /// The device did not answer a request of the harness's own.
-    #[error("no answer to {what} within {after:?} (sent twice)")]
+    #[error("no answer to {what} within {} (sent twice)", crate::io::seconds(.after))]
     Silent {
         /// The request.
         what: &'static str,

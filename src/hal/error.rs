@@ -17,7 +17,7 @@ pub enum LinkError {
     #[error("the link closed")]
     Closed,
     /// No answer after every retry.
-    #[error("no answer to message 0x{msg:02X} after {attempts} attempts ({after:?})")]
+    #[error("no answer to message 0x{msg:02X} after {attempts} attempts ({})", crate::io::seconds(.after))]
     Timeout {
         /// The request's message id.
         msg: u8,
@@ -44,7 +44,7 @@ pub enum LinkError {
         host: u8,
     },
     /// Bytes arrive but none forms a frame of this protocol.
-    #[error("{bytes} bytes arrived in {after:.1?} but none forms an odocal frame: wrong baud rate (this link runs at {baud}; try --baud), or not an odocal device on this port")]
+    #[error("{bytes} bytes arrived in {} but none forms an odocal frame: wrong baud rate (this link runs at {baud}; try --baud), or not an odocal device on this port", crate::io::seconds(.after))]
     NotOdocal {
         /// Bytes received and skipped.
         bytes: u64,
@@ -54,7 +54,7 @@ pub enum LinkError {
         baud: u32,
     },
     /// Nothing at all arrives.
-    #[error("nothing arrived in {after:.1?} at {baud} baud: is the device powered, on this port, and does it speak the odocal protocol?")]
+    #[error("nothing arrived in {} at {baud} baud: is the device powered, on this port, and does it speak the odocal protocol?", crate::io::seconds(.after))]
     Silent {
         /// Time the handshake was tried.
         after: Duration,
@@ -99,7 +99,7 @@ pub enum HalError {
         source: Arc<tokio_serial::Error>,
     },
     /// A motion did not finish in the time it should take.
-    #[error("motion {motion_id} did not finish within {after:?}")]
+    #[error("motion {motion_id} did not finish within {}", crate::io::seconds(.after))]
     MotionTimeout {
         /// The motion.
         motion_id: u16,

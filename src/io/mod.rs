@@ -34,3 +34,14 @@ pub const SIZE_BOUNDS: [(&str, u64); 3] = [
         MAX_BAG_FILE,
     ),
 ];
+
+/// A duration as a person reads it in a message: "250 ms", "1.5 s" (never Rust's `Debug`
+/// form).
+pub fn seconds(d: &std::time::Duration) -> String {
+    let s = d.as_secs_f64();
+    if s < 1.0 {
+        format!("{} ms", d.as_millis())
+    } else {
+        format!("{s:.1} s")
+    }
+}

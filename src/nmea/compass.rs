@@ -282,9 +282,9 @@ impl HeadingSource for NmeaCompass {
                     time_s: 0.0,
                     heading_rad: 0.0,
                     validity: Validity::Invalid(format!(
-                        "stale: no valid heading sentence on {} within {:?} ({} used, {} bad checksums, {} malformed{})",
+                        "stale: no valid heading sentence on {} within {} ({} used, {} bad checksums, {} malformed{})",
                         self.label,
-                        wait,
+                        crate::io::seconds(&wait),
                         stats.headings,
                         stats.bad_checksums,
                         stats.malformed,

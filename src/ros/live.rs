@@ -391,12 +391,14 @@ async fn wait_first<T>(
         .unwrap_or_default();
     if let Some(why) = rejects.describe(&topic) {
         return Err(RosbridgeError::Timeout(format!(
-            "no usable message on {topic} within {timeout:?}: {why}"
+            "no usable message on {topic} within {}: {why}",
+            crate::io::seconds(&timeout)
         )));
     }
     Err(RosbridgeError::Timeout(format!(
-        "no message on {topic} within {timeout:?}: is the robot's driver running and the topic \
-         name right (a flag or the routine file sets it)?{topics}"
+        "no message on {topic} within {}: is the robot's driver running and the topic \
+         name right (a flag or the routine file sets it)?{topics}",
+        crate::io::seconds(&timeout)
     )))
 }
 

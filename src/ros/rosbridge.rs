@@ -104,7 +104,7 @@ impl RosbridgeClient {
             .await
             .map_err(|_| RosbridgeError::Connect {
                 url: url.into(),
-                reason: format!("no answer within {timeout:?}"),
+                reason: format!("no answer within {}", crate::io::seconds(&timeout)),
             })?
             .map_err(|e| RosbridgeError::Connect {
                 url: url.into(),
@@ -287,7 +287,8 @@ impl RosbridgeClient {
         lock(&self.pending).remove(&id);
         match answer {
             Err(_) => Err(RosbridgeError::Timeout(format!(
-                "service {service} did not answer within {timeout:?}"
+                "service {service} did not answer within {}",
+                crate::io::seconds(&timeout)
             ))),
             Ok(Err(_)) => Err(RosbridgeError::Closed("the connection ended".into())),
             Ok(Ok(Err(reason))) => Err(RosbridgeError::Service {
