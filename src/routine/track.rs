@@ -182,10 +182,14 @@ pub struct TrackOutcome {
     pub recording: Recording,
     /// Motions of the path driven.
     pub motions_driven: usize,
+    /// Whether `cancel` ended it (Ctrl-C: the usual way to end tracking without a path or a
+    /// duration); what arrived until then is kept.
+    pub cancelled: bool,
 }
 
 /// **Moves the robot when `opts.path` is given**: tracks `base` live with `tracker` until the
-/// path is driven, `opts.duration` passes or `cancel` fires; hands every sample to `sink` and
+/// path is driven, `opts.duration` passes or `cancel` fires (not an error: the outcome says
+/// [`TrackOutcome::cancelled`]; the base is stopped either way); hands every sample to `sink` and
 /// every checkpoint to `on_checkpoint`. At the end the streams' clock offset is checked (and
 /// reported in the tracker, not corrected: live samples cannot be re-read).
 pub async fn track_live(
@@ -226,6 +230,7 @@ pub async fn track_live(
             ..Recording::default()
         },
         motions_driven: 0,
+        cancelled: false,
     };
     let plan = opts
         .path
@@ -296,7 +301,10 @@ pub async fn track_live(
                 }
             }
             () = &mut deadline => break Ok(()),
-            () = cancel.cancelled() => break Err(RoutineError::Cancelled),
+            () = cancel.cancelled() => {
+                outcome.cancelled = true;
+                break Ok(());
+            }
         }
     };
     if opts.path.is_some() {

@@ -167,6 +167,9 @@ pub async fn record(args: RecordArgs) -> CliResult {
     )
     .await?;
     log.flush()?;
+    if outcome.cancelled {
+        eprintln!("stopped by Ctrl-C");
+    }
     let rec = &outcome.recording;
     if rec.travel.is_empty() {
         return Err(format!(
@@ -288,6 +291,7 @@ pub async fn track(args: TrackArgs) -> CliResult {
         return Err("--write-back writes to a live robot: give --port or --base".into());
     }
     let mut base = None;
+    let mut stopped_by_user = false;
     let (tracker, configured) = if let Some(dir) = &args.dataset {
         let set = OptiOdomSet::load(dir)?;
         let mut t = Tracker::new(config(set.configured), scale, args.every_m)?;
@@ -322,23 +326,30 @@ pub async fn track(args: TrackArgs) -> CliResult {
             |e| show(e, args.json, ""),
         )
         .await;
-        if let Err(e) = outcome {
-            // Ctrl-C or an error: what was estimated until then is still worth seeing.
-            if let Some(l) = log.as_mut() {
-                let _ = l.flush();
-            }
-            match t.estimate() {
-                Ok(last) if !args.json => {
-                    show(&last, false, "last");
-                    println!(
-                        "(the estimate when tracking stopped, ± 1σ of the online filter; \
-                         nothing written)"
-                    );
+        let outcome = match outcome {
+            Ok(o) => o,
+            Err(e) => {
+                // An error: what was estimated until then is still worth seeing.
+                if let Some(l) = log.as_mut() {
+                    let _ = l.flush();
                 }
-                _ => {}
+                match t.estimate() {
+                    Ok(last) if !args.json => {
+                        show(&last, false, "last");
+                        println!(
+                            "(the estimate when tracking stopped, ± 1σ of the online filter; \
+                         nothing written)"
+                        );
+                    }
+                    _ => {}
+                }
+                return Err(e);
             }
-            return Err(e);
+        };
+        if outcome.cancelled && !args.json {
+            println!("stopped by Ctrl-C (the robot is stopped)");
         }
+        stopped_by_user = outcome.cancelled;
         if let Some(l) = log.as_mut() {
             l.flush()?;
         }
@@ -352,7 +363,9 @@ pub async fn track(args: TrackArgs) -> CliResult {
     let excitation = tracker.filter().excitation(scale)?;
     let mut written = None;
     if let (true, Some(base)) = (args.write_back, &base) {
-        if last.e_b_std < args.max_std && last.e_d_std < args.max_std {
+        if stopped_by_user {
+            eprintln!("not written: tracking was stopped by Ctrl-C");
+        } else if last.e_b_std < args.max_std && last.e_d_std < args.max_std {
             let new = last.correction.apply(&configured)?;
             let policy = if args.drive.yes {
                 WritePolicy::Yes
