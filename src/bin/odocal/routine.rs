@@ -189,6 +189,7 @@ fn print_outcome(report: &Report, json_out: bool, files: &[PathBuf]) -> CliResul
                 if let Some(obj) = run.as_object_mut() {
                     obj.remove("odometry_path");
                     obj.remove("true_path");
+                    obj.remove("samples");
                 }
             }
         };
@@ -202,7 +203,7 @@ fn print_outcome(report: &Report, json_out: bool, files: &[PathBuf]) -> CliResul
             obj.insert("report_files".into(), json!(files));
             obj.insert(
                 "paths".into(),
-                json!("odometry_path and true_path of each run are in report.json"),
+                json!("odometry_path, true_path and samples of each run are in report.json"),
             );
         }
         return print_json(&v);
