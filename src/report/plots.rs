@@ -5,9 +5,11 @@
 //! Each plot is written only when the report holds its data.
 //!
 //! Every plot follows one key: one colour per direction ([`colour`]: clockwise blue,
-//! counter-clockwise orange), before (round 1) drawn in a light tint of it and after (the
-//! verification) in full; every run is drawn; where both axes are metres a metre spans as many pixels across as
-//! up; legends sit in a margin of their own, never over the data or stretching an axis.
+//! counter-clockwise orange). Where phases share a chart, before (round 1) is a light tint of
+//! it and after (the verification) full; the paths give each phase a panel and use the tints
+//! for the truth, the belief and the correction instead. Every run is drawn; where both axes
+//! are metres a metre spans as many pixels across as up; legends sit in a margin of their own,
+//! never over the data or stretching an axis, and list only the styles drawn.
 
 use crate::kinematics::{Direction, Pose, WheelParams};
 use crate::routine::report::{e_max_sys, Report, RunReport};
@@ -280,6 +282,9 @@ impl PathKind {
     }
 }
 
+/// One line of the paths plot: what it is, whose colour, its points (m).
+type Trace = (PathKind, Direction, Vec<[f64; 2]>);
+
 /// Round 1's runs (before) and the verification's (after), one panel each on its own equal
 /// scale: what the odometry believed during each run (its configured parameters), the same
 /// wheel travel re-integrated with the written parameters where they differ, and in simulation
@@ -289,7 +294,7 @@ fn paths_plot(report: &Report, file: &Path) -> PlotResult<bool> {
     let (before, after) = phases(report);
     let written = &report.final_params;
     // (panel title, traces as (kind, direction, points)), in drawing order: truth beneath.
-    let mut panels: Vec<(String, Vec<(PathKind, Direction, Vec<[f64; 2]>)>)> = Vec::new();
+    let mut panels: Vec<(String, Vec<Trace>)> = Vec::new();
     for (phase, runs) in [
         ("before (round 1)", before),
         ("after (verification)", after),

@@ -126,9 +126,9 @@ pub struct RunReport {
     pub travel_samples: usize,
     /// Heading samples streamed during the run.
     pub heading_samples: usize,
-    /// The run as streamed, decimated to at most [`PATH_POINTS`] samples: what the report's
-    /// plots re-integrate with other parameters and read the heading along the legs from.
-    /// Empty in reports written before it existed, and when the drive did not stream.
+    /// The run as streamed, decimated to at most 400 samples (as the paths are): what the
+    /// report's plots re-integrate with other parameters and read the heading along the legs
+    /// from. Empty in reports written before it existed, and when the drive did not stream.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub samples: Vec<RunSample>,
     /// How completely the heading stream covered the run (a stream that lost or delayed
