@@ -337,3 +337,40 @@ async fn the_estimate_of_each_round_carries_its_standard_error() {
     assert!(svg.contains("within the round"), "what the ± is");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[tokio::test]
+async fn without_a_write_the_paths_show_the_proposal_and_say_so() {
+    let mut report = calibrated("proposed").await;
+    // As a dry run leaves it: the store unchanged, round 1's proposal not written.
+    report.written = false;
+    report.final_params = report.original_params;
+    for round in &mut report.rounds {
+        round.written = false;
+    }
+    let proposal = report.rounds[0]
+        .params_after
+        .expect("round 1 proposes a correction");
+    let dir = common::scratch("plots-proposed");
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap_or_else(|e| panic!("{e}"));
+    write_all(&report, &dir).unwrap_or_else(|e| panic!("{e}"));
+    check_legend(&dir.join("paths.svg"));
+    let svg = std::fs::read_to_string(dir.join("paths.svg")).unwrap_or_else(|e| panic!("{e}"));
+    assert!(
+        svg.contains("with proposed parameters"),
+        "named as a proposal"
+    );
+    assert!(svg.contains("proposed: not written"));
+    assert!(!svg.contains("with written parameters"));
+    // The proposal moves round 1's ends as the written parameters did.
+    for run in &report.rounds[0].runs {
+        let c = reintegrated(run, &proposal).expect("samples");
+        let truth = run.true_final_xy_m.expect("simulation");
+        assert!(
+            distance(c[c.len() - 1], truth) < 0.2,
+            "{:?}",
+            c[c.len() - 1]
+        );
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}

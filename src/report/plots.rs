@@ -282,17 +282,30 @@ impl PathKind {
     }
 }
 
+/// The parameters the paths are re-integrated with, and whether they were only proposed: the
+/// written ones (the store's at the end), or when nothing was written the last proposal (a
+/// dry run or a declined write still shows what it would have changed), else the final ones.
+fn correction_target(report: &Report) -> (WheelParams, bool) {
+    if report.written {
+        return (report.final_params, false);
+    }
+    let proposal = report.rounds.iter().rev().find_map(|r| r.params_after);
+    proposal.map_or((report.final_params, false), |p| (p, true))
+}
+
 /// One line of the paths plot: what it is, whose colour, its points (m).
 type Trace = (PathKind, Direction, Vec<[f64; 2]>);
 
 /// Round 1's runs (before) and the verification's (after), one panel each on its own equal
 /// scale: what the odometry believed during each run (its configured parameters), the same
-/// wheel travel re-integrated with the written parameters where they differ, and in simulation
+/// wheel travel re-integrated with the written parameters where they differ (the proposed
+/// ones when nothing was written: [`correction_target`]), and in simulation
 /// the true path beneath. On a real robot the belief is always close to a square; the
 /// re-integrated path shows where the corrected odometry says the robot went.
 fn paths_plot(report: &Report, file: &Path) -> PlotResult<bool> {
     let (before, after) = phases(report);
-    let written = &report.final_params;
+    let (target, proposed) = correction_target(report);
+    let written = &target;
     // (panel title, traces as (kind, direction, points)), in drawing order: truth beneath.
     let mut panels: Vec<(String, Vec<Trace>)> = Vec::new();
     for (phase, runs) in [
@@ -326,6 +339,15 @@ fn paths_plot(report: &Report, file: &Path) -> PlotResult<bool> {
     if panels.is_empty() {
         return Ok(false);
     }
+    for (title, traces) in &mut panels {
+        if !traces.iter().any(|t| t.0 == PathKind::Corrected) {
+            title.push_str(if proposed {
+                ": ran with the proposed parameters"
+            } else {
+                ": ran with the written parameters"
+            });
+        }
+    }
     let size = (LEGEND_PX + 560 * panels.len() as u32, 620);
     let root = SVGBackend::new(file, size).into_drawing_area();
     root.fill(&WHITE)?;
@@ -351,14 +373,17 @@ fn paths_plot(report: &Report, file: &Path) -> PlotResult<bool> {
     for d in [Direction::Cw, Direction::Ccw] {
         for kind in [PathKind::Truth, PathKind::Believed, PathKind::Corrected] {
             if used.contains(&(kind, d)) {
-                entries.push((kind.label(d), Mark::Line(kind.style(d))));
+                let mut label = kind.label(d);
+                if proposed && kind == PathKind::Corrected {
+                    label = format!("{d}: with proposed parameters");
+                }
+                entries.push((label, Mark::Line(kind.style(d))));
             }
         }
     }
     entries.push(("start of every square".into(), Mark::Cross));
-    if !used.iter().any(|(k, _)| *k == PathKind::Corrected) {
-        entries.push(("ran with the written".into(), Mark::Note));
-        entries.push(("parameters: one odometry".into(), Mark::Note));
+    if proposed {
+        entries.push(("proposed: not written".into(), Mark::Note));
     }
     entries.push(("every run drawn; equal scales".into(), Mark::Note));
     legend(&side, &entries)?;
