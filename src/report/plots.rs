@@ -11,7 +11,7 @@
 //! are metres a metre spans as many pixels across as up; legends sit in a margin of their own,
 //! never over the data or stretching an axis, and list only the styles drawn.
 
-use crate::kinematics::{Direction, Pose, WheelParams};
+use crate::kinematics::{Direction, Displacement, Pose, WheelParams};
 use crate::routine::report::{e_max_sys, Report, RunReport};
 use plotters::coord::types::RangedCoordf64;
 use plotters::coord::Shift;
@@ -586,8 +586,9 @@ fn heading_along(run: &RunReport) -> Option<(Vec<(f64, f64)>, f64)> {
         let Some(h) = s.heading_rad.filter(|h| h.is_finite()) else {
             continue;
         };
-        let distance = 0.5 * (s.left_m + s.right_m);
-        let error = h - (s.right_m - s.left_m) / b;
+        // The odometry from the run's start, as the `legs` method counts it.
+        let odometry = Displacement::of_wheels(s.left_m, s.right_m, b);
+        let (distance, error) = (odometry.distance_m, h - odometry.turn_rad);
         let (d0, e0) = *zero.get_or_insert((distance, error));
         out.push((distance - d0, (error - e0).to_degrees()));
     }
