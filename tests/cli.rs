@@ -248,8 +248,25 @@ fn demo_json_reports_a_tenfold_improvement_and_writes_files() {
         .unwrap()
         .iter()
         .any(|e| e["method"] == "exact"));
-    for f in odocal::report::REPORT_FILES {
+    // Every file but the plots always; each plot when its data is there (report.md links
+    // those drawn).
+    let md = std::fs::read_to_string(dir.join("report.md")).unwrap();
+    let plots: Vec<&str> = odocal::report::REPORT_FILES
+        .into_iter()
+        .filter(|f| !f.ends_with(".svg") || md.contains(&format!("({f})")))
+        .collect();
+    for f in &plots {
         assert!(dir.join(f).is_file(), "{f} not written");
+    }
+    let plots = plots.iter().filter(|f| f.ends_with(".svg")).count();
+    for f in [
+        "paths.svg",
+        "heading_errors.svg",
+        "end_points.svg",
+        "estimates.svg",
+        "heading_along_legs.svg",
+    ] {
+        assert!(dir.join(f).is_file(), "{f}: the demo has its data");
     }
     // report.html stands alone: plots inline, nothing fetched, tags balanced (checked by
     // structure here, and in a headless browser when one is installed: see below).
@@ -257,8 +274,8 @@ fn demo_json_reports_a_tenfold_improvement_and_writes_files() {
     assert!(html.starts_with("<!DOCTYPE html>"), "{}", &html[..50]);
     assert_eq!(
         html.matches("<figure><svg").count(),
-        3,
-        "three plots inline"
+        plots,
+        "every plot inline"
     );
     assert!(!html.contains("<img") && !html.contains(" src=") && !html.contains("<?xml"));
     for tag in ["table", "figure", "ul", "pre", "h2", "svg", "html", "body"] {
@@ -269,18 +286,22 @@ fn demo_json_reports_a_tenfold_improvement_and_writes_files() {
         );
     }
     assert!(html.contains("<th>method</th>") && html.contains("(chosen)"));
-    // Every run of round 1 and of the verification is a trace on the paths plot (two, with
-    // the simulation's true path).
+    // Every run of round 1 and of the verification is a trace on the paths plot as the
+    // odometry believed it, with the simulation's true path, and again with the written
+    // parameters when it ran with others.
     let runs = on_disk["rounds"][0]["runs"]
         .as_array()
         .unwrap()
         .iter()
         .chain(on_disk["verification"].as_array().unwrap());
     let traces: usize = runs
-        .map(|r| 1 + usize::from(r["true_path"].is_array()))
+        .map(|r| {
+            1 + usize::from(r["true_path"].is_array())
+                + usize::from(r["params"] != on_disk["final_params"])
+        })
         .sum();
     assert!(traces >= 16, "{traces}");
-    opens_in_a_browser_with_its_plots_and_fetches_nothing(&dir.join("report.html"), traces);
+    opens_in_a_browser_with_its_plots_and_fetches_nothing(&dir.join("report.html"), plots, traces);
     // The report exports for ros2_control.
     let yaml = dir.join("diff_drive.yaml");
     let (ok, _, err) = odocal(&[
@@ -909,7 +930,11 @@ fn chromium() -> Option<PathBuf> {
 /// what the page itself saw once loaded: how many plots, how many drawn at a real size, how
 /// many run traces the first (the paths) shows on screen, how many resources were fetched.
 /// Skipped, with a notice, where no browser is installed.
-fn opens_in_a_browser_with_its_plots_and_fetches_nothing(page: &std::path::Path, traces: usize) {
+fn opens_in_a_browser_with_its_plots_and_fetches_nothing(
+    page: &std::path::Path,
+    plots: usize,
+    traces: usize,
+) {
     let Some(browser) = chromium() else {
         eprintln!("NOTICE: no headless Chromium; report.html checked by structure only");
         return;
@@ -964,7 +989,7 @@ fn opens_in_a_browser_with_its_plots_and_fetches_nothing(page: &std::path::Path,
         });
     assert_eq!(
         seen,
-        format!("svgs=3 drawn=3 traces={traces} fetched=0"),
+        format!("svgs={plots} drawn={plots} traces={traces} fetched=0"),
         "report.html in Chromium"
     );
     let _ = std::fs::remove_file(&probe);

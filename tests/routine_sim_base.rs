@@ -7,6 +7,7 @@ use odocal::base::transaction::read_backup;
 use odocal::base::{Base, GroundTruth};
 use odocal::kinematics::WheelParams;
 use odocal::mock::{SimBase, SimFaults};
+use odocal::report::plots::reintegrated;
 use odocal::routine::config::{RoutineConfig, WritePolicy};
 use odocal::routine::{run, Report, RoutineError, Unattended};
 use tokio_util::sync::CancellationToken;
@@ -174,20 +175,31 @@ fn the_plots_show_every_run_by_direction_on_equal_axes(report: &Report) {
         .collect();
     assert!(runs.len() >= 16, "{} runs", runs.len());
 
-    // Paths: the true paths, then the odometry, each round 1's runs then the verification's.
+    // Paths, one panel per phase (round 1, then the verification): the true paths, then what
+    // the odometry believed, then the same travel with the written parameters where the run
+    // was driven with others.
     let drawn = traces(&read("paths.svg"));
-    let expected: Vec<(Direction, &[[f64; 2]])> = runs
-        .iter()
-        .map(|r| (r.direction, r.true_path.as_deref().unwrap()))
-        .chain(
+    let written = report.final_params;
+    let mut expected: Vec<(Direction, Vec<[f64; 2]>)> = Vec::new();
+    for runs in [&report.rounds[0].runs, &report.verification] {
+        expected.extend(
             runs.iter()
-                .map(|r| (r.direction, r.odometry_path.as_slice())),
-        )
-        .collect();
-    assert_eq!(drawn.len(), expected.len(), "every run's two traces drawn");
-    // One colour per direction: one hue, lighter before than after.
+                .map(|r| (r.direction, r.true_path.clone().unwrap())),
+        );
+        expected.extend(
+            runs.iter()
+                .map(|r| (r.direction, reintegrated(r, &r.params).unwrap())),
+        );
+        expected.extend(
+            runs.iter()
+                .filter(|r| r.params != written)
+                .map(|r| (r.direction, reintegrated(r, &written).unwrap())),
+        );
+    }
+    assert!(report.rounds[0].runs.iter().all(|r| r.params != written));
+    assert_eq!(drawn.len(), expected.len(), "every run's traces drawn");
+    // One colour per direction: one hue, in three tints (truth, belief, correction).
     let mut hues: [Vec<f64>; 2] = [Vec::new(), Vec::new()];
-    let scale = px_per_m(expected[0].1, &drawn[0].1)[0];
     for ((stroke, pixels), (direction, metres)) in drawn.iter().zip(&expected) {
         // A clockwise square lies to the right of its first leg: below its start on screen.
         let below = pixels.iter().map(|p| p[1] - pixels[0][1]).sum::<f64>() > 0.0;
@@ -197,12 +209,11 @@ fn the_plots_show_every_run_by_direction_on_equal_axes(report: &Report) {
             "{direction} drawn the other way"
         );
         hues[usize::from(*direction == Direction::Ccw)].push(hue(stroke));
-        for s in px_per_m(metres, pixels) {
-            assert!(
-                (s / scale - 1.0).abs() < 0.02,
-                "{s:.1} px/m against {scale:.1}: paths drawn out of shape"
-            );
-        }
+        let [x, y] = px_per_m(metres, pixels);
+        assert!(
+            (x / y - 1.0).abs() < 0.02,
+            "{x:.1} px/m across, {y:.1} px/m up: paths drawn out of shape"
+        );
     }
     let range = |h: &[f64]| {
         h.iter().fold(f64::MIN, |a, &b| a.max(b)) - h.iter().fold(f64::MAX, |a, &b| a.min(b))
@@ -212,8 +223,8 @@ fn the_plots_show_every_run_by_direction_on_equal_axes(report: &Report) {
     let strokes: std::collections::BTreeSet<&str> = drawn.iter().map(|t| t.0.as_str()).collect();
     assert_eq!(
         strokes.len(),
-        4,
-        "each direction before and after: {strokes:?}"
+        6,
+        "each direction's truth, belief and correction: {strokes:?}"
     );
 
     // End points: round 1's then the verification's, clockwise first; legend dots after.
@@ -386,17 +397,23 @@ async fn a_report_without_ground_truth_has_no_empty_rows_and_reads_as_words() {
             .count();
         assert_eq!(whole_with_point, 0, "{}", file.display());
     }
-    // Without a truth the odometry alone: every run of round 1 and the verification, on
-    // equal scales.
+    // Without a truth the odometry alone: every run of round 1 and the verification as the
+    // odometry believed it, and round 1's with the written parameters, on equal scales.
     let drawn = traces(&std::fs::read_to_string(dir.join("paths.svg")).unwrap());
-    let runs: Vec<_> = report.rounds[0]
-        .runs
-        .iter()
-        .chain(&report.verification)
-        .collect();
-    assert_eq!(drawn.len(), runs.len());
-    for (run, (_, pixels)) in runs.iter().zip(&drawn) {
-        let [x_scale, y_scale] = px_per_m(&run.odometry_path, pixels);
+    let written = report.final_params;
+    let mut expected: Vec<Vec<[f64; 2]>> = Vec::new();
+    for runs in [&report.rounds[0].runs, &report.verification] {
+        expected.extend(runs.iter().map(|r| reintegrated(r, &r.params).unwrap()));
+        expected.extend(
+            runs.iter()
+                .filter(|r| r.params != written)
+                .map(|r| reintegrated(r, &written).unwrap()),
+        );
+    }
+    assert!(report.written);
+    assert_eq!(drawn.len(), expected.len());
+    for (metres, (_, pixels)) in expected.iter().zip(&drawn) {
+        let [x_scale, y_scale] = px_per_m(metres, pixels);
         assert!(
             (x_scale / y_scale - 1.0).abs() < 0.02,
             "{x_scale:.1} px/m across, {y_scale:.1} px/m up: the square is drawn out of shape"

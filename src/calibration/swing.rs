@@ -227,7 +227,16 @@ pub struct SwingFit {
     pub direction_difference_rad: f64,
     /// Readings used.
     pub points: usize,
+    /// The deviation each reading measured, `(ψ, h − a_j − s·φ)` (rad, ψ in [0, 2π)): the
+    /// fitted curve's data, at most [`MEASURED_POINTS`] of them evenly through the readings,
+    /// for a report to show the curve against. Empty in fits stored before it existed.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub measured: Vec<[f64; 2]>,
 }
+
+/// Most measured points a [`SwingFit`] keeps (a reading every degree or so of two turns each
+/// way).
+pub const MEASURED_POINTS: usize = 720;
 
 impl SwingFit {
     /// Advice when the deviation is large enough to deal with at its source, else `None`.
@@ -271,6 +280,8 @@ struct Solution {
     scale: f64,
     scale_std_err: f64,
     offsets: Vec<f64>,
+    /// Each turn's start as fitted, not wrapped: the readings are unwrapped against it.
+    offsets_unwrapped: Vec<f64>,
     residual_rms: f64,
 }
 
@@ -342,8 +353,22 @@ fn solve(rows: &[(usize, f64, f64)], nt: usize) -> Result<Solution, SwingError> 
         scale: solution[nt],
         scale_std_err: se(nt),
         offsets: (0..nt).map(|j| wrap_angle(solution[j])).collect(),
+        offsets_unwrapped: (0..nt).map(|j| solution[j]).collect(),
         residual_rms: (rss / n as f64).sqrt(),
     })
+}
+
+/// Every `MEASURED_POINTS`-th reading's measured deviation at its fitted heading: the reading
+/// less the fitted line of its turn (what is left is the curve plus the noise).
+fn measured(rows: &[(usize, f64, f64)], s: &Solution) -> Vec<[f64; 2]> {
+    let step = rows.len().div_ceil(MEASURED_POINTS).max(1);
+    rows.iter()
+        .step_by(step)
+        .map(|&(j, phi, h)| {
+            let line = s.offsets_unwrapped[j] + s.scale * phi;
+            [line.rem_euclid(TAU), wrap_angle(h - line)]
+        })
+        .collect()
 }
 
 fn direction_name(counter_clockwise: bool) -> &'static str {
@@ -479,6 +504,7 @@ pub fn fit(turns: &[Vec<SwingPoint>], noise_std_rad: Option<f64>) -> Result<Swin
             max_error: 100.0 * MAX_SCALE_ERROR,
         });
     }
+    let measured = measured(&rows, &all);
     Ok(SwingFit {
         deviation: all.deviation,
         deviation_std_err_rad: all.std_err,
@@ -490,6 +516,7 @@ pub fn fit(turns: &[Vec<SwingPoint>], noise_std_rad: Option<f64>) -> Result<Swin
         residual_rms_rad: all.residual_rms,
         direction_difference_rad: difference,
         points: rows.len(),
+        measured,
     })
 }
 

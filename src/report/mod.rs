@@ -152,12 +152,64 @@ pub fn markdown(report: &Report) -> String {
         }
         s.push('\n');
     }
-    let _ = writeln!(
-        s,
-        "## Plots\n\n![paths](paths.svg)\n\n![heading errors](heading_errors.svg)\n\n\
-         ![end points](end_points.svg)\n"
-    );
+    let _ = writeln!(s, "## Plots\n");
+    for (title, file) in plot_links(report) {
+        let _ = writeln!(s, "![{title}]({file})\n");
+    }
     s
+}
+
+/// The plots the Markdown report links: those whose data the report holds (the plots module
+/// writes the same set), so that no link points at a file that was never drawn.
+fn plot_links(report: &Report) -> Vec<(&'static str, &'static str)> {
+    let every = || {
+        report
+            .rounds
+            .iter()
+            .flat_map(|r| r.runs.iter())
+            .chain(&report.verification)
+    };
+    // The paths, end points and heading along the legs are drawn for round 1 and the
+    // verification only.
+    let phases = || {
+        report
+            .rounds
+            .first()
+            .into_iter()
+            .flat_map(|r| r.runs.iter())
+            .chain(&report.verification)
+    };
+    let mut links = Vec::new();
+    if phases().any(|r| {
+        r.odometry_path.len() > 1
+            || r.samples.len() > 1
+            || r.true_path.as_ref().is_some_and(|t| t.len() > 1)
+    }) {
+        links.push(("paths", "paths.svg"));
+    }
+    if every().next().is_some() {
+        links.push(("heading errors", "heading_errors.svg"));
+    }
+    if phases().any(|r| r.true_final_xy_m.is_some()) {
+        links.push(("end points", "end_points.svg"));
+    }
+    if !report.rounds.is_empty() {
+        links.push(("estimate per round", "estimates.svg"));
+    }
+    if report.swing.is_some() {
+        links.push(("compass deviation", "swing.svg"));
+    }
+    let with_heading = |r: &crate::routine::report::RunReport| {
+        r.samples
+            .iter()
+            .filter(|s| s.heading_rad.is_some_and(f64::is_finite))
+            .count()
+            > 1
+    };
+    if phases().any(with_heading) {
+        links.push(("heading along the legs", "heading_along_legs.svg"));
+    }
+    links
 }
 
 /// Which method's estimate was written, from which round(s), and why; or why nothing was.

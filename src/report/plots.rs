@@ -1,12 +1,17 @@
-//! SVG plots of a report (plotters): the square runs' paths, the heading errors of each phase,
-//! the true end points.
+//! SVG plots of a report (plotters): this module owns drawing a [`Report`] as SVG files. The
+//! square runs' paths (as the odometry believed them and re-integrated with the written
+//! parameters), the heading errors of each phase, the true end points (simulation), the
+//! estimate of each round, the compass swing's deviation curve and the heading along the legs.
+//! Each plot is written only when the report holds its data.
 //!
 //! Every plot follows one key: one colour per direction ([`colour`]: clockwise blue,
-//! counter-clockwise orange), before (round 1) drawn in a light tint of it and after (the
-//! verification) in full; every run is drawn; where both axes are metres a metre spans as many pixels across as
-//! up; legends sit in a margin of their own, never over the data or stretching an axis.
+//! counter-clockwise orange). Where phases share a chart, before (round 1) is a light tint of
+//! it and after (the verification) full; the paths give each phase a panel and use the tints
+//! for the truth, the belief and the correction instead. Every run is drawn; where both axes
+//! are metres a metre spans as many pixels across as up; legends sit in a margin of their own,
+//! never over the data or stretching an axis, and list only the styles drawn.
 
-use crate::kinematics::Direction;
+use crate::kinematics::{Direction, Displacement, Pose, WheelParams};
 use crate::routine::report::{e_max_sys, Report, RunReport};
 use plotters::coord::types::RangedCoordf64;
 use plotters::coord::Shift;
@@ -21,7 +26,7 @@ fn io(e: Box<dyn std::error::Error>) -> std::io::Error {
     std::io::Error::other(e.to_string())
 }
 
-/// Writes every plot the report has data for; returns the files written.
+/// Writes every plot the report has data for, and no other; returns the files written.
 pub fn write_all(report: &Report, dir: &Path) -> std::io::Result<Vec<PathBuf>> {
     let mut out = Vec::new();
     let paths = dir.join("paths.svg");
@@ -29,11 +34,24 @@ pub fn write_all(report: &Report, dir: &Path) -> std::io::Result<Vec<PathBuf>> {
         out.push(paths);
     }
     let headings = dir.join("heading_errors.svg");
-    heading_plot(report, &headings).map_err(io)?;
-    out.push(headings);
+    if heading_plot(report, &headings).map_err(io)? {
+        out.push(headings);
+    }
     let ends = dir.join("end_points.svg");
     if end_points_plot(report, &ends).map_err(io)? {
         out.push(ends);
+    }
+    let estimates = dir.join("estimates.svg");
+    if estimates_plot(report, &estimates).map_err(io)? {
+        out.push(estimates);
+    }
+    let swing = dir.join("swing.svg");
+    if swing_plot(report, &swing).map_err(io)? {
+        out.push(swing);
+    }
+    let legs = dir.join("heading_along_legs.svg");
+    if heading_along_plot(report, &legs).map_err(io)? {
+        out.push(legs);
     }
     Ok(out)
 }
@@ -176,15 +194,16 @@ fn legend(area: &Area<'_>, entries: &[(String, Mark)]) -> PlotResult<()> {
             Mark::Dot(style) => area.draw(&Circle::new((14, mid), 4, *style))?,
             Mark::Ring(style) => area.draw(&Circle::new((14, mid), 7, *style))?,
             Mark::Cross => area.draw(&Cross::new((14, mid), 6, BLACK.stroke_width(2)))?,
+            // Drawn as the plots draw theirs ([`ErrorBar`] 14 px wide, 2 px strokes).
             Mark::Bar => {
                 for (a, b) in [
                     ((14, mid - 8), (14, mid + 8)),
-                    ((9, mid - 8), (19, mid - 8)),
-                    ((9, mid + 8), (19, mid + 8)),
+                    ((7, mid - 8), (21, mid - 8)),
+                    ((7, mid + 8), (21, mid + 8)),
                 ] {
-                    area.draw(&PathElement::new(vec![a, b], BLACK.stroke_width(1)))?;
+                    area.draw(&PathElement::new(vec![a, b], BLACK.stroke_width(2)))?;
                 }
-                area.draw(&Circle::new((14, mid), 4, BLACK.stroke_width(1)))?;
+                area.draw(&Circle::new((14, mid), 7, BLACK.stroke_width(2)))?;
             }
             Mark::Note => {}
         }
@@ -195,93 +214,475 @@ fn legend(area: &Area<'_>, entries: &[(String, Mark)]) -> PlotResult<()> {
     Ok(())
 }
 
-/// The legend entries of the two phases' colours: each direction before and after.
-fn phase_entries(before: &[RunReport], after: &[RunReport], width: u32) -> Vec<(String, Mark)> {
-    let mut entries = Vec::new();
-    for d in [Direction::Cw, Direction::Ccw] {
-        for (runs, phase, is_before) in [
-            (before, "before (round 1)", true),
-            (after, "after (verification)", false),
-        ] {
-            let n = runs.iter().filter(|r| r.direction == d).count();
-            if n > 0 {
-                entries.push((
-                    format!("{d} {phase}: {n}"),
-                    Mark::Line(shade(d, is_before).stroke_width(width)),
-                ));
-            }
-        }
-    }
-    entries
-}
-
 /// The runs before (round 1) and after (the verification).
 fn phases(report: &Report) -> (&[RunReport], &[RunReport]) {
     let before = report.rounds.first().map_or(&[][..], |r| r.runs.as_slice());
     (before, report.verification.as_slice())
 }
 
-/// Every run of round 1 (light) and of the verification (full), in its direction's colour
-/// ([`shade`]):
-/// the odometry and, in simulation, the true path (thick, beneath). Drawn in this order: true
-/// paths of round 1's runs then of the verification's, then the odometry in the same order.
+/// A run's path as odometry with `params` would have integrated its recorded wheel travel
+/// ([`RunReport::samples`], measured with the run's configured parameters and rescaled by each
+/// wheel's metres per count), from the origin in the run's start frame; `None` without at
+/// least two samples. With the run's own parameters it is what the odometry believed.
+pub fn reintegrated(run: &RunReport, params: &WheelParams) -> Option<Vec<[f64; 2]>> {
+    if run.samples.len() < 2 {
+        return None;
+    }
+    let left = params.left_m_per_count() / run.params.left_m_per_count();
+    let right = params.right_m_per_count() / run.params.right_m_per_count();
+    let mut pose = Pose::default();
+    let (mut l0, mut r0) = (0.0, 0.0);
+    let mut out = Vec::with_capacity(run.samples.len() + 1);
+    out.push([0.0, 0.0]);
+    for s in &run.samples {
+        pose = pose.advance(
+            (s.left_m - l0) * left,
+            (s.right_m - r0) * right,
+            params.wheelbase_m,
+        );
+        (l0, r0) = (s.left_m, s.right_m);
+        out.push([pose.x_m, pose.y_m]);
+    }
+    Some(out)
+}
+
+/// What a line on the paths plot is.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum PathKind {
+    /// The simulator's true path.
+    Truth,
+    /// What the odometry believed, with the parameters configured during the run.
+    Believed,
+    /// The same wheel travel integrated with the written parameters.
+    Corrected,
+}
+
+impl PathKind {
+    /// Its line in a direction's colour: the truth a wide pale band beneath, the belief a
+    /// light tint, the corrected odometry full colour, each wide enough to be seen.
+    fn style(self, d: Direction) -> ShapeStyle {
+        let RGBColor(r, g, b) = colour(d);
+        let tint = |f: f64| {
+            let t = |c: u8| (f64::from(c) + f * (255.0 - f64::from(c))).round() as u8;
+            RGBColor(t(r), t(g), t(b))
+        };
+        match self {
+            PathKind::Truth => tint(0.8).stroke_width(8),
+            PathKind::Believed => tint(0.5).stroke_width(2),
+            PathKind::Corrected => colour(d).stroke_width(2),
+        }
+    }
+
+    fn label(self, d: Direction) -> String {
+        match self {
+            PathKind::Truth => format!("{d}: true path (simulation)"),
+            PathKind::Believed => format!("{d}: odometry as it believed"),
+            PathKind::Corrected => format!("{d}: with written parameters"),
+        }
+    }
+}
+
+/// The parameters the paths are re-integrated with, and whether they were only proposed: the
+/// written ones (the store's at the end), or when nothing was written the last proposal (a
+/// dry run or a declined write still shows what it would have changed), else the final ones.
+fn correction_target(report: &Report) -> (WheelParams, bool) {
+    if report.written {
+        return (report.final_params, false);
+    }
+    let proposal = report.rounds.iter().rev().find_map(|r| r.params_after);
+    proposal.map_or((report.final_params, false), |p| (p, true))
+}
+
+/// One line of the paths plot: what it is, whose colour, its points (m).
+type Trace = (PathKind, Direction, Vec<[f64; 2]>);
+
+/// Round 1's runs (before) and the verification's (after), one panel each on its own equal
+/// scale: what the odometry believed during each run (its configured parameters), the same
+/// wheel travel re-integrated with the written parameters where they differ (the proposed
+/// ones when nothing was written: [`correction_target`]), and in simulation
+/// the true path beneath. On a real robot the belief is always close to a square; the
+/// re-integrated path shows where the corrected odometry says the robot went.
 fn paths_plot(report: &Report, file: &Path) -> PlotResult<bool> {
     let (before, after) = phases(report);
-    let runs = || {
-        before
-            .iter()
-            .map(|r| (r, true))
-            .chain(after.iter().map(|r| (r, false)))
-    };
-    let has_truth = runs().any(|(r, _)| r.true_path.is_some());
-    // (points, style): true paths first, so the thin odometry stays visible on top.
-    let mut traces: Vec<(&[[f64; 2]], ShapeStyle)> = Vec::new();
-    for (r, is_before) in runs() {
-        if let Some(t) = r.true_path.as_deref().filter(|t| t.len() > 1) {
-            traces.push((t, shade(r.direction, is_before).stroke_width(3)));
+    let (target, proposed) = correction_target(report);
+    let written = &target;
+    // (panel title, traces as (kind, direction, points)), in drawing order: truth beneath.
+    let mut panels: Vec<(String, Vec<Trace>)> = Vec::new();
+    for (phase, runs) in [
+        ("before (round 1)", before),
+        ("after (verification)", after),
+    ] {
+        let mut traces = Vec::new();
+        for r in runs {
+            if let Some(t) = r.true_path.as_ref().filter(|t| t.len() > 1) {
+                traces.push((PathKind::Truth, r.direction, t.clone()));
+            }
+        }
+        for r in runs {
+            // From the samples where the report has them, so that belief and correction are
+            // the same decimated travel and differ only by the parameters.
+            let believed = reintegrated(r, &r.params)
+                .or_else(|| (r.odometry_path.len() > 1).then(|| r.odometry_path.clone()));
+            if let Some(b) = believed {
+                traces.push((PathKind::Believed, r.direction, b));
+            }
+        }
+        for r in runs.iter().filter(|r| r.params != *written) {
+            if let Some(c) = reintegrated(r, written) {
+                traces.push((PathKind::Corrected, r.direction, c));
+            }
+        }
+        if !traces.is_empty() {
+            panels.push((phase.to_string(), traces));
         }
     }
-    let odometry_width = if has_truth { 1 } else { 2 };
-    for (r, is_before) in runs() {
-        if r.odometry_path.len() > 1 {
-            traces.push((
-                &r.odometry_path,
-                shade(r.direction, is_before).stroke_width(odometry_width),
-            ));
-        }
-    }
-    if traces.is_empty() {
+    if panels.is_empty() {
         return Ok(false);
     }
-    let size = (1100, 800);
+    for (title, traces) in &mut panels {
+        if !traces.iter().any(|t| t.0 == PathKind::Corrected) {
+            title.push_str(if proposed {
+                ": ran with the proposed parameters"
+            } else {
+                ": ran with the written parameters"
+            });
+        }
+    }
+    let size = (LEGEND_PX + 560 * panels.len() as u32, 620);
+    let root = SVGBackend::new(file, size).into_drawing_area();
+    root.fill(&WHITE)?;
+    let (plots, side) = root.split_horizontally(size.0 - LEGEND_PX);
+    let mut used: Vec<(PathKind, Direction)> = Vec::new();
+    for (area, (title, traces)) in plots.split_evenly((1, panels.len())).iter().zip(&panels) {
+        let (area, px) = titled(area, title)?;
+        let [x, y] = equal_scale(bounds(traces.iter().flat_map(|t| t.2.iter())), px);
+        let mut chart = chart(&area, x, y, "x (m), first leg", "y (m), left", &tick)?;
+        for (kind, d, pts) in traces {
+            chart.draw_series(LineSeries::new(
+                pts.iter().map(|p| (p[0], p[1])),
+                kind.style(*d),
+            ))?;
+            if !used.contains(&(*kind, *d)) {
+                used.push((*kind, *d));
+            }
+        }
+        chart.draw_series([Cross::new((0.0, 0.0), 7, BLACK.stroke_width(2))])?;
+    }
+    // Only the styles drawn, in a fixed order.
+    let mut entries = Vec::new();
+    for d in [Direction::Cw, Direction::Ccw] {
+        for kind in [PathKind::Truth, PathKind::Believed, PathKind::Corrected] {
+            if used.contains(&(kind, d)) {
+                let mut label = kind.label(d);
+                if proposed && kind == PathKind::Corrected {
+                    label = format!("{d}: with proposed parameters");
+                }
+                entries.push((label, Mark::Line(kind.style(d))));
+            }
+        }
+    }
+    entries.push(("start of every square".into(), Mark::Cross));
+    if proposed {
+        entries.push(("proposed: not written".into(), Mark::Note));
+    }
+    entries.push(("every run drawn; equal scales".into(), Mark::Note));
+    legend(&side, &entries)?;
+    root.present()?;
+    Ok(true)
+}
+
+/// Each round's estimate by the method it chose: `E_b` and `E_d` (ratios to that round's
+/// configured parameters, 1 = nothing to correct) with a bar of ± 1 standard error within the
+/// round, or a ring where the round had no ±.
+fn estimates_plot(report: &Report, file: &Path) -> PlotResult<bool> {
+    if report.rounds.is_empty() {
+        return Ok(false);
+    }
+    let size = (LEGEND_PX + 2 * 420, 480);
+    let root = SVGBackend::new(file, size).into_drawing_area();
+    root.fill(&WHITE)?;
+    let (plots, side) = root.split_horizontally(size.0 - LEGEND_PX);
+    let n = report.rounds.len() as f64;
+    let x_ticks = |v: &f64| {
+        let k = v.round();
+        if (v - k).abs() < 1e-9 && k >= 1.0 && k <= n {
+            format!("{k:.0}")
+        } else {
+            String::new()
+        }
+    };
+    type Pick = fn(&crate::calibration::Estimate) -> (f64, Option<f64>);
+    let quantities: [(&str, &str, Pick); 2] = [
+        (
+            "E_b = b_actual / b_configured",
+            "E_b (ratio, 1 = no correction)",
+            |e| (e.e_b, e.e_b_std_err),
+        ),
+        (
+            "E_d = D_R / D_L, to the configured ratio",
+            "E_d (ratio, 1 = no correction)",
+            |e| (e.e_d, e.e_d_std_err),
+        ),
+    ];
+    let (mut bars, mut rings) = (false, false);
+    for (area, (title, y_desc, pick)) in plots.split_evenly((1, 2)).iter().zip(&quantities) {
+        let (area, _) = titled(area, title)?;
+        let values: Vec<(f64, f64, Option<f64>)> = report
+            .rounds
+            .iter()
+            .map(|r| {
+                let (v, se) = pick(&r.chosen);
+                (r.round as f64, v, se.filter(|s| s.is_finite()))
+            })
+            .collect();
+        let (mut lo, mut hi) = (1.0f64, 1.0f64);
+        for &(_, v, se) in &values {
+            let s = se.unwrap_or(0.0);
+            lo = lo.min(v - s);
+            hi = hi.max(v + s);
+        }
+        let pad = (0.12 * (hi - lo)).max(2e-4);
+        let x = 0.5..n + 0.5;
+        let mut chart = chart(
+            &area,
+            x.clone(),
+            lo - pad..hi + pad,
+            "round",
+            y_desc,
+            &x_ticks,
+        )?;
+        chart.draw_series(LineSeries::new(
+            [(x.start, 1.0), (x.end, 1.0)],
+            BLACK.mix(0.5),
+        ))?;
+        for &(round, v, se) in &values {
+            match se {
+                Some(s) => {
+                    bars = true;
+                    chart.draw_series([ErrorBar::new_vertical(
+                        round,
+                        v - s,
+                        v,
+                        v + s,
+                        BLACK.stroke_width(2),
+                        14,
+                    )])?;
+                }
+                None => {
+                    rings = true;
+                    chart.draw_series([Circle::new((round, v), 7, BLACK.stroke_width(2))])?;
+                }
+            }
+        }
+    }
+    let mut entries = vec![(
+        "1: nothing to correct".to_string(),
+        Mark::Line(BLACK.mix(0.5).stroke_width(1)),
+    )];
+    if bars {
+        entries.push(("estimate ± 1 standard error".into(), Mark::Bar));
+        entries.push(("within the round".into(), Mark::Note));
+    }
+    if rings {
+        entries.push((
+            "estimate without ± (no scatter)".into(),
+            Mark::Ring(BLACK.stroke_width(2)),
+        ));
+    }
+    let mut methods: Vec<String> = report
+        .rounds
+        .iter()
+        .map(|r| r.chosen.method.to_string())
+        .collect();
+    methods.dedup();
+    entries.push((format!("method: {}", methods.join(", ")), Mark::Note));
+    entries.push(("each round to its own".into(), Mark::Note));
+    entries.push(("configured parameters".into(), Mark::Note));
+    legend(&side, &entries)?;
+    root.present()?;
+    Ok(true)
+}
+
+/// The compass swing's deviation curve: the fitted `d(ψ)` over a turn and, where the report
+/// keeps them, the deviation each reading measured (the reading less its turn's fitted line).
+fn swing_plot(report: &Report, file: &Path) -> PlotResult<bool> {
+    let Some(fit) = &report.swing else {
+        return Ok(false);
+    };
+    let curve: Vec<(f64, f64)> = (0..=360)
+        .map(|k| {
+            let psi = f64::from(k);
+            (psi, fit.deviation.at(psi.to_radians()).to_degrees())
+        })
+        .collect();
+    let measured: Vec<(f64, f64)> = fit
+        .measured
+        .iter()
+        .map(|p| (p[0].to_degrees(), p[1].to_degrees()))
+        .filter(|p| p.0.is_finite() && p.1.is_finite())
+        .collect();
+    let (mut lo, mut hi) = (0.0f64, 0.0f64);
+    for p in curve.iter().chain(&measured) {
+        lo = lo.min(p.1);
+        hi = hi.max(p.1);
+    }
+    let pad = (0.1 * (hi - lo)).max(0.05);
+    let size = (LEGEND_PX + 720, 480);
     let root = SVGBackend::new(file, size).into_drawing_area();
     root.fill(&WHITE)?;
     let (plot, side) = root.split_horizontally(size.0 - LEGEND_PX);
-    let (area, px) = titled(
+    let (area, _) = titled(
         &plot,
-        if has_truth {
-            "Square runs: true paths (thick) and odometry (thin)"
-        } else {
-            "Square runs as the odometry saw them (no ground truth on a real robot)"
-        },
+        &format!(
+            "Compass deviation: up to {:.2}°, residual {:.2}° rms",
+            fit.amplitude_rad.to_degrees(),
+            fit.residual_rms_rad.to_degrees()
+        ),
     )?;
-    let [x, y] = equal_scale(bounds(traces.iter().flat_map(|t| t.0.iter())), px);
-    let mut chart = chart(&area, x, y, "x (m), first leg", "y (m), left", &tick)?;
-    for (pts, style) in &traces {
-        chart.draw_series(LineSeries::new(pts.iter().map(|p| (p[0], p[1])), *style))?;
-    }
-    chart.draw_series([Cross::new((0.0, 0.0), 7, BLACK.stroke_width(2))])?;
-    let mut entries = phase_entries(before, after, 3);
-    if has_truth {
-        let grey = RGBColor(90, 90, 90);
+    let mut chart = chart(
+        &area,
+        0.0..360.0,
+        lo - pad..hi + pad,
+        "heading ψ (°, counter-clockwise)",
+        "deviation d(ψ) (°)",
+        &tick,
+    )?;
+    let grey = RGBColor(120, 120, 120);
+    chart.draw_series(
+        measured
+            .iter()
+            .map(|&p| Circle::new(p, 2, grey.mix(0.7).filled())),
+    )?;
+    chart.draw_series(LineSeries::new(curve, BLACK.stroke_width(2)))?;
+    let mut entries = Vec::new();
+    if !measured.is_empty() {
         entries.push((
-            "true path (simulation)".into(),
-            Mark::Line(grey.stroke_width(3)),
+            "measured: reading less the".to_string(),
+            Mark::Dot(grey.mix(0.7).filled()),
         ));
-        entries.push(("odometry".into(), Mark::Line(grey.stroke_width(1))));
+        entries.push(("fitted line of its turn".into(), Mark::Note));
     }
-    entries.push(("start of every square".into(), Mark::Cross));
-    entries.push(("every run drawn; equal scales".into(), Mark::Note));
+    entries.push((
+        "fitted curve d(ψ)".into(),
+        Mark::Line(BLACK.stroke_width(2)),
+    ));
+    entries.push((
+        format!("{} readings, turns both ways", fit.points),
+        Mark::Note,
+    ));
+    legend(&side, &entries)?;
+    root.present()?;
+    Ok(true)
+}
+
+/// One run's heading along the square: `(distance along the square (m), heading less the
+/// odometry's turn (deg))` at every sample with a heading, both from the first such sample,
+/// and that first sample's heading less turn (rad) to put the leg means on the same zero.
+fn heading_along(run: &RunReport) -> Option<(Vec<(f64, f64)>, f64)> {
+    let b = run.params.wheelbase_m;
+    let mut zero: Option<(f64, f64)> = None;
+    let mut out = Vec::new();
+    for s in &run.samples {
+        let Some(h) = s.heading_rad.filter(|h| h.is_finite()) else {
+            continue;
+        };
+        // The odometry from the run's start, as the `legs` method counts it.
+        let odometry = Displacement::of_wheels(s.left_m, s.right_m, b);
+        let (distance, error) = (odometry.distance_m, h - odometry.turn_rad);
+        let (d0, e0) = *zero.get_or_insert((distance, error));
+        out.push((distance - d0, (error - e0).to_degrees()));
+    }
+    (out.len() > 1).then(|| (out, zero.map_or(0.0, |z| z.1)))
+}
+
+/// The heading along the legs of round 1's runs (light) and the verification's (full): the
+/// heading less the odometry's turn against the distance along the square, each run from its
+/// first reading, and the leg means the `legs` and `matched-legs` methods use. A wheelbase
+/// error shows as steps at the corners, a diameter error as a slope along the legs.
+fn heading_along_plot(report: &Report, file: &Path) -> PlotResult<bool> {
+    let (before, after) = phases(report);
+    // The leg means hold a removed gyro scale that the raw samples do not: drawn only when
+    // they are on the same footing.
+    let leg_dots = report.config.gyro_scale_error.is_none();
+    let mut lines = Vec::new();
+    let mut dots = Vec::new();
+    for (runs, is_before) in [(before, true), (after, false)] {
+        for r in runs {
+            let Some((pts, e0)) = heading_along(r) else {
+                continue;
+            };
+            // A leg's mean odometry counts from the run's first reading, as the line does.
+            if let (true, Some(legs)) = (leg_dots, r.legs) {
+                for leg in legs.legs {
+                    let at = (leg.odometry.distance_m, (leg.error_rad - e0).to_degrees());
+                    dots.push((r.direction, is_before, at));
+                }
+            }
+            lines.push((r.direction, is_before, pts));
+        }
+    }
+    if lines.is_empty() {
+        return Ok(false);
+    }
+    let (mut x0, mut x1, mut y0, mut y1) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
+    for p in lines
+        .iter()
+        .flat_map(|l| l.2.iter())
+        .chain(dots.iter().map(|d| &d.2))
+    {
+        x0 = x0.min(p.0);
+        x1 = x1.max(p.0);
+        y0 = y0.min(p.1);
+        y1 = y1.max(p.1);
+    }
+    let ypad = (0.08 * (y1 - y0)).max(0.05);
+    let xpad = 0.02 * (x1 - x0).max(0.01);
+    let size = (LEGEND_PX + 820, 520);
+    let root = SVGBackend::new(file, size).into_drawing_area();
+    root.fill(&WHITE)?;
+    let (plot, side) = root.split_horizontally(size.0 - LEGEND_PX);
+    let (area, _) = titled(&plot, "Heading along the square, less the odometry's turn")?;
+    let mut chart = chart(
+        &area,
+        x0 - xpad..x1 + xpad,
+        y0 - ypad..y1 + ypad,
+        "distance along the square (m), odometry",
+        "heading − odometry turn (°, CCW positive)",
+        &tick,
+    )?;
+    let mut used: Vec<(Direction, bool)> = Vec::new();
+    for (d, is_before, pts) in &lines {
+        chart.draw_series(LineSeries::new(
+            pts.iter().copied(),
+            shade(*d, *is_before).stroke_width(2),
+        ))?;
+        if !used.contains(&(*d, *is_before)) {
+            used.push((*d, *is_before));
+        }
+    }
+    chart.draw_series(
+        dots.iter()
+            .map(|(_, _, p)| Circle::new(*p, 4, BLACK.filled())),
+    )?;
+    let mut entries = Vec::new();
+    for d in [Direction::Cw, Direction::Ccw] {
+        for (is_before, phase) in [(true, "before (round 1)"), (false, "after (verification)")] {
+            if used.contains(&(d, is_before)) {
+                let n = lines
+                    .iter()
+                    .filter(|l| l.0 == d && l.1 == is_before)
+                    .count();
+                entries.push((
+                    format!("{d} {phase}: {n}"),
+                    Mark::Line(shade(d, is_before).stroke_width(2)),
+                ));
+            }
+        }
+    }
+    if !dots.is_empty() {
+        entries.push(("mean of each leg".into(), Mark::Dot(BLACK.filled())));
+    }
+    entries.push(("each run from its first reading".into(), Mark::Note));
     legend(&side, &entries)?;
     root.present()?;
     Ok(true)
@@ -302,7 +703,7 @@ fn mean_std(v: &[f64]) -> Option<(f64, Option<f64>)> {
 /// Every run's final heading error, one panel per phase (round 1 = before, later rounds,
 /// verification = after), each on its own scale: the runs as dots by direction, and each
 /// direction's mean with a bar of ± 2 standard deviations of its runs.
-fn heading_plot(report: &Report, file: &Path) -> PlotResult<()> {
+fn heading_plot(report: &Report, file: &Path) -> PlotResult<bool> {
     let mut panels: Vec<(String, &[RunReport])> = Vec::new();
     let rounds = report.rounds.len();
     for r in &report.rounds {
@@ -315,8 +716,8 @@ fn heading_plot(report: &Report, file: &Path) -> PlotResult<()> {
     if !report.verification.is_empty() {
         panels.push(("verification (after)".into(), &report.verification));
     }
-    if panels.is_empty() {
-        panels.push(("no runs".into(), &[]));
+    if panels.iter().all(|(_, runs)| runs.is_empty()) {
+        return Ok(false);
     }
     let size = (LEGEND_PX + 400 * panels.len() as u32, 520);
     let root = SVGBackend::new(file, size).into_drawing_area();
@@ -394,23 +795,19 @@ fn heading_plot(report: &Report, file: &Path) -> PlotResult<()> {
             chart.draw_series([Text::new(label, (at + 0.06, mean), font)])?;
         }
     }
-    legend(
-        &side,
-        &[
-            (
-                "clockwise runs".into(),
-                Mark::Dot(colour(Direction::Cw).filled()),
-            ),
-            (
-                "counter-clockwise runs".into(),
-                Mark::Dot(colour(Direction::Ccw).filled()),
-            ),
-            ("mean ± 2σ of the runs".into(), Mark::Bar),
-            ("each panel on its own scale".into(), Mark::Note),
-        ],
-    )?;
+    // Only the directions drawn: each has its dots and its bar.
+    let mut entries = Vec::new();
+    for d in directions {
+        let runs = || panels.iter().flat_map(|(_, runs)| runs.iter());
+        if runs().any(|r| r.direction == d) {
+            entries.push((format!("{d} runs"), Mark::Dot(colour(d).mix(0.85).filled())));
+        }
+    }
+    entries.push(("mean ± 2σ of the runs".into(), Mark::Bar));
+    entries.push(("each panel on its own scale".into(), Mark::Note));
+    legend(&side, &entries)?;
     root.present()?;
-    Ok(())
+    Ok(true)
 }
 
 /// "1.226 m" or "4.9 mm".
@@ -478,22 +875,29 @@ fn end_points_plot(report: &Report, file: &Path) -> PlotResult<bool> {
             }
         }
     }
-    let mut entries = vec![
-        (
-            "clockwise end points".into(),
-            Mark::Dot(colour(Direction::Cw).filled()),
-        ),
-        (
-            "counter-clockwise end points".into(),
-            Mark::Dot(colour(Direction::Ccw).filled()),
-        ),
-        (
-            "mean end point of a direction".into(),
-            Mark::Ring(BLACK.stroke_width(2)),
-        ),
+    // Only the directions drawn.
+    let mut entries = Vec::new();
+    for d in [Direction::Cw, Direction::Ccw] {
+        let drawn = panels
+            .iter()
+            .flat_map(|(_, runs)| runs.iter())
+            .any(|r| r.direction == d && r.true_final_xy_m.is_some());
+        if drawn {
+            entries.push((format!("{d} end points"), Mark::Dot(colour(d).filled())));
+        }
+    }
+    for d in [Direction::Cw, Direction::Ccw] {
+        if entries.iter().any(|(l, _)| l.starts_with(&format!("{d} "))) {
+            entries.push((
+                format!("{d} mean end point"),
+                Mark::Ring(colour(d).stroke_width(2)),
+            ));
+        }
+    }
+    entries.extend([
         ("start".into(), Mark::Cross),
         ("E_max,sys: the farther mean".into(), Mark::Note),
-    ];
+    ]);
     if panels.len() > 1 {
         entries.push(("each panel on its own".into(), Mark::Note));
         entries.push(("equal scale".into(), Mark::Note));

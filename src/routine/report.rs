@@ -10,7 +10,7 @@ use crate::calibration::legs::LegMeasurement;
 use crate::calibration::recording::{coverage, Coverage};
 use crate::calibration::{Estimate, Method};
 use crate::kinematics::{Direction, Displacement, Pose, WheelParams};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use std::fmt::Write as _;
 use std::path::PathBuf;
 
@@ -126,11 +126,64 @@ pub struct RunReport {
     pub travel_samples: usize,
     /// Heading samples streamed during the run.
     pub heading_samples: usize,
+    /// The run as streamed, decimated to at most 400 samples (as the paths are): what the
+    /// report's plots re-integrate with other parameters and read the heading along the legs
+    /// from. Empty in reports written before it existed, and when the drive did not stream.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub samples: Vec<RunSample>,
     /// How completely the heading stream covered the run (a stream that lost or delayed
     /// readings says by how much), when it streamed.
     pub heading_coverage: Option<Coverage>,
     /// Plausibility warnings.
     pub warnings: Vec<String>,
+}
+
+/// One sample of a run as the report keeps it ([`RunReport::samples`]).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct RunSample {
+    /// Time on the wheel travel's clock (s).
+    pub time_s: f64,
+    /// Left wheel's travel since the run's start (m), as the run's configured parameters
+    /// measured it: another set of parameters rescales it by its metres per count.
+    pub left_m: f64,
+    /// Right wheel's travel since the run's start (m), as `left_m`.
+    pub right_m: f64,
+    /// The heading read at this time (rad, counter-clockwise positive, unwrapped along the run;
+    /// as read, before any gyro scale is removed), or `None` where there was no valid reading.
+    #[serde(default)]
+    pub heading_rad: Option<f64>,
+}
+
+/// The run's samples from its aligned streams ([`Recording::track`]): cumulative wheel travel
+/// and the heading at every travel sample, decimated to [`PATH_POINTS`] keeping the last.
+/// Cumulative travel decimates without loss of the total, unlike increments.
+fn run_samples(rec: &SquareRecord, wheelbase_m: f64) -> Vec<RunSample> {
+    let track = rec.recording().track(wheelbase_m);
+    let (mut left, mut right) = (0.0, 0.0);
+    let all: Vec<RunSample> = track
+        .points
+        .iter()
+        .map(|p| {
+            let (l, r) = p.step.wheels(wheelbase_m);
+            left += l;
+            right += r;
+            RunSample {
+                time_s: p.time_s,
+                left_m: left,
+                right_m: right,
+                heading_rad: p.heading_rad,
+            }
+        })
+        .collect();
+    let step = all.len().div_ceil(PATH_POINTS).max(1);
+    let last = all.last().copied();
+    let mut kept: Vec<RunSample> = all.into_iter().step_by(step).collect();
+    if let (Some(l), Some(k)) = (last, kept.last()) {
+        if *k != l {
+            kept.push(l);
+        }
+    }
+    kept
 }
 
 /// A heading stream that covered less of a run than this is reported as incomplete.
@@ -218,6 +271,7 @@ impl RunReport {
             true_path: truth.map(|t| integrate(&rec.travel, params, &t.true_params())),
             travel_samples: rec.travel.len(),
             heading_samples: rec.headings.len(),
+            samples: run_samples(rec, params.wheelbase_m),
             heading_coverage,
             warnings,
         }
@@ -341,13 +395,16 @@ pub struct Report {
 }
 
 /// Every file a report directory receives.
-pub const REPORT_FILES: [&str; 6] = [
+pub const REPORT_FILES: [&str; 9] = [
     "report.json",
     "report.md",
     "report.html",
     "paths.svg",
     "heading_errors.svg",
     "end_points.svg",
+    "estimates.svg",
+    "swing.svg",
+    "heading_along_legs.svg",
 ];
 
 /// `E_max,sys` of runs with true final positions (simulation only), see

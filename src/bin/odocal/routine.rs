@@ -189,6 +189,7 @@ fn print_outcome(report: &Report, json_out: bool, files: &[PathBuf]) -> CliResul
                 if let Some(obj) = run.as_object_mut() {
                     obj.remove("odometry_path");
                     obj.remove("true_path");
+                    obj.remove("samples");
                 }
             }
         };
@@ -198,11 +199,17 @@ fn print_outcome(report: &Report, json_out: bool, files: &[PathBuf]) -> CliResul
             }
         }
         strip(v.get_mut("verification"));
+        if let Some(swing) = v.get_mut("swing").and_then(|s| s.as_object_mut()) {
+            swing.remove("measured");
+        }
         if let Some(obj) = v.as_object_mut() {
             obj.insert("report_files".into(), json!(files));
             obj.insert(
                 "paths".into(),
-                json!("odometry_path and true_path of each run are in report.json"),
+                json!(
+                    "odometry_path, true_path and samples of each run, and the swing's measured \
+                     points, are in report.json"
+                ),
             );
         }
         return print_json(&v);
