@@ -714,31 +714,21 @@ impl StoreLocation {
         })?;
         let file = std::path::absolute(&file).unwrap_or(file);
         let (store, active) = match ProfileFile.parse(&text, path) {
-            Ok(profile) => (
-                crate::base::ComponentInfo {
-                    kind: ProfileFile.kind().into(),
-                    id: ProfileFile.id(&file),
-                    details: ProfileFile.details(&file),
-                },
-                ProfileFile::params(&profile),
-            ),
+            Ok(profile) => (ProfileFile.info(&file), ProfileFile::params(&profile)),
             Err(profile_error) => {
                 let format = crate::ros::yaml::ControllerYaml {
                     controller: controller.unwrap_or(DEFAULT_CONTROLLER).into(),
                 };
                 let config = format.parse(&text, path).map_err(|yaml_error| {
                     SpecError::Combination(format!(
-                        "{} is named like a copy odocal made of {}, but reads neither as a robot                          profile ({profile_error}) nor as a controller's YAML ({yaml_error})",
+                        "{} is named like a copy odocal made of {}, but reads neither as a robot \
+                         profile ({profile_error}) nor as a controller's YAML ({yaml_error})",
                         path.display(),
                         file.display()
                     ))
                 })?;
                 (
-                    crate::base::ComponentInfo {
-                        kind: format.kind().into(),
-                        id: format.id(&file),
-                        details: format.details(&file),
-                    },
+                    format.info(&file),
                     crate::ros::yaml::ControllerYaml::params(&config),
                 )
             }

@@ -49,6 +49,16 @@ pub trait ParamFile: Send + Sync + 'static {
     fn refuse(&self, current: &WheelParams, params: &WheelParams) -> Option<String>;
     /// The format's error for a file that cannot be read.
     fn io_error(&self, path: &Path, source: std::io::Error) -> Self::Error;
+
+    /// What a store of this format at `path` says it is (its kind, id and details), as its
+    /// [`FileStore`] and its backups name it.
+    fn info(&self, path: &Path) -> ComponentInfo {
+        ComponentInfo {
+            kind: self.kind().into(),
+            id: self.id(path),
+            details: self.details(path),
+        }
+    }
 }
 
 /// A [`ParamStore`] in a file of format `F`; see the module.
@@ -144,11 +154,7 @@ impl<F: ParamFile> FileStore<F> {
 #[async_trait]
 impl<F: ParamFile> ParamStore for FileStore<F> {
     fn info(&self) -> ComponentInfo {
-        ComponentInfo {
-            kind: self.format.kind().into(),
-            id: self.format.id(&self.path),
-            details: self.format.details(&self.path),
-        }
+        self.format.info(&self.path)
     }
 
     async fn read(&self) -> Result<WheelParams, BaseError> {

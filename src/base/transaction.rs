@@ -65,6 +65,26 @@ pub enum Rollback {
     RestoredAndCommitted,
 }
 
+impl Rollback {
+    /// What a failed rollback leaves, in the same words as [`Rollback`]'s `Display`.
+    pub fn failed(error: &impl std::fmt::Display) -> String {
+        format!("putting the earlier parameters back failed too: {error}")
+    }
+}
+
+/// What the store holds after the rollback, as every command says it.
+impl std::fmt::Display for Rollback {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Rollback::NothingWritten => "nothing was changed",
+            Rollback::Restored => "the earlier parameters are in use again",
+            Rollback::RestoredAndCommitted => {
+                "the earlier parameters are in use and committed again"
+            }
+        })
+    }
+}
+
 /// A write in progress; see the module documentation.
 pub struct Transaction {
     store: Arc<dyn ParamStore>,
@@ -635,4 +655,28 @@ pub fn read_backup(path: &Path) -> Result<BackupFile, BackupError> {
             source,
         })?;
     Ok(backup)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::text_changes;
+
+    #[test]
+    fn text_changes_lists_only_the_lines_a_restore_changes_in_order() {
+        let then = "a: 1\nb: 2\nc: 3\nd: 4\n";
+        assert!(text_changes(then, then).is_empty());
+        // One value changed in the middle, one line added at the end.
+        let now = "a: 1\nb: 2.5\nc: 3\nd: 4\ne: 5\n";
+        assert_eq!(
+            text_changes(now, then),
+            ["- b: 2.5", "+ b: 2", "- e: 5"].map(String::from)
+        );
+        // A line that moved is one removal and one addition, not a rewrite of the file.
+        let moved = "b: 2\na: 1\nc: 3\nd: 4\n";
+        let changes = text_changes(moved, then);
+        assert_eq!(changes.len(), 2, "{changes:?}");
+        // From nothing, and to nothing.
+        assert_eq!(text_changes("", "x\n"), ["+ x"].map(String::from));
+        assert_eq!(text_changes("x\n", ""), ["- x"].map(String::from));
+    }
 }

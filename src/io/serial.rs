@@ -12,7 +12,9 @@ pub fn open(path: &str, baud: u32) -> Result<tokio_serial::SerialStream, tokio_s
     tokio_serial::new(path, baud)
         .open_native_async()
         .map_err(|e| {
-            // ENOTTY, in the words of the C library (glibc, musl).
+            // ENOTTY. serialport passes errno on only as text: nix's fixed English description
+            // ("Not a typewriter"), not the locale's strerror, so the words are stable; the
+            // C library's ("Inappropriate ioctl for device") is matched as well.
             if e.description.contains("typewriter") || e.description.contains("ioctl") {
                 not_a_port(path, "a device that takes no serial settings")
             } else {

@@ -221,8 +221,8 @@ pub async fn export(
             .map_err(|e| failed(e, "nothing was changed", None))?;
         if let Err(e) = tx.apply(&new).await {
             let undone = match tx.rollback().await {
-                Ok(_) => "the file is as it was".to_string(),
-                Err(r) => format!("putting the original back failed too: {r}"),
+                Ok(r) => r.to_string(),
+                Err(r) => crate::base::transaction::Rollback::failed(&r),
             };
             return Err(failed(e, &undone, Some(&backup)));
         }

@@ -47,6 +47,15 @@ pub enum ProfileError {
         #[source]
         source: std::io::Error,
     },
+    /// The backup taken before a rewrite could not be made (nothing was rewritten).
+    #[error("{}: no backup could be taken, so nothing was written: {source}", path.display())]
+    Backup {
+        /// The profile.
+        path: PathBuf,
+        /// Why.
+        #[source]
+        source: Box<crate::base::BaseError>,
+    },
     /// Not a valid profile.
     #[error("{}: {message}", path.display())]
     Invalid {
@@ -331,7 +340,10 @@ pub async fn save_heading(path: &Path, heading: &HeadingSection) -> Result<PathB
     let store = ProfileStore::open(path)?;
     let (backup, _) = crate::base::transaction::backup_store(&store, crate::io::dir_of(path))
         .await
-        .map_err(|e| io(std::io::Error::other(e.to_string())))?;
+        .map_err(|e| ProfileError::Backup {
+            path: path.to_path_buf(),
+            source: Box::new(e),
+        })?;
     crate::io::files::replace_atomically(path, &out).map_err(io)?;
     Ok(backup)
 }

@@ -812,7 +812,13 @@ impl ParamFile for ControllerYaml {
     }
 
     fn details(&self, path: &Path) -> serde_json::Value {
-        serde_json::json!({ "file": path, "controller": self.controller })
+        serde_json::json!({
+            "file": path,
+            "controller": self.controller,
+            // The backup's parameters carry `counts_per_wheel_rev` 2π: say why it is no count.
+            "counts_per_wheel_rev": "2π: ros2_control gives wheel positions in radians, so one \
+                                     count is one radian",
+        })
     }
 
     fn parse(&self, text: &str, path: &Path) -> Result<DiffDriveConfig, YamlError> {

@@ -1106,8 +1106,13 @@ async fn undo(base: &Base, tx: &mut Transaction, err: RoutineError) -> RoutineEr
                 }
                 Ok(Err(e)) => reconnect_error = Some(e.to_string().into()),
                 Err(_) => {
-                    reconnect_error =
-                        Some(format!("no connection within {RECONNECT_TIMEOUT:?}").into())
+                    reconnect_error = Some(
+                        format!(
+                            "no connection within {}",
+                            crate::io::seconds(&RECONNECT_TIMEOUT)
+                        )
+                        .into(),
+                    )
                 }
             }
         }

@@ -247,11 +247,7 @@ pub async fn restore_onto(
 /// Rolls `tx` back after a failed write and says what the store holds then.
 pub async fn roll_back(tx: &mut Transaction) -> String {
     match tx.rollback().await {
-        Ok(Rollback::NothingWritten) => "nothing was changed".to_string(),
-        Ok(Rollback::Restored) => "the earlier parameters are in use again".into(),
-        Ok(Rollback::RestoredAndCommitted) => {
-            "the earlier parameters are in use and committed again".into()
-        }
-        Err(r) => format!("putting the earlier parameters back failed too: {r}"),
+        Ok(r) => r.to_string(),
+        Err(r) => Rollback::failed(&r),
     }
 }
