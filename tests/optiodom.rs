@@ -218,7 +218,7 @@ fn pooled_leave_one_recording_out_the_default_method_is_honest_and_no_worse_than
 /// One robot's three sessions (231220200029, …0040, …0045: same configured geometry): pooled
 /// on two, the default method's prediction for the next session (`prediction_std`, the
 /// session-to-session spread included) covers the third session's own estimate at 2σ, for
-/// `E_b` and `E_d`; and a prediction is never narrower than the pooled mean's standard error.
+/// `E_b` and `E_d`; and the prediction is wider than the pooled mean's standard error.
 #[test]
 fn pooled_on_two_sessions_the_prediction_interval_covers_the_third() {
     let Some(root) = data_root() else { return };
@@ -243,7 +243,14 @@ fn pooled_on_two_sessions_the_prediction_interval_covers_the_third() {
         let predicted = p.estimate_for(&held.configured, conv).unwrap();
         let (sb, sd) = p.prediction_std(&predicted);
         let (sb, sd) = (sb.expect("E_b prediction"), sd.expect("E_d prediction"));
-        assert!(sb >= predicted.e_b_std_err.unwrap() && sd >= predicted.e_d_std_err.unwrap());
+        // The prediction counts the session-to-session spread and a session's own scatter: it
+        // is wider than the pooled mean's standard error by more than rounding.
+        assert!(
+            sb > 1.2 * predicted.e_b_std_err.unwrap() && sd > 1.2 * predicted.e_d_std_err.unwrap(),
+            "held out {}: prediction E_b {sb:.5}, E_d {sd:.5} vs pooled standard errors {:?}",
+            held.id,
+            (predicted.e_b_std_err, predicted.e_d_std_err)
+        );
         let mine = own.estimates.iter().find(|e| e.method == method).unwrap();
         for (q, got, want, s) in [
             ("E_b", mine.e_b, predicted.e_b, sb),

@@ -397,3 +397,34 @@ async fn copies_earlier_versions_made_beside_the_file_restore() {
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }
+
+/// A file named like such a copy that reads as neither a profile nor a controller's YAML is
+/// refused with both reasons, and the file it names is left alone.
+#[test]
+fn a_copy_that_reads_as_neither_format_is_refused_and_nothing_changes() {
+    let dir = scratch("restore-copy-neither");
+    std::fs::create_dir_all(&dir).unwrap();
+    let file = dir.join("robot.toml");
+    std::fs::write(&file, common::ROBOCLAW_PROFILE).unwrap();
+    let copy = dir.join("robot.toml.odocal-backup-2026-11-01T10-00-00Z");
+    std::fs::write(&copy, "this: [is not\n a profile = or a controller").unwrap();
+    let before = files(&dir);
+    for extra in [&["--dry-run"][..], &["--yes"][..]] {
+        let mut args = vec!["restore", copy.to_str().unwrap()];
+        args.extend(extra);
+        let (ok, _, err) = odocal(&args);
+        assert!(!ok, "{extra:?}: {err}");
+        assert!(
+            err.contains("named like a copy odocal made of")
+                && err.contains("robot profile")
+                && err.contains("controller's YAML"),
+            "{err}"
+        );
+    }
+    assert_eq!(
+        std::fs::read_to_string(&file).unwrap(),
+        common::ROBOCLAW_PROFILE
+    );
+    assert_eq!(files(&dir), before, "no file made or removed");
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -445,11 +445,13 @@ impl Estimate {
     }
 
     /// The same estimate with the noise-only standard errors `(E_b, E_d)` that stand in when
-    /// there is no scatter; ignored when the estimate has a standard error already.
+    /// there is no scatter; ignored when the estimate has a standard error already. A zero
+    /// (a method that uses nothing the noise touches, UMBmark's end points) states nothing.
     pub fn with_noise_std_err(mut self, noise: Option<(f64, f64)>) -> Estimate {
+        let stated = |x: f64| (x.is_finite() && x > 0.0).then_some(x);
         if self.e_b_std_err.is_none() && self.e_d_std_err.is_none() {
-            self.e_b_noise_std_err = noise.map(|n| n.0);
-            self.e_d_noise_std_err = noise.map(|n| n.1);
+            self.e_b_noise_std_err = noise.and_then(|n| stated(n.0));
+            self.e_d_noise_std_err = noise.and_then(|n| stated(n.1));
         }
         self
     }

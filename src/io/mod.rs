@@ -39,7 +39,9 @@ pub const SIZE_BOUNDS: [(&str, u64); 3] = [
 /// form).
 pub fn seconds(d: &std::time::Duration) -> String {
     let s = d.as_secs_f64();
-    if s < 1.0 {
+    if s < 0.001 {
+        format!("{} µs", d.as_micros())
+    } else if s < 1.0 {
         format!("{} ms", d.as_millis())
     } else {
         format!("{s:.1} s")

@@ -5,6 +5,7 @@
 #[cfg(feature = "plots")]
 pub mod plots;
 pub mod ros2;
+pub mod stated;
 
 use crate::io::create_new;
 use crate::kinematics::Direction;
@@ -100,7 +101,6 @@ pub fn markdown(report: &Report) -> String {
         }
         let _ = writeln!(s, "\n| method | E_b | ± | E_d | ± |\n|---|---|---|---|---|");
         for e in &r.estimates {
-            let f = |v: Option<f64>| v.map_or("–".into(), |v| format!("{v:.5}"));
             let _ = writeln!(
                 s,
                 "| {}{} | {:.6} | {} | {:.6} | {} |",
@@ -111,9 +111,9 @@ pub fn markdown(report: &Report) -> String {
                     ""
                 },
                 e.e_b,
-                f(e.e_b_std_err),
+                stated::pm_b(e),
                 e.e_d,
-                f(e.e_d_std_err)
+                stated::pm_d(e)
             );
         }
         let _ = writeln!(s, "\n{}", plus_minus(r, report.config.heading_samples));

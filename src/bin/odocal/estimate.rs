@@ -1,6 +1,6 @@
 //! `odocal estimate`: calibrate from measurements typed in by hand.
 
-use crate::stated::{default_line, disagreement_lines, pm_b, pm_d, within_session_legend};
+use crate::stated::{default_line, disagreement_lines, pm_b, pm_d, within_session_legend, Basis};
 use crate::{print_json, ConventionArgs};
 use odocal::calibration::uncertainty::{cramer_rao_bound, heading_error_sigma, TestDesign};
 use odocal::calibration::{self, Estimate, Method, RunMeasurement, SquareTest};
@@ -260,7 +260,7 @@ pub fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
     if let Some(m) = default {
         println!("{}", default_line(m));
     }
-    for line in disagreement_lines(default, &estimates) {
+    for line in disagreement_lines(default, "the default", Basis::Session, &estimates) {
         println!("{line}");
     }
     if configured.is_some() {

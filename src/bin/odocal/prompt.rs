@@ -23,7 +23,9 @@ pub fn yes(question: &str) -> bool {
 /// A token cancelled by Ctrl-C, and on Unix by SIGTERM and SIGHUP as well (what a service
 /// manager, `timeout`, `docker stop`, a closed SSH session or terminal send): each is handled
 /// as Ctrl-C is, so the robot is stopped and the parameters restored. Prints `note` (what
-/// odocal does about it) when given.
+/// odocal does about it) when given. A second signal while that is under way (a device that
+/// no longer answers can hold a restore for its timeouts) leaves at once, exit status 130,
+/// saying what may be left to do.
 pub fn ctrl_c_token(note: Option<&'static str>) -> CancellationToken {
     let token = CancellationToken::new();
     let t = token.clone();
@@ -33,6 +35,15 @@ pub fn ctrl_c_token(note: Option<&'static str>) -> CancellationToken {
                 eprintln!("\n{name}: {note}");
             }
             t.cancel();
+            if let Some(again) = signal().await {
+                eprintln!(
+                    "\n{again} again: leaving now. The controller's watchdog or command timeout \
+                     stops the robot; a restore cut short may have left the new parameters in \
+                     place: check with `odocal params get` (or the file), and put a backup back \
+                     with `odocal restore BACKUP`"
+                );
+                std::process::exit(130);
+            }
         }
     });
     token

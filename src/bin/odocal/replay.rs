@@ -1,7 +1,9 @@
 //! `odocal replay`: calibrate on recorded square sets of one robot (pooled), evaluate on
 //! recorded runs.
 
-use crate::stated::{default_line, disagreement_lines, pm, pm_b, pm_d, within_session_legend};
+use crate::stated::{
+    default_line, disagreement_lines, pm, pm_b, pm_d, within_session_legend, Basis,
+};
 use crate::{print_json, ConventionArgs};
 use odocal::offline::dataset::{replay, OptiOdomSet};
 use serde_json::json;
@@ -132,7 +134,16 @@ pub fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
     if let Some(m) = report.default_method {
         println!("{}", default_line(m));
     }
-    for line in disagreement_lines(report.default_method, &report.estimates) {
+    for line in disagreement_lines(
+        report.default_method,
+        "the default",
+        if pooled {
+            Basis::Pooled
+        } else {
+            Basis::Session
+        },
+        &report.estimates,
+    ) {
         println!("{line}");
     }
     for (m, e) in &report.failures {

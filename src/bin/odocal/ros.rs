@@ -1,7 +1,9 @@
 //! `odocal bag` (and the ROS flags other commands share): calibrate from a ROS bag.
 
 use crate::print_json;
-use crate::stated::{default_line, disagreement_lines, pm, pm_b, pm_d, within_session_legend};
+use crate::stated::{
+    default_line, disagreement_lines, pm, pm_b, pm_d, within_session_legend, Basis,
+};
 use crate::SIM_HEADING_SIGMA_DEG;
 use odocal::calibration::{HeadingKind, Method};
 use odocal::kinematics::SplitConvention;
@@ -165,6 +167,10 @@ pub fn run(args: BagArgs) -> Result<(), Box<dyn std::error::Error>> {
     let (kind, kind_from) = match (args.heading_kind, kinds.first().copied().flatten()) {
         (Some(k), _) => (k, "--heading-kind"),
         (None, Some(k)) if kinds.iter().all(|x| *x == Some(k)) => (k, "the bag's metadata"),
+        (None, _) if kinds.iter().any(Option::is_some) => (
+            HeadingKind::Unknown,
+            "the bags' metadata disagree: give --heading-kind",
+        ),
         _ => (HeadingKind::Unknown, "not stated: give --heading-kind"),
     };
     let pooled = bag::pool(&reports, nominal, args.convention, kind)?;
@@ -236,7 +242,12 @@ pub fn run(args: BagArgs) -> Result<(), Box<dyn std::error::Error>> {
             .iter()
             .map(|e| e.estimate.clone())
             .collect();
-        for line in disagreement_lines(pooled.default_method, &estimates) {
+        for line in disagreement_lines(
+            pooled.default_method,
+            "the default",
+            Basis::Pooled,
+            &estimates,
+        ) {
             println!("{line}");
         }
     }
@@ -314,7 +325,7 @@ fn print_bag(report: &bag::BagReport, ros: &RosArgs, default: Option<Method>) {
     for line in within_session_legend(&estimates) {
         println!("{line}");
     }
-    for line in disagreement_lines(default, &estimates) {
+    for line in disagreement_lines(default, "the default", Basis::Session, &estimates) {
         println!("{line}");
     }
     for (m, why) in &report.failures {

@@ -239,7 +239,12 @@ fn print_outcome(report: &Report, json_out: bool, files: &[PathBuf]) -> CliResul
             println!("{line}");
         }
         println!("chosen: {}, {}", r.chosen.method, r.chosen_because);
-        for line in crate::stated::disagreement_lines(Some(r.chosen.method), &r.estimates) {
+        for line in crate::stated::disagreement_lines(
+            Some(r.chosen.method),
+            "the method chosen",
+            crate::stated::Basis::Session,
+            &r.estimates,
+        ) {
             println!("{line}");
         }
         println!();

@@ -6,59 +6,37 @@
 use odocal::calibration::agreement::{disagreements, DISAGREEMENT_SIGMAS};
 use odocal::calibration::{default_method_reason, Estimate, Method};
 
-/// A standard error as a table cell: "± 0.00031", "± <0.00001" when it rounds to zero at five
-/// decimals (not the same as none), "—" when there is none.
-pub fn pm(std_err: Option<f64>) -> String {
-    match std_err {
-        Some(s) if s.is_finite() && s < 0.000_005 => "± <0.00001".into(),
-        Some(s) if s.is_finite() => format!("± {s:.5}"),
-        _ => "—".into(),
-    }
-}
-
-/// `E_b`'s cell: its standard error, else "≥ x" from the noise alone, else "—".
-pub fn pm_b(e: &Estimate) -> String {
-    cell(e.e_b_std_err, e.e_b_noise_std_err)
-}
-
-/// `E_d`'s cell, as [`pm_b`].
-pub fn pm_d(e: &Estimate) -> String {
-    cell(e.e_d_std_err, e.e_d_noise_std_err)
-}
-
-fn cell(std_err: Option<f64>, noise: Option<f64>) -> String {
-    match (std_err, noise) {
-        (Some(_), _) => pm(std_err),
-        (None, Some(n)) if n.is_finite() => format!("≥ {n:.5}"),
-        _ => "—".into(),
-    }
-}
+pub use odocal::report::stated::{pm, pm_b, pm_d};
 
 /// What the cells of a one-session table mean, one line each, for the kinds present.
 pub fn within_session_legend(estimates: &[Estimate]) -> Vec<String> {
     let mut out = vec![
         "± is one standard error within this session (the scatter of its squares, never below \
-         what the heading noise gives); sessions of one robot differ by more than that: pool \
-         several sessions for what the next one will read"
+         what the heading noise gives where it is known); sessions of one robot differ by more \
+         than that: pool several sessions for what the next one will read"
             .to_string(),
     ];
-    if estimates
-        .iter()
-        .any(|e| e.e_b_std_err.is_none() && e.e_b_noise_std_err.is_some())
-    {
+    let noise_only = |e: &Estimate| {
+        (e.e_b_std_err.is_none() && e.e_b_noise_std_err.is_some())
+            || (e.e_d_std_err.is_none() && e.e_d_noise_std_err.is_some())
+    };
+    let nothing = |e: &Estimate| {
+        (e.e_b_std_err.is_none() && e.e_b_noise_std_err.is_none())
+            || (e.e_d_std_err.is_none() && e.e_d_noise_std_err.is_none())
+    };
+    if estimates.iter().any(noise_only) {
         out.push(
-            "≥ is the standard error the heading's measured noise alone gives (one square per \
+            "≥ is the standard error the heading's noise alone gives (one square per \
              direction: the scatter from square to square is unknown, so the true error is \
              larger)"
                 .into(),
         );
     }
-    if estimates
-        .iter()
-        .any(|e| e.e_b_std_err.is_none() && e.e_b_noise_std_err.is_none())
-    {
+    if estimates.iter().any(nothing) {
         out.push(
-            "— : no error stated (one square per direction and no measured heading noise)".into(),
+            "— : no error stated (one square per direction, and no heading noise known for what \
+             the method uses)"
+                .into(),
         );
     }
     out
@@ -72,36 +50,43 @@ pub fn default_line(method: Method) -> String {
     )
 }
 
-/// A warning per quantity on which a method differs from the default beyond both stated
-/// errors ([`disagreements`]); empty when they agree or there is no default.
-pub fn disagreement_lines(default: Option<Method>, estimates: &[Estimate]) -> Vec<String> {
-    let Some(reference) = default.and_then(|m| estimates.iter().find(|e| e.method == m)) else {
+/// Which errors a disagreement is measured against, as the warning names them.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Basis {
+    /// One session's standard errors (what its table shows).
+    Session,
+    /// The standard errors of pooled values (smaller than the prediction the table shows).
+    Pooled,
+}
+
+/// A warning per quantity on which a method differs from `reference` (the default, or the
+/// method chosen: `role` says which) beyond both stated errors ([`disagreements`]); empty when
+/// they agree or there is no reference.
+pub fn disagreement_lines(
+    reference: Option<Method>,
+    role: &str,
+    basis: Basis,
+    estimates: &[Estimate],
+) -> Vec<String> {
+    let Some(reference) = reference.and_then(|m| estimates.iter().find(|e| e.method == m)) else {
         return Vec::new();
+    };
+    let errors = match basis {
+        Basis::Session => "more than both state",
+        Basis::Pooled => {
+            "more than the standard errors of both pooled values (which are smaller than the \
+             prediction shown)"
+        }
     };
     disagreements(reference, estimates)
         .into_iter()
         .map(|d| {
             format!(
                 "warning: {} and {} differ in {} by {:+.5} ({:.1} combined standard errors, more \
-                 than {DISAGREEMENT_SIGMAS}): more than both state, so one of them is biased on \
-                 this robot or states too small a ±; {} is the default",
+                 than {DISAGREEMENT_SIGMAS}): {errors}, so one of them is biased on this robot or \
+                 states too small a ±; {} is {role}",
                 d.other, d.method, d.quantity, d.difference, d.sigmas, d.method
             )
         })
         .collect()
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn cells_say_none_rounding_to_zero_and_noise_only_apart() {
-        assert_eq!(pm(None), "—");
-        assert_eq!(pm(Some(0.0)), "± <0.00001");
-        assert_eq!(pm(Some(0.00031)), "± 0.00031");
-        assert_eq!(cell(None, Some(0.00012)), "≥ 0.00012");
-        assert_eq!(cell(Some(0.0003), Some(0.00012)), "± 0.00030");
-        assert_eq!(cell(None, None), "—");
-    }
 }

@@ -168,17 +168,20 @@ pub async fn record(args: RecordArgs) -> CliResult {
     .await?;
     log.flush()?;
     if outcome.cancelled {
-        eprintln!("stopped by Ctrl-C");
+        eprintln!("stopped by Ctrl-C (or SIGTERM, SIGHUP)");
     }
     let rec = &outcome.recording;
     if rec.travel.is_empty() {
         return Err(format!(
-            "no telemetry arrived in {:.1} s ({} written with its header only). The robot \
+            "no telemetry arrived {} ({} written with its header only). The robot \
              answers but sends no wheel travel: a controller may stream only while the robot \
              moves (drive it while recording, or give --drive), and `odocal mock-device` in \
              virtual time (the default) never advances while idle: start it with --time-scale 1 \
              to record from it",
-            args.duration_s.unwrap_or(f64::NAN),
+            match (outcome.cancelled, args.duration_s) {
+                (false, Some(s)) => format!("in {s:.1} s"),
+                _ => "before it was stopped".to_string(),
+            },
             args.out.display()
         )
         .into());
@@ -291,7 +294,6 @@ pub async fn track(args: TrackArgs) -> CliResult {
         return Err("--write-back writes to a live robot: give --port or --base".into());
     }
     let mut base = None;
-    let mut stopped_by_user = false;
     let (tracker, configured) = if let Some(dir) = &args.dataset {
         let set = OptiOdomSet::load(dir)?;
         let mut t = Tracker::new(config(set.configured), scale, args.every_m)?;
@@ -347,9 +349,15 @@ pub async fn track(args: TrackArgs) -> CliResult {
             }
         };
         if outcome.cancelled && !args.json {
-            println!("stopped by Ctrl-C (the robot is stopped)");
+            println!(
+                "stopped by Ctrl-C (or SIGTERM, SIGHUP){}",
+                if args.drive.drive.is_some() {
+                    "; the robot is stopped"
+                } else {
+                    ""
+                }
+            );
         }
-        stopped_by_user = outcome.cancelled;
         if let Some(l) = log.as_mut() {
             l.flush()?;
         }
@@ -363,9 +371,7 @@ pub async fn track(args: TrackArgs) -> CliResult {
     let excitation = tracker.filter().excitation(scale)?;
     let mut written = None;
     if let (true, Some(base)) = (args.write_back, &base) {
-        if stopped_by_user {
-            eprintln!("not written: tracking was stopped by Ctrl-C");
-        } else if last.e_b_std < args.max_std && last.e_d_std < args.max_std {
+        if last.e_b_std < args.max_std && last.e_d_std < args.max_std {
             let new = last.correction.apply(&configured)?;
             let policy = if args.drive.yes {
                 WritePolicy::Yes
