@@ -244,187 +244,23 @@ fn every_command_in_the_readme_runs_on_the_mocks() {
     .unwrap();
     std::fs::copy(root.join("examples/robot.toml"), work.join("robot.toml")).unwrap();
     let started = Instant::now();
+    // Blocks are independent (each its own files and servers): they run side by side, as a
+    // reader's terminals would, and their reports are joined in the README's order.
+    let reports: Vec<Report> = std::thread::scope(|scope| {
+        let handles: Vec<_> = blocks(&readme)
+            .into_iter()
+            .map(|block| scope.spawn(|| run_block(block, root, &work)))
+            .collect();
+        handles
+            .into_iter()
+            .map(|h| h.join().expect("a block's thread ends"))
+            .collect()
+    });
     let (mut ran, mut skipped, mut failures) = (Vec::new(), Vec::new(), Vec::new());
-    for block in blocks(&readme) {
-        // Servers this block started, and what their addresses replace.
-        let mut servers: Vec<Server> = Vec::new();
-        let mut map: Vec<(String, String)> = Vec::new();
-        for command in block {
-            let w = words(&command);
-            let line = w.join(" ");
-            if let Some((_, why)) = SKIPPED.iter().find(|(p, _)| {
-                command.starts_with(p) || line.starts_with(p.replace('\'', "").as_str())
-            }) {
-                skipped.push(format!("{line}: {why}"));
-                continue;
-            }
-            match w.first().map(String::as_str) {
-                Some("cp") => {
-                    std::fs::copy(root.join(&w[1]), work.join(&w[2])).unwrap();
-                    ran.push(line);
-                    continue;
-                }
-                Some("odocal") => {}
-                _ => {
-                    failures.push(format!("`{line}`: not placed (run it or say why not)"));
-                    continue;
-                }
-            }
-            let mut args: Vec<String> = w[1..].to_vec();
-            // A redirect: the output goes to that file in the work directory (or nowhere).
-            let mut redirect = None;
-            if let Some(i) = args.iter().position(|a| a == ">") {
-                redirect = args.get(i + 1).cloned();
-                args.truncate(i);
-            }
-            // Paths in the user's home go to the work directory.
-            for a in args.iter_mut() {
-                if a.starts_with("~/") {
-                    *a = work.join("home").join(&a[2..]).display().to_string();
-                }
-            }
-            match args[0].as_str() {
-                "mock-device" | "mock-rosbridge" | "mock-roboclaw" => {
-                    // A loopback port of the system's choosing: 9090 may be taken.
-                    if let Some(i) = args.iter().position(|a| a == "--tcp-port") {
-                        args[i + 1] = "0".into();
-                    }
-                    let lines = if args[0] == "mock-roboclaw" { 2 } else { 1 };
-                    let (s, printed) = server(&args, lines, &work);
-                    servers.push(s);
-                    match args[0].as_str() {
-                        "mock-rosbridge" => {
-                            map.push(("rosbridge://127.0.0.1:9090".into(), printed[0].clone()))
-                        }
-                        "mock-roboclaw" => {
-                            map.push(("roboclaw:/dev/pts/N".into(), printed[0].clone()));
-                            map.push(("nmea:/dev/pts/M".into(), printed[1].clone()));
-                        }
-                        _ => map.push(("/dev/pts/N".into(), printed[0].clone())),
-                    }
-                    ran.push(line);
-                    continue;
-                }
-                _ => {}
-            }
-            let joined = args.join(" ");
-            // Hardware the command names that no server of the block stands for yet.
-            if joined.contains("roboclaw:/dev/ttyACM0") || joined.contains("nmea:/dev/ttyUSB0") {
-                if !map.iter().any(|(f, _)| f == "/dev/ttyACM0") {
-                    let (s, printed) = server(
-                        &[
-                            "mock-roboclaw".into(),
-                            "--profile".into(),
-                            "robot.toml".into(),
-                            "--time-scale".into(),
-                            "20".into(),
-                        ],
-                        2,
-                        &work,
-                    );
-                    servers.push(s);
-                    let path = |p: &str, scheme: &str| p.trim_start_matches(scheme).to_string();
-                    map.push(("/dev/ttyACM0".into(), path(&printed[0], "roboclaw:")));
-                    map.push(("nmea:/dev/ttyUSB0".into(), printed[1].clone()));
-                }
-            } else if joined.contains("/dev/ttyUSB0")
-                && !map.iter().any(|(f, _)| f == "/dev/ttyUSB0")
-            {
-                // Recording and tracking read a clock that runs; the rest suits virtual time.
-                let live = matches!(args[0].as_str(), "record" | "track");
-                let mut a = vec!["mock-device".to_string()];
-                if live {
-                    a.extend(["--time-scale".into(), "5".into()]);
-                }
-                let (s, printed) = server(&a, 1, &work);
-                servers.push(s);
-                map.push(("/dev/ttyUSB0".into(), printed[0].clone()));
-            }
-            if joined.contains("rosbridge://ROBOT:9090")
-                && !map.iter().any(|(f, _)| f == "rosbridge://ROBOT:9090")
-            {
-                let yaml = args
-                    .iter()
-                    .position(|a| a == "--ros-yaml")
-                    .map(|i| args[i + 1].clone())
-                    .expect("a rosbridge command names its YAML");
-                let (s, printed) = server(
-                    &[
-                        "mock-rosbridge".into(),
-                        "--ros-yaml".into(),
-                        yaml,
-                        "--tcp-port".into(),
-                        "0".into(),
-                        "--time-scale".into(),
-                        "20".into(),
-                    ],
-                    1,
-                    &work,
-                );
-                servers.push(s);
-                map.push(("rosbridge://ROBOT:9090".into(), printed[0].clone()));
-            }
-            if let Some(bag) = args.iter().find(|a| a.starts_with("rosbag2_")).cloned() {
-                // A rosbag2 directory as `ros2 bag record` leaves it (one MCAP file here; the
-                // robot of examples/diff_drive.yaml).
-                if !work.join(&bag).exists() {
-                    std::fs::create_dir_all(work.join(&bag)).unwrap();
-                    let made = run(
-                        &[
-                            "simulate".into(),
-                            "--write-bag".into(),
-                            format!("{bag}/{bag}_0.mcap"),
-                            "--runs".into(),
-                            "2".into(),
-                            "--side-m".into(),
-                            "2".into(),
-                        ],
-                        &work,
-                        None,
-                    );
-                    assert!(made.ok, "{}", made.err);
-                }
-            }
-            let args = substitute(&args, &map);
-            // Commands that run until Ctrl-C.
-            let until_ctrl_c = match args[0].as_str() {
-                "record" | "track" => {
-                    args.iter().any(|a| a == "--port" || a == "--base")
-                        && !args.iter().any(|a| a == "--duration-s" || a == "--drive")
-                }
-                _ => false,
-            };
-            let r = run(&args, &work, until_ctrl_c.then(|| Duration::from_secs(4)));
-            if let Some(file) = &redirect {
-                if !file.starts_with('~') {
-                    std::fs::write(work.join(file), &r.out).unwrap();
-                }
-            }
-            let all = format!("{}\n{}", r.out, r.err);
-            if r.interrupted {
-                // Stopped, it says so, and ends as it should: with what it has, or (the mock
-                // robot stood still: nobody drove it) with the error that says to drive.
-                let still = all.contains("too little data") && all.contains("drive at least");
-                if !all.contains("stopped by Ctrl-C") || !(r.ok || still) {
-                    failures.push(format!(
-                        "`{line}` (Ctrl-C after 4 s) did not end as a stop should:\n{all}"
-                    ));
-                }
-            } else if !r.ok {
-                failures.push(format!("`{line}` failed:\n{all}"));
-            }
-            // JSON output is data (its quoting is not Debug text); the rest is read by people.
-            let human = if args.iter().any(|a| a == "--json") {
-                r.err.clone()
-            } else {
-                all.clone()
-            };
-            if let Some(d) = debug_text(&human) {
-                failures.push(format!("`{line}` printed Rust Debug text ({d}):\n{all}"));
-            }
-            ran.push(line);
-        }
-        drop(servers);
+    for r in reports {
+        ran.extend(r.ran);
+        skipped.extend(r.skipped);
+        failures.extend(r.failures);
     }
     eprintln!(
         "ran {} command(s) in {:.0} s; skipped {}:\n  {}",
@@ -457,4 +293,204 @@ fn every_command_in_the_readme_runs_on_the_mocks() {
     let exported = std::fs::read_to_string(work.join("config/diff_drive.yaml")).unwrap();
     assert_ne!(exported, example, "export wrote the bag's multipliers");
     let _: PathBuf = work;
+}
+
+/// What one block's commands did.
+#[derive(Default)]
+struct Report {
+    ran: Vec<String>,
+    skipped: Vec<String>,
+    failures: Vec<String>,
+}
+
+/// Runs one README block's commands in order in `work`, with the servers it starts or needs.
+fn run_block(block: Vec<String>, root: &Path, work: &Path) -> Report {
+    let Report {
+        mut ran,
+        mut skipped,
+        mut failures,
+    } = Report::default();
+    // Servers this block started, and what their addresses replace.
+    let mut servers: Vec<Server> = Vec::new();
+    let mut map: Vec<(String, String)> = Vec::new();
+    for command in block {
+        let w = words(&command);
+        let line = w.join(" ");
+        if let Some((_, why)) = SKIPPED
+            .iter()
+            .find(|(p, _)| command.starts_with(p) || line.starts_with(p.replace('\'', "").as_str()))
+        {
+            skipped.push(format!("{line}: {why}"));
+            continue;
+        }
+        match w.first().map(String::as_str) {
+            Some("cp") => {
+                std::fs::copy(root.join(&w[1]), work.join(&w[2])).unwrap();
+                ran.push(line);
+                continue;
+            }
+            Some("odocal") => {}
+            _ => {
+                failures.push(format!("`{line}`: not placed (run it or say why not)"));
+                continue;
+            }
+        }
+        let mut args: Vec<String> = w[1..].to_vec();
+        // A redirect: the output goes to that file in the work directory (or nowhere).
+        let mut redirect = None;
+        if let Some(i) = args.iter().position(|a| a == ">") {
+            redirect = args.get(i + 1).cloned();
+            args.truncate(i);
+        }
+        // Paths in the user's home go to the work directory.
+        for a in args.iter_mut() {
+            if a.starts_with("~/") {
+                *a = work.join("home").join(&a[2..]).display().to_string();
+            }
+        }
+        match args[0].as_str() {
+            "mock-device" | "mock-rosbridge" | "mock-roboclaw" => {
+                // A loopback port of the system's choosing: 9090 may be taken.
+                if let Some(i) = args.iter().position(|a| a == "--tcp-port") {
+                    args[i + 1] = "0".into();
+                }
+                let lines = if args[0] == "mock-roboclaw" { 2 } else { 1 };
+                let (s, printed) = server(&args, lines, work);
+                servers.push(s);
+                match args[0].as_str() {
+                    "mock-rosbridge" => {
+                        map.push(("rosbridge://127.0.0.1:9090".into(), printed[0].clone()))
+                    }
+                    "mock-roboclaw" => {
+                        map.push(("roboclaw:/dev/pts/N".into(), printed[0].clone()));
+                        map.push(("nmea:/dev/pts/M".into(), printed[1].clone()));
+                    }
+                    _ => map.push(("/dev/pts/N".into(), printed[0].clone())),
+                }
+                ran.push(line);
+                continue;
+            }
+            _ => {}
+        }
+        let joined = args.join(" ");
+        // Hardware the command names that no server of the block stands for yet.
+        if joined.contains("roboclaw:/dev/ttyACM0") || joined.contains("nmea:/dev/ttyUSB0") {
+            if !map.iter().any(|(f, _)| f == "/dev/ttyACM0") {
+                let (s, printed) = server(
+                    &[
+                        "mock-roboclaw".into(),
+                        "--profile".into(),
+                        "robot.toml".into(),
+                        "--time-scale".into(),
+                        "20".into(),
+                    ],
+                    2,
+                    work,
+                );
+                servers.push(s);
+                let path = |p: &str, scheme: &str| p.trim_start_matches(scheme).to_string();
+                map.push(("/dev/ttyACM0".into(), path(&printed[0], "roboclaw:")));
+                map.push(("nmea:/dev/ttyUSB0".into(), printed[1].clone()));
+            }
+        } else if joined.contains("/dev/ttyUSB0") && !map.iter().any(|(f, _)| f == "/dev/ttyUSB0") {
+            // Recording and tracking read a clock that runs; the rest suits virtual time.
+            let live = matches!(args[0].as_str(), "record" | "track");
+            let mut a = vec!["mock-device".to_string()];
+            if live {
+                a.extend(["--time-scale".into(), "5".into()]);
+            }
+            let (s, printed) = server(&a, 1, work);
+            servers.push(s);
+            map.push(("/dev/ttyUSB0".into(), printed[0].clone()));
+        }
+        if joined.contains("rosbridge://ROBOT:9090")
+            && !map.iter().any(|(f, _)| f == "rosbridge://ROBOT:9090")
+        {
+            let yaml = args
+                .iter()
+                .position(|a| a == "--ros-yaml")
+                .map(|i| args[i + 1].clone())
+                .expect("a rosbridge command names its YAML");
+            let (s, printed) = server(
+                &[
+                    "mock-rosbridge".into(),
+                    "--ros-yaml".into(),
+                    yaml,
+                    "--tcp-port".into(),
+                    "0".into(),
+                    "--time-scale".into(),
+                    "20".into(),
+                ],
+                1,
+                work,
+            );
+            servers.push(s);
+            map.push(("rosbridge://ROBOT:9090".into(), printed[0].clone()));
+        }
+        if let Some(bag) = args.iter().find(|a| a.starts_with("rosbag2_")).cloned() {
+            // A rosbag2 directory as `ros2 bag record` leaves it (one MCAP file here; the
+            // robot of examples/diff_drive.yaml).
+            if !work.join(&bag).exists() {
+                std::fs::create_dir_all(work.join(&bag)).unwrap();
+                let made = run(
+                    &[
+                        "simulate".into(),
+                        "--write-bag".into(),
+                        format!("{bag}/{bag}_0.mcap"),
+                        "--runs".into(),
+                        "2".into(),
+                        "--side-m".into(),
+                        "2".into(),
+                    ],
+                    work,
+                    None,
+                );
+                assert!(made.ok, "{}", made.err);
+            }
+        }
+        let args = substitute(&args, &map);
+        // Commands that run until Ctrl-C.
+        let until_ctrl_c = match args[0].as_str() {
+            "record" | "track" => {
+                args.iter().any(|a| a == "--port" || a == "--base")
+                    && !args.iter().any(|a| a == "--duration-s" || a == "--drive")
+            }
+            _ => false,
+        };
+        let r = run(&args, work, until_ctrl_c.then(|| Duration::from_secs(4)));
+        if let Some(file) = &redirect {
+            if !file.starts_with('~') {
+                std::fs::write(work.join(file), &r.out).unwrap();
+            }
+        }
+        let all = format!("{}\n{}", r.out, r.err);
+        if r.interrupted {
+            // Stopped, it says so, and ends as it should: with what it has, or (the mock
+            // robot stood still: nobody drove it) with the error that says to drive.
+            let still = all.contains("too little data") && all.contains("drive at least");
+            if !all.contains("stopped by Ctrl-C") || !(r.ok || still) {
+                failures.push(format!(
+                    "`{line}` (Ctrl-C after 4 s) did not end as a stop should:\n{all}"
+                ));
+            }
+        } else if !r.ok {
+            failures.push(format!("`{line}` failed:\n{all}"));
+        }
+        // JSON output is data (its quoting is not Debug text); the rest is read by people.
+        let human = if args.iter().any(|a| a == "--json") {
+            r.err.clone()
+        } else {
+            all.clone()
+        };
+        if let Some(d) = debug_text(&human) {
+            failures.push(format!("`{line}` printed Rust Debug text ({d}):\n{all}"));
+        }
+        ran.push(line);
+    }
+    drop(servers);
+    Report {
+        ran,
+        skipped,
+        failures,
+    }
 }
