@@ -79,31 +79,6 @@ struct Sample {
     indent: String,
 }
 
-/// A shell word list: whitespace-separated, single and double quotes group, `\\` + newline
-/// continues the line. Enough for the README's commands, which use no variables.
-fn shell_words(command: &str) -> Vec<String> {
-    let command = command.replace("\\\n", " ");
-    let (mut words, mut cur, mut quote, mut any) = (Vec::new(), String::new(), None, false);
-    for c in command.chars() {
-        match (quote, c) {
-            (Some(q), c) if c == q => quote = None,
-            (Some(_), c) => cur.push(c),
-            (None, '\'' | '"') => (quote, any) = (Some(c), true),
-            (None, c) if c.is_whitespace() => {
-                if any || !cur.is_empty() {
-                    words.push(std::mem::take(&mut cur));
-                }
-                any = false;
-            }
-            (None, c) => cur.push(c),
-        }
-    }
-    if any || !cur.is_empty() {
-        words.push(cur);
-    }
-    words
-}
-
 /// Every sample in `doc`.
 fn samples(doc: &str) -> Vec<Sample> {
     let mut out = Vec::new();
@@ -136,7 +111,7 @@ fn samples(doc: &str) -> Vec<Sample> {
                 .find(&format!("{indent}```"))
                 .expect("text block closed");
         out.push(Sample {
-            args: shell_words(body).into_iter().skip(1).collect(),
+            args: common::shell_words(body).into_iter().skip(1).collect(),
             text: text_start..text_end,
             indent: indent.clone(),
         });
@@ -272,7 +247,7 @@ fn every_sample_in_the_readme_and_docs_is_what_its_command_prints() {
 #[test]
 fn shell_words_group_quotes_and_join_continued_lines() {
     assert_eq!(
-        shell_words("odocal a 'b&c=1' \"d e\" \\\n  --x=''"),
+        common::shell_words("odocal a 'b&c=1' \"d e\" \\\n  --x=''"),
         ["odocal", "a", "b&c=1", "d e", "--x="]
     );
 }

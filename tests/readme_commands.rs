@@ -79,28 +79,9 @@ fn debug_text(out: &str) -> Option<String> {
     None
 }
 
-/// Shell words, as the samples test splits them: quotes group, `\` + newline continues, a
-/// word starting with `#` ends the command.
+/// Shell words ([`common::shell_words`]); a word starting with `#` ends the command.
 fn words(command: &str) -> Vec<String> {
-    let command = command.replace("\\\n", " ");
-    let (mut out, mut cur, mut quote, mut any) = (Vec::new(), String::new(), None, false);
-    for c in command.chars() {
-        match (quote, c) {
-            (Some(q), c) if c == q => quote = None,
-            (Some(_), c) => cur.push(c),
-            (None, '\'' | '"') => (quote, any) = (Some(c), true),
-            (None, c) if c.is_whitespace() => {
-                if any || !cur.is_empty() {
-                    out.push(std::mem::take(&mut cur));
-                }
-                any = false;
-            }
-            (None, c) => cur.push(c),
-        }
-    }
-    if any || !cur.is_empty() {
-        out.push(cur);
-    }
+    let mut out = common::shell_words(command);
     let end = out
         .iter()
         .position(|w| w.starts_with('#'))

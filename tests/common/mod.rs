@@ -306,3 +306,28 @@ pub fn combination_errors(written: &WheelParams, truth: &WheelParams) -> (f64, f
         b_over_d(written) / b_over_d(truth) - 1.0,
     )
 }
+
+/// A shell word list: whitespace-separated, single and double quotes group, `\\` + newline
+/// continues the line. Enough for the README's commands, which use no variables.
+pub fn shell_words(command: &str) -> Vec<String> {
+    let command = command.replace("\\\n", " ");
+    let (mut words, mut cur, mut quote, mut any) = (Vec::new(), String::new(), None, false);
+    for c in command.chars() {
+        match (quote, c) {
+            (Some(q), c) if c == q => quote = None,
+            (Some(_), c) => cur.push(c),
+            (None, '\'' | '"') => (quote, any) = (Some(c), true),
+            (None, c) if c.is_whitespace() => {
+                if any || !cur.is_empty() {
+                    words.push(std::mem::take(&mut cur));
+                }
+                any = false;
+            }
+            (None, c) => cur.push(c),
+        }
+    }
+    if any || !cur.is_empty() {
+        words.push(cur);
+    }
+    words
+}
