@@ -733,11 +733,7 @@ impl StoreLocation {
                 )
             }
         };
-        active.validate().map_err(|source| BackupError::Invalid {
-            path: path.to_path_buf(),
-            source,
-        })?;
-        Ok(BackupFile {
+        let backup = BackupFile {
             odocal_version: "before 0.2 (a copy of the file)".into(),
             store,
             taken_utc: None,
@@ -745,7 +741,9 @@ impl StoreLocation {
             active,
             committed: Some(active),
             text: Some(text),
-        })
+        };
+        crate::base::transaction::check_restorable(&backup, path)?;
+        Ok(backup)
     }
 
     /// Where the store a backup was taken from is: the file it records (absolute; in older

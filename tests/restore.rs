@@ -428,3 +428,50 @@ fn a_copy_that_reads_as_neither_format_is_refused_and_nothing_changes() {
     assert_eq!(files(&dir), before, "no file made or removed");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// A backup edited to hold what no robot has (a 50 m wheelbase, a 1 nm wheel) is refused by
+/// the dry run exactly as by the real run, before anything is backed up or written (issue 29).
+#[tokio::test]
+async fn a_backup_beyond_the_physical_bounds_is_refused_by_the_dry_run_as_by_the_real_run() {
+    let (dir, file) = profile_in("restore-unphysical");
+    let store = open_profile(&file);
+    let tx = Transaction::begin(store, &dir.join("report"))
+        .await
+        .unwrap();
+    let backup = tx.backup_path().unwrap().to_path_buf();
+    drop(tx);
+    let record: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&backup).unwrap()).unwrap();
+    for (field, value, name) in [
+        ("wheelbase_m", 50.0, "wheelbase_m"),
+        ("left_wheel_diameter_m", 1e-9, "left_wheel_diameter_m"),
+    ] {
+        let mut edited = record.clone();
+        edited["active"][field] = serde_json::json!(value);
+        let path = dir.join(format!("edited-{field}.json"));
+        std::fs::write(&path, serde_json::to_string_pretty(&edited).unwrap()).unwrap();
+        let before = files(&dir);
+        let report_before = files(&dir.join("report"));
+        for extra in [&["--dry-run"][..], &["--yes"][..]] {
+            let mut args = vec!["restore", path.to_str().unwrap()];
+            args.extend(extra);
+            let (ok, _, err) = odocal(&args);
+            assert!(!ok, "{field} {extra:?}: {err}");
+            assert!(
+                err.contains("no robot has") && err.contains(name),
+                "{field} {extra:?}: {err}"
+            );
+        }
+        assert_eq!(files(&dir), before, "{field}: no file made");
+        assert_eq!(
+            files(&dir.join("report")),
+            report_before,
+            "{field}: no backup"
+        );
+        assert_eq!(
+            std::fs::read_to_string(&file).unwrap(),
+            common::ROBOCLAW_PROFILE
+        );
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}

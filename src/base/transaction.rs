@@ -647,14 +647,24 @@ pub fn read_backup(path: &Path) -> Result<BackupFile, BackupError> {
             path: path.to_path_buf(),
             source,
         })?;
-    backup
-        .active
-        .validate()
-        .map_err(|source| BackupError::Invalid {
-            path: path.to_path_buf(),
-            source,
-        })?;
+    check_restorable(&backup, path)?;
     Ok(backup)
+}
+
+/// Refuses a backup whose parameters no robot has: not finite and positive, or outside the
+/// physical ranges odocal accepts from any file ([`WheelParams::check_physical`]: a 1 nm
+/// wheel, a 50 m wheelbase). Checked when a backup is read, so a dry run refuses what the real
+/// run would, and before anything is backed up or written.
+pub fn check_restorable(backup: &BackupFile, path: &Path) -> Result<(), BackupError> {
+    let invalid = |source| BackupError::Invalid {
+        path: path.to_path_buf(),
+        source,
+    };
+    for params in std::iter::once(&backup.active).chain(backup.committed.as_ref()) {
+        params.validate().map_err(invalid)?;
+        params.check_physical().map_err(invalid)?;
+    }
+    Ok(())
 }
 
 #[cfg(test)]

@@ -193,6 +193,9 @@ pub async fn restore_onto(
         return print_params(&current, how.json, extra(false));
     }
     if how.dry_run {
+        // Every check the real run makes before its question (Transaction::prepare), so a dry
+        // run fails where the real run would.
+        store.check_write(&target).await?;
         eprintln!("dry run: nothing written");
         return print_params(&current, how.json, extra(false));
     }
