@@ -1201,3 +1201,49 @@ fn a_path_that_is_not_a_serial_port_is_named_before_anything_says_it_moves() {
     }
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// Numbers no square test or robot can produce are refused with the flag, its range and the
+/// value in a form a person reads (issue 29, item 3 in part): a final position beyond the
+/// square's perimeter, a 1e300 m wheel, 1e300 heading readings per second.
+#[test]
+fn numbers_beyond_any_robot_are_refused_with_their_range() {
+    let square = [
+        "estimate",
+        "--side-m",
+        "4",
+        "--wheelbase-m",
+        "0.39",
+        "--cw-heading-deg=-26.31,-26.92",
+        "--ccw-heading-deg=-11.62,-12.15",
+    ];
+    let mut far = square.to_vec();
+    far.extend(["--cw-xy-m", "1e300,1e300;1,1", "--ccw-xy-m", "1,1;1,1"]);
+    let (ok, out, err) = odocal(&far);
+    assert!(!ok && out.is_empty(), "{out}");
+    assert!(
+        err.contains("clockwise run 1") && err.contains("1.414e300 m") && err.contains("16 m"),
+        "{err}"
+    );
+    let mut wheel = square.to_vec();
+    wheel.extend(["--wheel-diameter-m", "1e300"]);
+    let (ok, _, err) = odocal(&wheel);
+    assert!(
+        !ok && err.contains("--wheel-diameter-m must be in [0.001, 5], got 1e300"),
+        "{err}"
+    );
+    let (ok, _, err) = odocal(&[
+        "plan",
+        "--side-m",
+        "2",
+        "--heading-sigma-deg",
+        "0.37",
+        "--wheelbase-m",
+        "0.39",
+        "--heading-hz",
+        "1e300",
+    ]);
+    assert!(
+        !ok && err.contains("--heading-hz must be in [0.1, 1000], got 1e300"),
+        "{err}"
+    );
+}

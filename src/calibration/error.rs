@@ -30,7 +30,19 @@ pub enum CalibrationError {
         /// The error in degrees.
         degrees: f64,
     },
-    /// Some runs have a final position and others do not.
+    /// A final position farther from the start than the square's perimeter.
+    #[error("{direction} run {}: its final position is {} m from the start, farther than the square's whole perimeter ({} m): not a square run; check the units (metres) and the signs", index + 1, if *distance_m < 1e6 { format!("{distance_m:.3}") } else { format!("{distance_m:.3e}") }, 4.0 * side_m)]
+    FarEndPoint {
+        /// Direction of the run.
+        direction: Direction,
+        /// Index within its direction (0-based).
+        index: usize,
+        /// Distance of the final position from the start (m).
+        distance_m: f64,
+        /// The square's side (m).
+        side_m: f64,
+    },
+    /// Some runs give final positions and others do not.
     #[error(
         "final positions must be given for every run or for none ({with} of {total} have one)"
     )]

@@ -201,6 +201,16 @@ impl SquareTest {
                             index,
                         });
                     }
+                    // A square run cannot end farther away than its whole perimeter.
+                    let distance_m = xy[0].hypot(xy[1]);
+                    if distance_m > 4.0 * self.side_m {
+                        return Err(CalibrationError::FarEndPoint {
+                            direction,
+                            index,
+                            distance_m,
+                            side_m: self.side_m,
+                        });
+                    }
                     with += 1;
                 }
             }

@@ -137,6 +137,10 @@ pub fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
         let m: Method = args.method.parse()?;
         vec![(m, calibration::estimate(m, &test, convention))]
     };
+    if let Some(d) = args.wheel_diameter_m {
+        let (lo, hi) = odocal::kinematics::PHYSICAL_DIAMETER_M;
+        crate::in_range("--wheel-diameter-m", d, lo, hi)?;
+    }
     let configured = args
         .wheel_diameter_m
         .map(|d| WheelParams::nominal(d, args.wheelbase_m, 1.0));

@@ -195,7 +195,20 @@ pub fn in_range(flag: &str, value: f64, lo: f64, hi: f64) -> Result<(), String> 
     if value.is_finite() && (lo..=hi).contains(&value) {
         Ok(())
     } else {
-        Err(format!("{flag} must be in [{lo}, {hi}], got {value}"))
+        Err(format!(
+            "{flag} must be in [{lo}, {hi}], got {}",
+            compact(value)
+        ))
+    }
+}
+
+/// A number as a person reads it: plain when moderate, in exponent form when huge or tiny
+/// (1e300 is not 301 digits).
+pub fn compact(v: f64) -> String {
+    if v != 0.0 && v.is_finite() && !(1e-4..1e6).contains(&v.abs()) {
+        format!("{v:e}")
+    } else {
+        format!("{v}")
     }
 }
 

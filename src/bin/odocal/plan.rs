@@ -103,6 +103,14 @@ fn side_fits(floor: Space, side_m: f64, footprint_m: f64) -> Result<(), String> 
 pub fn run(args: Args) -> CliResult {
     in_range("--heading-sigma-deg", args.heading_sigma_deg, 0.0, 45.0)?;
     in_range("--run-scatter-deg", args.run_scatter_deg, 0.0, 45.0)?;
+    in_range("--wheelbase-m", args.wheelbase_m, 0.01, 10.0)?;
+    in_range("--footprint-m", args.footprint_m, 0.0, 10.0)?;
+    if let Some(hz) = args.heading_hz {
+        in_range("--heading-hz", hz, 0.1, 1000.0)?;
+    }
+    if let Some(t) = args.target_end_m {
+        in_range("--target-end-m", t, 1e-6, 10.0)?;
+    }
     let floor = args.floor_m.as_deref().map(parse_floor).transpose()?;
     let space = match (floor, args.side_max_m, args.side_m) {
         (floor, _, Some(side)) => {
