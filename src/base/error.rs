@@ -40,7 +40,7 @@ pub enum BaseError {
     #[error("the device watchdog stopped the base")]
     WatchdogTripped,
     /// A motion did not finish in the time it should take.
-    #[error("the motion did not finish within {after:?}")]
+    #[error("the motion did not finish within {}", crate::io::seconds(.after))]
     MotionTimeout {
         /// How long was waited.
         after: Duration,

@@ -323,14 +323,20 @@ impl Transaction {
         let active = match tokio::time::timeout(ROLLBACK_TIMEOUT, self.store.read()).await {
             Ok(Ok(p)) => classify(&p),
             Ok(Err(e)) => Holds::Unknown(e.to_string()),
-            Err(_) => Holds::Unknown(format!("no answer in {ROLLBACK_TIMEOUT:?}")),
+            Err(_) => Holds::Unknown(format!(
+                "no answer in {}",
+                crate::io::seconds(&ROLLBACK_TIMEOUT)
+            )),
         };
         let committed =
             match tokio::time::timeout(ROLLBACK_TIMEOUT, self.store.read_committed()).await {
                 Ok(Ok(Some(p))) => classify(&p),
                 Ok(Ok(None)) => Holds::Unknown("the store has no committed copy".into()),
                 Ok(Err(e)) => Holds::Unknown(e.to_string()),
-                Err(_) => Holds::Unknown(format!("no answer in {ROLLBACK_TIMEOUT:?}")),
+                Err(_) => Holds::Unknown(format!(
+                    "no answer in {}",
+                    crate::io::seconds(&ROLLBACK_TIMEOUT)
+                )),
             };
         (active, committed)
     }

@@ -305,7 +305,8 @@ impl HeadingSource for Client {
             }
             let validity = if repeated {
                 Validity::Invalid(format!(
-                    "the device's heading sensor took no new reading within {NEW_HEADING_WITHIN:?}"
+                    "the device's heading sensor took no new reading within {}",
+                    crate::io::seconds(&NEW_HEADING_WITHIN)
                 ))
             } else if h.valid {
                 Validity::Valid

@@ -33,7 +33,7 @@ pub enum RoboClawError {
         source: Arc<tokio_serial::Error>,
     },
     /// No (complete) answer in time.
-    #[error("no answer to command {command} within {after:?} after {attempts} attempt(s)")]
+    #[error("no answer to command {command} within {} after {attempts} attempt(s)", crate::io::seconds(.after))]
     Timeout {
         /// The command.
         command: u8,

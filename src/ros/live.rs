@@ -808,8 +808,9 @@ const STILL_RAD: f64 = 1e-4;
 /// graph say about why.
 #[derive(Debug, thiserror::Error)]
 #[error(
-    "the robot did not move within {after:?} of the first command on {topic} ({kind}): its \
-     odometry ({odometry}) did not change; {other}; {diagnosis}; stopped"
+    "the robot did not move within {} of the first command on {topic} ({kind}): its \
+     odometry ({odometry}) did not change; {other}; {diagnosis}; stopped",
+    crate::io::seconds(.after)
 )]
 pub struct NotMoving {
     /// The velocity topic commanded.
@@ -1152,8 +1153,8 @@ impl HeadingSource for RosHeading {
                     time_s: last.as_ref().map_or(0.0, |(_, s)| s.time_s),
                     heading_rad: last.as_ref().map_or(0.0, |(_, s)| s.heading_rad),
                     validity: Validity::Invalid(format!(
-                        "stale: no new {} message as new as the wheel data ({newest:.3} s) within {:?}",
-                        self.topic, self.stale
+                        "stale: no new {} message as new as the wheel data ({newest:.3} s) within {}",
+                        self.topic, crate::io::seconds(&self.stale)
                     )),
                 })
             }
