@@ -189,7 +189,11 @@ pub fn estimate(
         Some((out[(0, 0)].max(0.0).sqrt(), out[(1, 1)].max(0.0).sqrt()))
     };
     let std_err = covariance(false).and_then(propagate);
-    let noise = covariance(true).and_then(propagate);
+    // The noise alone stands in only where there is no scatter to measure.
+    let noise = std_err
+        .is_none()
+        .then(|| covariance(true).and_then(propagate))
+        .flatten();
     Ok(
         Estimate::of(Method::MatchedLegs, correction, std_err, &convention)
             .with_noise_std_err(noise),

@@ -520,7 +520,11 @@ pub fn estimate(
     let obs = MeanObservation::of(test);
     let correction = point(method, &obs, &ctx)?;
     let std_err = standard_errors(method, test, &obs, &ctx, false);
-    let noise = standard_errors(method, test, &obs, &ctx, true);
+    // The noise alone stands in only where there is no scatter to measure.
+    let noise = std_err
+        .is_none()
+        .then(|| standard_errors(method, test, &obs, &ctx, true))
+        .flatten();
     Ok(Estimate::of(method, correction, std_err, &ctx.convention).with_noise_std_err(noise))
 }
 
@@ -555,6 +559,16 @@ impl HeadingKind {
     /// Whether its readings may carry a deviation curve.
     pub fn may_deviate(self) -> bool {
         matches!(self, HeadingKind::Magnetic | HeadingKind::Unknown)
+    }
+}
+
+/// What a simulated sensor measures, as a backend would report it.
+impl From<crate::sim::sensor::SensorKind> for HeadingKind {
+    fn from(kind: crate::sim::sensor::SensorKind) -> Self {
+        match kind {
+            crate::sim::sensor::SensorKind::Compass => HeadingKind::Magnetic,
+            crate::sim::sensor::SensorKind::Gyro => HeadingKind::Gyro,
+        }
     }
 }
 

@@ -98,16 +98,22 @@ fn nan() -> f64 {
     f64::NAN
 }
 
+/// The upper median (the middle value, the larger of the two middle ones for an even count):
+/// what a recording without a scatter borrows and what a typical recording's variance is.
+fn upper_median(mut v: Vec<f64>) -> Option<f64> {
+    v.sort_by(f64::total_cmp);
+    v.get(v.len() / 2).copied()
+}
+
 fn pool_log(y: &[f64], se: &[Option<f64>], runs: &[usize]) -> PooledLog {
     // Per-run variance of the recordings that have one, borrowed by those that do not.
-    let mut per_run: Vec<f64> = se
-        .iter()
-        .zip(runs)
-        .filter_map(|(s, &n)| s.map(|s| s * s * n.max(1) as f64))
-        .filter(|v| v.is_finite() && *v > 0.0)
-        .collect();
-    per_run.sort_by(f64::total_cmp);
-    let borrowed = per_run.get(per_run.len() / 2).copied();
+    let borrowed = upper_median(
+        se.iter()
+            .zip(runs)
+            .filter_map(|(s, &n)| s.map(|s| s * s * n.max(1) as f64))
+            .filter(|v| v.is_finite() && *v > 0.0)
+            .collect(),
+    );
     // A recording with no scatter at all (exactly repeated runs) must not take every weight.
     let floor = 1e-12;
     let v: Vec<f64> = se
@@ -140,12 +146,7 @@ fn pool_log(y: &[f64], se: &[Option<f64>], runs: &[usize]) -> PooledLog {
     } else {
         sw_re.sqrt().recip()
     };
-    let mut sorted_v = v.clone();
-    sorted_v.sort_by(f64::total_cmp);
-    let typical_v = sorted_v
-        .get(sorted_v.len() / 2)
-        .copied()
-        .unwrap_or(f64::NAN);
+    let typical_v = upper_median(v.clone()).unwrap_or(f64::NAN);
     PooledLog {
         mean,
         run_to_run_std_err: if no_scatter {

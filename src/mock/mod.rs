@@ -30,8 +30,5 @@ pub use serve::{
 
 /// What kind of heading a simulated sensor is, as a backend would say it.
 pub fn heading_kind(model: &crate::sim::sensor::HeadingModel) -> crate::base::HeadingKind {
-    match model.kind {
-        crate::sim::sensor::SensorKind::Compass => crate::base::HeadingKind::Magnetic,
-        crate::sim::sensor::SensorKind::Gyro => crate::base::HeadingKind::Gyro,
-    }
+    model.kind.into()
 }

@@ -201,11 +201,7 @@ pub fn write_simulated_bag(
     topics: &RosTopics,
 ) -> Result<u64, BagError> {
     let mut w = BagWriter::create(path, topics)?;
-    let kind = match sim.heading_model().kind {
-        crate::sim::sensor::SensorKind::Compass => crate::calibration::HeadingKind::Magnetic,
-        crate::sim::sensor::SensorKind::Gyro => crate::calibration::HeadingKind::Gyro,
-    };
-    w.describe(Some(cfg.side_m), kind)?;
+    w.describe(Some(cfg.side_m), sim.heading_model().kind.into())?;
     let configured = *sim.configured();
     let sub = (cfg.imu_hz / cfg.joint_hz).round().max(1.0) as u64;
     let dt = 1.0 / (cfg.joint_hz * sub as f64);
