@@ -7,7 +7,7 @@ use super::square::SquareRecord;
 use super::GroundTruth;
 use crate::base::{Base, BaseInfo, TravelSample};
 use crate::calibration::legs::LegMeasurement;
-use crate::calibration::recording::{coverage, Coverage};
+use crate::calibration::recording::{coverage, Coverage, Track};
 use crate::calibration::{Estimate, Method};
 use crate::kinematics::{Direction, Displacement, Pose, WheelParams};
 use serde::{Deserialize, Serialize};
@@ -108,7 +108,7 @@ pub struct RunReport {
     /// Mean heading at rest after (rad).
     pub heading_after_rad: f64,
     /// Heading error along the legs, middle of the first to the middle of the last (rad),
-    /// when both streams ran ([`SquareRecord::leg_measurement`]).
+    /// when both streams ran ([`Track::leg_measurement`]).
     pub leg_heading_error_rad: Option<f64>,
     /// The drive's odometry over the run (turn and distance), when it reported it.
     pub odometry: Option<Displacement>,
@@ -157,8 +157,7 @@ pub struct RunSample {
 /// The run's samples from its aligned streams ([`Recording::track`]): cumulative wheel travel
 /// and the heading at every travel sample, decimated to [`PATH_POINTS`] keeping the last.
 /// Cumulative travel decimates without loss of the total, unlike increments.
-fn run_samples(rec: &SquareRecord, wheelbase_m: f64) -> Vec<RunSample> {
-    let track = rec.recording().track(wheelbase_m);
+fn run_samples(track: &Track, wheelbase_m: f64) -> Vec<RunSample> {
     let (mut left, mut right) = (0.0, 0.0);
     let all: Vec<RunSample> = track
         .points
@@ -241,7 +240,9 @@ impl RunReport {
                 rec.heading_error_rad.to_degrees()
             ));
         }
-        let legs = rec.leg_measurement(params.wheelbase_m);
+        // The streams aligned once: the heading along the legs and the kept samples.
+        let track = rec.recording().track(params.wheelbase_m);
+        let legs = track.leg_measurement(params.wheelbase_m);
         let times: Vec<f64> = rec.headings.iter().map(|h| h.time_s).collect();
         let heading_coverage = coverage(&times);
         if let Some(c) = heading_coverage.filter(|c| c.fraction < INCOMPLETE) {
@@ -271,7 +272,7 @@ impl RunReport {
             true_path: truth.map(|t| integrate(&rec.travel, params, &t.true_params())),
             travel_samples: rec.travel.len(),
             heading_samples: rec.headings.len(),
-            samples: run_samples(rec, params.wheelbase_m),
+            samples: run_samples(&track, params.wheelbase_m),
             heading_coverage,
             warnings,
         }

@@ -5,7 +5,6 @@
 use super::heading::{at_rest, NoisePool};
 use super::RoutineError;
 use crate::base::{Base, HeadingSample, MotionGuard, SampleStream, TravelSample};
-use crate::calibration::legs::LegMeasurement;
 use crate::calibration::recording::{Clocks, Recording};
 use crate::kinematics::{wrap_angle, Direction, Displacement};
 use serde::Serialize;
@@ -65,15 +64,6 @@ impl SquareRecord {
             headings: self.headings.clone(),
             clocks: self.clocks,
         }
-    }
-
-    /// The heading along the legs ([`crate::calibration::legs`]) from the streamed wheel
-    /// travel and headings ([`Recording::track`] aligns their clocks), or `None` without both
-    /// streams or without four legs.
-    pub fn leg_measurement(&self, wheelbase_m: f64) -> Option<LegMeasurement> {
-        self.recording()
-            .track(wheelbase_m)
-            .leg_measurement(wheelbase_m)
     }
 }
 

@@ -189,7 +189,7 @@ pub struct TrackOutcome {
 
 /// **Moves the robot when `opts.path` is given**: tracks `base` live with `tracker` until the
 /// path is driven, `opts.duration` passes or `cancel` fires (not an error: the outcome says
-/// [`TrackOutcome::cancelled`]; the base is stopped either way); hands every sample to `sink` and
+/// [`TrackOutcome::cancelled`]; a base driving a path is stopped either way); hands every sample to `sink` and
 /// every checkpoint to `on_checkpoint`. At the end the streams' clock offset is checked (and
 /// reported in the tracker, not corrected: live samples cannot be re-read).
 pub async fn track_live(
