@@ -26,34 +26,38 @@ fn io(e: Box<dyn std::error::Error>) -> std::io::Error {
     std::io::Error::other(e.to_string())
 }
 
+/// Draws one plot into a file; `false` (and no file) when the report has no data for it.
+type Plot = fn(&Report, &Path) -> PlotResult<bool>;
+
+/// Every plot, by the file it goes to ([`crate::routine::report::REPORT_FILES`]).
+const PLOTS: [(&str, Plot); 6] = [
+    ("paths.svg", paths_plot),
+    ("heading_errors.svg", heading_plot),
+    ("end_points.svg", end_points_plot),
+    ("estimates.svg", estimates_plot),
+    ("swing.svg", swing_plot),
+    ("heading_along_legs.svg", heading_along_plot),
+];
+
 /// Writes every plot the report has data for, and no other; returns the files written.
 pub fn write_all(report: &Report, dir: &Path) -> std::io::Result<Vec<PathBuf>> {
     let mut out = Vec::new();
-    let paths = dir.join("paths.svg");
-    if paths_plot(report, &paths).map_err(io)? {
-        out.push(paths);
-    }
-    let headings = dir.join("heading_errors.svg");
-    if heading_plot(report, &headings).map_err(io)? {
-        out.push(headings);
-    }
-    let ends = dir.join("end_points.svg");
-    if end_points_plot(report, &ends).map_err(io)? {
-        out.push(ends);
-    }
-    let estimates = dir.join("estimates.svg");
-    if estimates_plot(report, &estimates).map_err(io)? {
-        out.push(estimates);
-    }
-    let swing = dir.join("swing.svg");
-    if swing_plot(report, &swing).map_err(io)? {
-        out.push(swing);
-    }
-    let legs = dir.join("heading_along_legs.svg");
-    if heading_along_plot(report, &legs).map_err(io)? {
-        out.push(legs);
+    for (name, draw) in PLOTS {
+        let file = dir.join(name);
+        if draw(report, &file).map_err(io)? {
+            out.push(file);
+        }
     }
     Ok(out)
+}
+
+/// A white canvas of `size` pixels in `file`: the whole (to present), the plots' part and the
+/// legend's column at the right.
+fn canvas(file: &Path, size: (u32, u32)) -> PlotResult<(Area<'_>, Area<'_>, Area<'_>)> {
+    let root = SVGBackend::new(file, size).into_drawing_area();
+    root.fill(&WHITE)?;
+    let (plots, side) = root.split_horizontally(size.0 - LEGEND_PX);
+    Ok((root, plots, side))
 }
 
 /// The colour of a direction's runs in every plot.
@@ -349,9 +353,7 @@ fn paths_plot(report: &Report, file: &Path) -> PlotResult<bool> {
         }
     }
     let size = (LEGEND_PX + 560 * panels.len() as u32, 620);
-    let root = SVGBackend::new(file, size).into_drawing_area();
-    root.fill(&WHITE)?;
-    let (plots, side) = root.split_horizontally(size.0 - LEGEND_PX);
+    let (root, plots, side) = canvas(file, size)?;
     let mut used: Vec<(PathKind, Direction)> = Vec::new();
     for (area, (title, traces)) in plots.split_evenly((1, panels.len())).iter().zip(&panels) {
         let (area, px) = titled(area, title)?;
@@ -399,9 +401,7 @@ fn estimates_plot(report: &Report, file: &Path) -> PlotResult<bool> {
         return Ok(false);
     }
     let size = (LEGEND_PX + 2 * 420, 480);
-    let root = SVGBackend::new(file, size).into_drawing_area();
-    root.fill(&WHITE)?;
-    let (plots, side) = root.split_horizontally(size.0 - LEGEND_PX);
+    let (root, plots, side) = canvas(file, size)?;
     let n = report.rounds.len() as f64;
     let x_ticks = |v: &f64| {
         let k = v.round();
@@ -528,9 +528,7 @@ fn swing_plot(report: &Report, file: &Path) -> PlotResult<bool> {
     }
     let pad = (0.1 * (hi - lo)).max(0.05);
     let size = (LEGEND_PX + 720, 480);
-    let root = SVGBackend::new(file, size).into_drawing_area();
-    root.fill(&WHITE)?;
-    let (plot, side) = root.split_horizontally(size.0 - LEGEND_PX);
+    let (root, plot, side) = canvas(file, size)?;
     let (area, _) = titled(
         &plot,
         &format!(
@@ -638,9 +636,7 @@ fn heading_along_plot(report: &Report, file: &Path) -> PlotResult<bool> {
     let ypad = (0.08 * (y1 - y0)).max(0.05);
     let xpad = 0.02 * (x1 - x0).max(0.01);
     let size = (LEGEND_PX + 820, 520);
-    let root = SVGBackend::new(file, size).into_drawing_area();
-    root.fill(&WHITE)?;
-    let (plot, side) = root.split_horizontally(size.0 - LEGEND_PX);
+    let (root, plot, side) = canvas(file, size)?;
     let (area, _) = titled(&plot, "Heading along the square, less the odometry's turn")?;
     let mut chart = chart(
         &area,
@@ -720,9 +716,7 @@ fn heading_plot(report: &Report, file: &Path) -> PlotResult<bool> {
         return Ok(false);
     }
     let size = (LEGEND_PX + 400 * panels.len() as u32, 520);
-    let root = SVGBackend::new(file, size).into_drawing_area();
-    root.fill(&WHITE)?;
-    let (plots, side) = root.split_horizontally(size.0 - LEGEND_PX);
+    let (root, plots, side) = canvas(file, size)?;
     let directions = [Direction::Cw, Direction::Ccw];
     let x_ticks = |v: &f64| match v.round() as i64 {
         0 if v.abs() < 1e-9 => "clockwise".to_string(),
@@ -835,9 +829,7 @@ fn end_points_plot(report: &Report, file: &Path) -> PlotResult<bool> {
         return Ok(false);
     }
     let size = (LEGEND_PX + 480 * panels.len() as u32, 560);
-    let root = SVGBackend::new(file, size).into_drawing_area();
-    root.fill(&WHITE)?;
-    let (plots, side) = root.split_horizontally(size.0 - LEGEND_PX);
+    let (root, plots, side) = canvas(file, size)?;
     for (area, (phase, runs)) in plots.split_evenly((1, panels.len())).iter().zip(&panels) {
         let all: Vec<[f64; 2]> = runs.iter().filter_map(|r| r.true_final_xy_m).collect();
         // Millimetres when every end point is within 5 cm: ticks a reader can say aloud.
