@@ -5,7 +5,7 @@ use crate::stated::{
     default_line, disagreement_lines, pm, pm_b, pm_d, within_session_legend, Basis,
 };
 use crate::SIM_HEADING_SIGMA_DEG;
-use odocal::calibration::{HeadingKind, Method};
+use odocal::calibration::Method;
 use odocal::kinematics::SplitConvention;
 use odocal::ros::bag::{self, BagOptions, GeometrySource, RosTopics};
 use odocal::ros::yaml::DiffDriveConfig;
@@ -163,16 +163,7 @@ pub fn run(args: BagArgs) -> Result<(), Box<dyn std::error::Error>> {
         )?);
     }
     let nominal = nominal_of_first.unwrap_or((f64::NAN, f64::NAN));
-    // The kind the user names, else the one every bag's metadata names, else unknown.
-    let (kind, kind_from) = match (args.heading_kind, kinds.first().copied().flatten()) {
-        (Some(k), _) => (k, "--heading-kind"),
-        (None, Some(k)) if kinds.iter().all(|x| *x == Some(k)) => (k, "the bag's metadata"),
-        (None, _) if kinds.iter().any(Option::is_some) => (
-            HeadingKind::Unknown,
-            "the bags' metadata disagree: give --heading-kind",
-        ),
-        _ => (HeadingKind::Unknown, "not stated: give --heading-kind"),
-    };
+    let (kind, kind_from) = bag::heading_kind(args.heading_kind, &kinds);
     let pooled = bag::pool(&reports, nominal, args.convention, kind)?;
     if args.json {
         if let [report] = reports.as_slice() {

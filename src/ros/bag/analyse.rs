@@ -471,6 +471,24 @@ pub struct PooledBags {
     pub default_method: Option<Method>,
 }
 
+/// What the IMU's yaw of `bags` is, and where that comes from: what the user `given`, else
+/// what every bag's `odocal` metadata says ([`BagData::heading_kind`], bags odocal wrote), else
+/// unknown (with why: nothing said, or the bags disagree).
+pub fn heading_kind(
+    given: Option<HeadingKind>,
+    bags: &[Option<HeadingKind>],
+) -> (HeadingKind, &'static str) {
+    match (given, bags.first().copied().flatten()) {
+        (Some(k), _) => (k, "--heading-kind"),
+        (None, Some(k)) if bags.iter().all(|x| *x == Some(k)) => (k, "the bag's metadata"),
+        (None, _) if bags.iter().any(Option::is_some) => (
+            HeadingKind::Unknown,
+            "the bags' metadata disagree: give --heading-kind",
+        ),
+        _ => (HeadingKind::Unknown, "not stated: give --heading-kind"),
+    }
+}
+
 /// Pools the estimates of `reports` (bags of one robot whose heading sensor is `kind`);
 /// multipliers are relative to `nominal` (wheel radius, separation).
 pub fn pool(

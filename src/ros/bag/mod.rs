@@ -28,8 +28,8 @@ pub mod sqlite3;
 pub mod writer;
 
 pub use analyse::{
-    analyse, find_runs, infer_geometry, multipliers, pool, BagEstimate, BagReport, BagRun,
-    GeometrySource, InferredGeometry, PooledBags,
+    analyse, find_runs, heading_kind, infer_geometry, multipliers, pool, BagEstimate, BagReport,
+    BagRun, GeometrySource, InferredGeometry, PooledBags,
 };
 pub use decode::{read_bag, read_bag_bytes};
 
