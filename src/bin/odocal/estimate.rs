@@ -111,6 +111,10 @@ pub fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
             return Err(format!("{flag} must be at most {hi} m, got {v}").into());
         }
     }
+    if let Some(d) = args.wheel_diameter_m {
+        let (lo, hi) = odocal::kinematics::PHYSICAL_DIAMETER_M;
+        crate::in_range("--wheel-diameter-m", d, lo, hi)?;
+    }
     let mut test = SquareTest {
         side_m: args.side_m,
         wheelbase_m: args.wheelbase_m,
@@ -119,13 +123,16 @@ pub fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
     };
     // A stated sensor noise is each run's noise: a ± is never below what it gives (a few runs'
     // scatter is often far below it by chance), and one run per direction still gets one.
-    if let Some(s) = args.compass_sigma_deg {
-        if !(s.is_finite() && s > 0.0 && s <= 45.0) {
+    // One reading at each end of a run: the run's heading error has √2 times its noise.
+    let run_sigma_rad = match args.compass_sigma_deg {
+        Some(s) if !(s.is_finite() && s > 0.0 && s <= 45.0) => {
             return Err(format!("--heading-sigma-deg must be in (0, 45] deg, got {s}").into());
         }
-        let v = heading_error_sigma(s.to_radians(), 1).powi(2);
+        s => s.map(|s| heading_error_sigma(s.to_radians(), 1)),
+    };
+    if let Some(sigma) = run_sigma_rad {
         for run in test.cw.iter_mut().chain(test.ccw.iter_mut()) {
-            run.noise_variance_rad2 = Some(v);
+            run.noise_variance_rad2 = Some(sigma * sigma);
         }
     }
     let convention = args.convention.convention();
@@ -137,16 +144,17 @@ pub fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
         let m: Method = args.method.parse()?;
         vec![(m, calibration::estimate(m, &test, convention))]
     };
-    if let Some(d) = args.wheel_diameter_m {
-        let (lo, hi) = odocal::kinematics::PHYSICAL_DIAMETER_M;
-        crate::in_range("--wheel-diameter-m", d, lo, hi)?;
-    }
+    // By hand: what the heading sensor is, is not said.
+    let default = calibration::default_method(
+        test.has_leg_headings(),
+        test.has_positions(),
+        calibration::HeadingKind::Unknown,
+    );
     let configured = args
         .wheel_diameter_m
         .map(|d| WheelParams::nominal(d, args.wheelbase_m, 1.0));
-    let crb = args
-        .compass_sigma_deg
-        .map(|s| {
+    let crb = run_sigma_rad
+        .map(|sigma| {
             // The bound is evaluated at the exact estimate; reuse it when it was computed.
             let exact = match results.iter().find(|(m, _)| *m == Method::Exact) {
                 Some((_, r)) => r.clone()?,
@@ -157,7 +165,7 @@ pub fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
                 wheelbase_m: test.wheelbase_m,
                 runs_cw: test.cw.len(),
                 runs_ccw: test.ccw.len(),
-                heading_error_sigma_rad: heading_error_sigma(s.to_radians(), 1),
+                heading_error_sigma_rad: sigma,
             };
             cramer_rao_bound(exact.e_b, exact.e_d, convention, &design)
         })
@@ -204,7 +212,7 @@ pub fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
         return print_json(&json!({
             "convention": convention.name(),
             "configured": configured,
-            "default_method": calibration::default_method(test.has_leg_headings(), test.has_positions(), calibration::HeadingKind::Unknown),
+            "default_method": default,
             "warnings": warnings,
             "estimates": estimates,
             "failures": failures.iter().map(|(m, e)| json!({"method": m.name(), "error": e})).collect::<Vec<_>>(),
@@ -218,11 +226,6 @@ pub fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
         test.cw.len(),
         test.ccw.len(),
         convention.name()
-    );
-    let default = calibration::default_method(
-        test.has_leg_headings(),
-        test.has_positions(),
-        calibration::HeadingKind::Unknown,
     );
     println!(
         "{:<13} {:>9} {:>10} {:>9} {:>10}",

@@ -16,15 +16,9 @@ pub fn within_session_legend(estimates: &[Estimate]) -> Vec<String> {
          than that: pool several sessions for what the next one will read"
             .to_string(),
     ];
-    let noise_only = |e: &Estimate| {
-        (e.e_b_std_err.is_none() && e.e_b_noise_std_err.is_some())
-            || (e.e_d_std_err.is_none() && e.e_d_noise_std_err.is_some())
-    };
-    let nothing = |e: &Estimate| {
-        (e.e_b_std_err.is_none() && e.e_b_noise_std_err.is_none())
-            || (e.e_d_std_err.is_none() && e.e_d_noise_std_err.is_none())
-    };
-    if estimates.iter().any(noise_only) {
+    // The legend explains the cells the table shows, read from the cells themselves.
+    let cells: Vec<String> = estimates.iter().flat_map(|e| [pm_b(e), pm_d(e)]).collect();
+    if cells.iter().any(|c| c.starts_with('≥')) {
         out.push(
             "≥ is the standard error the heading's noise alone gives (one square per \
              direction: the scatter from square to square is unknown, so the true error is \
@@ -32,7 +26,7 @@ pub fn within_session_legend(estimates: &[Estimate]) -> Vec<String> {
                 .into(),
         );
     }
-    if estimates.iter().any(nothing) {
+    if cells.iter().any(|c| c == "—") {
         out.push(
             "— : no error stated (one square per direction, and no heading noise known for what \
              the method uses)"
@@ -89,4 +83,58 @@ pub fn disagreement_lines(
             )
         })
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use odocal::kinematics::{Correction, SplitConvention};
+
+    fn estimate(method: Method, std_err: Option<(f64, f64)>) -> Estimate {
+        let c = Correction {
+            left_diameter_scale: 1.0,
+            right_diameter_scale: 1.0,
+            wheelbase_scale: 1.01,
+        };
+        Estimate::of(method, c, std_err, &SplitConvention::LeftNominal)
+    }
+
+    #[test]
+    fn the_legend_explains_exactly_the_cells_shown() {
+        let scatter = estimate(Method::Legs, Some((3e-4, 5e-5)));
+        assert_eq!(
+            within_session_legend(std::slice::from_ref(&scatter)).len(),
+            1
+        );
+        let noise = estimate(Method::Exact, None).with_noise_std_err(Some((2e-4, 3e-5)));
+        let none = estimate(Method::Umbmark, None);
+        let legend = within_session_legend(&[scatter, noise, none]);
+        assert_eq!(legend.len(), 3, "{legend:?}");
+        assert!(
+            legend[1].starts_with('≥') && legend[2].starts_with('—'),
+            "{legend:?}"
+        );
+    }
+
+    #[test]
+    fn a_disagreement_names_the_role_and_what_it_is_measured_against() {
+        let legs = estimate(Method::Legs, Some((1e-4, 1e-5)));
+        let mut far = estimate(Method::JungChung, Some((1e-4, 1e-5)));
+        far.e_b += 0.002;
+        let lines = disagreement_lines(
+            Some(Method::Legs),
+            "the method chosen",
+            Basis::Pooled,
+            &[legs.clone(), far.clone()],
+        );
+        assert_eq!(lines.len(), 1, "{lines:?}");
+        assert!(
+            lines[0].contains("jung-chung and legs differ in E_b by +0.00200")
+                && lines[0].contains("pooled values")
+                && lines[0].ends_with("legs is the method chosen"),
+            "{}",
+            lines[0]
+        );
+        assert!(disagreement_lines(None, "the default", Basis::Session, &[legs, far]).is_empty());
+    }
 }
