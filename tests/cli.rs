@@ -1247,3 +1247,39 @@ fn numbers_beyond_any_robot_are_refused_with_their_range() {
         "{err}"
     );
 }
+
+/// `record` stopped by Ctrl-C before any telemetry came (a mock in virtual time streams
+/// nothing while idle) says so and how to start one that streams, with no time it never had.
+#[test]
+fn record_stopped_before_any_telemetry_says_what_to_do() {
+    let (mut mock, port) = spawn_mock(&[]);
+    let dir = scratch("record-empty");
+    std::fs::create_dir_all(&dir).unwrap();
+    let log = dir.join("drive.jsonl");
+    let child = Command::new(env!("CARGO_BIN_EXE_odocal"))
+        .args(["record", "--port", &port, "--out", log.to_str().unwrap()])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    std::thread::sleep(std::time::Duration::from_secs(2));
+    let sent = Command::new("kill")
+        .args(["-INT", &child.id().to_string()])
+        .status()
+        .is_ok_and(|s| s.success());
+    let out = child.wait_with_output().unwrap();
+    let _ = mock.kill();
+    let _ = mock.wait();
+    assert!(sent);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{err}");
+    assert!(
+        err.contains("stopped by Ctrl-C")
+            && err.contains("no telemetry arrived before it was stopped")
+            && err.contains("--time-scale 1")
+            && !err.contains("NaN"),
+        "{err}"
+    );
+    // The log keeps its header: what was recorded is not lost.
+    assert!(std::fs::read_to_string(&log).unwrap().lines().count() >= 1);
+}

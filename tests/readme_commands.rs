@@ -9,7 +9,7 @@
 mod common;
 
 use std::io::Write;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
@@ -128,26 +128,7 @@ impl Drop for Server {
 }
 
 fn server(args: &[String], lines: usize, cwd: &Path) -> (Server, Vec<String>) {
-    use std::io::{BufRead, BufReader};
-    let mut child = Command::new(env!("CARGO_BIN_EXE_odocal"))
-        .args(args)
-        .current_dir(cwd)
-        .stdin(Stdio::piped())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::null())
-        .spawn()
-        .expect("the mock starts");
-    let mut out = BufReader::new(child.stdout.take().expect("stdout piped"));
-    let printed = (0..lines)
-        .map(|_| {
-            let mut line = String::new();
-            out.read_line(&mut line)
-                .expect("the mock prints its address");
-            line.trim().to_string()
-        })
-        .collect();
-    // Keep draining its output so it never blocks on a full pipe.
-    std::thread::spawn(move || std::io::copy(&mut out, &mut std::io::sink()));
+    let (child, printed) = common::spawn_odocal_server(args, lines, Some(cwd));
     (Server(child), printed)
 }
 
@@ -273,7 +254,6 @@ fn every_command_in_the_readme_runs_on_the_mocks() {
     assert_ne!(toml, profile, "the RoboClaw try-it run wrote its geometry");
     let exported = std::fs::read_to_string(work.join("config/diff_drive.yaml")).unwrap();
     assert_ne!(exported, example, "export wrote the bag's multipliers");
-    let _: PathBuf = work;
 }
 
 /// What one block's commands did.

@@ -112,6 +112,14 @@ fn set(names: &[&str]) -> BTreeSet<String> {
     names.iter().map(|s| s.to_string()).collect()
 }
 
+/// Every run of a report: each round's, then the verification's.
+fn runs_mut(r: &mut Report) -> impl Iterator<Item = &mut odocal::routine::report::RunReport> {
+    r.rounds
+        .iter_mut()
+        .flat_map(|round| round.runs.iter_mut())
+        .chain(r.verification.iter_mut())
+}
+
 #[tokio::test]
 async fn each_plot_is_written_exactly_when_its_data_is_there() {
     let full = calibrated("files").await;
@@ -120,19 +128,13 @@ async fn each_plot_is_written_exactly_when_its_data_is_there() {
         .swing
         .as_ref()
         .is_some_and(|s| s.measured.len() > 100 && s.measured.len() <= s.points));
-    let all = [
-        "paths.svg",
-        "heading_errors.svg",
-        "end_points.svg",
-        "estimates.svg",
-        "swing.svg",
-        "heading_along_legs.svg",
-    ];
+    // Every plot a report directory may hold.
+    let all: Vec<&str> = odocal::report::REPORT_FILES
+        .into_iter()
+        .filter(|f| f.ends_with(".svg"))
+        .collect();
+    assert_eq!(all.len(), 6, "{all:?}");
     assert_eq!(plots_of(&full, "full"), set(&all));
-    // Every plot is one the report directory may hold.
-    for f in all {
-        assert!(odocal::report::REPORT_FILES.contains(&f), "{f}");
-    }
 
     // No swing: no deviation curve.
     let mut r = full.clone();
@@ -145,12 +147,7 @@ async fn each_plot_is_written_exactly_when_its_data_is_there() {
     // A report from before the samples (or a drive that did not stream them): the paths from
     // what the odometry integrated at the time, no heading along the legs.
     let mut r = full.clone();
-    for run in r
-        .rounds
-        .iter_mut()
-        .flat_map(|round| round.runs.iter_mut())
-        .chain(r.verification.iter_mut())
-    {
+    for run in runs_mut(&mut r) {
         run.samples.clear();
     }
     assert!(!plots_of(&r, "no-samples").contains("heading_along_legs.svg"));
@@ -158,12 +155,7 @@ async fn each_plot_is_written_exactly_when_its_data_is_there() {
 
     // A heading that does not stream: samples without a heading.
     let mut r = full.clone();
-    for run in r
-        .rounds
-        .iter_mut()
-        .flat_map(|round| round.runs.iter_mut())
-        .chain(r.verification.iter_mut())
-    {
+    for run in runs_mut(&mut r) {
         for s in &mut run.samples {
             s.heading_rad = None;
         }
@@ -172,12 +164,7 @@ async fn each_plot_is_written_exactly_when_its_data_is_there() {
 
     // A real robot: no true end points, no true paths.
     let mut r = full.clone();
-    for run in r
-        .rounds
-        .iter_mut()
-        .flat_map(|round| round.runs.iter_mut())
-        .chain(r.verification.iter_mut())
-    {
+    for run in runs_mut(&mut r) {
         run.true_final_xy_m = None;
         run.true_path = None;
     }

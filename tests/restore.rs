@@ -475,3 +475,33 @@ async fn a_backup_beyond_the_physical_bounds_is_refused_by_the_dry_run_as_by_the
     }
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// A dry run makes the store's own write check, as the real run does before its question: a
+/// controller YAML whose multiplier became an anchor another line repeats (odocal cannot write
+/// it keeping the rest) is refused by both, and the file is left as it is.
+#[tokio::test]
+async fn a_dry_run_refuses_a_store_the_real_run_cannot_write() {
+    let dir = scratch("restore-unwritable-yaml");
+    std::fs::create_dir_all(&dir).unwrap();
+    let file = dir.join("diff_drive.yaml");
+    std::fs::write(&file, common::DIFF_DRIVE_YAML).unwrap();
+    let tx = Transaction::begin(open_yaml(&file), &dir.join("report"))
+        .await
+        .unwrap();
+    let backup = tx.backup_path().unwrap().to_path_buf();
+    drop(tx);
+    let anchored = format!(
+        "{}    wheel_separation_multiplier: &m 1.02\n    left_wheel_radius_multiplier: *m\n",
+        common::DIFF_DRIVE_YAML
+    );
+    std::fs::write(&file, &anchored).unwrap();
+    let before = files(&dir);
+    for extra in ["--dry-run", "--yes"] {
+        let (ok, _, err) = odocal(&["restore", backup.to_str().unwrap(), extra]);
+        assert!(!ok, "{extra}: {err}");
+        assert!(err.contains("anchor"), "{extra}: {err}");
+    }
+    assert_eq!(std::fs::read_to_string(&file).unwrap(), anchored);
+    assert_eq!(files(&dir), before, "no file made");
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -17,6 +17,14 @@ fn method<'a>(v: &'a Value, name: &str) -> &'a Value {
         .unwrap_or_else(|| panic!("no {name} estimate in {v}"))
 }
 
+/// `odocal simulate --write-bag bag --json` with `extra` flags: a bag of a simulated square
+/// test (the simulated robot of `common::TRUE_E_B`, `common::TRUE_E_D`).
+fn simulated_bag(bag: &Path, extra: &[&str]) {
+    let mut args = vec!["simulate", "--write-bag", bag.to_str().unwrap(), "--json"];
+    args.extend(extra);
+    odocal_json(&args);
+}
+
 fn f(v: &Value) -> f64 {
     v.as_f64().unwrap_or_else(|| panic!("not a number: {v}"))
 }
@@ -27,18 +35,10 @@ fn a_simulated_bag_gives_back_the_simulated_parameters() {
     std::fs::create_dir_all(&dir).unwrap();
     let bag = dir.join("square.mcap");
     let bag_s = bag.to_str().unwrap();
-    odocal_json(&[
-        "simulate",
-        "--heading-sigma-deg",
-        "0",
-        "--bag",
-        bag_s,
-        "--runs",
-        "2",
-        "--side-m",
-        "2",
-        "--json",
-    ]);
+    simulated_bag(
+        &bag,
+        &["--heading-sigma-deg", "0", "--runs", "2", "--side-m", "2"],
+    );
     let v = odocal_json(&["bag", bag_s, "--json"]);
     assert_eq!(v["runs"].as_array().unwrap().len(), 4, "{v}");
     assert_eq!(v["geometry"]["source"], "inferred");
@@ -219,18 +219,10 @@ fn bad_bags_and_files_are_named() {
     std::fs::create_dir_all(&dir).unwrap();
     let bag = dir.join("s.mcap");
     let bag_s = bag.to_str().unwrap();
-    odocal_json(&[
-        "simulate",
-        "--heading-sigma-deg",
-        "0",
-        "--bag",
-        bag_s,
-        "--runs",
-        "1",
-        "--side-m",
-        "1",
-        "--json",
-    ]);
+    simulated_bag(
+        &bag,
+        &["--heading-sigma-deg", "0", "--runs", "1", "--side-m", "1"],
+    );
     // A topic that is not there, but one of its type is: that one is used, and said so.
     let v = odocal_json(&["bag", bag_s, "--imu-topic", "/imu/data", "--json"]);
     assert_eq!(
@@ -287,18 +279,10 @@ fn export_takes_any_result_and_merges_into_the_controller_yaml() {
     let dir = scratch("export-any");
     std::fs::create_dir_all(&dir).unwrap();
     let bag = dir.join("s.mcap");
-    odocal_json(&[
-        "simulate",
-        "--heading-sigma-deg",
-        "0",
-        "--bag",
-        bag.to_str().unwrap(),
-        "--runs",
-        "2",
-        "--side-m",
-        "2",
-        "--json",
-    ]);
+    simulated_bag(
+        &bag,
+        &["--heading-sigma-deg", "0", "--runs", "2", "--side-m", "2"],
+    );
     let (ok, bag_json, err) = odocal(&["bag", bag.to_str().unwrap(), "--json"]);
     assert!(ok, "{err}");
     let result = dir.join("bag.json");
@@ -748,16 +732,7 @@ fn bag_replay_and_calibrate_name_the_same_default_method_for_the_same_data() {
     std::fs::create_dir_all(&dir).unwrap();
     let bag = dir.join("compass.mcap");
     let bag_s = bag.to_str().unwrap();
-    odocal_json(&[
-        "simulate",
-        "--write-bag",
-        bag_s,
-        "--runs",
-        "2",
-        "--side-m",
-        "2",
-        "--json",
-    ]);
+    simulated_bag(&bag, &["--runs", "2", "--side-m", "2"]);
     let from_bag = odocal_json(&["bag", bag_s, "--json"]);
     let report_dir = dir.join("demo-report");
     let demo = odocal_json(&[
@@ -816,4 +791,33 @@ fn bag_replay_and_calibrate_name_the_same_default_method_for_the_same_data() {
         "--json",
     ]);
     assert_eq!(told["default_method"], "matched-legs");
+}
+
+/// Bags odocal wrote whose metadata name different heading sensors (a compass and a gyro) are
+/// pooled as of unknown kind, and the output says why and what settles it.
+#[test]
+fn bags_whose_metadata_disagree_on_the_imu_are_named_and_taken_as_unknown() {
+    let dir = scratch("bag-kinds-disagree");
+    std::fs::create_dir_all(&dir).unwrap();
+    let (compass, gyro) = (dir.join("compass.mcap"), dir.join("gyro.mcap"));
+    simulated_bag(&compass, &["--runs", "2", "--side-m", "2"]);
+    simulated_bag(
+        &gyro,
+        &["--runs", "2", "--side-m", "2", "--heading-sensor", "gyro"],
+    );
+    let (c, g) = (compass.to_str().unwrap(), gyro.to_str().unwrap());
+    let (ok, out, err) = odocal(&["bag", c, g]);
+    assert!(ok, "{err}");
+    assert!(
+        out.contains("IMU yaw: unknown (the bags' metadata disagree: give --heading-kind)"),
+        "{out}"
+    );
+    // Unknown may deviate: the method a deviation cannot bias, as for any unnamed IMU.
+    assert_eq!(
+        odocal_json(&["bag", c, g, "--json"])["default_method"],
+        "matched-legs"
+    );
+    // Each alone says what it is.
+    let (_, out, _) = odocal(&["bag", g]);
+    assert!(out.contains("IMU yaw: gyro (the bag's metadata)"), "{out}");
 }

@@ -47,3 +47,17 @@ pub fn seconds(d: &std::time::Duration) -> String {
         format!("{s:.1} s")
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::seconds;
+    use std::time::Duration;
+
+    #[test]
+    fn durations_read_in_the_unit_a_person_uses() {
+        assert_eq!(seconds(&Duration::from_micros(250)), "250 µs");
+        assert_eq!(seconds(&Duration::from_millis(250)), "250 ms");
+        assert_eq!(seconds(&Duration::from_millis(1500)), "1.5 s");
+        assert_eq!(seconds(&Duration::from_secs(30)), "30.0 s");
+    }
+}

@@ -217,16 +217,32 @@ pub fn spawn_server_lines(
     args: &[&str],
     n: usize,
 ) -> (std::process::Child, Vec<String>) {
+    let mut all = vec![command];
+    all.extend(args);
+    spawn_odocal_server(&all, n, None)
+}
+
+/// Starts `odocal args…` (a server: `mock-device`, `mock-rosbridge`, `mock-roboclaw`) in
+/// `cwd` when given; returns the process (closing its stdin stops it) and the first `n` lines
+/// it printed (its paths or URLs). What it prints later is read and dropped, so it never
+/// blocks on a full pipe nor writes into a closed one.
+pub fn spawn_odocal_server<S: AsRef<std::ffi::OsStr>>(
+    args: &[S],
+    n: usize,
+    cwd: Option<&std::path::Path>,
+) -> (std::process::Child, Vec<String>) {
     use std::io::{BufRead, BufReader};
     use std::process::Stdio;
-    let mut mock = Command::new(env!("CARGO_BIN_EXE_odocal"))
-        .arg(command)
+    let mut command = Command::new(env!("CARGO_BIN_EXE_odocal"));
+    command
         .args(args)
         .stdin(Stdio::piped())
         .stdout(Stdio::piped())
-        .stderr(Stdio::null())
-        .spawn()
-        .expect("mock-device starts");
+        .stderr(Stdio::null());
+    if let Some(dir) = cwd {
+        command.current_dir(dir);
+    }
+    let mut mock = command.spawn().expect("the odocal server starts");
     let mut out = BufReader::new(mock.stdout.take().expect("stdout piped"));
     let lines = (0..n)
         .map(|_| {
@@ -236,6 +252,7 @@ pub fn spawn_server_lines(
             line.trim().to_string()
         })
         .collect();
+    std::thread::spawn(move || std::io::copy(&mut out, &mut std::io::sink()));
     (mock, lines)
 }
 
