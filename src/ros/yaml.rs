@@ -24,14 +24,15 @@
 //! atomically, after the transaction's backup (which holds the whole file) was taken.
 
 mod locate;
-mod tree;
+pub(crate) mod tree;
 
 use crate::base::{FileStore, ParamFile};
 use crate::kinematics::WheelParams;
 use locate::Section;
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
-use tree::{Kind, Node, NodeId, Tree, TreeError};
+pub use tree::TreeError;
+use tree::{Kind, Node, NodeId, Tree};
 use yaml_rust2::scanner::{ScanError, TScalarStyle};
 
 /// Wheel angle units per revolution: the "counts" of a ROS robot are radians.

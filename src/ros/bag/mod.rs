@@ -116,14 +116,15 @@ pub enum BagError {
         #[source]
         source: std::io::Error,
     },
-    /// A rosbag2 directory whose `metadata.yaml` is not YAML.
-    #[error("{}: not YAML: {source}", path.display())]
+    /// A rosbag2 directory whose `metadata.yaml` is not YAML, or nests deeper or holds more
+    /// values than any metadata does (aliases are followed, never expanded).
+    #[error("{}: {source}", path.display())]
     MetadataYaml {
         /// The `metadata.yaml`.
         path: PathBuf,
-        /// The parser's error.
+        /// The parser's error, or the bound passed.
         #[source]
-        source: yaml_rust2::ScanError,
+        source: crate::ros::yaml::TreeError,
     },
     /// A rosbag2 directory whose `metadata.yaml` odocal cannot follow.
     #[error("{}: {reason}", path.display())]

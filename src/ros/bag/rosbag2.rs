@@ -14,7 +14,7 @@
 use super::{open_file, BagError, Channel, Container, RawMessage};
 use std::collections::BTreeMap;
 use std::path::{Component, Path, PathBuf};
-use yaml_rust2::{Yaml, YamlLoader};
+use crate::ros::yaml::tree::{Kind, Tree};
 
 /// The extensions of the storage files of a directory without `metadata.yaml`.
 const STORAGE_FILES: [&str; 4] = [".db3", ".mcap", ".db3.zstd", ".mcap.zstd"];
@@ -48,12 +48,14 @@ impl Rosbag2Dir {
                     source,
                 },
             )?;
-            let docs =
-                YamlLoader::load_from_str(&text).map_err(|source| BagError::MetadataYaml {
-                    path: meta_path.clone(),
-                    source,
-                })?;
-            let meta = parse(&docs).map_err(|reason| BagError::Metadata {
+            // A tree that follows aliases where they stand: expanding them (what a loader
+            // does) turns a kilobyte of nested aliases into gigabytes.
+            let body = text.strip_prefix('\u{feff}').unwrap_or(&text);
+            let tree = Tree::parse(body).map_err(|source| BagError::MetadataYaml {
+                path: meta_path.clone(),
+                source,
+            })?;
+            let meta = parse(&tree).map_err(|reason| BagError::Metadata {
                 path: meta_path.clone(),
                 reason,
             })?;
@@ -195,16 +197,18 @@ fn resolve(dir: &Path, listed: &str, compressed: bool) -> Option<PathBuf> {
 }
 
 /// What odocal takes from `metadata.yaml`'s documents, or what is wrong with them.
-fn parse(docs: &[Yaml]) -> Result<Metadata, String> {
-    let info = docs
+fn parse(tree: &Tree) -> Result<Metadata, String> {
+    let info = tree
+        .docs
         .first()
-        .map(|d| &d["rosbag2_bagfile_information"])
-        .filter(|i| i.as_hash().is_some())
+        .and_then(|&d| tree.get(d, "rosbag2_bagfile_information"))
+        .map(|i| tree.resolve(i))
+        .filter(|&i| matches!(tree.nodes[i].kind, Kind::Map { .. }))
         .ok_or("no `rosbag2_bagfile_information` section")?;
-    let text_of = |key: &str| match &info[key] {
-        Yaml::String(s) => Some(s.trim().to_string()),
-        Yaml::Null | Yaml::BadValue => None,
-        other => Some(scalar(other)),
+    let text_of = |key: &str| {
+        tree.get(info, key)
+            .and_then(|v| tree.text(v))
+            .map(|s| s.trim().to_string())
     };
     let storage = text_of("storage_identifier").unwrap_or_default();
     if !matches!(storage.as_str(), "sqlite3" | "mcap") {
@@ -235,29 +239,32 @@ fn parse(docs: &[Yaml]) -> Result<Metadata, String> {
              storage's own lz4 chunks, `compression: Lz4` in a storage config, are read.)"
         ));
     }
-    let files: Vec<String> = info["relative_file_paths"]
-        .as_vec()
-        .ok_or("no `relative_file_paths` list")?
+    let paths = tree
+        .get(info, "relative_file_paths")
+        .map(|p| tree.resolve(p))
+        .filter(|&p| matches!(tree.nodes[p].kind, Kind::Seq { .. }))
+        .ok_or("no `relative_file_paths` list")?;
+    let files: Vec<String> = tree
+        .items(paths)
         .iter()
-        .map(|f| {
-            f.as_str()
+        .map(|&f| {
+            tree.text(f)
                 .map(String::from)
                 .ok_or("a file path that is not text")
         })
         .collect::<Result<_, _>>()?;
-    let topics = info["topics_with_message_count"]
-        .as_vec()
+    let topics = tree
+        .get(info, "topics_with_message_count")
         .map(|ts| {
-            ts.iter()
-                .filter_map(|t| {
-                    let m = &t["topic_metadata"];
+            tree.items(ts)
+                .iter()
+                .filter_map(|&t| {
+                    let m = tree.get(t, "topic_metadata")?;
+                    let field = |k: &str| tree.get(m, k).and_then(|v| tree.text(v));
                     Some(Channel {
-                        topic: m["name"].as_str()?.to_string(),
-                        type_name: m["type"].as_str()?.to_string(),
-                        encoding: m["serialization_format"]
-                            .as_str()
-                            .unwrap_or("cdr")
-                            .to_string(),
+                        topic: field("name")?.to_string(),
+                        type_name: field("type")?.to_string(),
+                        encoding: field("serialization_format").unwrap_or("cdr").to_string(),
                     })
                 })
                 .collect()
@@ -268,16 +275,6 @@ fn parse(docs: &[Yaml]) -> Result<Metadata, String> {
         compression_file: compressed == Some(true),
         topics,
     })
-}
-
-/// A scalar that YAML typed as something other than text, as written.
-fn scalar(v: &Yaml) -> String {
-    match v {
-        Yaml::Integer(i) => i.to_string(),
-        Yaml::Real(r) => r.clone(),
-        Yaml::Boolean(b) => b.to_string(),
-        _ => String::new(),
-    }
 }
 
 impl Container for Rosbag2Dir {
@@ -337,7 +334,7 @@ mod tests {
 ";
 
     fn parse(text: &str) -> Result<Metadata, String> {
-        super::parse(&YamlLoader::load_from_str(text).unwrap())
+        super::parse(&Tree::parse(text).unwrap())
     }
 
     #[test]
@@ -374,6 +371,41 @@ mod tests {
         assert!(parse("[]")
             .unwrap_err()
             .contains("rosbag2_bagfile_information"));
+    }
+
+    /// Twelve levels of nine aliases each: 9^12 (2.8e11) nodes when expanded.
+    fn alias_bomb(key: &str) -> String {
+        let mut s = String::from("a0: &a0 [x, x, x, x, x, x, x, x, x]\n");
+        for i in 1..=12 {
+            let p = format!("*a{}", i - 1);
+            s.push_str(&format!("a{i}: &a{i} [{}]\n", [p.as_str(); 9].join(", ")));
+        }
+        s + &format!("{key}: *a12\n")
+    }
+
+    #[test]
+    fn aliases_are_followed_not_expanded() {
+        // Beside the section (rosbag2 would ignore it): the bag reads.
+        let beside = format!("{}{META}", alias_bomb("bomb"));
+        assert_eq!(parse(&beside).unwrap().files.len(), 2);
+        // As the file list or the topics: refused or empty, never expanded.
+        let info = META.replace(
+            "  relative_file_paths:\n    - old_bag/old_bag_0.db3\n    - old_bag_1.db3\n",
+            "  relative_file_paths: *a12\n",
+        );
+        let files = format!("{}{info}", alias_bomb("bomb"));
+        assert!(parse(&files).unwrap_err().contains("not text"));
+        let topics = format!("{}{}", alias_bomb("bomb"), META)
+            .replace("  topics_with_message_count:\n", "  topics_with_message_count: *a12\n  unused:\n");
+        assert!(parse(&topics).unwrap().topics.is_empty());
+        // Nesting past the bound is an error naming it (the scanner's own limit, 255 flow
+        // levels, comes later), not a stack overflow.
+        let deep = format!("{}{}", "[".repeat(100), "]".repeat(100));
+        let err = Tree::parse(&deep).unwrap_err().to_string();
+        assert!(err.contains("nested deeper than 64 levels"), "{err}");
+        let deeper = format!("{}{}", "[".repeat(100_000), "]".repeat(100_000));
+        let err = Tree::parse(&deeper).unwrap_err().to_string();
+        assert!(err.contains("recursion limit"), "{err}");
     }
 
     #[test]

@@ -85,13 +85,16 @@ impl Node {
 }
 
 /// Why a text is not a tree.
-#[derive(Debug)]
-pub(crate) enum TreeError {
+#[derive(Debug, thiserror::Error)]
+pub enum TreeError {
     /// Not YAML.
-    Scan(ScanError),
+    #[error("not YAML: {0}")]
+    Scan(#[source] ScanError),
     /// Nested deeper than [`MAX_DEPTH`] (at this 1-based line).
+    #[error("line {0}: nested deeper than {MAX_DEPTH} levels")]
     TooDeep(usize),
     /// More than [`MAX_NODES`] nodes (at this line).
+    #[error("line {0}: more than {MAX_NODES} values")]
     TooBig(usize),
 }
 
@@ -317,6 +320,27 @@ impl Tree {
         match &self.nodes[self.resolve(id)].kind {
             Kind::Map { entries, .. } => entries,
             _ => &[],
+        }
+    }
+
+    /// The items of a sequence (after following an alias), or none.
+    pub fn items(&self, id: NodeId) -> &[NodeId] {
+        match &self.nodes[self.resolve(id)].kind {
+            Kind::Seq { items, .. } => items,
+            _ => &[],
+        }
+    }
+
+    /// The scalar at `id` (after following an alias), unless it is YAML's null (`~`, `null`,
+    /// or nothing, unquoted) or not a scalar.
+    pub fn text(&self, id: NodeId) -> Option<&str> {
+        match &self.nodes[self.resolve(id)].kind {
+            Kind::Scalar { value, style, .. } => {
+                let null = *style == TScalarStyle::Plain
+                    && matches!(value.as_str(), "" | "~" | "null" | "Null" | "NULL");
+                (!null).then_some(value.as_str())
+            }
+            _ => None,
         }
     }
 
