@@ -6,13 +6,12 @@
 //! from the bag's first message.
 
 use super::compression::{zstd_message, ZSTD_MAGIC};
+use super::validate::{self, Joints, Pose, Sample};
 use super::{
     container_of, open_container, BagData, BagError, BagOptions, Channel, Container, JointSample,
     OdomSample, RawMessage, RosTopics, YawSample,
 };
-use crate::ros::msg::{
-    angle_step, cdr, ros1, types, yaw_of, Header, Imu, JointState, Odometry, WireError,
-};
+use crate::ros::msg::{cdr, ros1, types, yaw_of, Header, Imu, JointState, Odometry, WireError};
 use serde::de::DeserializeOwned;
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -138,16 +137,6 @@ fn check_type(ch: &Channel, role: Role) -> Result<(), BagError> {
     }
 }
 
-/// Joint angles as read, before sorting: time, unwrapped left and right, and the raw angles
-/// the next message is unwrapped against.
-#[derive(Debug, Clone, Copy)]
-struct RawJoints {
-    t: f64,
-    left_rad: f64,
-    right_rad: f64,
-    raw: (f64, f64),
-}
-
 /// Everything read so far.
 #[derive(Default)]
 struct Reading {
@@ -155,10 +144,9 @@ struct Reading {
     messages: u64,
     wheel_names: Option<(String, String)>,
     seen_names: Vec<String>,
-    joints: Vec<RawJoints>,
-    imu: Vec<YawSample>,
-    odom: Vec<OdomSample>,
-    first_s: Option<f64>,
+    joints: Vec<Sample<Joints>>,
+    imu: Vec<Sample<Option<f64>>>,
+    odom: Vec<Sample<Pose>>,
     unzstd: Unzstd,
 }
 
@@ -192,7 +180,7 @@ impl Unzstd {
 }
 
 impl Reading {
-    fn joints(&mut self, js: JointState, log_ns: u64, opts: &BagOptions) {
+    fn joints(&mut self, js: JointState, index: usize, log_ns: u64, opts: &BagOptions) {
         // The wheels are found by name once; a message of another joint group (one that does
         // not name them) is skipped.
         let ix = match &self.wheel_names {
@@ -216,54 +204,36 @@ impl Reading {
         let (Some(&lp), Some(&rp)) = (js.position.get(l), js.position.get(r)) else {
             return;
         };
-        if !(lp.is_finite() && rp.is_finite()) {
-            return;
-        }
-        // Unwrapped against the previous sample (a driver that wraps its angles).
-        let (left_rad, right_rad) = match self.joints.last() {
-            Some(p) => (
-                p.left_rad + angle_step(p.raw.0, lp),
-                p.right_rad + angle_step(p.raw.1, rp),
-            ),
-            None => (lp, rp),
-        };
-        let t = stamp_or(&js.header, log_ns);
-        self.joints.push(RawJoints {
-            t,
-            left_rad,
-            right_rad,
-            raw: (lp, rp),
+        self.joints.push(Sample {
+            index,
+            t: stamp_or(&js.header, log_ns),
+            value: (lp, rp),
         });
-        self.saw(t);
     }
 
-    fn imu(&mut self, imu: Imu, log_ns: u64) {
+    fn imu(&mut self, imu: Imu, index: usize, log_ns: u64) {
         let yaw_rad = if imu.orientation_covariance[0] == -1.0 {
             None
         } else {
             yaw_of(&imu.orientation).ok()
         };
-        let t = stamp_or(&imu.header, log_ns);
-        self.imu.push(YawSample { t, yaw_rad });
-        self.saw(t);
+        self.imu.push(Sample {
+            index,
+            t: stamp_or(&imu.header, log_ns),
+            value: yaw_rad,
+        });
     }
 
-    fn odom(&mut self, o: Odometry, log_ns: u64) {
+    fn odom(&mut self, o: Odometry, index: usize, log_ns: u64) {
         let Ok(yaw_rad) = yaw_of(&o.pose.pose.orientation) else {
             return;
         };
-        let t = stamp_or(&o.header, log_ns);
-        self.odom.push(OdomSample {
-            t,
-            x_m: o.pose.pose.position.x,
-            y_m: o.pose.pose.position.y,
-            yaw_rad,
+        let p = &o.pose.pose.position;
+        self.odom.push(Sample {
+            index,
+            t: stamp_or(&o.header, log_ns),
+            value: (p.x, p.y, yaw_rad),
         });
-        self.saw(t);
-    }
-
-    fn saw(&mut self, t: f64) {
-        self.first_s = Some(self.first_s.map_or(t, |f| f.min(t)));
     }
 
     fn message(
@@ -291,9 +261,9 @@ impl Reading {
         let data = unzstd.payload(&m, index)?;
         let enc = m.channel.encoding.as_str();
         let result = match role {
-            Role::Joints => decode(enc, data).map(|js| self.joints(js, m.log_time_ns, opts)),
-            Role::Imu => decode(enc, data).map(|imu| self.imu(imu, m.log_time_ns)),
-            Role::Odom => decode(enc, data).map(|o| self.odom(o, m.log_time_ns)),
+            Role::Joints => decode(enc, data).map(|js| self.joints(js, index, m.log_time_ns, opts)),
+            Role::Imu => decode(enc, data).map(|imu| self.imu(imu, index, m.log_time_ns)),
+            Role::Odom => decode(enc, data).map(|o| self.odom(o, index, m.log_time_ns)),
         };
         self.unzstd = unzstd;
         result.map_err(decode_err)
@@ -342,29 +312,42 @@ pub fn read_container(bag: &dyn Container, opts: &BagOptions) -> Result<BagData,
     if count(Role::Imu) == 0 {
         return Err(missing(Role::Imu));
     }
-    let t0 = r.first_s.unwrap_or(0.0);
-    r.joints.sort_by(|a, b| a.t.total_cmp(&b.t));
-    r.imu.sort_by(|a, b| a.t.total_cmp(&b.t));
-    r.odom.sort_by(|a, b| a.t.total_cmp(&b.t));
+    // Each stream checked in the order the container gave it (time forward, physical, no
+    // spike), which also leaves it in time order.
+    let joints = validate::joints(r.joints, &topics.joint_states, &mut notes)?;
+    let imu = validate::yaw(r.imu, &topics.imu, &mut notes)?;
+    let odom = validate::odometry(r.odom, &topics.odom, &mut notes)?;
+    let t0 = joints
+        .first()
+        .map(|s| s.t)
+        .into_iter()
+        .chain(imu.first().map(|s| s.t))
+        .chain(odom.first().map(|s| s.t))
+        .fold(f64::INFINITY, f64::min);
     Ok(BagData {
-        joints: r
-            .joints
+        joints: joints
             .into_iter()
             .map(|j| JointSample {
                 t: j.t - t0,
-                left_rad: j.left_rad,
-                right_rad: j.right_rad,
+                left_rad: j.value.0,
+                right_rad: j.value.1,
             })
             .collect(),
-        imu: r
-            .imu
+        imu: imu
             .into_iter()
-            .map(|y| YawSample { t: y.t - t0, ..y })
+            .map(|y| YawSample {
+                t: y.t - t0,
+                yaw_rad: y.value,
+            })
             .collect(),
-        odom: r
-            .odom
+        odom: odom
             .into_iter()
-            .map(|o| OdomSample { t: o.t - t0, ..o })
+            .map(|o| OdomSample {
+                t: o.t - t0,
+                x_m: o.value.0,
+                y_m: o.value.1,
+                yaw_rad: o.value.2,
+            })
             .collect(),
         topics: available,
         messages: r.messages,

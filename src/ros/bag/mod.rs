@@ -15,6 +15,8 @@
 //!   [`crate::io::MAX_BAG_FILE`];
 //! - [`decode`] turns any container's messages into [`BagData`] (topics resolved by type,
 //!   wheel joints picked by name, angles unwrapped, header stamps, CDR or ROS 1 wire form);
+//! - [`validate`] checks each stream as `track --log` checks a log: time forward, samples
+//!   physical, spikes dropped, each drop counted;
 //! - [`mod@analyse`] infers the configured geometry, segments the runs and estimates;
 //! - [`writer`] writes MCAP bags (simulated tests, converted recordings).
 
@@ -25,6 +27,7 @@ pub mod mcap;
 pub mod ros1;
 pub mod rosbag2;
 pub mod sqlite3;
+pub mod validate;
 pub mod writer;
 
 pub use analyse::{
@@ -211,6 +214,29 @@ ROS 1 serialization"
     /// The configured geometry cannot be inferred.
     #[error("cannot infer the configured geometry: {0}; give the controller's YAML")]
     Inference(String),
+    /// A topic whose time goes back more than rarely: a recording in the wrong order.
+    #[error(
+        "topic `{topic}` goes back in time at message {index} (stamped {t_s:.3} s, at or \
+before message {before}'s {before_s:.3} s), {count} of {total} messages in all: the recording is \
+in the wrong order (split files listed out of order or twice, stamps reversed); give a bag \
+whose messages go forward, or each run's files in order"
+    )]
+    TimeBackwards {
+        /// The topic.
+        topic: String,
+        /// The first message that goes back (0-based on its topic).
+        index: usize,
+        /// Its time (s, the bag's clock).
+        t_s: f64,
+        /// The message kept before it.
+        before: usize,
+        /// That message's time (s).
+        before_s: f64,
+        /// How many messages go back.
+        count: usize,
+        /// Messages on the topic.
+        total: usize,
+    },
     /// A time range is not usable.
     #[error("time range {0}")]
     Range(String),

@@ -12,9 +12,9 @@
 //! `.db3` and `.mcap` files read in name order, and the notes say so.
 
 use super::{open_file, BagError, Channel, Container, RawMessage};
+use crate::ros::yaml::tree::{Kind, Tree};
 use std::collections::BTreeMap;
 use std::path::{Component, Path, PathBuf};
-use crate::ros::yaml::tree::{Kind, Tree};
 
 /// The extensions of the storage files of a directory without `metadata.yaml`.
 const STORAGE_FILES: [&str; 4] = [".db3", ".mcap", ".db3.zstd", ".mcap.zstd"];
@@ -395,8 +395,10 @@ mod tests {
         );
         let files = format!("{}{info}", alias_bomb("bomb"));
         assert!(parse(&files).unwrap_err().contains("not text"));
-        let topics = format!("{}{}", alias_bomb("bomb"), META)
-            .replace("  topics_with_message_count:\n", "  topics_with_message_count: *a12\n  unused:\n");
+        let topics = format!("{}{}", alias_bomb("bomb"), META).replace(
+            "  topics_with_message_count:\n",
+            "  topics_with_message_count: *a12\n  unused:\n",
+        );
         assert!(parse(&topics).unwrap().topics.is_empty());
         // Nesting past the bound is an error naming it (the scanner's own limit, 255 flow
         // levels, comes later), not a stack overflow.
