@@ -367,7 +367,7 @@ mod tests {
             assert_eq!(out.len(), 499, "{bad} at {at}: {notes:?}");
             assert_eq!(notes.len(), 1, "{notes:?}");
             assert!(
-                notes[0].contains(&format!("1 of 500 message(s) dropped")),
+                notes[0].contains("1 of 500 message(s) dropped"),
                 "{notes:?}"
             );
             assert!(notes[0].contains(&format!("message {at}")), "{notes:?}");
