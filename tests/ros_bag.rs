@@ -821,3 +821,187 @@ fn bags_whose_metadata_disagree_on_the_imu_are_named_and_taken_as_unknown() {
     let (_, out, _) = odocal(&["bag", g]);
     assert!(out.contains("IMU yaw: gyro (the bag's metadata)"), "{out}");
 }
+
+/// `odocal bag` on `path`, which must fail (without a panic): its error output.
+fn bag_fails(path: &Path) -> String {
+    let (ok, _, err) = odocal(&["bag", path.to_str().unwrap(), "--side-m", "1"]);
+    assert!(!ok, "{} read", path.display());
+    assert!(!err.contains("panicked"), "{err}");
+    err
+}
+
+/// A copy of a simulated bag written back through odocal's MCAP writer, its messages in time
+/// order, after `edit` has had the joint samples (t, left, right).
+fn rewritten(
+    data: &odocal::ros::bag::BagData,
+    path: &Path,
+    edit: impl FnOnce(&mut Vec<(f64, f64, f64)>),
+) -> PathBuf {
+    use odocal::ros::bag::writer::BagWriter;
+    let mut joints: Vec<(f64, f64, f64)> = data
+        .joints
+        .iter()
+        .map(|j| (j.t, j.left_rad, j.right_rad))
+        .collect();
+    edit(&mut joints);
+    let mut w = BagWriter::create(path, &Default::default()).unwrap();
+    // Merged by time as a recorder writes them; the first message at 1 s.
+    let (mut i, mut k, mut o) = (0, 0, 0);
+    loop {
+        let tj = joints.get(i).map_or(f64::INFINITY, |j| j.0);
+        let ti = data.imu.get(k).map_or(f64::INFINITY, |y| y.t);
+        let to = data.odom.get(o).map_or(f64::INFINITY, |p| p.t);
+        let t = tj.min(ti).min(to);
+        if !t.is_finite() {
+            break;
+        }
+        if t == tj {
+            let (t, l, r) = joints[i];
+            w.joints(1.0 + t, l, r).unwrap();
+            i += 1;
+        } else if t == ti {
+            w.imu(1.0 + t, data.imu[k].yaw_rad.unwrap()).unwrap();
+            k += 1;
+        } else {
+            let p = data.odom[o];
+            w.odom(1.0 + t, p.x_m, p.y_m, p.yaw_rad).unwrap();
+            o += 1;
+        }
+    }
+    w.finish().unwrap();
+    path.to_path_buf()
+}
+
+#[test]
+fn one_wild_sample_does_not_move_a_result_and_reversed_time_is_refused_in_mcap() {
+    let dir = scratch("bag-wild");
+    std::fs::create_dir_all(&dir).unwrap();
+    let sim = dir.join("sim.mcap");
+    simulated_bag(
+        &sim,
+        &["--heading-sigma-deg", "0", "--runs", "1", "--side-m", "1"],
+    );
+    let data = odocal::ros::bag::read_bag(&sim, &Default::default()).unwrap();
+    let exact = |v: &Value| (f(&method(v, "exact")["e_b"]), f(&method(v, "exact")["e_d"]));
+    let clean = bag_json(&rewritten(&data, &dir.join("clean.mcap"), |_| {}));
+    let (b, d) = exact(&clean);
+    assert!(
+        (b - TRUE_E_B).abs() < 1e-4 && (d - TRUE_E_D).abs() < 1e-4,
+        "{b} {d}"
+    );
+    // In the middle of a leg: one joint sample of 1e308 rad, one of a wheel jumping 2.8 rad
+    // (which a 50 Hz wheel cannot turn) and back.
+    let mid = data.joints.len() / 3;
+    for (name, bad) in [("huge", 1e308), ("spike", 2.8)] {
+        let path = rewritten(&data, &dir.join(format!("{name}.mcap")), |j| {
+            j[mid].1 += bad
+        });
+        let v = bag_json(&path);
+        let (b2, d2) = exact(&v);
+        assert!(
+            (b2 - b).abs() < 1e-6 && (d2 - d).abs() < 1e-6,
+            "{name}: {b2} {d2} vs {b} {d}"
+        );
+        let notes = v["notes"].to_string();
+        assert!(
+            notes.contains("/joint_states: 1 of") && notes.contains(&format!("message {mid}")),
+            "{name}: {notes}"
+        );
+    }
+    // Written last to first: every sample stamped before the one read before it.
+    let back = dir.join("back.mcap");
+    {
+        use odocal::ros::bag::writer::BagWriter;
+        let mut w = BagWriter::create(&back, &Default::default()).unwrap();
+        for (j, y) in data.joints.iter().rev().zip(data.imu.iter().rev()) {
+            w.joints(1.0 + j.t, j.left_rad, j.right_rad).unwrap();
+            w.imu(1.0 + y.t, y.yaw_rad.unwrap()).unwrap();
+        }
+        w.finish().unwrap();
+    }
+    let err = bag_fails(&back);
+    assert!(err.contains("goes back in time at message 1"), "{err}");
+    assert!(err.contains("in the wrong order"), "{err}");
+}
+
+/// The records of a ROS 1 bag from `at` on: (start, end, op), until `end`.
+fn ros1_records(buf: &[u8], mut at: usize, end: usize) -> Vec<(usize, usize, u8)> {
+    let u32_at = |i: usize| u32::from_le_bytes(buf[i..i + 4].try_into().unwrap()) as usize;
+    let mut out = Vec::new();
+    while at < end {
+        let head_len = u32_at(at);
+        let head = &buf[at + 4..at + 4 + head_len];
+        let mut op = 0;
+        let mut h = 0;
+        while h < head.len() {
+            let len = u32::from_le_bytes(head[h..h + 4].try_into().unwrap()) as usize;
+            if let Some(v) = head[h + 4..h + 4 + len].strip_prefix(b"op=") {
+                op = v[0];
+            }
+            h += 4 + len;
+        }
+        let data_at = at + 4 + head_len;
+        let next = data_at + 4 + u32_at(data_at);
+        out.push((at, next, op));
+        at = next;
+    }
+    out
+}
+
+#[test]
+fn reversed_time_is_refused_in_sqlite_ros1_and_rosbag2_directories() {
+    let dir = scratch("bag-reversed");
+    std::fs::create_dir_all(&dir).unwrap();
+    // sqlite3: the recorder's timestamps reversed, so rows come out last message first.
+    let db3 = fixture("square.db3", &dir);
+    assert!(bag_json(&db3)["estimates"].is_array());
+    {
+        let db = rusqlite::Connection::open(&db3).unwrap();
+        db.execute(
+            "UPDATE messages SET timestamp = \
+             (SELECT max(timestamp) + min(timestamp) FROM messages) - timestamp",
+            [],
+        )
+        .unwrap();
+    }
+    let err = bag_fails(&db3);
+    assert!(err.contains("goes back in time"), "{err}");
+    // ROS 1: the message records of each (uncompressed) chunk in reverse order.
+    let bag = fixture("square.bag", &dir);
+    let mut bytes = std::fs::read(&bag).unwrap();
+    let magic = b"#ROSBAG V2.0\n".len();
+    let mut reversed_chunks = 0;
+    for (start, end, op) in ros1_records(&bytes.clone(), magic, bytes.len()) {
+        if op != 5 {
+            continue;
+        }
+        let head_len = u32::from_le_bytes(bytes[start..start + 4].try_into().unwrap()) as usize;
+        let data_at = start + 4 + head_len + 4;
+        let inner = ros1_records(&bytes, data_at, end);
+        let (messages, others): (Vec<_>, Vec<_>) = inner.iter().partition(|r| r.2 == 2);
+        let mut rebuilt = Vec::new();
+        for (s, e, _) in others.iter().chain(messages.iter().rev()) {
+            rebuilt.extend_from_slice(&bytes[*s..*e]);
+        }
+        bytes[data_at..end].copy_from_slice(&rebuilt);
+        reversed_chunks += 1;
+    }
+    assert!(reversed_chunks > 0);
+    std::fs::write(&bag, &bytes).unwrap();
+    let err = bag_fails(&bag);
+    assert!(err.contains("goes back in time"), "{err}");
+    // rosbag2: split files listed last first, or one file listed twice.
+    let split = fixture("sqlite3_split", &dir);
+    let meta_path = split.join("metadata.yaml");
+    let meta = std::fs::read_to_string(&meta_path).unwrap();
+    let (a, b) = ("sqlite3_split_0.db3", "sqlite3_split_1.db3");
+    assert!(meta.contains(a) && meta.contains(b));
+    for listed in [
+        meta.replace(a, "@").replace(b, a).replace('@', b),
+        meta.replace(b, a),
+    ] {
+        std::fs::write(&meta_path, &listed).unwrap();
+        let err = bag_fails(&split);
+        assert!(err.contains("goes back in time"), "{err}");
+    }
+}
