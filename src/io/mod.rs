@@ -18,9 +18,18 @@ pub const MAX_DATA_FILE: u64 = 1 << 30;
 /// decompresses to (read into memory; split larger recordings, `ros2 bag convert`).
 pub const MAX_BAG_FILE: u64 = 4 << 30;
 
+/// Most bytes one MCAP chunk may declare it decompresses to (writers make chunks of about
+/// 1 MiB, a chunk of its own for a larger message): checked before a byte of it is
+/// decompressed.
+pub const MAX_BAG_CHUNK: u64 = 256 << 20;
+
+/// Most bytes one message on the topics odocal reads (joint states, IMU, odometry: a few
+/// hundred bytes each) may decompress to, where rosbag2 compressed each message on its own.
+pub const MAX_BAG_MESSAGE: u64 = 1 << 20;
+
 /// Every size bound, for documentation: what it covers and the bound (bytes). The README's
 /// table is checked against it.
-pub const SIZE_BOUNDS: [(&str, u64); 3] = [
+pub const SIZE_BOUNDS: [(&str, u64); 5] = [
     (
         "text: routine files, robot profiles, controller YAML, backups, results to export",
         MAX_TEXT_FILE,
@@ -33,7 +42,23 @@ pub const SIZE_BOUNDS: [(&str, u64); 3] = [
         "bag: one bag file (of a directory: each file), also once decompressed",
         MAX_BAG_FILE,
     ),
+    ("bag: one MCAP chunk, decompressed", MAX_BAG_CHUNK),
+    (
+        "bag: one compressed message on the topics odocal reads, decompressed",
+        MAX_BAG_MESSAGE,
+    ),
 ];
+
+/// A size bound as a person reads it: "4 GiB", "256 MiB", else bytes.
+pub fn bytes(n: u64) -> String {
+    if n >= 1 << 30 && n.is_multiple_of(1 << 30) {
+        format!("{} GiB", n >> 30)
+    } else if n >= 1 << 20 && n.is_multiple_of(1 << 20) {
+        format!("{} MiB", n >> 20)
+    } else {
+        format!("{n} bytes")
+    }
+}
 
 /// A duration as a person reads it in a message: "250 ms", "1.5 s" (never Rust's `Debug`
 /// form).

@@ -16,7 +16,7 @@ pub const ZSTD_MAGIC: &[u8] = &[0x28, 0xB5, 0x2F, 0xFD];
 /// Decompresses a whole zstd file (`path` names it in errors).
 pub fn zstd_file(bytes: &[u8], path: &Path) -> Result<Vec<u8>, BagError> {
     let mut out = Vec::new();
-    stream(bytes, &mut out).map_err(|source| BagError::Zstd {
+    stream(bytes, &mut out, crate::io::MAX_BAG_FILE, FILE).map_err(|source| BagError::Zstd {
         what: path.display().to_string(),
         source,
     })?;
@@ -38,7 +38,7 @@ pub fn lz4_file(bytes: &[u8], path: &Path) -> Result<Vec<u8>, BagError> {
     // The decoder stops at the end of a frame; the format allows several back to back.
     while !rest.is_empty() {
         let mut decoder = lz4::Decoder::new(rest).map_err(error)?;
-        bounded(&mut decoder, &mut out).map_err(error)?;
+        bounded(&mut decoder, &mut out, crate::io::MAX_BAG_FILE, FILE).map_err(error)?;
         let (left, done) = decoder.finish();
         done.map_err(|_| {
             error(std::io::Error::new(
@@ -53,16 +53,19 @@ pub fn lz4_file(bytes: &[u8], path: &Path) -> Result<Vec<u8>, BagError> {
 
 /// Decompresses one message's frame into `out` (cleared first), reusing `ctx` between
 /// messages: a frame that records its size (rosbag2 compresses each message in one call, which
-/// records it) is decompressed in one step into exactly that much room.
+/// records it) is decompressed in one step into exactly that much room. Neither may pass
+/// [`crate::io::MAX_BAG_MESSAGE`]: a frame that says it would is refused before a byte is
+/// decompressed, one that does not say stops there.
 pub fn zstd_message(
     frame: &[u8],
     ctx: &mut zstd::bulk::Decompressor<'static>,
     out: &mut Vec<u8>,
 ) -> std::io::Result<()> {
     out.clear();
+    let bound = crate::io::MAX_BAG_MESSAGE;
     match zstd::zstd_safe::get_frame_content_size(frame) {
-        Ok(Some(n)) if n <= crate::io::MAX_BAG_FILE => {
-            out.reserve(usize::try_from(n).map_err(|_| too_large(n))?);
+        Ok(Some(n)) if n <= bound => {
+            out.reserve(usize::try_from(n).map_err(|_| too_large(n, bound, MESSAGE))?);
             let written = ctx.decompress_to_buffer(frame, out)?;
             if written as u64 != n {
                 return Err(std::io::Error::new(
@@ -72,33 +75,46 @@ pub fn zstd_message(
             }
             Ok(())
         }
-        Ok(Some(n)) => Err(too_large(n)),
-        _ => stream(frame, out),
+        Ok(Some(n)) => Err(too_large(n, bound, MESSAGE)),
+        _ => stream(frame, out, bound, MESSAGE),
     }
 }
 
-/// Streams every frame of `bytes` into `out`, stopping with an error past the bound.
-fn stream(bytes: &[u8], out: &mut Vec<u8>) -> std::io::Result<()> {
-    bounded(&mut zstd::stream::read::Decoder::with_buffer(bytes)?, out)
+const FILE: &str = "a bag file";
+const MESSAGE: &str = "a message on these topics";
+
+/// Streams every frame of `bytes` into `out`, stopping with an error past `bound`.
+fn stream(bytes: &[u8], out: &mut Vec<u8>, bound: u64, what: &str) -> std::io::Result<()> {
+    bounded(
+        &mut zstd::stream::read::Decoder::with_buffer(bytes)?,
+        out,
+        bound,
+        what,
+    )
 }
 
-/// Appends what a decoder gives to `out`, stopping with an error once `out` would pass the
-/// bound.
-fn bounded(decoder: &mut impl Read, out: &mut Vec<u8>) -> std::io::Result<()> {
-    let room = (crate::io::MAX_BAG_FILE + 1).saturating_sub(out.len() as u64);
+/// Appends what a decoder gives to `out`, stopping with an error once `out` would pass
+/// `bound`.
+fn bounded(
+    decoder: &mut impl Read,
+    out: &mut Vec<u8>,
+    bound: u64,
+    what: &str,
+) -> std::io::Result<()> {
+    let room = (bound + 1).saturating_sub(out.len() as u64);
     decoder.take(room).read_to_end(out)?;
-    if out.len() as u64 > crate::io::MAX_BAG_FILE {
-        return Err(too_large(out.len() as u64));
+    if out.len() as u64 > bound {
+        return Err(too_large(out.len() as u64, bound, what));
     }
     Ok(())
 }
 
-fn too_large(n: u64) -> std::io::Error {
+fn too_large(n: u64, bound: u64, what: &str) -> std::io::Error {
     std::io::Error::new(
         std::io::ErrorKind::InvalidData,
         format!(
-            "decompresses to {n} bytes or more, past the {} a bag file may have",
-            crate::io::MAX_BAG_FILE
+            "decompresses to {n} bytes or more, past the {} {what} may have (io::SIZE_BOUNDS)",
+            crate::io::bytes(bound)
         ),
     )
 }

@@ -90,10 +90,10 @@ pub enum TreeError {
     /// Not YAML.
     #[error("not YAML: {0}")]
     Scan(#[source] ScanError),
-    /// Nested deeper than [`MAX_DEPTH`] (at this 1-based line).
+    /// Nested deeper than `MAX_DEPTH` (64) levels (at this 1-based line).
     #[error("line {0}: nested deeper than {MAX_DEPTH} levels")]
     TooDeep(usize),
-    /// More than [`MAX_NODES`] nodes (at this line).
+    /// More than `MAX_NODES` (200 000) nodes (at this line).
     #[error("line {0}: more than {MAX_NODES} values")]
     TooBig(usize),
 }

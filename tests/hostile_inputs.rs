@@ -1,0 +1,191 @@
+//! Hostile bags, each built here by a small generator, given to the `odocal` binary: a clear
+//! error or a correct result, within a bound on the process's peak memory (its resident set
+//! as the kernel reports it on exit). How long each takes is the benchmark's to measure, not
+//! this test's.
+
+mod common;
+
+use common::scratch;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+/// Most memory (KiB) one `odocal bag` may take on a hostile input.
+const MAX_RSS_KIB: i64 = 1 << 20;
+
+/// Runs `odocal bag <path>`: success, its error output, its peak resident set (KiB). The
+/// child is reaped by `wait4` (which reports its resources), not by `Child::wait`.
+#[allow(clippy::zombie_processes)]
+fn bag(path: &Path) -> (bool, String, i64) {
+    let child = Command::new(env!("CARGO_BIN_EXE_odocal"))
+        .args(["bag", path.to_str().unwrap(), "--side-m", "1"])
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let pid = child.id() as libc::pid_t;
+    let mut stderr = child.stderr.unwrap();
+    let mut err = String::new();
+    std::io::Read::read_to_string(&mut stderr, &mut err).unwrap();
+    let mut status = 0;
+    // SAFETY: plain FFI, `status` and `usage` are ours and live through the call.
+    let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
+    let waited = unsafe { libc::wait4(pid, &mut status, 0, &mut usage) };
+    assert_eq!(waited, pid);
+    assert!(!err.contains("panicked"), "{err}");
+    let ok = libc::WIFEXITED(status) && libc::WEXITSTATUS(status) == 0;
+    (ok, err, usage.ru_maxrss)
+}
+
+/// An MCAP string: u32 length, bytes.
+fn string(s: &str) -> Vec<u8> {
+    [&(s.len() as u32).to_le_bytes()[..], s.as_bytes()].concat()
+}
+
+/// An MCAP record: opcode, u64 length, body.
+fn record(op: u8, body: &[u8]) -> Vec<u8> {
+    [&[op][..], &(body.len() as u64).to_le_bytes(), body].concat()
+}
+
+/// An MCAP file of one zstd chunk holding `compressed`, declaring `declared` bytes.
+fn mcap_with_chunk(compressed: &[u8], declared: u64) -> Vec<u8> {
+    let header = record(0x01, &[string("ros2"), string("hostile")].concat());
+    let chunk = record(
+        0x06,
+        &[
+            &0u64.to_le_bytes()[..],
+            &0u64.to_le_bytes(),
+            &declared.to_le_bytes(),
+            &0u32.to_le_bytes(),
+            &string("zstd"),
+            &(compressed.len() as u64).to_le_bytes(),
+            compressed,
+        ]
+        .concat(),
+    );
+    let data_end = record(0x0F, &0u32.to_le_bytes());
+    let footer = record(0x02, &[0u8; 20]);
+    [
+        mcap::MAGIC,
+        &header,
+        &chunk,
+        &data_end,
+        &footer,
+        mcap::MAGIC,
+    ]
+    .concat()
+}
+
+/// `n` zero bytes as one zstd frame (its size recorded, or streamed without it).
+fn zeros_frame(n: u64, recorded: bool) -> Vec<u8> {
+    let mut out = Vec::new();
+    let mut enc = zstd::stream::write::Encoder::new(&mut out, 1).unwrap();
+    if recorded {
+        enc.set_pledged_src_size(Some(n)).unwrap();
+    }
+    let block = vec![0u8; 1 << 20];
+    for _ in 0..n / block.len() as u64 {
+        std::io::Write::write_all(&mut enc, &block).unwrap();
+    }
+    enc.finish().unwrap();
+    out
+}
+
+fn dir(name: &str) -> PathBuf {
+    let d = scratch(name);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+#[test]
+fn a_chunk_that_declares_or_holds_gigabytes_is_refused_in_bounded_memory() {
+    let d = dir("hostile-chunk");
+    // 300 MiB of zeros in a few KiB: declared as such, and declared as 1 KiB.
+    let frame = zeros_frame(300 << 20, true);
+    for (name, declared, says) in [
+        (
+            "declares.mcap",
+            300u64 << 20,
+            "past the 256 MiB a chunk may have",
+        ),
+        ("lies.mcap", 1 << 10, "not a readable MCAP bag"),
+    ] {
+        let path = d.join(name);
+        std::fs::write(&path, mcap_with_chunk(&frame, declared)).unwrap();
+        let (ok, err, rss) = bag(&path);
+        assert!(!ok && err.contains(says), "{name}: {err}");
+        assert!(rss < MAX_RSS_KIB, "{name}: {rss} KiB");
+    }
+}
+
+#[test]
+fn a_thousand_message_frames_of_256_mib_each_are_refused_at_the_first() {
+    let d = dir("hostile-frames");
+    let path = d.join("frames.db3");
+    let db = rusqlite::Connection::open(&path).unwrap();
+    db.execute_batch(
+        "CREATE TABLE topics(id INTEGER PRIMARY KEY, name TEXT NOT NULL, type TEXT NOT NULL,
+             serialization_format TEXT NOT NULL, offered_qos_profiles TEXT NOT NULL);
+         CREATE TABLE messages(id INTEGER PRIMARY KEY, topic_id INTEGER NOT NULL,
+             timestamp INTEGER NOT NULL, data BLOB NOT NULL);
+         INSERT INTO topics VALUES (1, '/joint_states', 'sensor_msgs/msg/JointState', 'cdr', '');
+         INSERT INTO topics VALUES (2, '/imu', 'sensor_msgs/msg/Imu', 'cdr', '');",
+    )
+    .unwrap();
+    for (recorded, first_id) in [(true, 0), (false, 1000)] {
+        let frame = zeros_frame(256 << 20, recorded);
+        for i in 0..500i64 {
+            db.execute(
+                "INSERT INTO messages VALUES (?1, 1, ?2, ?3)",
+                rusqlite::params![first_id + i, 1_000_000_000 + i * 10_000_000, frame],
+            )
+            .unwrap();
+        }
+    }
+    drop(db);
+    let (ok, err, rss) = bag(&path);
+    assert!(
+        !ok && err.contains("past the 1 MiB a message on these topics may have"),
+        "{err}"
+    );
+    assert!(err.contains("message 0"), "{err}");
+    assert!(rss < MAX_RSS_KIB, "{rss} KiB");
+}
+
+#[test]
+fn a_metadata_yaml_of_nested_aliases_is_read_without_expanding_them() {
+    let d = dir("hostile-alias");
+    let bag_dir = d.join("bag");
+    std::fs::create_dir_all(&bag_dir).unwrap();
+    let mcap = bag_dir.join("b_0.mcap");
+    let (ok, out, err) = common::odocal(&[
+        "simulate",
+        "--write-bag",
+        mcap.to_str().unwrap(),
+        "--runs",
+        "1",
+        "--side-m",
+        "1",
+    ]);
+    assert!(ok, "{out}{err}");
+    // Twelve levels of nine aliases: 2.8e11 nodes once expanded.
+    let mut bomb = String::from("a0: &a0 [x, x, x, x, x, x, x, x, x]\n");
+    for i in 1..=12 {
+        let p = format!("*a{}", i - 1);
+        bomb.push_str(&format!("a{i}: &a{i} [{}]\n", [p.as_str(); 9].join(", ")));
+    }
+    let meta = |files: &str| {
+        format!(
+            "{bomb}rosbag2_bagfile_information:\n  version: 9\n  storage_identifier: mcap\n  \
+             relative_file_paths: {files}\n  compression_format: ''\n  compression_mode: ''\n  \
+             extra: *a12\n"
+        )
+    };
+    std::fs::write(bag_dir.join("metadata.yaml"), meta("[b_0.mcap]")).unwrap();
+    let (ok, err, rss) = bag(&bag_dir);
+    assert!(ok, "{err}");
+    assert!(rss < MAX_RSS_KIB, "{rss} KiB");
+    std::fs::write(bag_dir.join("metadata.yaml"), meta("*a12")).unwrap();
+    let (ok, err, rss) = bag(&bag_dir);
+    assert!(!ok && err.contains("a file path that is not text"), "{err}");
+    assert!(rss < MAX_RSS_KIB, "{rss} KiB");
+}
