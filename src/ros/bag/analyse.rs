@@ -111,6 +111,19 @@ pub fn infer_geometry(data: &BagData) -> Result<InferredGeometry, BagError> {
     if !(b.is_finite() && b > 0.0) {
         return Err(BagError::Inference(format!("separation came out as {b} m")));
     }
+    // Inside the bounds every parameter file must meet, or /odom and the joints disagree
+    // (another robot's odometry, a unit other than radians, stamps out of order).
+    let (dlo, dhi) = crate::kinematics::PHYSICAL_DIAMETER_M;
+    let (blo, bhi) = crate::kinematics::PHYSICAL_WHEELBASE_M;
+    if !(dlo..=dhi).contains(&(2.0 * r)) || !(blo..=bhi).contains(&b) {
+        return Err(BagError::Inference(format!(
+            "/odom against the joints gives a wheel diameter of {:.2} mm and a separation of \
+             {:.4} m, outside what a robot has ({dlo}–{dhi} m, {blo}–{bhi} m): the odometry \
+             and the joints do not describe the same motion",
+            2e3 * r,
+            b
+        )));
+    }
     Ok(InferredGeometry {
         wheel_radius_m: r,
         wheel_separation_m: b,
@@ -434,6 +447,16 @@ mod tests {
         let g = infer_geometry(&data).unwrap();
         assert!((g.wheel_radius_m - 0.075).abs() < 1e-9, "{g:?}");
         assert!((g.wheel_separation_m - 0.39).abs() < 1e-9, "{g:?}");
+        // Odometry in millimetres against joints in radians: no robot has that geometry.
+        let mut mm = data.clone();
+        for o in &mut mm.odom {
+            (o.x_m, o.y_m) = (o.x_m * 1e-3, o.y_m * 1e-3);
+        }
+        let err = infer_geometry(&mm).unwrap_err().to_string();
+        assert!(
+            err.contains("wheel diameter of 0.15 mm") && err.contains("do not describe the same"),
+            "{err}"
+        );
         let report = analyse(
             &path,
             &data,
