@@ -189,3 +189,97 @@ fn a_metadata_yaml_of_nested_aliases_is_read_without_expanding_them() {
     assert!(!ok && err.contains("a file path that is not text"), "{err}");
     assert!(rss < MAX_RSS_KIB, "{rss} KiB");
 }
+
+/// The simulated bag at `from` rewritten with `blobs` messages of 1 MiB of noise on a camera
+/// topic among its own (what a robot's full recording holds beside the topics odocal reads).
+fn padded(from: &Path, to: &Path, blobs: usize) {
+    let bytes = std::fs::read(from).unwrap();
+    let out = std::io::BufWriter::new(std::fs::File::create(to).unwrap());
+    let mut w = mcap::WriteOptions::new()
+        .profile("ros2")
+        .create(out)
+        .unwrap();
+    let mut ids = std::collections::BTreeMap::new();
+    let image_schema = w
+        .add_schema("sensor_msgs/msg/Image", "ros2msg", b"")
+        .unwrap();
+    let camera = w
+        .add_channel(
+            image_schema,
+            "/camera/image_raw",
+            "cdr",
+            &Default::default(),
+        )
+        .unwrap();
+    let mut noise = 0x2545_F491_4F6C_DD1Du64;
+    let mut blob = vec![0u8; 1 << 20];
+    let messages: Vec<_> = mcap::MessageStream::new(&bytes)
+        .unwrap()
+        .map(|m| m.unwrap())
+        .collect();
+    let every = messages.len() / blobs.max(1);
+    for (i, m) in messages.iter().enumerate() {
+        let ch = *ids.entry(m.channel.id).or_insert_with(|| {
+            let s = m.channel.schema.as_ref().unwrap();
+            let schema = w.add_schema(&s.name, &s.encoding, &s.data).unwrap();
+            w.add_channel(schema, &m.channel.topic, "cdr", &Default::default())
+                .unwrap()
+        });
+        let header = mcap::records::MessageHeader {
+            channel_id: ch,
+            sequence: m.sequence,
+            log_time: m.log_time,
+            publish_time: m.publish_time,
+        };
+        w.write_to_known_channel(&header, &m.data).unwrap();
+        if i % every == 0 {
+            for chunk in blob.chunks_mut(8) {
+                noise ^= noise << 13;
+                noise ^= noise >> 7;
+                noise ^= noise << 17;
+                chunk.copy_from_slice(&noise.to_le_bytes());
+            }
+            let header = mcap::records::MessageHeader {
+                channel_id: camera,
+                sequence: i as u32,
+                log_time: m.log_time,
+                publish_time: m.log_time,
+            };
+            w.write_to_known_channel(&header, &blob).unwrap();
+        }
+    }
+    w.finish().unwrap();
+}
+
+#[test]
+fn a_large_bag_is_read_in_memory_near_its_largest_chunk_not_its_size() {
+    let d = dir("hostile-large");
+    let sim = d.join("sim.mcap");
+    let (ok, out, err) = common::odocal(&[
+        "simulate",
+        "--write-bag",
+        sim.to_str().unwrap(),
+        "--runs",
+        "1",
+        "--side-m",
+        "1",
+    ]);
+    assert!(ok, "{out}{err}");
+    // 300 MiB of camera frames that do not compress, plain and compressed whole.
+    let big = d.join("big.mcap");
+    padded(&sim, &big, 300);
+    assert!(std::fs::metadata(&big).unwrap().len() > 300 << 20);
+    let zst = d.join("big.mcap.zstd");
+    zstd::stream::copy_encode(
+        std::fs::File::open(&big).unwrap(),
+        std::fs::File::create(&zst).unwrap(),
+        1,
+    )
+    .unwrap();
+    for path in [&big, &zst] {
+        let (ok, err, rss) = bag(path);
+        assert!(ok, "{}: {err}", path.display());
+        assert!(rss < 100 << 10, "{}: {rss} KiB", path.display());
+    }
+    std::fs::remove_dir_all(&d).unwrap();
+}

@@ -23,6 +23,19 @@ pub fn zstd_file(bytes: &[u8], path: &Path) -> Result<Vec<u8>, BagError> {
     Ok(out)
 }
 
+/// The first 16 bytes the zstd file at `path` decompresses to (what format it holds), if it
+/// decompresses at all.
+pub fn zstd_head(path: &Path) -> Option<Vec<u8>> {
+    let file = crate::io::open_bounded(path, crate::io::MAX_BAG_FILE).ok()?;
+    let mut head = Vec::new();
+    zstd::stream::read::Decoder::new(file)
+        .ok()?
+        .take(16)
+        .read_to_end(&mut head)
+        .ok()?;
+    Some(head)
+}
+
 /// The first bytes of every LZ4 frame.
 pub const LZ4_MAGIC: &[u8] = &[0x04, 0x22, 0x4D, 0x18];
 

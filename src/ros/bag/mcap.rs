@@ -1,33 +1,219 @@
-//! The MCAP container (the ROS 2 default storage from Iron on): channels and metadata from the
-//! summary section when the file has one, messages from one pass over the data. Chunks
-//! compressed with zstd or lz4 (rosbag2's default is zstd) are the `mcap` crate's to undo,
-//! each within [`crate::io::MAX_BAG_CHUNK`]: what a chunk declares is checked before any is
-//! decompressed (the crate stops a chunk at what it declares).
+//! The MCAP container (the ROS 2 default storage from Iron on), read as a stream: channels
+//! and metadata from the summary section when the file has one and can be sought (a plain
+//! file; not a file compressed whole), messages from one pass over the data, so that memory
+//! stays near the largest chunk, not the file.
+//!
+//! Bounds where the bytes are produced: a record or a compressed chunk past
+//! [`crate::io::MAX_BAG_CHUNK`] is refused before it is read; a chunk declaring more than that
+//! decompressed is refused before a byte of it is decompressed, and one holding more than it
+//! declares is an error at its declared size; a file compressed whole stops at
+//! [`crate::io::MAX_BAG_FILE`]. Chunks may be plain, zstd (rosbag2's default) or lz4. A record
+//! of opcode 0, which MCAP reserves and no writer writes (what zeros read as), ends the read.
 
 use super::{BagError, Channel, Container, RawMessage};
-use std::collections::BTreeMap;
+use ::mcap::records::{self, op, Record};
+use ::mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader, LinearReaderOptions};
+use ::mcap::sans_io::summary_reader::{SummaryReadEvent, SummaryReader, SummaryReaderOptions};
+use std::cell::RefCell;
+use std::collections::{BTreeMap, HashMap};
+use std::io::{Read, Seek, SeekFrom};
 use std::path::{Path, PathBuf};
 
 /// The first bytes of every MCAP file.
 pub const MAGIC: &[u8] = ::mcap::MAGIC;
 
-/// An MCAP file in memory.
+/// Where an MCAP bag's bytes come from.
+enum Source {
+    /// A file as it lies.
+    File,
+    /// A file compressed whole with zstd (`.mcap.zstd`), decompressed as it is read.
+    ZstdFile,
+    /// Bytes in memory.
+    Bytes(Vec<u8>),
+}
+
+/// An MCAP bag, read as a stream each time its messages are asked for.
 pub struct McapBag {
-    bytes: Vec<u8>,
     path: PathBuf,
+    source: Source,
     summary: Option<::mcap::Summary>,
+    /// Metadata records met while reading the messages (a bag without a summary has them only
+    /// there).
+    seen_metadata: RefCell<Vec<records::Metadata>>,
+}
+
+fn error(path: &Path, source: ::mcap::McapError) -> BagError {
+    BagError::Mcap {
+        path: path.to_path_buf(),
+        source,
+    }
+}
+
+fn malformed(path: &Path, reason: String) -> BagError {
+    BagError::Container {
+        path: path.to_path_buf(),
+        format: "MCAP",
+        reason,
+    }
+}
+
+fn io_error(path: &Path, source: std::io::Error) -> BagError {
+    BagError::Io {
+        path: path.to_path_buf(),
+        source,
+    }
+}
+
+/// Most bytes of any one record or compressed chunk, as the reader's `usize` limit.
+fn record_limit() -> usize {
+    usize::try_from(crate::io::MAX_BAG_CHUNK).unwrap_or(usize::MAX)
+}
+
+/// A reader that fails once more than `left` bytes came through it (a file compressed whole
+/// that decompresses past its bound).
+struct Bounded<R> {
+    inner: R,
+    left: u64,
+}
+
+impl<R: Read> Read for Bounded<R> {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        let n = self.inner.read(buf)?;
+        self.left = self.left.checked_sub(n as u64).ok_or_else(|| {
+            std::io::Error::new(
+                std::io::ErrorKind::InvalidData,
+                format!(
+                    "decompresses past the {} a bag file may have (io::SIZE_BOUNDS)",
+                    crate::io::bytes(crate::io::MAX_BAG_FILE)
+                ),
+            )
+        })?;
+        Ok(n)
+    }
+}
+
+/// The summary of a seekable MCAP of `len` bytes, if it has one.
+fn summary_of(
+    r: &mut (impl Read + Seek),
+    len: u64,
+    path: &Path,
+) -> Result<Option<::mcap::Summary>, BagError> {
+    let mut reader = SummaryReader::new_with_options(
+        SummaryReaderOptions::default()
+            .with_file_size(len)
+            .with_record_length_limit(record_limit()),
+    );
+    while let Some(event) = reader.next_event() {
+        match event.map_err(|e| error(path, e))? {
+            SummaryReadEvent::ReadRequest(n) => {
+                let got = r.read(reader.insert(n)).map_err(|e| io_error(path, e))?;
+                reader.notify_read(got);
+            }
+            SummaryReadEvent::SeekRequest(to) => {
+                let at = r.seek(to).map_err(|e| io_error(path, e))?;
+                reader.notify_seeked(at);
+            }
+        }
+    }
+    Ok(reader.finish())
 }
 
 impl McapBag {
-    /// Reads the summary of `bytes` (from `path`), if it has one.
+    /// An MCAP file in memory (`path` names it in errors).
     pub fn new(bytes: Vec<u8>, path: &Path) -> Result<Self, BagError> {
-        check_chunks(&bytes, path)?;
-        let summary = ::mcap::Summary::read(&bytes).map_err(|e| error(path, e))?;
+        let summary = summary_of(
+            &mut std::io::Cursor::new(bytes.as_slice()),
+            bytes.len() as u64,
+            path,
+        )?;
         Ok(McapBag {
-            bytes,
             path: path.to_path_buf(),
+            source: Source::Bytes(bytes),
             summary,
+            seen_metadata: RefCell::new(Vec::new()),
         })
+    }
+
+    /// The plain MCAP file at `path`, its summary read where it lies.
+    pub fn open(path: &Path) -> Result<Self, BagError> {
+        let mut file = crate::io::open_bounded(path, crate::io::MAX_BAG_FILE)
+            .map_err(|e| io_error(path, e))?
+            .into_inner();
+        let len = file.metadata().map_err(|e| io_error(path, e))?.len();
+        let summary = summary_of(&mut file, len, path)?;
+        Ok(McapBag {
+            path: path.to_path_buf(),
+            source: Source::File,
+            summary,
+            seen_metadata: RefCell::new(Vec::new()),
+        })
+    }
+
+    /// The MCAP file at `path` compressed whole with zstd: no summary (it cannot be sought),
+    /// its channels learnt as it is read.
+    pub fn open_zstd(path: &Path) -> Result<Self, BagError> {
+        Ok(McapBag {
+            path: path.to_path_buf(),
+            source: Source::ZstdFile,
+            summary: None,
+            seen_metadata: RefCell::new(Vec::new()),
+        })
+    }
+
+    /// The bag's bytes from the start, as a stream.
+    fn stream(&self) -> Result<Box<dyn Read + '_>, BagError> {
+        let file = || {
+            crate::io::open_bounded(&self.path, crate::io::MAX_BAG_FILE)
+                .map(|f| f.into_inner())
+                .map_err(|e| io_error(&self.path, e))
+        };
+        Ok(match &self.source {
+            Source::Bytes(b) => Box::new(b.as_slice()),
+            Source::File => Box::new(
+                crate::io::open_bounded(&self.path, crate::io::MAX_BAG_FILE)
+                    .map_err(|e| io_error(&self.path, e))?,
+            ),
+            Source::ZstdFile => Box::new(Bounded {
+                inner: zstd::stream::read::Decoder::new(file()?).map_err(|source| {
+                    BagError::Zstd {
+                        what: self.path.display().to_string(),
+                        source,
+                    }
+                })?,
+                left: crate::io::MAX_BAG_FILE,
+            }),
+        })
+    }
+
+    /// The metadata record `name` the summary indexes, read where it lies.
+    fn indexed_metadata(&self, name: &str) -> Option<BTreeMap<String, String>> {
+        let summary = self.summary.as_ref()?;
+        let index = summary
+            .metadata_indexes
+            .iter()
+            .rev()
+            .find(|i| i.name == name)?;
+        let len = usize::try_from(index.length).ok()?;
+        if index.length > crate::io::MAX_TEXT_FILE {
+            return None;
+        }
+        let mut buf = vec![0; len];
+        match &self.source {
+            Source::Bytes(b) => {
+                let start = usize::try_from(index.offset).ok()?;
+                buf.copy_from_slice(b.get(start..start.checked_add(len)?)?);
+            }
+            Source::File => {
+                let mut f = std::fs::File::open(&self.path).ok()?;
+                f.seek(SeekFrom::Start(index.offset)).ok()?;
+                f.read_exact(&mut buf).ok()?;
+            }
+            Source::ZstdFile => return None,
+        }
+        match ::mcap::parse_record(*buf.first()?, buf.get(9..)?) {
+            Ok(Record::Metadata(m)) => Some(m.metadata),
+            _ => None,
+        }
     }
 }
 
@@ -36,54 +222,14 @@ pub fn open(bytes: Vec<u8>, path: &Path) -> Result<Box<dyn Container>, BagError>
     Ok(Box::new(McapBag::new(bytes, path)?))
 }
 
-/// The little-endian u64 at `at`, if the bytes reach that far.
-fn le_u64(bytes: &[u8], at: usize) -> Option<u64> {
-    let b: [u8; 8] = bytes.get(at..at.checked_add(8)?)?.try_into().ok()?;
-    Some(u64::from_le_bytes(b))
+/// [`McapBag::open`] as a [`super::FileFormat`] opens a plain file where it lies.
+pub fn open_in_place(path: &Path) -> Result<Box<dyn Container>, BagError> {
+    Ok(Box::new(McapBag::open(path)?))
 }
 
-/// Refuses a file with a chunk that declares more than [`crate::io::MAX_BAG_CHUNK`]
-/// decompressed, walking the records (opcode, u64 length) up to the footer. A record whose
-/// length runs past the file ends the walk: the reader names that.
-fn check_chunks(bytes: &[u8], path: &Path) -> Result<(), BagError> {
-    const CHUNK: u8 = 0x06;
-    const FOOTER: u8 = 0x02;
-    let mut at = MAGIC.len();
-    while let (Some(&op), Some(len)) = (bytes.get(at), le_u64(bytes, at + 1)) {
-        let body = at + 9;
-        if op == CHUNK {
-            // message_start_time, message_end_time, then uncompressed_size.
-            if let Some(declared) = le_u64(bytes, body + 16) {
-                if declared > crate::io::MAX_BAG_CHUNK {
-                    return Err(BagError::Container {
-                        path: path.to_path_buf(),
-                        format: "MCAP",
-                        reason: format!(
-                            "the chunk at byte {at} declares {declared} bytes decompressed, \
-                             past the {} a chunk may have (io::SIZE_BOUNDS); rewrite it with \
-                             smaller chunks (`mcap convert`, `ros2 bag convert`)",
-                            crate::io::bytes(crate::io::MAX_BAG_CHUNK)
-                        ),
-                    });
-                }
-            }
-        }
-        if op == FOOTER {
-            break;
-        }
-        match usize::try_from(len).ok().and_then(|l| body.checked_add(l)) {
-            Some(next) if next <= bytes.len() => at = next,
-            _ => break,
-        }
-    }
-    Ok(())
-}
-
-fn error(path: &Path, source: ::mcap::McapError) -> BagError {
-    BagError::Mcap {
-        path: path.to_path_buf(),
-        source,
-    }
+/// [`McapBag::open_zstd`] as a [`super::FileFormat`] opens a file compressed whole.
+pub fn open_zstd(path: &Path) -> Result<Box<dyn Container>, BagError> {
+    Ok(Box::new(McapBag::open_zstd(path)?))
 }
 
 fn channel(c: &::mcap::Channel<'_>) -> Channel {
@@ -98,6 +244,173 @@ fn channel(c: &::mcap::Channel<'_>) -> Channel {
     }
 }
 
+/// What one pass over the records has learnt: schema names and channels by id, and a
+/// decompression context and buffer reused from chunk to chunk.
+#[derive(Default)]
+struct Pass {
+    schemas: HashMap<u16, String>,
+    channels: HashMap<u16, Channel>,
+    zstd: Option<zstd::bulk::Decompressor<'static>>,
+    chunk: Vec<u8>,
+    metadata: Vec<records::Metadata>,
+}
+
+impl Pass {
+    /// One record (`data` without its opcode and length); a chunk's records in turn.
+    fn record(
+        &mut self,
+        opcode: u8,
+        data: &[u8],
+        path: &Path,
+        each: &mut dyn FnMut(RawMessage<'_>) -> Result<(), BagError>,
+    ) -> Result<(), BagError> {
+        match opcode {
+            0 => Err(malformed(
+                path,
+                "a record of opcode 0, which MCAP reserves: the file is not MCAP past its start \
+                 (zeros?)"
+                    .into(),
+            )),
+            op::MESSAGE => {
+                let Ok(Record::Message { header, data }) = ::mcap::parse_record(opcode, data)
+                else {
+                    return Err(malformed(path, "a message record cut short".into()));
+                };
+                let ch = self.channels.get(&header.channel_id).ok_or_else(|| {
+                    malformed(
+                        path,
+                        format!(
+                            "a message on channel {} before that channel's record",
+                            header.channel_id
+                        ),
+                    )
+                })?;
+                each(RawMessage {
+                    channel: ch,
+                    log_time_ns: header.log_time,
+                    data: &data[..],
+                })
+            }
+            op::SCHEMA | op::CHANNEL | op::METADATA | op::CHUNK => {
+                match ::mcap::parse_record(opcode, data).map_err(|e| error(path, e))? {
+                    Record::Schema { header, .. } => {
+                        self.schemas.insert(header.id, header.name);
+                    }
+                    Record::Channel(c) => {
+                        let type_name = self.schemas.get(&c.schema_id).cloned().unwrap_or_default();
+                        self.channels.insert(
+                            c.id,
+                            Channel {
+                                topic: c.topic,
+                                type_name,
+                                encoding: c.message_encoding,
+                            },
+                        );
+                    }
+                    Record::Metadata(m) => self.metadata.push(m),
+                    Record::Chunk { header, data } => self.chunk(&header, &data, path, each)?,
+                    _ => {}
+                }
+                Ok(())
+            }
+            _ => Ok(()),
+        }
+    }
+
+    /// A chunk's records, decompressed within its declared size.
+    fn chunk(
+        &mut self,
+        header: &records::ChunkHeader,
+        data: &[u8],
+        path: &Path,
+        each: &mut dyn FnMut(RawMessage<'_>) -> Result<(), BagError>,
+    ) -> Result<(), BagError> {
+        let declared = header.uncompressed_size;
+        if declared > crate::io::MAX_BAG_CHUNK {
+            return Err(malformed(
+                path,
+                format!(
+                    "a chunk declares {declared} bytes decompressed, past the {} a chunk may \
+                     have (io::SIZE_BOUNDS); rewrite it with smaller chunks (`mcap convert`, \
+                     `ros2 bag convert`)",
+                    crate::io::bytes(crate::io::MAX_BAG_CHUNK)
+                ),
+            ));
+        }
+        let n = usize::try_from(declared).unwrap_or(usize::MAX);
+        let mut buf = std::mem::take(&mut self.chunk);
+        buf.clear();
+        let bad = |what: String| malformed(path, format!("a {} chunk: {what}", header.compression));
+        let records: &[u8] = match header.compression.as_str() {
+            "" => data,
+            "zstd" => {
+                buf.reserve(n);
+                let ctx = match self.zstd.take() {
+                    Some(c) => c,
+                    None => zstd::bulk::Decompressor::new().map_err(|e| bad(e.to_string()))?,
+                };
+                let ctx = self.zstd.insert(ctx);
+                // Into at most the declared room: more is an error, not an allocation.
+                ctx.decompress_to_buffer(data, &mut buf)
+                    .map_err(|e| bad(format!("{e} (it declares {declared} bytes)")))?;
+                &buf
+            }
+            "lz4" => {
+                lz4::Decoder::new(data)
+                    .and_then(|d| d.take(declared + 1).read_to_end(&mut buf))
+                    .map_err(|e| bad(e.to_string()))?;
+                &buf
+            }
+            other => {
+                return Err(malformed(
+                    path,
+                    format!("a chunk compressed with `{other}`: odocal reads zstd and lz4 chunks"),
+                ))
+            }
+        };
+        if records.len() as u64 != declared {
+            let got = records.len();
+            self.chunk = buf;
+            return Err(bad(format!(
+                "it holds {got} bytes or more and declares {declared}"
+            )));
+        }
+        let mut at = 0usize;
+        let mut result = Ok(());
+        while at < records.len() {
+            let (Some(&opcode), Some(len)) = (records.get(at), le_u64(records, at + 1)) else {
+                result = Err(bad("a record cut short".into()));
+                break;
+            };
+            let body = usize::try_from(len)
+                .ok()
+                .and_then(|l| (at + 9).checked_add(l))
+                .and_then(|end| records.get(at + 9..end));
+            let Some(body) = body else {
+                result = Err(bad("a record runs past the chunk".into()));
+                break;
+            };
+            if opcode == op::CHUNK {
+                result = Err(bad("a chunk inside a chunk".into()));
+                break;
+            }
+            if let Err(e) = self.record(opcode, body, path, each) {
+                result = Err(e);
+                break;
+            }
+            at += 9 + body.len();
+        }
+        self.chunk = buf;
+        result
+    }
+}
+
+/// The little-endian u64 at `at`, if the bytes reach that far.
+fn le_u64(bytes: &[u8], at: usize) -> Option<u64> {
+    let b: [u8; 8] = bytes.get(at..at.checked_add(8)?)?.try_into().ok()?;
+    Some(u64::from_le_bytes(b))
+}
+
 impl Container for McapBag {
     fn format(&self) -> &'static str {
         "MCAP"
@@ -110,33 +423,47 @@ impl Container for McapBag {
     }
 
     fn metadata(&self, name: &str) -> Option<BTreeMap<String, String>> {
-        let summary = self.summary.as_ref()?;
-        summary
-            .metadata_indexes
-            .iter()
-            .rev()
-            .filter(|i| i.name == name)
-            .find_map(|i| ::mcap::read::metadata(&self.bytes, i).ok())
-            .map(|m| m.metadata)
+        self.indexed_metadata(name).or_else(|| {
+            self.seen_metadata
+                .borrow()
+                .iter()
+                .rev()
+                .find(|m| m.name == name)
+                .map(|m| m.metadata.clone())
+        })
     }
 
     fn messages(
         &self,
         each: &mut dyn FnMut(RawMessage<'_>) -> Result<(), BagError>,
     ) -> Result<(), BagError> {
-        // Channels converted once each, by the reader's channel id.
-        let mut known: BTreeMap<u16, Channel> = BTreeMap::new();
-        for m in ::mcap::MessageStream::new(&self.bytes).map_err(|e| error(&self.path, e))? {
-            let m = m.map_err(|e| error(&self.path, e))?;
-            let ch = known
-                .entry(m.channel.id)
-                .or_insert_with(|| channel(&m.channel));
-            each(RawMessage {
-                channel: ch,
-                log_time_ns: m.log_time,
-                data: &m.data,
-            })?;
+        let mut input = self.stream()?;
+        let mut reader = LinearReader::new_with_options(
+            LinearReaderOptions::default()
+                .with_emit_chunks(true)
+                .with_record_length_limit(record_limit()),
+        );
+        let mut pass = Pass::default();
+        while let Some(event) = reader.next_event() {
+            match event.map_err(|e| error(&self.path, e))? {
+                LinearReadEvent::ReadRequest(n) => {
+                    let got = input
+                        .read(reader.insert(n))
+                        .map_err(|source| match self.source {
+                            Source::ZstdFile => BagError::Zstd {
+                                what: self.path.display().to_string(),
+                                source,
+                            },
+                            _ => io_error(&self.path, source),
+                        })?;
+                    reader.notify_read(got);
+                }
+                LinearReadEvent::Record { opcode, data } => {
+                    pass.record(opcode, data, &self.path, each)?;
+                }
+            }
         }
+        *self.seen_metadata.borrow_mut() = pass.metadata;
         Ok(())
     }
 }

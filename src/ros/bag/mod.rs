@@ -430,8 +430,11 @@ pub struct FileFormat {
     /// Opens a file of it from its bytes (`path` names it in errors).
     pub open: fn(Vec<u8>, &Path) -> Opened,
     /// Opens a plain file of it where it lies, for a format whose reader reads only what it
-    /// needs (SQLite's pages); `None`: from its bytes.
+    /// needs (SQLite's pages, MCAP's stream); `None`: from its bytes.
     pub open_in_place: Option<fn(&Path) -> Opened>,
+    /// Opens a file of it compressed whole with zstd, to be decompressed as it is read, for a
+    /// format read as a stream (MCAP); `None`: decompressed into memory first.
+    pub open_zstd: Option<fn(&Path) -> Opened>,
 }
 
 /// Every single-file container format odocal reads.
@@ -441,7 +444,8 @@ pub const FILE_FORMATS: &[FileFormat] = &[
         magic: mcap::MAGIC,
         extension: "mcap",
         open: mcap::open,
-        open_in_place: None,
+        open_in_place: Some(mcap::open_in_place),
+        open_zstd: Some(mcap::open_zstd),
     },
     FileFormat {
         name: "sqlite3",
@@ -449,6 +453,7 @@ pub const FILE_FORMATS: &[FileFormat] = &[
         extension: "db3",
         open: sqlite3::open,
         open_in_place: Some(sqlite3::open_in_place),
+        open_zstd: None,
     },
     FileFormat {
         name: "ROS 1",
@@ -456,6 +461,7 @@ pub const FILE_FORMATS: &[FileFormat] = &[
         extension: "bag",
         open: ros1::open,
         open_in_place: None,
+        open_zstd: None,
     },
 ];
 
@@ -473,8 +479,9 @@ pub fn open_container(path: &Path) -> Result<Box<dyn Container>, BagError> {
 }
 
 /// One bag file (a regular file within [`crate::io::MAX_BAG_FILE`]) opened as the format its
-/// first bytes say: where it lies when the format reads it so, else from its bytes, read
-/// whole and decompressed first when it is a zstd or an LZ4 file.
+/// first bytes say: where it lies (or, compressed whole with zstd, decompressed as it is
+/// read) when the format reads it so, else from its bytes, read whole and decompressed first
+/// when it is a zstd or an LZ4 file.
 pub fn open_file(path: &Path) -> Result<Box<dyn Container>, BagError> {
     use std::io::Read;
     let io = |source| BagError::Io {
@@ -491,6 +498,14 @@ pub fn open_file(path: &Path) -> Result<Box<dyn Container>, BagError> {
         .and_then(|f| f.open_in_place);
     if let Some(open) = in_place {
         return open(path);
+    }
+    if bytes.starts_with(compression::ZSTD_MAGIC) {
+        if let Some(open) = compression::zstd_head(path)
+            .and_then(|head| FILE_FORMATS.iter().find(|f| head.starts_with(f.magic)))
+            .and_then(|f| f.open_zstd)
+        {
+            return open(path);
+        }
     }
     // Room for the whole file at once rather than grown (and copied) as it is read.
     bytes.reserve(
