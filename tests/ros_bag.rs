@@ -1005,3 +1005,89 @@ fn reversed_time_is_refused_in_sqlite_ros1_and_rosbag2_directories() {
         assert!(err.contains("goes back in time"), "{err}");
     }
 }
+
+#[test]
+fn export_writes_through_a_link_keeps_crlf_and_an_immutable_file_is_refused_before_writing() {
+    let dir = scratch("export-link");
+    std::fs::create_dir_all(dir.join("src")).unwrap();
+    std::fs::create_dir_all(dir.join("install")).unwrap();
+    let bag = dir.join("s.mcap");
+    simulated_bag(
+        &bag,
+        &["--heading-sigma-deg", "0", "--runs", "1", "--side-m", "1"],
+    );
+    let (ok, bag_json, err) = odocal(&["bag", bag.to_str().unwrap(), "--json"]);
+    assert!(ok, "{err}");
+    let result = dir.join("bag.json");
+    std::fs::write(&result, bag_json).unwrap();
+    // The sources' file, with CRLF line endings and no final newline, and the installed link
+    // to it that `colcon build --symlink-install` makes.
+    let source = dir.join("src/controllers.yaml");
+    let original =
+        "diff_drive_controller:\r\n  ros__parameters:\r\n    wheel_separation: 0.39\r\n    \
+wheel_radius: 0.075\r\n    publish_rate: 50.0";
+    std::fs::write(&source, original).unwrap();
+    let link = dir.join("install/controllers.yaml");
+    std::os::unix::fs::symlink(&source, &link).unwrap();
+    let export = || {
+        odocal(&[
+            "export",
+            "--from",
+            result.to_str().unwrap(),
+            "--ros2",
+            link.to_str().unwrap(),
+            "--force",
+        ])
+    };
+    let (ok, out, err) = export();
+    assert!(ok, "{err}");
+    assert!(out.contains("a link: written to"), "{out}");
+    assert!(std::fs::symlink_metadata(&link)
+        .unwrap()
+        .file_type()
+        .is_symlink());
+    let text = std::fs::read_to_string(&source).unwrap();
+    assert!(text.contains("wheel_separation_multiplier"), "{text}");
+    assert_eq!(
+        text.matches('\n').count(),
+        text.matches("\r\n").count(),
+        "{text:?}"
+    );
+    assert!(!text.ends_with('\n'), "{text:?}");
+    // The backup restores the sources' file, byte for byte, through the link.
+    let backup = out
+        .split("odocal restore ")
+        .nth(1)
+        .unwrap()
+        .trim()
+        .trim_end_matches(')');
+    let (ok, _, err) = odocal(&["restore", backup, "--yes"]);
+    assert!(ok, "{err}");
+    assert_eq!(std::fs::read_to_string(&source).unwrap(), original);
+    assert!(std::fs::symlink_metadata(&link)
+        .unwrap()
+        .file_type()
+        .is_symlink());
+    // A file the system forbids changing is refused before anything is written or backed up.
+    if std::process::Command::new("chattr")
+        .args(["+i", source.to_str().unwrap()])
+        .status()
+        .is_ok_and(|s| s.success())
+    {
+        let backups = || std::fs::read_dir(dir.join("install")).unwrap().count();
+        let before = backups();
+        let (ok, _, err) = export();
+        let _ = std::process::Command::new("chattr")
+            .args(["-i", source.to_str().unwrap()])
+            .status();
+        assert!(!ok && err.contains("cannot be replaced"), "{err}");
+        assert_eq!(backups(), before, "a backup was taken before the refusal");
+        assert_eq!(std::fs::read_to_string(&source).unwrap(), original);
+    } else {
+        assert!(
+            std::env::var_os("CI").is_none(),
+            "chattr +i is needed to test an immutable file"
+        );
+        eprintln!("skipped the immutable file: chattr +i is not allowed here");
+    }
+}

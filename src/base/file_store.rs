@@ -125,10 +125,12 @@ impl<F: ParamFile> FileStore<F> {
             component: format!("store {}", self.path.display()),
             source: Box::new(e),
         };
+        let old = self.text()?;
         let text = self
             .format
-            .render(&self.text()?, params, &self.path)
+            .render(&old, params, &self.path)
             .map_err(unwritable)?;
+        let text = crate::io::keep_text_form(&old, &text);
         let content = self.format.parse(&text, &self.path).map_err(unwritable)?;
         Ok((text, content))
     }
@@ -195,18 +197,20 @@ impl<F: ParamFile> ParamStore for FileStore<F> {
         Some(self.path.clone())
     }
 
-    /// The dry merge: the file parses, `params` render into it and read back, and its
-    /// directory takes the replacement's temporary file.
+    /// The dry merge: the file parses, `params` render into it and read back, and it can be
+    /// replaced the way `commit` replaces it ([`crate::io::probe_replace`]: a temporary file
+    /// in the directory of the file written, through a link its target's; a file the system
+    /// forbids changing is found here, not after the robot has driven).
     async fn check_write(&self, params: &WheelParams) -> Result<(), BaseError> {
         self.check_params(params)?;
         self.rendered(params)?;
-        // The replacement's temporary file is a new file there.
-        let dir = crate::io::dir_of(&self.path);
-        crate::io::probe_dir(dir).map_err(|e| BaseError::Unwritable {
+        let target = crate::io::write_target(&self.path);
+        crate::io::probe_replace(&self.path).map_err(|e| BaseError::Unwritable {
             component: format!(
-                "store {} (no new file can be created in {})",
+                "store {} (it cannot be replaced: a new file in {}, then a rename over {})",
                 self.path.display(),
-                dir.display()
+                crate::io::dir_of(&target).display(),
+                target.display()
             ),
             source: Box::new(e),
         })

@@ -5,9 +5,72 @@
 use std::io::Write as _;
 use std::path::{Path, PathBuf};
 
+/// The file a write to `path` changes: what a symbolic link at `path` names, through every
+/// link (`colcon build --symlink-install` links installed files to the sources: replacing the
+/// link would leave the sources as they were); `path` itself otherwise, or when the link names
+/// nothing.
+pub fn write_target(path: &Path) -> PathBuf {
+    match std::fs::symlink_metadata(path) {
+        Ok(m) if m.file_type().is_symlink() => {
+            std::fs::canonicalize(path).unwrap_or_else(|_| path.to_path_buf())
+        }
+        _ => path.to_path_buf(),
+    }
+}
+
+/// Proves that `path` can be replaced the way [`replace_atomically`] replaces it, before
+/// anything depends on it: a new file can be created (and removed) in the directory of the
+/// file written ([`write_target`]), and the file, if it exists, is not one the system forbids
+/// changing (immutable or append-only: `chattr +i`, `+a`), which a rename over it would only
+/// find at the end.
+pub fn probe_replace(path: &Path) -> std::io::Result<()> {
+    let target = write_target(path);
+    probe_dir(dir_of(&target))?;
+    if target.exists() {
+        // Opened to write, never written. EPERM (1 on every Unix) is the immutable or
+        // append-only file; EACCES, a mode without write permission, does not stop a rename.
+        if let Err(e) = std::fs::OpenOptions::new().write(true).open(&target) {
+            if e.raw_os_error() == Some(1) {
+                return Err(e);
+            }
+        }
+    }
+    Ok(())
+}
+
+/// `new` with the line endings, final newline and byte-order mark of `old`, the text it
+/// replaces: a file written with CRLF on every line stays so (a writer that renders with LF
+/// would change every line), one without a final newline keeps none.
+pub fn keep_text_form(old: &str, new: &str) -> String {
+    let crlf = old.contains("\r\n") && old.matches('\n').count() == old.matches("\r\n").count();
+    let mut out = if crlf {
+        new.replace("\r\n", "\n").replace('\n', "\r\n")
+    } else {
+        new.to_string()
+    };
+    let eol = if crlf { "\r\n" } else { "\n" };
+    if !old.is_empty() && !old.ends_with('\n') {
+        while out.ends_with('\n') {
+            out.truncate(out.len() - 1);
+            if out.ends_with('\r') {
+                out.truncate(out.len() - 1);
+            }
+        }
+    } else if old.ends_with('\n') && !out.ends_with('\n') {
+        out.push_str(eol);
+    }
+    if old.starts_with('\u{feff}') && !out.starts_with('\u{feff}') {
+        out.insert(0, '\u{feff}');
+    }
+    out
+}
+
 /// Writes `text` to `path` atomically (a temporary file in the same directory, synced, renamed
-/// over it), keeping the file's permissions.
+/// over it), keeping the file's permissions. Through a symbolic link, the file it names is
+/// replaced and the link stays ([`write_target`]).
 pub fn replace_atomically(path: &Path, text: &str) -> std::io::Result<()> {
+    let target = write_target(path);
+    let path = target.as_path();
     let dir = dir_of(path);
     let name = path
         .file_name()
@@ -41,7 +104,7 @@ pub fn dir_of(path: &Path) -> &Path {
 }
 
 /// Proves that a new file can be created in `dir` (and removed again): what a backup beside a
-/// file and an atomic replacement need, checked before anything depends on it.
+/// file needs, checked before anything depends on it (for a replacement: [`probe_replace`]).
 pub fn probe_dir(dir: &Path) -> std::io::Result<()> {
     // Unique within the process too: threads probe the same directory at once.
     static PROBES: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
@@ -246,6 +309,43 @@ pub fn read_bounded(path: &Path, max_bytes: u64) -> std::io::Result<String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_rewritten_text_keeps_its_line_endings_final_newline_and_mark() {
+        let new = "a: 1\nb: 2\n";
+        assert_eq!(keep_text_form("a: 0\r\nb: 2\r\n", new), "a: 1\r\nb: 2\r\n");
+        assert_eq!(keep_text_form("a: 0\r\nb: 2", new), "a: 1\r\nb: 2");
+        assert_eq!(keep_text_form("a: 0\nb: 2", new), "a: 1\nb: 2");
+        assert_eq!(keep_text_form("a: 0\nb: 2\n", "a: 1\nb: 2"), "a: 1\nb: 2\n");
+        assert_eq!(
+            keep_text_form("\u{feff}a: 0\n", new),
+            "\u{feff}a: 1\nb: 2\n"
+        );
+        // Mixed endings: the writer's text as it is.
+        assert_eq!(keep_text_form("a: 0\r\nb: 2\n", new), new);
+        // A spliced text that kept some CRLF comes out CRLF throughout.
+        assert_eq!(keep_text_form("a\r\n", "a\r\nb\n"), "a\r\nb\r\n");
+    }
+
+    #[test]
+    fn a_replacement_through_a_link_changes_what_it_names() {
+        let dir = std::env::temp_dir().join(format!("odocal-link-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let target = dir.join("real.yaml");
+        std::fs::write(&target, "old").unwrap();
+        let link = dir.join("link.yaml");
+        std::os::unix::fs::symlink(&target, &link).unwrap();
+        assert_eq!(write_target(&link), std::fs::canonicalize(&target).unwrap());
+        probe_replace(&link).unwrap();
+        replace_atomically(&link, "new").unwrap();
+        assert_eq!(std::fs::read_to_string(&target).unwrap(), "new");
+        assert!(std::fs::symlink_metadata(&link)
+            .unwrap()
+            .file_type()
+            .is_symlink());
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 
     #[test]
     fn utc_stamps_are_calendar_dates_that_sort() {

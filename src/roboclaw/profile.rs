@@ -336,7 +336,7 @@ pub async fn save_heading(path: &Path, heading: &HeadingSection) -> Result<PathB
         source,
     };
     let text = read_bounded(path)?;
-    let out = with_heading(&text, heading, path)?;
+    let out = crate::io::keep_text_form(&text, &with_heading(&text, heading, path)?);
     let store = ProfileStore::open(path)?;
     let (backup, _) = crate::base::transaction::backup_store(&store, crate::io::dir_of(path))
         .await

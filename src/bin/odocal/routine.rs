@@ -717,6 +717,16 @@ pub struct ExportArgs {
     force: bool,
 }
 
+/// ", a link to <target>: that file was written" when `path` is a symbolic link.
+fn through_link(path: &std::path::Path) -> String {
+    let target = odocal::io::write_target(path);
+    if target == path {
+        String::new()
+    } else {
+        format!(" (a link: written to {}, which it names)", target.display())
+    }
+}
+
 /// Runs `odocal export`.
 pub async fn export(args: ExportArgs) -> CliResult {
     use odocal::report::ros2::{calibration_of, export, Exported};
@@ -738,9 +748,10 @@ pub async fn export(args: ExportArgs) -> CliResult {
     match export(&args.ros2, &args.controller, &cal).await? {
         Exported::Created => println!("wrote {} ({} calibration)", args.ros2.display(), cal.method),
         Exported::Merged { backup } => println!(
-            "merged the {} calibration's multipliers into {} (undo: odocal restore {})",
+            "merged the {} calibration's multipliers into {}{} (undo: odocal restore {})",
             cal.method,
             args.ros2.display(),
+            through_link(&args.ros2),
             backup.display()
         ),
     }
