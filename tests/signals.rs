@@ -1,5 +1,5 @@
-//! `odocal calibrate` on `odocal mock-device` (20 times real speed) interrupted by a signal in
-//! each phase — SIGINT (Ctrl-C), and SIGTERM and SIGHUP (what a service manager, `timeout`, a
+//! `odocal calibrate` on `odocal mock-device` (20 times real speed), and on `odocal
+//! mock-roboclaw` with its robot profile, interrupted by a signal in each phase — SIGINT (Ctrl-C), and SIGTERM and SIGHUP (what a service manager, `timeout`, a
 //! closed SSH session send), handled alike: the command fails, its last two lines say that the
 //! robot stopped and what its parameters are, the device is idle and holds what the lines say,
 //! and nothing is left outside the report directory (nothing at all when nothing was driven).
@@ -67,6 +67,40 @@ const CASES: [Case; 6] = [
     },
 ];
 
+/// Runs `odocal args…` in `dir` and sends `signal` once a stderr line starts with `marker`:
+/// whether it was sent, the exit status, the lines.
+fn signalled(
+    args: &[&str],
+    dir: &Path,
+    signal: &str,
+    marker: &str,
+) -> (bool, std::process::ExitStatus, Vec<String>) {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_odocal"))
+        .args(args)
+        .current_dir(dir)
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut lines = Vec::new();
+    let mut sent = false;
+    for line in BufReader::new(child.stderr.take().unwrap()).lines() {
+        let line = line.unwrap();
+        if !sent && line.trim_start().starts_with(marker) {
+            let ok = Command::new("kill")
+                .args([&format!("-{signal}"), &child.id().to_string()])
+                .status()
+                .unwrap()
+                .success();
+            assert!(ok, "kill -{signal}");
+            sent = true;
+        }
+        lines.push(line);
+    }
+    (sent, child.wait().unwrap(), lines)
+}
+
 /// Every file under `dir`, recursively.
 fn tree(dir: &Path) -> Vec<PathBuf> {
     let mut out = Vec::new();
@@ -89,30 +123,7 @@ fn interrupted(case: &Case) {
     let mut args = vec!["calibrate", "--port", &port];
     args.extend(common::QUICK_FLAGS);
     args.extend(["--report-dir", "report"]);
-    let mut child = Command::new(env!("CARGO_BIN_EXE_odocal"))
-        .args(&args)
-        .current_dir(&dir)
-        .stdin(Stdio::null())
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let mut lines = Vec::new();
-    let mut sent = false;
-    for line in BufReader::new(child.stderr.take().unwrap()).lines() {
-        let line = line.unwrap();
-        if !sent && line.trim_start().starts_with(case.marker) {
-            let ok = Command::new("kill")
-                .args([&format!("-{}", case.signal), &child.id().to_string()])
-                .status()
-                .unwrap()
-                .success();
-            assert!(ok, "{}: kill", case.name);
-            sent = true;
-        }
-        lines.push(line);
-    }
-    let status = child.wait().unwrap();
+    let (sent, status, lines) = signalled(&args, &dir, case.signal, case.marker);
     let text = lines.join("\n");
     assert!(
         sent,
@@ -189,4 +200,76 @@ fn a_signal_in_any_phase_stops_the_robot_restores_and_says_so_last() {
             s.spawn(move || pair.iter().for_each(interrupted));
         }
     });
+}
+
+/// The last two non-empty lines of `lines`.
+fn last_two(lines: &[String]) -> (String, String) {
+    let last: Vec<&str> = lines
+        .iter()
+        .map(|l| l.trim())
+        .filter(|l| !l.is_empty())
+        .collect();
+    match last.as_slice() {
+        [.., a, b] => (a.to_string(), b.to_string()),
+        _ => panic!("no output"),
+    }
+}
+
+#[test]
+fn on_a_roboclaw_sigterm_and_sighup_stop_the_robot_and_leave_the_profile_as_it_was() {
+    for (name, signal, marker) in [
+        ("roboclaw-term-round2", "TERM", "round 2: square 1 of"),
+        (
+            "roboclaw-hup-verification",
+            "HUP",
+            "verification: square 1 of",
+        ),
+    ] {
+        let (dir, profile) = common::scratch_with(name, "robot.toml", common::ROBOCLAW_PROFILE);
+        let profile_s = profile.to_str().unwrap().to_string();
+        let (mut mock, ports) = common::spawn_server_lines(
+            "mock-roboclaw",
+            &["--profile", &profile_s, "--time-scale", "20"],
+            2,
+        );
+        let mut args = vec![
+            "calibrate",
+            "--base",
+            &ports[0],
+            "--heading",
+            &ports[1],
+            "--profile",
+            &profile_s,
+        ];
+        args.extend(common::QUICK_FLAGS);
+        args.extend(["--report-dir", "report"]);
+        let (sent, status, lines) = signalled(&args, &dir, signal, marker);
+        drop(mock.stdin.take());
+        let _ = mock.wait();
+        let text = lines.join("\n");
+        assert!(sent, "{name}: never reached `{marker}`:\n{text}");
+        assert!(!status.success(), "{name}: exit {status}:\n{text}");
+        let (robot, parameters) = last_two(&lines);
+        assert_eq!(robot, "robot: stopped", "{name}:\n{text}");
+        assert!(
+            parameters.starts_with("parameters: restored to what they were before the run"),
+            "{name}:\n{text}"
+        );
+        // The statement is true of the file: the profile is byte for byte as it was.
+        assert_eq!(
+            std::fs::read_to_string(&profile).unwrap(),
+            common::ROBOCLAW_PROFILE,
+            "{name}"
+        );
+        let names: Vec<String> = tree(&dir.join("report"))
+            .iter()
+            .map(|f| f.file_name().unwrap().to_string_lossy().into_owned())
+            .collect();
+        assert!(
+            names.iter().any(|n| n.contains("odocal-backup-"))
+                && names.iter().any(|n| n.contains("partial-report-")),
+            "{name}: {names:?}"
+        );
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 }
