@@ -768,7 +768,7 @@ fn numeric_flags_outside_their_physical_range_are_refused_before_anything_runs()
                 "--ccw-heading-deg",
                 "1",
             ],
-            "--side-m must be at most 100 m",
+            "--side-m must be in [0.05, 100] m",
         ),
         (
             vec!["mock-device", "--faults", "latency-ms=-5"],

@@ -195,10 +195,11 @@ impl RoutineConfig {
             })
         };
         let positive = |v: f64| v.is_finite() && v > 0.0;
-        if !positive(self.side_m) || self.side_m > 20.0 {
+        // Lower bounds too: a 1e-308 m square or speed is no test (its time is infinite).
+        if !(self.side_m.is_finite() && (0.05..=20.0).contains(&self.side_m)) {
             return bad(
                 "side_m",
-                format!("must be in (0, 20] m, got {}", self.side_m),
+                format!("must be in [0.05, 20] m, got {}", self.side_m),
             );
         }
         if !(1..=50).contains(&self.runs_per_direction) {
@@ -207,20 +208,24 @@ impl RoutineConfig {
                 format!("must be 1..=50, got {}", self.runs_per_direction),
             );
         }
-        if !positive(self.max_speed_m_s) || self.max_speed_m_s > HARD_SPEED_LIMIT_M_S {
+        if !(self.max_speed_m_s.is_finite()
+            && (0.01..=HARD_SPEED_LIMIT_M_S).contains(&self.max_speed_m_s))
+        {
             return bad(
                 "max_speed_m_s",
                 format!(
-                    "must be in (0, {HARD_SPEED_LIMIT_M_S}] m/s, got {}",
+                    "must be in [0.01, {HARD_SPEED_LIMIT_M_S}] m/s, got {}",
                     self.max_speed_m_s
                 ),
             );
         }
-        if !positive(self.max_rate_rad_s) || self.max_rate_rad_s > HARD_RATE_LIMIT_RAD_S {
+        if !(self.max_rate_rad_s.is_finite()
+            && (0.01..=HARD_RATE_LIMIT_RAD_S).contains(&self.max_rate_rad_s))
+        {
             return bad(
                 "max_rate_rad_s",
                 format!(
-                    "must be in (0, {HARD_RATE_LIMIT_RAD_S}] rad/s, got {}",
+                    "must be in [0.01, {HARD_RATE_LIMIT_RAD_S}] rad/s, got {}",
                     self.max_rate_rad_s
                 ),
             );
@@ -263,8 +268,8 @@ impl RoutineConfig {
             ("target_e_b_std", self.target_e_b_std),
             ("target_e_d_std", self.target_e_d_std),
         ] {
-            if let Some(t) = target.filter(|t| !(positive(*t) && *t < 0.1)) {
-                return bad(key, format!("must be in (0, 0.1), got {t}"));
+            if let Some(t) = target.filter(|t| !(t.is_finite() && (1e-7..0.1).contains(t))) {
+                return bad(key, format!("must be in [1e-7, 0.1), got {t}"));
             }
         }
         if !(crate::calibration::plan::MIN_RUNS_PER_DIRECTION..=50)

@@ -101,14 +101,19 @@ fn runs(headings_deg: &[f64], xy: Option<&XyList>) -> Result<Vec<RunMeasurement>
 
 /// Runs `odocal estimate`.
 pub fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
-    // Upper bounds of a square test a robot can drive; NaN, zero and negative values are the
-    // calibration's own checks (SquareTest::validate) and get its message.
-    for (flag, v, hi) in [
-        ("--side-m", args.side_m, 100.0),
-        ("--wheelbase-m", args.wheelbase_m, 10.0),
+    // The bounds of a square test a robot can drive (a 1e-308 m wheelbase makes every
+    // derivative overflow); NaN is the calibration's own check (SquareTest::validate) and
+    // gets its message.
+    for (flag, v, lo, hi) in [
+        ("--side-m", args.side_m, 0.05, 100.0),
+        ("--wheelbase-m", args.wheelbase_m, 0.01, 10.0),
     ] {
-        if v > hi {
-            return Err(format!("{flag} must be at most {hi} m, got {v}").into());
+        if v > hi || (v > 0.0 && v < lo) {
+            return Err(format!(
+                "{flag} must be in [{lo}, {hi}] m, got {}",
+                crate::compact(v)
+            )
+            .into());
         }
     }
     if let Some(d) = args.wheel_diameter_m {
@@ -125,8 +130,14 @@ pub fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
     // scatter is often far below it by chance), and one run per direction still gets one.
     // One reading at each end of a run: the run's heading error has √2 times its noise.
     let run_sigma_rad = match args.compass_sigma_deg {
-        Some(s) if !(s.is_finite() && s > 0.0 && s <= 45.0) => {
-            return Err(format!("--heading-sigma-deg must be in (0, 45] deg, got {s}").into());
+        // Below a millionth of a degree no sensor reads, and its square would underflow.
+        Some(s) if !(s.is_finite() && (1e-6..=45.0).contains(&s)) => {
+            return Err(format!(
+                "--heading-sigma-deg must be in [1e-6, 45] deg (the sensor's noise per \
+                 reading), got {}",
+                crate::compact(s)
+            )
+            .into());
         }
         s => s.map(|s| heading_error_sigma(s.to_radians(), 1)),
     };

@@ -102,6 +102,14 @@ fn side_fits(floor: Space, side_m: f64, footprint_m: f64) -> Result<(), String> 
 /// Runs `odocal plan`.
 pub fn run(args: Args) -> CliResult {
     in_range("--heading-sigma-deg", args.heading_sigma_deg, 0.0, 45.0)?;
+    // Below a millionth of a degree no sensor reads, and its square would underflow.
+    if args.heading_sigma_deg > 0.0 && args.heading_sigma_deg < 1e-6 {
+        return Err(format!(
+            "--heading-sigma-deg must be 0 (noise-free) or in [1e-6, 45] deg, got {}",
+            crate::compact(args.heading_sigma_deg)
+        )
+        .into());
+    }
     in_range("--run-scatter-deg", args.run_scatter_deg, 0.0, 45.0)?;
     in_range("--wheelbase-m", args.wheelbase_m, 0.01, 10.0)?;
     in_range("--footprint-m", args.footprint_m, 0.0, 10.0)?;

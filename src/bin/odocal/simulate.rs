@@ -133,6 +133,17 @@ pub fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
     in_range("--compass-bias-deg", args.compass_bias_deg, -180.0, 180.0)?;
     in_range("--slip-sigma", args.slip_sigma, 0.0, 0.5)?;
     in_range("--position-sigma-m", args.position_sigma_m, 0.0, 10.0)?;
+    // Checked even when unused: a value the command would ignore is still a mistake to name.
+    let model = args.sensor.model()?;
+    if args.bag.is_none() && model != odocal::sim::sensor::HeadingModel::default() {
+        return Err(
+            "the heading sensor's flags (--heading-sensor, --deviation-deg, \
+                    --motor-offset-deg, --gyro-…, --heading-quantum-deg, --heading-latency-s, \
+                    --heading-loss) describe the IMU of a --write-bag; the study's compass errs \
+                    by --heading-sigma-deg and --compass-bias-deg: give --write-bag, or drop them"
+                .into(),
+        );
+    }
     if let Some(path) = &args.bag {
         return write_bag(&args, path);
     }
