@@ -230,3 +230,139 @@ fn rand_name<T: std::fmt::Debug>(v: &T) -> u64 {
     format!("{v:?}").hash(&mut h);
     h.finish()
 }
+
+/// A number as a file could hold it (TOML: `nan`, `inf`, `-inf` are floats too).
+fn file_number() -> impl Strategy<Value = String> {
+    prop_oneof![
+        Just("nan".to_string()),
+        Just("inf".to_string()),
+        Just("-inf".to_string()),
+        Just("0.0".to_string()),
+        Just("-1.0".to_string()),
+        Just("1e308".to_string()),
+        Just("1e-308".to_string()),
+        Just("9.3e18".to_string()),
+        (-1e6..1e6f64).prop_map(|v| format!("{v:?}")),
+        (0.0..2.0f64).prop_map(|v| format!("{v:?}")),
+    ]
+}
+
+/// The example profile's numeric fields.
+const PROFILE_FIELDS: [&str; 7] = [
+    "left_wheel_diameter_m",
+    "right_wheel_diameter_m",
+    "wheelbase_m",
+    "encoder_counts_per_motor_rev",
+    "gear_ratio",
+    "max_speed_m_s",
+    "max_accel_m_s2",
+];
+
+/// The example routine's numeric fields.
+const ROUTINE_FIELDS: [&str; 5] = [
+    "side_m",
+    "max_speed_m_s",
+    "max_rate_rad_s",
+    "settle_s",
+    "max_change",
+];
+
+/// `text` with the value of `key = …` (the first such line) replaced by `value`.
+fn with_value(text: &str, key: &str, value: &str) -> String {
+    let mut done = false;
+    text.lines()
+        .map(|l| {
+            if !done && l.trim_start().starts_with(&format!("{key} ")) {
+                done = true;
+                format!("{key} = {value}")
+            } else {
+                l.to_string()
+            }
+        })
+        .collect::<Vec<_>>()
+        .join("\n")
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 128, failure_persistence: None, ..ProptestConfig::default() })]
+
+    /// A profile loads only with every parameter physical and every limit finite.
+    #[test]
+    fn a_profile_loads_only_with_physical_numbers(
+        which in 0..PROFILE_FIELDS.len(),
+        value in file_number(),
+    ) {
+        let example = include_str!("../examples/robot.toml");
+        let text = with_value(example, PROFILE_FIELDS[which], &value);
+        let path = std::path::Path::new("robot.toml");
+        if let Ok(p) = odocal::roboclaw::profile::Profile::parse(&text, path) {
+            prop_assert!(p.params().check_physical().is_ok(), "{}: {value}", PROFILE_FIELDS[which]);
+            prop_assert!(p.limits.max_speed_m_s.is_finite() && p.limits.max_speed_m_s > 0.0);
+            prop_assert!(p.limits.max_accel_m_s2.is_finite() && p.limits.max_accel_m_s2 > 0.0);
+        }
+    }
+
+    /// A routine file loads only with its numbers finite and in their documented ranges (its
+    /// `validate`), whatever they are.
+    #[test]
+    fn a_routine_file_loads_only_with_finite_numbers(
+        which in 0..ROUTINE_FIELDS.len(),
+        value in file_number(),
+    ) {
+        let example = include_str!("../examples/routine-mock.toml");
+        let text = with_value(example, ROUTINE_FIELDS[which], &value);
+        if let Ok(cfg) = odocal::routine::config::RoutineConfig::from_toml(&text) {
+            prop_assert!(cfg.validate().is_ok());
+            for v in [cfg.side_m, cfg.max_speed_m_s, cfg.max_rate_rad_s, cfg.settle_s, cfg.max_change] {
+                prop_assert!(v.is_finite(), "{}: {value}", ROUTINE_FIELDS[which]);
+            }
+            prop_assert!(cfg.side_m >= 0.05 && cfg.max_speed_m_s >= 0.01);
+        }
+    }
+
+    /// A backup restores only parameters a robot has: a dry run refuses what the real run
+    /// would, before anything is written.
+    #[test]
+    fn a_backup_restores_only_physical_parameters(
+        which in 0..4usize,
+        value in file_number(),
+    ) {
+        let keys = ["left_wheel_diameter_m", "right_wheel_diameter_m", "wheelbase_m", "counts_per_wheel_rev"];
+        let mut active = serde_json::json!({
+            "left_wheel_diameter_m": 0.15,
+            "right_wheel_diameter_m": 0.15,
+            "wheelbase_m": 0.39,
+            "counts_per_wheel_rev": 4096.0,
+        });
+        // JSON has no non-finite numbers: those come as the text a hand edit leaves.
+        let number: Option<f64> = value.parse().ok().filter(|v: &f64| v.is_finite());
+        let dir = std::env::temp_dir().join(format!("odocal-prop-backup-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join(format!("b-{which}-{}.json", value.len()));
+        let body = match number {
+            Some(n) => {
+                active[keys[which]] = serde_json::json!(n);
+                serde_json::json!({
+                    "odocal_version": "0.1.0",
+                    "store": {"kind": "odocal-device", "id": "x", "details": {}},
+                    "active": active,
+                    "committed": null,
+                })
+                .to_string()
+            }
+            None => format!(
+                "{{\"odocal_version\":\"0.1.0\",\"store\":{{\"kind\":\"odocal-device\",\"id\":\"x\",\"details\":{{}}}},\
+                 \"active\":{{\"left_wheel_diameter_m\":0.15,\"right_wheel_diameter_m\":0.15,\"wheelbase_m\":0.39,\
+                 \"counts_per_wheel_rev\":4096,\"{}\":{value}}},\"committed\":null}}",
+                keys[which]
+            ),
+        };
+        std::fs::write(&path, body).unwrap();
+        if let Ok(b) = odocal::base::transaction::read_backup(&path) {
+            if odocal::base::transaction::check_restorable(&b, &path).is_ok() {
+                prop_assert!(b.active.check_physical().is_ok(), "{}: {value}", keys[which]);
+            }
+        }
+        let _ = std::fs::remove_file(&path);
+    }
+}

@@ -188,9 +188,15 @@ impl Profile {
                 "geometry.encoder_counts_per_motor_rev must be ≥ 1".into(),
             ));
         }
-        if !(g.gear_ratio.is_finite() && g.gear_ratio > 0.0 && g.gear_ratio <= 1000.0) {
-            return Err(invalid("geometry.gear_ratio must be in (0, 1000]".into()));
+        if !(g.gear_ratio.is_finite() && (0.01..=1000.0).contains(&g.gear_ratio)) {
+            return Err(invalid(
+                "geometry.gear_ratio must be in [0.01, 1000]".into(),
+            ));
         }
+        // The ranges every parameter file must meet: no 1 nm wheel, no 2^63 counts.
+        p.params()
+            .check_physical()
+            .map_err(|e| invalid(format!("geometry: {e}")))?;
         for (k, s) in [
             ("left", p.wiring.left_encoder_sign),
             ("right", p.wiring.right_encoder_sign),
@@ -216,6 +222,13 @@ impl Profile {
             return Err(invalid(
                 "limits.max_accel_m_s2 must be in (0, 20] m/s²".into(),
             ));
+        }
+        if let Some(v) = l.min_battery_v {
+            if !(v.is_finite() && (0.0..=100.0).contains(&v)) {
+                return Err(invalid(format!(
+                    "limits.min_battery_v must be in [0, 100] V, got {v}"
+                )));
+            }
         }
         Ok(p)
     }
