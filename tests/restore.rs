@@ -505,3 +505,57 @@ async fn a_dry_run_refuses_a_store_the_real_run_cannot_write() {
     assert_eq!(files(&dir), before, "no file made");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[tokio::test(flavor = "multi_thread")]
+async fn a_backup_edited_to_name_another_robots_file_is_refused_and_never_pours_its_text_there() {
+    let dir = scratch("restore-other-file");
+    let (a, b) = (dir.join("a"), dir.join("b"));
+    std::fs::create_dir_all(&a).unwrap();
+    std::fs::create_dir_all(&b).unwrap();
+    let file_a = a.join("diff_drive.yaml");
+    let file_b = b.join("diff_drive.yaml");
+    std::fs::write(&file_a, common::DIFF_DRIVE_YAML).unwrap();
+    // Robot B's file: another robot's settings beside the same controller.
+    let text_b = format!(
+        "# robot B\n{}",
+        common::DIFF_DRIVE_YAML.replace("0.39", "0.52")
+    );
+    std::fs::write(&file_b, &text_b).unwrap();
+    let (backup, _) = backup_store(open_yaml(&file_a).as_ref(), &a).await.unwrap();
+    // The backup's `file` edited to name robot B's file.
+    let mut json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&backup).unwrap()).unwrap();
+    json["file"] = serde_json::json!(file_b);
+    std::fs::write(&backup, json.to_string()).unwrap();
+    let backup_s = backup.to_str().unwrap();
+    for extra in ["--dry-run", "--yes"] {
+        let (ok, _, err) = odocal(&["restore", backup_s, extra]);
+        assert!(!ok, "{extra}: {err}");
+        assert!(err.contains("another robot's file?"), "{extra}: {err}");
+    }
+    assert_eq!(std::fs::read_to_string(&file_b).unwrap(), text_b);
+    // Allowed by the user: B's parameters only, never A's whole text.
+    let to = format!(
+        "ros-yaml:{}?controller=diff_drive_controller",
+        file_b.display()
+    );
+    for args in [
+        vec!["restore", backup_s, "--yes", "--any-device"],
+        vec!["restore", backup_s, "--yes", "--to", to.as_str()],
+    ] {
+        let (ok, _, err) = odocal(&args);
+        assert!(ok, "{args:?}: {err}");
+        assert!(err.contains("its parameters only"), "{args:?}: {err}");
+        let now = std::fs::read_to_string(&file_b).unwrap();
+        assert!(
+            now.starts_with("# robot B\n") && now.contains("0.52"),
+            "{args:?}: {now}"
+        );
+    }
+    // Beside its own file, it restores the whole file as before.
+    json["file"] = serde_json::json!(file_a);
+    std::fs::write(&backup, json.to_string()).unwrap();
+    let (ok, _, err) = odocal(&["restore", backup_s, "--yes"]);
+    assert!(ok, "{err}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}

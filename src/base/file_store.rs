@@ -49,6 +49,9 @@ pub trait ParamFile: Send + Sync + 'static {
     fn refuse(&self, current: &WheelParams, params: &WheelParams) -> Option<String>;
     /// The format's error for a file that cannot be read.
     fn io_error(&self, path: &Path, source: std::io::Error) -> Self::Error;
+    /// The keys whose lines `render` changes (or inserts): a file that differs from one of its
+    /// backups only in lines naming them is that file, as a calibration left it.
+    fn written_keys(&self) -> &'static [&'static str];
 
     /// What a store of this format at `path` says it is (its kind, id and details), as its
     /// [`FileStore`] and its backups name it.
@@ -195,6 +198,10 @@ impl<F: ParamFile> ParamStore for FileStore<F> {
 
     fn file(&self) -> Option<PathBuf> {
         Some(self.path.clone())
+    }
+
+    fn written_keys(&self) -> &'static [&'static str] {
+        self.format.written_keys()
     }
 
     /// The dry merge: the file parses, `params` render into it and read back, and it can be

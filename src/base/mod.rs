@@ -223,6 +223,12 @@ pub trait ParamStore: Send + Sync {
     fn file(&self) -> Option<std::path::PathBuf> {
         None
     }
+
+    /// For a store that is a file, the keys whose lines a write changes
+    /// ([`file_store::ParamFile::written_keys`]); none for a device (the default).
+    fn written_keys(&self) -> &'static [&'static str] {
+        &[]
+    }
 }
 
 /// Where the robot truly is: known only in simulation, where it gives reports true end points,

@@ -573,6 +573,25 @@ pub enum BackupError {
         /// Which one.
         id: String,
     },
+    /// It names a file it was not taken beside, and that file differs from the one it holds
+    /// in more than the parameters: perhaps another robot's file, named by an edit or a copy.
+    #[error(
+        "{path} names {}, but it was not taken beside that file, and the file differs from the \
+         one it holds in {changed} line(s) beyond the parameters (the first: `{first}`): another \
+         robot's file? Not restored: give the store with --to to restore onto it anyway \
+         (its parameters only, with --any-device)",
+        file.display()
+    )]
+    NotItsFile {
+        /// The backup file.
+        path: PathBuf,
+        /// The file it names.
+        file: PathBuf,
+        /// Lines that differ beyond the parameters'.
+        changed: usize,
+        /// The first of them, as `text_changes` shows it.
+        first: String,
+    },
     /// It was taken from another store of the same kind (another device, file or
     /// controller): restored only when the caller says so.
     #[error(
@@ -636,6 +655,54 @@ pub fn check_store(
             backup_id: backup.store.id.clone(),
             id: here.id,
         })
+    }
+}
+
+/// Whether the file `store` is (when it is one) is the file `backup` (read from `path`) was
+/// taken from, judged by more than the path the backup carries (which an edit or a copy
+/// changes): the backup lies beside the file, named after it (where odocal writes a file's
+/// backups), or the file differs from the text the backup holds only in the lines a write
+/// changes ([`ParamStore::written_keys`]: as a calibration whose backup went to a report
+/// directory left it). [`BackupError::NotItsFile`] if neither; a device is judged by
+/// [`check_store`] alone.
+pub fn check_same_file(
+    backup: &BackupFile,
+    path: &Path,
+    store: &dyn ParamStore,
+) -> Result<(), BackupError> {
+    let Some(file) = store.file() else {
+        return Ok(());
+    };
+    let canonical = |p: &Path| std::fs::canonicalize(p).unwrap_or_else(|_| p.to_path_buf());
+    let beside = canonical(crate::io::dir_of(path)) == canonical(crate::io::dir_of(&file))
+        && path
+            .file_name()
+            .zip(file.file_name())
+            .is_some_and(|(b, f)| {
+                b.to_string_lossy()
+                    .starts_with(&format!("{}.odocal-", f.to_string_lossy()))
+            });
+    if beside {
+        return Ok(());
+    }
+    let now = crate::io::read_bounded(&file, crate::io::MAX_TEXT_FILE).unwrap_or_default();
+    let keys = store.written_keys();
+    let others: Vec<String> = match &backup.text {
+        Some(then) => text_changes(&now, then)
+            .into_iter()
+            .filter(|l| !keys.iter().any(|k| l.contains(k)))
+            .collect(),
+        // An older backup without the file's text: nothing to judge by but where it lies.
+        None => vec!["(the backup holds no text of the file)".into()],
+    };
+    match others.first() {
+        None => Ok(()),
+        Some(first) => Err(BackupError::NotItsFile {
+            path: path.to_path_buf(),
+            file,
+            changed: others.len(),
+            first: first.clone(),
+        }),
     }
 }
 

@@ -374,6 +374,14 @@ impl ParamFile for ProfileFile {
         "robot-profile"
     }
 
+    fn written_keys(&self) -> &'static [&'static str] {
+        &[
+            "left_wheel_diameter_m",
+            "right_wheel_diameter_m",
+            "wheelbase_m",
+        ]
+    }
+
     fn id(&self, path: &Path) -> String {
         path.display().to_string()
     }

@@ -808,6 +808,10 @@ impl ParamFile for ControllerYaml {
         KIND
     }
 
+    fn written_keys(&self) -> &'static [&'static str] {
+        &MULTIPLIER_KEYS
+    }
+
     fn id(&self, path: &Path) -> String {
         format!("{}#{}", path.display(), self.controller)
     }

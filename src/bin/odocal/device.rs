@@ -354,6 +354,8 @@ async fn restore_from(
         commit: stored,
         backup_dir: backup_dir.to_path_buf(),
         backup_dir_given: true,
+        // A device, judged by its serial number alone.
+        not_its_file: false,
         json: port.json,
     };
     crate::restore::restore_onto(Arc::new(client), &backup, &how).await

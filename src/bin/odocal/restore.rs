@@ -7,7 +7,8 @@
 
 use crate::device::print_params;
 use odocal::base::transaction::{
-    backup_dir_for, check_store, text_changes, BackupError, BackupFile, Rollback, Transaction,
+    backup_dir_for, check_same_file, check_store, text_changes, BackupError, BackupFile, Rollback,
+    Transaction,
 };
 use odocal::base::{same_within, ParamStore};
 use odocal::spec::{StoreLocation, ODOCAL_BAUD};
@@ -68,6 +69,9 @@ pub struct Restore<'a> {
     pub backup_dir: PathBuf,
     /// `backup_dir` was asked for: it is used for a file's backup too.
     pub backup_dir_given: bool,
+    /// The file the backup names failed [`check_same_file`] (and `any_device` allowed it):
+    /// its parameters only, never its whole text.
+    pub not_its_file: bool,
     /// Print JSON.
     pub json: bool,
 }
@@ -84,6 +88,7 @@ pub async fn restore(args: RestoreArgs) -> CliResult {
         _ => None,
     };
     let backup = StoreLocation::read_backup(&args.backup, controller)?;
+    let named_by_backup = to.is_none();
     let location = match to {
         Some(location) => location,
         None => StoreLocation::of_backup(&backup, args.baud)
@@ -93,6 +98,22 @@ pub async fn restore(args: RestoreArgs) -> CliResult {
         eprintln!("restoring to {location}");
     }
     let store = location.open().await?;
+    // A file the backup names is trusted only when the backup vouches for it; a store the
+    // user chose with --to is theirs to choose, but only a file the backup vouches for gets
+    // its whole text back (else its parameters only).
+    let not_its_file = match check_same_file(&backup, &args.backup, store.as_ref()) {
+        Ok(()) => false,
+        Err(e) if named_by_backup && !args.any_device => return Err(e.into()),
+        Err(BackupError::NotItsFile { file, changed, .. }) => {
+            eprintln!(
+                "warning: {} differs from the file this backup holds in {changed} line(s) \
+                 beyond the parameters: restoring its parameters only",
+                file.display()
+            );
+            true
+        }
+        Err(e) => return Err(e.into()),
+    };
     let how = Restore {
         from: &args.backup,
         dry_run: args.dry_run,
@@ -100,6 +121,7 @@ pub async fn restore(args: RestoreArgs) -> CliResult {
         any_device: args.any_device,
         commit: true,
         backup_dir_given: args.backup_dir.is_some(),
+        not_its_file,
         backup_dir: args
             .backup_dir
             .unwrap_or_else(|| odocal::io::dir_of(&args.backup).to_path_buf()),
@@ -120,7 +142,7 @@ pub async fn restore_onto(
     let here = store.info();
     let from = how.from.display();
     let same_store = match check_store(backup, how.from, store.as_ref()) {
-        Ok(()) => true,
+        Ok(()) => !how.not_its_file,
         Err(BackupError::OtherStore { backup_id, .. }) if how.any_device => {
             eprintln!(
                 "warning: restoring a backup of {} `{backup_id}` onto `{}` (its parameters only)",
