@@ -90,6 +90,20 @@ fn zeros_frame(n: u64, recorded: bool) -> Vec<u8> {
     out
 }
 
+/// A simulated square test (one run each way, 1 m) written as an MCAP bag at `path`.
+fn simulated_bag(path: &Path) {
+    let (ok, out, err) = common::odocal(&[
+        "simulate",
+        "--write-bag",
+        path.to_str().unwrap(),
+        "--runs",
+        "1",
+        "--side-m",
+        "1",
+    ]);
+    assert!(ok, "{out}{err}");
+}
+
 fn dir(name: &str) -> PathBuf {
     let d = scratch(name);
     std::fs::create_dir_all(&d).unwrap();
@@ -157,16 +171,7 @@ fn a_metadata_yaml_of_nested_aliases_is_read_without_expanding_them() {
     let bag_dir = d.join("bag");
     std::fs::create_dir_all(&bag_dir).unwrap();
     let mcap = bag_dir.join("b_0.mcap");
-    let (ok, out, err) = common::odocal(&[
-        "simulate",
-        "--write-bag",
-        mcap.to_str().unwrap(),
-        "--runs",
-        "1",
-        "--side-m",
-        "1",
-    ]);
-    assert!(ok, "{out}{err}");
+    simulated_bag(&mcap);
     // Twelve levels of nine aliases: 2.8e11 nodes once expanded.
     let mut bomb = String::from("a0: &a0 [x, x, x, x, x, x, x, x, x]\n");
     for i in 1..=12 {
@@ -255,16 +260,7 @@ fn padded(from: &Path, to: &Path, blobs: usize) {
 fn a_large_bag_is_read_in_memory_near_its_largest_chunk_not_its_size() {
     let d = dir("hostile-large");
     let sim = d.join("sim.mcap");
-    let (ok, out, err) = common::odocal(&[
-        "simulate",
-        "--write-bag",
-        sim.to_str().unwrap(),
-        "--runs",
-        "1",
-        "--side-m",
-        "1",
-    ]);
-    assert!(ok, "{out}{err}");
+    simulated_bag(&sim);
     // 300 MiB of camera frames that do not compress, plain and compressed whole.
     let big = d.join("big.mcap");
     padded(&sim, &big, 300);
