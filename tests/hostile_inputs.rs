@@ -279,3 +279,85 @@ fn a_large_bag_is_read_in_memory_near_its_largest_chunk_not_its_size() {
     }
     std::fs::remove_dir_all(&d).unwrap();
 }
+
+#[test]
+fn an_mcap_compressed_whole_that_unpacks_to_a_gigabyte_of_zeros_is_refused_at_once() {
+    let d = dir("hostile-split");
+    // The MCAP magic, then 1 GiB of zeros, compressed whole as rosbag2's FILE mode does.
+    let path = d.join("b_0.mcap.zstd");
+    let mut out = Vec::new();
+    {
+        let mut enc = zstd::stream::write::Encoder::new(&mut out, 1).unwrap();
+        std::io::Write::write_all(&mut enc, mcap::MAGIC).unwrap();
+        let block = vec![0u8; 1 << 20];
+        for _ in 0..1024 {
+            std::io::Write::write_all(&mut enc, &block).unwrap();
+        }
+        enc.finish().unwrap();
+    }
+    std::fs::write(&path, &out).unwrap();
+    let (ok, err, rss) = bag(&path);
+    assert!(!ok && err.contains("not a readable MCAP bag"), "{err}");
+    assert!(rss < 100 << 10, "{rss} KiB");
+    std::fs::remove_dir_all(&d).unwrap();
+}
+
+/// A ROS 1 record: its `name=value` header fields, then its data.
+fn ros1_record(fields: &[(&str, &[u8])], data: &[u8]) -> Vec<u8> {
+    let mut header = Vec::new();
+    for (name, value) in fields {
+        header.extend(((name.len() + 1 + value.len()) as u32).to_le_bytes());
+        header.extend(name.as_bytes());
+        header.push(b'=');
+        header.extend(*value);
+    }
+    [
+        &(header.len() as u32).to_le_bytes()[..],
+        &header,
+        &(data.len() as u32).to_le_bytes(),
+        data,
+    ]
+    .concat()
+}
+
+#[test]
+fn a_large_ros1_bag_is_read_in_memory_near_its_largest_record_not_its_size() {
+    let d = dir("hostile-ros1");
+    let path = d.join("camera.bag");
+    let mut f = std::io::BufWriter::new(std::fs::File::create(&path).unwrap());
+    use std::io::Write;
+    f.write_all(b"#ROSBAG V2.0\n").unwrap();
+    f.write_all(&ros1_record(&[("op", &[3]), ("index_pos", &[0; 8])], &[]))
+        .unwrap();
+    let conn_info = ros1_record(
+        &[("topic", b"/camera"), ("type", b"sensor_msgs/Image")],
+        &[],
+    );
+    // A connection record's data is a header block: drop the framing lengths around it.
+    let info = &conn_info[4..conn_info.len() - 4];
+    f.write_all(&ros1_record(
+        &[
+            ("op", &[7]),
+            ("conn", &0u32.to_le_bytes()),
+            ("topic", b"/camera"),
+        ],
+        info,
+    ))
+    .unwrap();
+    let frame = vec![0x5Au8; 1 << 20];
+    for i in 0..300u32 {
+        let time = [i.to_le_bytes(), 0u32.to_le_bytes()].concat();
+        f.write_all(&ros1_record(
+            &[("op", &[2]), ("conn", &0u32.to_le_bytes()), ("time", &time)],
+            &frame,
+        ))
+        .unwrap();
+    }
+    f.flush().unwrap();
+    drop(f);
+    assert!(std::fs::metadata(&path).unwrap().len() > 300 << 20);
+    let (ok, err, rss) = bag(&path);
+    assert!(!ok && err.contains("no wheel joint topic"), "{err}");
+    assert!(rss < 100 << 10, "{rss} KiB");
+    std::fs::remove_dir_all(&d).unwrap();
+}

@@ -14,9 +14,10 @@ pub const MAX_TEXT_FILE: u64 = 16 << 20;
 /// Most bytes odocal reads of one recorded run or telemetry log (hours of 200 Hz samples).
 pub const MAX_DATA_FILE: u64 = 1 << 30;
 
-/// Most bytes of one bag file, and of what a file compressed whole decompresses to (MCAP and
-/// sqlite3 files are read where they lie, an MCAP compressed whole as a stream; ROS 1 bags and
-/// other compressed files into memory; split larger recordings, `ros2 bag convert`).
+/// Most bytes of one bag file, and of what a file compressed whole decompresses to (MCAP,
+/// ROS 1 and sqlite3 files are read where they lie, MCAP and ROS 1 compressed whole with zstd
+/// as a stream; a `.db3.zstd` and `.lz4` files into memory; split larger recordings,
+/// `ros2 bag convert`).
 pub const MAX_BAG_FILE: u64 = 4 << 30;
 
 /// Most bytes one MCAP chunk may declare it decompresses to (writers make chunks of about

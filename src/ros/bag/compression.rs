@@ -36,6 +36,43 @@ pub fn zstd_head(path: &Path) -> Option<Vec<u8>> {
     Some(head)
 }
 
+/// A reader that fails once more than `left` bytes came through it (a file compressed whole
+/// that decompresses past its bound).
+struct Bounded<R> {
+    inner: R,
+    left: u64,
+}
+
+impl<R: Read> Read for Bounded<R> {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        let n = self.inner.read(buf)?;
+        self.left = self
+            .left
+            .checked_sub(n as u64)
+            .ok_or_else(|| too_large(crate::io::MAX_BAG_FILE + 1, crate::io::MAX_BAG_FILE, FILE))?;
+        Ok(n)
+    }
+}
+
+/// The zstd file at `path` as a stream of what it decompresses to, failing past
+/// [`crate::io::MAX_BAG_FILE`]: for a container read as a stream, in memory near its largest
+/// record whatever the file's size.
+pub fn zstd_stream(path: &Path) -> Result<Box<dyn Read>, BagError> {
+    let file =
+        crate::io::open_bounded(path, crate::io::MAX_BAG_FILE).map_err(|source| BagError::Io {
+            path: path.to_path_buf(),
+            source,
+        })?;
+    let decoder = zstd::stream::read::Decoder::new(file).map_err(|source| BagError::Zstd {
+        what: path.display().to_string(),
+        source,
+    })?;
+    Ok(Box::new(Bounded {
+        inner: decoder,
+        left: crate::io::MAX_BAG_FILE,
+    }))
+}
+
 /// The first bytes of every LZ4 frame.
 pub const LZ4_MAGIC: &[u8] = &[0x04, 0x22, 0x4D, 0x18];
 

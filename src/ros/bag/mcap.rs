@@ -69,29 +69,6 @@ fn record_limit() -> usize {
     usize::try_from(crate::io::MAX_BAG_CHUNK).unwrap_or(usize::MAX)
 }
 
-/// A reader that fails once more than `left` bytes came through it (a file compressed whole
-/// that decompresses past its bound).
-struct Bounded<R> {
-    inner: R,
-    left: u64,
-}
-
-impl<R: Read> Read for Bounded<R> {
-    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
-        let n = self.inner.read(buf)?;
-        self.left = self.left.checked_sub(n as u64).ok_or_else(|| {
-            std::io::Error::new(
-                std::io::ErrorKind::InvalidData,
-                format!(
-                    "decompresses past the {} a bag file may have (io::SIZE_BOUNDS)",
-                    crate::io::bytes(crate::io::MAX_BAG_FILE)
-                ),
-            )
-        })?;
-        Ok(n)
-    }
-}
-
 /// The summary of a seekable MCAP of `len` bytes, if it has one.
 fn summary_of(
     r: &mut (impl Read + Seek),
@@ -162,26 +139,13 @@ impl McapBag {
 
     /// The bag's bytes from the start, as a stream.
     fn stream(&self) -> Result<Box<dyn Read + '_>, BagError> {
-        let file = || {
-            crate::io::open_bounded(&self.path, crate::io::MAX_BAG_FILE)
-                .map(|f| f.into_inner())
-                .map_err(|e| io_error(&self.path, e))
-        };
         Ok(match &self.source {
             Source::Bytes(b) => Box::new(b.as_slice()),
             Source::File => Box::new(
                 crate::io::open_bounded(&self.path, crate::io::MAX_BAG_FILE)
                     .map_err(|e| io_error(&self.path, e))?,
             ),
-            Source::ZstdFile => Box::new(Bounded {
-                inner: zstd::stream::read::Decoder::new(file()?).map_err(|source| {
-                    BagError::Zstd {
-                        what: self.path.display().to_string(),
-                        source,
-                    }
-                })?,
-                left: crate::io::MAX_BAG_FILE,
-            }),
+            Source::ZstdFile => super::compression::zstd_stream(&self.path)?,
         })
     }
 

@@ -430,10 +430,10 @@ pub struct FileFormat {
     /// Opens a file of it from its bytes (`path` names it in errors).
     pub open: fn(Vec<u8>, &Path) -> Opened,
     /// Opens a plain file of it where it lies, for a format whose reader reads only what it
-    /// needs (SQLite's pages, MCAP's stream); `None`: from its bytes.
+    /// needs (SQLite's pages, MCAP's and ROS 1's records as a stream); `None`: from its bytes.
     pub open_in_place: Option<fn(&Path) -> Opened>,
     /// Opens a file of it compressed whole with zstd, to be decompressed as it is read, for a
-    /// format read as a stream (MCAP); `None`: decompressed into memory first.
+    /// format read as a stream (MCAP, ROS 1); `None`: decompressed into memory first.
     pub open_zstd: Option<fn(&Path) -> Opened>,
 }
 
@@ -460,8 +460,8 @@ pub const FILE_FORMATS: &[FileFormat] = &[
         magic: ros1::MAGIC,
         extension: "bag",
         open: ros1::open,
-        open_in_place: None,
-        open_zstd: None,
+        open_in_place: Some(ros1::open_in_place),
+        open_zstd: Some(ros1::open_zstd),
     },
 ];
 

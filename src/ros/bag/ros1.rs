@@ -6,6 +6,11 @@
 //! connection again and the chunk infos. Messages are read chunk by chunk from the start, so
 //! a bag whose index was never written (a recording cut off, then reindexed or not) reads the
 //! same; the connections at `index_pos` give the channels up front.
+//!
+//! A bag file is read as a stream, one record at a time (a plain file where it lies, its index
+//! sought; one compressed whole with zstd as it decompresses, without its index), so memory
+//! stays near its largest chunk: a record's data and a chunk's declared size are bounded by
+//! [`crate::io::MAX_BAG_CHUNK`], checked before either is read.
 
 use super::{BagError, Channel, Container, RawMessage};
 use std::collections::BTreeMap;
@@ -125,45 +130,195 @@ fn records(buf: &[u8], mut at: usize) -> impl Iterator<Item = Result<Record<'_>,
     })
 }
 
-/// A ROS 1 bag in memory.
+/// Where a ROS 1 bag's bytes come from.
+enum Source {
+    /// Bytes in memory.
+    Bytes(Vec<u8>),
+    /// A plain file, read where it lies.
+    File,
+    /// A file compressed whole with zstd, decompressed as it is read.
+    ZstdFile,
+}
+
+/// A ROS 1 bag, in memory or read as a stream each time its messages are asked for.
 pub struct Ros1Bag {
-    bytes: Vec<u8>,
+    source: Source,
     path: PathBuf,
     /// The connections of the index section by id, when the bag has one.
     indexed: Option<BTreeMap<u32, Channel>>,
+}
+
+/// Most bytes of a record header (a few named fields).
+const MAX_RECORD_HEADER: u64 = 1 << 20;
+
+/// Most bytes of the index section read to learn the connections up front.
+const MAX_INDEX: u64 = 64 << 20;
+
+/// Reads the next record of `input` into `buf` (its header, then its data, each length
+/// checked before it is read): the header's length and the record's length in the file;
+/// `None` at the end of the input, between records.
+fn read_record(input: &mut dyn Read, buf: &mut Vec<u8>) -> std::io::Result<Option<(usize, usize)>> {
+    use std::io::{Error, ErrorKind};
+    let mut len = [0u8; 4];
+    let mut got = 0;
+    while got < 4 {
+        match input.read(&mut len[got..])? {
+            0 => break,
+            n => got += n,
+        }
+    }
+    if got == 0 {
+        return Ok(None);
+    }
+    let cut = || Error::new(ErrorKind::UnexpectedEof, "cut short");
+    if got < 4 {
+        return Err(cut());
+    }
+    let header_len = u64::from(u32::from_le_bytes(len));
+    if header_len > MAX_RECORD_HEADER {
+        return Err(Error::new(
+            ErrorKind::InvalidData,
+            format!("a record header of {header_len} bytes"),
+        ));
+    }
+    buf.clear();
+    input.take(header_len).read_to_end(buf)?;
+    if buf.len() as u64 != header_len {
+        return Err(cut());
+    }
+    input.read_exact(&mut len).map_err(|_| cut())?;
+    let data_len = u64::from(u32::from_le_bytes(len));
+    if data_len > crate::io::MAX_BAG_CHUNK {
+        return Err(Error::new(
+            ErrorKind::InvalidData,
+            format!(
+                "a record of {data_len} bytes, past the {} a record may have \
+                 (io::SIZE_BOUNDS)",
+                crate::io::bytes(crate::io::MAX_BAG_CHUNK)
+            ),
+        ));
+    }
+    input.take(data_len).read_to_end(buf)?;
+    if buf.len() as u64 != header_len + data_len {
+        return Err(cut());
+    }
+    // Both lengths are within u32 and the bounds above: they fit a usize.
+    Ok(Some((
+        header_len as usize,
+        (8 + header_len + data_len) as usize,
+    )))
+}
+
+/// The connections of an index section (`buf`, from the bag header's `index_pos` on); `None`
+/// when it cannot be read (the messages are read without it).
+fn index_of(buf: &[u8]) -> Option<BTreeMap<u32, Channel>> {
+    let mut channels = BTreeMap::new();
+    for r in records(buf, 0) {
+        let r = r.ok()?;
+        if r.fields.op == Some(OP_CONNECTION) {
+            let (id, ch) = connection(&r).ok()?;
+            channels.insert(id, ch);
+        }
+    }
+    Some(channels)
 }
 
 impl Ros1Bag {
     /// Checks the bag header of `bytes` (from `path`) and reads the connections its index
     /// lists.
     pub fn new(bytes: Vec<u8>, path: &Path) -> Result<Self, BagError> {
-        let bag = Ros1Bag {
-            bytes,
+        let mut bag = Ros1Bag {
+            source: Source::Bytes(Vec::new()),
             path: path.to_path_buf(),
             indexed: None,
         };
-        let (header, _) = record(&bag.bytes, MAGIC.len()).map_err(|e| bag.malformed(e))?;
+        let (header, _) = record(&bytes, MAGIC.len()).map_err(|e| bag.malformed(e))?;
         if header.fields.op != Some(OP_BAG_HEADER) {
             return Err(bag.malformed("the first record is not the bag header".into()));
         }
         // An index that cannot be read is no error: the messages are read without it.
-        let indexed = header
+        bag.indexed = header
             .fields
             .index_pos
             .and_then(|p| usize::try_from(p).ok())
-            .filter(|&p| p > MAGIC.len() && p < bag.bytes.len())
-            .and_then(|p| {
-                let mut channels = BTreeMap::new();
-                for r in records(&bag.bytes, p) {
-                    let r = r.ok()?;
-                    if r.fields.op == Some(OP_CONNECTION) {
-                        let (id, ch) = connection(&r).ok()?;
-                        channels.insert(id, ch);
-                    }
-                }
-                Some(channels)
-            });
-        Ok(Ros1Bag { indexed, ..bag })
+            .filter(|&p| p > MAGIC.len() && p < bytes.len())
+            .and_then(|p| index_of(&bytes[p..]));
+        bag.source = Source::Bytes(bytes);
+        Ok(bag)
+    }
+
+    /// The plain bag file at `path`, read where it lies: its header checked and the
+    /// connections its index lists read (sought at `index_pos`, within 64 MiB).
+    pub fn open(path: &Path) -> Result<Self, BagError> {
+        use std::io::{Seek, SeekFrom};
+        let mut bag = Ros1Bag {
+            source: Source::File,
+            path: path.to_path_buf(),
+            indexed: None,
+        };
+        let mut file = crate::io::open_bounded(path, crate::io::MAX_BAG_FILE)
+            .map_err(|e| bag.io(e))?
+            .into_inner();
+        let len = file.metadata().map_err(|e| bag.io(e))?.len();
+        let header = bag.header(&mut file)?;
+        bag.indexed = match header {
+            Some(p) if p > MAGIC.len() as u64 && p < len && len - p <= MAX_INDEX => {
+                let mut tail = Vec::new();
+                file.seek(SeekFrom::Start(p)).map_err(|e| bag.io(e))?;
+                file.read_to_end(&mut tail).map_err(|e| bag.io(e))?;
+                index_of(&tail)
+            }
+            _ => None,
+        };
+        Ok(bag)
+    }
+
+    /// The bag file at `path` compressed whole with zstd: its header checked; no index (it
+    /// cannot be sought), the connections learnt as it is read.
+    pub fn open_zstd(path: &Path) -> Result<Self, BagError> {
+        let bag = Ros1Bag {
+            source: Source::ZstdFile,
+            path: path.to_path_buf(),
+            indexed: None,
+        };
+        bag.header(&mut bag.stream()?)?;
+        Ok(bag)
+    }
+
+    /// Reads the magic and the bag header of `input`: the header's `index_pos`.
+    fn header(&self, input: &mut dyn Read) -> Result<Option<u64>, BagError> {
+        let mut magic = [0u8; 13];
+        input
+            .read_exact(&mut magic)
+            .map_err(|_| self.malformed("shorter than its magic".into()))?;
+        let mut buf = Vec::new();
+        let (h, _) = read_record(input, &mut buf)
+            .map_err(|e| self.malformed(format!("the bag header: {e}")))?
+            .ok_or_else(|| self.malformed("no bag header".into()))?;
+        let f = fields(&buf[..h]).map_err(|e| self.malformed(format!("the bag header: {e}")))?;
+        if f.op != Some(OP_BAG_HEADER) {
+            return Err(self.malformed("the first record is not the bag header".into()));
+        }
+        Ok(f.index_pos)
+    }
+
+    /// The bag's bytes from the start, as a stream.
+    fn stream(&self) -> Result<Box<dyn Read + '_>, BagError> {
+        Ok(match &self.source {
+            Source::Bytes(b) => Box::new(b.as_slice()),
+            Source::File => Box::new(
+                crate::io::open_bounded(&self.path, crate::io::MAX_BAG_FILE)
+                    .map_err(|e| self.io(e))?,
+            ),
+            Source::ZstdFile => super::compression::zstd_stream(&self.path)?,
+        })
+    }
+
+    fn io(&self, source: std::io::Error) -> BagError {
+        BagError::Io {
+            path: self.path.clone(),
+            source,
+        }
     }
 
     fn malformed(&self, reason: String) -> BagError {
@@ -178,6 +333,16 @@ impl Ros1Bag {
 /// [`Ros1Bag::new`] as a [`super::FileFormat`] opens it.
 pub fn open(bytes: Vec<u8>, path: &Path) -> Result<Box<dyn Container>, BagError> {
     Ok(Box::new(Ros1Bag::new(bytes, path)?))
+}
+
+/// [`Ros1Bag::open`] as a [`super::FileFormat`] opens a plain file where it lies.
+pub fn open_in_place(path: &Path) -> Result<Box<dyn Container>, BagError> {
+    Ok(Box::new(Ros1Bag::open(path)?))
+}
+
+/// [`Ros1Bag::open_zstd`] as a [`super::FileFormat`] opens a file compressed whole.
+pub fn open_zstd(path: &Path) -> Result<Box<dyn Container>, BagError> {
+    Ok(Box::new(Ros1Bag::open_zstd(path)?))
 }
 
 /// A connection record's id and channel.
@@ -215,60 +380,72 @@ impl Ros1Bag {
         scratch: &mut Vec<u8>,
         each: &mut dyn FnMut(RawMessage<'_>) -> Result<(), BagError>,
     ) -> Result<(), BagError> {
-        let place = |at: usize| match in_chunk {
-            Some(chunk) => format!("in the chunk at byte {chunk}, byte {at}"),
-            None => format!("at byte {at}"),
-        };
         for r in records(buf, from) {
             let r = r.map_err(|e| match in_chunk {
                 Some(chunk) => self.malformed(format!("in the chunk at byte {chunk}: {e}")),
                 None => self.malformed(e),
             })?;
-            match r.fields.op {
-                Some(OP_MESSAGE_DATA) => {
-                    let (Some(id), Some(log_time_ns)) = (r.fields.conn, r.fields.time_ns) else {
-                        return Err(self.malformed(format!(
-                            "message record {} without `conn` or `time`",
-                            place(r.at)
-                        )));
-                    };
-                    let Some(channel) = conns.get(&id) else {
-                        return Err(self.malformed(format!(
-                            "message record {} of connection {id}, before any record of it",
-                            place(r.at)
-                        )));
-                    };
-                    each(RawMessage {
-                        channel,
-                        log_time_ns,
-                        data: r.data,
-                    })?;
-                }
-                Some(OP_CONNECTION) => {
-                    let (id, ch) = connection(&r).map_err(|e| self.malformed(e))?;
-                    conns.insert(id, ch);
-                }
-                Some(OP_CHUNK) if in_chunk.is_none() => {
-                    let mut chunk = std::mem::take(scratch);
-                    let data = self.chunk(&r, &mut chunk)?;
-                    let result = self.run(data, 0, Some(r.at), conns, &mut Vec::new(), each);
-                    *scratch = chunk;
-                    result?;
-                }
-                Some(OP_BAG_HEADER | OP_INDEX_DATA | OP_CHUNK_INFO) => {}
-                Some(OP_CHUNK) => {
-                    return Err(self.malformed(format!("a chunk {} inside a chunk", place(r.at))))
-                }
-                Some(op) => {
+            self.one(&r, in_chunk, conns, scratch, each)?;
+        }
+        Ok(())
+    }
+
+    /// One record (at `r.at` of the file, or of the chunk at `in_chunk`): a message handed to
+    /// `each`, a connection learnt, a chunk's records in turn.
+    fn one(
+        &self,
+        r: &Record<'_>,
+        in_chunk: Option<usize>,
+        conns: &mut BTreeMap<u32, Channel>,
+        scratch: &mut Vec<u8>,
+        each: &mut dyn FnMut(RawMessage<'_>) -> Result<(), BagError>,
+    ) -> Result<(), BagError> {
+        let place = |at: usize| match in_chunk {
+            Some(chunk) => format!("in the chunk at byte {chunk}, byte {at}"),
+            None => format!("at byte {at}"),
+        };
+        match r.fields.op {
+            Some(OP_MESSAGE_DATA) => {
+                let (Some(id), Some(log_time_ns)) = (r.fields.conn, r.fields.time_ns) else {
                     return Err(self.malformed(format!(
-                        "a record of op 0x{op:02X} {} (format 2.0 has 0x02 to 0x07)",
+                        "message record {} without `conn` or `time`",
                         place(r.at)
-                    )))
-                }
-                None => {
-                    return Err(self.malformed(format!("a record without `op` {}", place(r.at))))
-                }
+                    )));
+                };
+                let Some(channel) = conns.get(&id) else {
+                    return Err(self.malformed(format!(
+                        "message record {} of connection {id}, before any record of it",
+                        place(r.at)
+                    )));
+                };
+                each(RawMessage {
+                    channel,
+                    log_time_ns,
+                    data: r.data,
+                })?;
             }
+            Some(OP_CONNECTION) => {
+                let (id, ch) = connection(r).map_err(|e| self.malformed(e))?;
+                conns.insert(id, ch);
+            }
+            Some(OP_CHUNK) if in_chunk.is_none() => {
+                let mut chunk = std::mem::take(scratch);
+                let data = self.chunk(r, &mut chunk)?;
+                let result = self.run(data, 0, Some(r.at), conns, &mut Vec::new(), each);
+                *scratch = chunk;
+                result?;
+            }
+            Some(OP_BAG_HEADER | OP_INDEX_DATA | OP_CHUNK_INFO) => {}
+            Some(OP_CHUNK) => {
+                return Err(self.malformed(format!("a chunk {} inside a chunk", place(r.at))))
+            }
+            Some(op) => {
+                return Err(self.malformed(format!(
+                    "a record of op 0x{op:02X} {} (format 2.0 has 0x02 to 0x07)",
+                    place(r.at)
+                )))
+            }
+            None => return Err(self.malformed(format!("a record without `op` {}", place(r.at)))),
         }
         Ok(())
     }
@@ -282,6 +459,14 @@ impl Ros1Bag {
                 "chunk at byte {at} without its uncompressed `size`"
             ))
         })?;
+        if u64::from(size) > crate::io::MAX_BAG_CHUNK {
+            return Err(self.malformed(format!(
+                "the chunk at byte {at} declares {size} bytes uncompressed, past the {} a chunk \
+                 may have (io::SIZE_BOUNDS); `rosbag compress` or `rosbag reindex` with a smaller \
+                 --chunk-threshold rewrites it",
+                crate::io::bytes(crate::io::MAX_BAG_CHUNK)
+            )));
+        }
         let inflate = |reader: &mut dyn Read, out: &mut Vec<u8>| {
             out.clear();
             reader.take(u64::from(size) + 1).read_to_end(out)
@@ -340,14 +525,44 @@ impl Container for Ros1Bag {
         // copy covers a writer that left that out.
         let mut conns = self.indexed.clone().unwrap_or_default();
         let mut scratch = Vec::new();
-        self.run(
-            &self.bytes,
-            MAGIC.len(),
-            None,
-            &mut conns,
-            &mut scratch,
-            each,
-        )
+        if let Source::Bytes(bytes) = &self.source {
+            return self.run(bytes, MAGIC.len(), None, &mut conns, &mut scratch, each);
+        }
+        // Record by record from the stream, each where it is in the file for messages.
+        let mut input = self.stream()?;
+        let mut magic = [0u8; 13];
+        input
+            .read_exact(&mut magic)
+            .map_err(|_| self.malformed("shorter than its magic".into()))?;
+        let mut buf = Vec::new();
+        let mut at = MAGIC.len();
+        loop {
+            let next = read_record(&mut input, &mut buf).map_err(|e| match e.kind() {
+                std::io::ErrorKind::UnexpectedEof => self.malformed(format!(
+                    "a record cut short at byte {at} (a recording cut off?)"
+                )),
+                std::io::ErrorKind::InvalidData => self.malformed(format!("at byte {at}: {e}")),
+                _ => match self.source {
+                    Source::ZstdFile => BagError::Zstd {
+                        what: self.path.display().to_string(),
+                        source: e,
+                    },
+                    _ => self.io(e),
+                },
+            })?;
+            let Some((header_len, len)) = next else {
+                return Ok(());
+            };
+            let fields = fields(&buf[..header_len])
+                .map_err(|e| self.malformed(format!("record at byte {at}: {e}")))?;
+            let r = Record {
+                at,
+                fields,
+                data: &buf[header_len..],
+            };
+            self.one(&r, None, &mut conns, &mut scratch, each)?;
+            at += len;
+        }
     }
 }
 
