@@ -181,6 +181,20 @@ fn despike<T>(
         .collect()
 }
 
+/// One topic's three checks in order: the samples `ok` refuses dropped (as `ok_why`), time
+/// forward, then isolated spikes where `jumps` (as `jump_why`).
+fn checked<T>(
+    samples: Vec<Sample<T>>,
+    topic: &str,
+    notes: &mut Vec<String>,
+    (ok, ok_why): (impl Fn(&T) -> bool, &str),
+    (jumps, jump_why): (impl Fn(&Sample<T>, &Sample<T>) -> bool, &str),
+) -> Result<Vec<Sample<T>>, BagError> {
+    let samples = physical(samples, ok, topic, ok_why, notes);
+    let samples = forward(samples, topic, notes)?;
+    Ok(despike(samples, jumps, topic, jump_why, notes))
+}
+
 /// The wheel angles checked, with spikes dropped, then unwrapped. A topic whose angles stay
 /// within (−π, π] (but for at most [`MAX_BACKWARD_SHARE`] of them) is a driver that wraps its
 /// continuous joints: an angle outside that range is then not physical, and steps are taken
@@ -201,17 +215,6 @@ pub fn joints(
     let within_turn = |&(l, r): &Joints| l.abs() <= PI + 1e-9 && r.abs() <= PI + 1e-9;
     let outside = samples.iter().filter(|s| !within_turn(&s.value)).count();
     let wraps = (outside as f64) <= MAX_BACKWARD_SHARE * samples.len() as f64;
-    let samples = if wraps {
-        physical(
-            samples,
-            within_turn,
-            topic,
-            "a wheel angle outside (−π, π] where the driver wraps its angles",
-            notes,
-        )
-    } else {
-        samples
-    };
     let step = |from: f64, to: f64| {
         if wraps {
             angle_step(from, to)
@@ -219,18 +222,23 @@ pub fn joints(
             to - from
         }
     };
-    let samples = forward(samples, topic, notes)?;
     let jumps = |a: &Sample<Joints>, b: &Sample<Joints>| {
         let limit = MAX_WHEEL_RATE_RAD_S * (b.t - a.t) + JOINT_SLACK_RAD;
         step(a.value.0, b.value.0).abs() > limit || step(a.value.1, b.value.1).abs() > limit
     };
-    let samples = despike(
+    let samples = checked(
         samples,
-        jumps,
         topic,
-        &format!("a wheel faster than {MAX_WHEEL_RATE_RAD_S} rad/s"),
         notes,
-    );
+        (
+            |v: &Joints| !wraps || within_turn(v),
+            "a wheel angle outside (−π, π] where the driver wraps its angles",
+        ),
+        (
+            jumps,
+            &format!("a wheel faster than {MAX_WHEEL_RATE_RAD_S} rad/s"),
+        ),
+    )?;
     // Unwrapped after the spikes are gone: a spike's wrap would stay in every later angle.
     let mut out: Vec<Sample<Joints>> = Vec::with_capacity(samples.len());
     let mut raw = None;
@@ -255,27 +263,25 @@ pub fn yaw(
     topic: &str,
     notes: &mut Vec<String>,
 ) -> Result<Vec<Sample<Option<f64>>>, BagError> {
-    let samples = physical(
-        samples,
-        |y| y.is_none_or(f64::is_finite),
-        topic,
-        "a yaw that is not a number",
-        notes,
-    );
-    let samples = forward(samples, topic, notes)?;
     let jumps = |a: &Sample<Option<f64>>, b: &Sample<Option<f64>>| match (a.value, b.value) {
         (Some(ya), Some(yb)) => {
             angle_step(ya, yb).abs() > MAX_YAW_RATE_RAD_S * (b.t - a.t) + YAW_SLACK_RAD
         }
         _ => false,
     };
-    Ok(despike(
+    checked(
         samples,
-        jumps,
         topic,
-        &format!("a yaw rate beyond {MAX_YAW_RATE_RAD_S} rad/s"),
         notes,
-    ))
+        (
+            |y: &Option<f64>| y.is_none_or(f64::is_finite),
+            "a yaw that is not a number",
+        ),
+        (
+            jumps,
+            &format!("a yaw rate beyond {MAX_YAW_RATE_RAD_S} rad/s"),
+        ),
+    )
 }
 
 /// The controller's odometry checked, with spikes dropped.
@@ -284,27 +290,27 @@ pub fn odometry(
     topic: &str,
     notes: &mut Vec<String>,
 ) -> Result<Vec<Sample<Pose>>, BagError> {
-    let samples = physical(
-        samples,
-        |&(x, y, yaw)| x.abs() <= MAX_POSITION_M && y.abs() <= MAX_POSITION_M && yaw.is_finite(),
-        topic,
-        &format!("a pose that is not a number within ±{MAX_POSITION_M:e} m"),
-        notes,
-    );
-    let samples = forward(samples, topic, notes)?;
     let jumps = |a: &Sample<Pose>, b: &Sample<Pose>| {
         let dt = b.t - a.t;
         (b.value.0 - a.value.0).hypot(b.value.1 - a.value.1)
             > MAX_WHEEL_SPEED_M_S * dt + POSITION_SLACK_M
             || angle_step(a.value.2, b.value.2).abs() > MAX_YAW_RATE_RAD_S * dt + YAW_SLACK_RAD
     };
-    Ok(despike(
+    checked(
         samples,
-        jumps,
         topic,
-        &format!("faster than {MAX_WHEEL_SPEED_M_S} m/s or {MAX_YAW_RATE_RAD_S} rad/s"),
         notes,
-    ))
+        (
+            |&(x, y, yaw): &Pose| {
+                x.abs() <= MAX_POSITION_M && y.abs() <= MAX_POSITION_M && yaw.is_finite()
+            },
+            &format!("a pose that is not a number within ±{MAX_POSITION_M:e} m"),
+        ),
+        (
+            jumps,
+            &format!("faster than {MAX_WHEEL_SPEED_M_S} m/s or {MAX_YAW_RATE_RAD_S} rad/s"),
+        ),
+    )
 }
 
 #[cfg(test)]
