@@ -232,14 +232,9 @@ impl Ros1Bag {
             path: path.to_path_buf(),
             indexed: None,
         };
-        let (header, _) = record(&bytes, MAGIC.len()).map_err(|e| bag.malformed(e))?;
-        if header.fields.op != Some(OP_BAG_HEADER) {
-            return Err(bag.malformed("the first record is not the bag header".into()));
-        }
+        let (index_pos, _) = bag.header(&mut bytes.as_slice())?;
         // An index that cannot be read is no error: the messages are read without it.
-        bag.indexed = header
-            .fields
-            .index_pos
+        bag.indexed = index_pos
             .and_then(|p| usize::try_from(p).ok())
             .filter(|&p| p > MAGIC.len() && p < bytes.len())
             .and_then(|p| index_of(&bytes[p..]));
@@ -260,8 +255,8 @@ impl Ros1Bag {
             .map_err(|e| bag.io(e))?
             .into_inner();
         let len = file.metadata().map_err(|e| bag.io(e))?.len();
-        let header = bag.header(&mut file)?;
-        bag.indexed = match header {
+        let (index_pos, _) = bag.header(&mut file)?;
+        bag.indexed = match index_pos {
             Some(p) if p > MAGIC.len() as u64 && p < len && len - p <= MAX_INDEX => {
                 let mut tail = Vec::new();
                 file.seek(SeekFrom::Start(p)).map_err(|e| bag.io(e))?;
@@ -285,21 +280,22 @@ impl Ros1Bag {
         Ok(bag)
     }
 
-    /// Reads the magic and the bag header of `input`: the header's `index_pos`.
-    fn header(&self, input: &mut dyn Read) -> Result<Option<u64>, BagError> {
+    /// Reads the magic and the bag header of `input`: the header's `index_pos`, and where
+    /// the record after it starts.
+    fn header(&self, input: &mut dyn Read) -> Result<(Option<u64>, usize), BagError> {
         let mut magic = [0u8; 13];
         input
             .read_exact(&mut magic)
             .map_err(|_| self.malformed("shorter than its magic".into()))?;
         let mut buf = Vec::new();
-        let (h, _) = read_record(input, &mut buf)
+        let (h, len) = read_record(input, &mut buf)
             .map_err(|e| self.malformed(format!("the bag header: {e}")))?
             .ok_or_else(|| self.malformed("no bag header".into()))?;
         let f = fields(&buf[..h]).map_err(|e| self.malformed(format!("the bag header: {e}")))?;
         if f.op != Some(OP_BAG_HEADER) {
             return Err(self.malformed("the first record is not the bag header".into()));
         }
-        Ok(f.index_pos)
+        Ok((f.index_pos, MAGIC.len() + len))
     }
 
     /// The bag's bytes from the start, as a stream.
@@ -369,23 +365,19 @@ fn connection(r: &Record<'_>) -> Result<(u32, Channel), String> {
 }
 
 impl Ros1Bag {
-    /// Hands the messages of one run of records (the file's, or a chunk's) to `each`,
-    /// learning connections on the way; chunks are decompressed into `scratch`.
-    fn run(
+    /// Hands the messages of a chunk's records (`buf`, decompressed; the chunk at byte
+    /// `chunk` of the file) to `each`, learning connections on the way.
+    fn chunk_records(
         &self,
         buf: &[u8],
-        from: usize,
-        in_chunk: Option<usize>,
+        chunk: usize,
         conns: &mut BTreeMap<u32, Channel>,
-        scratch: &mut Vec<u8>,
         each: &mut dyn FnMut(RawMessage<'_>) -> Result<(), BagError>,
     ) -> Result<(), BagError> {
-        for r in records(buf, from) {
-            let r = r.map_err(|e| match in_chunk {
-                Some(chunk) => self.malformed(format!("in the chunk at byte {chunk}: {e}")),
-                None => self.malformed(e),
-            })?;
-            self.one(&r, in_chunk, conns, scratch, each)?;
+        for r in records(buf, 0) {
+            let r = r.map_err(|e| self.malformed(format!("in the chunk at byte {chunk}: {e}")))?;
+            // A chunk holds no chunk: no scratch is needed below.
+            self.one(&r, Some(chunk), conns, &mut Vec::new(), each)?;
         }
         Ok(())
     }
@@ -431,7 +423,7 @@ impl Ros1Bag {
             Some(OP_CHUNK) if in_chunk.is_none() => {
                 let mut chunk = std::mem::take(scratch);
                 let data = self.chunk(r, &mut chunk)?;
-                let result = self.run(data, 0, Some(r.at), conns, &mut Vec::new(), each);
+                let result = self.chunk_records(data, r.at, conns, each);
                 *scratch = chunk;
                 result?;
             }
@@ -525,17 +517,11 @@ impl Container for Ros1Bag {
         // copy covers a writer that left that out.
         let mut conns = self.indexed.clone().unwrap_or_default();
         let mut scratch = Vec::new();
-        if let Source::Bytes(bytes) = &self.source {
-            return self.run(bytes, MAGIC.len(), None, &mut conns, &mut scratch, each);
-        }
-        // Record by record from the stream, each where it is in the file for messages.
+        // Record by record from the stream (bytes in memory too), each where it is in the file
+        // for messages.
         let mut input = self.stream()?;
-        let mut magic = [0u8; 13];
-        input
-            .read_exact(&mut magic)
-            .map_err(|_| self.malformed("shorter than its magic".into()))?;
+        let (_, mut at) = self.header(&mut input)?;
         let mut buf = Vec::new();
-        let mut at = MAGIC.len();
         loop {
             let next = read_record(&mut input, &mut buf).map_err(|e| match e.kind() {
                 std::io::ErrorKind::UnexpectedEof => self.malformed(format!(
@@ -733,6 +719,40 @@ mod tests {
             read(no_index),
             Err(BagError::Container { reason, .. }) if reason.contains("connection 3, before any record of it")
         ));
+    }
+
+    #[test]
+    fn a_record_or_chunk_past_its_bound_is_refused_before_it_is_read() {
+        let head = [
+            MAGIC.to_vec(),
+            record(&[("op", &[OP_BAG_HEADER]), ("index_pos", &[0; 8])], &[]),
+        ]
+        .concat();
+        // A record that says its data is 300 MiB: refused at its length, nothing allocated.
+        let mut long = header(&[("op", &[OP_MESSAGE_DATA])]);
+        long = [(long.len() as u32).to_le_bytes().to_vec(), long].concat();
+        long.extend((300u32 << 20).to_le_bytes());
+        let err = read([head.clone(), long].concat()).unwrap_err().to_string();
+        assert!(err.contains("past the 256 MiB a record may have"), "{err}");
+        // A record header of 2 MiB.
+        let mut wide = (2u32 << 20).to_le_bytes().to_vec();
+        wide.extend([0u8; 16]);
+        let err = read([head.clone(), wide].concat()).unwrap_err().to_string();
+        assert!(err.contains("a record header of 2097152 bytes"), "{err}");
+        // A chunk declaring 300 MiB uncompressed, holding a few bytes.
+        let chunk = record(
+            &[
+                ("op", &[OP_CHUNK]),
+                ("compression", b"lz4"),
+                ("size", &(300u32 << 20).to_le_bytes()),
+            ],
+            b"tiny",
+        );
+        let err = read([head, chunk].concat()).unwrap_err().to_string();
+        assert!(
+            err.contains("declares 314572800 bytes uncompressed, past the 256 MiB"),
+            "{err}"
+        );
     }
 
     #[test]
