@@ -304,7 +304,11 @@ impl Pass {
         let n = usize::try_from(declared).unwrap_or(usize::MAX);
         let mut buf = std::mem::take(&mut self.chunk);
         buf.clear();
-        let bad = |what: String| malformed(path, format!("a {} chunk: {what}", header.compression));
+        let kind = match header.compression.as_str() {
+            "" => "plain",
+            c => c,
+        };
+        let bad = |what: String| malformed(path, format!("a {kind} chunk: {what}"));
         let records: &[u8] = match header.compression.as_str() {
             "" => data,
             "zstd" => {
@@ -429,5 +433,113 @@ impl Container for McapBag {
         }
         *self.seen_metadata.borrow_mut() = pass.metadata;
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn string(s: &str) -> Vec<u8> {
+        [&(s.len() as u32).to_le_bytes()[..], s.as_bytes()].concat()
+    }
+
+    fn record(op: u8, body: &[u8]) -> Vec<u8> {
+        [&[op][..], &(body.len() as u64).to_le_bytes(), body].concat()
+    }
+
+    /// An MCAP file of `records` between its header and its data end, without a summary.
+    fn file(records: &[Vec<u8>]) -> Vec<u8> {
+        [
+            MAGIC.to_vec(),
+            record(op::HEADER, &[string("ros2"), string("t")].concat()),
+            records.concat(),
+            record(op::DATA_END, &0u32.to_le_bytes()),
+            record(op::FOOTER, &[0u8; 20]),
+            MAGIC.to_vec(),
+        ]
+        .concat()
+    }
+
+    /// A message on `channel`: sequence, log and publish times, then its data.
+    fn message(channel: u16) -> Vec<u8> {
+        let body = [
+            &channel.to_le_bytes()[..],
+            &1u32.to_le_bytes(),
+            &5u64.to_le_bytes(),
+            &5u64.to_le_bytes(),
+            b"data",
+        ]
+        .concat();
+        record(op::MESSAGE, &body)
+    }
+
+    /// A chunk of `records` stored plain (or naming `compression` with them plain).
+    fn chunk(compression: &str, records: &[u8]) -> Vec<u8> {
+        let body = [
+            &0u64.to_le_bytes()[..],
+            &0u64.to_le_bytes(),
+            &(records.len() as u64).to_le_bytes(),
+            &0u32.to_le_bytes(),
+            &string(compression),
+            &(records.len() as u64).to_le_bytes(),
+            records,
+        ]
+        .concat();
+        record(op::CHUNK, &body)
+    }
+
+    fn channel() -> Vec<u8> {
+        let body = [
+            &3u16.to_le_bytes()[..],
+            &0u16.to_le_bytes(),
+            &string("/imu"),
+            &string("cdr"),
+            &0u32.to_le_bytes(),
+        ]
+        .concat();
+        record(op::CHANNEL, &body)
+    }
+
+    fn read(bytes: Vec<u8>) -> Result<usize, BagError> {
+        let bag = McapBag::new(bytes, Path::new("t.mcap"))?;
+        let mut n = 0;
+        bag.messages(&mut |m| {
+            assert_eq!(m.channel.topic, "/imu");
+            n += 1;
+            Ok(())
+        })?;
+        Ok(n)
+    }
+
+    #[test]
+    fn messages_read_plain_and_in_chunks_and_bad_records_are_named() {
+        assert_eq!(read(file(&[channel(), message(3)])).unwrap(), 1);
+        let inner = [channel(), message(3), message(3)].concat();
+        assert_eq!(read(file(&[chunk("", &inner)])).unwrap(), 2);
+        for (records, says) in [
+            (
+                vec![message(3)],
+                "a message on channel 3 before that channel's record",
+            ),
+            (vec![record(0, &[])], "a record of opcode 0"),
+            (vec![chunk("brotli", &inner)], "compressed with `brotli`"),
+            (
+                vec![chunk("", &chunk("", &inner))],
+                "a chunk inside a chunk",
+            ),
+            (
+                vec![chunk("", &message(3)[..10])],
+                "a plain chunk: a record runs past the chunk",
+            ),
+            (
+                vec![chunk("", &message(3)[..5])],
+                "a plain chunk: a record cut short",
+            ),
+        ] {
+            let err = read(file(&records)).unwrap_err().to_string();
+            assert!(err.contains(says), "{says}: {err}");
+            assert!(err.contains("not a readable MCAP bag"), "{err}");
+        }
     }
 }
