@@ -552,6 +552,13 @@ async fn a_backup_edited_to_name_another_robots_file_is_refused_and_never_pours_
             "{args:?}: {now}"
         );
     }
+    // Without the file's text (an older backup), where it lies is all it can be judged by.
+    let mut bare = json.clone();
+    bare.as_object_mut().unwrap().remove("text");
+    let bare_path = b.join("old.json");
+    std::fs::write(&bare_path, bare.to_string()).unwrap();
+    let (ok, _, err) = odocal(&["restore", bare_path.to_str().unwrap(), "--yes"]);
+    assert!(!ok && err.contains("holds no text of the file"), "{err}");
     // Beside its own file, it restores the whole file as before.
     json["file"] = serde_json::json!(file_a);
     std::fs::write(&backup, json.to_string()).unwrap();
