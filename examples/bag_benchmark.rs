@@ -231,6 +231,8 @@ fn measure(name: &str, path: &Path, mcap: Option<f64>) -> Result<f64, Error> {
     let mut messages = 0;
     let mut e_b = f64::NAN;
     for _ in 0..3 {
+        // Each read is a run of its own, as each `odocal bag` is.
+        odocal::io::budget::reset_run();
         let t = Instant::now();
         let data = read_bag(path, &opts)?;
         reads.push(t.elapsed().as_secs_f64());

@@ -12,28 +12,25 @@ use std::process::Command;
 /// Most memory (KiB) one `odocal bag` may take on a hostile input.
 const MAX_RSS_KIB: i64 = 1 << 20;
 
-/// Runs `odocal bag <path>`: success, its error output, its peak resident set (KiB). The
-/// child is reaped by `wait4` (which reports its resources), not by `Child::wait`.
-#[allow(clippy::zombie_processes)]
+/// Runs `odocal bag <path>`: success, its error output, its peak resident memory (KiB), which
+/// the binary reports itself (`ODOCAL_PEAK_MEMORY`: `wait4`'s figure for a child also counts
+/// what this test process held when it started it).
 fn bag(path: &Path) -> (bool, String, i64) {
-    let child = Command::new(env!("CARGO_BIN_EXE_odocal"))
+    let out = Command::new(env!("CARGO_BIN_EXE_odocal"))
         .args(["bag", path.to_str().unwrap(), "--side-m", "1"])
+        .env("ODOCAL_PEAK_MEMORY", "1")
         .stdout(std::process::Stdio::null())
-        .stderr(std::process::Stdio::piped())
-        .spawn()
+        .output()
         .unwrap();
-    let pid = child.id() as libc::pid_t;
-    let mut stderr = child.stderr.unwrap();
-    let mut err = String::new();
-    std::io::Read::read_to_string(&mut stderr, &mut err).unwrap();
-    let mut status = 0;
-    // SAFETY: plain FFI, `status` and `usage` are ours and live through the call.
-    let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
-    let waited = unsafe { libc::wait4(pid, &mut status, 0, &mut usage) };
-    assert_eq!(waited, pid);
+    let err = String::from_utf8_lossy(&out.stderr).into_owned();
     assert!(!err.contains("panicked"), "{err}");
-    let ok = libc::WIFEXITED(status) && libc::WEXITSTATUS(status) == 0;
-    (ok, err, usage.ru_maxrss)
+    let rss = err
+        .lines()
+        .find_map(|l| l.strip_prefix("peak resident memory: "))
+        .and_then(|kib| kib.strip_suffix(" kB"))
+        .and_then(|kib| kib.trim().parse().ok())
+        .unwrap_or_else(|| panic!("no peak memory reported: {err}"));
+    (out.status.success(), err, rss)
 }
 
 /// An MCAP string: u32 length, bytes.
@@ -119,7 +116,7 @@ fn a_chunk_that_declares_or_holds_gigabytes_is_refused_in_bounded_memory() {
         (
             "declares.mcap",
             300u64 << 20,
-            "past the 256 MiB a chunk may have",
+            "past the 256 MiB budget `bag-chunk`",
         ),
         ("lies.mcap", 1 << 10, "(it declares 1024 bytes)"),
     ] {
@@ -158,7 +155,8 @@ fn a_thousand_message_frames_of_256_mib_each_are_refused_at_the_first() {
     drop(db);
     let (ok, err, rss) = bag(&path);
     assert!(
-        !ok && err.contains("past the 1 MiB a message on these topics may have"),
+        !ok && err.contains("past the 1 MiB budget `bag-message`")
+            && err.contains("--budget bag-message=2MiB"),
         "{err}"
     );
     assert!(err.contains("message 0"), "{err}");
@@ -359,5 +357,192 @@ fn a_large_ros1_bag_is_read_in_memory_near_its_largest_record_not_its_size() {
     let (ok, err, rss) = bag(&path);
     assert!(!ok && err.contains("no wheel joint topic"), "{err}");
     assert!(rss < 100 << 10, "{rss} KiB");
+    std::fs::remove_dir_all(&d).unwrap();
+}
+
+/// The simulated MCAP bag at `from` rewritten as a rosbag2 sqlite3 file with `blobs` messages
+/// of 1 MiB of noise on a camera topic among its own.
+fn padded_db3(from: &Path, to: &Path, blobs: usize) {
+    let bytes = std::fs::read(from).unwrap();
+    let mut db = rusqlite::Connection::open(to).unwrap();
+    db.execute_batch(
+        "CREATE TABLE topics(id INTEGER PRIMARY KEY, name TEXT NOT NULL, type TEXT NOT NULL,
+             serialization_format TEXT NOT NULL, offered_qos_profiles TEXT NOT NULL);
+         CREATE TABLE messages(id INTEGER PRIMARY KEY, topic_id INTEGER NOT NULL,
+             timestamp INTEGER NOT NULL, data BLOB NOT NULL);
+         INSERT INTO topics VALUES (1000, '/camera/image_raw', 'sensor_msgs/msg/Image', 'cdr', '');",
+    )
+    .unwrap();
+    let tx = db.transaction().unwrap();
+    let messages: Vec<_> = mcap::MessageStream::new(&bytes)
+        .unwrap()
+        .map(|m| m.unwrap())
+        .collect();
+    let every = messages.len() / blobs.max(1);
+    let mut topics = std::collections::BTreeSet::new();
+    let mut noise = 0x2545_F491_4F6C_DD1Du64;
+    let mut blob = vec![0u8; 1 << 20];
+    for (i, m) in messages.iter().enumerate() {
+        if topics.insert(m.channel.id) {
+            tx.execute(
+                "INSERT INTO topics VALUES (?1, ?2, ?3, 'cdr', '')",
+                rusqlite::params![
+                    m.channel.id,
+                    m.channel.topic,
+                    m.channel.schema.as_ref().unwrap().name
+                ],
+            )
+            .unwrap();
+        }
+        tx.execute(
+            "INSERT INTO messages(topic_id, timestamp, data) VALUES (?1, ?2, ?3)",
+            rusqlite::params![m.channel.id, m.log_time as i64, &m.data[..]],
+        )
+        .unwrap();
+        if i % every == 0 {
+            for chunk in blob.chunks_mut(8) {
+                noise ^= noise << 13;
+                noise ^= noise >> 7;
+                noise ^= noise << 17;
+                chunk.copy_from_slice(&noise.to_le_bytes());
+            }
+            tx.execute(
+                "INSERT INTO messages(topic_id, timestamp, data) VALUES (1000, ?1, ?2)",
+                rusqlite::params![m.log_time as i64, &blob],
+            )
+            .unwrap();
+        }
+    }
+    tx.commit().unwrap();
+}
+
+/// `from` compressed whole into `to` with LZ4 frames, as the `lz4` tool does.
+fn lz4_whole(from: &Path, to: &Path) {
+    let mut enc = lz4::EncoderBuilder::new()
+        .build(std::fs::File::create(to).unwrap())
+        .unwrap();
+    std::io::copy(&mut std::fs::File::open(from).unwrap(), &mut enc).unwrap();
+    let (_, done) = enc.finish();
+    done.unwrap();
+}
+
+#[test]
+fn a_large_sqlite_or_lz4_bag_compressed_whole_is_read_near_its_largest_message() {
+    let d = dir("hostile-whole");
+    let sim = d.join("sim.mcap");
+    simulated_bag(&sim);
+    let db3 = d.join("big.db3");
+    padded_db3(&sim, &db3, 200);
+    assert!(std::fs::metadata(&db3).unwrap().len() > 200 << 20);
+    let zst = d.join("big.db3.zstd");
+    zstd::stream::copy_encode(
+        std::fs::File::open(&db3).unwrap(),
+        std::fs::File::create(&zst).unwrap(),
+        1,
+    )
+    .unwrap();
+    let db3_lz4 = d.join("big.db3.lz4");
+    lz4_whole(&db3, &db3_lz4);
+    let mcap = d.join("big.mcap");
+    padded(&sim, &mcap, 200);
+    let mcap_lz4 = d.join("big.mcap.lz4");
+    lz4_whole(&mcap, &mcap_lz4);
+    let temporaries = || {
+        std::fs::read_dir(std::env::temp_dir())
+            .unwrap()
+            .filter(|e| {
+                let name = e.as_ref().unwrap().file_name();
+                let name = name.to_string_lossy();
+                name.starts_with("odocal-") && name.ends_with(".db3")
+            })
+            .count()
+    };
+    let (mut plain, mut whole) = (None, None);
+    for path in [&db3, &zst, &db3_lz4, &mcap_lz4] {
+        let before = temporaries();
+        let (ok, err, rss) = bag(path);
+        assert!(ok, "{}: {err}", path.display());
+        assert!(rss < 100 << 10, "{}: {rss} KiB", path.display());
+        // The decompressed copy a database is read from is gone with the run.
+        assert!(temporaries() <= before, "{}", path.display());
+        let json = || common::odocal(&["bag", path.to_str().unwrap(), "--side-m", "1", "--json"]).1;
+        if path == &db3 {
+            plain = Some(json());
+        } else if path == &zst {
+            whole = Some(json());
+        }
+    }
+    // What a compressed copy gives is what the file itself gives.
+    let strip = |s: Option<String>| {
+        let mut v: serde_json::Value = serde_json::from_str(&s.unwrap()).unwrap();
+        v.as_object_mut().unwrap().remove("file");
+        v
+    };
+    assert_eq!(strip(plain), strip(whole));
+    std::fs::remove_dir_all(&d).unwrap();
+}
+
+#[test]
+fn a_run_past_its_total_budget_is_refused_naming_the_flag_that_raises_it() {
+    let d = dir("hostile-run-budget");
+    let sim = d.join("sim.mcap");
+    simulated_bag(&sim);
+    let zst = d.join("sim.mcap.zstd");
+    zstd::stream::copy_encode(
+        std::fs::File::open(&sim).unwrap(),
+        std::fs::File::create(&zst).unwrap(),
+        1,
+    )
+    .unwrap();
+    let path = zst.to_str().unwrap();
+    let (ok, out, err) = common::odocal(&["bag", path, "--side-m", "1"]);
+    assert!(ok, "{out}{err}");
+    // Messages over every bag of the run, and bytes decompressed: each budget named with the
+    // flag that raises it, and raising it is enough.
+    for (budget, low, raise) in [
+        ("run-messages", "1000", "--budget run-messages=2000"),
+        ("run-bytes", "64KiB", "--budget run-bytes=128KiB"),
+    ] {
+        let setting = format!("{budget}={low}");
+        let (ok, _, err) = common::odocal(&["bag", path, "--side-m", "1", "--budget", &setting]);
+        assert!(!ok, "{budget}");
+        assert!(
+            err.contains(&format!("budget `{budget}`")) && err.contains(raise),
+            "{err}"
+        );
+        let (ok, out, err) = common::odocal(&[
+            "--budget",
+            &format!("{budget}=1GiB"),
+            "bag",
+            path,
+            "--side-m",
+            "1",
+        ]);
+        assert!(ok, "{out}{err}");
+    }
+    // The help states each budget's default as the library has it.
+    let (_, help, _) = common::odocal(&["bag", "--help"]);
+    let help = help.split_whitespace().collect::<Vec<_>>().join(" ");
+    for b in odocal::io::budget::BUDGETS {
+        let default = match b.unit {
+            "bytes" => odocal::io::bytes(b.default).replace(' ', ""),
+            _ => b.default.to_string(),
+        };
+        assert!(
+            help.contains(&format!("{} (default {default}", b.name))
+                || help.contains(&format!("{} ({default}", b.name)),
+            "{}: {help}",
+            b.name
+        );
+    }
+    // A setting that is not one is refused before anything is read, naming the budgets.
+    let (ok, _, err) = common::odocal(&["bag", path, "--budget", "bag-chunks=1MiB"]);
+    assert!(
+        !ok && err.contains("there is no budget `bag-chunks`"),
+        "{err}"
+    );
+    assert!(err.contains("run-messages"), "{err}");
+    let (ok, _, err) = common::odocal(&["bag", path, "--budget", "bag-chunk=4GB"]);
+    assert!(!ok && err.contains("is not a size"), "{err}");
     std::fs::remove_dir_all(&d).unwrap();
 }

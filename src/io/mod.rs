@@ -2,6 +2,7 @@
 //! backups ([`files`]), the size bounds of every kind of file odocal reads ([`SIZE_BOUNDS`]),
 //! and opening serial ports ([`serial`]).
 
+pub mod budget;
 pub mod files;
 pub mod serial;
 
@@ -14,23 +15,23 @@ pub const MAX_TEXT_FILE: u64 = 16 << 20;
 /// Most bytes odocal reads of one recorded run or telemetry log (hours of 200 Hz samples).
 pub const MAX_DATA_FILE: u64 = 1 << 30;
 
-/// Most bytes of one bag file, and of what a file compressed whole decompresses to (MCAP,
-/// ROS 1 and sqlite3 files are read where they lie, MCAP and ROS 1 compressed whole with zstd
-/// as a stream; a `.db3.zstd` and `.lz4` files into memory; split larger recordings,
-/// `ros2 bag convert`).
+/// Most bytes of one bag file, and of what a file compressed whole decompresses to, by
+/// default ([`budget::BAG_FILE`], which `--budget bag-file=SIZE` raises). Every file is read
+/// where it lies or, compressed whole, decompressed as it is read; a `.db3.zstd` into a
+/// temporary file, as SQLite reads only files.
 pub const MAX_BAG_FILE: u64 = 4 << 30;
 
-/// Most bytes one MCAP chunk may declare it decompresses to (writers make chunks of about
-/// 1 MiB, a chunk of its own for a larger message): checked before a byte of it is
-/// decompressed.
+/// Most bytes one MCAP or ROS 1 chunk may declare it decompresses to, by default
+/// ([`budget::BAG_CHUNK`]).
 pub const MAX_BAG_CHUNK: u64 = 256 << 20;
 
-/// Most bytes one message on the topics odocal reads (joint states, IMU, odometry: a few
-/// hundred bytes each) may decompress to, where rosbag2 compressed each message on its own.
+/// Most bytes one message rosbag2 compressed on its own may decompress to, by default
+/// ([`budget::BAG_MESSAGE`]).
 pub const MAX_BAG_MESSAGE: u64 = 1 << 20;
 
-/// Every size bound, for documentation: what it covers and the bound (bytes). The README's
-/// table is checked against it.
+/// Every size bound, for documentation: what it covers and the bound (bytes; for the bag
+/// budgets their defaults, see [`budget`] for the run totals). The README's table is checked
+/// against it.
 pub const SIZE_BOUNDS: [(&str, u64); 5] = [
     (
         "text: routine files, robot profiles, controller YAML, backups, results to export",
@@ -44,19 +45,21 @@ pub const SIZE_BOUNDS: [(&str, u64); 5] = [
         "bag: one bag file (of a directory: each file), also once decompressed",
         MAX_BAG_FILE,
     ),
-    ("bag: one MCAP chunk, decompressed", MAX_BAG_CHUNK),
+    ("bag: one MCAP or ROS 1 chunk, decompressed", MAX_BAG_CHUNK),
     (
         "bag: one compressed message on the topics odocal reads, decompressed",
         MAX_BAG_MESSAGE,
     ),
 ];
 
-/// A size bound as a person reads it: "4 GiB", "256 MiB", else bytes.
+/// A size bound as a person reads it: "4 GiB", "256 MiB", "64 KiB", else bytes.
 pub fn bytes(n: u64) -> String {
     if n >= 1 << 30 && n.is_multiple_of(1 << 30) {
         format!("{} GiB", n >> 30)
     } else if n >= 1 << 20 && n.is_multiple_of(1 << 20) {
         format!("{} MiB", n >> 20)
+    } else if n >= 1 << 10 && n.is_multiple_of(1 << 10) {
+        format!("{} KiB", n >> 10)
     } else {
         format!("{n} bytes")
     }

@@ -27,6 +27,17 @@ use std::process::ExitCode;
 struct Cli {
     #[command(subcommand)]
     command: Command,
+    /// Raise (or lower) one budget of what a run may read out of a bag, NAME=SIZE (repeat for
+    /// several): bag-file (default 4GiB), bag-chunk (256MiB), bag-message (1MiB), run-bytes
+    /// (16GiB decompressed in all), run-messages (50000000). Sizes take KiB, MiB, GiB, TiB.
+    #[arg(long = "budget", global = true, value_name = "NAME=SIZE", value_parser = budget)]
+    budgets: Vec<String>,
+}
+
+/// A `--budget` setting, checked (and set: the value parser runs before anything is read).
+fn budget(setting: &str) -> Result<String, String> {
+    odocal::io::budget::set(setting).map_err(|e| e.to_string())?;
+    Ok(setting.to_string())
 }
 
 // Parsed once per run: the size of its largest variant costs nothing worth boxing for.
@@ -385,11 +396,28 @@ fn main() -> ExitCode {
         }
         Command::Man { out } => man(out),
     };
-    match result {
+    let code = match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("error: {e}");
             ExitCode::FAILURE
         }
+    };
+    peak_memory();
+    code
+}
+
+/// With `ODOCAL_PEAK_MEMORY` set, the last line on standard error is this process's peak
+/// resident memory, as Linux counts it for this program alone (`VmHWM`: unlike a parent's
+/// `wait4`, which also counts what the parent held when it started the child). For the
+/// memory figures of the benchmarks and the hostile-input tests.
+fn peak_memory() {
+    if std::env::var_os("ODOCAL_PEAK_MEMORY").is_none() {
+        return;
+    }
+    let status = std::fs::read_to_string("/proc/self/status").unwrap_or_default();
+    match status.lines().find_map(|l| l.strip_prefix("VmHWM:")) {
+        Some(kib) => eprintln!("peak resident memory: {}", kib.trim()),
+        None => eprintln!("peak resident memory: unknown (no /proc/self/status VmHWM here)"),
     }
 }

@@ -1,34 +1,143 @@
 //! zstd where rosbag2 puts it: a whole storage file (`compression_mode: FILE`, one streamed
 //! frame, `<file>.zstd`) and each message on its own (`MESSAGE`, one frame per message, the
 //! storage file itself plain); and a whole file in LZ4 frames (`<file>.lz4`, what the `lz4`
-//! tool makes of a bag: rosbag2 itself compresses with zstd only). Output never exceeds
-//! [`crate::io::MAX_BAG_FILE`]: a frame that would grow past it is an error, not an
-//! allocation. (MCAP's own chunk compression, zstd or lz4, is the `mcap` crate's; ROS 1 chunks
-//! are [`super::ros1`]'s.)
+//! tool makes of a bag: rosbag2 itself compresses with zstd only). A file compressed whole is
+//! decompressed as it is read ([`stream`]), never into memory; what comes out counts against
+//! the run's budget ([`crate::io::budget::RUN_BYTES`]) and may not pass
+//! [`crate::io::budget::BAG_FILE`]; a message, [`crate::io::budget::BAG_MESSAGE`]. (MCAP's own
+//! chunk compression is [`super::mcap`]'s; ROS 1 chunks are [`super::ros1`]'s.)
 
 use super::BagError;
+use crate::io::budget;
 use std::io::Read;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 /// The first bytes of every zstd frame.
 pub const ZSTD_MAGIC: &[u8] = &[0x28, 0xB5, 0x2F, 0xFD];
 
-/// Decompresses a whole zstd file (`path` names it in errors).
-pub fn zstd_file(bytes: &[u8], path: &Path) -> Result<Vec<u8>, BagError> {
-    let mut out = Vec::new();
-    stream(bytes, &mut out, crate::io::MAX_BAG_FILE, FILE).map_err(|source| BagError::Zstd {
-        what: path.display().to_string(),
-        source,
-    })?;
-    Ok(out)
+/// The first bytes of every LZ4 frame.
+pub const LZ4_MAGIC: &[u8] = &[0x04, 0x22, 0x4D, 0x18];
+
+/// How a whole file is compressed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Whole {
+    /// zstd frames (`.zstd`: rosbag2's `compression_mode: FILE`).
+    Zstd,
+    /// LZ4 frames (`.lz4`).
+    Lz4,
 }
 
-/// The first 16 bytes the zstd file at `path` decompresses to (what format it holds), if it
+impl Whole {
+    /// How a file starting with `head` is compressed whole, if it is.
+    pub fn of(head: &[u8]) -> Option<Whole> {
+        if head.starts_with(ZSTD_MAGIC) {
+            Some(Whole::Zstd)
+        } else if head.starts_with(LZ4_MAGIC) {
+            Some(Whole::Lz4)
+        } else {
+            None
+        }
+    }
+
+    /// The error `source` met decompressing the file at `path`.
+    pub fn error(self, path: &Path, source: std::io::Error) -> BagError {
+        match self {
+            Whole::Zstd => BagError::Zstd {
+                what: path.display().to_string(),
+                source,
+            },
+            Whole::Lz4 => BagError::Lz4 {
+                path: path.to_path_buf(),
+                source,
+            },
+        }
+    }
+}
+
+/// A reader that fails once more than [`budget::BAG_FILE`] bytes came through it, and counts
+/// what does against the run's budget.
+struct Bounded<R> {
+    inner: R,
+    read: u64,
+    path: PathBuf,
+}
+
+impl<R: Read> Read for Bounded<R> {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        let n = self.inner.read(buf)?;
+        self.read += n as u64;
+        let what = || format!("{} (compressed whole)", self.path.display());
+        budget::BAG_FILE.check(self.read, what())?;
+        budget::charge_bytes(n as u64, &what)?;
+        Ok(n)
+    }
+}
+
+/// LZ4 frames back to back, as one stream: each frame read to its end (a frame cut short is
+/// an error, not a shorter bag), then the next if bytes follow.
+struct Lz4Frames<R: Read> {
+    decoder: Option<lz4::Decoder<R>>,
+}
+
+impl<R: std::io::BufRead> Read for Lz4Frames<R> {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        loop {
+            let Some(decoder) = self.decoder.as_mut() else {
+                return Ok(0);
+            };
+            let n = decoder.read(buf)?;
+            if n > 0 || buf.is_empty() {
+                return Ok(n);
+            }
+            let Some(decoder) = self.decoder.take() else {
+                return Ok(0);
+            };
+            let (mut rest, done) = decoder.finish();
+            done.map_err(|_| {
+                std::io::Error::new(
+                    std::io::ErrorKind::UnexpectedEof,
+                    "a frame is cut short (a file copied or written in part?)",
+                )
+            })?;
+            if !rest.fill_buf()?.is_empty() {
+                self.decoder = Some(lz4::Decoder::new(rest)?);
+            }
+        }
+    }
+}
+
+/// The file at `path`, compressed whole, as a stream of what it decompresses to (failing past
+/// [`budget::BAG_FILE`]): for a container read as a stream, in memory near its largest record
+/// whatever the file's size.
+pub fn stream(path: &Path, whole: Whole) -> Result<Box<dyn Read>, BagError> {
+    let file =
+        crate::io::open_bounded(path, budget::BAG_FILE.get()).map_err(|source| BagError::Io {
+            path: path.to_path_buf(),
+            source,
+        })?;
+    let inner: Box<dyn Read> = match whole {
+        Whole::Zstd => {
+            Box::new(zstd::stream::read::Decoder::new(file).map_err(|e| whole.error(path, e))?)
+        }
+        Whole::Lz4 => Box::new(Lz4Frames {
+            decoder: Some(
+                lz4::Decoder::new(std::io::BufReader::new(file))
+                    .map_err(|e| whole.error(path, e))?,
+            ),
+        }),
+    };
+    Ok(Box::new(Bounded {
+        inner,
+        read: 0,
+        path: path.to_path_buf(),
+    }))
+}
+
+/// The first 16 bytes the file at `path` decompresses to (what format it holds), if it
 /// decompresses at all.
-pub fn zstd_head(path: &Path) -> Option<Vec<u8>> {
-    let file = crate::io::open_bounded(path, crate::io::MAX_BAG_FILE).ok()?;
+pub fn head(path: &Path, whole: Whole) -> Option<Vec<u8>> {
     let mut head = Vec::new();
-    zstd::stream::read::Decoder::new(file)
+    stream(path, whole)
         .ok()?
         .take(16)
         .read_to_end(&mut head)
@@ -36,86 +145,23 @@ pub fn zstd_head(path: &Path) -> Option<Vec<u8>> {
     Some(head)
 }
 
-/// A reader that fails once more than `left` bytes came through it (a file compressed whole
-/// that decompresses past its bound).
-struct Bounded<R> {
-    inner: R,
-    left: u64,
-}
-
-impl<R: Read> Read for Bounded<R> {
-    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
-        let n = self.inner.read(buf)?;
-        self.left = self
-            .left
-            .checked_sub(n as u64)
-            .ok_or_else(|| too_large(crate::io::MAX_BAG_FILE + 1, crate::io::MAX_BAG_FILE, FILE))?;
-        Ok(n)
-    }
-}
-
-/// The zstd file at `path` as a stream of what it decompresses to, failing past
-/// [`crate::io::MAX_BAG_FILE`]: for a container read as a stream, in memory near its largest
-/// record whatever the file's size.
-pub fn zstd_stream(path: &Path) -> Result<Box<dyn Read>, BagError> {
-    let file =
-        crate::io::open_bounded(path, crate::io::MAX_BAG_FILE).map_err(|source| BagError::Io {
-            path: path.to_path_buf(),
-            source,
-        })?;
-    let decoder = zstd::stream::read::Decoder::new(file).map_err(|source| BagError::Zstd {
-        what: path.display().to_string(),
-        source,
-    })?;
-    Ok(Box::new(Bounded {
-        inner: decoder,
-        left: crate::io::MAX_BAG_FILE,
-    }))
-}
-
-/// The first bytes of every LZ4 frame.
-pub const LZ4_MAGIC: &[u8] = &[0x04, 0x22, 0x4D, 0x18];
-
-/// Decompresses a whole file of LZ4 frames (`path` names it in errors): every frame of it,
-/// each read to its end (a frame cut short is an error, not a shorter bag).
-pub fn lz4_file(bytes: &[u8], path: &Path) -> Result<Vec<u8>, BagError> {
-    let error = |source| BagError::Lz4 {
-        path: path.to_path_buf(),
-        source,
-    };
-    let mut out = Vec::new();
-    let mut rest = bytes;
-    // The decoder stops at the end of a frame; the format allows several back to back.
-    while !rest.is_empty() {
-        let mut decoder = lz4::Decoder::new(rest).map_err(error)?;
-        bounded(&mut decoder, &mut out, crate::io::MAX_BAG_FILE, FILE).map_err(error)?;
-        let (left, done) = decoder.finish();
-        done.map_err(|_| {
-            error(std::io::Error::new(
-                std::io::ErrorKind::UnexpectedEof,
-                format!("a frame is cut short after {} bytes", out.len()),
-            ))
-        })?;
-        rest = left;
-    }
-    Ok(out)
-}
-
 /// Decompresses one message's frame into `out` (cleared first), reusing `ctx` between
 /// messages: a frame that records its size (rosbag2 compresses each message in one call, which
 /// records it) is decompressed in one step into exactly that much room. Neither may pass
-/// [`crate::io::MAX_BAG_MESSAGE`]: a frame that says it would is refused before a byte is
-/// decompressed, one that does not say stops there.
+/// [`budget::BAG_MESSAGE`]: a frame that says it would is refused before a byte is
+/// decompressed, one that does not say stops there. What comes out counts against the run's
+/// budget.
 pub fn zstd_message(
     frame: &[u8],
     ctx: &mut zstd::bulk::Decompressor<'static>,
     out: &mut Vec<u8>,
 ) -> std::io::Result<()> {
+    const WHAT: &str = "one compressed message";
     out.clear();
-    let bound = crate::io::MAX_BAG_MESSAGE;
+    let bound = budget::BAG_MESSAGE.get();
     match zstd::zstd_safe::get_frame_content_size(frame) {
         Ok(Some(n)) if n <= bound => {
-            out.reserve(usize::try_from(n).map_err(|_| too_large(n, bound, MESSAGE))?);
+            out.reserve(usize::try_from(n).map_err(|_| budget::BAG_MESSAGE.exceeded(n, WHAT))?);
             let written = ctx.decompress_to_buffer(frame, out)?;
             if written as u64 != n {
                 return Err(std::io::Error::new(
@@ -123,61 +169,46 @@ pub fn zstd_message(
                     format!("the frame says {n} bytes and holds {written}"),
                 ));
             }
-            Ok(())
         }
-        Ok(Some(n)) => Err(too_large(n, bound, MESSAGE)),
-        _ => stream(frame, out, bound, MESSAGE),
+        Ok(Some(n)) => return Err(budget::BAG_MESSAGE.exceeded(n, WHAT).into()),
+        _ => {
+            zstd::stream::read::Decoder::with_buffer(frame)?
+                .take(bound + 1)
+                .read_to_end(out)?;
+            if out.len() as u64 > bound {
+                return Err(budget::BAG_MESSAGE.exceeded(out.len() as u64, WHAT).into());
+            }
+        }
     }
-}
-
-const FILE: &str = "a bag file";
-const MESSAGE: &str = "a message on these topics";
-
-/// Streams every frame of `bytes` into `out`, stopping with an error past `bound`.
-fn stream(bytes: &[u8], out: &mut Vec<u8>, bound: u64, what: &str) -> std::io::Result<()> {
-    bounded(
-        &mut zstd::stream::read::Decoder::with_buffer(bytes)?,
-        out,
-        bound,
-        what,
-    )
-}
-
-/// Appends what a decoder gives to `out`, stopping with an error once `out` would pass
-/// `bound`.
-fn bounded(
-    decoder: &mut impl Read,
-    out: &mut Vec<u8>,
-    bound: u64,
-    what: &str,
-) -> std::io::Result<()> {
-    let room = (bound + 1).saturating_sub(out.len() as u64);
-    decoder.take(room).read_to_end(out)?;
-    if out.len() as u64 > bound {
-        return Err(too_large(out.len() as u64, bound, what));
-    }
+    budget::charge_bytes(out.len() as u64, &|| WHAT.to_string())?;
     Ok(())
-}
-
-fn too_large(n: u64, bound: u64, what: &str) -> std::io::Error {
-    std::io::Error::new(
-        std::io::ErrorKind::InvalidData,
-        format!(
-            "decompresses to {n} bytes or more, past the {} {what} may have (io::SIZE_BOUNDS)",
-            crate::io::bytes(bound)
-        ),
-    )
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
 
+    /// A file of `bytes` in a directory of its own under the system's temporary directory.
+    fn file(name: &str, bytes: &[u8]) -> PathBuf {
+        let dir =
+            std::env::temp_dir().join(format!("odocal-compression-{}-{name}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join(name);
+        std::fs::write(&path, bytes).unwrap();
+        path
+    }
+
+    fn all(path: &Path, whole: Whole) -> Result<Vec<u8>, std::io::Error> {
+        let mut out = Vec::new();
+        stream(path, whole).unwrap().read_to_end(&mut out)?;
+        Ok(out)
+    }
+
     #[test]
     fn files_and_messages_decompress_and_garbage_is_an_error() {
         let text = b"the same bytes, over and over ".repeat(100);
         let frame = zstd::bulk::compress(&text, 3).unwrap();
-        assert!(frame.starts_with(ZSTD_MAGIC));
+        assert_eq!(Whole::of(&frame), Some(Whole::Zstd));
         let mut ctx = zstd::bulk::Decompressor::new().unwrap();
         let mut out = vec![1, 2, 3];
         zstd_message(&frame, &mut ctx, &mut out).unwrap();
@@ -189,20 +220,37 @@ mod tests {
         enc.finish().unwrap();
         zstd_message(&streamed, &mut ctx, &mut out).unwrap();
         assert_eq!(out, text);
-        let two = [frame.clone(), streamed].concat();
+        let two = file("two.db3.zstd", &[frame.clone(), streamed].concat());
+        assert_eq!(head(&two, Whole::Zstd).unwrap(), text[..16]);
         assert_eq!(
-            zstd_file(&two, Path::new("x.db3.zstd")).unwrap(),
+            all(&two, Whole::Zstd).unwrap(),
             [text.clone(), text].concat()
         );
         // Cut short, or a lying header: errors.
         for cut in [4, frame.len() / 2, frame.len() - 1] {
             assert!(zstd_message(&frame[..cut], &mut ctx, &mut out).is_err());
-            assert!(matches!(
-                zstd_file(&frame[..cut], Path::new("x.db3.zstd")),
-                Err(BagError::Zstd { .. })
-            ));
+            let cut = file("cut.db3.zstd", &frame[..cut]);
+            assert!(all(&cut, Whole::Zstd).is_err());
         }
         assert!(zstd_message(&[0x28, 0xB5, 0x2F, 0xFD, 0xFF], &mut ctx, &mut out).is_err());
+    }
+
+    #[test]
+    fn a_message_past_its_budget_is_refused_whether_its_frame_says_so_or_not() {
+        let big = vec![0u8; (budget::BAG_MESSAGE.get() + 1) as usize];
+        let mut ctx = zstd::bulk::Decompressor::new().unwrap();
+        let mut out = Vec::new();
+        let recorded = zstd::bulk::compress(&big, 3).unwrap();
+        let mut streamed = Vec::new();
+        let mut enc = zstd::stream::write::Encoder::new(&mut streamed, 3).unwrap();
+        std::io::Write::write_all(&mut enc, &big).unwrap();
+        enc.finish().unwrap();
+        for frame in [recorded, streamed] {
+            let e = zstd_message(&frame, &mut ctx, &mut out)
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains("--budget bag-message="), "{e}");
+        }
     }
 
     #[test]
@@ -212,15 +260,20 @@ mod tests {
         std::io::Write::write_all(&mut enc, &text).unwrap();
         let (frame, done) = enc.finish();
         done.unwrap();
-        assert!(frame.starts_with(LZ4_MAGIC));
-        let two = [frame.clone(), frame.clone()].concat();
-        let path = Path::new("x.mcap.lz4");
-        assert_eq!(lz4_file(&two, path).unwrap(), [text.clone(), text].concat());
+        assert_eq!(Whole::of(&frame), Some(Whole::Lz4));
+        let two = file("two.mcap.lz4", &[frame.clone(), frame.clone()].concat());
+        assert_eq!(
+            all(&two, Whole::Lz4).unwrap(),
+            [text.clone(), text].concat()
+        );
         for cut in [4, frame.len() / 2, frame.len() - 1] {
-            assert!(
-                matches!(lz4_file(&frame[..cut], path), Err(BagError::Lz4 { .. })),
-                "cut at {cut}"
-            );
+            let path = file("cut.mcap.lz4", &frame[..cut]);
+            let result = match stream(&path, Whole::Lz4) {
+                Ok(mut r) => r.read_to_end(&mut Vec::new()).map(|_| ()),
+                Err(BagError::Lz4 { source, .. }) => Err(source),
+                Err(e) => panic!("{e}"),
+            };
+            assert!(result.is_err(), "cut at {cut}");
         }
     }
 }

@@ -282,6 +282,7 @@ pub fn read_container(bag: &dyn Container, opts: &BagOptions) -> Result<BagData,
         .collect();
     let mut r = Reading::default();
     bag.messages(&mut |m| {
+        crate::io::budget::charge_message(&|| format!("{} bag's messages", bag.format()))?;
         seen.entry(m.channel.topic.clone())
             .or_insert_with(|| m.channel.type_name.clone());
         match Role::ALL

@@ -4,11 +4,13 @@
 //! stays near the largest chunk, not the file.
 //!
 //! Bounds where the bytes are produced: a record or a compressed chunk past
-//! [`crate::io::MAX_BAG_CHUNK`] is refused before it is read; a chunk declaring more than that
-//! decompressed is refused before a byte of it is decompressed, and one holding more than it
-//! declares is an error at its declared size; a file compressed whole stops at
-//! [`crate::io::MAX_BAG_FILE`]. Chunks may be plain, zstd (rosbag2's default) or lz4. A record
-//! of opcode 0, which MCAP reserves and no writer writes (what zeros read as), ends the read.
+//! [`crate::io::budget::BAG_CHUNK`] is refused before it is read; a chunk declaring more than
+//! that decompressed is refused before a byte of it is decompressed, and one holding more than
+//! it declares is an error at its declared size; what chunks decompress to counts against the
+//! run's [`crate::io::budget::RUN_BYTES`]; a file compressed whole stops at
+//! [`crate::io::budget::BAG_FILE`]. Chunks may be plain, zstd (rosbag2's default) or lz4. A
+//! record of opcode 0, which MCAP reserves and no writer writes (what zeros read as), ends the
+//! read.
 
 use super::{BagError, Channel, Container, RawMessage};
 use ::mcap::records::{self, op, Record};
@@ -26,8 +28,8 @@ pub const MAGIC: &[u8] = ::mcap::MAGIC;
 enum Source {
     /// A file as it lies.
     File,
-    /// A file compressed whole with zstd (`.mcap.zstd`), decompressed as it is read.
-    ZstdFile,
+    /// A file compressed whole (zstd, lz4), decompressed as it is read.
+    Whole(super::compression::Whole),
     /// Bytes in memory.
     Bytes(Vec<u8>),
 }
@@ -66,7 +68,7 @@ fn io_error(path: &Path, source: std::io::Error) -> BagError {
 
 /// Most bytes of any one record or compressed chunk, as the reader's `usize` limit.
 fn record_limit() -> usize {
-    usize::try_from(crate::io::MAX_BAG_CHUNK).unwrap_or(usize::MAX)
+    usize::try_from(crate::io::budget::BAG_CHUNK.get()).unwrap_or(usize::MAX)
 }
 
 /// The summary of a seekable MCAP of `len` bytes, if it has one.
@@ -113,7 +115,7 @@ impl McapBag {
 
     /// The plain MCAP file at `path`, its summary read where it lies.
     pub fn open(path: &Path) -> Result<Self, BagError> {
-        let mut file = crate::io::open_bounded(path, crate::io::MAX_BAG_FILE)
+        let mut file = crate::io::open_bounded(path, crate::io::budget::BAG_FILE.get())
             .map_err(|e| io_error(path, e))?
             .into_inner();
         let len = file.metadata().map_err(|e| io_error(path, e))?.len();
@@ -128,10 +130,10 @@ impl McapBag {
 
     /// The MCAP file at `path` compressed whole with zstd: no summary (it cannot be sought),
     /// its channels learnt as it is read.
-    pub fn open_zstd(path: &Path) -> Result<Self, BagError> {
+    pub fn open_whole(path: &Path, whole: super::compression::Whole) -> Result<Self, BagError> {
         Ok(McapBag {
             path: path.to_path_buf(),
-            source: Source::ZstdFile,
+            source: Source::Whole(whole),
             summary: None,
             seen_metadata: RefCell::new(Vec::new()),
         })
@@ -142,10 +144,10 @@ impl McapBag {
         Ok(match &self.source {
             Source::Bytes(b) => Box::new(b.as_slice()),
             Source::File => Box::new(
-                crate::io::open_bounded(&self.path, crate::io::MAX_BAG_FILE)
+                crate::io::open_bounded(&self.path, crate::io::budget::BAG_FILE.get())
                     .map_err(|e| io_error(&self.path, e))?,
             ),
-            Source::ZstdFile => super::compression::zstd_stream(&self.path)?,
+            Source::Whole(whole) => super::compression::stream(&self.path, *whole)?,
         })
     }
 
@@ -172,7 +174,7 @@ impl McapBag {
                 f.seek(SeekFrom::Start(index.offset)).ok()?;
                 f.read_exact(&mut buf).ok()?;
             }
-            Source::ZstdFile => return None,
+            Source::Whole(_) => return None,
         }
         match ::mcap::parse_record(*buf.first()?, buf.get(9..)?) {
             Ok(Record::Metadata(m)) => Some(m.metadata),
@@ -191,9 +193,12 @@ pub fn open_in_place(path: &Path) -> Result<Box<dyn Container>, BagError> {
     Ok(Box::new(McapBag::open(path)?))
 }
 
-/// [`McapBag::open_zstd`] as a [`super::FileFormat`] opens a file compressed whole.
-pub fn open_zstd(path: &Path) -> Result<Box<dyn Container>, BagError> {
-    Ok(Box::new(McapBag::open_zstd(path)?))
+/// [`McapBag::open_whole`] as a [`super::FileFormat`] opens a file compressed whole.
+pub fn open_whole(
+    path: &Path,
+    whole: super::compression::Whole,
+) -> Result<Box<dyn Container>, BagError> {
+    Ok(Box::new(McapBag::open_whole(path, whole)?))
 }
 
 fn channel(c: &::mcap::Channel<'_>) -> Channel {
@@ -290,17 +295,17 @@ impl Pass {
         each: &mut dyn FnMut(RawMessage<'_>) -> Result<(), BagError>,
     ) -> Result<(), BagError> {
         let declared = header.uncompressed_size;
-        if declared > crate::io::MAX_BAG_CHUNK {
-            return Err(malformed(
-                path,
-                format!(
-                    "a chunk declares {declared} bytes decompressed, past the {} a chunk may \
-                     have (io::SIZE_BOUNDS); rewrite it with smaller chunks (`mcap convert`, \
-                     `ros2 bag convert`)",
-                    crate::io::bytes(crate::io::MAX_BAG_CHUNK)
-                ),
-            ));
-        }
+        crate::io::budget::BAG_CHUNK
+            .check(declared, "a chunk's declared size")
+            .map_err(|e| {
+                malformed(
+                    path,
+                    format!(
+                        "{e} (or rewrite the bag with smaller chunks: `mcap convert`, \
+                         `ros2 bag convert`)"
+                    ),
+                )
+            })?;
         let n = usize::try_from(declared).unwrap_or(usize::MAX);
         let mut buf = std::mem::take(&mut self.chunk);
         buf.clear();
@@ -342,6 +347,15 @@ impl Pass {
             return Err(bad(format!(
                 "it holds {got} bytes or more and declares {declared}"
             )));
+        }
+        if !header.compression.is_empty() {
+            let charged = crate::io::budget::charge_bytes(declared, &|| {
+                format!("{} (its chunks)", path.display())
+            });
+            if let Err(e) = charged {
+                self.chunk = buf;
+                return Err(malformed(path, e.to_string()));
+            }
         }
         let mut at = 0usize;
         let mut result = Ok(());
@@ -418,10 +432,7 @@ impl Container for McapBag {
                     let got = input
                         .read(reader.insert(n))
                         .map_err(|source| match self.source {
-                            Source::ZstdFile => BagError::Zstd {
-                                what: self.path.display().to_string(),
-                                source,
-                            },
+                            Source::Whole(whole) => whole.error(&self.path, source),
                             _ => io_error(&self.path, source),
                         })?;
                     reader.notify_read(got);

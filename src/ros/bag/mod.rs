@@ -11,8 +11,8 @@
 //!   order, each through [`open_file`]. A new format is one file behind that trait plus one
 //!   line in [`FILE_FORMATS`];
 //! - [`compression`] undoes zstd where rosbag2 puts it: whole files (`.db3.zstd`,
-//!   `.mcap.zstd`) and single messages, and whole files in LZ4 frames (`.lz4`), always within
-//!   [`crate::io::MAX_BAG_FILE`];
+//!   `.mcap.zstd`) and single messages, and whole files in LZ4 frames (`.lz4`), as a stream
+//!   and always within the budgets of [`crate::io::budget`];
 //! - [`decode`] turns any container's messages into [`BagData`] (topics resolved by type,
 //!   wheel joints picked by name, angles unwrapped, header stamps, CDR or ROS 1 wire form);
 //! - [`validate`] checks each stream as `track --log` checks a log: time forward, samples
@@ -110,6 +110,9 @@ pub enum BagError {
         #[source]
         source: std::io::Error,
     },
+    /// A run's budget exceeded (the error names the budget and the flag that raises it).
+    #[error(transparent)]
+    Budget(#[from] crate::io::budget::Exceeded),
     /// A file of LZ4 frames that does not decompress within the size bound.
     #[error("{}: lz4: {source}", path.display())]
     Lz4 {
@@ -429,12 +432,12 @@ pub struct FileFormat {
     pub extension: &'static str,
     /// Opens a file of it from its bytes (`path` names it in errors).
     pub open: fn(Vec<u8>, &Path) -> Opened,
-    /// Opens a plain file of it where it lies, for a format whose reader reads only what it
-    /// needs (SQLite's pages, MCAP's and ROS 1's records as a stream); `None`: from its bytes.
-    pub open_in_place: Option<fn(&Path) -> Opened>,
-    /// Opens a file of it compressed whole with zstd, to be decompressed as it is read, for a
-    /// format read as a stream (MCAP, ROS 1); `None`: decompressed into memory first.
-    pub open_zstd: Option<fn(&Path) -> Opened>,
+    /// Opens a plain file of it where it lies (SQLite's pages, MCAP's and ROS 1's records as
+    /// a stream).
+    pub open_in_place: fn(&Path) -> Opened,
+    /// Opens a file of it compressed whole, decompressed as it is read (into a temporary file
+    /// for SQLite).
+    pub open_whole: fn(&Path, compression::Whole) -> Opened,
 }
 
 /// Every single-file container format odocal reads.
@@ -444,24 +447,24 @@ pub const FILE_FORMATS: &[FileFormat] = &[
         magic: mcap::MAGIC,
         extension: "mcap",
         open: mcap::open,
-        open_in_place: Some(mcap::open_in_place),
-        open_zstd: Some(mcap::open_zstd),
+        open_in_place: mcap::open_in_place,
+        open_whole: mcap::open_whole,
     },
     FileFormat {
         name: "sqlite3",
         magic: sqlite3::MAGIC,
         extension: "db3",
         open: sqlite3::open,
-        open_in_place: Some(sqlite3::open_in_place),
-        open_zstd: None,
+        open_in_place: sqlite3::open_in_place,
+        open_whole: sqlite3::open_whole,
     },
     FileFormat {
         name: "ROS 1",
         magic: ros1::MAGIC,
         extension: "bag",
         open: ros1::open,
-        open_in_place: Some(ros1::open_in_place),
-        open_zstd: Some(ros1::open_zstd),
+        open_in_place: ros1::open_in_place,
+        open_whole: ros1::open_whole,
     },
 ];
 
@@ -478,50 +481,38 @@ pub fn open_container(path: &Path) -> Result<Box<dyn Container>, BagError> {
     open_file(path)
 }
 
-/// One bag file (a regular file within [`crate::io::MAX_BAG_FILE`]) opened as the format its
-/// first bytes say: where it lies (or, compressed whole with zstd, decompressed as it is
-/// read) when the format reads it so, else from its bytes, read whole and decompressed first
-/// when it is a zstd or an LZ4 file.
+/// One bag file (a regular file within [`crate::io::budget::BAG_FILE`]) opened as the format
+/// its first bytes say: where it lies, or compressed whole (zstd, lz4) decompressed as it is
+/// read. Never read into memory whole.
 pub fn open_file(path: &Path) -> Result<Box<dyn Container>, BagError> {
     use std::io::Read;
     let io = |source| BagError::Io {
         path: path.to_path_buf(),
         source,
     };
-    let mut file = crate::io::open_bounded(path, crate::io::MAX_BAG_FILE).map_err(io)?;
-    let len = file.get_ref().metadata().map_err(io)?.len();
-    let mut bytes = Vec::new();
-    (&mut file).take(16).read_to_end(&mut bytes).map_err(io)?;
-    let in_place = FILE_FORMATS
-        .iter()
-        .find(|f| bytes.starts_with(f.magic))
-        .and_then(|f| f.open_in_place);
-    if let Some(open) = in_place {
-        return open(path);
+    // Enough to tell a format by, and what a file that is none looks like.
+    const HEAD: u64 = 512;
+    let mut head = Vec::new();
+    crate::io::open_bounded(path, crate::io::budget::BAG_FILE.get())
+        .map_err(io)?
+        .take(HEAD)
+        .read_to_end(&mut head)
+        .map_err(io)?;
+    if let Some(format) = FILE_FORMATS.iter().find(|f| head.starts_with(f.magic)) {
+        return (format.open_in_place)(path);
     }
-    if bytes.starts_with(compression::ZSTD_MAGIC) {
-        if let Some(open) = compression::zstd_head(path)
-            .and_then(|head| FILE_FORMATS.iter().find(|f| head.starts_with(f.magic)))
-            .and_then(|f| f.open_zstd)
-        {
-            return open(path);
+    if let Some(whole) = compression::Whole::of(&head) {
+        let mut inner = Vec::new();
+        compression::stream(path, whole)?
+            .take(HEAD)
+            .read_to_end(&mut inner)
+            .map_err(|e| whole.error(path, e))?;
+        if let Some(format) = FILE_FORMATS.iter().find(|f| inner.starts_with(f.magic)) {
+            return (format.open_whole)(path, whole);
         }
+        head = inner;
     }
-    // Room for the whole file at once rather than grown (and copied) as it is read.
-    bytes.reserve(
-        usize::try_from(len)
-            .unwrap_or(0)
-            .saturating_sub(bytes.len()),
-    );
-    file.read_to_end(&mut bytes).map_err(io)?;
-    let bytes = if bytes.starts_with(compression::ZSTD_MAGIC) {
-        compression::zstd_file(&bytes, path)?
-    } else if bytes.starts_with(compression::LZ4_MAGIC) {
-        compression::lz4_file(&bytes, path)?
-    } else {
-        bytes
-    };
-    container_of(bytes, path)
+    Err(unknown(&head, path))
 }
 
 /// The container of `bytes` (read from `path`, already decompressed), told by its content.
@@ -529,6 +520,12 @@ pub fn container_of(bytes: Vec<u8>, path: &Path) -> Result<Box<dyn Container>, B
     if let Some(format) = FILE_FORMATS.iter().find(|f| bytes.starts_with(f.magic)) {
         return (format.open)(bytes, path);
     }
+    Err(unknown(&bytes, path))
+}
+
+/// The error for a file whose (decompressed) content starts with `bytes` and is no bag odocal
+/// reads: what it looks like, and what its name promised.
+fn unknown(bytes: &[u8], path: &Path) -> BagError {
     let starts: String = bytes
         .iter()
         .take(16)
@@ -551,23 +548,23 @@ pub fn container_of(bytes: Vec<u8>, path: &Path) -> Result<Box<dyn Container>, B
         .iter()
         .find(|f| name.rsplit_once('.').is_some_and(|(_, e)| e == f.extension))
     {
-        return Err(BagError::Container {
+        return BagError::Container {
             path: path.to_path_buf(),
             format: format.name,
             reason: format!(
                 "it does not start with {}'s magic bytes (it starts {starts:?}{})",
                 format.name,
-                looks_like(&bytes)
+                looks_like(bytes)
                     .map(|l| format!(", {l}"))
                     .unwrap_or_default()
             ),
-        });
+        };
     }
-    Err(BagError::NotABag {
+    BagError::NotABag {
         path: path.to_path_buf(),
         starts,
-        looks_like: looks_like(&bytes),
-    })
+        looks_like: looks_like(bytes),
+    }
 }
 
 /// What a file that is no bag odocal reads looks like, by its first bytes.

@@ -8,9 +8,10 @@
 //! same; the connections at `index_pos` give the channels up front.
 //!
 //! A bag file is read as a stream, one record at a time (a plain file where it lies, its index
-//! sought; one compressed whole with zstd as it decompresses, without its index), so memory
-//! stays near its largest chunk: a record's data and a chunk's declared size are bounded by
-//! [`crate::io::MAX_BAG_CHUNK`], checked before either is read.
+//! sought; one compressed whole as it decompresses, without its index), so memory stays near
+//! its largest chunk: a record's data and a chunk's declared size are bounded by
+//! [`crate::io::budget::BAG_CHUNK`], checked before either is read; what chunks decompress to
+//! counts against the run's [`crate::io::budget::RUN_BYTES`].
 
 use super::{BagError, Channel, Container, RawMessage};
 use std::collections::BTreeMap;
@@ -136,8 +137,8 @@ enum Source {
     Bytes(Vec<u8>),
     /// A plain file, read where it lies.
     File,
-    /// A file compressed whole with zstd, decompressed as it is read.
-    ZstdFile,
+    /// A file compressed whole (zstd, lz4), decompressed as it is read.
+    Whole(super::compression::Whole),
 }
 
 /// A ROS 1 bag, in memory or read as a stream each time its messages are asked for.
@@ -188,16 +189,7 @@ fn read_record(input: &mut dyn Read, buf: &mut Vec<u8>) -> std::io::Result<Optio
     }
     input.read_exact(&mut len).map_err(|_| cut())?;
     let data_len = u64::from(u32::from_le_bytes(len));
-    if data_len > crate::io::MAX_BAG_CHUNK {
-        return Err(Error::new(
-            ErrorKind::InvalidData,
-            format!(
-                "a record of {data_len} bytes, past the {} a record may have \
-                 (io::SIZE_BOUNDS)",
-                crate::io::bytes(crate::io::MAX_BAG_CHUNK)
-            ),
-        ));
-    }
+    crate::io::budget::BAG_CHUNK.check(data_len, "a record's data")?;
     input.take(data_len).read_to_end(buf)?;
     if buf.len() as u64 != header_len + data_len {
         return Err(cut());
@@ -251,7 +243,7 @@ impl Ros1Bag {
             path: path.to_path_buf(),
             indexed: None,
         };
-        let mut file = crate::io::open_bounded(path, crate::io::MAX_BAG_FILE)
+        let mut file = crate::io::open_bounded(path, crate::io::budget::BAG_FILE.get())
             .map_err(|e| bag.io(e))?
             .into_inner();
         let len = file.metadata().map_err(|e| bag.io(e))?.len();
@@ -270,9 +262,9 @@ impl Ros1Bag {
 
     /// The bag file at `path` compressed whole with zstd: its header checked; no index (it
     /// cannot be sought), the connections learnt as it is read.
-    pub fn open_zstd(path: &Path) -> Result<Self, BagError> {
+    pub fn open_whole(path: &Path, whole: super::compression::Whole) -> Result<Self, BagError> {
         let bag = Ros1Bag {
-            source: Source::ZstdFile,
+            source: Source::Whole(whole),
             path: path.to_path_buf(),
             indexed: None,
         };
@@ -303,10 +295,10 @@ impl Ros1Bag {
         Ok(match &self.source {
             Source::Bytes(b) => Box::new(b.as_slice()),
             Source::File => Box::new(
-                crate::io::open_bounded(&self.path, crate::io::MAX_BAG_FILE)
+                crate::io::open_bounded(&self.path, crate::io::budget::BAG_FILE.get())
                     .map_err(|e| self.io(e))?,
             ),
-            Source::ZstdFile => super::compression::zstd_stream(&self.path)?,
+            Source::Whole(whole) => super::compression::stream(&self.path, *whole)?,
         })
     }
 
@@ -336,9 +328,12 @@ pub fn open_in_place(path: &Path) -> Result<Box<dyn Container>, BagError> {
     Ok(Box::new(Ros1Bag::open(path)?))
 }
 
-/// [`Ros1Bag::open_zstd`] as a [`super::FileFormat`] opens a file compressed whole.
-pub fn open_zstd(path: &Path) -> Result<Box<dyn Container>, BagError> {
-    Ok(Box::new(Ros1Bag::open_zstd(path)?))
+/// [`Ros1Bag::open_whole`] as a [`super::FileFormat`] opens a file compressed whole.
+pub fn open_whole(
+    path: &Path,
+    whole: super::compression::Whole,
+) -> Result<Box<dyn Container>, BagError> {
+    Ok(Box::new(Ros1Bag::open_whole(path, whole)?))
 }
 
 /// A connection record's id and channel.
@@ -451,14 +446,14 @@ impl Ros1Bag {
                 "chunk at byte {at} without its uncompressed `size`"
             ))
         })?;
-        if u64::from(size) > crate::io::MAX_BAG_CHUNK {
-            return Err(self.malformed(format!(
-                "the chunk at byte {at} declares {size} bytes uncompressed, past the {} a chunk \
-                 may have (io::SIZE_BOUNDS); `rosbag compress` or `rosbag reindex` with a smaller \
-                 --chunk-threshold rewrites it",
-                crate::io::bytes(crate::io::MAX_BAG_CHUNK)
-            )));
-        }
+        crate::io::budget::BAG_CHUNK
+            .check(u64::from(size), format!("the chunk at byte {at}"))
+            .map_err(|e| {
+                self.malformed(format!(
+                    "{e} (or rewrite the bag with smaller chunks: `rosbag compress` with a \
+                     smaller --chunk-threshold)"
+                ))
+            })?;
         let inflate = |reader: &mut dyn Read, out: &mut Vec<u8>| {
             out.clear();
             reader.take(u64::from(size) + 1).read_to_end(out)
@@ -496,6 +491,10 @@ impl Ros1Bag {
                 ),
             )));
         }
+        crate::io::budget::charge_bytes(u64::from(size), &|| {
+            format!("{} (its chunks)", self.path.display())
+        })
+        .map_err(|e| self.malformed(e.to_string()))?;
         Ok(out)
     }
 }
@@ -528,11 +527,9 @@ impl Container for Ros1Bag {
                     "a record cut short at byte {at} (a recording cut off?)"
                 )),
                 std::io::ErrorKind::InvalidData => self.malformed(format!("at byte {at}: {e}")),
+                std::io::ErrorKind::QuotaExceeded => self.io(e),
                 _ => match self.source {
-                    Source::ZstdFile => BagError::Zstd {
-                        what: self.path.display().to_string(),
-                        source: e,
-                    },
+                    Source::Whole(whole) => whole.error(&self.path, e),
                     _ => self.io(e),
                 },
             })?;
@@ -733,7 +730,13 @@ mod tests {
         long = [(long.len() as u32).to_le_bytes().to_vec(), long].concat();
         long.extend((300u32 << 20).to_le_bytes());
         let err = read([head.clone(), long].concat()).unwrap_err().to_string();
-        assert!(err.contains("past the 256 MiB a record may have"), "{err}");
+        assert!(
+            err.contains(
+                "a record's data reaches 314572800 bytes, past the 256 MiB budget `bag-chunk`"
+            ),
+            "{err}"
+        );
+        assert!(err.contains("--budget bag-chunk=512MiB"), "{err}");
         // A record header of 2 MiB.
         let mut wide = (2u32 << 20).to_le_bytes().to_vec();
         wide.extend([0u8; 16]);
@@ -750,9 +753,10 @@ mod tests {
         );
         let err = read([head, chunk].concat()).unwrap_err().to_string();
         assert!(
-            err.contains("declares 314572800 bytes uncompressed, past the 256 MiB"),
+            err.contains("reaches 314572800 bytes, past the 256 MiB budget `bag-chunk`"),
             "{err}"
         );
+        assert!(err.contains("--budget bag-chunk=512MiB"), "{err}");
     }
 
     #[test]

@@ -4,9 +4,12 @@
 //!
 //! A plain file is opened where it lies, read-only and `immutable` (SQLite reads the pages it
 //! needs, takes no lock and creates nothing beside the file: no journal, no WAL index); a
-//! decompressed `.db3.zstd` is opened from its bytes in memory. Either way a file shorter
-//! than its header says is refused first: SQLite would read the missing pages as zeros.
+//! `.db3.zstd` or `.db3.lz4` is decompressed as a stream into a temporary file (as rosbag2's
+//! own reader does: SQLite reads only files), removed when the bag is dropped, and opened
+//! there; bytes already in memory are opened there. Either way a file shorter than its header
+//! says is refused first: SQLite would read the missing pages as zeros.
 
+use super::compression::{self, Whole};
 use super::{BagError, Channel, Container, RawMessage};
 use rusqlite::types::ValueRef;
 use rusqlite::{Connection, OpenFlags};
@@ -26,6 +29,19 @@ pub struct Sqlite3Bag {
     /// Channels by topic id, in id order.
     topics: BTreeMap<i64, Channel>,
     notes: Vec<String>,
+    /// The decompressed copy the database is read from, if any: after `db`, so dropped after
+    /// it is closed.
+    _copy: Option<Temporary>,
+}
+
+/// A temporary file, removed when dropped.
+struct Temporary(PathBuf);
+
+impl Drop for Temporary {
+    fn drop(&mut self) {
+        // Nothing to tell anyone if it is gone already.
+        let _ = std::fs::remove_file(&self.0);
+    }
 }
 
 impl Sqlite3Bag {
@@ -57,18 +73,75 @@ impl Sqlite3Bag {
     /// Opens the plain database file `path` where it lies (its size and kind already checked
     /// by the caller), read-only and immutable, and reads its topics.
     pub fn in_place(path: &Path) -> Result<Self, BagError> {
+        Self::at(path, path)
+    }
+
+    /// The database file `path` compressed whole, decompressed as a stream into a temporary
+    /// file (in the system's temporary directory, `TMPDIR`) and opened there.
+    pub fn decompressed(path: &Path, whole: Whole) -> Result<Self, BagError> {
+        use std::io::{Read, Write};
+        let mut input = compression::stream(path, whole)?;
+        let dir = std::env::temp_dir();
+        let (copy, mut file) = (0u32..)
+            .map(|n| dir.join(format!("odocal-{}-{n}.db3", std::process::id())))
+            .take(1000)
+            .find_map(|p| {
+                let f = std::fs::OpenOptions::new()
+                    .write(true)
+                    .create_new(true)
+                    .open(&p)
+                    .ok()?;
+                Some((Temporary(p), f))
+            })
+            .ok_or_else(|| BagError::Io {
+                path: dir.clone(),
+                source: std::io::Error::other(
+                    "no temporary file can be created there to decompress the bag into; \
+                     set TMPDIR to a writable directory",
+                ),
+            })?;
+        let written = |source: std::io::Error| BagError::Io {
+            path: copy.0.clone(),
+            source: std::io::Error::new(
+                source.kind(),
+                format!(
+                    "the decompressed copy of {}: {source} (set TMPDIR to a disk with room \
+                     for it)",
+                    path.display()
+                ),
+            ),
+        };
+        let mut buf = vec![0u8; 1 << 20];
+        loop {
+            let n = input.read(&mut buf).map_err(|e| whole.error(path, e))?;
+            if n == 0 {
+                break;
+            }
+            file.write_all(&buf[..n]).map_err(written)?;
+        }
+        file.flush().map_err(written)?;
+        drop(file);
+        let mut bag = Self::at(&copy.0, path)?;
+        bag._copy = Some(copy);
+        Ok(bag)
+    }
+
+    /// Opens the database file `file`, named `path` in errors.
+    fn at(file: &Path, path: &Path) -> Result<Self, BagError> {
         let io = |source| BagError::Io {
             path: path.to_path_buf(),
             source,
         };
         let mut head = Vec::with_capacity(HEADER);
-        let file = crate::io::open_bounded(path, crate::io::MAX_BAG_FILE).map_err(io)?;
+        let file_path = file;
+        let file =
+            crate::io::open_bounded(file_path, crate::io::budget::BAG_FILE.get()).map_err(io)?;
         let len = file.get_ref().metadata().map_err(io)?.len();
         std::io::Read::read_to_end(&mut std::io::Read::take(file, HEADER as u64), &mut head)
             .map_err(io)?;
         check_length(&head, len, path)?;
         let db = Connection::open_with_flags(
-            uri(path),
+            uri(file_path),
             OpenFlags::SQLITE_OPEN_READ_ONLY
                 | OpenFlags::SQLITE_OPEN_NO_MUTEX
                 | OpenFlags::SQLITE_OPEN_URI,
@@ -135,6 +208,7 @@ impl Sqlite3Bag {
             path: path.to_path_buf(),
             topics,
             notes,
+            _copy: None,
         })
     }
 
@@ -218,6 +292,11 @@ pub fn open_in_place(path: &Path) -> Result<Box<dyn Container>, BagError> {
     Ok(Box::new(Sqlite3Bag::in_place(path)?))
 }
 
+/// [`Sqlite3Bag::decompressed`] as a [`super::FileFormat`] opens a file compressed whole.
+pub fn open_whole(path: &Path, whole: Whole) -> Result<Box<dyn Container>, BagError> {
+    Ok(Box::new(Sqlite3Bag::decompressed(path, whole)?))
+}
+
 impl Container for Sqlite3Bag {
     fn format(&self) -> &'static str {
         "sqlite3"
@@ -236,14 +315,36 @@ impl Container for Sqlite3Bag {
             source,
         };
         // rosbag2's reader orders by time; the id keeps equal stamps in recording order.
+        // rosbag2 indexes the timestamps, and SQLite then walks that index, holding one message
+        // at a time. Without the index it would sort: then only the keys are sorted and each
+        // message's data fetched by its id in that order, since sorting the data too would hold
+        // the whole bag in memory (this SQLite sorts in memory).
+        const IN_ORDER: &str =
+            "SELECT id, topic_id, timestamp, data FROM messages ORDER BY timestamp, id";
+        const KEYS_IN_ORDER: &str =
+            "SELECT id, topic_id, timestamp, NULL FROM messages ORDER BY timestamp, id";
+        let plan: Vec<String> = self
+            .db
+            .prepare(&format!("EXPLAIN QUERY PLAN {IN_ORDER}"))
+            .and_then(|mut s| {
+                s.query_map([], |r| r.get::<_, String>(3))?
+                    .collect::<Result<_, _>>()
+            })
+            .map_err(sql)?;
+        let sorts = plan.iter().any(|step| step.contains("TEMP B-TREE"));
         let mut stmt = self
             .db
-            .prepare("SELECT topic_id, timestamp, data FROM messages ORDER BY timestamp, id")
+            .prepare(if sorts { KEYS_IN_ORDER } else { IN_ORDER })
+            .map_err(sql)?;
+        let mut fetch = self
+            .db
+            .prepare("SELECT data FROM messages WHERE id = ?1")
             .map_err(sql)?;
         let mut rows = stmt.query([]).map_err(sql)?;
         while let Some(row) = rows.next().map_err(sql)? {
-            let topic_id: i64 = row.get(0).map_err(sql)?;
-            let stamp: i64 = row.get(1).map_err(sql)?;
+            let id: i64 = row.get(0).map_err(sql)?;
+            let topic_id: i64 = row.get(1).map_err(sql)?;
+            let stamp: i64 = row.get(2).map_err(sql)?;
             let Some(channel) = self.topics.get(&topic_id) else {
                 return Err(self.malformed(format!(
                     "a message of topic id {topic_id}, which the topics table does not have"
@@ -252,7 +353,17 @@ impl Container for Sqlite3Bag {
             let log_time_ns = u64::try_from(stamp).map_err(|_| {
                 self.malformed(format!("a message stamped {stamp} ns, before 1970"))
             })?;
-            let data = match row.get_ref(2).map_err(sql)? {
+            let mut fetched;
+            let data = if sorts {
+                fetched = fetch.query([id]).map_err(sql)?;
+                let Some(data) = fetched.next().map_err(sql)? else {
+                    return Err(self.malformed(format!("message {id} went missing while read")));
+                };
+                data.get_ref(0).map_err(sql)?
+            } else {
+                row.get_ref(3).map_err(sql)?
+            };
+            let data = match data {
                 ValueRef::Blob(b) => b,
                 other => {
                     return Err(self.malformed(format!(
@@ -281,6 +392,11 @@ mod tests {
 
     /// A rosbag2 schema-1 database (Foxy's: no QoS column) written here, as SQLite writes it.
     fn database(rows: &[(i64, i64, &[u8])]) -> Vec<u8> {
+        database_with(rows, "")
+    }
+
+    /// [`database`] with `extra` SQL run after the tables are made (an index).
+    fn database_with(rows: &[(i64, i64, &[u8])], extra: &str) -> Vec<u8> {
         let mut db = Connection::open_in_memory().unwrap();
         db.execute_batch(
             "CREATE TABLE topics(id INTEGER PRIMARY KEY, name TEXT NOT NULL, type TEXT NOT NULL,
@@ -290,6 +406,7 @@ mod tests {
              INSERT INTO topics VALUES (1, '/imu', 'sensor_msgs/msg/Imu', 'cdr');",
         )
         .unwrap();
+        db.execute_batch(extra).unwrap();
         for (topic, t, data) in rows {
             db.execute(
                 "INSERT INTO messages(topic_id, timestamp, data) VALUES (?1, ?2, ?3)",
@@ -319,6 +436,17 @@ mod tests {
         let order: Vec<&[u8]> = got.iter().map(|(_, d)| d.as_slice()).collect();
         assert_eq!(order, [b"a", b"b", b"c", b"d"]);
         assert_eq!(got[0].0, 10);
+        // With rosbag2's timestamp index (walked, not sorted), the same order.
+        let rows: &[(i64, i64, &[u8])] =
+            &[(1, 30, b"c"), (1, 10, b"a"), (1, 30, b"d"), (1, 20, b"b")];
+        let indexed = database_with(
+            rows,
+            "CREATE INDEX timestamp_idx ON messages (timestamp ASC);",
+        );
+        let bag = Sqlite3Bag::new(indexed, Path::new("x.db3")).unwrap();
+        let got = read(&bag).unwrap();
+        let order: Vec<&[u8]> = got.iter().map(|(_, d)| d.as_slice()).collect();
+        assert_eq!(order, [b"a", b"b", b"c", b"d"]);
     }
 
     #[test]
