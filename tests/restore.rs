@@ -566,3 +566,137 @@ async fn a_backup_edited_to_name_another_robots_file_is_refused_and_never_pours_
     assert!(ok, "{err}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// A store on a full disk: it reads and stages as the file store under it does, and its commit
+/// (where a file store writes its file) fails as a full disk fails a write.
+struct FullDisk(Arc<dyn ParamStore>);
+
+#[async_trait::async_trait]
+impl ParamStore for FullDisk {
+    fn info(&self) -> odocal::base::ComponentInfo {
+        self.0.info()
+    }
+    async fn read(&self) -> Result<WheelParams, odocal::base::BaseError> {
+        self.0.read().await
+    }
+    async fn write(&self, params: &WheelParams) -> Result<WheelParams, odocal::base::BaseError> {
+        self.0.write(params).await
+    }
+    async fn commit(&self) -> Result<(), odocal::base::BaseError> {
+        Err(odocal::base::BaseError::Backend {
+            component: "store".into(),
+            source: Box::new(std::io::Error::from(std::io::ErrorKind::StorageFull)),
+        })
+    }
+    async fn read_committed(&self) -> Result<Option<WheelParams>, odocal::base::BaseError> {
+        self.0.read_committed().await
+    }
+    fn resolution(&self) -> WheelParams {
+        self.0.resolution()
+    }
+    fn file(&self) -> Option<PathBuf> {
+        self.0.file()
+    }
+    fn written_keys(&self) -> &'static [&'static str] {
+        self.0.written_keys()
+    }
+}
+
+/// A write that fails on a full disk: the transaction reports it, the rollback cannot write
+/// either and says what the store holds (its original: nothing was written), the file is as
+/// it was byte for byte, and the backup taken first restores it.
+#[tokio::test]
+async fn a_store_on_a_full_disk_fails_its_write_and_keeps_the_file_and_its_backup() {
+    let dir = scratch("restore-full-disk-store");
+    std::fs::create_dir_all(&dir).unwrap();
+    let file = dir.join("diff_drive.yaml");
+    std::fs::write(&file, common::DIFF_DRIVE_YAML).unwrap();
+    let store: Arc<dyn ParamStore> = Arc::new(FullDisk(open_yaml(&file)));
+    let original = store.read().await.unwrap();
+    let mut tx = Transaction::begin(store.clone(), &dir.join("report"))
+        .await
+        .unwrap();
+    let backup = tx.backup_path().unwrap().to_path_buf();
+    let err = tx.apply(&changed(&original)).await.unwrap_err().to_string();
+    assert!(err.contains("no storage space"), "{err}");
+    assert!(tx.written());
+    let (_, committed) = tx.what_the_store_holds().await;
+    assert!(
+        matches!(committed, odocal::base::transaction::Holds::Original),
+        "{committed}"
+    );
+    // Putting the original back needs a write too: it fails the same way, and says so.
+    let err = tx.rollback().await.unwrap_err().to_string();
+    assert!(err.contains("no storage space"), "{err}");
+    drop(tx);
+    assert_eq!(
+        std::fs::read_to_string(&file).unwrap(),
+        common::DIFF_DRIVE_YAML
+    );
+    assert!(same_within(
+        &open_yaml(&file).read().await.unwrap(),
+        &original,
+        &store.resolution()
+    ));
+    // Only the backup was made, and it holds the file's text.
+    assert_eq!(
+        files(&dir),
+        BTreeSet::from([file.clone(), dir.join("report")])
+    );
+    assert_eq!(files(&dir.join("report")), BTreeSet::from([backup.clone()]));
+    assert_eq!(
+        read_backup(&backup).unwrap().text.as_deref(),
+        Some(common::DIFF_DRIVE_YAML)
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// `odocal restore` on a disk that takes no more than the file already holds (a process file
+/// size limit, as a full disk refuses a write): the backup of what the store holds cannot be
+/// written, so nothing is written, no empty or cut-off backup is left, and the error says why.
+#[cfg(unix)]
+#[tokio::test]
+async fn a_backup_a_full_disk_refuses_leaves_no_file_and_writes_nothing() {
+    use std::os::unix::process::CommandExt;
+    let dir = scratch("restore-full-disk-backup");
+    std::fs::create_dir_all(&dir).unwrap();
+    let file = dir.join("diff_drive.yaml");
+    std::fs::write(&file, common::DIFF_DRIVE_YAML).unwrap();
+    let mut tx = Transaction::begin(open_yaml(&file), &dir.join("report"))
+        .await
+        .unwrap();
+    let backup = tx.backup_path().unwrap().to_path_buf();
+    let original = open_yaml(&file).read().await.unwrap();
+    tx.apply(&changed(&original)).await.unwrap();
+    drop(tx);
+    let changed_text = std::fs::read(&file).unwrap();
+    let before = files(&dir);
+    let limit = changed_text.len() as u64;
+    let mut cmd = std::process::Command::new(env!("CARGO_BIN_EXE_odocal"));
+    cmd.args(["restore", backup.to_str().unwrap(), "--yes"]);
+    // SAFETY: only async-signal-safe calls between fork and exec.
+    unsafe {
+        cmd.pre_exec(move || {
+            // A write past the limit then fails with EFBIG instead of killing the process.
+            libc::signal(libc::SIGXFSZ, libc::SIG_IGN);
+            let lim = libc::rlimit {
+                rlim_cur: limit,
+                rlim_max: limit,
+            };
+            if libc::setrlimit(libc::RLIMIT_FSIZE, &lim) != 0 {
+                return Err(std::io::Error::last_os_error());
+            }
+            Ok(())
+        });
+    }
+    let out = cmd.output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{err}");
+    assert!(err.contains("backup"), "{err}");
+    assert!(err.to_lowercase().contains("too large"), "{err}");
+    assert!(err.contains("nothing was changed (free space"), "{err}");
+    assert!(!err.contains("panicked"), "{err}");
+    assert_eq!(std::fs::read(&file).unwrap(), changed_text);
+    assert_eq!(files(&dir), before, "a backup file left behind");
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -72,7 +72,10 @@ pub enum BaseError {
         what: String,
     },
     /// The parameter backup could not be written: nothing was changed.
-    #[error("cannot write the parameter backup {path}: {source}; nothing was changed")]
+    #[error(
+        "cannot write the parameter backup {path}: {source}; nothing was changed (free space \
+         on that disk or make the directory writable, then run again)"
+    )]
     Backup {
         /// The backup file.
         path: PathBuf,
