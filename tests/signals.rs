@@ -1,6 +1,8 @@
 //! `odocal calibrate` on `odocal mock-device` (20 times real speed), and on `odocal
-//! mock-roboclaw` with its robot profile, interrupted by a signal in each phase — SIGINT (Ctrl-C), and SIGTERM and SIGHUP (what a service manager, `timeout`, a
-//! closed SSH session send), handled alike: the command fails, its last two lines say that the
+//! mock-roboclaw` with its robot profile, interrupted in each phase (pre-flight, round 1,
+//! round 2, verification) by each signal — SIGINT (Ctrl-C) on the device, and SIGTERM and
+//! SIGHUP (what a service manager, `timeout`, a closed SSH session send) on both — handled
+//! alike: the command fails, its last two lines say that the
 //! robot stopped and what its parameters are, the device is idle and holds what the lines say,
 //! and nothing is left outside the report directory (nothing at all when nothing was driven).
 
@@ -10,10 +12,9 @@ use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 
-/// What a run interrupted at `marker` must end with.
-struct Case {
+/// A phase of `calibrate` a signal may land in, and what a run interrupted there must end with.
+struct Phase {
     name: &'static str,
-    signal: &'static str,
     /// The stderr line (its start, trimmed) after which the signal is sent.
     marker: &'static str,
     /// What the last line says of the parameters.
@@ -22,50 +23,56 @@ struct Case {
     leaves_files: bool,
 }
 
-const CASES: [Case; 6] = [
-    Case {
-        name: "int-preflight",
-        signal: "INT",
+const UNTOUCHED: &str = "parameters: untouched";
+const RESTORED: &str = "parameters: restored to what they were before the run";
+
+const PHASES: [Phase; 4] = [
+    Phase {
+        name: "preflight",
         marker: "· pre-flight checks",
-        parameters: "parameters: untouched",
+        parameters: UNTOUCHED,
         leaves_files: false,
     },
-    Case {
-        name: "int-round1",
-        signal: "INT",
+    Phase {
+        name: "round1",
         marker: "round 1: square 1 of",
-        parameters: "parameters: untouched",
+        parameters: UNTOUCHED,
         leaves_files: true,
     },
-    Case {
-        name: "int-round2",
-        signal: "INT",
+    Phase {
+        name: "round2",
         marker: "round 2: square 1 of",
-        parameters: "parameters: restored to what they were before the run",
+        parameters: RESTORED,
         leaves_files: true,
     },
-    Case {
-        name: "int-verification",
-        signal: "INT",
+    Phase {
+        name: "verification",
         marker: "verification: square 1 of",
-        parameters: "parameters: restored to what they were before the run",
-        leaves_files: true,
-    },
-    Case {
-        name: "term-round2",
-        signal: "TERM",
-        marker: "round 2: square 1 of",
-        parameters: "parameters: restored to what they were before the run",
-        leaves_files: true,
-    },
-    Case {
-        name: "hup-verification",
-        signal: "HUP",
-        marker: "verification: square 1 of",
-        parameters: "parameters: restored to what they were before the run",
+        parameters: RESTORED,
         leaves_files: true,
     },
 ];
+
+/// One interrupted run: a signal in a phase.
+struct Case {
+    name: String,
+    signal: &'static str,
+    phase: &'static Phase,
+}
+
+/// Every signal in every phase.
+fn cases(signals: &[&'static str], prefix: &str) -> Vec<Case> {
+    signals
+        .iter()
+        .flat_map(|&signal| {
+            PHASES.iter().map(move |phase| Case {
+                name: format!("{prefix}{}-{}", signal.to_lowercase(), phase.name),
+                signal,
+                phase,
+            })
+        })
+        .collect()
+}
 
 /// Runs `odocal args…` in `dir` and sends `signal` once a stderr line starts with `marker`:
 /// whether it was sent, the exit status, the lines.
@@ -123,12 +130,13 @@ fn interrupted(case: &Case) {
     let mut args = vec!["calibrate", "--port", &port];
     args.extend(common::QUICK_FLAGS);
     args.extend(["--report-dir", "report"]);
-    let (sent, status, lines) = signalled(&args, &dir, case.signal, case.marker);
+    let phase = case.phase;
+    let (sent, status, lines) = signalled(&args, &dir, case.signal, phase.marker);
     let text = lines.join("\n");
     assert!(
         sent,
         "{}: never reached `{}`:\n{text}",
-        case.name, case.marker
+        case.name, phase.marker
     );
     assert!(!status.success(), "{}: exit {status}:\n{text}", case.name);
     let last: Vec<&str> = lines
@@ -141,7 +149,7 @@ fn interrupted(case: &Case) {
     };
     assert_eq!(*robot, "robot: stopped", "{}:\n{text}", case.name);
     assert!(
-        parameters.starts_with(case.parameters),
+        parameters.starts_with(phase.parameters),
         "{}:\n{text}",
         case.name
     );
@@ -153,7 +161,7 @@ fn interrupted(case: &Case) {
         "{}: {status}",
         case.name
     );
-    let restored = case.parameters.contains("restored");
+    let restored = phase.parameters == RESTORED;
     for source in ["active", "stored"]
         .iter()
         .take(if restored { 2 } else { 1 })
@@ -174,7 +182,7 @@ fn interrupted(case: &Case) {
         "{}: {left:?}",
         case.name
     );
-    if case.leaves_files {
+    if phase.leaves_files {
         let names: Vec<String> = left
             .iter()
             .map(|f| f.file_name().unwrap().to_string_lossy().into_owned())
@@ -195,8 +203,10 @@ fn interrupted(case: &Case) {
 
 #[test]
 fn a_signal_in_any_phase_stops_the_robot_restores_and_says_so_last() {
+    // The runs mostly wait on the simulated robot's time: several at once.
+    let all = cases(&["INT", "TERM", "HUP"], "");
     std::thread::scope(|s| {
-        for pair in CASES.chunks(3) {
+        for pair in all.chunks(2) {
             s.spawn(move || pair.iter().for_each(interrupted));
         }
     });
@@ -215,53 +225,59 @@ fn last_two(lines: &[String]) -> (String, String) {
     }
 }
 
-#[test]
-fn on_a_roboclaw_sigterm_and_sighup_stop_the_robot_and_leave_the_profile_as_it_was() {
-    for (name, signal, marker) in [
-        ("roboclaw-term-round2", "TERM", "round 2: square 1 of"),
-        (
-            "roboclaw-hup-verification",
-            "HUP",
-            "verification: square 1 of",
-        ),
-    ] {
-        let (dir, profile) = common::scratch_with(name, "robot.toml", common::ROBOCLAW_PROFILE);
-        let profile_s = profile.to_str().unwrap().to_string();
-        let (mut mock, ports) = common::spawn_server_lines(
-            "mock-roboclaw",
-            &["--profile", &profile_s, "--time-scale", "20"],
-            2,
-        );
-        let mut args = vec![
-            "calibrate",
-            "--base",
-            &ports[0],
-            "--heading",
-            &ports[1],
-            "--profile",
-            &profile_s,
-        ];
-        args.extend(common::QUICK_FLAGS);
-        args.extend(["--report-dir", "report"]);
-        let (sent, status, lines) = signalled(&args, &dir, signal, marker);
-        drop(mock.stdin.take());
-        let _ = mock.wait();
-        let text = lines.join("\n");
-        assert!(sent, "{name}: never reached `{marker}`:\n{text}");
-        assert!(!status.success(), "{name}: exit {status}:\n{text}");
-        let (robot, parameters) = last_two(&lines);
-        assert_eq!(robot, "robot: stopped", "{name}:\n{text}");
-        assert!(
-            parameters.starts_with("parameters: restored to what they were before the run"),
-            "{name}:\n{text}"
-        );
-        // The statement is true of the file: the profile is byte for byte as it was.
-        assert_eq!(
-            std::fs::read_to_string(&profile).unwrap(),
-            common::ROBOCLAW_PROFILE,
-            "{name}"
-        );
-        let names: Vec<String> = tree(&dir.join("report"))
+/// `calibrate` on `mock-roboclaw` interrupted as `case` says: the robot's wheels are still,
+/// the last two lines say so and what the profile holds, and that is true of the file.
+fn roboclaw_interrupted(case: &Case) {
+    let (name, signal, phase) = (&case.name, case.signal, case.phase);
+    let (dir, profile) = common::scratch_with(name, "robot.toml", common::ROBOCLAW_PROFILE);
+    let profile_s = profile.to_str().unwrap().to_string();
+    let (mut mock, ports) = common::spawn_server_lines(
+        "mock-roboclaw",
+        &["--profile", &profile_s, "--time-scale", "20"],
+        2,
+    );
+    let mut args = vec![
+        "calibrate",
+        "--base",
+        &ports[0],
+        "--heading",
+        &ports[1],
+        "--profile",
+        &profile_s,
+    ];
+    args.extend(common::QUICK_FLAGS);
+    args.extend(["--report-dir", "report"]);
+    let (sent, status, lines) = signalled(&args, &dir, signal, phase.marker);
+    let text = lines.join("\n");
+    assert!(sent, "{name}: never reached `{}`:\n{text}", phase.marker);
+    assert!(!status.success(), "{name}: exit {status}:\n{text}");
+    // The wheels are still: the encoders count the same twice, 0.3 s apart (6 s of the
+    // simulated robot's time). (Their status bits are latched events, not motion.)
+    let encoders = || {
+        let s = common::odocal_json(&["status", "--port", &ports[0], "--json"]);
+        [
+            s["encoders"][0]["count"].clone(),
+            s["encoders"][1]["count"].clone(),
+        ]
+    };
+    let first = encoders();
+    assert!(first.iter().all(|c| c.is_u64()), "{name}: {first:?}");
+    std::thread::sleep(std::time::Duration::from_millis(300));
+    assert_eq!(encoders(), first, "{name}: the wheels still turn");
+    drop(mock.stdin.take());
+    let _ = mock.wait();
+    let (robot, parameters) = last_two(&lines);
+    assert_eq!(robot, "robot: stopped", "{name}:\n{text}");
+    assert!(parameters.starts_with(phase.parameters), "{name}:\n{text}");
+    // The statement is true of the file: the profile is byte for byte as it was.
+    assert_eq!(
+        std::fs::read_to_string(&profile).unwrap(),
+        common::ROBOCLAW_PROFILE,
+        "{name}"
+    );
+    let report = dir.join("report");
+    if phase.leaves_files {
+        let names: Vec<String> = tree(&report)
             .iter()
             .map(|f| f.file_name().unwrap().to_string_lossy().into_owned())
             .collect();
@@ -270,6 +286,21 @@ fn on_a_roboclaw_sigterm_and_sighup_stop_the_robot_and_leave_the_profile_as_it_w
                 && names.iter().any(|n| n.contains("partial-report-")),
             "{name}: {names:?}"
         );
-        std::fs::remove_dir_all(&dir).unwrap();
+    } else {
+        assert!(
+            !report.exists(),
+            "{name}: a report directory with nothing measured"
+        );
     }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn on_a_roboclaw_sigterm_and_sighup_in_any_phase_stop_the_robot_and_leave_the_profile_as_it_was() {
+    let all = cases(&["TERM", "HUP"], "roboclaw-");
+    std::thread::scope(|s| {
+        for pair in all.chunks(2) {
+            s.spawn(move || pair.iter().for_each(roboclaw_interrupted));
+        }
+    });
 }
