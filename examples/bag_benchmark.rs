@@ -89,10 +89,44 @@ fn run(dir: &Path) -> Result<(), Error> {
     );
     let mcap_rate = measure("MCAP (zstd chunks)", &mcap, None)?;
     let measure = |name: &str, path: &Path| measure(name, path, Some(mcap_rate));
+    let kept = std::env::var_os("ODOCAL_BENCH_KEEP").map(PathBuf::from);
+    // With ODOCAL_BENCH_KEEP=DIR, each bag is kept there for another reader (rosbags,
+    // `examples/rosbags_read.py`), a single rosbag2 file in a directory of its own with its
+    // metadata.yaml, as `ros2 bag record` leaves it; otherwise removed once measured.
+    let done = |path: &Path, slug: &str, storage: Option<(&str, &str)>| -> Result<(), Error> {
+        let Some(keep) = &kept else {
+            if path.is_dir() {
+                std::fs::remove_dir_all(path)?;
+            } else {
+                std::fs::remove_file(path)?;
+            }
+            return Ok(());
+        };
+        let to = keep.join(slug);
+        match storage {
+            Some((storage, mode)) => {
+                std::fs::create_dir_all(&to)?;
+                let name = path.file_name().ok_or("no file name")?.to_string_lossy();
+                std::fs::rename(path, to.join(&*name))?;
+                // rosbag2 lists a file it compressed whole by its compressed name.
+                metadata(&to, storage, &[&name], mode, &messages)?;
+            }
+            None => std::fs::rename(path, &to)?,
+        }
+        Ok(())
+    };
     let lz4_mcap = dir.join("bench_lz4.mcap");
     write_mcap(&lz4_mcap, &messages, mcap::Compression::Lz4)?;
     measure("MCAP (lz4 chunks)", &lz4_mcap)?;
-    std::fs::remove_file(&lz4_mcap)?;
+    done(&lz4_mcap, "mcap-lz4", Some(("mcap", "")))?;
+    if kept.is_some() {
+        std::fs::copy(&mcap, dir.join("bench_zstd.mcap"))?;
+        done(
+            &dir.join("bench_zstd.mcap"),
+            "mcap-zstd",
+            Some(("mcap", "")),
+        )?;
+    }
     let db3 = dir.join("bench.db3");
     write_db3(&db3, messages.iter(), None)?;
     measure("sqlite3 .db3", &db3)?;
@@ -101,22 +135,22 @@ fn run(dir: &Path) -> Result<(), Error> {
         &zstd_file,
         zstd::stream::encode_all(std::fs::File::open(&db3)?, 3)?,
     )?;
-    std::fs::remove_file(&db3)?;
+    done(&db3, "db3", Some(("sqlite3", "")))?;
     measure("sqlite3 .db3.zstd (rosbag2 FILE mode)", &zstd_file)?;
-    std::fs::remove_file(&zstd_file)?;
+    done(&zstd_file, "db3-zstd-file", Some(("sqlite3", "file")))?;
     let split = dir.join("split");
     write_rosbag2(&split, &messages, "")?;
     measure("rosbag2 directory, 2 split .db3 files", &split)?;
-    std::fs::remove_dir_all(&split)?;
+    done(&split, "db3-split", None)?;
     let per_message = dir.join("per_message");
     write_rosbag2(&per_message, &messages, "message")?;
     measure("rosbag2 directory, zstd per message", &per_message)?;
-    std::fs::remove_dir_all(&per_message)?;
+    done(&per_message, "db3-zstd-message", None)?;
     for compression in ["none", "lz4", "bz2"] {
         let bag = dir.join(format!("bench_{compression}.bag"));
         let chunks = write_ros1(&bag, &messages, compression)?;
         measure(&format!("ROS 1 .bag, {compression} chunks"), &bag)?;
-        std::fs::remove_file(&bag)?;
+        done(&bag, &format!("ros1-{compression}.bag"), None)?;
         if compression == "bz2" {
             bz2_ceiling(dir, &chunks, messages.len())?;
         }
@@ -344,6 +378,24 @@ fn write_rosbag2(dir: &Path, messages: &[Message], mode: &str) -> Result<(), Err
     let level = (mode == "message").then_some(1);
     write_db3(&files[0], messages[..half].iter(), level)?;
     write_db3(&files[1], messages[half..].iter(), level)?;
+    let listed: Vec<String> = files
+        .iter()
+        .filter_map(|f| f.file_name())
+        .map(|f| f.to_string_lossy().into_owned())
+        .collect();
+    let listed: Vec<&str> = listed.iter().map(String::as_str).collect();
+    metadata(dir, "sqlite3", &listed, mode, messages)
+}
+
+/// rosbag2's `metadata.yaml` in `dir` for `files` of `storage` (`sqlite3`, `mcap`), zstd
+/// compressed by `mode` (`file`, `message`, or "" for none), holding `messages`.
+fn metadata(
+    dir: &Path,
+    storage: &str,
+    files: &[&str],
+    mode: &str,
+    messages: &[Message],
+) -> Result<(), Error> {
     let mut topics = String::new();
     for (topic, type_name) in [
         ("/joint_states", "sensor_msgs/msg/JointState"),
@@ -358,13 +410,18 @@ fn write_rosbag2(dir: &Path, messages: &[Message], mode: &str) -> Result<(), Err
         ));
     }
     let format = if mode.is_empty() { "" } else { "zstd" };
+    let first = messages.first().map_or(0, |m| m.t_ns);
+    let last = messages.last().map_or(0, |m| m.t_ns);
+    let paths: String = files.iter().map(|f| format!("    - {f}\n")).collect();
     let mut meta = std::fs::File::create(dir.join("metadata.yaml"))?;
     write!(
         meta,
-        "rosbag2_bagfile_information:\n  version: 5\n  storage_identifier: sqlite3\n  \
-         relative_file_paths:\n    - {name}_0.db3\n    - {name}_1.db3\n  \
+        "rosbag2_bagfile_information:\n  version: 5\n  storage_identifier: {storage}\n  \
+         relative_file_paths:\n{paths}  \
+         duration:\n    nanoseconds: {}\n  starting_time:\n    nanoseconds_since_epoch: {first}\n  \
          compression_format: '{format}'\n  compression_mode: '{}'\n  message_count: {}\n  \
          topics_with_message_count:\n{topics}",
+        last - first,
         mode.to_uppercase(),
         messages.len()
     )?;
@@ -393,55 +450,116 @@ fn header_block(fields: &[(&str, &[u8])]) -> Vec<u8> {
     out[4..out.len() - 4].to_vec()
 }
 
-/// A ROS 1 bag of the messages, chunks of about 768 KiB (rosbag's default) compressed as
-/// asked, the connections again at the end for the index. Returns each chunk's data as
-/// stored, with its uncompressed size.
+/// A ROS 1 bag of the messages as rosbag writes one (format 2.0): its header padded to 4 KiB
+/// with the index position and the connection and chunk counts, chunks of about 768 KiB
+/// (rosbag's default) compressed as asked, each followed by its index data records, then the
+/// connections and a chunk info record per chunk. Returns each chunk's data as stored, with
+/// its uncompressed size.
 fn write_ros1(
     path: &Path,
     messages: &[Message],
     compression: &str,
 ) -> Result<Vec<(Vec<u8>, usize)>, Error> {
+    /// A message's place in its chunk: connection, time (sec, nsec), offset.
+    type Entry = (u32, [u8; 8], u32);
+    /// A chunk's position, first and last time, and messages per connection.
+    type ChunkInfo = (u64, [u8; 8], [u8; 8], Vec<(u32, u32)>);
     let mut out = b"#ROSBAG V2.0\n".to_vec();
-    record(&mut out, &[("op", &[0x03]), ("index_pos", &[0; 8])], &[]);
-    let index_pos_at = out
-        .windows(10)
-        .position(|w| w == b"index_pos=")
-        .ok_or("no index_pos field")?
-        + 10;
+    let header_at = out.len();
     let mut conns: Vec<(String, Vec<u8>)> = Vec::new();
     let mut seqs: Vec<u32> = Vec::new();
     let mut chunk = Vec::new();
+    let mut entries: Vec<Entry> = Vec::new();
     let mut in_chunk: Vec<bool> = Vec::new();
     let mut stored: Vec<(Vec<u8>, usize)> = Vec::new();
-    let mut flush = |out: &mut Vec<u8>, chunk: &mut Vec<u8>| -> Result<(), Error> {
-        let data = match compression {
-            "lz4" => {
-                let mut e = lz4::EncoderBuilder::new().build(Vec::new())?;
-                e.write_all(chunk)?;
-                let (data, result) = e.finish();
-                result?;
-                data
-            }
-            "bz2" => {
-                let mut e = bzip2::write::BzEncoder::new(Vec::new(), bzip2::Compression::best());
-                e.write_all(chunk)?;
-                e.finish()?
-            }
-            _ => chunk.clone(),
-        };
-        record(
-            out,
-            &[
-                ("op", &[0x05]),
-                ("compression", compression.as_bytes()),
-                ("size", &(chunk.len() as u32).to_le_bytes()),
-            ],
-            &data,
-        );
-        stored.push((data, chunk.len()));
-        chunk.clear();
-        Ok(())
+    let mut infos: Vec<ChunkInfo> = Vec::new();
+    // The bag header, written again at the end with the real values (same length).
+    let bag_header = |index_pos: u64, conn_count: u32, chunk_count: u32| {
+        let mut h = Vec::new();
+        let fields: [(&str, &[u8]); 4] = [
+            ("op", &[0x03]),
+            ("index_pos", &index_pos.to_le_bytes()),
+            ("conn_count", &conn_count.to_le_bytes()),
+            ("chunk_count", &chunk_count.to_le_bytes()),
+        ];
+        let header_len: usize = fields.iter().map(|(n, v)| 4 + n.len() + 1 + v.len()).sum();
+        record(&mut h, &fields, &vec![b' '; 4096 - 8 - header_len]);
+        h
     };
+    out.extend(bag_header(0, 0, 0));
+    let mut flush =
+        |out: &mut Vec<u8>, chunk: &mut Vec<u8>, entries: &mut Vec<Entry>| -> Result<(), Error> {
+            let data = match compression {
+                "lz4" => {
+                    let mut e = lz4::EncoderBuilder::new().build(Vec::new())?;
+                    e.write_all(chunk)?;
+                    let (data, result) = e.finish();
+                    result?;
+                    data
+                }
+                "bz2" => {
+                    let mut e =
+                        bzip2::write::BzEncoder::new(Vec::new(), bzip2::Compression::best());
+                    e.write_all(chunk)?;
+                    e.finish()?
+                }
+                _ => chunk.clone(),
+            };
+            let chunk_pos = out.len() as u64;
+            record(
+                out,
+                &[
+                    ("op", &[0x05]),
+                    ("compression", compression.as_bytes()),
+                    ("size", &(chunk.len() as u32).to_le_bytes()),
+                ],
+                &data,
+            );
+            let mut counts: Vec<(u32, u32)> = Vec::new();
+            let mut ids: Vec<u32> = entries.iter().map(|e| e.0).collect();
+            ids.sort_unstable();
+            ids.dedup();
+            for id in ids {
+                let mine: Vec<&Entry> = entries.iter().filter(|e| e.0 == id).collect();
+                let mut index = Vec::new();
+                for (_, time, offset) in &mine {
+                    index.extend(time);
+                    index.extend(offset.to_le_bytes());
+                }
+                record(
+                    out,
+                    &[
+                        ("op", &[0x04]),
+                        ("ver", &1u32.to_le_bytes()),
+                        ("conn", &id.to_le_bytes()),
+                        ("count", &(mine.len() as u32).to_le_bytes()),
+                    ],
+                    &index,
+                );
+                counts.push((id, mine.len() as u32));
+            }
+            let key = |t: &[u8; 8]| {
+                (
+                    u32::from_le_bytes([t[0], t[1], t[2], t[3]]),
+                    u32::from_le_bytes([t[4], t[5], t[6], t[7]]),
+                )
+            };
+            let start = entries
+                .iter()
+                .map(|e| e.1)
+                .min_by_key(key)
+                .unwrap_or([0; 8]);
+            let end = entries
+                .iter()
+                .map(|e| e.1)
+                .max_by_key(key)
+                .unwrap_or([0; 8]);
+            infos.push((chunk_pos, start, end, counts));
+            stored.push((data, chunk.len()));
+            chunk.clear();
+            entries.clear();
+            Ok(())
+        };
     for m in messages {
         let id = match conns.iter().position(|(t, _)| *t == m.topic) {
             Some(i) => i,
@@ -475,28 +593,26 @@ fn write_ros1(
             );
             in_chunk[id] = true;
         }
-        let time = [
-            ((m.t_ns / 1_000_000_000) as u32).to_le_bytes(),
-            ((m.t_ns % 1_000_000_000) as u32).to_le_bytes(),
-        ]
-        .concat();
+        let mut time = [0u8; 8];
+        time[..4].copy_from_slice(&((m.t_ns / 1_000_000_000) as u32).to_le_bytes());
+        time[4..].copy_from_slice(&((m.t_ns % 1_000_000_000) as u32).to_le_bytes());
         let data = ros1_of(&m.type_name, &m.cdr, seqs[id])?;
         seqs[id] += 1;
+        entries.push((id as u32, time, chunk.len() as u32));
         record(
             &mut chunk,
             &[("op", &[0x02]), ("conn", &conn), ("time", &time)],
             &data,
         );
         if chunk.len() > 768 << 10 {
-            flush(&mut out, &mut chunk)?;
+            flush(&mut out, &mut chunk, &mut entries)?;
             in_chunk.iter_mut().for_each(|c| *c = false);
         }
     }
     if !chunk.is_empty() {
-        flush(&mut out, &mut chunk)?;
+        flush(&mut out, &mut chunk, &mut entries)?;
     }
     let index_pos = out.len() as u64;
-    out[index_pos_at..index_pos_at + 8].copy_from_slice(&index_pos.to_le_bytes());
     for (id, (topic, data)) in conns.iter().enumerate() {
         let conn = (id as u32).to_le_bytes();
         record(
@@ -509,6 +625,26 @@ fn write_ros1(
             data,
         );
     }
+    for (chunk_pos, start, end, counts) in &infos {
+        let data: Vec<u8> = counts
+            .iter()
+            .flat_map(|(id, n)| [id.to_le_bytes(), n.to_le_bytes()].concat())
+            .collect();
+        record(
+            &mut out,
+            &[
+                ("op", &[0x06]),
+                ("ver", &1u32.to_le_bytes()),
+                ("chunk_pos", &chunk_pos.to_le_bytes()),
+                ("start_time", start),
+                ("end_time", end),
+                ("count", &(counts.len() as u32).to_le_bytes()),
+            ],
+            &data,
+        );
+    }
+    let header = bag_header(index_pos, conns.len() as u32, infos.len() as u32);
+    out[header_at..header_at + header.len()].copy_from_slice(&header);
     std::fs::write(path, out)?;
     Ok(stored)
 }

@@ -5,10 +5,12 @@
 //! with an error that names the budget and the flag that raises it ([`Exceeded`]).
 //!
 //! The budgets are process-wide: a command line sets them once before it reads anything
-//! (`--budget NAME=SIZE`, [`set`]), and [`reset_run`] starts a new run's totals. The defaults
-//! are far above any recording of the topics odocal reads (an hour of wheel joints, IMU and
-//! odometry is a few hundred MiB at most, a few million messages) and low enough that the
-//! most a budget lets through takes seconds, not minutes.
+//! (`--budget NAME=SIZE`, [`set`]); a program that reads bag after bag as runs of their own
+//! calls [`reset_run`] between them. The defaults are far above a recording of the topics
+//! odocal reads (an hour of wheel joints, IMU and odometry is a few hundred MiB, a few million
+//! messages) and low enough that the most they let through takes seconds, not minutes; the
+//! bytes count every chunk decompressed, so a bag that also holds hours of camera images may
+//! need `run-bytes` raised, and its error says so.
 
 use std::sync::atomic::{AtomicU64, Ordering};
 
@@ -175,7 +177,7 @@ pub static RUN_BYTES: Budget = Budget::new(
     "run-bytes",
     "all bytes decompressed in one run, over every bag it reads",
     "bytes",
-    16 << 30,
+    8 << 30,
 );
 
 /// Every message one run reads, over every file of every bag (each topic's).
@@ -215,7 +217,10 @@ pub fn charge_bytes(n: u64, what: &dyn Fn() -> String) -> Result<(), Exceeded> {
 /// Counts one more message read against [`RUN_MESSAGES`] (`what` names the input).
 pub fn charge_message(what: &dyn Fn() -> String) -> Result<(), Exceeded> {
     let total = MESSAGES.fetch_add(1, Ordering::Relaxed).saturating_add(1);
-    RUN_MESSAGES.check(total, format!("reading {}", what()))
+    if total > RUN_MESSAGES.get() {
+        return Err(RUN_MESSAGES.exceeded(total, format!("reading {}", what())));
+    }
+    Ok(())
 }
 
 /// Why a `--budget` setting was refused.

@@ -29,7 +29,7 @@ struct Cli {
     command: Command,
     /// Raise (or lower) one budget of what a run may read out of a bag, NAME=SIZE (repeat for
     /// several): bag-file (default 4GiB), bag-chunk (256MiB), bag-message (1MiB), run-bytes
-    /// (16GiB decompressed in all), run-messages (50000000). Sizes take KiB, MiB, GiB, TiB.
+    /// (8GiB decompressed in all), run-messages (50000000). Sizes take KiB, MiB, GiB, TiB.
     #[arg(long = "budget", global = true, value_name = "NAME=SIZE", value_parser = budget)]
     budgets: Vec<String>,
 }

@@ -67,7 +67,9 @@ impl<R: Read> Read for Bounded<R> {
         let n = self.inner.read(buf)?;
         self.read += n as u64;
         let what = || format!("{} (compressed whole)", self.path.display());
-        budget::BAG_FILE.check(self.read, what())?;
+        if self.read > budget::BAG_FILE.get() {
+            return Err(budget::BAG_FILE.exceeded(self.read, what()).into());
+        }
         budget::charge_bytes(n as u64, &what)?;
         Ok(n)
     }
