@@ -155,6 +155,53 @@ async fn calibrating_through_rosbridge_writes_multipliers_that_fix_the_robot() {
     }
 }
 
+/// A driver that glitches (every 25th joint-state message 3 rad off on one wheel, the one after
+/// it stamped 0.1 s back): every glitch is dropped and counted, none moves the result.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn glitches_in_live_joint_states_are_dropped_counted_and_do_not_move_the_result() {
+    let _one_at_a_time = END_TO_END.lock().await;
+    let (dir, yaml) = yaml_file("ros-live-glitches");
+    let server = mock(&yaml, |c| c.joint_glitch_every = Some(25)).await;
+    let base = connect(&ros_config(server.url(), &yaml)).await.unwrap();
+    let mut routine = routine(&dir);
+    routine.runs_per_direction = 1;
+    routine.verification_runs = 1;
+    routine.max_rounds = 1;
+    routine.swing = false;
+    routine.realign = false;
+    let report = unattended(&base, &routine).await.unwrap();
+    let written = DiffDriveConfig::load(&yaml, "diff_drive_controller").unwrap();
+    assert!(
+        (written.separation_multiplier - common::TRUE_E_B).abs() < 0.003,
+        "{written:?}"
+    );
+    assert!(
+        (written.right_radius_multiplier / written.left_radius_multiplier - common::TRUE_E_D).abs()
+            < 0.002,
+        "{written:?}"
+    );
+    let after = report.mean_abs_heading_error_after_deg.unwrap();
+    assert!(after < 0.5, "{after}°");
+    // The report counts what was dropped, by reason.
+    let dropped = report.diagnostics["dropped"]["/joint_states"].clone();
+    let count = |reason: &str| {
+        dropped
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|r| r["reason"].as_str().unwrap().starts_with(reason))
+            .map_or(0, |r| r["count"].as_u64().unwrap())
+    };
+    let (spikes, back) = (count("a spike"), count("stamped before"));
+    assert!(spikes > 10, "{dropped}");
+    assert!(back > 10, "{dropped}");
+    assert!(
+        spikes.abs_diff(back) <= 2,
+        "one of each per glitch: {dropped}"
+    );
+    drop(base);
+}
+
 /// Cancels the routine on the first motion of round 1's second square.
 struct CancelMidLeg(CancellationToken);
 

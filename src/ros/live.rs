@@ -10,6 +10,7 @@
 //! that the controller's own `cmd_vel_timeout` (0.5 s in `diff_drive_controller`) stops the
 //! wheels when this host or the connection goes away.
 
+use super::bag::validate::{Forward, LiveJoints, Verdict, MAX_POSITION_M};
 use super::bag::RosTopics;
 use super::msg::{types, yaw_of, Imu, JointState, Odometry, Twist, TwistStamped};
 use super::rosbridge::{RosbridgeClient, RosbridgeError};
@@ -188,6 +189,8 @@ pub struct RosDrive {
     witness: Witness,
     travel: Fanout<TravelSample>,
     cmd_vel_timeout_s: f64,
+    /// What the topics' checks dropped, for the report.
+    rejects: Rejects,
 }
 
 /// The IMU.
@@ -330,6 +333,7 @@ pub async fn connect(cfg: &RosBaseConfig) -> Result<Base, RosBaseError> {
         witness,
         travel,
         cmd_vel_timeout_s: yaml_cfg.cmd_vel_timeout_s.unwrap_or(0.5),
+        rejects: rejects.clone(),
     };
     let heading = RosHeading {
         url: cfg.url.clone(),
@@ -407,11 +411,12 @@ fn decode<T: serde::de::DeserializeOwned>(v: &Value) -> Result<T, String> {
     serde_path_to_error::deserialize(v).map_err(|e| format!("field `{}`: {}", e.path(), e.inner()))
 }
 
-/// Messages that arrived but could not be used, per topic: how many, the first reason and an
-/// example, so that a silent topic and a topic whose messages odocal cannot read are told
-/// apart.
+/// Messages that arrived but could not be used or were dropped, per topic and reason: how
+/// many and an example, so that a silent topic and a topic whose messages odocal cannot read
+/// are told apart, and a run's report counts every sample the checks dropped
+/// ([`RosDrive`]'s diagnostics).
 #[derive(Clone, Default)]
-struct Rejects(Arc<std::sync::Mutex<std::collections::BTreeMap<String, Rejected>>>);
+struct Rejects(Arc<std::sync::Mutex<std::collections::BTreeMap<String, Vec<Rejected>>>>);
 
 struct Rejected {
     count: u64,
@@ -422,22 +427,46 @@ struct Rejected {
 impl Rejects {
     fn note(&self, topic: &str, reason: String, msg: &Value) {
         let mut map = self.0.lock().unwrap_or_else(|p| p.into_inner());
-        let r = map.entry(topic.to_string()).or_insert_with(|| Rejected {
-            count: 0,
-            reason,
-            example: msg.to_string().chars().take(240).collect(),
-        });
-        r.count += 1;
+        let reasons = map.entry(topic.to_string()).or_default();
+        match reasons.iter_mut().find(|r| r.reason == reason) {
+            Some(r) => r.count += 1,
+            None => reasons.push(Rejected {
+                count: 1,
+                reason,
+                example: msg.to_string().chars().take(240).collect(),
+            }),
+        }
     }
 
     fn describe(&self, topic: &str) -> Option<String> {
         let map = self.0.lock().unwrap_or_else(|p| p.into_inner());
-        map.get(topic).map(|r| {
-            format!(
-                "{} message(s) arrived and none could be used: {}; e.g. {}",
-                r.count, r.reason, r.example
-            )
-        })
+        let reasons = map.get(topic).filter(|r| !r.is_empty())?;
+        let count: u64 = reasons.iter().map(|r| r.count).sum();
+        let why: Vec<String> = reasons
+            .iter()
+            .map(|r| format!("{} ({})", r.reason, r.count))
+            .collect();
+        Some(format!(
+            "{count} message(s) arrived and none could be used: {}; e.g. {}",
+            why.join("; "),
+            reasons[0].example
+        ))
+    }
+
+    /// Every topic's drops, for a report: `{topic: [{reason, count}]}`.
+    fn summary(&self) -> Value {
+        let map = self.0.lock().unwrap_or_else(|p| p.into_inner());
+        Value::Object(
+            map.iter()
+                .map(|(topic, reasons)| {
+                    let list = reasons
+                        .iter()
+                        .map(|r| json!({ "reason": r.reason, "count": r.count }))
+                        .collect();
+                    (topic.clone(), Value::Array(list))
+                })
+                .collect(),
+        )
     }
 }
 
@@ -486,6 +515,7 @@ async fn integrate_joints(
 ) {
     let mut last: Option<(f64, f64)> = None;
     let mut odo = Odo::default();
+    let mut check = LiveJoints::default();
     loop {
         let Some(v) = next_message(&mut rx).await else {
             return;
@@ -510,11 +540,34 @@ async fn integrate_joints(
             rejects.note(&topic, "fewer positions than names".into(), &v);
             continue;
         };
-        if !(lp.is_finite() && rp.is_finite()) {
-            rejects.note(&topic, "a wheel position is not a number".into(), &v);
-            continue;
-        }
         let stamp = stamp_of(&v).unwrap_or(odo.stamp_s);
+        // The checks a bag's joints get, one message at a time.
+        let (settled, verdict) = check.check(stamp, (lp, rp));
+        match settled {
+            Some(Verdict::Drop(why)) => rejects.note(&topic, why.into(), &v),
+            Some(Verdict::Restart) => rejects.note(
+                &topic,
+                "a jump that stayed (the driver reset its counts?): the step across it is not \
+                 travel"
+                    .into(),
+                &v,
+            ),
+            _ => {}
+        }
+        match verdict {
+            Verdict::Drop(why) => {
+                rejects.note(&topic, why.into(), &v);
+                continue;
+            }
+            Verdict::Hold => continue,
+            Verdict::Restart if last.is_some() => {
+                last = Some((lp, rp));
+                odo.stamp_s = stamp;
+                let _ = tx.send(odo);
+                continue;
+            }
+            Verdict::Restart | Verdict::Keep => {}
+        }
         let g = effective(&geometry);
         if let Some((l0, r0)) = last {
             let (sl, sr) = g.travel_m(
@@ -549,6 +602,7 @@ async fn integrate_odom(
 ) {
     let mut last: Option<(f64, f64, f64)> = None;
     let mut odo = Odo::default();
+    let mut forward = Forward::default();
     loop {
         let Some(v) = next_message(&mut rx).await else {
             return;
@@ -568,11 +622,19 @@ async fn integrate_odom(
             }
         };
         let (x, y) = (o.pose.pose.position.x, o.pose.pose.position.y);
-        if !(x.is_finite() && y.is_finite()) {
-            rejects.note(&topic, "pose.pose.position is not a number".into(), &v);
+        if !(x.abs() <= MAX_POSITION_M && y.abs() <= MAX_POSITION_M) {
+            rejects.note(
+                &topic,
+                format!("pose.pose.position is not a number within ±{MAX_POSITION_M:e} m"),
+                &v,
+            );
             continue;
         }
         let stamp = stamp_of(&v).unwrap_or(odo.stamp_s);
+        if let Verdict::Drop(why) = forward.check(stamp) {
+            rejects.note(&topic, why.into(), &v);
+            continue;
+        }
         if let Some((x0, y0, yaw0)) = last {
             let dth = wrap_angle(yaw - yaw0);
             let mid = yaw0 + 0.5 * dth;
@@ -602,11 +664,16 @@ async fn follow_imu(
     tx: watch::Sender<Option<(Instant, HeadingSample)>>,
     streams: Fanout<HeadingSample>,
 ) {
+    let mut forward = Forward::default();
     loop {
         let Some(v) = next_message(&mut rx).await else {
             return;
         };
         let stamp = stamp_of(&v).unwrap_or(0.0);
+        if let Verdict::Drop(why) = forward.check(stamp) {
+            rejects.note(&topic, why.into(), &v);
+            continue;
+        }
         let sample = match decode::<Imu>(&v) {
             Err(e) => {
                 rejects.note(&topic, e.clone(), &v);
@@ -1045,6 +1112,12 @@ impl Drive for RosDrive {
                 "topics": self.cfg.topics,
             }),
         }
+    }
+
+    fn diagnostics(&self) -> Value {
+        // Every message a topic's checks dropped (not a number, not physical, stamped back, a
+        // spike), by topic and reason: none is used silently.
+        json!({ "dropped": self.rejects.summary() })
     }
 
     async fn preflight(&self) -> Result<Preflight, BaseError> {

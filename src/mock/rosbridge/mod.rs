@@ -70,6 +70,10 @@ pub struct MockRosConfig {
     /// Publish `/joint_states` whose wheel positions never change while the robot moves
     /// (ros2_control's mock hardware without position feedback).
     pub frozen_joint_states: bool,
+    /// Every this many `/joint_states` messages, one whose left wheel angle is 3 rad off (an
+    /// encoder glitch on a noisy bus), and the message after it stamped 0.1 s before it (a
+    /// clock step on the driver's host).
+    pub joint_glitch_every: Option<u64>,
     /// Controller parameters declared read-only: `describe_parameters` says so and a set of
     /// them is refused with rclcpp's reason.
     pub read_only_parameters: Vec<String>,
@@ -107,6 +111,7 @@ impl MockRosConfig {
             latency: Duration::from_millis(2),
             joint_states_stop_after_s: None,
             frozen_joint_states: false,
+            joint_glitch_every: None,
             read_only_parameters: Vec::new(),
             refuse_parameter_sets: None,
         })
@@ -423,6 +428,11 @@ async fn physics(
                             .unwrap_or("right_wheel_joint".into()),
                     );
                     if cfg.joint_states_stop_after_s.is_none_or(|stop| t < stop) {
+                        let n = step / every;
+                        let glitch = cfg.joint_glitch_every.filter(|&g| g > 0);
+                        let spike = glitch.is_some_and(|g| n % g == g - 1);
+                        let back = glitch.is_some_and(|g| n.is_multiple_of(g) && n > 0);
+                        let stamp = if back { s.stamp(t - 0.1) } else { stamp };
                         let effort = match cfg.effort {
                             EffortStyle::Empty => vec![],
                             EffortStyle::Zero => vec![0.0, 0.0],
@@ -435,6 +445,8 @@ async fn physics(
                                 name: vec![names.0, names.1],
                                 position: if cfg.frozen_joint_states {
                                     vec![0.0, 0.0]
+                                } else if spike {
+                                    vec![s.angles.0 + 3.0, s.angles.1]
                                 } else {
                                     vec![s.angles.0, s.angles.1]
                                 },

@@ -15,6 +15,10 @@
 //! Every drop is counted in a note naming the topic, the reason and the first message
 //! (0-based, per topic). A jump that does not come back (a driver that reset its counts) is
 //! kept, and a note says where: what follows it is the recording as it is.
+//!
+//! A live topic gets the same rules one message at a time ([`LiveJoints`], [`Forward`]): it
+//! cannot look ahead, so a jump is held back one message, dropped when the next comes back
+//! and taken as a new start (its step not counted as travel) when the next stays.
 
 use super::BagError;
 use crate::kinematics::MAX_WHEEL_SPEED_M_S;
@@ -313,8 +317,166 @@ pub fn odometry(
     )
 }
 
+/// What a live check makes of one message.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Verdict {
+    /// Use it: its step from the message used before is travel.
+    Keep,
+    /// Use it as a new start: the wheels jumped and stayed (a driver that reset its counts),
+    /// so the step to it is not travel.
+    Restart,
+    /// Not yet: a jump, settled by the next message (as a spike, or as a new start).
+    Hold,
+    /// Drop it, for this reason.
+    Drop(&'static str),
+}
+
+/// Time going forward on one live topic: a message stamped before the one kept before it is
+/// dropped. (One stamped the same is kept: a driver that leaves its stamps at zero, or stamps
+/// with a coarse clock, still drives; the rate checks then have no time to judge by.)
+#[derive(Debug, Default, Clone)]
+pub struct Forward {
+    last_s: Option<f64>,
+}
+
+/// Why [`Forward`] drops a message.
+pub const STAMPED_BACK: &str = "stamped before the message before it";
+
+impl Forward {
+    /// The verdict on a message stamped `t` (s).
+    pub fn check(&mut self, t: f64) -> Verdict {
+        match self.last_s {
+            _ if !t.is_finite() => Verdict::Drop(STAMPED_BACK),
+            Some(last) if t < last => Verdict::Drop(STAMPED_BACK),
+            _ => {
+                self.last_s = Some(t);
+                Verdict::Keep
+            }
+        }
+    }
+}
+
+/// A live wheel-joint topic checked as [`joints`] checks a bag's, one message at a time:
+/// angles finite and within ±[`MAX_JOINT_RAD`], time forward, and a jump faster than any
+/// wheel turns ([`MAX_WHEEL_RATE_RAD_S`]) held back one message: dropped as a spike when the
+/// next message comes back, a new start when it stays. A step between two angles within
+/// (−π, π] is taken modulo a turn (a driver that wraps its angles steps across ±π).
+#[derive(Debug, Default, Clone)]
+pub struct LiveJoints {
+    forward: Forward,
+    /// The message used last: time (s), angles (rad).
+    kept: Option<(f64, Joints)>,
+    /// A jump held back: time (s), angles (rad).
+    held: Option<(f64, Joints)>,
+}
+
+/// Why [`LiveJoints`] drops a message that is not physical.
+pub const NOT_PHYSICAL: &str = "a wheel angle that is not a number within ±1e7 rad";
+/// Why [`LiveJoints`] drops a spike.
+pub const SPIKE: &str = "a spike (a wheel faster than 100 rad/s, and back)";
+
+impl LiveJoints {
+    fn jumps((t0, a): (f64, Joints), (t1, b): (f64, Joints)) -> bool {
+        // Modulo a turn between two angles a wrapping driver could send; as they are
+        // otherwise (a modulo step hides any jump past half a turn).
+        let step = |from: f64, to: f64| {
+            let turn = std::f64::consts::PI + 1e-9;
+            if from.abs() <= turn && to.abs() <= turn {
+                angle_step(from, to)
+            } else {
+                to - from
+            }
+        };
+        if t1 <= t0 {
+            return false;
+        }
+        let limit = MAX_WHEEL_RATE_RAD_S * (t1 - t0) + JOINT_SLACK_RAD;
+        step(a.0, b.0).abs() > limit || step(a.1, b.1).abs() > limit
+    }
+
+    /// The verdict on a message stamped `t` (s) with angles `value` (rad): `(held, this)`,
+    /// where `held` settles the message held back before it, if any, as a spike
+    /// ([`Verdict::Drop`]) or a new start ([`Verdict::Restart`], when this one stays where it
+    /// jumped to: this one is then a [`Verdict::Restart`] too, the step between the two not
+    /// counted).
+    pub fn check(&mut self, t: f64, value: Joints) -> (Option<Verdict>, Verdict) {
+        if !(value.0.abs() <= MAX_JOINT_RAD && value.1.abs() <= MAX_JOINT_RAD) {
+            return (None, Verdict::Drop(NOT_PHYSICAL));
+        }
+        if let v @ Verdict::Drop(_) = self.forward.check(t) {
+            return (None, v);
+        }
+        let this = (t, value);
+        let back = |kept: Option<(f64, Joints)>| kept.is_some_and(|k| !Self::jumps(k, this));
+        let settled = match self.held.take() {
+            // Back where the wheels were: the held one was a spike.
+            Some(_) if back(self.kept) => Some(Verdict::Drop(SPIKE)),
+            // Where the held one jumped to: a new start.
+            Some(held) if !Self::jumps(held, this) => {
+                self.kept = Some(this);
+                return (Some(Verdict::Restart), Verdict::Restart);
+            }
+            // Neither: the held one goes, this one is judged on its own.
+            Some(_) => Some(Verdict::Drop(SPIKE)),
+            None => None,
+        };
+        match self.kept {
+            Some(k) if Self::jumps(k, this) => {
+                self.held = Some(this);
+                (settled, Verdict::Hold)
+            }
+            _ => {
+                self.kept = Some(this);
+                (settled, Verdict::Keep)
+            }
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn a_live_topic_drops_spikes_and_reversed_stamps_and_restarts_after_a_jump_that_stays() {
+        use super::{LiveJoints, Verdict, NOT_PHYSICAL, SPIKE, STAMPED_BACK};
+        let mut j = LiveJoints::default();
+        let mut at = |t: f64, angle: f64| j.check(t, (angle, angle));
+        assert_eq!(at(0.00, 0.0), (None, Verdict::Keep));
+        assert_eq!(at(0.02, 0.1), (None, Verdict::Keep));
+        // A spike of 3 rad in 20 ms, and back: held, then dropped; the next is kept.
+        assert_eq!(at(0.04, 3.1), (None, Verdict::Hold));
+        assert_eq!(at(0.06, 0.2), (Some(Verdict::Drop(SPIKE)), Verdict::Keep));
+        // Back only after a message stamped back (dropped) and 40 ms, near enough to the
+        // spike too by then: still a spike, judged against where the wheels were first.
+        let mut g = LiveJoints::default();
+        assert_eq!(g.check(1.00, (10.0, 10.0)), (None, Verdict::Keep));
+        assert_eq!(g.check(1.02, (13.0, 10.0)), (None, Verdict::Hold));
+        assert_eq!(
+            g.check(0.92, (10.1, 10.1)),
+            (None, Verdict::Drop(STAMPED_BACK))
+        );
+        assert_eq!(
+            g.check(1.06, (10.2, 10.2)),
+            (Some(Verdict::Drop(SPIKE)), Verdict::Keep)
+        );
+        // Not a number, or 1e308: dropped, nothing held.
+        assert_eq!(at(0.08, f64::NAN), (None, Verdict::Drop(NOT_PHYSICAL)));
+        assert_eq!(at(0.10, 1e308), (None, Verdict::Drop(NOT_PHYSICAL)));
+        // Stamped back: dropped. Stamped the same (a driver's stamps left at zero): kept, and
+        // no rate to judge.
+        assert_eq!(at(0.01, 0.2), (None, Verdict::Drop(STAMPED_BACK)));
+        assert_eq!(at(0.06, 0.25), (None, Verdict::Keep));
+        // A jump that stays (a driver that reset its counts): a new start.
+        assert_eq!(at(0.12, 50.0), (None, Verdict::Hold));
+        assert_eq!(at(0.14, 50.1), (Some(Verdict::Restart), Verdict::Restart));
+        assert_eq!(at(0.16, 50.2), (None, Verdict::Keep));
+        // A wrapped angle steps across ±π: no jump.
+        let mut w = LiveJoints::default();
+        assert_eq!(w.check(1.0, (3.1, 3.1)), (None, Verdict::Keep));
+        assert_eq!(w.check(1.02, (-3.1, -3.1)), (None, Verdict::Keep));
+        // A long pause allows a long step: 1 s at 100 rad/s.
+        assert_eq!(w.check(2.02, (40.0, 40.0)), (None, Verdict::Keep));
+    }
+
     use super::*;
 
     /// A wheel turning at 2 rad/s, sampled at 50 Hz, as a driver that wraps reports it.
