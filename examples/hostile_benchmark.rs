@@ -271,28 +271,15 @@ fn mcap_chunk(dir: &Path, name: &str, declared: u64) -> Result<PathBuf, Error> {
 }
 
 /// An MCAP start, then 3.9 GiB of 1 MiB records of an opcode MCAP leaves to users (which
-/// readers skip), compressed whole with zstd.
+/// readers skip), all zeros, compressed whole with zstd.
 fn split_bomb(dir: &Path) -> Result<PathBuf, Error> {
-    let path = dir.join("b_0.mcap.zstd");
-    let mut enc = zstd::stream::write::Encoder::new(std::fs::File::create(&path)?, 3)?;
-    enc.write_all(&mcap_start())?;
-    let skipped = record(0x80, &vec![0u8; (1 << 20) - 9]);
-    for _ in 0..3900 {
-        enc.write_all(&skipped)?;
-    }
-    enc.write_all(&mcap_end())?;
-    enc.finish()?;
-    Ok(path)
+    split_of(&dir.join("b_0.mcap.zstd"), &vec![0u8; (1 << 20) - 9], 3)
 }
 
 /// [`split_bomb`] with records of noise that repeats every 64 KiB (it compresses 16:1 and
-/// decompresses at the speed of a copy, not of a memset), 3.9 GiB.
+/// decompresses at the speed of a copy, not of a memset).
 fn noisy_split(dir: &Path) -> Result<PathBuf, Error> {
-    let path = dir.join("noisy").join("b_0.mcap.zstd");
     std::fs::create_dir_all(dir.join("noisy"))?;
-    let mut enc = zstd::stream::write::Encoder::new(std::fs::File::create(&path)?, 1)?;
-    enc.long_distance_matching(false)?;
-    enc.write_all(&mcap_start())?;
     let mut noise = 0x2545_F491_4F6C_DD1Du64;
     let mut block = vec![0u8; 1 << 16];
     for chunk in block.chunks_mut(8) {
@@ -302,13 +289,21 @@ fn noisy_split(dir: &Path) -> Result<PathBuf, Error> {
         chunk.copy_from_slice(&noise.to_le_bytes());
     }
     let body: Vec<u8> = block.iter().copied().cycle().take((1 << 20) - 9).collect();
-    let skipped = record(0x80, &body);
+    split_of(&dir.join("noisy").join("b_0.mcap.zstd"), &body, 1)
+}
+
+/// An `.mcap.zstd` at `path`: 3900 records of `body` (opcode 0x80) between an MCAP start and
+/// end, compressed whole at zstd `level`.
+fn split_of(path: &Path, body: &[u8], level: i32) -> Result<PathBuf, Error> {
+    let mut enc = zstd::stream::write::Encoder::new(std::fs::File::create(path)?, level)?;
+    enc.write_all(&mcap_start())?;
+    let skipped = record(0x80, body);
     for _ in 0..3900 {
         enc.write_all(&skipped)?;
     }
     enc.write_all(&mcap_end())?;
     enc.finish()?;
-    Ok(path)
+    Ok(path.to_path_buf())
 }
 
 fn three_splits(dir: &Path) -> Result<PathBuf, Error> {

@@ -193,6 +193,26 @@ fn a_metadata_yaml_of_nested_aliases_is_read_without_expanding_them() {
     assert!(rss < MAX_RSS_KIB, "{rss} KiB");
 }
 
+/// `blob` filled with noise that does not compress (xorshift64 from `state`).
+fn fill_noise(blob: &mut [u8], state: &mut u64) {
+    for chunk in blob.chunks_mut(8) {
+        *state ^= *state << 13;
+        *state ^= *state >> 7;
+        *state ^= *state << 17;
+        chunk.copy_from_slice(&state.to_le_bytes()[..chunk.len()]);
+    }
+}
+
+/// `from` compressed whole into `to` with zstd, as rosbag2's FILE mode does.
+fn zstd_whole(from: &Path, to: &Path) {
+    zstd::stream::copy_encode(
+        std::fs::File::open(from).unwrap(),
+        std::fs::File::create(to).unwrap(),
+        1,
+    )
+    .unwrap();
+}
+
 /// The simulated bag at `from` rewritten with `blobs` messages of 1 MiB of noise on a camera
 /// topic among its own (what a robot's full recording holds beside the topics odocal reads).
 fn padded(from: &Path, to: &Path, blobs: usize) {
@@ -236,12 +256,7 @@ fn padded(from: &Path, to: &Path, blobs: usize) {
         };
         w.write_to_known_channel(&header, &m.data).unwrap();
         if i % every == 0 {
-            for chunk in blob.chunks_mut(8) {
-                noise ^= noise << 13;
-                noise ^= noise >> 7;
-                noise ^= noise << 17;
-                chunk.copy_from_slice(&noise.to_le_bytes());
-            }
+            fill_noise(&mut blob, &mut noise);
             let header = mcap::records::MessageHeader {
                 channel_id: camera,
                 sequence: i as u32,
@@ -264,12 +279,7 @@ fn a_large_bag_is_read_in_memory_near_its_largest_chunk_not_its_size() {
     padded(&sim, &big, 300);
     assert!(std::fs::metadata(&big).unwrap().len() > 300 << 20);
     let zst = d.join("big.mcap.zstd");
-    zstd::stream::copy_encode(
-        std::fs::File::open(&big).unwrap(),
-        std::fs::File::create(&zst).unwrap(),
-        1,
-    )
-    .unwrap();
+    zstd_whole(&big, &zst);
     for path in [&big, &zst] {
         let (ok, err, rss) = bag(path);
         assert!(ok, "{}: {err}", path.display());
@@ -400,12 +410,7 @@ fn padded_db3(from: &Path, to: &Path, blobs: usize) {
         )
         .unwrap();
         if i % every == 0 {
-            for chunk in blob.chunks_mut(8) {
-                noise ^= noise << 13;
-                noise ^= noise >> 7;
-                noise ^= noise << 17;
-                chunk.copy_from_slice(&noise.to_le_bytes());
-            }
+            fill_noise(&mut blob, &mut noise);
             tx.execute(
                 "INSERT INTO messages(topic_id, timestamp, data) VALUES (1000, ?1, ?2)",
                 rusqlite::params![m.log_time as i64, &blob],
@@ -435,12 +440,7 @@ fn a_large_sqlite_or_lz4_bag_compressed_whole_is_read_near_its_largest_message()
     padded_db3(&sim, &db3, 200);
     assert!(std::fs::metadata(&db3).unwrap().len() > 200 << 20);
     let zst = d.join("big.db3.zstd");
-    zstd::stream::copy_encode(
-        std::fs::File::open(&db3).unwrap(),
-        std::fs::File::create(&zst).unwrap(),
-        1,
-    )
-    .unwrap();
+    zstd_whole(&db3, &zst);
     let db3_lz4 = d.join("big.db3.lz4");
     lz4_whole(&db3, &db3_lz4);
     let mcap = d.join("big.mcap");
@@ -488,12 +488,7 @@ fn a_run_past_its_total_budget_is_refused_naming_the_flag_that_raises_it() {
     let sim = d.join("sim.mcap");
     simulated_bag(&sim);
     let zst = d.join("sim.mcap.zstd");
-    zstd::stream::copy_encode(
-        std::fs::File::open(&sim).unwrap(),
-        std::fs::File::create(&zst).unwrap(),
-        1,
-    )
-    .unwrap();
+    zstd_whole(&sim, &zst);
     let path = zst.to_str().unwrap();
     let (ok, out, err) = common::odocal(&["bag", path, "--side-m", "1"]);
     assert!(ok, "{out}{err}");

@@ -700,3 +700,64 @@ async fn a_backup_a_full_disk_refuses_leaves_no_file_and_writes_nothing() {
     assert_eq!(files(&dir), before, "a backup file left behind");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// SIGTERM or SIGHUP while `restore` waits for its answer: nothing is written, no file is
+/// made, and odocal says so and leaves with status 130 (not killed outright, mid-way).
+#[cfg(unix)]
+#[tokio::test]
+async fn a_signal_at_restores_question_leaves_with_nothing_written() {
+    use std::io::{BufRead, Read};
+    let dir = scratch("restore-signal-question");
+    std::fs::create_dir_all(&dir).unwrap();
+    let file = dir.join("diff_drive.yaml");
+    std::fs::write(&file, common::DIFF_DRIVE_YAML).unwrap();
+    let mut tx = Transaction::begin(open_yaml(&file), &dir.join("report"))
+        .await
+        .unwrap();
+    let backup = tx.backup_path().unwrap().to_path_buf();
+    let original = open_yaml(&file).read().await.unwrap();
+    tx.apply(&changed(&original)).await.unwrap();
+    drop(tx);
+    let changed_text = std::fs::read(&file).unwrap();
+    let before = files(&dir);
+    for signal in ["TERM", "HUP"] {
+        let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_odocal"))
+            .args(["restore", backup.to_str().unwrap()])
+            .stdin(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped())
+            .stdout(std::process::Stdio::null())
+            .spawn()
+            .unwrap();
+        let mut err = std::io::BufReader::new(child.stderr.take().unwrap());
+        let mut said = Vec::new();
+        // The question ends without a newline: read up to its `[y/N]`.
+        while !String::from_utf8_lossy(&said).contains("[y/N]") {
+            let mut byte = [0u8; 1];
+            if err.read(&mut byte).unwrap() == 0 {
+                break;
+            }
+            said.push(byte[0]);
+        }
+        let ok = std::process::Command::new("kill")
+            .args([&format!("-{signal}"), &child.id().to_string()])
+            .status()
+            .unwrap()
+            .success();
+        assert!(ok);
+        let mut rest = String::new();
+        for line in err.lines() {
+            rest.push_str(&line.unwrap());
+            rest.push('\n');
+        }
+        let status = child.wait().unwrap();
+        let text = format!("{}{rest}", String::from_utf8_lossy(&said));
+        assert_eq!(status.code(), Some(130), "{signal}: {text}");
+        assert!(
+            text.contains(&format!("SIG{signal}: nothing was written; leaving")),
+            "{text}"
+        );
+        assert_eq!(std::fs::read(&file).unwrap(), changed_text);
+        assert_eq!(files(&dir), before, "{signal}: a file made");
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}

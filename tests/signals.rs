@@ -304,3 +304,69 @@ fn on_a_roboclaw_sigterm_and_sighup_in_any_phase_stop_the_robot_and_leave_the_pr
         }
     });
 }
+
+/// A device that stops answering once the first signal came (its process stopped): odocal's
+/// stop and restore wait on it, and a second signal leaves at once, exit status 130, after
+/// telling the robot to stop (which the device obeys once it runs again) and saying what may be
+/// left to do.
+#[test]
+fn a_second_signal_while_the_device_does_not_answer_stops_the_robot_and_leaves_at_once() {
+    let (mut mock, port) = common::spawn_mock(&["--time-scale", "20", "--seed", "3"]);
+    let dir = common::scratch("signal-second");
+    std::fs::create_dir_all(&dir).unwrap();
+    let mut args = vec!["calibrate", "--port", port.as_str()];
+    args.extend(common::QUICK_FLAGS);
+    args.extend(["--report-dir", "report"]);
+    let mut child = Command::new(env!("CARGO_BIN_EXE_odocal"))
+        .args(&args)
+        .current_dir(&dir)
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let kill = |signal: &str, pid: u32| {
+        let ok = Command::new("kill")
+            .args([&format!("-{signal}"), &pid.to_string()])
+            .status()
+            .unwrap()
+            .success();
+        assert!(ok, "kill -{signal} {pid}");
+    };
+    let mut lines = Vec::new();
+    let mut reader = BufReader::new(child.stderr.take().unwrap()).lines();
+    for line in reader.by_ref() {
+        let line = line.unwrap();
+        let at = line.trim_start().starts_with("round 2: square 1 of");
+        lines.push(line);
+        if at {
+            break;
+        }
+    }
+    kill("STOP", mock.id());
+    kill("TERM", child.id());
+    std::thread::sleep(std::time::Duration::from_millis(300));
+    let sent = std::time::Instant::now();
+    kill("TERM", child.id());
+    let status = child.wait().unwrap();
+    let waited = sent.elapsed();
+    lines.extend(reader.map(|l| l.unwrap()));
+    let text = lines.join("\n");
+    kill("CONT", mock.id());
+    assert_eq!(status.code(), Some(130), "{text}");
+    assert!(
+        waited < std::time::Duration::from_secs(10),
+        "{waited:?} after the second signal:\n{text}"
+    );
+    assert!(
+        text.contains("SIGTERM again: the robot was told to stop, leaving now")
+            && text.contains("odocal restore BACKUP"),
+        "{text}"
+    );
+    // The device, running again, is idle.
+    let status = common::odocal_json(&["status", "--port", &port, "--json"]);
+    assert_eq!(status["status"]["motion_state"], "idle", "{status}");
+    drop(mock.stdin.take());
+    let _ = mock.wait();
+    std::fs::remove_dir_all(&dir).unwrap();
+}

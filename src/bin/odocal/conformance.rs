@@ -94,9 +94,10 @@ pub async fn run(args: Args) -> CliResult {
     });
     let report = tokio::select! {
         r = checks => r,
-        _ = tokio::signal::ctrl_c() => {
+        name = crate::prompt::signal() => {
             stop_base(&args.port, args.baud).await;
-            return Err("interrupted: the base was stopped".into());
+            let name = name.unwrap_or("a signal");
+            return Err(format!("interrupted ({name}): the base was stopped").into());
         }
     };
     let report = match report {

@@ -281,25 +281,27 @@ pub async fn params(cmd: ParamsCommand) -> CliResult {
             odocal::hal::wire_params(&wanted)?;
             // The one write path: backed up, written, read back, rolled back on failure.
             let mut tx = Transaction::prepare(client.clone(), Some(&wanted)).await?;
-            let saved_to = tx.back_up(&backup_dir).await?;
-            eprintln!("backed up the current parameters to {}", saved_to.display());
-            let applied = match tx.write_in_use(&wanted).await {
-                Ok(applied) => applied,
-                Err(e) => {
-                    return Err(format!(
+            let (saved_to, applied) = crate::prompt::writing(async {
+                let saved_to = tx.back_up(&backup_dir).await?;
+                eprintln!("backed up the current parameters to {}", saved_to.display());
+                match tx.write_in_use(&wanted).await {
+                    Ok(applied) => Ok((saved_to, applied)),
+                    Err(e) => Err(format!(
                         "not written: {e} ({}; the earlier parameters are in {})",
                         crate::restore::roll_back(&mut tx).await,
                         saved_to.display()
                     )
-                    .into())
+                    .into()),
                 }
-            };
+            })
+            .await
+            .map_err(|e: Box<dyn std::error::Error>| e)?;
             eprintln!("written to RAM; run `odocal params save` to keep them across power cycles");
             print_params(&applied, port.json, json!({ "backup": saved_to }))
         }
         ParamsCommand::Save { port } => {
             let client = port.connect().await?;
-            let crc = client.save_params().await?;
+            let crc = crate::prompt::writing(client.save_params()).await?;
             if port.json {
                 print_json(&json!({ "stored_crc": crc }))
             } else {

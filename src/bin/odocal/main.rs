@@ -345,6 +345,15 @@ fn block_on(
     tokio::runtime::Runtime::new()?.block_on(fut)
 }
 
+/// A command that writes a store, with signals held while it writes
+/// ([`prompt::guard_writes`]).
+async fn guarded(
+    fut: impl std::future::Future<Output = Result<(), Box<dyn std::error::Error>>>,
+) -> Result<(), Box<dyn std::error::Error>> {
+    prompt::guard_writes();
+    fut.await
+}
+
 /// The command line with negative numbers accepted as values everywhere (`--side-m -4` is a
 /// value to validate, not an unknown flag).
 fn command() -> clap::Command {
@@ -371,7 +380,7 @@ fn main() -> ExitCode {
         Command::Calibrate(args) => block_on(routine::calibrate(args)),
         Command::Plan(args) => plan::run(args),
         Command::Run(args) => block_on(routine::run_file(args)),
-        Command::Export(args) => block_on(routine::export(args)),
+        Command::Export(args) => block_on(guarded(routine::export(args))),
         Command::Track(args) => block_on(track::track(args)),
         Command::Record(args) => block_on(track::record(args)),
         Command::Estimate(args) => estimate::run(args),
@@ -380,8 +389,8 @@ fn main() -> ExitCode {
         Command::MockDevice(args) => block_on(device::mock_device(args)),
         Command::Conformance(args) => block_on(conformance::run(args)),
         Command::KitDevice(args) => block_on(conformance::kit_device(args)),
-        Command::Params { command } => block_on(device::params(command)),
-        Command::Restore(args) => block_on(restore::restore(args)),
+        Command::Params { command } => block_on(guarded(device::params(command))),
+        Command::Restore(args) => block_on(guarded(restore::restore(args))),
         Command::Status(port) => block_on(device::status(port)),
         Command::Heading(args) => block_on(device::heading(args)),
         Command::Swing(args) => block_on(sensor::swing(args)),
@@ -402,6 +411,15 @@ fn main() -> ExitCode {
             eprintln!("error: {e}");
             ExitCode::FAILURE
         }
+    };
+    // A signal held while a store was written: the write ended (said above), now leave as
+    // the signal asked.
+    let code = match prompt::deferred_signal() {
+        Some(name) => {
+            eprintln!("{name} came during the write, which was finished first: leaving");
+            ExitCode::from(130)
+        }
+        None => code,
     };
     peak_memory();
     code

@@ -20,51 +20,160 @@ pub fn yes(question: &str) -> bool {
         .is_ok_and(|a| matches!(a.as_str(), "y" | "Y" | "yes" | "YES"))
 }
 
+/// What stops the robot at once when odocal must leave before its own stop and restore are
+/// done (a second signal, or the deadline): each base's [`odocal::base::Drive::emergency_stop`].
+type Stop = Box<dyn Fn() + Send>;
+static FORCED_EXIT_STOPS: std::sync::Mutex<Vec<Stop>> = std::sync::Mutex::new(Vec::new());
+
+/// Registers `stop` (a drive's emergency stop) to be called before a forced exit.
+pub fn stop_on_forced_exit(stop: impl Fn() + Send + 'static) {
+    FORCED_EXIT_STOPS
+        .lock()
+        .unwrap_or_else(|p| p.into_inner())
+        .push(Box::new(stop));
+}
+
+/// How long the stop and restore a signal starts may take before odocal leaves anyway: a
+/// restore on a device that stopped answering waits out its retries.
+const DEADLINE: std::time::Duration = std::time::Duration::from_secs(30);
+
 /// A token cancelled by Ctrl-C, and on Unix by SIGTERM and SIGHUP as well (what a service
 /// manager, `timeout`, `docker stop`, a closed SSH session or terminal send): each is handled
 /// as Ctrl-C is, so the robot is stopped and the parameters restored. Prints `note` (what
 /// odocal does about it) when given. A second signal while that is under way (a device that
-/// no longer answers can hold a restore for its timeouts) leaves at once, exit status 130,
-/// saying what may be left to do.
+/// no longer answers can hold a restore for its timeouts), or [`DEADLINE`] without an end,
+/// stops the robot at once ([`stop_on_forced_exit`]) and leaves, exit status 130, saying what
+/// may be left to do.
 pub fn ctrl_c_token(note: Option<&'static str>) -> CancellationToken {
     let token = CancellationToken::new();
     let t = token.clone();
+    // Listening before this returns: a signal right after is handled, not fatal.
+    let mut signals = Signals::listen();
     tokio::spawn(async move {
-        if let Some(name) = signal().await {
+        if let Some(name) = signals.recv().await {
             if let Some(note) = note {
                 eprintln!("\n{name}: {note}");
             }
             t.cancel();
-            if let Some(again) = signal().await {
-                eprintln!(
-                    "\n{again} again: leaving now. The controller's watchdog or command timeout \
-                     stops the robot; a restore cut short may have left the new parameters in \
-                     place: check with `odocal params get` (or the file), and put a backup back \
-                     with `odocal restore BACKUP`"
-                );
-                std::process::exit(130);
+            let why = tokio::select! {
+                again = signals.recv() => match again {
+                    Some(again) => format!("{again} again"),
+                    // No second signal can be waited for: only the deadline.
+                    None => {
+                        tokio::time::sleep(DEADLINE).await;
+                        format!("no end {} after {name}", odocal::io::seconds(&DEADLINE))
+                    }
+                },
+                () = tokio::time::sleep(DEADLINE) => {
+                    format!("no end {} after {name}", odocal::io::seconds(&DEADLINE))
+                }
+            };
+            for stop in FORCED_EXIT_STOPS
+                .lock()
+                .unwrap_or_else(|p| p.into_inner())
+                .iter()
+            {
+                stop();
             }
+            // Time for the link to put the stop on the wire (a drive's emergency stop queues
+            // it, it does not wait for an answer that may never come).
+            tokio::time::sleep(std::time::Duration::from_millis(200)).await;
+            eprintln!(
+                "\n{why}: the robot was told to stop, leaving now. A restore cut short may have \
+                 left the new parameters in place: check with `odocal params get` (or the \
+                 file), and put a backup back with `odocal restore BACKUP`"
+            );
+            std::process::exit(130);
         }
     });
     token
 }
 
-/// Waits for the first of Ctrl-C, SIGTERM and SIGHUP; its name, or `None` when no signal can
-/// be waited for.
-async fn signal() -> Option<&'static str> {
+/// Ctrl-C, SIGTERM and SIGHUP, listened for from the moment this is made: a signal that comes
+/// before the first [`Signals::recv`] is not lost, nor does it kill the process.
+pub struct Signals {
     #[cfg(unix)]
-    {
-        use tokio::signal::unix::{signal, SignalKind};
-        if let (Ok(mut term), Ok(mut hup)) = (
-            signal(SignalKind::terminate()),
-            signal(SignalKind::hangup()),
-        ) {
+    unix: Option<[tokio::signal::unix::Signal; 3]>,
+}
+
+impl Signals {
+    /// Starts listening (on Unix the handlers are installed now, before this returns).
+    pub fn listen() -> Self {
+        #[cfg(unix)]
+        {
+            use tokio::signal::unix::{signal, SignalKind};
+            let unix = match (
+                signal(SignalKind::interrupt()),
+                signal(SignalKind::terminate()),
+                signal(SignalKind::hangup()),
+            ) {
+                (Ok(int), Ok(term), Ok(hup)) => Some([int, term, hup]),
+                _ => None,
+            };
+            Signals { unix }
+        }
+        #[cfg(not(unix))]
+        Signals {}
+    }
+
+    /// The next signal's name, or `None` when no signal can be waited for.
+    pub async fn recv(&mut self) -> Option<&'static str> {
+        #[cfg(unix)]
+        if let Some([int, term, hup]) = self.unix.as_mut() {
             return tokio::select! {
-                r = tokio::signal::ctrl_c() => r.ok().map(|()| "Ctrl-C"),
-                _ = term.recv() => Some("SIGTERM"),
-                _ = hup.recv() => Some("SIGHUP"),
+                r = int.recv() => r.map(|()| "Ctrl-C"),
+                r = term.recv() => r.map(|()| "SIGTERM"),
+                r = hup.recv() => r.map(|()| "SIGHUP"),
             };
         }
+        tokio::signal::ctrl_c().await.ok().map(|()| "Ctrl-C")
     }
-    tokio::signal::ctrl_c().await.ok().map(|()| "Ctrl-C")
+}
+
+/// Waits for the first of Ctrl-C, SIGTERM and SIGHUP from now on; its name, or `None` when no
+/// signal can be waited for.
+pub async fn signal() -> Option<&'static str> {
+    Signals::listen().recv().await
+}
+
+/// Whether a store is being written now ([`writing`]).
+static WRITING: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+/// A signal that came while a store was being written, held until the write ended.
+static DEFERRED: std::sync::Mutex<Option<&'static str>> = std::sync::Mutex::new(None);
+
+/// For a command that writes a store (`restore`, `export`, `params set|save|restore`): Ctrl-C,
+/// SIGTERM and SIGHUP leave at once (status 130) while nothing is being written, and wait for
+/// a write under way (backup, write, read-back, rollback: [`writing`]) to end, so a store is
+/// never left half-written by a signal; the command then ends with status 130
+/// ([`deferred_signal`]).
+pub fn guard_writes() {
+    let mut signals = Signals::listen();
+    tokio::spawn(async move {
+        while let Some(name) = signals.recv().await {
+            if WRITING.load(std::sync::atomic::Ordering::SeqCst) {
+                eprintln!(
+                    "\n{name}: the write under way finishes first (it is backed up and read \
+                     back, or rolled back), then odocal leaves"
+                );
+                *DEFERRED.lock().unwrap_or_else(|p| p.into_inner()) = Some(name);
+            } else {
+                eprintln!("\n{name}: nothing was written; leaving");
+                std::process::exit(130);
+            }
+        }
+    });
+}
+
+/// Runs `write` (a store's whole transaction) with signals held until it ends ([`guard_writes`]).
+pub async fn writing<T>(write: impl std::future::Future<Output = T>) -> T {
+    WRITING.store(true, std::sync::atomic::Ordering::SeqCst);
+    let out = write.await;
+    WRITING.store(false, std::sync::atomic::Ordering::SeqCst);
+    out
+}
+
+/// The signal held during a write, if one came: the command ends with status 130 after saying
+/// what it did.
+pub fn deferred_signal() -> Option<&'static str> {
+    *DEFERRED.lock().unwrap_or_else(|p| p.into_inner())
 }

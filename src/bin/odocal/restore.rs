@@ -230,7 +230,7 @@ pub async fn restore_onto(
             here.id,
             if how.commit { " and commit them" } else { "" }
         );
-        if !crate::prompt::yes(&question) {
+        if !tokio::task::block_in_place(|| crate::prompt::yes(&question)) {
             return Err("not restored: declined".into());
         }
     }
@@ -238,24 +238,27 @@ pub async fn restore_onto(
         true => how.backup_dir.clone(),
         false => backup_dir_for(tx.store().as_ref(), &how.backup_dir),
     };
-    let saved = tx.back_up(&dir).await?;
-    eprintln!("backed up what the store holds now to {}", saved.display());
-    let written = match (&whole, how.commit) {
-        (Some((then, _)), _) => tx.apply_text(then, &target).await,
-        (None, true) => tx.apply(&target).await,
-        (None, false) => tx.write_in_use(&target).await,
-    };
-    let applied = match written {
-        Ok(p) => p,
-        Err(e) => {
-            return Err(format!(
+    // From the backup to the read-back (or the rollback), a signal waits for the end.
+    let (saved, applied) = crate::prompt::writing(async {
+        let saved = tx.back_up(&dir).await?;
+        eprintln!("backed up what the store holds now to {}", saved.display());
+        let written = match (&whole, how.commit) {
+            (Some((then, _)), _) => tx.apply_text(then, &target).await,
+            (None, true) => tx.apply(&target).await,
+            (None, false) => tx.write_in_use(&target).await,
+        };
+        match written {
+            Ok(p) => Ok((saved, p)),
+            Err(e) => Err(format!(
                 "not restored: {e} ({}; the earlier parameters are in {})",
                 roll_back(&mut tx).await,
                 saved.display()
             )
-            .into())
+            .into()),
         }
-    };
+    })
+    .await
+    .map_err(|e: Box<dyn std::error::Error>| e)?;
     eprintln!(
         "restored{}",
         if how.commit {

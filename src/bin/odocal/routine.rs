@@ -620,6 +620,8 @@ async fn run_on(mut cfg: RoutineConfig, spec: BaseSpec, flags: &RoutineFlags) ->
     let mut ui = TerminalUi::new(flags.json, flags.yes);
     let token =
         crate::prompt::ctrl_c_token(Some("stopping the robot and restoring the parameters…"));
+    let drive = base.drive.clone();
+    crate::prompt::stop_on_forced_exit(move || drive.emergency_stop());
     let report = match run(&base, &cfg, None, &mut ui, &token).await {
         Ok(report) => report,
         Err(e) => return Err(ui.ended(e)),
@@ -745,7 +747,7 @@ pub async fn export(args: ExportArgs) -> CliResult {
         )
         .into());
     }
-    match export(&args.ros2, &args.controller, &cal).await? {
+    match crate::prompt::writing(export(&args.ros2, &args.controller, &cal)).await? {
         Exported::Created => println!("wrote {} ({} calibration)", args.ros2.display(), cal.method),
         Exported::Merged { backup } => println!(
             "merged the {} calibration's multipliers into {}{} (undo: odocal restore {})",

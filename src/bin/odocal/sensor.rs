@@ -122,9 +122,10 @@ pub async fn swing(args: SwingArgs) -> CliResult {
     };
     let fit = tokio::select! {
         r = run_swing(&base, &cmd) => r?,
-        _ = tokio::signal::ctrl_c() => {
+        name = crate::prompt::signal() => {
             let _ = base.drive.stop().await;
-            return Err("interrupted: the robot was stopped".into());
+            let name = name.unwrap_or("a signal");
+            return Err(format!("interrupted ({name}): the robot was stopped").into());
         }
     }
     .map_err(|why| match why {
@@ -247,9 +248,10 @@ pub async fn spin(args: SpinArgs) -> CliResult {
     )?;
     let record = tokio::select! {
         r = run_spin(&base, args.turns, args.rate_rad_s, args.heading_samples) => r?,
-        _ = tokio::signal::ctrl_c() => {
+        name = crate::prompt::signal() => {
             let _ = base.drive.stop().await;
-            return Err("interrupted: the robot was stopped".into());
+            let name = name.unwrap_or("a signal");
+            return Err(format!("interrupted ({name}): the robot was stopped").into());
         }
     };
     let sign = f64::from(args.turns.signum());

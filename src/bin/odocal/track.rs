@@ -85,6 +85,10 @@ async fn live(
         max_rate_rad_s: drive.map_or(0.5, |d| d.max_rate_rad_s),
         seed: drive.map_or(1, |d| d.seed),
     };
+    if opts.path.is_some() {
+        let drive = base.drive.clone();
+        crate::prompt::stop_on_forced_exit(move || drive.emergency_stop());
+    }
     let mut error = None;
     let mut log = log;
     let mut sink = |e: &Event| {
