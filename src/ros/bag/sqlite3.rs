@@ -5,8 +5,8 @@
 //! A plain file is opened where it lies, read-only and `immutable` (SQLite reads the pages it
 //! needs, takes no lock and creates nothing beside the file: no journal, no WAL index); a
 //! `.db3.zstd` or `.db3.lz4` is decompressed as a stream into a temporary file (as rosbag2's
-//! own reader does: SQLite reads only files), removed when the bag is dropped, and opened
-//! there; bytes already in memory are opened there. Either way a file shorter than its header
+//! own reader does: SQLite reads only files), opened there and, on Unix, unlinked at once
+//! (SQLite keeps it open; elsewhere it is removed when the bag is dropped); bytes already in memory are opened there. Either way a file shorter than its header
 //! says is refused first: SQLite would read the missing pages as zeros.
 
 use super::compression::{self, Whole};
@@ -122,6 +122,10 @@ impl Sqlite3Bag {
         file.flush().map_err(written)?;
         drop(file);
         let mut bag = Self::at(&copy.0, path)?;
+        // SQLite holds the file open from here on: on Unix its name can go now, so that a
+        // process killed while it reads leaves no copy behind (elsewhere it goes on drop).
+        #[cfg(unix)]
+        let _ = std::fs::remove_file(&copy.0);
         bag._copy = Some(copy);
         Ok(bag)
     }
