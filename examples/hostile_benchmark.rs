@@ -330,15 +330,23 @@ fn splits_of(dir: &Path, name: &str, one: &Path) -> Result<PathBuf, Error> {
     Ok(d)
 }
 
-fn many_frames(dir: &Path) -> Result<PathBuf, Error> {
-    let path = dir.join("frames.db3");
-    let mut db = rusqlite::Connection::open(&path)?;
+/// A new sqlite3 file at `path` with rosbag2's two tables.
+fn rosbag2_db3(path: &Path) -> Result<rusqlite::Connection, Error> {
+    let db = rusqlite::Connection::open(path)?;
     db.execute_batch(
         "CREATE TABLE topics(id INTEGER PRIMARY KEY, name TEXT NOT NULL, type TEXT NOT NULL,
              serialization_format TEXT NOT NULL, offered_qos_profiles TEXT NOT NULL);
          CREATE TABLE messages(id INTEGER PRIMARY KEY, topic_id INTEGER NOT NULL,
-             timestamp INTEGER NOT NULL, data BLOB NOT NULL);
-         CREATE INDEX timestamp_idx ON messages (timestamp ASC);
+             timestamp INTEGER NOT NULL, data BLOB NOT NULL);",
+    )?;
+    Ok(db)
+}
+
+fn many_frames(dir: &Path) -> Result<PathBuf, Error> {
+    let path = dir.join("frames.db3");
+    let mut db = rosbag2_db3(&path)?;
+    db.execute_batch(
+        "CREATE INDEX timestamp_idx ON messages (timestamp ASC);
          INSERT INTO topics VALUES (1, '/joint_states', 'sensor_msgs/msg/JointState', 'cdr', '');",
     )?;
     // A CDR JointState of zeros (no joints) padded to 1 MiB, compressed.
@@ -368,13 +376,7 @@ fn reversed_db3(dir: &Path) -> Result<PathBuf, Error> {
     let forward = rewritten(&data, &dir.join("forward.mcap"), false, None)?;
     let bytes = std::fs::read(&forward)?;
     let path = dir.join("reversed.db3");
-    let mut db = rusqlite::Connection::open(&path)?;
-    db.execute_batch(
-        "CREATE TABLE topics(id INTEGER PRIMARY KEY, name TEXT NOT NULL, type TEXT NOT NULL,
-             serialization_format TEXT NOT NULL, offered_qos_profiles TEXT NOT NULL);
-         CREATE TABLE messages(id INTEGER PRIMARY KEY, topic_id INTEGER NOT NULL,
-             timestamp INTEGER NOT NULL, data BLOB NOT NULL);",
-    )?;
+    let mut db = rosbag2_db3(&path)?;
     let tx = db.transaction()?;
     let mut topics = std::collections::BTreeSet::new();
     let end = 200_000_000_000i64;

@@ -651,14 +651,10 @@ async fn a_store_on_a_full_disk_fails_its_write_and_keeps_the_file_and_its_backu
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
-/// `odocal restore` on a disk that takes no more than the file already holds (a process file
-/// size limit, as a full disk refuses a write): the backup of what the store holds cannot be
-/// written, so nothing is written, no empty or cut-off backup is left, and the error says why.
-#[cfg(unix)]
-#[tokio::test]
-async fn a_backup_a_full_disk_refuses_leaves_no_file_and_writes_nothing() {
-    use std::os::unix::process::CommandExt;
-    let dir = scratch("restore-full-disk-backup");
+/// A controller's YAML in a directory of its own named after `test`, backed up into its
+/// `report/` and then changed by a transaction: the directory, the file, the backup.
+async fn changed_yaml_with_backup(test: &str) -> (PathBuf, PathBuf, PathBuf) {
+    let dir = scratch(test);
     std::fs::create_dir_all(&dir).unwrap();
     let file = dir.join("diff_drive.yaml");
     std::fs::write(&file, common::DIFF_DRIVE_YAML).unwrap();
@@ -668,7 +664,17 @@ async fn a_backup_a_full_disk_refuses_leaves_no_file_and_writes_nothing() {
     let backup = tx.backup_path().unwrap().to_path_buf();
     let original = open_yaml(&file).read().await.unwrap();
     tx.apply(&changed(&original)).await.unwrap();
-    drop(tx);
+    (dir, file, backup)
+}
+
+/// `odocal restore` on a disk that takes no more than the file already holds (a process file
+/// size limit, as a full disk refuses a write): the backup of what the store holds cannot be
+/// written, so nothing is written, no empty or cut-off backup is left, and the error says why.
+#[cfg(unix)]
+#[tokio::test]
+async fn a_backup_a_full_disk_refuses_leaves_no_file_and_writes_nothing() {
+    use std::os::unix::process::CommandExt;
+    let (dir, file, backup) = changed_yaml_with_backup("restore-full-disk-backup").await;
     let changed_text = std::fs::read(&file).unwrap();
     let before = files(&dir);
     let limit = changed_text.len() as u64;
@@ -707,17 +713,7 @@ async fn a_backup_a_full_disk_refuses_leaves_no_file_and_writes_nothing() {
 #[tokio::test]
 async fn a_signal_at_restores_question_leaves_with_nothing_written() {
     use std::io::{BufRead, Read};
-    let dir = scratch("restore-signal-question");
-    std::fs::create_dir_all(&dir).unwrap();
-    let file = dir.join("diff_drive.yaml");
-    std::fs::write(&file, common::DIFF_DRIVE_YAML).unwrap();
-    let mut tx = Transaction::begin(open_yaml(&file), &dir.join("report"))
-        .await
-        .unwrap();
-    let backup = tx.backup_path().unwrap().to_path_buf();
-    let original = open_yaml(&file).read().await.unwrap();
-    tx.apply(&changed(&original)).await.unwrap();
-    drop(tx);
+    let (dir, file, backup) = changed_yaml_with_backup("restore-signal-question").await;
     let changed_text = std::fs::read(&file).unwrap();
     let before = files(&dir);
     for signal in ["TERM", "HUP"] {
