@@ -82,24 +82,40 @@ impl Sqlite3Bag {
         use std::io::{Read, Write};
         let mut input = compression::stream(path, whole)?;
         let dir = std::env::temp_dir();
-        let (copy, mut file) = (0u32..)
-            .map(|n| dir.join(format!("odocal-{}-{n}.db3", std::process::id())))
-            .take(1000)
-            .find_map(|p| {
-                let f = std::fs::OpenOptions::new()
-                    .write(true)
-                    .create_new(true)
-                    .open(&p)
-                    .ok()?;
-                Some((Temporary(p), f))
-            })
-            .ok_or_else(|| BagError::Io {
-                path: dir.clone(),
-                source: std::io::Error::other(
-                    "no temporary file can be created there to decompress the bag into; \
-                     set TMPDIR to a writable directory",
-                ),
-            })?;
+        // The first free name; any error but a name taken is the directory's, and final.
+        let mut made = None;
+        for n in 0..1000u32 {
+            let p = dir.join(format!("odocal-{}-{n}.db3", std::process::id()));
+            match std::fs::OpenOptions::new()
+                .write(true)
+                .create_new(true)
+                .open(&p)
+            {
+                Ok(f) => {
+                    made = Some((Temporary(p), f));
+                    break;
+                }
+                Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => continue,
+                Err(e) => {
+                    return Err(BagError::Io {
+                        path: dir.clone(),
+                        source: std::io::Error::new(
+                            e.kind(),
+                            format!(
+                                "{e}: no temporary file can be made there to decompress the \
+                                 bag into; set TMPDIR to a writable directory"
+                            ),
+                        ),
+                    })
+                }
+            }
+        }
+        let (copy, mut file) = made.ok_or_else(|| BagError::Io {
+            path: dir.clone(),
+            source: std::io::Error::other(
+                "a thousand temporary files of this process are there already; remove them",
+            ),
+        })?;
         let written = |source: std::io::Error| BagError::Io {
             path: copy.0.clone(),
             source: std::io::Error::new(
