@@ -541,3 +541,50 @@ fn a_run_past_its_total_budget_is_refused_naming_the_flag_that_raises_it() {
     assert!(!ok && err.contains("is not a size"), "{err}");
     std::fs::remove_dir_all(&d).unwrap();
 }
+
+#[test]
+fn a_file_compressed_whole_past_its_budget_and_a_temporary_directory_that_takes_no_copy_are_named()
+{
+    let d = dir("hostile-whole-errors");
+    let sim = d.join("sim.mcap");
+    simulated_bag(&sim);
+    let zst = d.join("sim.mcap.zstd");
+    zstd_whole(&sim, &zst);
+    // A budget the compressed file is within, what it decompresses to is not: refused while
+    // it decompresses, naming the budget.
+    let packed = std::fs::metadata(&zst).unwrap().len();
+    let unpacked = std::fs::metadata(&sim).unwrap().len();
+    let bound = packed + 1024;
+    assert!(unpacked > bound, "{packed} {unpacked}");
+    let setting = format!("bag-file={bound}");
+    let (ok, _, err) = common::odocal(&[
+        "bag",
+        zst.to_str().unwrap(),
+        "--side-m",
+        "1",
+        "--budget",
+        &setting,
+    ]);
+    assert!(!ok, "{err}");
+    assert!(
+        err.contains("budget `bag-file`") && err.contains("--budget bag-file="),
+        "{err}"
+    );
+    // A `.db3.zstd` with nowhere to decompress to: the directory and the way out are named.
+    let db3 = d.join("sim.db3");
+    padded_db3(&sim, &db3, 1);
+    let db3_zst = d.join("sim.db3.zstd");
+    zstd_whole(&db3, &db3_zst);
+    let out = Command::new(env!("CARGO_BIN_EXE_odocal"))
+        .args(["bag", db3_zst.to_str().unwrap(), "--side-m", "1"])
+        .env("TMPDIR", d.join("no-such-directory"))
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{err}");
+    assert!(
+        err.contains("no-such-directory") && err.contains("set TMPDIR to a writable directory"),
+        "{err}"
+    );
+    std::fs::remove_dir_all(&d).unwrap();
+}

@@ -475,6 +475,9 @@ mod tests {
         assert_eq!(w.check(1.02, (-3.1, -3.1)), (None, Verdict::Keep));
         // A long pause allows a long step: 1 s at 100 rad/s.
         assert_eq!(w.check(2.02, (40.0, 40.0)), (None, Verdict::Keep));
+        // The reasons quote the bounds the checks use.
+        assert!(NOT_PHYSICAL.contains(&format!("±{:e} rad", super::MAX_JOINT_RAD)));
+        assert!(SPIKE.contains(&format!("{} rad/s", super::MAX_WHEEL_RATE_RAD_S)));
     }
 
     use super::*;
