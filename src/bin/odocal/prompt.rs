@@ -55,18 +55,17 @@ pub fn ctrl_c_token(note: Option<&'static str>) -> CancellationToken {
                 eprintln!("\n{name}: {note}");
             }
             t.cancel();
-            let why = tokio::select! {
-                again = signals.recv() => match again {
-                    Some(again) => format!("{again} again"),
-                    // No second signal can be waited for: only the deadline.
-                    None => {
-                        tokio::time::sleep(DEADLINE).await;
-                        format!("no end {} after {name}", odocal::io::seconds(&DEADLINE))
-                    }
-                },
-                () = tokio::time::sleep(DEADLINE) => {
-                    format!("no end {} after {name}", odocal::io::seconds(&DEADLINE))
+            // A second signal, or the deadline (the only end when no signal can be waited for).
+            let again = tokio::time::timeout(DEADLINE, async {
+                match signals.recv().await {
+                    Some(again) => again,
+                    None => std::future::pending().await,
                 }
+            })
+            .await;
+            let why = match again {
+                Ok(again) => format!("{again} again"),
+                Err(_) => format!("no end {} after {name}", odocal::io::seconds(&DEADLINE)),
             };
             for stop in FORCED_EXIT_STOPS
                 .lock()
