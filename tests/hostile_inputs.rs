@@ -515,6 +515,21 @@ fn a_run_past_its_total_budget_is_refused_naming_the_flag_that_raises_it() {
         ]);
         assert!(ok, "{out}{err}");
     }
+    // A plain MCAP's zstd chunks count too, and a budget spent is not a broken bag.
+    let (ok, _, err) = common::odocal(&[
+        "bag",
+        sim.to_str().unwrap(),
+        "--side-m",
+        "1",
+        "--budget",
+        "run-bytes=64KiB",
+    ]);
+    assert!(!ok, "{err}");
+    assert!(
+        err.contains("(its chunks) reaches") && err.contains("budget `run-bytes`"),
+        "{err}"
+    );
+    assert!(!err.contains("not a readable"), "{err}");
     // The help states each budget's default as the library has it.
     let (_, help, _) = common::odocal(&["bag", "--help"]);
     let help = help.split_whitespace().collect::<Vec<_>>().join(" ");

@@ -354,7 +354,7 @@ impl Pass {
             });
             if let Err(e) = charged {
                 self.chunk = buf;
-                return Err(malformed(path, e.to_string()));
+                return Err(BagError::Budget(e));
             }
         }
         let mut at = 0usize;

@@ -491,10 +491,10 @@ impl Ros1Bag {
                 ),
             )));
         }
+        // Not the bag's fault: the run's budget (the error names it and its flag).
         crate::io::budget::charge_bytes(u64::from(size), &|| {
             format!("{} (its chunks)", self.path.display())
-        })
-        .map_err(|e| self.malformed(e.to_string()))?;
+        })?;
         Ok(out)
     }
 }
