@@ -135,16 +135,14 @@ pub fn stream(path: &Path, whole: Whole) -> Result<Box<dyn Read>, BagError> {
     }))
 }
 
-/// The first 16 bytes the file at `path` decompresses to (what format it holds), if it
-/// decompresses at all.
-pub fn head(path: &Path, whole: Whole) -> Option<Vec<u8>> {
+/// The first `n` bytes the file at `path` decompresses to (what format it holds).
+pub fn head(path: &Path, whole: Whole, n: u64) -> Result<Vec<u8>, BagError> {
     let mut head = Vec::new();
-    stream(path, whole)
-        .ok()?
-        .take(16)
+    stream(path, whole)?
+        .take(n)
         .read_to_end(&mut head)
-        .ok()?;
-    Some(head)
+        .map_err(|e| whole.error(path, e))?;
+    Ok(head)
 }
 
 /// Decompresses one message's frame into `out` (cleared first), reusing `ctx` between
@@ -223,7 +221,7 @@ mod tests {
         zstd_message(&streamed, &mut ctx, &mut out).unwrap();
         assert_eq!(out, text);
         let two = file("two.db3.zstd", &[frame.clone(), streamed].concat());
-        assert_eq!(head(&two, Whole::Zstd).unwrap(), text[..16]);
+        assert_eq!(head(&two, Whole::Zstd, 16).unwrap(), text[..16]);
         assert_eq!(
             all(&two, Whole::Zstd).unwrap(),
             [text.clone(), text].concat()

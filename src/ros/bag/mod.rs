@@ -502,11 +502,7 @@ pub fn open_file(path: &Path) -> Result<Box<dyn Container>, BagError> {
         return (format.open_in_place)(path);
     }
     if let Some(whole) = compression::Whole::of(&head) {
-        let mut inner = Vec::new();
-        compression::stream(path, whole)?
-            .take(HEAD)
-            .read_to_end(&mut inner)
-            .map_err(|e| whole.error(path, e))?;
+        let inner = compression::head(path, whole, HEAD)?;
         if let Some(format) = FILE_FORMATS.iter().find(|f| inner.starts_with(f.magic)) {
             return (format.open_whole)(path, whole);
         }
