@@ -85,6 +85,18 @@ pub enum CalibrationError {
     /// The estimate could not be turned into parameters.
     #[error(transparent)]
     Kinematics(#[from] KinematicsError),
+    /// A drive with a pose reference that cannot be fitted as given: too short, streams that
+    /// do not overlap, a reference in another convention. The text says what to do.
+    #[error("{0}")]
+    PoseInput(String),
+    /// The drive did not observe parameters that would be written: what to drive instead.
+    #[error("the drive did not observe {parameters}: {advice}")]
+    NotObserved {
+        /// The parameters, named as in the report.
+        parameters: String,
+        /// What to drive so that they are observed.
+        advice: String,
+    },
     /// The request is valid but not supported by this computation.
     #[error("unsupported: {0}")]
     Unsupported(String),

@@ -1,0 +1,332 @@
+//! The input of a calibration against a pose reference: cumulative wheel rotations, the poses
+//! of a frame mounted on the robot as an external reference measured them, and the odometry
+//! those wheels give for a candidate geometry.
+//!
+//! Conventions (written once here):
+//! - Wheel rotations are cumulative radians, forward positive, each wheel on its own sign
+//!   (a wheel turning so that the robot moves forward counts up), at any rate.
+//! - A reference pose is the pose of the *reference frame* (a motion-capture body, a lidar
+//!   that scan-matches, a GNSS antenna, or `base_link` itself for a localization) in a fixed
+//!   world frame with any origin: x, y in metres, yaw counter-clockwise positive in radians.
+//!   A position-only reference (GNSS) has no yaw.
+//! - The reference frame sits on the robot at `(sensor_x_m, sensor_y_m, sensor_yaw_rad)` in
+//!   `base_link` (x forward, y left, the axle's midpoint the origin).
+//! - `time_offset_s` is positive when the reference's stamps are late: the pose stamped `t`
+//!   was where the robot was at `t − time_offset_s` on the wheels' clock.
+//!
+//! [`Odometry`] integrates the wheels exactly (each interval a circular arc, as
+//! [`crate::kinematics::Pose::advance`]) with the heading kept unwrapped, and interpolates
+//! inside an interval along the same arc.
+
+use crate::kinematics::sinc;
+use serde::{Deserialize, Serialize};
+
+/// Cumulative wheel rotations at one instant (rad, forward positive).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct WheelAngles {
+    /// Time on the wheels' clock (s).
+    pub time_s: f64,
+    /// Left wheel's cumulative rotation (rad).
+    pub left_rad: f64,
+    /// Right wheel's cumulative rotation (rad).
+    pub right_rad: f64,
+}
+
+/// One pose of the reference frame in the reference's world frame.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct ReferencePose {
+    /// Time on the reference's clock (s).
+    pub time_s: f64,
+    /// x (m).
+    pub x_m: f64,
+    /// y (m).
+    pub y_m: f64,
+    /// Yaw (rad, counter-clockwise positive); `None` for a position-only reference.
+    pub yaw_rad: Option<f64>,
+    /// Standard deviations the source states for this pose (x, y in m; yaw in rad), e.g. from
+    /// a message's covariance; `None` when it states none. They weight the samples relative to
+    /// each other; the overall scale is still estimated from the residuals.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub stated_std: Option<[f64; 3]>,
+}
+
+/// How a reference's errors behave, which decides how it is fitted.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ReferenceKind {
+    /// Errors that do not accumulate (motion capture, localization against a map, GNSS): the
+    /// trajectory is fitted as a whole, where the odometry's error grows.
+    Absolute,
+    /// Errors that accumulate (scan matching or visual odometry chained sample to sample):
+    /// the motion between consecutive samples is fitted.
+    Relative,
+}
+
+impl ReferenceKind {
+    /// The name used on the command line and in reports.
+    pub fn name(self) -> &'static str {
+        match self {
+            ReferenceKind::Absolute => "absolute",
+            ReferenceKind::Relative => "relative",
+        }
+    }
+}
+
+impl std::str::FromStr for ReferenceKind {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "absolute" => Ok(ReferenceKind::Absolute),
+            "relative" => Ok(ReferenceKind::Relative),
+            other => Err(format!(
+                "unknown reference kind {other:?}; use absolute (motion capture, a map's \
+                 localization, GNSS) or relative (chained scan matching, visual odometry)"
+            )),
+        }
+    }
+}
+
+/// A drive with a pose reference: the wheels and the reference, each in time order.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct PoseRecording {
+    /// Cumulative wheel rotations, time increasing.
+    pub wheels: Vec<WheelAngles>,
+    /// Reference poses, time increasing.
+    pub poses: Vec<ReferencePose>,
+}
+
+impl PoseRecording {
+    /// Whether every reference pose carries a yaw.
+    pub fn has_yaw(&self) -> bool {
+        !self.poses.is_empty() && self.poses.iter().all(|p| p.yaw_rad.is_some())
+    }
+}
+
+/// The geometry a fit varies: wheel diameters and the wheelbase (m).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Geometry {
+    /// Left wheel diameter (m).
+    pub left_diameter_m: f64,
+    /// Right wheel diameter (m).
+    pub right_diameter_m: f64,
+    /// Wheelbase (m).
+    pub wheelbase_m: f64,
+}
+
+/// A planar pose with an unwrapped heading, for integration and interpolation.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Pose2 {
+    /// x (m).
+    pub x: f64,
+    /// y (m).
+    pub y: f64,
+    /// Heading (rad), unwrapped.
+    pub theta: f64,
+}
+
+impl Pose2 {
+    /// The pose after an arc of wheel travels `left_m`, `right_m` on wheelbase `b`.
+    #[inline]
+    pub fn arc(&self, left_m: f64, right_m: f64, b: f64) -> Pose2 {
+        let ds = 0.5 * (left_m + right_m);
+        let dth = (right_m - left_m) / b;
+        let chord = ds * sinc(0.5 * dth);
+        let mid = self.theta + 0.5 * dth;
+        let (s, c) = mid.sin_cos();
+        Pose2 {
+            x: self.x + chord * c,
+            y: self.y + chord * s,
+            theta: self.theta + dth,
+        }
+    }
+
+    /// `self ∘ other`: `other` expressed in `self`'s frame, brought to the outer frame.
+    #[inline]
+    pub fn compose(&self, other: &Pose2) -> Pose2 {
+        let (s, c) = self.theta.sin_cos();
+        Pose2 {
+            x: self.x + c * other.x - s * other.y,
+            y: self.y + s * other.x + c * other.y,
+            theta: self.theta + other.theta,
+        }
+    }
+
+    /// `self⁻¹ ∘ other`: `other` in `self`'s frame.
+    #[inline]
+    pub fn between(&self, other: &Pose2) -> Pose2 {
+        let (s, c) = self.theta.sin_cos();
+        let dx = other.x - self.x;
+        let dy = other.y - self.y;
+        Pose2 {
+            x: c * dx + s * dy,
+            y: -s * dx + c * dy,
+            theta: other.theta - self.theta,
+        }
+    }
+}
+
+/// Dead reckoning of a wheel stream for one geometry: the pose of `base_link` at every wheel
+/// sample (starting at the origin), and between samples along the same arc.
+#[derive(Debug, Clone)]
+pub struct Odometry<'a> {
+    wheels: &'a [WheelAngles],
+    geometry: Geometry,
+    poses: Vec<Pose2>,
+}
+
+impl<'a> Odometry<'a> {
+    /// Integrates `wheels` with `geometry`.
+    pub fn integrate(wheels: &'a [WheelAngles], geometry: Geometry) -> Self {
+        let mut poses = Vec::with_capacity(wheels.len());
+        let mut pose = Pose2::default();
+        let (hl, hr) = (
+            0.5 * geometry.left_diameter_m,
+            0.5 * geometry.right_diameter_m,
+        );
+        for (i, w) in wheels.iter().enumerate() {
+            if i > 0 {
+                let p = &wheels[i - 1];
+                pose = pose.arc(
+                    (w.left_rad - p.left_rad) * hl,
+                    (w.right_rad - p.right_rad) * hr,
+                    geometry.wheelbase_m,
+                );
+            }
+            poses.push(pose);
+        }
+        Self {
+            wheels,
+            geometry,
+            poses,
+        }
+    }
+
+    /// The pose at every wheel sample.
+    pub fn poses(&self) -> &[Pose2] {
+        &self.poses
+    }
+
+    /// The time span the wheels cover (s).
+    pub fn span_s(&self) -> Option<(f64, f64)> {
+        Some((self.wheels.first()?.time_s, self.wheels.last()?.time_s))
+    }
+
+    /// The pose at `t_s` (wheels' clock), `None` outside the recorded span. `hint` is a cursor
+    /// for queries in increasing time (start at 0).
+    pub fn at(&self, t_s: f64, hint: &mut usize) -> Option<Pose2> {
+        let n = self.wheels.len();
+        if n == 0 || !(t_s >= self.wheels[0].time_s && t_s <= self.wheels[n - 1].time_s) {
+            return None;
+        }
+        let mut k = (*hint).min(n - 1);
+        if self.wheels[k].time_s > t_s {
+            // Out of order: search from the start.
+            k = self
+                .wheels
+                .partition_point(|w| w.time_s <= t_s)
+                .saturating_sub(1);
+        }
+        while k + 1 < n && self.wheels[k + 1].time_s <= t_s {
+            k += 1;
+        }
+        *hint = k;
+        if k + 1 >= n {
+            return Some(self.poses[k]);
+        }
+        let (a, b) = (&self.wheels[k], &self.wheels[k + 1]);
+        let dt = b.time_s - a.time_s;
+        let f = if dt > 0.0 { (t_s - a.time_s) / dt } else { 0.0 };
+        let g = &self.geometry;
+        Some(self.poses[k].arc(
+            f * (b.left_rad - a.left_rad) * 0.5 * g.left_diameter_m,
+            f * (b.right_rad - a.right_rad) * 0.5 * g.right_diameter_m,
+            g.wheelbase_m,
+        ))
+    }
+}
+
+/// Dead reckoning checked against the reference: the odometry of `geometry`, started at the
+/// reference's first pose (through the mounting `mount` and the time offset `offset_s`), and
+/// its distance from the reference's last pose (m). `None` when the streams do not overlap or
+/// the reference has no yaw to start from.
+pub fn final_position_error_m(
+    recording: &PoseRecording,
+    geometry: Geometry,
+    mount: Pose2,
+    offset_s: f64,
+) -> Option<f64> {
+    let odo = Odometry::integrate(&recording.wheels, geometry);
+    let mut hint = 0;
+    let mut inside = recording
+        .poses
+        .iter()
+        .filter_map(|p| Some((p, odo.at(p.time_s - offset_s, &mut hint)?.compose(&mount))));
+    let (first, s0) = inside.next()?;
+    let (last, s1) = inside.last()?;
+    let r0 = Pose2 {
+        x: first.x_m,
+        y: first.y_m,
+        theta: first.yaw_rad?,
+    };
+    // The world pose of the odometry's origin, `r0 ∘ s0⁻¹`, puts the sensor on the first pose.
+    let origin = r0.compose(&s0.between(&Pose2::default()));
+    let end = origin.compose(&s1);
+    Some((end.x - last.x_m).hypot(end.y - last.y_m))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use approx::assert_relative_eq;
+
+    #[test]
+    fn a_circle_integrates_exactly_and_interpolates_on_its_arc() {
+        // Right wheel twice the left: a circle of known radius.
+        let g = Geometry {
+            left_diameter_m: 0.1,
+            right_diameter_m: 0.1,
+            wheelbase_m: 0.4,
+        };
+        let wheels: Vec<WheelAngles> = (0..=100)
+            .map(|i| WheelAngles {
+                time_s: i as f64 * 0.1,
+                left_rad: i as f64 * 0.2,
+                right_rad: i as f64 * 0.4,
+            })
+            .collect();
+        let odo = Odometry::integrate(&wheels, g);
+        // Arc lengths: left 0.01 m, right 0.02 m per step; turn 0.025 rad per step.
+        let last = odo.poses()[100];
+        assert_relative_eq!(last.theta, 2.5, epsilon = 1e-12);
+        // Radius of the centre: ds/dθ = 0.015/0.025 = 0.6 m.
+        assert_relative_eq!(last.x, 0.6 * 2.5f64.sin(), epsilon = 1e-12);
+        assert_relative_eq!(last.y, 0.6 * (1.0 - 2.5f64.cos()), epsilon = 1e-12);
+        let mut hint = 0;
+        let mid = odo.at(5.05, &mut hint).expect("inside");
+        assert_relative_eq!(mid.theta, 50.5 * 0.025, epsilon = 1e-12);
+        assert_relative_eq!(mid.x, 0.6 * (50.5f64 * 0.025).sin(), epsilon = 1e-12);
+        assert!(odo.at(10.5, &mut hint).is_none());
+        // A query before the cursor still finds its interval.
+        let early = odo.at(0.5, &mut hint).expect("inside");
+        assert_relative_eq!(early.theta, 5.0 * 0.025, epsilon = 1e-12);
+    }
+
+    #[test]
+    fn compose_and_between_are_inverse() {
+        let a = Pose2 {
+            x: 1.0,
+            y: -2.0,
+            theta: 0.7,
+        };
+        let b = Pose2 {
+            x: 0.3,
+            y: 0.4,
+            theta: -1.9,
+        };
+        let c = a.compose(&b);
+        let back = a.between(&c);
+        assert_relative_eq!(back.x, b.x, epsilon = 1e-12);
+        assert_relative_eq!(back.y, b.y, epsilon = 1e-12);
+        assert_relative_eq!(back.theta, b.theta, epsilon = 1e-12);
+    }
+}
