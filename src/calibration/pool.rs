@@ -105,7 +105,9 @@ fn upper_median(mut v: Vec<f64>) -> Option<f64> {
     v.get(v.len() / 2).copied()
 }
 
-fn pool_log(y: &[f64], se: &[Option<f64>], runs: &[usize]) -> PooledLog {
+/// DerSimonian–Laird pooling of one scalar (of any scale, despite the name): the values, their
+/// standard errors and the runs behind each.
+pub(crate) fn pool_log(y: &[f64], se: &[Option<f64>], runs: &[usize]) -> PooledLog {
     // Per-run variance of the recordings that have one, borrowed by those that do not.
     let borrowed = upper_median(
         se.iter()

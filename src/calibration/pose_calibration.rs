@@ -1,0 +1,389 @@
+//! A calibration against a pose reference from one or several recordings of one robot: the
+//! checks before ([`super::observability`]), the maximum-likelihood fit of each recording
+//! ([`super::pose_fit`]), the two-multiplier baseline beside it ([`super::multiplier_fit`]),
+//! and the recordings pooled into one robot.
+//!
+//! **Pooling.** Each recording is fitted on its own (its own alignment, mounting and time
+//! offset), then every parameter is pooled by the random-effects model `pool` uses for squares
+//! (DerSimonian & Laird 1986): when the recordings disagree by more than their stated errors
+//! allow, a between-recording spread `τ` is estimated and the pooled standard deviation
+//! widened by it, and the report says so. A recording whose own fit did not observe the
+//! geometry is left out of the pool, with its reason.
+
+use super::multiplier_fit::{fit_multipliers, MultiplierFit};
+use super::observability::{judge, survey, DriveSurvey, Observability};
+use super::pool::pool_log;
+use super::pose_fit::{fit_poses, FitConfig, Param, PoseFit};
+use super::pose_reference::{final_position_error_m, Geometry, Pose2, PoseRecording};
+use super::CalibrationError;
+use serde::Serialize;
+
+/// One recording's result.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct RecordingResult {
+    /// Its name (file, set and run).
+    pub name: String,
+    /// What the drive did.
+    pub survey: DriveSurvey,
+    /// The fit, when the drive allowed one.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub fit: Option<PoseFit>,
+    /// Which parameters its fit observed.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub observability: Option<Observability>,
+    /// The two-multiplier baseline on the same recording.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub baseline: Option<MultiplierFit>,
+    /// Why it is not in the pool, when it is not.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub left_out: Option<String>,
+}
+
+/// One parameter pooled over the recordings.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct PooledParameter {
+    /// Its name (with unit).
+    pub parameter: &'static str,
+    /// The pooled value.
+    pub value: f64,
+    /// Its standard deviation: the recordings' stated errors and, when they disagree, the
+    /// between-recording spread.
+    pub std: f64,
+    /// The between-recording spread `τ` (0: the recordings agree within their errors).
+    pub between_recordings: f64,
+}
+
+/// The calibration of one robot from pose-reference recordings.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct PoseCalibration {
+    /// The geometry the fits started from.
+    pub nominal: Geometry,
+    /// Per recording.
+    pub recordings: Vec<RecordingResult>,
+    /// Per fitted parameter, pooled over the recordings in the pool.
+    pub pooled: Vec<PooledParameter>,
+    /// The pooled geometry (m).
+    pub geometry: Geometry,
+    /// `E_d = D_R / D_L`, pooled.
+    pub e_d: PooledParameter,
+    /// `E_b = b / b_nominal`, pooled.
+    pub e_b: PooledParameter,
+    /// The baseline pooled as a plain mean of the recordings' multipliers (radius, separation).
+    pub baseline_geometry: Option<Geometry>,
+}
+
+impl PoseCalibration {
+    /// A pooled parameter's value and standard deviation; `None` when no recording fitted it.
+    pub fn get(&self, p: Param) -> Option<&PooledParameter> {
+        self.pooled.iter().find(|q| q.parameter == p.name())
+    }
+
+    /// The pooled mounting `(x, y, yaw)` in `base_link` (zeros where not fitted).
+    pub fn mount(&self) -> Pose2 {
+        let v = |p| self.get(p).map_or(0.0, |q| q.value);
+        Pose2 {
+            x: v(Param::SensorX),
+            y: v(Param::SensorY),
+            theta: v(Param::SensorYaw),
+        }
+    }
+
+    /// The pooled time offset (s; 0 when not fitted).
+    pub fn time_offset_s(&self) -> f64 {
+        self.get(Param::TimeOffset).map_or(0.0, |q| q.value)
+    }
+}
+
+/// Calibrates from `recordings` (name, recording), all of one robot, by `config`.
+pub fn calibrate_from_poses(
+    recordings: &[(String, PoseRecording)],
+    config: &FitConfig,
+) -> Result<PoseCalibration, CalibrationError> {
+    if recordings.is_empty() {
+        return Err(CalibrationError::PoseInput(
+            "no recording to fit: give wheels and poses, a bag or a data set".into(),
+        ));
+    }
+    let mut results = Vec::new();
+    let mut first_refusal: Option<CalibrationError> = None;
+    for (name, rec) in recordings {
+        let drive = survey(rec, config.nominal);
+        // A reference in another convention is an error of the input, whatever the others do.
+        drive.diagnose().map_err(|e| prefix(name, e))?;
+        let mut result = RecordingResult {
+            name: name.clone(),
+            survey: drive.clone(),
+            fit: None,
+            observability: None,
+            baseline: None,
+            left_out: None,
+        };
+        if let Err(e) = drive.require() {
+            result.left_out = Some(e.to_string());
+            first_refusal.get_or_insert(e);
+            results.push(result);
+            continue;
+        }
+        let fit = fit_poses(rec, config).map_err(|e| prefix(name, e))?;
+        let obs = judge(&fit);
+        if let Err(e) = obs.require_geometry() {
+            result.left_out = Some(e.to_string());
+            first_refusal.get_or_insert(e);
+        }
+        result.baseline = fit_multipliers(rec, config.nominal).ok();
+        result.fit = Some(fit);
+        result.observability = Some(obs);
+        results.push(result);
+    }
+    let in_pool: Vec<&PoseFit> = results
+        .iter()
+        .filter(|r| r.left_out.is_none())
+        .filter_map(|r| r.fit.as_ref())
+        .collect();
+    if in_pool.is_empty() {
+        return Err(first_refusal.unwrap_or_else(|| {
+            CalibrationError::PoseInput("no recording could be fitted".into())
+        }));
+    }
+    let mut pooled = Vec::new();
+    for p in Param::ALL {
+        let fitted: Vec<&&PoseFit> = in_pool.iter().filter(|f| f.free.contains(&p)).collect();
+        if fitted.is_empty() {
+            continue;
+        }
+        let y: Vec<f64> = fitted.iter().map(|f| f.value(p)).collect();
+        let se: Vec<Option<f64>> = fitted.iter().map(|f| f.std(p)).collect();
+        pooled.push(pool_one(p.name(), &y, &se));
+    }
+    let value = |p: Param| {
+        pooled
+            .iter()
+            .find(|q| q.parameter == p.name())
+            .map(|q| q.value)
+    };
+    let geometry = Geometry {
+        left_diameter_m: value(Param::LeftDiameter).unwrap_or(config.nominal.left_diameter_m),
+        right_diameter_m: value(Param::RightDiameter)
+            .or(value(Param::LeftDiameter))
+            .unwrap_or(config.nominal.right_diameter_m),
+        wheelbase_m: value(Param::Wheelbase).unwrap_or(config.nominal.wheelbase_m),
+    };
+    let e_d = pool_one(
+        "e_d",
+        &in_pool.iter().map(|f| f.e_d()).collect::<Vec<_>>(),
+        &in_pool
+            .iter()
+            .map(|f| Some(f.e_d_std()))
+            .collect::<Vec<_>>(),
+    );
+    let e_b = pool_one(
+        "e_b",
+        &in_pool.iter().map(|f| f.e_b()).collect::<Vec<_>>(),
+        &in_pool
+            .iter()
+            .map(|f| Some(f.e_b_std()))
+            .collect::<Vec<_>>(),
+    );
+    let baselines: Vec<&MultiplierFit> = results
+        .iter()
+        .filter(|r| r.left_out.is_none())
+        .filter_map(|r| r.baseline.as_ref())
+        .collect();
+    let baseline_geometry = (!baselines.is_empty()).then(|| {
+        let n = baselines.len() as f64;
+        let d = baselines
+            .iter()
+            .map(|b| b.geometry.left_diameter_m)
+            .sum::<f64>()
+            / n;
+        Geometry {
+            left_diameter_m: d,
+            right_diameter_m: d,
+            wheelbase_m: baselines
+                .iter()
+                .map(|b| b.geometry.wheelbase_m)
+                .sum::<f64>()
+                / n,
+        }
+    });
+    Ok(PoseCalibration {
+        nominal: config.nominal,
+        recordings: results,
+        pooled,
+        geometry,
+        e_d,
+        e_b,
+        baseline_geometry,
+    })
+}
+
+fn prefix(name: &str, e: CalibrationError) -> CalibrationError {
+    match e {
+        CalibrationError::PoseInput(s) => CalibrationError::PoseInput(format!("{name}: {s}")),
+        other => other,
+    }
+}
+
+fn pool_one(name: &'static str, y: &[f64], se: &[Option<f64>]) -> PooledParameter {
+    let runs = vec![1; y.len()];
+    let p = pool_log(y, se, &runs);
+    PooledParameter {
+        parameter: name,
+        value: p.mean,
+        std: p.std_err,
+        between_recordings: p.recording_spread,
+    }
+}
+
+/// Dead reckoning of one recording by three parameter sets: the calibration (with its mounting
+/// and offset), the nominal geometry and the baseline (both taking the reference as
+/// `base_link`'s, as their tools do).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct DeadReckoning {
+    /// The recording's name.
+    pub name: String,
+    /// Final-position error with the calibration (m).
+    pub calibrated_m: f64,
+    /// With the nominal geometry (m).
+    pub nominal_m: f64,
+    /// With the two-multiplier baseline (m), when there is one.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub baseline_m: Option<f64>,
+    /// With the calibration's geometry but no mounting or offset: the geometry's share (m).
+    pub calibrated_geometry_only_m: f64,
+}
+
+/// Dead-reckons `recording` with `calibration` and the alternatives; `None` when the reference
+/// has no yaw to start from or the streams do not overlap.
+pub fn dead_reckon(
+    name: &str,
+    recording: &PoseRecording,
+    calibration: &PoseCalibration,
+) -> Option<DeadReckoning> {
+    let none = Pose2::default();
+    let calibrated_m = final_position_error_m(
+        recording,
+        calibration.geometry,
+        calibration.mount(),
+        calibration.time_offset_s(),
+    )?;
+    let nominal_m = final_position_error_m(recording, calibration.nominal, none, 0.0)?;
+    let baseline_m = calibration
+        .baseline_geometry
+        .and_then(|g| final_position_error_m(recording, g, none, 0.0));
+    let calibrated_geometry_only_m =
+        final_position_error_m(recording, calibration.geometry, none, 0.0)?;
+    Some(DeadReckoning {
+        name: name.to_string(),
+        calibrated_m,
+        nominal_m,
+        baseline_m,
+        calibrated_geometry_only_m,
+    })
+}
+
+/// The calibration flattened for machines: the contract's top-level fields (`odocal fit
+/// --json`); standard deviations are one σ, `null` where a parameter was not fitted.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct FitSummary {
+    /// Left wheel diameter (m).
+    pub left_wheel_diameter_m: f64,
+    /// Its standard deviation (m).
+    pub left_wheel_diameter_m_std: Option<f64>,
+    /// Right wheel diameter (m).
+    pub right_wheel_diameter_m: f64,
+    /// Its standard deviation (m).
+    pub right_wheel_diameter_m_std: Option<f64>,
+    /// Wheelbase (m).
+    pub wheelbase_m: f64,
+    /// Its standard deviation (m).
+    pub wheelbase_m_std: Option<f64>,
+    /// The reference frame's x in `base_link` (m).
+    pub sensor_x_m: f64,
+    /// Its standard deviation (m).
+    pub sensor_x_m_std: Option<f64>,
+    /// The reference frame's y in `base_link` (m).
+    pub sensor_y_m: f64,
+    /// Its standard deviation (m).
+    pub sensor_y_m_std: Option<f64>,
+    /// The reference frame's yaw in `base_link` (rad, counter-clockwise positive).
+    pub sensor_yaw_rad: f64,
+    /// Its standard deviation (rad).
+    pub sensor_yaw_rad_std: Option<f64>,
+    /// Lateness of the reference's stamps (s; positive: late).
+    pub time_offset_s: f64,
+    /// Its standard deviation (s).
+    pub time_offset_s_std: Option<f64>,
+    /// `E_d = D_R / D_L`.
+    pub e_d: f64,
+    /// Its standard deviation.
+    pub e_d_std: f64,
+    /// `E_b = b / b_nominal`.
+    pub e_b: f64,
+    /// Its standard deviation.
+    pub e_b_std: f64,
+    /// The nominal wheelbase `E_b` refers to (m).
+    pub nominal_wheelbase_m: f64,
+    /// How the reference was fitted: `absolute` or `relative`.
+    pub reference_kind: &'static str,
+    /// Why.
+    pub reference_kind_reason: String,
+    /// Recordings pooled.
+    pub recordings_pooled: usize,
+    /// What a ± means.
+    pub uncertainty: &'static str,
+}
+
+impl PoseCalibration {
+    /// The flat summary.
+    pub fn summary(&self) -> FitSummary {
+        let v = |p: Param| self.get(p).map(|q| (q.value, Some(q.std)));
+        let g = |p: Param, default: f64| v(p).unwrap_or((default, None));
+        let (dl, dl_s) = g(Param::LeftDiameter, self.geometry.left_diameter_m);
+        let (dr, dr_s) = v(Param::RightDiameter)
+            .or(v(Param::LeftDiameter))
+            .unwrap_or((self.geometry.right_diameter_m, None));
+        let (b, b_s) = g(Param::Wheelbase, self.geometry.wheelbase_m);
+        let (sx, sx_s) = g(Param::SensorX, 0.0);
+        let (sy, sy_s) = g(Param::SensorY, 0.0);
+        let (syaw, syaw_s) = g(Param::SensorYaw, 0.0);
+        let (dt, dt_s) = g(Param::TimeOffset, 0.0);
+        let kind = self
+            .recordings
+            .iter()
+            .filter(|r| r.left_out.is_none())
+            .find_map(|r| r.fit.as_ref())
+            .map(|f| f.kind.clone());
+        FitSummary {
+            left_wheel_diameter_m: dl,
+            left_wheel_diameter_m_std: dl_s,
+            right_wheel_diameter_m: dr,
+            right_wheel_diameter_m_std: dr_s,
+            wheelbase_m: b,
+            wheelbase_m_std: b_s,
+            sensor_x_m: sx,
+            sensor_x_m_std: sx_s,
+            sensor_y_m: sy,
+            sensor_y_m_std: sy_s,
+            sensor_yaw_rad: syaw,
+            sensor_yaw_rad_std: syaw_s,
+            time_offset_s: dt,
+            time_offset_s_std: dt_s,
+            e_d: self.e_d.value,
+            e_d_std: self.e_d.std,
+            e_b: self.e_b.value,
+            e_b_std: self.e_b.std,
+            nominal_wheelbase_m: self.nominal.wheelbase_m,
+            reference_kind: kind.as_ref().map_or("absolute", |k| k.kind.name()),
+            reference_kind_reason: kind.map(|k| k.reason).unwrap_or_default(),
+            recordings_pooled: self
+                .recordings
+                .iter()
+                .filter(|r| r.left_out.is_none() && r.fit.is_some())
+                .count(),
+            uncertainty: "one standard deviation: each recording's maximum-likelihood \
+                          covariance (inflated for correlated residuals), pooled with the \
+                          between-recording spread when recordings disagree",
+        }
+    }
+}
