@@ -8,6 +8,7 @@
 //! default, so a default simulator is deterministic and exact. How its heading sensor errs
 //! (deviation, a gyro's scale, latency, loss…) is [`sensor`]'s.
 
+pub mod driving;
 pub mod sensor;
 
 pub use crate::kinematics::Direction;
