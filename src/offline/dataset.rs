@@ -19,6 +19,7 @@ use crate::calibration::online::OnlineEstimate;
 use crate::calibration::pool::{
     pool_methods, Pooled, PooledMethods, RecordingEstimates, UncertaintyKind,
 };
+use crate::calibration::pose_reference::{PoseRecording, ReferencePose, WheelAngles};
 use crate::calibration::recording::{Clocks, HeadingSample, Recording, TravelSample, Validity};
 use crate::calibration::tracker::Tracker;
 use crate::calibration::{self, Estimate, Method, RunMeasurement, SquareTest};
@@ -166,6 +167,44 @@ impl RecordedRun {
         self.recording(params)
             .track(params.wheelbase_m)
             .leg_measurement(params.wheelbase_m)
+    }
+
+    /// The run as a drive with a pose reference: the encoder increments summed into cumulative
+    /// wheel rotations (`ticks · 2π / counts_per_wheel_rev`, starting at 0 on the first row,
+    /// whose increment from before the run started is left out as in [`Self::recording`]) and
+    /// the ground-truth poses (yaw as recorded, wrapped), both at every row's time.
+    pub fn pose_recording(&self, counts_per_wheel_rev: f64) -> PoseRecording {
+        let rad_per_count = 2.0 * PI / counts_per_wheel_rev;
+        // Counts are summed before scaling: whole numbers add exactly.
+        let (mut left, mut right) = (0.0, 0.0);
+        let wheels = self
+            .samples
+            .iter()
+            .enumerate()
+            .map(|(i, s)| {
+                if i > 0 {
+                    left += s.left_counts;
+                    right += s.right_counts;
+                }
+                WheelAngles {
+                    time_s: s.time_s,
+                    left_rad: left * rad_per_count,
+                    right_rad: right * rad_per_count,
+                }
+            })
+            .collect();
+        let poses = self
+            .samples
+            .iter()
+            .map(|s| ReferencePose {
+                time_s: s.time_s,
+                x_m: s.truth.x_m,
+                y_m: s.truth.y_m,
+                yaw_rad: Some(s.truth.heading_rad),
+                stated_std: None,
+            })
+            .collect();
+        PoseRecording { wheels, poses }
     }
 
     /// Integrates the run's encoder increments with `params` and reports both final poses.
@@ -454,6 +493,15 @@ impl OptiOdomSet {
         })
     }
 
+    /// Every run as a drive with a pose reference ([`RecordedRun::pose_recording`] with the
+    /// set's counts per wheel revolution), in run order.
+    pub fn pose_recordings(&self) -> Vec<PoseRecording> {
+        self.runs
+            .iter()
+            .map(|run| run.pose_recording(self.configured.counts_per_wheel_rev))
+            .collect()
+    }
+
     /// Feeds every run to `tracker`, each as a run of its own (the ground-truth heading plays
     /// the compass); returns the checkpoints passed.
     pub fn feed(&self, tracker: &mut Tracker) -> Vec<OnlineEstimate> {
@@ -727,4 +775,74 @@ pub fn default_optiodom_root() -> PathBuf {
         .unwrap_or_else(|| {
             Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/datasets/optiodom")
         })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::calibration::pose_reference::{Geometry, Odometry};
+
+    /// The free-path set, or `None` (with a notice) when the data is missing outside CI.
+    fn free_set() -> Option<OptiOdomSet> {
+        let dir = default_optiodom_root().join("free/030120210001");
+        if !dir.is_dir() {
+            assert!(
+                std::env::var_os("CI").is_none(),
+                "OptiOdom data set missing at {} (set ODOCAL_OPTIODOM); CI must have ../shared",
+                dir.display()
+            );
+            eprintln!(
+                "NOTICE: skipping, OptiOdom data not found at {}",
+                dir.display()
+            );
+            return None;
+        }
+        Some(OptiOdomSet::load(&dir).expect("the free-path set loads"))
+    }
+
+    fn path_length(points: impl Iterator<Item = (f64, f64)>) -> f64 {
+        let mut points = points.peekable();
+        let mut length = 0.0;
+        while let (Some(a), Some(b)) = (points.next(), points.peek()) {
+            length += (b.0 - a.0).hypot(b.1 - a.1);
+        }
+        length
+    }
+
+    #[test]
+    fn a_free_run_becomes_a_pose_recording_whose_dead_reckoning_matches_the_path_length() {
+        let Some(set) = free_set() else { return };
+        let recordings = set.pose_recordings();
+        assert_eq!(recordings.len(), set.runs.len());
+        let rec = &recordings[0];
+        assert_eq!(rec.wheels.len(), rec.poses.len());
+        assert_eq!(rec.wheels.len(), set.runs[0].samples.len());
+        assert!(rec.wheels.windows(2).all(|w| w[1].time_s > w[0].time_s));
+        assert!(rec.has_yaw());
+        let c = &set.configured;
+        let odometry = Odometry::integrate(
+            &rec.wheels,
+            Geometry {
+                left_diameter_m: c.left_wheel_diameter_m,
+                right_diameter_m: c.right_wheel_diameter_m,
+                wheelbase_m: c.wheelbase_m,
+            },
+        );
+        let odo_len = path_length(odometry.poses().iter().map(|p| (p.x, p.y)));
+        let truth_len = path_length(rec.poses.iter().map(|p| (p.x_m, p.y_m)));
+        assert!(truth_len > 1.0, "ground-truth path {truth_len} m");
+        let ratio = odo_len / truth_len;
+        assert!(
+            (0.9..=1.1).contains(&ratio),
+            "odometry {odo_len:.3} m against ground truth {truth_len:.3} m"
+        );
+        // The same travel as the existing conversion to wheel travel.
+        let travel = set.runs[0].recording(c).travel;
+        let left_m: f64 = travel.iter().map(|t| t.left_m).sum();
+        let last = rec.wheels[rec.wheels.len() - 1].left_rad * 0.5 * c.left_wheel_diameter_m;
+        assert!(
+            (left_m - last).abs() < 1e-9 * left_m.abs().max(1.0),
+            "{left_m} vs {last}"
+        );
+    }
 }
