@@ -3,6 +3,7 @@
 mod conformance;
 mod device;
 mod estimate;
+mod fit;
 mod plan;
 mod ports;
 mod prompt;
@@ -62,6 +63,10 @@ enum Command {
     Record(track::RecordArgs),
     /// Estimate E_b, E_d from square-test measurements taken by hand.
     Estimate(estimate::Args),
+    /// Calibrate from any driving against a pose reference (motion capture, a localization,
+    /// scan matching, GNSS): both diameters and the wheelbase in metres, the reference's
+    /// mounting and delay, with their standard deviations (moves nothing).
+    Fit(fit::Args),
     /// Simulate the square test on a mis-calibrated robot, calibrate, write back and verify.
     Simulate(simulate::Args),
     /// Calibrate from a recorded OptiOdom square set and evaluate on recorded runs.
@@ -384,6 +389,7 @@ fn main() -> ExitCode {
         Command::Track(args) => block_on(track::track(args)),
         Command::Record(args) => block_on(track::record(args)),
         Command::Estimate(args) => estimate::run(args),
+        Command::Fit(args) => fit::run(args),
         Command::Simulate(args) => simulate::run(args),
         Command::Replay(args) => replay::run(args),
         Command::MockDevice(args) => block_on(device::mock_device(args)),

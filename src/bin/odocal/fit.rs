@@ -1,0 +1,243 @@
+//! `odocal fit`: calibrate from any driving against a pose reference (motion capture, a
+//! localization, scan matching, GNSS): parses the inputs, prints the calibration.
+
+use crate::print_json;
+use odocal::calibration::pose_calibration::{calibrate_from_poses, dead_reckon, PoseCalibration};
+use odocal::calibration::pose_fit::{FitConfig, Param};
+use odocal::calibration::pose_reference::{Geometry, PoseRecording, ReferenceKind};
+use odocal::offline::dataset::OptiOdomSet;
+use odocal::offline::pose_csv::{read_poses, read_wheels};
+use std::path::PathBuf;
+
+/// Arguments of `odocal fit`.
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// Wheels CSV: header `t_s,left_rad,right_rad`, cumulative rotation (rad, forward
+    /// positive), any rate.
+    #[arg(long, requires = "poses", conflicts_with = "dataset")]
+    wheels: Option<PathBuf>,
+    /// Reference CSV: header `t_s,x_m,y_m,yaw_rad` (yaw optional), the reference frame's pose
+    /// in a fixed world frame, any rate.
+    #[arg(long, requires = "wheels")]
+    poses: Option<PathBuf>,
+    /// An OptiOdom set (motion capture); repeat to pool sets of one robot. Each run is one
+    /// recording; the nominal geometry comes from the set's metadata.
+    #[arg(long)]
+    dataset: Vec<PathBuf>,
+    /// Nominal wheel diameter (m) the fit starts from (with --wheels).
+    #[arg(long)]
+    wheel_diameter_m: Option<f64>,
+    /// Nominal wheelbase (m) the fit starts from; E_b is relative to it (with --wheels).
+    #[arg(long)]
+    wheelbase_m: Option<f64>,
+    /// How the reference errs: absolute (motion capture, a map's localization, GNSS) or
+    /// relative (chained scan matching, visual odometry) [default: absolute for a --dataset,
+    /// which is motion capture; otherwise decided from the data].
+    #[arg(long)]
+    reference_kind: Option<ReferenceKind>,
+    /// Take the reference frame as base_link itself (do not fit its mounting).
+    #[arg(long)]
+    no_mounting: bool,
+    /// Take the streams' stamps as simultaneous (do not fit a time offset).
+    #[arg(long)]
+    no_time_offset: bool,
+    /// Largest time offset searched (s).
+    #[arg(long, default_value_t = 0.5)]
+    max_time_offset_s: f64,
+    /// Absolute references: align windows of this length separately (s) instead of the whole
+    /// trajectory (for long drives on slippery floors).
+    #[arg(long)]
+    window_s: Option<f64>,
+    /// OptiOdom sets to dead-reckon with the result (and with the nominal geometry and the
+    /// two-multiplier baseline), final-position errors compared; repeatable.
+    #[arg(long)]
+    evaluate: Vec<PathBuf>,
+    /// Print one JSON object instead of tables.
+    #[arg(long)]
+    json: bool,
+}
+
+/// Runs `odocal fit`.
+pub fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
+    let (recordings, nominal) = inputs(&args)?;
+    for (flag, v, lo, hi) in [
+        ("--max-time-offset-s", args.max_time_offset_s, 0.0, 10.0),
+        ("--window-s", args.window_s.unwrap_or(10.0), 1.0, 1e6),
+    ] {
+        crate::in_range(flag, v, lo, hi)?;
+    }
+    // A data set's reference is motion capture: absolute by its kind.
+    let kind = args
+        .reference_kind
+        .or((!args.dataset.is_empty()).then_some(ReferenceKind::Absolute));
+    let config = FitConfig {
+        kind,
+        fit_mounting: !args.no_mounting,
+        fit_time_offset: !args.no_time_offset,
+        max_time_offset_s: args.max_time_offset_s,
+        window_s: args.window_s,
+        ..FitConfig::full(nominal)
+    };
+    let calibration = calibrate_from_poses(&recordings, &config)?;
+    let mut evaluations = Vec::new();
+    for dir in &args.evaluate {
+        let set = OptiOdomSet::load(dir)?;
+        for (run, rec) in set.runs.iter().zip(set.pose_recordings()) {
+            let name = format!("{} {}", set.id, run.name);
+            if let Some(e) = dead_reckon(&name, &rec, &calibration) {
+                evaluations.push(e);
+            }
+        }
+    }
+    if args.json {
+        let mut out = serde_json::to_value(calibration.summary())?;
+        if let Some(map) = out.as_object_mut() {
+            map.insert(
+                "recordings".into(),
+                serde_json::to_value(&calibration.recordings)?,
+            );
+            map.insert("pooled".into(), serde_json::to_value(&calibration.pooled)?);
+            map.insert(
+                "baseline_geometry".into(),
+                serde_json::to_value(calibration.baseline_geometry)?,
+            );
+            map.insert("evaluations".into(), serde_json::to_value(&evaluations)?);
+        }
+        return print_json(&out);
+    }
+    print_text(&calibration);
+    if !evaluations.is_empty() {
+        println!(
+            "\ndead reckoning from the reference's first pose, distance from its last (m):\n\
+             {:<34} {:>10} {:>10} {:>10}",
+            "recording", "fitted", "nominal", "baseline"
+        );
+        for e in &evaluations {
+            println!(
+                "{:<34} {:>10.4} {:>10.4} {:>10}",
+                e.name,
+                e.calibrated_m,
+                e.nominal_m,
+                e.baseline_m.map_or("—".into(), |b| format!("{b:.4}"))
+            );
+        }
+    }
+    Ok(())
+}
+
+/// Named recordings and the nominal geometry they start from.
+type Inputs = (Vec<(String, PoseRecording)>, Geometry);
+
+fn inputs(args: &Args) -> Result<Inputs, Box<dyn std::error::Error>> {
+    if let (Some(w), Some(p)) = (&args.wheels, &args.poses) {
+        let (Some(d), Some(b)) = (args.wheel_diameter_m, args.wheelbase_m) else {
+            return Err("--wheels and --poses need the nominal geometry: give \
+                        --wheel-diameter-m and --wheelbase-m (metres)"
+                .into());
+        };
+        crate::in_range("--wheel-diameter-m", d, 1e-3, 5.0)?;
+        crate::in_range("--wheelbase-m", b, 1e-2, 10.0)?;
+        let rec = PoseRecording {
+            wheels: read_wheels(w)?,
+            poses: read_poses(p)?,
+        };
+        let nominal = Geometry {
+            left_diameter_m: d,
+            right_diameter_m: d,
+            wheelbase_m: b,
+        };
+        return Ok((vec![(p.display().to_string(), rec)], nominal));
+    }
+    if args.dataset.is_empty() {
+        return Err("nothing to fit: give --wheels W.csv --poses P.csv (with \
+                    --wheel-diameter-m and --wheelbase-m) or --dataset DIR"
+            .into());
+    }
+    let mut recordings = Vec::new();
+    let mut nominal = None;
+    for dir in &args.dataset {
+        let set = OptiOdomSet::load(dir)?;
+        let c = &set.configured;
+        let g = Geometry {
+            left_diameter_m: c.left_wheel_diameter_m,
+            right_diameter_m: c.right_wheel_diameter_m,
+            wheelbase_m: c.wheelbase_m,
+        };
+        match nominal {
+            None => nominal = Some(g),
+            Some(n) if n != g => {
+                return Err(format!(
+                    "{} was recorded with another nominal geometry than the first set; pool \
+                     sets recorded with one configuration",
+                    set.id
+                )
+                .into())
+            }
+            Some(_) => {}
+        }
+        for (run, rec) in set.runs.iter().zip(set.pose_recordings()) {
+            recordings.push((format!("{} {}", set.id, run.name), rec));
+        }
+    }
+    let nominal = nominal.ok_or("no data set given")?;
+    Ok((recordings, nominal))
+}
+
+fn print_text(c: &PoseCalibration) {
+    let s = c.summary();
+    println!(
+        "fitted {} recording(s) as an {} reference: {}",
+        s.recordings_pooled, s.reference_kind, s.reference_kind_reason
+    );
+    println!("± is one standard deviation ({})", s.uncertainty);
+    println!(
+        "{:<24} {:>14} {:>12} {:>14}",
+        "parameter", "value", "±", "nominal"
+    );
+    let nominal = |p: Param| match p {
+        Param::LeftDiameter => format!("{:.6}", c.nominal.left_diameter_m),
+        Param::RightDiameter => format!("{:.6}", c.nominal.right_diameter_m),
+        Param::Wheelbase => format!("{:.6}", c.nominal.wheelbase_m),
+        _ => "—".into(),
+    };
+    for q in &c.pooled {
+        let p = Param::ALL.iter().copied().find(|p| p.name() == q.parameter);
+        println!(
+            "{:<24} {:>14.6} {:>12.2e} {:>14}",
+            q.parameter,
+            q.value,
+            q.std,
+            p.map_or("—".into(), nominal)
+        );
+    }
+    println!(
+        "{:<24} {:>14.6} {:>12.2e}\n{:<24} {:>14.6} {:>12.2e}",
+        "E_d = D_R/D_L", s.e_d, s.e_d_std, "E_b = b/b_nominal", s.e_b, s.e_b_std
+    );
+    for r in &c.recordings {
+        if let Some(why) = &r.left_out {
+            println!("{}: left out: {why}", r.name);
+        }
+        if let Some(f) = &r.fit {
+            println!(
+                "{}: {} compared, {} outlier(s) left out; residual σ {:.4} m{}; covariance × {:.2} \
+                 for correlated residuals (lag-one ρ {:.2})",
+                r.name,
+                f.compared,
+                f.outliers,
+                f.residual_std_position_m,
+                f.residual_std_yaw_rad
+                    .map_or(String::new(), |y| format!(", {:.3}°", y.to_degrees())),
+                f.variance_inflation,
+                f.lag_one_correlation
+            );
+        }
+        if let Some(b) = &r.baseline {
+            println!(
+                "{}: baseline (two multipliers, as the ROS scripts): wheel_radius_multiplier \
+                 {:.5}, wheel_separation_multiplier {:.5}",
+                r.name, b.wheel_radius_multiplier, b.wheel_separation_multiplier
+            );
+        }
+    }
+}
