@@ -10,8 +10,8 @@
 //!   either way, or drives less than a metre straight, is refused by name.
 //! - **Conventions** ([`DriveSurvey::diagnose`]): the reference's turns regressed on the
 //!   wheels' (at the nominal geometry). A slope near −1 is swapped wheels (or a mirrored
-//!   reference), near 57 a yaw in degrees; a yaw that turns against the reference's own path is
-//!   a yaw of the other sign convention.
+//!   reference); yaw steps 57 times the wheels' turns are a yaw in degrees; a yaw that turns
+//!   against the reference's own path is a yaw of the other sign convention.
 //! - **After the fit** ([`judge`]): each parameter's standard deviation against what a
 //!   calibration must reach; a diameter or wheelbase worse than [`GEOMETRY_REL_STD_MAX`] is not
 //!   observed and is not written.
@@ -55,6 +55,9 @@ pub struct DriveSurvey {
     pub yaw_slope: Option<f64>,
     /// Slope of the direction changes of the reference's path on the wheels' turns.
     pub path_slope: Option<f64>,
+    /// Median size of the reference's yaw steps (as given, unwrapped) over that of the wheels'
+    /// turns, on intervals where the wheels turn: about 57 for a yaw in degrees.
+    pub yaw_step_ratio: Option<f64>,
 }
 
 /// Surveys `recording` at the nominal geometry.
@@ -87,6 +90,7 @@ pub fn survey(recording: &PoseRecording, nominal: Geometry) -> DriveSurvey {
         .map(|p| odo.at(p.time_s, &mut hint))
         .collect();
     let (mut syo, mut soo, mut spo, mut spp) = (0.0, 0.0, 0.0, 0.0);
+    let (mut yaw_steps, mut odo_steps) = (Vec::new(), Vec::new());
     let mut last_dir: Option<(f64, usize)> = None;
     for j in 1..recording.poses.len() {
         let (Some(a), Some(b)) = (odo_at[j - 1], odo_at[j]) else {
@@ -97,6 +101,10 @@ pub fn survey(recording: &PoseRecording, nominal: Geometry) -> DriveSurvey {
         if let (Some(y0), Some(y1)) = (p0.yaw_rad, p1.yaw_rad) {
             syo += wrap_angle(y1 - y0) * dodo;
             soo += dodo * dodo;
+            if dodo.abs() > 1e-3 {
+                yaw_steps.push((y1 - y0).abs());
+                odo_steps.push(dodo.abs());
+            }
         }
         // Direction of the reference's path where it moves clearly.
         let (dx, dy) = (p1.x_m - p0.x_m, p1.y_m - p0.y_m);
@@ -132,7 +140,20 @@ pub fn survey(recording: &PoseRecording, nominal: Geometry) -> DriveSurvey {
         duration_s,
         yaw_slope: (soo > enough).then(|| syo / soo),
         path_slope: (spp > enough).then(|| spo / spp),
+        yaw_step_ratio: match (median(yaw_steps), median(odo_steps)) {
+            (Some(y), Some(o)) if o > 0.0 => Some(y / o),
+            _ => None,
+        },
     }
+}
+
+fn median(mut v: Vec<f64>) -> Option<f64> {
+    if v.len() < 10 {
+        return None;
+    }
+    let mid = v.len() / 2;
+    v.select_nth_unstable_by(mid, f64::total_cmp);
+    Some(v[mid])
 }
 
 impl DriveSurvey {
@@ -175,10 +196,10 @@ impl DriveSurvey {
     pub fn diagnose(&self) -> Result<(), CalibrationError> {
         let yaw = self.yaw_slope;
         let path = self.path_slope;
-        if let Some(y) = yaw {
-            if (20.0..120.0).contains(&y.abs()) {
+        if let Some(y) = self.yaw_step_ratio {
+            if (20.0..120.0).contains(&y) {
                 return Err(CalibrationError::PoseInput(format!(
-                    "the reference's yaw turns {y:.1}× as far as the wheels: it is in degrees, \
+                    "the reference's yaw steps are {y:.1}× the wheels' turns: it is in degrees, \
                      not radians; convert it (yaw_rad = yaw_deg · π/180) and fit again"
                 )));
             }

@@ -21,7 +21,12 @@
 //!
 //! Residuals are `(Δx, Δy, Δψ)` per sample (or increment); positions and yaws have one noise
 //! scale each, estimated from the residuals, times the standard deviation a message states for
-//! its sample where it states one. The solver is Levenberg–Marquardt on a numeric Jacobian,
+//! its sample where it states one. Against an absolute reference a real robot's residuals also
+//! wander: wheel slip accumulates between the alignment and each sample. Each component is then
+//! modelled as white noise plus a random walk (variance `q` per second), the residuals are
+//! whitened by a scalar Kalman filter per component (its innovations), and `σ`, `q` are found by
+//! maximum likelihood; a walk is kept only when the likelihood ratio says it is there. With no
+//! walk this is exactly the white model. The solver is Levenberg–Marquardt on a numeric Jacobian,
 //! inside iteratively reweighted least squares: Huber weights first, to find the basin, then
 //! samples whose `χ²` exceeds its 99.9 % quantile are left out (a relocalisation jump, a
 //! scan-matching failure) and the scales re-estimated from the rest.
@@ -188,6 +193,11 @@ pub struct PoseFit {
     pub residual_std_position_m: f64,
     /// Standard deviation of one yaw residual (rad), inliers; `None` without yaw.
     pub residual_std_yaw_rad: Option<f64>,
+    /// Variance per second of the positions' random walk between reference and odometry
+    /// (m²/s; absolute references; 0: none found).
+    pub walk_position_m2_s: f64,
+    /// Variance per second of the yaw's random walk (rad²/s); `None` without yaw.
+    pub walk_yaw_rad2_s: Option<f64>,
     /// Samples (absolute) or increments (relative) compared.
     pub compared: usize,
     /// Of them, left out as outliers.
@@ -260,6 +270,17 @@ pub fn fit_poses(
     config: &FitConfig,
 ) -> Result<PoseFit, CalibrationError> {
     check_input(recording, config)?;
+    if config.kind.is_none() && !recording.has_yaw() {
+        let decision = KindDecision {
+            kind: ReferenceKind::Absolute,
+            decided_by: "data",
+            variance_ratio_10_to_1: None,
+            reason: "a reference without yaw (GNSS) has no frame of its own to chain motion \
+                     in: absolute"
+                .into(),
+        };
+        return fit_kind(recording, config, ReferenceKind::Absolute, None, decision);
+    }
     match config.kind {
         Some(kind) => {
             let decision = KindDecision {
@@ -408,11 +429,39 @@ fn check_input(recording: &PoseRecording, config: &FitConfig) -> Result<(), Cali
     Ok(())
 }
 
-/// Noise scales: one for position components, one for yaw.
+/// Noise of the residuals: white noise of one position component and of the yaw (the
+/// reference's own, and the odometry's per interval), and, for an absolute reference, the
+/// variance per second of a random walk (the odometry's slip accumulating between alignments).
 #[derive(Debug, Clone, Copy)]
 struct Scales {
     position: f64,
     yaw: f64,
+    walk_position: f64,
+    walk_yaw: f64,
+}
+
+impl Scales {
+    fn white(position: f64, yaw: f64) -> Self {
+        Self {
+            position,
+            yaw,
+            walk_position: 0.0,
+            walk_yaw: 0.0,
+        }
+    }
+
+    fn walks(&self) -> bool {
+        self.walk_position > 0.0 || self.walk_yaw > 0.0
+    }
+
+    /// White σ and walk variance rate of component `c`.
+    fn of(&self, c: usize) -> (f64, f64) {
+        if c < 2 {
+            (self.position, self.walk_position)
+        } else {
+            (self.yaw, self.walk_yaw)
+        }
+    }
 }
 
 /// The least-squares problem for one kind.
@@ -603,7 +652,10 @@ impl<'a> Problem<'a> {
         match self.kind {
             ReferenceKind::Absolute => {
                 for &(a, b) in &self.windows {
-                    let align = self.align(&pred[a..b], a, weights, scales);
+                    let mut align = self.align(&pred[a..b], a, weights, scales);
+                    if scales.walks() {
+                        align = self.align_whitened(&pred, a, b, align, weights, scales);
+                    }
                     for k in a..b {
                         let q = align.compose(&pred[k]);
                         let r = &poses[self.selected[k]];
@@ -707,16 +759,146 @@ impl<'a> Problem<'a> {
         }
     }
 
-    /// Component weights `w_b / (σ_class² · σ_stated²)`.
-    fn component_weights(&self, weights: &[f64], scales: Scales) -> Vec<f64> {
-        let mut out = Vec::with_capacity(self.blocks() * self.dim);
-        for (b, w) in weights.iter().enumerate() {
-            for c in 0..self.dim {
-                let class = if c < 2 { scales.position } else { scales.yaw };
-                out.push(w / (class * self.stated(b, c)).powi(2));
+    /// The time of block `b` (s, reference clock).
+    fn block_time(&self, b: usize) -> f64 {
+        let i = match self.kind {
+            ReferenceKind::Absolute => self.selected[b],
+            ReferenceKind::Relative => self.selected[b + 1],
+        };
+        self.recording.poses[i].time_s
+    }
+
+    /// The residuals of one window for an alignment.
+    fn window_residuals(&self, pred: &[Pose2], a: usize, b: usize, align: &Pose2) -> Vec<f64> {
+        let poses = &self.recording.poses;
+        let mut out = Vec::with_capacity((b - a) * self.dim);
+        for k in a..b {
+            let q = align.compose(&pred[k]);
+            let r = &poses[self.selected[k]];
+            out.push(r.x_m - q.x);
+            out.push(r.y_m - q.y);
+            if let Some(yaw) = r.yaw_rad {
+                out.push(wrap_angle(yaw - q.theta));
             }
         }
         out
+    }
+
+    /// Under a random walk the Procrustes alignment is no longer the likelihood's: two
+    /// Gauss–Newton steps on the whitened residuals of the window, over `(t_x, t_y, φ)`.
+    fn align_whitened(
+        &self,
+        pred: &[Pose2],
+        a: usize,
+        b: usize,
+        mut align: Pose2,
+        weights: &[f64],
+        scales: Scales,
+    ) -> Pose2 {
+        let dim = self.dim;
+        for _ in 0..2 {
+            let e = self.window_residuals(pred, a, b, &align);
+            // ∂e/∂t_x = (−1, 0, 0), ∂e/∂t_y = (0, −1, 0), ∂e/∂φ = (y − t_y, −(x − t_x), −1).
+            let mut cols = vec![vec![0.0; e.len()]; 3];
+            for (k, pk) in pred[a..b].iter().enumerate() {
+                let q = align.compose(pk);
+                let i = k * dim;
+                cols[0][i] = -1.0;
+                cols[1][i + 1] = -1.0;
+                cols[2][i] = q.y - align.y;
+                cols[2][i + 1] = -(q.x - align.x);
+                if dim == 3 {
+                    cols[2][i + 2] = -1.0;
+                }
+            }
+            let z = self.whiten_window(&e, a, b, weights, scales).0;
+            let zc: Vec<Vec<f64>> = cols
+                .iter()
+                .map(|c| self.whiten_window(c, a, b, weights, scales).0)
+                .collect();
+            let mut h = nalgebra::Matrix3::<f64>::zeros();
+            let mut g = nalgebra::Vector3::<f64>::zeros();
+            for i in 0..z.len() {
+                for r in 0..3 {
+                    g[r] += zc[r][i] * z[i];
+                    for c in 0..3 {
+                        h[(r, c)] += zc[r][i] * zc[c][i];
+                    }
+                }
+            }
+            let Some(step) = h.cholesky().map(|ch| ch.solve(&(-g))) else {
+                break;
+            };
+            align.x += step[0];
+            align.y += step[1];
+            align.theta += step[2];
+        }
+        align
+    }
+
+    /// Whitens residuals `e` of blocks `[a, b)`: returns the whitened residuals the cost sums
+    /// (zero for a block left out, scaled by its weight) and the innovations normalised
+    /// without the weights (for judging outliers). Under a random walk each component is
+    /// the innovation of a scalar Kalman filter whose state starts at zero with the window
+    /// (the alignment plays its initial value); a block left out is not used to update it.
+    fn whiten_window(
+        &self,
+        e: &[f64],
+        a: usize,
+        b: usize,
+        weights: &[f64],
+        scales: Scales,
+    ) -> (Vec<f64>, Vec<f64>) {
+        let dim = self.dim;
+        let mut z = vec![0.0; e.len()];
+        let mut raw = vec![0.0; e.len()];
+        let walk = scales.walks() && self.kind == ReferenceKind::Absolute;
+        for c in 0..dim {
+            let (sigma, q) = scales.of(c);
+            let (mut m, mut var) = (0.0, 0.0);
+            let mut t_prev: Option<f64> = None;
+            for (blk, &w) in weights.iter().enumerate().take(b).skip(a) {
+                let i = (blk - a) * dim + c;
+                let meas = (sigma * self.stated(blk, c)).powi(2);
+                if !walk {
+                    raw[i] = e[i] / meas.sqrt();
+                    z[i] = raw[i] * w.sqrt();
+                    continue;
+                }
+                let t = self.block_time(blk);
+                if let Some(tp) = t_prev {
+                    var += q * (t - tp).max(0.0);
+                }
+                t_prev = Some(t);
+                let nu = e[i] - m;
+                raw[i] = nu / (var + meas).sqrt();
+                if w > 0.0 {
+                    let s = var + meas / w;
+                    z[i] = nu / s.sqrt();
+                    let k = var / s;
+                    m += k * nu;
+                    var *= 1.0 - k;
+                }
+            }
+        }
+        (z, raw)
+    }
+
+    /// Whitens a whole residual vector (all blocks, window by window).
+    fn whiten(&self, e: &[f64], weights: &[f64], scales: Scales) -> (Vec<f64>, Vec<f64>) {
+        let dim = self.dim;
+        let windows: Vec<(usize, usize)> = match self.kind {
+            ReferenceKind::Absolute => self.windows.clone(),
+            ReferenceKind::Relative => vec![(0, self.blocks())],
+        };
+        let mut z = Vec::with_capacity(e.len());
+        let mut raw = Vec::with_capacity(e.len());
+        for (a, b) in windows {
+            let (zw, rw) = self.whiten_window(&e[a * dim..b * dim], a, b, weights, scales);
+            z.extend(zw);
+            raw.extend(rw);
+        }
+        (z, raw)
     }
 
     /// The residuals at `x` and their Jacobian with respect to the free parameters.
@@ -753,11 +935,34 @@ impl<'a> Problem<'a> {
         (r0, jac)
     }
 
-    fn cost(&self, x: &[f64], weights: &[f64], scales: Scales, cw: &[f64]) -> f64 {
+    fn cost(&self, x: &[f64], weights: &[f64], scales: Scales) -> f64 {
         let p = self.full(x);
         let odo = Odometry::integrate(&self.recording.wheels, Self::geometry(&p));
         let r = self.residuals(&odo, &p, weights, scales);
-        r.iter().zip(cw).map(|(e, w)| w * e * e).sum()
+        self.whiten(&r, weights, scales)
+            .0
+            .iter()
+            .map(|z| z * z)
+            .sum()
+    }
+
+    /// The whitened residuals and Jacobian at `x`.
+    fn whitened_jacobian(
+        &self,
+        x: &[f64],
+        weights: &[f64],
+        scales: Scales,
+    ) -> (Vec<f64>, DMatrix<f64>) {
+        let (r, jac) = self.jacobian(x, weights, scales);
+        let z = self.whiten(&r, weights, scales).0;
+        let mut jz = DMatrix::zeros(z.len(), jac.ncols());
+        for j in 0..jac.ncols() {
+            let col: Vec<f64> = jac.column(j).iter().copied().collect();
+            for (i, v) in self.whiten(&col, weights, scales).0.into_iter().enumerate() {
+                jz[(i, j)] = v;
+            }
+        }
+        (z, jz)
     }
 
     fn physical(&self, x: &[f64]) -> bool {
@@ -795,21 +1000,20 @@ fn levenberg_marquardt(
     scales: Scales,
     max_iterations: usize,
 ) -> (Vec<f64>, usize) {
-    let cw = problem.component_weights(weights, scales);
     let mut lambda = 1e-4;
-    let mut cost = problem.cost(&x, weights, scales, &cw);
+    let mut cost = problem.cost(&x, weights, scales);
     let n = x.len();
     for it in 0..max_iterations {
-        let (r, jac) = problem.jacobian(&x, weights, scales);
+        let (z, jac) = problem.whitened_jacobian(&x, weights, scales);
         let mut h = DMatrix::<f64>::zeros(n, n);
         let mut g = DVector::<f64>::zeros(n);
-        for (i, (e, w)) in r.iter().zip(&cw).enumerate() {
-            if *w == 0.0 {
+        for (i, e) in z.iter().enumerate() {
+            if *e == 0.0 && jac.row(i).iter().all(|v| *v == 0.0) {
                 continue;
             }
             let row = jac.row(i);
             for a in 0..n {
-                let ja = row[a] * w;
+                let ja = row[a];
                 g[a] += ja * e;
                 for b in a..n {
                     h[(a, b)] += ja * row[b];
@@ -839,7 +1043,7 @@ fn levenberg_marquardt(
                 lambda *= 10.0;
                 continue;
             }
-            let cn = problem.cost(&xn, weights, scales, &cw);
+            let cn = problem.cost(&xn, weights, scales);
             if cn <= cost {
                 let small = (cost - cn) <= 1e-12 * cost.max(1e-300);
                 x = xn;
@@ -871,7 +1075,8 @@ fn mad_std(values: impl Iterator<Item = f64>) -> f64 {
     1.4826 * v[mid]
 }
 
-/// Scales from residuals, robustly (median absolute value), over the blocks weighted > 0.
+/// Scales from residuals, robustly (median absolute value), over the blocks weighted > 0; no
+/// random walk.
 fn robust_scales(problem: &Problem<'_>, r: &[f64], weights: &[f64]) -> Scales {
     let dim = problem.dim;
     let pick = |c_lo: usize, c_hi: usize| {
@@ -882,9 +1087,127 @@ fn robust_scales(problem: &Problem<'_>, r: &[f64], weights: &[f64]) -> Scales {
                 .map(move |c| e[c] / problem.stated(b, c))
         }))
     };
+    Scales::white(
+        pick(0, 2).max(1e-9),
+        if dim == 3 { pick(2, 3).max(1e-9) } else { 1.0 },
+    )
+}
+
+/// White noise and random walk of an absolute reference's residuals by maximum likelihood:
+/// for each class (positions, yaw) the ratio `λ = q/σ²` of the walk's variance per second to
+/// the white variance, with `σ²` profiled out (`σ̂² = Σν²/s / n` for innovations `ν` of
+/// normalised variance `s`, so `−2 log L = n log σ̂² + Σ log s`), searched on a logarithmic
+/// grid and refined; a walk is kept only when it beats none by a likelihood ratio of
+/// `e²` (about 5 % for one parameter, Wilks), so that noise in the search does not invent one.
+fn walk_scales(problem: &Problem<'_>, r: &[f64], weights: &[f64], white: Scales) -> Scales {
+    let dim = problem.dim;
+    // −2 log L (up to a constant) of components `cs` for ratio `lambda`.
+    let profile = |cs: &[usize], lambda: f64| -> f64 {
+        let (mut sum, mut logs, mut n) = (0.0, 0.0, 0usize);
+        for &(a, b) in &problem.windows {
+            for &c in cs {
+                let (mut m, mut var) = (0.0f64, 0.0f64);
+                let mut t_prev: Option<f64> = None;
+                for blk in a..b {
+                    let t = problem.block_time(blk);
+                    if let Some(tp) = t_prev {
+                        var += lambda * (t - tp).max(0.0);
+                    }
+                    t_prev = Some(t);
+                    if weights[blk] <= 0.0 {
+                        continue;
+                    }
+                    let meas = problem.stated(blk, c).powi(2);
+                    let nu = r[blk * dim + c] - m;
+                    let s = var + meas;
+                    sum += nu * nu / s;
+                    logs += s.ln();
+                    n += 1;
+                    let k = var / s;
+                    m += k * nu;
+                    var *= 1.0 - k;
+                }
+            }
+        }
+        if n == 0 || sum <= 0.0 {
+            return f64::INFINITY;
+        }
+        n as f64 * (sum / n as f64).ln() + logs
+    };
+    let search = |cs: &[usize], sigma: f64| -> (f64, f64) {
+        let none = profile(cs, 0.0);
+        let mut best = (none, 0.0);
+        let mut k = -10.0;
+        while k <= 3.0 {
+            let lambda = 10f64.powf(k);
+            let v = profile(cs, lambda);
+            if v < best.0 {
+                best = (v, lambda);
+            }
+            k += 0.25;
+        }
+        if best.1 > 0.0 {
+            // Golden-section refinement on log λ within one grid step each side.
+            let (mut lo, mut hi) = (best.1.log10() - 0.25, best.1.log10() + 0.25);
+            let g = 0.5 * (5f64.sqrt() - 1.0);
+            for _ in 0..20 {
+                let (a, b) = (hi - g * (hi - lo), lo + g * (hi - lo));
+                if profile(cs, 10f64.powf(a)) < profile(cs, 10f64.powf(b)) {
+                    hi = b;
+                } else {
+                    lo = a;
+                }
+            }
+            let lambda = 10f64.powf(0.5 * (lo + hi));
+            let v = profile(cs, lambda);
+            if v < best.0 {
+                best = (v, lambda);
+            }
+        }
+        if none - best.0 < 2.0 {
+            return (sigma, 0.0);
+        }
+        // σ̂² at the best λ (in units of the stated σ²), then q = λσ̂².
+        let lambda = best.1;
+        let (mut sum, mut n) = (0.0, 0usize);
+        for &(a, b) in &problem.windows {
+            for &c in cs {
+                let (mut m, mut var) = (0.0f64, 0.0f64);
+                let mut t_prev: Option<f64> = None;
+                for blk in a..b {
+                    let t = problem.block_time(blk);
+                    if let Some(tp) = t_prev {
+                        var += lambda * (t - tp).max(0.0);
+                    }
+                    t_prev = Some(t);
+                    if weights[blk] <= 0.0 {
+                        continue;
+                    }
+                    let meas = problem.stated(blk, c).powi(2);
+                    let nu = r[blk * dim + c] - m;
+                    let s = var + meas;
+                    sum += nu * nu / s;
+                    n += 1;
+                    let k = var / s;
+                    m += k * nu;
+                    var *= 1.0 - k;
+                }
+            }
+        }
+        let sigma2 = (sum / n.max(1) as f64).max(1e-24);
+        (sigma2.sqrt(), lambda * sigma2)
+    };
+    let (position, walk_position) = search(&[0, 1], white.position);
+    let (yaw, walk_yaw) = if dim == 3 {
+        search(&[2], white.yaw)
+    } else {
+        (1.0, 0.0)
+    };
     Scales {
-        position: pick(0, 2).max(1e-9),
-        yaw: if dim == 3 { pick(2, 3).max(1e-9) } else { 1.0 },
+        position,
+        yaw,
+        walk_position,
+        walk_yaw,
     }
 }
 
@@ -897,19 +1220,11 @@ fn gate(dim: usize) -> f64 {
     }
 }
 
-/// Normalised squared distance of each block.
-fn block_chi2(problem: &Problem<'_>, r: &[f64], scales: Scales) -> Vec<f64> {
-    r.chunks(problem.dim)
-        .enumerate()
-        .map(|(b, e)| {
-            e.iter()
-                .enumerate()
-                .map(|(c, v)| {
-                    let s = if c < 2 { scales.position } else { scales.yaw };
-                    (v / (s * problem.stated(b, c))).powi(2)
-                })
-                .sum()
-        })
+/// Normalised squared innovation of each block.
+fn block_chi2(problem: &Problem<'_>, r: &[f64], weights: &[f64], scales: Scales) -> Vec<f64> {
+    let raw = problem.whiten(r, weights, scales).1;
+    raw.chunks(problem.dim)
+        .map(|z| z.iter().map(|v| v * v).sum())
         .collect()
 }
 
@@ -930,10 +1245,8 @@ fn fit_kind(
             p0[q.index()] = s[q.index()];
         }
     }
-    let unit = Scales {
-        position: 1.0,
-        yaw: 1.0,
-    };
+    let unit = Scales::white(1.0, 1.0);
+    let mut iterations_before = 0;
     let residual_at = |p: &[f64; PARAMS], w: &[f64], s: Scales| {
         let odo = Odometry::integrate(&recording.wheels, Problem::geometry(p));
         problem.residuals(&odo, p, w, s)
@@ -944,8 +1257,18 @@ fn fit_kind(
             robust_scales(&problem, &residual_at(&p0, &weights, unit), &weights)
         }
     };
-    // The time offset's basin: a coarse search at the starting geometry.
+    // The time offset's basin: a lever arm along the direction of travel looks like a delay
+    // while the robot drives straight, so the geometry and mounting are fitted first with the
+    // offset held at zero, then the offset is searched on a coarse grid from there.
     if config.fit_time_offset && start.is_none() {
+        let mut held = Problem::new(recording, config, kind)?;
+        held.free.retain(|q| *q != Param::TimeOffset);
+        let (xa, it) = levenberg_marquardt(&held, held.free_values(&p0), &weights, scales, 20);
+        iterations_before = it;
+        p0 = held.full(&xa);
+        if config.weighting == Weighting::Estimated {
+            scales = robust_scales(&problem, &residual_at(&p0, &weights, unit), &weights);
+        }
         let odo = Odometry::integrate(&recording.wheels, Problem::geometry(&p0));
         let steps = (problem.max_offset / 0.02).ceil() as i64;
         let mut best = (f64::INFINITY, 0.0);
@@ -953,7 +1276,7 @@ fn fit_kind(
             let mut p = p0;
             p[6] = (k as f64 * 0.02).clamp(-problem.max_offset, problem.max_offset);
             let r = problem.residuals(&odo, &p, &weights, scales);
-            let cost: f64 = block_chi2(&problem, &r, scales)
+            let cost: f64 = block_chi2(&problem, &r, &weights, scales)
                 .iter()
                 .map(|d| d.min(25.0))
                 .sum();
@@ -967,7 +1290,7 @@ fn fit_kind(
         }
     }
     let mut x = problem.free_values(&p0);
-    let mut iterations = 0;
+    let mut iterations = iterations_before;
     let stages = if config.robust { 12 } else { 1 };
     for stage in 0..stages {
         let (xn, it) = levenberg_marquardt(&problem, x, &weights, scales, 50);
@@ -982,9 +1305,9 @@ fn fit_kind(
         let new_scales = if huber {
             robust_scales(&problem, &r, &vec![1.0; blocks])
         } else {
-            inlier_scales(&problem, &r, &weights)
+            settle_scales(&problem, &r, &weights, config)
         };
-        let chi2 = block_chi2(&problem, &r, new_scales);
+        let chi2 = block_chi2(&problem, &r, &weights, new_scales);
         let k2 = gate(dim);
         let new_weights: Vec<f64> = chi2
             .iter()
@@ -1009,10 +1332,13 @@ fn fit_kind(
                 }
             })
             .collect();
+        let close = |a: f64, b: f64| (a - b).abs() <= 1e-3 * a.abs().max(b.abs()).max(1e-300);
         let settled = !huber
             && new_weights == weights
-            && (new_scales.position / scales.position - 1.0).abs() < 1e-3
-            && (new_scales.yaw / scales.yaw - 1.0).abs() < 1e-3;
+            && close(new_scales.position, scales.position)
+            && close(new_scales.yaw, scales.yaw)
+            && close(new_scales.walk_position, scales.walk_position)
+            && close(new_scales.walk_yaw, scales.walk_yaw);
         weights = new_weights;
         scales = new_scales;
         if settled {
@@ -1021,12 +1347,12 @@ fn fit_kind(
     }
     let p = problem.full(&x);
     // Final scales and covariance at the solution, inliers only.
-    let (r, jac) = problem.jacobian(&x, &weights, scales);
     let n_free = problem.free.len();
     let outliers = weights.iter().filter(|w| **w == 0.0).count();
-    if config.robust {
-        scales = inlier_scales(&problem, &r, &weights);
-    } else if config.weighting == Weighting::Unit {
+    let r = residual_at(&p, &weights, scales);
+    if config.robust || config.weighting == Weighting::Estimated {
+        scales = inlier_scales(&problem, &r, &weights, scales);
+    } else {
         // Unweighted least squares: one variance for every component.
         let n = r
             .len()
@@ -1035,27 +1361,11 @@ fn fit_kind(
         let s = (r.iter().map(|e| e * e).sum::<f64>() / n as f64)
             .sqrt()
             .max(1e-12);
-        scales = Scales {
-            position: s,
-            yaw: s,
-        };
-    } else {
-        scales = inlier_scales(&problem, &r, &weights);
+        scales = Scales::white(s, s);
     }
-    let cw = problem.component_weights(&weights, scales);
-    let mut h = DMatrix::<f64>::zeros(n_free, n_free);
-    for (i, w) in cw.iter().enumerate() {
-        if *w == 0.0 {
-            continue;
-        }
-        let row = jac.row(i);
-        for a in 0..n_free {
-            for b in 0..n_free {
-                h[(a, b)] += row[a] * w * row[b];
-            }
-        }
-    }
-    let rho = lag_one_correlation(&problem, &r, &weights, scales);
+    let (z, jac) = problem.whitened_jacobian(&x, &weights, scales);
+    let h = jac.transpose() * &jac;
+    let rho = lag_one_correlation(&problem, &z, &weights);
     let inflation = ((1.0 + rho) / (1.0 - rho)).clamp(1.0, 100.0);
     let cov_free = h
         .clone()
@@ -1089,6 +1399,8 @@ fn fit_kind(
         kind: decision,
         residual_std_position_m: scales.position,
         residual_std_yaw_rad: (dim == 3).then_some(scales.yaw),
+        walk_position_m2_s: scales.walk_position,
+        walk_yaw_rad2_s: (dim == 3).then_some(scales.walk_yaw),
         compared: blocks,
         outliers,
         windows: match kind {
@@ -1103,22 +1415,36 @@ fn fit_kind(
     })
 }
 
-/// Scales as the root mean square of the inliers' normalised residuals, corrected for the
-/// parameters and alignments fitted.
-fn inlier_scales(problem: &Problem<'_>, r: &[f64], weights: &[f64]) -> Scales {
+/// The scales of a gated stage: white noise and random walk by maximum likelihood for an
+/// absolute reference, white noise for a relative one; then one common factor per class that
+/// makes the inliers' whitened residuals unit.
+fn settle_scales(problem: &Problem<'_>, r: &[f64], weights: &[f64], config: &FitConfig) -> Scales {
+    let shape = match problem.kind {
+        ReferenceKind::Absolute if config.weighting == Weighting::Estimated => {
+            let white = robust_scales(problem, r, weights);
+            walk_scales(problem, r, weights, white)
+        }
+        _ => robust_scales(problem, r, weights),
+    };
+    inlier_scales(problem, r, weights, shape)
+}
+
+/// `shape` rescaled per class so that the inliers' whitened residuals have unit variance,
+/// corrected for the parameters and alignments fitted.
+fn inlier_scales(problem: &Problem<'_>, r: &[f64], weights: &[f64], shape: Scales) -> Scales {
     let dim = problem.dim;
+    let raw = problem.whiten(r, weights, shape).1;
     let (mut sp, mut np, mut sy, mut ny) = (0.0, 0usize, 0.0, 0usize);
-    for (b, e) in r.chunks(dim).enumerate() {
+    for (b, z) in raw.chunks(dim).enumerate() {
         if weights[b] <= 0.0 {
             continue;
         }
-        for (c, v) in e.iter().enumerate() {
-            let z = (v / problem.stated(b, c)).powi(2);
+        for (c, v) in z.iter().enumerate() {
             if c < 2 {
-                sp += z;
+                sp += v * v;
                 np += 1;
             } else {
-                sy += z;
+                sy += v * v;
                 ny += 1;
             }
         }
@@ -1130,33 +1456,37 @@ fn inlier_scales(problem: &Problem<'_>, r: &[f64], weights: &[f64]) -> Scales {
     let lost = (problem.free.len() + nuisance) as f64;
     let total = (np + ny).max(1) as f64;
     let dof = |n: usize| (n as f64 - lost * n as f64 / total).max(1.0);
+    let fp = (sp / dof(np)).max(1e-24);
+    let fy = if ny > 0 {
+        (sy / dof(ny)).max(1e-24)
+    } else {
+        1.0
+    };
     Scales {
-        position: (sp / dof(np)).sqrt().max(1e-12),
+        position: (shape.position * fp.sqrt()).max(1e-12),
         yaw: if ny > 0 {
-            (sy / dof(ny)).sqrt().max(1e-12)
+            (shape.yaw * fy.sqrt()).max(1e-12)
         } else {
             1.0
         },
+        walk_position: shape.walk_position * fp,
+        walk_yaw: shape.walk_yaw * fy,
     }
 }
 
-/// Lag-one correlation of the normalised residuals of consecutive inlier blocks, pooled over
+/// Lag-one correlation of the whitened residuals `z` of consecutive inlier blocks, pooled over
 /// components.
-fn lag_one_correlation(problem: &Problem<'_>, r: &[f64], weights: &[f64], scales: Scales) -> f64 {
+fn lag_one_correlation(problem: &Problem<'_>, z: &[f64], weights: &[f64]) -> f64 {
     let dim = problem.dim;
-    let z = |b: usize, c: usize| {
-        let s = if c < 2 { scales.position } else { scales.yaw };
-        r[b * dim + c] / (s * problem.stated(b, c))
-    };
     let (mut num, mut den) = (0.0, 0.0);
     for b in 0..problem.blocks() {
         if weights[b] <= 0.0 {
             continue;
         }
         for c in 0..dim {
-            den += z(b, c).powi(2);
+            den += z[b * dim + c].powi(2);
             if b > 0 && weights[b - 1] > 0.0 {
-                num += z(b, c) * z(b - 1, c);
+                num += z[b * dim + c] * z[(b - 1) * dim + c];
             }
         }
     }
