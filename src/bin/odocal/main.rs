@@ -15,6 +15,7 @@ mod ros;
 mod routine;
 mod sensor;
 mod simulate;
+mod simulate_drive;
 mod stated;
 mod track;
 

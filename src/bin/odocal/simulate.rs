@@ -72,6 +72,11 @@ pub struct Args {
     /// How the --write-bag's IMU errs (a deviation, a gyro's scale, a late or lossy stream).
     #[command(flatten)]
     sensor: crate::HeadingModelArgs,
+    /// Instead of squares, normal driving under a pose reference (5 minutes; the reference at
+    /// 10 Hz, mounted off the axle, 60 ms late, noisy, 1 % outliers), fitted as `odocal fit`
+    /// does: the truth against the fit.
+    #[command(flatten)]
+    pub drive: crate::simulate_drive::DriveArgs,
 }
 
 /// Writes the simulated square test as a ROS 2 bag.
@@ -146,6 +151,12 @@ pub fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
     }
     if let Some(path) = &args.bag {
         return write_bag(&args, path);
+    }
+    if args.drive.drive {
+        let nominal = WheelParams::nominal(args.wheel_diameter_m, args.wheelbase_m, 1.0);
+        let truth =
+            WheelParams::from_ratios(&nominal, args.true_eb, args.true_ed, &args.truth_split)?;
+        return crate::simulate_drive::run(&args.drive, &nominal, &truth, args.seed, args.json);
     }
     let cfg = StudyConfig {
         nominal: WheelParams::nominal(args.wheel_diameter_m, args.wheelbase_m, args.counts_per_rev),
