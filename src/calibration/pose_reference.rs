@@ -18,7 +18,7 @@
 //! [`crate::kinematics::Pose::advance`]) with the heading kept unwrapped, and interpolates
 //! inside an interval along the same arc.
 
-use crate::kinematics::sinc;
+use crate::kinematics::{sinc, Displacement};
 use serde::{Deserialize, Serialize};
 
 /// Cumulative wheel rotations at one instant (rad, forward positive).
@@ -128,8 +128,10 @@ impl Pose2 {
     /// The pose after an arc of wheel travels `left_m`, `right_m` on wheelbase `b`.
     #[inline]
     pub fn arc(&self, left_m: f64, right_m: f64, b: f64) -> Pose2 {
-        let ds = 0.5 * (left_m + right_m);
-        let dth = (right_m - left_m) / b;
+        let Displacement {
+            distance_m: ds,
+            turn_rad: dth,
+        } = Displacement::of_wheels(left_m, right_m, b);
         let chord = ds * sinc(0.5 * dth);
         let mid = self.theta + 0.5 * dth;
         let (s, c) = mid.sin_cos();
