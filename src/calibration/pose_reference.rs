@@ -178,23 +178,60 @@ pub struct Odometry<'a> {
 
 impl<'a> Odometry<'a> {
     /// Integrates `wheels` with `geometry`.
+    ///
+    /// The same arcs as [`Pose2::arc`], written for speed (a fit integrates the whole drive
+    /// several times per iteration): the heading's cosine and sine are carried and turned by
+    /// each interval's rotation, whose half-angle sine and cosine come from their Taylor series
+    /// when the half-angle is below 10⁻³ (error under 10⁻¹⁷) and from `sin_cos` otherwise.
     pub fn integrate(wheels: &'a [WheelAngles], geometry: Geometry) -> Self {
         let mut poses = Vec::with_capacity(wheels.len());
-        let mut pose = Pose2::default();
         let (hl, hr) = (
             0.5 * geometry.left_diameter_m,
             0.5 * geometry.right_diameter_m,
         );
+        let inv_b = 1.0 / geometry.wheelbase_m;
+        let (mut x, mut y, mut theta) = (0.0f64, 0.0f64, 0.0f64);
+        let (mut c, mut s) = (1.0f64, 0.0f64);
+        let mut prev: Option<&WheelAngles> = None;
         for (i, w) in wheels.iter().enumerate() {
-            if i > 0 {
-                let p = &wheels[i - 1];
-                pose = pose.arc(
-                    (w.left_rad - p.left_rad) * hl,
-                    (w.right_rad - p.right_rad) * hr,
-                    geometry.wheelbase_m,
-                );
+            if let Some(p) = prev {
+                let dl = (w.left_rad - p.left_rad) * hl;
+                let dr = (w.right_rad - p.right_rad) * hr;
+                let ds = 0.5 * (dl + dr);
+                let dth = (dr - dl) * inv_b;
+                let h = 0.5 * dth;
+                let (sh, ch, sinc_h) = if h.abs() < 1e-3 {
+                    let h2 = h * h;
+                    (
+                        h * (1.0 - h2 / 6.0 * (1.0 - h2 / 20.0)),
+                        1.0 - 0.5 * h2 * (1.0 - h2 / 12.0),
+                        1.0 - h2 / 6.0 * (1.0 - h2 / 20.0),
+                    )
+                } else {
+                    let (sh, ch) = h.sin_cos();
+                    (sh, ch, sh / h)
+                };
+                let chord = ds * sinc_h;
+                // Direction of the chord: the heading turned by half the interval's turn.
+                let (cm, sm) = (c * ch - s * sh, s * ch + c * sh);
+                x += chord * cm;
+                y += chord * sm;
+                // The heading turned by the whole turn: twice the half-angle rotation.
+                let (c2, s2) = (cm * ch - sm * sh, sm * ch + cm * sh);
+                // Keep the carried direction a unit vector as rounding accumulates.
+                let k = 1.5 - 0.5 * (c2 * c2 + s2 * s2);
+                c = c2 * k;
+                s = s2 * k;
+                theta += dth;
             }
-            poses.push(pose);
+            if i % 4096 == 0 {
+                // Re-anchor on the summed heading so that the carried direction cannot drift.
+                let (st, ct) = theta.sin_cos();
+                c = ct;
+                s = st;
+            }
+            poses.push(Pose2 { x, y, theta });
+            prev = Some(w);
         }
         Self {
             wheels,
