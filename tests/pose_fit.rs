@@ -323,3 +323,93 @@ fn the_command_line_contract_on_csv_files() {
     assert!(!ok);
     assert!(err.contains("--wheel-diameter-m"), "{err}");
 }
+
+/// The same drive from a bag, its reference as each pose type a ROS robot publishes: the fit
+/// equals the CSV's (same samples, stamps on a ROS clock), and `odocal fit --bag` prints it.
+#[test]
+fn a_drive_from_a_bag_with_a_pose_topic_fits_as_from_csv() {
+    use odocal::ros::bag::reference::read_pose_drive;
+    use odocal::ros::bag::writer::write_pose_drive_bag;
+    use odocal::ros::bag::BagOptions;
+    use odocal::ros::msg::types;
+    let config = DrivingConfig {
+        seed: 21,
+        ..DrivingConfig::default()
+    };
+    let mut rec = drive(config.clone());
+    let full = FitConfig::full(NOMINAL);
+    let from_csv = fit_poses(&rec, &full).expect("fits");
+    let dir = common::scratch("pose_fit_bag");
+    std::fs::create_dir_all(&dir).expect("scratch");
+    for (kind, topic) in [
+        (types::POSE_STAMPED, "/mocap/pose"),
+        (types::POSE_WITH_COVARIANCE_STAMPED, "/amcl_pose"),
+        (types::ODOMETRY, "/vio/odom"),
+    ] {
+        let path = dir.join(format!("{}.mcap", topic.replace('/', "_")));
+        write_pose_drive_bag(&path, &rec, kind, topic, 1.7e9).expect("writes");
+        let read = read_pose_drive(&path, &BagOptions::default(), topic).expect("reads");
+        assert_eq!(read.recording.wheels.len(), rec.wheels.len());
+        assert_eq!(read.recording.poses.len(), rec.poses.len());
+        let fit = fit_poses(&read.recording, &full).expect("fits");
+        for p in Param::ALL {
+            let (a, b, s) = (fit.value(p), from_csv.value(p), from_csv.std(p).unwrap());
+            assert!(
+                (a - b).abs() < 0.05 * s,
+                "{topic} {}: {a} vs {b} ± {s}",
+                p.name()
+            );
+        }
+    }
+    // A stated covariance weights the samples: every tenth pose stated ten times worse.
+    for (i, p) in rec.poses.iter_mut().enumerate() {
+        let k = if i % 10 == 0 { 10.0 } else { 1.0 };
+        p.stated_std = Some([0.003 * k, 0.003 * k, 0.3f64.to_radians() * k]);
+    }
+    let path = dir.join("stated.mcap");
+    write_pose_drive_bag(
+        &path,
+        &rec,
+        types::POSE_WITH_COVARIANCE_STAMPED,
+        "/amcl_pose",
+        1.7e9,
+    )
+    .expect("writes");
+    let read = read_pose_drive(&path, &BagOptions::default(), "/amcl_pose").expect("reads");
+    assert!(read.recording.poses.iter().all(|p| p.stated_std.is_some()));
+    let json = common::odocal_json(&[
+        "fit",
+        "--bag",
+        path.to_str().unwrap(),
+        "--reference",
+        "/amcl_pose",
+        "--wheel-diameter-m",
+        "0.1",
+        "--wheelbase-m",
+        "0.3",
+        "--json",
+    ]);
+    let truth = config.truth.wheelbase_m;
+    let (b, s) = (
+        json["wheelbase_m"].as_f64().expect("wheelbase_m"),
+        json["wheelbase_m_std"].as_f64().expect("its std"),
+    );
+    assert!((b - truth).abs() < 4.0 * s, "{b} vs {truth} ± {s}");
+    // A topic of another type is named with what it carries.
+    let (ok, _, err) = common::odocal(&[
+        "fit",
+        "--bag",
+        path.to_str().unwrap(),
+        "--reference",
+        "/joint_states",
+        "--wheel-diameter-m",
+        "0.1",
+        "--wheelbase-m",
+        "0.3",
+    ]);
+    assert!(!ok);
+    assert!(
+        err.contains("JointState") && err.contains("PoseStamped"),
+        "{err}"
+    );
+}

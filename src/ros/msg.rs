@@ -269,9 +269,28 @@ pub struct Pose {
 pub struct PoseWithCovariance {
     /// Pose.
     pub pose: Pose,
-    /// Covariance (odocal does not use it).
+    /// Covariance, row-major over (x, y, z, roll, pitch, yaw): a pose reference's samples are
+    /// weighted by its x, y and yaw variances.
     #[serde(default, deserialize_with = "lenient::unused")]
     pub covariance: Covariance36,
+}
+
+/// `geometry_msgs/PoseStamped`.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct PoseStamped {
+    /// Header.
+    pub header: Header,
+    /// Pose.
+    pub pose: Pose,
+}
+
+/// `geometry_msgs/PoseWithCovarianceStamped` (e.g. `/amcl_pose`).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct PoseWithCovarianceStamped {
+    /// Header.
+    pub header: Header,
+    /// Pose and its covariance.
+    pub pose: PoseWithCovariance,
 }
 
 /// `geometry_msgs/Twist`.
@@ -504,6 +523,10 @@ pub mod types {
     pub const ODOMETRY: &str = "nav_msgs/msg/Odometry";
     /// `geometry_msgs/msg/Twist`.
     pub const TWIST: &str = "geometry_msgs/msg/Twist";
+    /// `geometry_msgs/msg/PoseStamped`.
+    pub const POSE_STAMPED: &str = "geometry_msgs/msg/PoseStamped";
+    /// `geometry_msgs/msg/PoseWithCovarianceStamped`.
+    pub const POSE_WITH_COVARIANCE_STAMPED: &str = "geometry_msgs/msg/PoseWithCovarianceStamped";
     /// `geometry_msgs/msg/TwistStamped`.
     pub const TWIST_STAMPED: &str = "geometry_msgs/msg/TwistStamped";
 
@@ -543,6 +566,19 @@ geometry_msgs/TwistWithCovariance twist\n{HEADER}\
 {sep}MSG: geometry_msgs/TwistWithCovariance\ngeometry_msgs/Twist twist\nfloat64[36] covariance\n\
 {sep}MSG: geometry_msgs/Twist\ngeometry_msgs/Vector3 linear\ngeometry_msgs/Vector3 angular\n\
 {sep}MSG: geometry_msgs/Vector3\nfloat64 x\nfloat64 y\nfloat64 z\n"
+            ),
+            POSE_STAMPED => format!(
+                "std_msgs/Header header\ngeometry_msgs/Pose pose\n{HEADER}\
+{sep}MSG: geometry_msgs/Pose\ngeometry_msgs/Point position\ngeometry_msgs/Quaternion orientation\n\
+{sep}MSG: geometry_msgs/Point\nfloat64 x\nfloat64 y\nfloat64 z\n\
+{sep}MSG: geometry_msgs/Quaternion\nfloat64 x 0\nfloat64 y 0\nfloat64 z 0\nfloat64 w 1\n"
+            ),
+            POSE_WITH_COVARIANCE_STAMPED => format!(
+                "std_msgs/Header header\ngeometry_msgs/PoseWithCovariance pose\n{HEADER}\
+{sep}MSG: geometry_msgs/PoseWithCovariance\ngeometry_msgs/Pose pose\nfloat64[36] covariance\n\
+{sep}MSG: geometry_msgs/Pose\ngeometry_msgs/Point position\ngeometry_msgs/Quaternion orientation\n\
+{sep}MSG: geometry_msgs/Point\nfloat64 x\nfloat64 y\nfloat64 z\n\
+{sep}MSG: geometry_msgs/Quaternion\nfloat64 x 0\nfloat64 y 0\nfloat64 z 0\nfloat64 w 1\n"
             ),
             _ => String::new(),
         }

@@ -22,8 +22,33 @@ pub struct Args {
     poses: Option<PathBuf>,
     /// An OptiOdom set (motion capture); repeat to pool sets of one robot. Each run is one
     /// recording; the nominal geometry comes from the set's metadata.
-    #[arg(long)]
+    #[arg(long, conflicts_with = "bag")]
     dataset: Vec<PathBuf>,
+    /// A ROS bag (any format `odocal bag` reads) with the wheel joints and --reference.
+    #[arg(long, requires = "reference", conflicts_with = "wheels")]
+    bag: Option<PathBuf>,
+    /// The bag's pose reference: a geometry_msgs/PoseStamped, PoseWithCovarianceStamped
+    /// (/amcl_pose) or nav_msgs/Odometry topic (its covariance, when it states one, weights the
+    /// samples).
+    #[arg(long, requires = "bag")]
+    reference: Option<String>,
+    /// The bag's sensor_msgs/JointState topic.
+    #[arg(long, default_value = "/joint_states")]
+    joint_states_topic: String,
+    /// Left wheel joint [default: the one joint name containing "left"].
+    #[arg(long)]
+    left_joint: Option<String>,
+    /// Right wheel joint [default: the one joint name containing "right"].
+    #[arg(long)]
+    right_joint: Option<String>,
+    /// The controller's ros2_control YAML: the nominal geometry (instead of
+    /// --wheel-diameter-m and --wheelbase-m; both wheels and the wheelbase as the controller
+    /// uses them, multipliers included).
+    #[arg(long, conflicts_with_all = ["wheel_diameter_m", "wheelbase_m"])]
+    ros_yaml: Option<PathBuf>,
+    /// The diff_drive_controller's name in --ros-yaml.
+    #[arg(long, default_value = "diff_drive_controller")]
+    controller: String,
     /// Nominal wheel diameter (m) the fit starts from (with --wheels).
     #[arg(long)]
     wheel_diameter_m: Option<f64>,
@@ -128,29 +153,63 @@ pub fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
 /// Named recordings and the nominal geometry they start from.
 type Inputs = (Vec<(String, PoseRecording)>, Geometry);
 
+/// The nominal geometry from the flags or the controller's YAML.
+fn nominal(args: &Args, needed_by: &str) -> Result<Geometry, Box<dyn std::error::Error>> {
+    if let Some(yaml) = &args.ros_yaml {
+        let p = odocal::ros::yaml::DiffDriveConfig::load(yaml, &args.controller)?.effective();
+        return Ok(Geometry {
+            left_diameter_m: p.left_wheel_diameter_m,
+            right_diameter_m: p.right_wheel_diameter_m,
+            wheelbase_m: p.wheelbase_m,
+        });
+    }
+    let (Some(d), Some(b)) = (args.wheel_diameter_m, args.wheelbase_m) else {
+        return Err(format!(
+            "{needed_by} need the nominal geometry: give --wheel-diameter-m and --wheelbase-m \
+             (metres), or the controller's YAML with --ros-yaml"
+        )
+        .into());
+    };
+    crate::in_range("--wheel-diameter-m", d, 1e-3, 5.0)?;
+    crate::in_range("--wheelbase-m", b, 1e-2, 10.0)?;
+    Ok(Geometry {
+        left_diameter_m: d,
+        right_diameter_m: d,
+        wheelbase_m: b,
+    })
+}
+
 fn inputs(args: &Args) -> Result<Inputs, Box<dyn std::error::Error>> {
     if let (Some(w), Some(p)) = (&args.wheels, &args.poses) {
-        let (Some(d), Some(b)) = (args.wheel_diameter_m, args.wheelbase_m) else {
-            return Err("--wheels and --poses need the nominal geometry: give \
-                        --wheel-diameter-m and --wheelbase-m (metres)"
-                .into());
-        };
-        crate::in_range("--wheel-diameter-m", d, 1e-3, 5.0)?;
-        crate::in_range("--wheelbase-m", b, 1e-2, 10.0)?;
+        let nominal = nominal(args, "--wheels and --poses")?;
         let rec = PoseRecording {
             wheels: read_wheels(w)?,
             poses: read_poses(p)?,
         };
-        let nominal = Geometry {
-            left_diameter_m: d,
-            right_diameter_m: d,
-            wheelbase_m: b,
-        };
         return Ok((vec![(p.display().to_string(), rec)], nominal));
+    }
+    if let (Some(bag), Some(reference)) = (&args.bag, &args.reference) {
+        let nominal = nominal(args, "--bag")?;
+        let opts = odocal::ros::bag::BagOptions {
+            topics: odocal::ros::bag::RosTopics {
+                joint_states: args.joint_states_topic.clone(),
+                ..Default::default()
+            },
+            left_joint: args.left_joint.clone(),
+            right_joint: args.right_joint.clone(),
+            ..Default::default()
+        };
+        let drive = odocal::ros::bag::reference::read_pose_drive(bag, &opts, reference)?;
+        for note in &drive.notes {
+            eprintln!("note: {note}");
+        }
+        let name = format!("{} {reference}", bag.display());
+        return Ok((vec![(name, drive.recording)], nominal));
     }
     if args.dataset.is_empty() {
         return Err("nothing to fit: give --wheels W.csv --poses P.csv (with \
-                    --wheel-diameter-m and --wheelbase-m) or --dataset DIR"
+                    --wheel-diameter-m and --wheelbase-m), --bag BAG --reference TOPIC, or \
+                    --dataset DIR"
             .into());
     }
     let mut recordings = Vec::new();

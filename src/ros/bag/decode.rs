@@ -28,10 +28,10 @@ pub fn read_bag_bytes(bytes: Vec<u8>, path: &Path, opts: &BagOptions) -> Result<
 }
 
 /// The wire forms odocal decodes, as channels name them.
-const ENCODINGS: [&str; 2] = ["cdr", "ros1"];
+pub(super) const ENCODINGS: [&str; 2] = ["cdr", "ros1"];
 
 /// Decodes one message in its channel's wire form.
-fn decode<T: DeserializeOwned>(encoding: &str, data: &[u8]) -> Result<T, WireError> {
+pub(super) fn decode<T: DeserializeOwned>(encoding: &str, data: &[u8]) -> Result<T, WireError> {
     if encoding == "ros1" {
         Ok(ros1::decode(data)?)
     } else {
@@ -76,7 +76,7 @@ impl Role {
 }
 
 /// The message time: the header's stamp, or the log time when the header has none.
-fn stamp_or(h: &Header, log_time_ns: u64) -> f64 {
+pub(super) fn stamp_or(h: &Header, log_time_ns: u64) -> f64 {
     if h.stamp.sec != 0 || h.stamp.nanosec != 0 {
         h.stamp.seconds()
     } else {
@@ -152,7 +152,7 @@ struct Reading {
 
 /// rosbag2's per-message compression undone: one zstd context and buffer for every message.
 #[derive(Default)]
-struct Unzstd {
+pub(super) struct Unzstd {
     ctx: Option<zstd::bulk::Decompressor<'static>>,
     buf: Vec<u8>,
 }
@@ -161,7 +161,11 @@ impl Unzstd {
     /// The message's serialised bytes: its data, or what its zstd frame holds. (The channel
     /// of a message rosbag2 compressed still says `cdr`; a CDR payload starts with its
     /// encapsulation, 00 00 or 00 01, never with zstd's magic.)
-    fn payload<'a>(&'a mut self, m: &RawMessage<'a>, index: usize) -> Result<&'a [u8], BagError> {
+    pub(super) fn payload<'a>(
+        &'a mut self,
+        m: &RawMessage<'a>,
+        index: usize,
+    ) -> Result<&'a [u8], BagError> {
         if m.channel.encoding != "cdr" || !m.data.starts_with(ZSTD_MAGIC) {
             return Ok(m.data);
         }

@@ -18,12 +18,15 @@
 //! - [`validate`] checks each stream as `track --log` checks a log: time forward, samples
 //!   physical, spikes dropped, each drop counted;
 //! - [`mod@analyse`] infers the configured geometry, segments the runs and estimates;
+//! - [`reference`] reads a drive with a pose reference (the wheels and a pose topic) for
+//!   `odocal fit`;
 //! - [`writer`] writes MCAP bags (simulated tests, converted recordings).
 
 pub mod analyse;
 pub mod compression;
 pub mod decode;
 pub mod mcap;
+pub mod reference;
 pub mod ros1;
 pub mod rosbag2;
 pub mod sqlite3;

@@ -2,8 +2,12 @@
 //! recorded OptiOdom sets, so a user can see what to record and tests can check `odocal bag`.
 
 use super::{BagError, RosTopics};
+use crate::calibration::pose_reference::{PoseRecording, ReferencePose};
 use crate::kinematics::{wrap_angle, Direction, WheelParams};
-use crate::ros::msg::{cdr, types, Header, Imu, JointState, Odometry, Quaternion, Time};
+use crate::ros::msg::{
+    cdr, types, Header, Imu, JointState, Odometry, PoseStamped, PoseWithCovarianceStamped,
+    Quaternion, Time,
+};
 use crate::ros::yaml::RAD_PER_REV;
 use serde::Serialize;
 use std::collections::BTreeMap;
@@ -78,6 +82,69 @@ impl BagWriter {
                 path: self.path.clone(),
                 source,
             })
+    }
+
+    /// Adds a pose reference's topic of type `kind` (`PoseStamped`, `PoseWithCovarianceStamped`
+    /// or `Odometry`, [`types`]) to a new writer; `Odometry` replaces the odometry's own topic.
+    pub fn add_reference(&mut self, kind: &'static str, topic: &str) -> Result<(), BagError> {
+        let werr = |source| BagError::Write {
+            path: self.path.clone(),
+            source,
+        };
+        let schema = self
+            .writer
+            .add_schema(kind, "ros2msg", types::definition(kind).as_bytes())
+            .map_err(werr)?;
+        let ch = self
+            .writer
+            .add_channel(schema, topic, "cdr", &BTreeMap::new())
+            .map_err(werr)?;
+        self.channels.insert(kind, ch);
+        Ok(())
+    }
+
+    /// Writes one reference pose on the topic of `kind` added by [`Self::add_reference`], in
+    /// `frame` (its stated standard deviations, if any, as the covariance's diagonal).
+    pub fn reference(
+        &mut self,
+        kind: &'static str,
+        frame: &str,
+        p: &ReferencePose,
+    ) -> Result<(), BagError> {
+        let header = Header {
+            stamp: Time::from_seconds(p.time_s),
+            frame_id: frame.into(),
+        };
+        let mut pose = crate::ros::msg::Pose::default();
+        pose.position.x = p.x_m;
+        pose.position.y = p.y_m;
+        pose.orientation = Quaternion::from_yaw(p.yaw_rad.unwrap_or(0.0));
+        let mut covariance = crate::ros::msg::Covariance36::default();
+        if let Some([sx, sy, syaw]) = p.stated_std {
+            covariance.0[0] = sx * sx;
+            covariance.0[7] = sy * sy;
+            covariance.0[35] = syaw * syaw;
+        }
+        match kind {
+            types::POSE_STAMPED => self.write(kind, p.time_s, &PoseStamped { header, pose }),
+            types::POSE_WITH_COVARIANCE_STAMPED => {
+                let msg = PoseWithCovarianceStamped {
+                    header,
+                    pose: crate::ros::msg::PoseWithCovariance { pose, covariance },
+                };
+                self.write(kind, p.time_s, &msg)
+            }
+            _ => {
+                let mut msg = Odometry {
+                    header,
+                    child_frame_id: "base_link".into(),
+                    ..Odometry::default()
+                };
+                msg.pose.pose = pose;
+                msg.pose.covariance = covariance;
+                self.write(types::ODOMETRY, p.time_s, &msg)
+            }
+        }
     }
 
     /// Writes wheel joint angles (rad) at `t` (s).
@@ -346,4 +413,48 @@ pub fn write_optiodom_bag(
     }
     w.finish()?;
     Ok(messages)
+}
+
+/// Writes a drive with a pose reference as a ROS 2 bag (MCAP): the wheels on
+/// `/joint_states`, the reference on `topic` as `kind` (a [`types`] name) stamped `t0_s` later
+/// than the recording's times (a ROS clock does not start at zero).
+pub fn write_pose_drive_bag(
+    path: &Path,
+    recording: &PoseRecording,
+    kind: &'static str,
+    topic: &str,
+    t0_s: f64,
+) -> Result<(), BagError> {
+    let topics = RosTopics {
+        odom: if kind == types::ODOMETRY {
+            topic.to_string()
+        } else {
+            RosTopics::default().odom
+        },
+        ..RosTopics::default()
+    };
+    let mut w = BagWriter::create(path, &topics)?;
+    if kind != types::ODOMETRY {
+        w.add_reference(kind, topic)?;
+    }
+    let (mut wi, mut pi) = (0, 0);
+    let (wheels, poses) = (&recording.wheels, &recording.poses);
+    // Both streams in time order, as a recorder writes them.
+    while wi < wheels.len() || pi < poses.len() {
+        let wheel_first =
+            pi >= poses.len() || (wi < wheels.len() && wheels[wi].time_s <= poses[pi].time_s);
+        if wheel_first {
+            let s = &wheels[wi];
+            w.joints(t0_s + s.time_s, s.left_rad, s.right_rad)?;
+            wi += 1;
+        } else {
+            let p = ReferencePose {
+                time_s: t0_s + poses[pi].time_s,
+                ..poses[pi]
+            };
+            w.reference(kind, "map", &p)?;
+            pi += 1;
+        }
+    }
+    w.finish()
 }

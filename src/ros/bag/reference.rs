@@ -1,0 +1,262 @@
+//! A drive with a pose reference from a bag of any container: the wheel joints and one pose
+//! topic — `geometry_msgs/PoseStamped`, `geometry_msgs/PoseWithCovarianceStamped` (`/amcl_pose`)
+//! or `nav_msgs/Odometry` (motion capture, visual odometry, GNSS) — each on its header stamp,
+//! checked as [`super::validate`] checks every stream, on one clock from the first sample, as
+//! the [`PoseRecording`] `odocal fit` takes. A message's covariance, where it states one, gives
+//! its sample's standard deviations (x, y and yaw from the diagonal).
+
+use super::decode::{decode, stamp_or, Unzstd, ENCODINGS};
+use super::validate::{self, Sample};
+use super::{open_container, BagError, BagOptions, Container};
+use crate::calibration::pose_reference::{PoseRecording, ReferencePose, WheelAngles};
+use crate::ros::msg::{
+    types, yaw_of, Covariance36, Header, JointState, Odometry, Pose, PoseStamped,
+    PoseWithCovarianceStamped,
+};
+use std::collections::BTreeMap;
+use std::path::Path;
+
+/// The types a pose reference may have.
+pub const REFERENCE_TYPES: [&str; 3] = [
+    types::POSE_STAMPED,
+    types::POSE_WITH_COVARIANCE_STAMPED,
+    types::ODOMETRY,
+];
+
+/// A drive read from a bag.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PoseDrive {
+    /// The wheels and the reference, on one clock (s from the first sample).
+    pub recording: PoseRecording,
+    /// The reference topic's type.
+    pub reference_type: String,
+    /// The wheel joints' topic.
+    pub joints_topic: String,
+    /// Choices made while reading, and samples dropped.
+    pub notes: Vec<String>,
+}
+
+/// Reads the wheel joints (`opts.topics.joint_states`, joints by `opts`' names) and the pose
+/// reference on `reference` from the bag at `path`.
+pub fn read_pose_drive(
+    path: &Path,
+    opts: &BagOptions,
+    reference: &str,
+) -> Result<PoseDrive, BagError> {
+    read_pose_container(open_container(path)?.as_ref(), opts, reference)
+}
+
+/// [`read_pose_drive`] of an open container.
+pub fn read_pose_container(
+    bag: &dyn Container,
+    opts: &BagOptions,
+    reference: &str,
+) -> Result<PoseDrive, BagError> {
+    let mut notes = Vec::new();
+    let listed = bag.channels().unwrap_or_default();
+    let mut joints_topic = opts.topics.joint_states.clone();
+    if !listed.iter().any(|c| c.topic == joints_topic) {
+        let of_type: Vec<&str> = listed
+            .iter()
+            .filter(|c| types::is(&c.type_name, types::JOINT_STATE))
+            .map(|c| c.topic.as_str())
+            .collect();
+        if let [only] = of_type.as_slice() {
+            notes.push(format!(
+                "wheel joints from {only}: the bag has no {joints_topic}"
+            ));
+            joints_topic = (*only).to_string();
+        }
+    }
+    const EXPECTED: &str =
+        "geometry_msgs/PoseStamped, geometry_msgs/PoseWithCovarianceStamped or nav_msgs/Odometry";
+    // A reference topic the bag lists with another type is refused before reading.
+    if let Some(c) = listed.iter().find(|c| c.topic == reference) {
+        if !REFERENCE_TYPES.iter().any(|t| types::is(&c.type_name, t)) {
+            return Err(BagError::UnknownType {
+                topic: c.topic.clone(),
+                type_name: c.type_name.clone(),
+                encoding: c.encoding.clone(),
+                expected: EXPECTED,
+            });
+        }
+    }
+    let mut seen: BTreeMap<String, String> = listed
+        .iter()
+        .map(|c| (c.topic.clone(), c.type_name.clone()))
+        .collect();
+    let mut unzstd = Unzstd::default();
+    let (mut joint_msgs, mut ref_msgs) = (0usize, 0usize);
+    let mut wheel_names: Option<(String, String)> = None;
+    let mut seen_names: Vec<String> = Vec::new();
+    let mut joints: Vec<Sample<(f64, f64)>> = Vec::new();
+    let mut poses: Vec<Sample<(f64, f64, f64)>> = Vec::new();
+    let mut stated: Vec<Option<[f64; 3]>> = Vec::new();
+    let mut ref_type = String::new();
+    bag.messages(&mut |m| {
+        crate::io::budget::charge_message(&|| format!("{} bag's messages", bag.format()))?;
+        seen.entry(m.channel.topic.clone())
+            .or_insert_with(|| m.channel.type_name.clone());
+        let is_joints = m.channel.topic == joints_topic;
+        let is_ref = m.channel.topic == reference;
+        if !is_joints && !is_ref {
+            return Ok(());
+        }
+        let index = if is_joints { joint_msgs } else { ref_msgs };
+        let expected = if is_joints {
+            types::JOINT_STATE
+        } else {
+            EXPECTED
+        };
+        let known = if is_joints {
+            types::is(&m.channel.type_name, types::JOINT_STATE)
+        } else {
+            REFERENCE_TYPES
+                .iter()
+                .any(|t| types::is(&m.channel.type_name, t))
+        };
+        if !known || !ENCODINGS.contains(&m.channel.encoding.as_str()) {
+            return Err(BagError::UnknownType {
+                topic: m.channel.topic.clone(),
+                type_name: m.channel.type_name.clone(),
+                encoding: m.channel.encoding.clone(),
+                expected,
+            });
+        }
+        let data = unzstd.payload(&m, index)?;
+        let enc = m.channel.encoding.as_str();
+        let err = |source| BagError::Decode {
+            topic: m.channel.topic.clone(),
+            index,
+            source,
+        };
+        if is_joints {
+            joint_msgs += 1;
+            let js: JointState = decode(enc, data).map_err(err)?;
+            let ix = match &wheel_names {
+                Some((ln, rn)) => js
+                    .name
+                    .iter()
+                    .position(|n| n == ln)
+                    .zip(js.name.iter().position(|n| n == rn)),
+                None => match js.wheel_indices(&opts.left_joint, &opts.right_joint) {
+                    Some((l, r)) => {
+                        wheel_names = Some((js.name[l].clone(), js.name[r].clone()));
+                        Some((l, r))
+                    }
+                    None => {
+                        seen_names.clone_from(&js.name);
+                        None
+                    }
+                },
+            };
+            if let Some((l, r)) = ix {
+                if let (Some(&lp), Some(&rp)) = (js.position.get(l), js.position.get(r)) {
+                    joints.push(Sample {
+                        index,
+                        t: stamp_or(&js.header, m.log_time_ns),
+                        value: (lp, rp),
+                    });
+                }
+            }
+            return Ok(());
+        }
+        ref_msgs += 1;
+        ref_type.clone_from(&m.channel.type_name);
+        let (header, pose, cov): (Header, Pose, Option<Covariance36>) =
+            if types::is(&m.channel.type_name, types::POSE_STAMPED) {
+                let p: PoseStamped = decode(enc, data).map_err(err)?;
+                (p.header, p.pose, None)
+            } else if types::is(&m.channel.type_name, types::POSE_WITH_COVARIANCE_STAMPED) {
+                let p: PoseWithCovarianceStamped = decode(enc, data).map_err(err)?;
+                (p.header, p.pose.pose, Some(p.pose.covariance))
+            } else {
+                let o: Odometry = decode(enc, data).map_err(err)?;
+                (o.header, o.pose.pose, Some(o.pose.covariance))
+            };
+        // A quaternion that is not a rotation (all zero) is a message without a pose.
+        let Ok(yaw) = yaw_of(&pose.orientation) else {
+            return Ok(());
+        };
+        poses.push(Sample {
+            index: stated.len(),
+            t: stamp_or(&header, m.log_time_ns),
+            value: (pose.position.x, pose.position.y, yaw),
+        });
+        stated.push(cov.and_then(|c| {
+            let s = [c.0[0], c.0[7], c.0[35]].map(f64::sqrt);
+            s.iter().all(|v| v.is_finite() && *v > 0.0).then_some(s)
+        }));
+        Ok(())
+    })?;
+    notes.extend(bag.notes());
+    let available: Vec<(String, String)> = seen.into_iter().collect();
+    if joint_msgs == 0 {
+        return Err(BagError::MissingTopic {
+            what: "wheel joint",
+            topic: joints_topic,
+            available,
+        });
+    }
+    if joints.is_empty() {
+        return Err(BagError::Joints {
+            topic: joints_topic,
+            names: seen_names,
+        });
+    }
+    if ref_msgs == 0 {
+        return Err(BagError::MissingTopic {
+            what: "pose reference",
+            topic: reference.to_string(),
+            available,
+        });
+    }
+    let joints = validate::joints(joints, &joints_topic, &mut notes)?;
+    let poses = validate::odometry(poses, reference, &mut notes)?;
+    let t0 = joints
+        .first()
+        .map(|s| s.t)
+        .into_iter()
+        .chain(poses.first().map(|s| s.t))
+        .fold(f64::INFINITY, f64::min);
+    let mut recording = PoseRecording::default();
+    for j in joints {
+        if recording
+            .wheels
+            .last()
+            .is_some_and(|w| j.t - t0 <= w.time_s)
+        {
+            continue;
+        }
+        recording.wheels.push(WheelAngles {
+            time_s: j.t - t0,
+            left_rad: j.value.0,
+            right_rad: j.value.1,
+        });
+    }
+    let mut repeated = 0;
+    for p in poses {
+        if recording.poses.last().is_some_and(|q| p.t - t0 <= q.time_s) {
+            repeated += 1;
+            continue;
+        }
+        recording.poses.push(ReferencePose {
+            time_s: p.t - t0,
+            x_m: p.value.0,
+            y_m: p.value.1,
+            yaw_rad: Some(p.value.2),
+            stated_std: stated.get(p.index).copied().flatten(),
+        });
+    }
+    if repeated > 0 {
+        notes.push(format!(
+            "{reference}: {repeated} pose(s) with the stamp of the one before left out"
+        ));
+    }
+    Ok(PoseDrive {
+        recording,
+        reference_type: ref_type,
+        joints_topic,
+        notes,
+    })
+}
