@@ -413,3 +413,48 @@ fn a_drive_from_a_bag_with_a_pose_topic_fits_as_from_csv() {
         "{err}"
     );
 }
+
+/// The same drive with its reference as the TF chain `map → odom → base_link` (the
+/// localization's correction at its stamps, the controller's odometry at the wheels' rate) and
+/// a static link off the chain: `--reference tf:map` fits as the CSV does.
+#[test]
+fn a_drive_from_a_bag_with_tf_fits_as_from_csv() {
+    use odocal::ros::bag::tf::read_tf_drive;
+    use odocal::ros::bag::writer::write_tf_drive_bag;
+    use odocal::ros::bag::BagOptions;
+    let rec = drive(DrivingConfig {
+        seed: 22,
+        ..DrivingConfig::default()
+    });
+    let full = FitConfig::full(NOMINAL);
+    let from_csv = fit_poses(&rec, &full).expect("fits");
+    let dir = common::scratch("pose_fit_tf");
+    std::fs::create_dir_all(&dir).expect("scratch");
+    let path = dir.join("tf.mcap");
+    write_tf_drive_bag(&path, &rec, NOMINAL, 1.7e9).expect("writes");
+    let read = read_tf_drive(&path, &BagOptions::default(), "map", "base_link").expect("reads");
+    assert_eq!(read.chain, ["map", "odom", "base_link"]);
+    assert_eq!(read.recording.poses.len(), rec.poses.len());
+    let fit = fit_poses(&read.recording, &full).expect("fits");
+    for p in Param::ALL {
+        let (a, b, s) = (fit.value(p), from_csv.value(p), from_csv.std(p).unwrap());
+        assert!((a - b).abs() < 0.25 * s, "{}: {a} vs {b} ± {s}", p.name());
+    }
+    let json = common::odocal_json(&[
+        "fit",
+        "--bag",
+        path.to_str().unwrap(),
+        "--reference",
+        "tf:map",
+        "--wheel-diameter-m",
+        "0.1",
+        "--wheelbase-m",
+        "0.3",
+        "--json",
+    ]);
+    let b = json["wheelbase_m"].as_f64().expect("wheelbase_m");
+    assert!((b - fit.geometry.wheelbase_m).abs() < 1e-9, "{b}");
+    // A fixed frame the tree does not reach is named with the links it has.
+    let err = read_tf_drive(&path, &BagOptions::default(), "world", "base_link").unwrap_err();
+    assert!(err.to_string().contains("map → odom"), "{err}");
+}

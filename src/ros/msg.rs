@@ -293,6 +293,33 @@ pub struct PoseWithCovarianceStamped {
     pub pose: PoseWithCovariance,
 }
 
+/// `geometry_msgs/Transform`.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct Transform {
+    /// Translation (m).
+    pub translation: Vector3,
+    /// Rotation.
+    pub rotation: Quaternion,
+}
+
+/// `geometry_msgs/TransformStamped`: the pose of `child_frame_id` in `header.frame_id`.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct TransformStamped {
+    /// Header: the stamp and the parent frame.
+    pub header: Header,
+    /// The child frame.
+    pub child_frame_id: String,
+    /// The child's pose in the parent.
+    pub transform: Transform,
+}
+
+/// `tf2_msgs/TFMessage` (`/tf`, `/tf_static`).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct TfMessage {
+    /// The transforms.
+    pub transforms: Vec<TransformStamped>,
+}
+
 /// `geometry_msgs/Twist`.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
 pub struct Twist {
@@ -525,6 +552,8 @@ pub mod types {
     pub const TWIST: &str = "geometry_msgs/msg/Twist";
     /// `geometry_msgs/msg/PoseStamped`.
     pub const POSE_STAMPED: &str = "geometry_msgs/msg/PoseStamped";
+    /// `tf2_msgs/msg/TFMessage`.
+    pub const TF_MESSAGE: &str = "tf2_msgs/msg/TFMessage";
     /// `geometry_msgs/msg/PoseWithCovarianceStamped`.
     pub const POSE_WITH_COVARIANCE_STAMPED: &str = "geometry_msgs/msg/PoseWithCovarianceStamped";
     /// `geometry_msgs/msg/TwistStamped`.
@@ -578,6 +607,14 @@ geometry_msgs/TwistWithCovariance twist\n{HEADER}\
 {sep}MSG: geometry_msgs/PoseWithCovariance\ngeometry_msgs/Pose pose\nfloat64[36] covariance\n\
 {sep}MSG: geometry_msgs/Pose\ngeometry_msgs/Point position\ngeometry_msgs/Quaternion orientation\n\
 {sep}MSG: geometry_msgs/Point\nfloat64 x\nfloat64 y\nfloat64 z\n\
+{sep}MSG: geometry_msgs/Quaternion\nfloat64 x 0\nfloat64 y 0\nfloat64 z 0\nfloat64 w 1\n"
+            ),
+            TF_MESSAGE => format!(
+                "geometry_msgs/TransformStamped[] transforms\n\
+{sep}MSG: geometry_msgs/TransformStamped\nstd_msgs/Header header\nstring child_frame_id\n\
+geometry_msgs/Transform transform\n{HEADER}\
+{sep}MSG: geometry_msgs/Transform\ngeometry_msgs/Vector3 translation\ngeometry_msgs/Quaternion rotation\n\
+{sep}MSG: geometry_msgs/Vector3\nfloat64 x\nfloat64 y\nfloat64 z\n\
 {sep}MSG: geometry_msgs/Quaternion\nfloat64 x 0\nfloat64 y 0\nfloat64 z 0\nfloat64 w 1\n"
             ),
             _ => String::new(),

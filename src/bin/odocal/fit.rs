@@ -29,9 +29,12 @@ pub struct Args {
     bag: Option<PathBuf>,
     /// The bag's pose reference: a geometry_msgs/PoseStamped, PoseWithCovarianceStamped
     /// (/amcl_pose) or nav_msgs/Odometry topic (its covariance, when it states one, weights the
-    /// samples).
+    /// samples), or `tf:FRAME` for the TF chain from FRAME (map, world) to --base-frame.
     #[arg(long, requires = "bag")]
     reference: Option<String>,
+    /// The robot's frame at the end of a `tf:` chain.
+    #[arg(long, default_value = "base_link")]
+    base_frame: String,
     /// The bag's sensor_msgs/JointState topic.
     #[arg(long, default_value = "/joint_states")]
     joint_states_topic: String,
@@ -199,12 +202,21 @@ fn inputs(args: &Args) -> Result<Inputs, Box<dyn std::error::Error>> {
             right_joint: args.right_joint.clone(),
             ..Default::default()
         };
-        let drive = odocal::ros::bag::reference::read_pose_drive(bag, &opts, reference)?;
-        for note in &drive.notes {
+        let (recording, notes) = match reference.strip_prefix("tf:") {
+            Some(fixed) => {
+                let d = odocal::ros::bag::tf::read_tf_drive(bag, &opts, fixed, &args.base_frame)?;
+                (d.recording, d.notes)
+            }
+            None => {
+                let d = odocal::ros::bag::reference::read_pose_drive(bag, &opts, reference)?;
+                (d.recording, d.notes)
+            }
+        };
+        for note in &notes {
             eprintln!("note: {note}");
         }
         let name = format!("{} {reference}", bag.display());
-        return Ok((vec![(name, drive.recording)], nominal));
+        return Ok((vec![(name, recording)], nominal));
     }
     if args.dataset.is_empty() {
         return Err("nothing to fit: give --wheels W.csv --poses P.csv (with \

@@ -19,7 +19,7 @@
 //!   physical, spikes dropped, each drop counted;
 //! - [`mod@analyse`] infers the configured geometry, segments the runs and estimates;
 //! - [`reference`] reads a drive with a pose reference (the wheels and a pose topic) for
-//!   `odocal fit`;
+//!   `odocal fit`, and [`tf`] one whose reference is the TF chain to `base_link`;
 //! - [`writer`] writes MCAP bags (simulated tests, converted recordings).
 
 pub mod analyse;
@@ -30,6 +30,7 @@ pub mod reference;
 pub mod ros1;
 pub mod rosbag2;
 pub mod sqlite3;
+pub mod tf;
 pub mod validate;
 pub mod writer;
 

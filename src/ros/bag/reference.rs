@@ -46,6 +46,116 @@ pub fn read_pose_drive(
     read_pose_container(open_container(path)?.as_ref(), opts, reference)
 }
 
+/// The wheel joints as a reader meets them: the wheels found by name in the first message
+/// that names them, later messages of other joint groups skipped.
+#[derive(Default)]
+pub(super) struct WheelReader {
+    /// Messages seen on the joints' topic.
+    pub(super) messages: usize,
+    names: Option<(String, String)>,
+    seen_names: Vec<String>,
+    samples: Vec<Sample<(f64, f64)>>,
+}
+
+impl WheelReader {
+    /// Reads one joints message (`data`, its decompressed payload).
+    pub(super) fn add(
+        &mut self,
+        m: &super::RawMessage<'_>,
+        data: &[u8],
+        index: usize,
+        opts: &BagOptions,
+    ) -> Result<(), BagError> {
+        self.messages += 1;
+        let js: JointState =
+            decode(&m.channel.encoding, data).map_err(|source| BagError::Decode {
+                topic: m.channel.topic.clone(),
+                index,
+                source,
+            })?;
+        let ix = match &self.names {
+            Some((ln, rn)) => js
+                .name
+                .iter()
+                .position(|n| n == ln)
+                .zip(js.name.iter().position(|n| n == rn)),
+            None => match js.wheel_indices(&opts.left_joint, &opts.right_joint) {
+                Some((l, r)) => {
+                    self.names = Some((js.name[l].clone(), js.name[r].clone()));
+                    Some((l, r))
+                }
+                None => {
+                    self.seen_names.clone_from(&js.name);
+                    None
+                }
+            },
+        };
+        if let Some((l, r)) = ix {
+            if let (Some(&lp), Some(&rp)) = (js.position.get(l), js.position.get(r)) {
+                self.samples.push(Sample {
+                    index,
+                    t: stamp_or(&js.header, m.log_time_ns),
+                    value: (lp, rp),
+                });
+            }
+        }
+        Ok(())
+    }
+
+    /// The wheel samples, checked and unwrapped ([`validate::joints`]), or why there are none.
+    pub(super) fn finish(
+        self,
+        topic: &str,
+        available: &[(String, String)],
+        notes: &mut Vec<String>,
+    ) -> Result<Vec<Sample<(f64, f64)>>, BagError> {
+        if self.messages == 0 {
+            return Err(BagError::MissingTopic {
+                what: "wheel joint",
+                topic: topic.to_string(),
+                available: available.to_vec(),
+            });
+        }
+        if self.samples.is_empty() {
+            return Err(BagError::Joints {
+                topic: topic.to_string(),
+                names: self.seen_names,
+            });
+        }
+        validate::joints(self.samples, topic, notes)
+    }
+}
+
+/// The wheels on a clock that starts at the first wheel sample or `first_reference_s`,
+/// whichever is earlier (stamps that do not increase are left out); returns that start.
+pub(super) fn on_one_clock(
+    wheels: Vec<Sample<(f64, f64)>>,
+    first_reference_s: Option<f64>,
+) -> (PoseRecording, f64) {
+    let t0 = wheels
+        .first()
+        .map(|s| s.t)
+        .into_iter()
+        .chain(first_reference_s)
+        .fold(f64::INFINITY, f64::min);
+    let mut recording = PoseRecording::default();
+    for j in wheels {
+        if recording
+            .wheels
+            .last()
+            .is_some_and(|w| j.t - t0 <= w.time_s)
+        {
+            continue;
+        }
+        recording.wheels.push(WheelAngles {
+            time_s: j.t - t0,
+            left_rad: j.value.0,
+            right_rad: j.value.1,
+        });
+    }
+    (recording, t0)
+}
+
 /// [`read_pose_drive`] of an open container.
 pub fn read_pose_container(
     bag: &dyn Container,
@@ -86,10 +196,8 @@ pub fn read_pose_container(
         .map(|c| (c.topic.clone(), c.type_name.clone()))
         .collect();
     let mut unzstd = Unzstd::default();
-    let (mut joint_msgs, mut ref_msgs) = (0usize, 0usize);
-    let mut wheel_names: Option<(String, String)> = None;
-    let mut seen_names: Vec<String> = Vec::new();
-    let mut joints: Vec<Sample<(f64, f64)>> = Vec::new();
+    let mut ref_msgs = 0usize;
+    let mut wheels = WheelReader::default();
     let mut poses: Vec<Sample<(f64, f64, f64)>> = Vec::new();
     let mut stated: Vec<Option<[f64; 3]>> = Vec::new();
     let mut ref_type = String::new();
@@ -102,7 +210,7 @@ pub fn read_pose_container(
         if !is_joints && !is_ref {
             return Ok(());
         }
-        let index = if is_joints { joint_msgs } else { ref_msgs };
+        let index = if is_joints { wheels.messages } else { ref_msgs };
         let expected = if is_joints {
             types::JOINT_STATE
         } else {
@@ -131,35 +239,7 @@ pub fn read_pose_container(
             source,
         };
         if is_joints {
-            joint_msgs += 1;
-            let js: JointState = decode(enc, data).map_err(err)?;
-            let ix = match &wheel_names {
-                Some((ln, rn)) => js
-                    .name
-                    .iter()
-                    .position(|n| n == ln)
-                    .zip(js.name.iter().position(|n| n == rn)),
-                None => match js.wheel_indices(&opts.left_joint, &opts.right_joint) {
-                    Some((l, r)) => {
-                        wheel_names = Some((js.name[l].clone(), js.name[r].clone()));
-                        Some((l, r))
-                    }
-                    None => {
-                        seen_names.clone_from(&js.name);
-                        None
-                    }
-                },
-            };
-            if let Some((l, r)) = ix {
-                if let (Some(&lp), Some(&rp)) = (js.position.get(l), js.position.get(r)) {
-                    joints.push(Sample {
-                        index,
-                        t: stamp_or(&js.header, m.log_time_ns),
-                        value: (lp, rp),
-                    });
-                }
-            }
-            return Ok(());
+            return wheels.add(&m, data, index, opts);
         }
         ref_msgs += 1;
         ref_type.clone_from(&m.channel.type_name);
@@ -191,19 +271,7 @@ pub fn read_pose_container(
     })?;
     notes.extend(bag.notes());
     let available: Vec<(String, String)> = seen.into_iter().collect();
-    if joint_msgs == 0 {
-        return Err(BagError::MissingTopic {
-            what: "wheel joint",
-            topic: joints_topic,
-            available,
-        });
-    }
-    if joints.is_empty() {
-        return Err(BagError::Joints {
-            topic: joints_topic,
-            names: seen_names,
-        });
-    }
+    let wheels = wheels.finish(&joints_topic, &available, &mut notes)?;
     if ref_msgs == 0 {
         return Err(BagError::MissingTopic {
             what: "pose reference",
@@ -211,29 +279,8 @@ pub fn read_pose_container(
             available,
         });
     }
-    let joints = validate::joints(joints, &joints_topic, &mut notes)?;
     let poses = validate::odometry(poses, reference, &mut notes)?;
-    let t0 = joints
-        .first()
-        .map(|s| s.t)
-        .into_iter()
-        .chain(poses.first().map(|s| s.t))
-        .fold(f64::INFINITY, f64::min);
-    let mut recording = PoseRecording::default();
-    for j in joints {
-        if recording
-            .wheels
-            .last()
-            .is_some_and(|w| j.t - t0 <= w.time_s)
-        {
-            continue;
-        }
-        recording.wheels.push(WheelAngles {
-            time_s: j.t - t0,
-            left_rad: j.value.0,
-            right_rad: j.value.1,
-        });
-    }
+    let (mut recording, t0) = on_one_clock(wheels, poses.first().map(|p| p.t));
     let mut repeated = 0;
     for p in poses {
         if recording.poses.last().is_some_and(|q| p.t - t0 <= q.time_s) {

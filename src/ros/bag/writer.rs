@@ -18,6 +18,8 @@ pub struct BagWriter {
     path: PathBuf,
     writer: mcap::Writer<std::io::BufWriter<std::fs::File>>,
     channels: BTreeMap<&'static str, u16>,
+    /// Channels added by topic ([`Self::add_topic`]).
+    topics: BTreeMap<String, u16>,
     sequence: u32,
 }
 
@@ -58,11 +60,56 @@ impl BagWriter {
             path: path.to_path_buf(),
             writer,
             channels,
+            topics: BTreeMap::new(),
             sequence: 0,
         })
     }
 
+    /// Adds `topic` carrying `kind` (a [`types`] name).
+    pub fn add_topic(&mut self, kind: &'static str, topic: &str) -> Result<(), BagError> {
+        let werr = |source| BagError::Write {
+            path: self.path.clone(),
+            source,
+        };
+        let schema = self
+            .writer
+            .add_schema(kind, "ros2msg", types::definition(kind).as_bytes())
+            .map_err(werr)?;
+        let ch = self
+            .writer
+            .add_channel(schema, topic, "cdr", &BTreeMap::new())
+            .map_err(werr)?;
+        self.topics.insert(topic.to_string(), ch);
+        Ok(())
+    }
+
+    /// Writes `msg` at `t` on a topic added by [`Self::add_topic`].
+    pub fn write_topic<T: Serialize>(
+        &mut self,
+        topic: &str,
+        t: f64,
+        msg: &T,
+    ) -> Result<(), BagError> {
+        let Some(&channel_id) = self.topics.get(topic) else {
+            return Err(BagError::Inference(format!(
+                "topic {topic} was not added to the bag being written"
+            )));
+        };
+        self.write_channel(channel_id, topic, t, msg)
+    }
+
     fn write<T: Serialize>(&mut self, kind: &'static str, t: f64, msg: &T) -> Result<(), BagError> {
+        let channel_id = self.channels[kind];
+        self.write_channel(channel_id, kind, t, msg)
+    }
+
+    fn write_channel<T: Serialize>(
+        &mut self,
+        channel_id: u16,
+        kind: &str,
+        t: f64,
+        msg: &T,
+    ) -> Result<(), BagError> {
         let data = cdr::encode(msg).map_err(|source| BagError::Decode {
             topic: kind.into(),
             index: self.sequence as usize,
@@ -71,7 +118,7 @@ impl BagWriter {
         let ns = (t.max(0.0) * 1e9) as u64;
         self.sequence += 1;
         let header = mcap::records::MessageHeader {
-            channel_id: self.channels[kind],
+            channel_id,
             sequence: self.sequence,
             log_time: ns,
             publish_time: ns,
@@ -454,6 +501,78 @@ pub fn write_pose_drive_bag(
             };
             w.reference(kind, "map", &p)?;
             pi += 1;
+        }
+    }
+    w.finish()
+}
+
+/// Writes a drive with a TF reference as a ROS 2 bag (MCAP): the wheels on `/joint_states`,
+/// the controller's odometry `odom → base_link` on `/tf` at every wheel sample (integrated with
+/// `controller`), the localization's correction `map → odom` on `/tf` at every reference
+/// stamp (so that the chain `map → base_link` there is the reference's pose), and a static
+/// `base_link → laser` on `/tf_static`; stamps `t0_s` later than the recording's times.
+pub fn write_tf_drive_bag(
+    path: &Path,
+    recording: &PoseRecording,
+    controller: crate::calibration::pose_reference::Geometry,
+    t0_s: f64,
+) -> Result<(), BagError> {
+    use crate::calibration::pose_reference::{Odometry as Dead, Pose2};
+    use crate::ros::msg::{TfMessage, Transform, TransformStamped, Vector3};
+    let mut w = BagWriter::create(path, &RosTopics::default())?;
+    w.add_topic(types::TF_MESSAGE, "/tf")?;
+    w.add_topic(types::TF_MESSAGE, "/tf_static")?;
+    let tf = |t: f64, parent: &str, child: &str, p: Pose2| TfMessage {
+        transforms: vec![TransformStamped {
+            header: Header {
+                stamp: Time::from_seconds(t),
+                frame_id: parent.into(),
+            },
+            child_frame_id: child.into(),
+            transform: Transform {
+                translation: Vector3 {
+                    x: p.x,
+                    y: p.y,
+                    z: 0.0,
+                },
+                rotation: Quaternion::from_yaw(wrap_angle(p.theta)),
+            },
+        }],
+    };
+    let laser = Pose2 {
+        x: 0.2,
+        y: 0.0,
+        theta: 0.0,
+    };
+    w.write_topic("/tf_static", t0_s, &tf(t0_s, "base_link", "laser", laser))?;
+    let odo = Dead::integrate(&recording.wheels, controller);
+    let (wheels, poses) = (&recording.wheels, &recording.poses);
+    let (mut wi, mut pi, mut hint) = (0, 0, 0);
+    while wi < wheels.len() || pi < poses.len() {
+        let wheel_first =
+            pi >= poses.len() || (wi < wheels.len() && wheels[wi].time_s <= poses[pi].time_s);
+        if wheel_first {
+            let s = &wheels[wi];
+            let t = t0_s + s.time_s;
+            w.joints(t, s.left_rad, s.right_rad)?;
+            w.write_topic("/tf", t, &tf(t, "odom", "base_link", odo.poses()[wi]))?;
+            wi += 1;
+        } else {
+            let p = &poses[pi];
+            pi += 1;
+            // The controller's odometry at the reference's stamp, as a TF listener would
+            // interpolate it; outside the wheels' span there is no correction to publish.
+            let Some(o) = odo.at(p.time_s, &mut hint) else {
+                continue;
+            };
+            let r = Pose2 {
+                x: p.x_m,
+                y: p.y_m,
+                theta: p.yaw_rad.unwrap_or(0.0),
+            };
+            let correction = r.compose(&o.between(&Pose2::default()));
+            let t = t0_s + p.time_s;
+            w.write_topic("/tf", t, &tf(t, "map", "odom", correction))?;
         }
     }
     w.finish()

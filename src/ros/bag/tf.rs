@@ -1,0 +1,254 @@
+//! The TF tree as a pose reference: `base_link`'s pose in a fixed frame (`map`, `world`, a
+//! motion-capture frame), from `/tf` and `/tf_static` (`tf2_msgs/TFMessage`), beside the wheel
+//! joints, as the [`PoseRecording`] `odocal fit` takes.
+//!
+//! The chain is found by walking from the base frame up its parents to the fixed frame. Its
+//! samples are taken at the stamps of its slowest moving link — typically the localization's
+//! `map → odom`, stamped with the scan it came from — and every other moving link (the
+//! controller's `odom → base_link`, published faster) is interpolated there: position linearly,
+//! yaw along the shorter way. At those stamps the chain is the localization's own estimate of
+//! the base; between them it would only be the controller's odometry, which must not be taken
+//! for a reference. Static links are composed as they are. Planar: x, y and yaw of each link.
+
+use super::decode::{decode, stamp_or, Unzstd};
+use super::reference::{on_one_clock, WheelReader};
+use super::{open_container, BagError, BagOptions, Container};
+use crate::calibration::pose_reference::{Pose2, PoseRecording, ReferencePose};
+use crate::kinematics::wrap_angle;
+use crate::ros::msg::{types, yaw_of, TfMessage};
+use std::collections::BTreeMap;
+use std::path::Path;
+
+/// The TF topics read.
+pub const TF_TOPICS: [&str; 2] = ["/tf", "/tf_static"];
+
+/// A link's samples: time (s) and the child's pose in the parent.
+type Link = Vec<(f64, Pose2)>;
+
+/// A drive with the TF chain as its reference.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TfDrive {
+    /// The wheels and the chain's poses, on one clock.
+    pub recording: PoseRecording,
+    /// The chain, fixed frame first.
+    pub chain: Vec<String>,
+    /// Choices made while reading.
+    pub notes: Vec<String>,
+}
+
+/// Reads the wheel joints and the chain from `fixed` to `base` from the bag at `path`.
+pub fn read_tf_drive(
+    path: &Path,
+    opts: &BagOptions,
+    fixed: &str,
+    base: &str,
+) -> Result<TfDrive, BagError> {
+    read_tf_container(open_container(path)?.as_ref(), opts, fixed, base)
+}
+
+/// [`read_tf_drive`] of an open container.
+pub fn read_tf_container(
+    bag: &dyn Container,
+    opts: &BagOptions,
+    fixed: &str,
+    base: &str,
+) -> Result<TfDrive, BagError> {
+    let mut notes = Vec::new();
+    let joints_topic = opts.topics.joint_states.clone();
+    let mut seen: BTreeMap<String, String> = BTreeMap::new();
+    let mut unzstd = Unzstd::default();
+    let mut wheels = WheelReader::default();
+    // (parent, child) → samples; static links keep their last value.
+    let mut links: BTreeMap<(String, String), Link> = BTreeMap::new();
+    let mut statics: BTreeMap<(String, String), Pose2> = BTreeMap::new();
+    let mut tf_messages = 0usize;
+    bag.messages(&mut |m| {
+        crate::io::budget::charge_message(&|| format!("{} bag's messages", bag.format()))?;
+        seen.entry(m.channel.topic.clone())
+            .or_insert_with(|| m.channel.type_name.clone());
+        let is_joints = m.channel.topic == joints_topic;
+        let is_tf = TF_TOPICS.contains(&m.channel.topic.as_str());
+        if !is_joints && !is_tf {
+            return Ok(());
+        }
+        let index = if is_joints {
+            wheels.messages
+        } else {
+            tf_messages
+        };
+        let data = unzstd.payload(&m, index)?;
+        if is_joints {
+            return wheels.add(&m, data, index, opts);
+        }
+        tf_messages += 1;
+        if !types::is(&m.channel.type_name, types::TF_MESSAGE) {
+            return Err(BagError::UnknownType {
+                topic: m.channel.topic.clone(),
+                type_name: m.channel.type_name.clone(),
+                encoding: m.channel.encoding.clone(),
+                expected: types::TF_MESSAGE,
+            });
+        }
+        let tf: TfMessage =
+            decode(&m.channel.encoding, data).map_err(|source| BagError::Decode {
+                topic: m.channel.topic.clone(),
+                index,
+                source,
+            })?;
+        let is_static = m.channel.topic == "/tf_static";
+        for t in tf.transforms {
+            let Ok(yaw) = yaw_of(&t.transform.rotation) else {
+                continue;
+            };
+            let pose = Pose2 {
+                x: t.transform.translation.x,
+                y: t.transform.translation.y,
+                theta: yaw,
+            };
+            let key = (
+                t.header.frame_id.trim_start_matches('/').to_string(),
+                t.child_frame_id.trim_start_matches('/').to_string(),
+            );
+            if is_static {
+                statics.insert(key, pose);
+            } else {
+                links
+                    .entry(key)
+                    .or_default()
+                    .push((stamp_or(&t.header, m.log_time_ns), pose));
+            }
+        }
+        Ok(())
+    })?;
+    notes.extend(bag.notes());
+    let available: Vec<(String, String)> = seen.into_iter().collect();
+    let wheels = wheels.finish(&joints_topic, &available, &mut notes)?;
+    if tf_messages == 0 {
+        return Err(BagError::MissingTopic {
+            what: "TF",
+            topic: "/tf".into(),
+            available,
+        });
+    }
+    // Walk from the base up its parents to the fixed frame.
+    let parent_of = |child: &str| -> Option<(String, bool)> {
+        links
+            .keys()
+            .find(|(_, c)| c == child)
+            .map(|(p, _)| (p.clone(), false))
+            .or_else(|| {
+                statics
+                    .keys()
+                    .find(|(_, c)| c == child)
+                    .map(|(p, _)| (p.clone(), true))
+            })
+    };
+    let (fixed, base) = (fixed.trim_start_matches('/'), base.trim_start_matches('/'));
+    let mut chain = vec![base.to_string()];
+    let mut edges: Vec<((String, String), bool)> = Vec::new();
+    while chain.last().map(String::as_str) != Some(fixed) {
+        let child = chain.last().cloned().unwrap_or_default();
+        let Some((parent, is_static)) = parent_of(&child) else {
+            let frames: Vec<String> = links
+                .keys()
+                .chain(statics.keys())
+                .map(|(p, c)| format!("{p} → {c}"))
+                .collect();
+            return Err(BagError::Inference(format!(
+                "no TF chain from {fixed} to {base}: {child} has no parent in /tf or /tf_static \
+                 (the bag's links: {}); give the fixed frame with --reference tf:FRAME",
+                frames.join(", ")
+            )));
+        };
+        if chain.contains(&parent) || chain.len() > 64 {
+            return Err(BagError::Inference(format!(
+                "the TF tree has a loop through {parent}; it is not a tree"
+            )));
+        }
+        edges.push(((parent.clone(), child), is_static));
+        chain.push(parent);
+    }
+    chain.reverse();
+    edges.reverse();
+    // Each moving link in time order; the slowest one's stamps are the samples.
+    let mut moving: Vec<(&(String, String), Link)> = Vec::new();
+    for (key, is_static) in &edges {
+        if !is_static {
+            let mut s = links.get(key).cloned().unwrap_or_default();
+            s.sort_by(|a, b| a.0.total_cmp(&b.0));
+            s.dedup_by(|b, a| b.0 == a.0);
+            moving.push((key, s));
+        }
+    }
+    let Some(slowest) = moving.iter().min_by_key(|(_, s)| s.len()).map(|(k, _)| *k) else {
+        return Err(BagError::Inference(format!(
+            "the TF chain {} never moves (every link is static): it is no reference",
+            chain.join(" → ")
+        )));
+    };
+    let stamps: Vec<f64> = moving
+        .iter()
+        .find(|(k, _)| *k == slowest)
+        .map(|(_, s)| s.iter().map(|(t, _)| *t).collect())
+        .unwrap_or_default();
+    notes.push(format!(
+        "reference: the TF chain {} at the stamps of {} → {} ({} samples)",
+        chain.join(" → "),
+        slowest.0,
+        slowest.1,
+        stamps.len()
+    ));
+    let mut poses = Vec::with_capacity(stamps.len());
+    'stamp: for &t in &stamps {
+        let mut pose = Pose2::default();
+        for (key, is_static) in &edges {
+            let link = if *is_static {
+                statics.get(key).copied().unwrap_or_default()
+            } else {
+                let Some(s) = moving.iter().find(|(k, _)| *k == key).map(|(_, s)| s) else {
+                    continue 'stamp;
+                };
+                match interpolate(s, t) {
+                    Some(p) => p,
+                    None => continue 'stamp,
+                }
+            };
+            pose = pose.compose(&link);
+        }
+        poses.push((t, pose));
+    }
+    let (mut recording, t0) = on_one_clock(wheels, poses.first().map(|p| p.0));
+    for (t, p) in poses {
+        recording.poses.push(ReferencePose {
+            time_s: t - t0,
+            x_m: p.x,
+            y_m: p.y,
+            yaw_rad: Some(wrap_angle(p.theta)),
+            stated_std: None,
+        });
+    }
+    Ok(TfDrive {
+        recording,
+        chain,
+        notes,
+    })
+}
+
+/// A link's pose at `t`, between its samples; `None` outside them.
+fn interpolate(s: &Link, t: f64) -> Option<Pose2> {
+    let i = s.partition_point(|(ts, _)| *ts <= t);
+    if i == 0 {
+        return None;
+    }
+    let (ta, a) = s[i - 1];
+    if ta == t || i == s.len() {
+        return (ta == t).then_some(a);
+    }
+    let (tb, b) = s[i];
+    let f = (t - ta) / (tb - ta);
+    Some(Pose2 {
+        x: a.x + f * (b.x - a.x),
+        y: a.y + f * (b.y - a.y),
+        theta: a.theta + f * wrap_angle(b.theta - a.theta),
+    })
+}
