@@ -420,7 +420,7 @@ fn a_drive_from_a_bag_with_a_pose_topic_fits_as_from_csv() {
 #[test]
 fn a_drive_from_a_bag_with_tf_fits_as_from_csv() {
     use odocal::ros::bag::tf::read_tf_drive;
-    use odocal::ros::bag::writer::write_tf_drive_bag;
+    use odocal::ros::bag::writer::write_localization_bag;
     use odocal::ros::bag::BagOptions;
     let rec = drive(DrivingConfig {
         seed: 22,
@@ -431,7 +431,7 @@ fn a_drive_from_a_bag_with_tf_fits_as_from_csv() {
     let dir = common::scratch("pose_fit_tf");
     std::fs::create_dir_all(&dir).expect("scratch");
     let path = dir.join("tf.mcap");
-    write_tf_drive_bag(&path, &rec, NOMINAL, 1.7e9).expect("writes");
+    write_localization_bag(&path, &rec, NOMINAL, 1.7e9).expect("writes");
     let read = read_tf_drive(&path, &BagOptions::default(), "map", "base_link").expect("reads");
     assert_eq!(read.chain, ["map", "odom", "base_link"]);
     assert_eq!(read.recording.poses.len(), rec.poses.len());
@@ -454,6 +454,11 @@ fn a_drive_from_a_bag_with_tf_fits_as_from_csv() {
     ]);
     let b = json["wheelbase_m"].as_f64().expect("wheelbase_m");
     assert!((b - fit.geometry.wheelbase_m).abs() < 1e-9, "{b}");
+    // The same bag's /amcl_pose is the same reference.
+    let amcl =
+        odocal::ros::bag::reference::read_pose_drive(&path, &BagOptions::default(), "/amcl_pose")
+            .expect("reads");
+    assert_eq!(amcl.recording.poses.len(), rec.poses.len());
     // A fixed frame the tree does not reach is named with the links it has.
     let err = read_tf_drive(&path, &BagOptions::default(), "world", "base_link").unwrap_err();
     assert!(err.to_string().contains("map → odom"), "{err}");

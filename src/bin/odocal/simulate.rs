@@ -67,6 +67,8 @@ pub struct Args {
     json: bool,
     /// Instead of the study, write the simulated square test as a ROS 2 bag (MCAP) to this new
     /// file: /joint_states, /imu and /odom as a ROS robot would publish them, for `odocal bag`.
+    /// With --drive: the drive under a localization (/joint_states, /amcl_pose, /tf,
+    /// /tf_static), for `odocal fit --bag`.
     #[arg(long = "write-bag", alias = "bag")]
     bag: Option<std::path::PathBuf>,
     /// How the --write-bag's IMU errs (a deviation, a gyro's scale, a late or lossy stream).
@@ -149,14 +151,21 @@ pub fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
                 .into(),
         );
     }
-    if let Some(path) = &args.bag {
-        return write_bag(&args, path);
-    }
     if args.drive.drive {
         let nominal = WheelParams::nominal(args.wheel_diameter_m, args.wheelbase_m, 1.0);
         let truth =
             WheelParams::from_ratios(&nominal, args.true_eb, args.true_ed, &args.truth_split)?;
-        return crate::simulate_drive::run(&args.drive, &nominal, &truth, args.seed, args.json);
+        return crate::simulate_drive::run(
+            &args.drive,
+            &nominal,
+            &truth,
+            args.seed,
+            args.json,
+            args.bag.as_deref(),
+        );
+    }
+    if let Some(path) = &args.bag {
+        return write_bag(&args, path);
     }
     let cfg = StudyConfig {
         nominal: WheelParams::nominal(args.wheel_diameter_m, args.wheelbase_m, args.counts_per_rev),

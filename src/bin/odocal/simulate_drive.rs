@@ -1,5 +1,5 @@
 //! `odocal simulate --drive`: normal driving under a pose reference, simulated and fitted; the
-//! truth against the fit, and the drive as `odocal fit`'s CSV files on request.
+//! truth against the fit, and the drive as `odocal fit`'s CSV files or as a bag on request.
 
 use crate::print_json;
 use odocal::calibration::pose_calibration::calibrate_from_poses;
@@ -36,6 +36,7 @@ pub fn run(
     truth: &WheelParams,
     seed: u64,
     json_out: bool,
+    bag: Option<&std::path::Path>,
 ) -> Result<(), Box<dyn std::error::Error>> {
     crate::in_range("--drive-s", args.drive_s, 10.0, 3600.0)?;
     let geometry = |p: &WheelParams| Geometry {
@@ -67,6 +68,15 @@ pub fn run(
         std::fs::create_dir_all(dir)?;
         write_wheels(&dir.join("wheels.csv"), &drive.recording.wheels)?;
         write_poses(&dir.join("poses.csv"), &drive.recording.poses)?;
+    }
+    if let Some(path) = bag {
+        // A ROS clock does not start at zero: the bag's stamps from the session's start.
+        odocal::ros::bag::writer::write_localization_bag(
+            path,
+            &drive.recording,
+            geometry(nominal),
+            1.7e9,
+        )?;
     }
     let calibration = calibrate_from_poses(
         &[("simulated drive".into(), drive.recording)],
@@ -121,6 +131,15 @@ pub fn run(
             v,
             s,
             (v - t) / s
+        );
+    }
+    if let Some(path) = bag {
+        println!(
+            "wrote {0} (/joint_states, /amcl_pose, /tf, /tf_static); fit it with: odocal fit \
+             --bag {0} --reference /amcl_pose --wheel-diameter-m {1} --wheelbase-m {2}",
+            path.display(),
+            nominal.left_wheel_diameter_m,
+            nominal.wheelbase_m
         );
     }
     if let Some(dir) = &args.write_csv {

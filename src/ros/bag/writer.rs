@@ -506,12 +506,13 @@ pub fn write_pose_drive_bag(
     w.finish()
 }
 
-/// Writes a drive with a TF reference as a ROS 2 bag (MCAP): the wheels on `/joint_states`,
-/// the controller's odometry `odom → base_link` on `/tf` at every wheel sample (integrated with
-/// `controller`), the localization's correction `map → odom` on `/tf` at every reference
-/// stamp (so that the chain `map → base_link` there is the reference's pose), and a static
-/// `base_link → laser` on `/tf_static`; stamps `t0_s` later than the recording's times.
-pub fn write_tf_drive_bag(
+/// Writes a drive under a localization as a ROS 2 bag (MCAP), as AMCL leaves one: the wheels
+/// on `/joint_states`, the controller's odometry `odom → base_link` on `/tf` at every wheel
+/// sample (integrated with `controller`), at every reference stamp the localization's
+/// correction `map → odom` on `/tf` (so that the chain `map → base_link` there is the
+/// reference's pose) and the pose itself on `/amcl_pose` (`PoseWithCovarianceStamped`), and a
+/// static `base_link → laser` on `/tf_static`; stamps `t0_s` later than the recording's times.
+pub fn write_localization_bag(
     path: &Path,
     recording: &PoseRecording,
     controller: crate::calibration::pose_reference::Geometry,
@@ -520,6 +521,7 @@ pub fn write_tf_drive_bag(
     use crate::calibration::pose_reference::{Odometry as Dead, Pose2};
     use crate::ros::msg::{TfMessage, Transform, TransformStamped, Vector3};
     let mut w = BagWriter::create(path, &RosTopics::default())?;
+    w.add_reference(types::POSE_WITH_COVARIANCE_STAMPED, "/amcl_pose")?;
     w.add_topic(types::TF_MESSAGE, "/tf")?;
     w.add_topic(types::TF_MESSAGE, "/tf_static")?;
     let tf = |t: f64, parent: &str, child: &str, p: Pose2| TfMessage {
@@ -573,6 +575,8 @@ pub fn write_tf_drive_bag(
             let correction = r.compose(&o.between(&Pose2::default()));
             let t = t0_s + p.time_s;
             w.write_topic("/tf", t, &tf(t, "map", "odom", correction))?;
+            let stamped = ReferencePose { time_s: t, ..*p };
+            w.reference(types::POSE_WITH_COVARIANCE_STAMPED, "map", &stamped)?;
         }
     }
     w.finish()
