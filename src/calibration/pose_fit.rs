@@ -1146,8 +1146,8 @@ fn robust_scales(problem: &Problem<'_>, r: &[f64], weights: &[f64]) -> Scales {
 /// `e²` (about 5 % for one parameter, Wilks), so that noise in the search does not invent one.
 fn walk_scales(problem: &Problem<'_>, r: &[f64], weights: &[f64], white: Scales) -> Scales {
     let dim = problem.dim;
-    // −2 log L (up to a constant) of components `cs` for ratio `lambda`.
-    let profile = |cs: &[usize], lambda: f64| -> f64 {
+    // Σν²/s, Σ log s and the count over components `cs` for ratio `lambda` (σ² = 1).
+    let innovations = |cs: &[usize], lambda: f64| -> (f64, f64, usize) {
         let (mut sum, mut logs, mut n) = (0.0, 0.0, 0usize);
         for &(a, b) in &problem.windows {
             for &c in cs {
@@ -1174,6 +1174,11 @@ fn walk_scales(problem: &Problem<'_>, r: &[f64], weights: &[f64], white: Scales)
                 }
             }
         }
+        (sum, logs, n)
+    };
+    // −2 log L (up to a constant) with σ² profiled out.
+    let profile = |cs: &[usize], lambda: f64| -> f64 {
+        let (sum, logs, n) = innovations(cs, lambda);
         if n == 0 || sum <= 0.0 {
             return f64::INFINITY;
         }
@@ -1213,34 +1218,9 @@ fn walk_scales(problem: &Problem<'_>, r: &[f64], weights: &[f64], white: Scales)
             return (sigma, 0.0);
         }
         // σ̂² at the best λ (in units of the stated σ²), then q = λσ̂².
-        let lambda = best.1;
-        let (mut sum, mut n) = (0.0, 0usize);
-        for &(a, b) in &problem.windows {
-            for &c in cs {
-                let (mut m, mut var) = (0.0f64, 0.0f64);
-                let mut t_prev: Option<f64> = None;
-                for blk in a..b {
-                    let t = problem.block_time(blk);
-                    if let Some(tp) = t_prev {
-                        var += lambda * (t - tp).max(0.0);
-                    }
-                    t_prev = Some(t);
-                    if weights[blk] <= 0.0 {
-                        continue;
-                    }
-                    let meas = problem.stated(blk, c).powi(2);
-                    let nu = r[blk * dim + c] - m;
-                    let s = var + meas;
-                    sum += nu * nu / s;
-                    n += 1;
-                    let k = var / s;
-                    m += k * nu;
-                    var *= 1.0 - k;
-                }
-            }
-        }
+        let (sum, _, n) = innovations(cs, best.1);
         let sigma2 = (sum / n.max(1) as f64).max(1e-24);
-        (sigma2.sqrt(), lambda * sigma2)
+        (sigma2.sqrt(), best.1 * sigma2)
     };
     let (position, walk_position) = search(&[0, 1], white.position);
     let (yaw, walk_yaw) = if dim == 3 {

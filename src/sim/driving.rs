@@ -13,13 +13,13 @@
 //! are those of [`crate::calibration::pose_reference`]; everything random comes from
 //! [`DrivingConfig::seed`], so a configuration always gives the same drive.
 
+use super::gaussian;
 use crate::calibration::pose_reference::{
     Geometry, Pose2, PoseRecording, ReferenceKind, ReferencePose, WheelAngles,
 };
 use crate::kinematics::wrap_angle;
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use rand_distr::{Distribution, Normal};
 use serde::{Deserialize, Serialize};
 use std::f64::consts::{PI, TAU};
 
@@ -540,16 +540,6 @@ fn uniform(rng: &mut ChaCha8Rng, lo: f64, hi: f64) -> f64 {
 /// the other random streams.
 fn chance(rng: &mut ChaCha8Rng, p: f64) -> bool {
     p > 0.0 && rng.random_bool(p.min(1.0))
-}
-
-/// One zero-mean normal draw; exactly zero (and no RNG use) when `sigma` is zero.
-fn gaussian(rng: &mut ChaCha8Rng, sigma: f64) -> f64 {
-    if sigma > 0.0 {
-        // sigma was validated finite and positive, so Normal::new cannot fail here.
-        Normal::new(0.0, sigma).map_or(0.0, |n| n.sample(rng))
-    } else {
-        0.0
-    }
 }
 
 #[cfg(test)]

@@ -455,7 +455,7 @@ impl Simulator {
 
 /// One zero-mean normal draw; exactly zero (and no RNG use) when `sigma` is zero, so turning a
 /// noise source off never shifts the other sources' random streams.
-fn gaussian(rng: &mut ChaCha8Rng, sigma: f64) -> f64 {
+pub(crate) fn gaussian(rng: &mut ChaCha8Rng, sigma: f64) -> f64 {
     if sigma > 0.0 {
         // sigma was validated finite and positive, so Normal::new cannot fail here.
         Normal::new(0.0, sigma).map_or(0.0, |n| n.sample(rng))

@@ -6,12 +6,12 @@
 //! from the bag's first message.
 
 use super::compression::{zstd_message, ZSTD_MAGIC};
-use super::validate::{self, Joints, Pose, Sample};
+use super::validate::{self, Pose, Sample};
 use super::{
     container_of, open_container, BagData, BagError, BagOptions, Channel, Container, JointSample,
     OdomSample, RawMessage, RosTopics, YawSample,
 };
-use crate::ros::msg::{cdr, ros1, types, yaw_of, Header, Imu, JointState, Odometry, WireError};
+use crate::ros::msg::{cdr, ros1, types, yaw_of, Header, Imu, Odometry, WireError};
 use serde::de::DeserializeOwned;
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -142,9 +142,7 @@ fn check_type(ch: &Channel, role: Role) -> Result<(), BagError> {
 struct Reading {
     counts: BTreeMap<&'static str, usize>,
     messages: u64,
-    wheel_names: Option<(String, String)>,
-    seen_names: Vec<String>,
-    joints: Vec<Sample<Joints>>,
+    wheels: super::reference::WheelReader,
     imu: Vec<Sample<Option<f64>>>,
     odom: Vec<Sample<Pose>>,
     unzstd: Unzstd,
@@ -184,37 +182,6 @@ impl Unzstd {
 }
 
 impl Reading {
-    fn joints(&mut self, js: JointState, index: usize, log_ns: u64, opts: &BagOptions) {
-        // The wheels are found by name once; a message of another joint group (one that does
-        // not name them) is skipped.
-        let ix = match &self.wheel_names {
-            Some((ln, rn)) => js
-                .name
-                .iter()
-                .position(|n| n == ln)
-                .zip(js.name.iter().position(|n| n == rn)),
-            None => match js.wheel_indices(&opts.left_joint, &opts.right_joint) {
-                Some((l, r)) => {
-                    self.wheel_names = Some((js.name[l].clone(), js.name[r].clone()));
-                    Some((l, r))
-                }
-                None => {
-                    self.seen_names.clone_from(&js.name);
-                    None
-                }
-            },
-        };
-        let Some((l, r)) = ix else { return };
-        let (Some(&lp), Some(&rp)) = (js.position.get(l), js.position.get(r)) else {
-            return;
-        };
-        self.joints.push(Sample {
-            index,
-            t: stamp_or(&js.header, log_ns),
-            value: (lp, rp),
-        });
-    }
-
     fn imu(&mut self, imu: Imu, index: usize, log_ns: u64) {
         let yaw_rad = if imu.orientation_covariance[0] == -1.0 {
             None
@@ -265,7 +232,9 @@ impl Reading {
         let data = unzstd.payload(&m, index)?;
         let enc = m.channel.encoding.as_str();
         let result = match role {
-            Role::Joints => decode(enc, data).map(|js| self.joints(js, index, m.log_time_ns, opts)),
+            Role::Joints => {
+                decode(enc, data).map(|js| self.wheels.push(js, index, m.log_time_ns, opts))
+            }
             Role::Imu => decode(enc, data).map(|imu| self.imu(imu, index, m.log_time_ns)),
             Role::Odom => decode(enc, data).map(|o| self.odom(o, index, m.log_time_ns)),
         };
@@ -305,21 +274,14 @@ pub fn read_container(bag: &dyn Container, opts: &BagOptions) -> Result<BagData,
         available: available.clone(),
     };
     let count = |role: Role| r.counts.get(role.what()).copied().unwrap_or(0);
-    if count(Role::Joints) == 0 {
-        return Err(missing(Role::Joints));
-    }
-    if r.joints.is_empty() {
-        return Err(BagError::Joints {
-            topic: topics.joint_states.clone(),
-            names: r.seen_names,
-        });
-    }
+    let joints = r
+        .wheels
+        .finish(&topics.joint_states, &available, &mut notes)?;
     if count(Role::Imu) == 0 {
         return Err(missing(Role::Imu));
     }
     // Each stream checked in the order the container gave it (time forward, physical, no
     // spike), which also leaves it in time order.
-    let joints = validate::joints(r.joints, &topics.joint_states, &mut notes)?;
     let imu = validate::yaw(r.imu, &topics.imu, &mut notes)?;
     let odom = validate::odometry(r.odom, &topics.odom, &mut notes)?;
     let t0 = joints

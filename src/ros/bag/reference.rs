@@ -66,13 +66,19 @@ impl WheelReader {
         index: usize,
         opts: &BagOptions,
     ) -> Result<(), BagError> {
-        self.messages += 1;
         let js: JointState =
             decode(&m.channel.encoding, data).map_err(|source| BagError::Decode {
                 topic: m.channel.topic.clone(),
                 index,
                 source,
             })?;
+        self.push(js, index, m.log_time_ns, opts);
+        Ok(())
+    }
+
+    /// Takes one decoded joints message, the `index`-th on its topic, logged at `log_ns`.
+    pub(super) fn push(&mut self, js: JointState, index: usize, log_ns: u64, opts: &BagOptions) {
+        self.messages += 1;
         let ix = match &self.names {
             Some((ln, rn)) => js
                 .name
@@ -94,12 +100,11 @@ impl WheelReader {
             if let (Some(&lp), Some(&rp)) = (js.position.get(l), js.position.get(r)) {
                 self.samples.push(Sample {
                     index,
-                    t: stamp_or(&js.header, m.log_time_ns),
+                    t: stamp_or(&js.header, log_ns),
                     value: (lp, rp),
                 });
             }
         }
-        Ok(())
     }
 
     /// The wheel samples, checked and unwrapped ([`validate::joints`]), or why there are none.

@@ -67,18 +67,7 @@ impl BagWriter {
 
     /// Adds `topic` carrying `kind` (a [`types`] name).
     pub fn add_topic(&mut self, kind: &'static str, topic: &str) -> Result<(), BagError> {
-        let werr = |source| BagError::Write {
-            path: self.path.clone(),
-            source,
-        };
-        let schema = self
-            .writer
-            .add_schema(kind, "ros2msg", types::definition(kind).as_bytes())
-            .map_err(werr)?;
-        let ch = self
-            .writer
-            .add_channel(schema, topic, "cdr", &BTreeMap::new())
-            .map_err(werr)?;
+        let ch = self.channel(kind, topic)?;
         self.topics.insert(topic.to_string(), ch);
         Ok(())
     }
@@ -134,6 +123,13 @@ impl BagWriter {
     /// Adds a pose reference's topic of type `kind` (`PoseStamped`, `PoseWithCovarianceStamped`
     /// or `Odometry`, [`types`]) to a new writer; `Odometry` replaces the odometry's own topic.
     pub fn add_reference(&mut self, kind: &'static str, topic: &str) -> Result<(), BagError> {
+        let ch = self.channel(kind, topic)?;
+        self.channels.insert(kind, ch);
+        Ok(())
+    }
+
+    /// A new channel for `topic` carrying `kind`, with its schema.
+    fn channel(&mut self, kind: &'static str, topic: &str) -> Result<u16, BagError> {
         let werr = |source| BagError::Write {
             path: self.path.clone(),
             source,
@@ -142,12 +138,9 @@ impl BagWriter {
             .writer
             .add_schema(kind, "ros2msg", types::definition(kind).as_bytes())
             .map_err(werr)?;
-        let ch = self
-            .writer
+        self.writer
             .add_channel(schema, topic, "cdr", &BTreeMap::new())
-            .map_err(werr)?;
-        self.channels.insert(kind, ch);
-        Ok(())
+            .map_err(werr)
     }
 
     /// Writes one reference pose on the topic of `kind` added by [`Self::add_reference`], in
