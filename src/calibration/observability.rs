@@ -27,10 +27,12 @@ use std::f64::consts::PI;
 pub const MIN_TURN_EACH_WAY_RAD: f64 = PI;
 /// Least straight distance (m).
 pub const MIN_STRAIGHT_M: f64 = 1.0;
-/// Curvature below which an interval counts as straight (rad/m).
+/// Shortest span over which the drive's turning and straightness are judged (s).
+pub const SURVEY_SPAN_S: f64 = 0.5;
+/// Curvature below which a span counts as straight (rad/m).
 pub const STRAIGHT_CURVATURE_RAD_M: f64 = 0.2;
 /// Largest relative standard deviation of a diameter or the wheelbase that is written.
-pub const GEOMETRY_REL_STD_MAX: f64 = 0.01;
+pub const GEOMETRY_REL_STD_MAX: f64 = 0.005;
 /// Largest standard deviation of the mounting's position reported as observed (m).
 pub const MOUNT_STD_MAX_M: f64 = 0.05;
 /// Largest standard deviation of the mounting's yaw reported as observed (rad).
@@ -43,7 +45,7 @@ pub const OFFSET_STD_MAX_S: f64 = 0.05;
 pub struct DriveSurvey {
     /// Distance driven, forward and back (m).
     pub distance_m: f64,
-    /// Distance driven on intervals straighter than [`STRAIGHT_CURVATURE_RAD_M`] (m).
+    /// Distance driven on spans straighter than [`STRAIGHT_CURVATURE_RAD_M`] (m).
     pub straight_m: f64,
     /// Total counter-clockwise turning (rad).
     pub turned_left_rad: f64,
@@ -65,18 +67,27 @@ pub fn survey(recording: &PoseRecording, nominal: Geometry) -> DriveSurvey {
     let odo = Odometry::integrate(&recording.wheels, nominal);
     let poses = odo.poses();
     let (mut distance, mut straight, mut left, mut right) = (0.0, 0.0, 0.0, 0.0);
-    for w in poses.windows(2) {
-        let ds = (w[1].x - w[0].x).hypot(w[1].y - w[0].y);
-        let dth = w[1].theta - w[0].theta;
-        distance += ds;
-        if dth.abs() < STRAIGHT_CURVATURE_RAD_M * ds {
-            straight += ds;
+    // Turning is counted over spans of at least half a second: per wheel interval, encoder
+    // quantisation and wobble add up both ways and would pass any drive as turning both ways.
+    let wheels = &recording.wheels;
+    let (mut start, mut span_ds) = (0, 0.0);
+    for i in 1..poses.len() {
+        span_ds += (poses[i].x - poses[i - 1].x).hypot(poses[i].y - poses[i - 1].y);
+        if wheels[i].time_s - wheels[start].time_s < SURVEY_SPAN_S && i + 1 < poses.len() {
+            continue;
+        }
+        let dth = poses[i].theta - poses[start].theta;
+        distance += span_ds;
+        if dth.abs() < STRAIGHT_CURVATURE_RAD_M * span_ds {
+            straight += span_ds;
         }
         if dth > 0.0 {
             left += dth;
         } else {
             right -= dth;
         }
+        start = i;
+        span_ds = 0.0;
     }
     let duration_s = match (recording.wheels.first(), recording.wheels.last()) {
         (Some(a), Some(b)) => b.time_s - a.time_s,
@@ -101,7 +112,8 @@ pub fn survey(recording: &PoseRecording, nominal: Geometry) -> DriveSurvey {
         if let (Some(y0), Some(y1)) = (p0.yaw_rad, p1.yaw_rad) {
             syo += wrap_angle(y1 - y0) * dodo;
             soo += dodo * dodo;
-            if dodo.abs() > 1e-3 {
+            // Only clear turns: on slow ones a noisy yaw's steps dwarf the wheels'.
+            if dodo.abs() > 0.05 {
                 yaw_steps.push((y1 - y0).abs());
                 odo_steps.push(dodo.abs());
             }

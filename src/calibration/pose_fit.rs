@@ -189,8 +189,13 @@ pub struct PoseFit {
     pub free: Vec<Param>,
     /// How the kind was settled.
     pub kind: KindDecision,
-    /// Standard deviation of one position residual (m), inliers.
+    /// Standard deviation of one position residual (m), inliers (with stated standard
+    /// deviations: their root mean square times [`Self::stated_scale`]).
     pub residual_std_position_m: f64,
+    /// When the messages' own standard deviations weighted the samples: the factor the
+    /// residuals say they are off by (1: the messages state their noise right; the stated
+    /// covariance's scale is not trusted, only its shape).
+    pub stated_scale: Option<f64>,
     /// Standard deviation of one yaw residual (rad), inliers; `None` without yaw.
     pub residual_std_yaw_rad: Option<f64>,
     /// Variance per second of the positions' random walk between reference and odometry
@@ -214,6 +219,8 @@ pub struct PoseFit {
     pub span_s: f64,
     /// The nominal wheelbase `E_b` refers to (m).
     pub nominal_wheelbase_m: f64,
+    /// What the user should know about this fit (a time offset at its limit).
+    pub warnings: Vec<String>,
 }
 
 impl PoseFit {
@@ -226,7 +233,7 @@ impl PoseFit {
     pub fn std(&self, p: Param) -> Option<f64> {
         self.free
             .contains(&p)
-            .then(|| self.covariance[p.index()][p.index()].max(0.0).sqrt())
+            .then(|| finite_sqrt(self.covariance[p.index()][p.index()]))
     }
 
     /// `E_d = D_R / D_L`.
@@ -242,9 +249,7 @@ impl PoseFit {
         );
         let g = [-r / (l * l), 1.0 / l];
         let c = &self.covariance;
-        (g[0] * g[0] * c[0][0] + 2.0 * g[0] * g[1] * c[0][1] + g[1] * g[1] * c[1][1])
-            .max(0.0)
-            .sqrt()
+        finite_sqrt(g[0] * g[0] * c[0][0] + 2.0 * g[0] * g[1] * c[0][1] + g[1] * g[1] * c[1][1])
     }
 
     /// `E_b = b / b_nominal`.
@@ -254,13 +259,23 @@ impl PoseFit {
 
     /// Standard deviation of `E_b`.
     pub fn e_b_std(&self) -> f64 {
-        self.covariance[2][2].max(0.0).sqrt() / self.nominal_wheelbase_m
+        finite_sqrt(self.covariance[2][2]) / self.nominal_wheelbase_m
     }
 
     /// The correlation of two fitted parameters.
     pub fn correlation(&self, a: Param, b: Param) -> Option<f64> {
         let (sa, sb) = (self.std(a)?, self.std(b)?);
         (sa > 0.0 && sb > 0.0).then(|| self.covariance[a.index()][b.index()] / (sa * sb))
+    }
+}
+
+/// The square root of a variance; infinite when the variance is not a finite number (an
+/// unobserved parameter must never read as a zero standard deviation).
+fn finite_sqrt(v: f64) -> f64 {
+    if v.is_finite() {
+        v.max(0.0).sqrt()
+    } else {
+        f64::INFINITY
     }
 }
 
@@ -306,7 +321,13 @@ pub fn fit_poses(
             )?;
             let ratio = span_variance_ratio(recording, config, &relative.params, 10);
             let threshold = 10f64.sqrt();
-            let (kind, why) = if ratio < threshold {
+            let (kind, why) = if !ratio.is_finite() {
+                (
+                    ReferenceKind::Absolute,
+                    "the motion residuals could not be compared (too few samples or none moving): \
+                     taken as absolute, the safer fit",
+                )
+            } else if ratio < threshold {
                 (
                     ReferenceKind::Absolute,
                     "its errors do not grow with the span: the reference does not accumulate error",
@@ -391,8 +412,10 @@ fn check_input(recording: &PoseRecording, config: &FitConfig) -> Result<(), Cali
             && p.x_m.is_finite()
             && p.y_m.is_finite()
             && p.yaw_rad.is_none_or(f64::is_finite)
-            && p.stated_std
-                .is_none_or(|s| s.iter().all(|v| v.is_finite() && *v > 0.0))
+            && p.stated_std.is_none_or(|s| {
+                let positive = |v: f64| v.is_finite() && v > 0.0;
+                positive(s[0]) && positive(s[1]) && (p.yaw_rad.is_none() || positive(s[2]))
+            })
     });
     if !finite_w || !finite_p {
         return Err(CalibrationError::PoseInput(
@@ -477,6 +500,10 @@ struct Problem<'a> {
     tie: bool,
     fixed: [f64; PARAMS],
     max_offset: f64,
+    /// Whether the stated standard deviations weight the samples: only for an absolute
+    /// reference (a pose's σ is not its increment's) whose every sample states one (a mix
+    /// would weigh the two kinds of sample by unrelated units).
+    use_stated: bool,
 }
 
 impl<'a> Problem<'a> {
@@ -486,7 +513,9 @@ impl<'a> Problem<'a> {
         kind: ReferenceKind,
     ) -> Result<Self, CalibrationError> {
         let has_yaw = recording.has_yaw();
-        let margin = if config.fit_time_offset {
+        // A largest offset of zero is no offset to fit (its column would be zero).
+        let fit_offset = config.fit_time_offset && config.max_time_offset_s > 0.0;
+        let margin = if fit_offset {
             config.max_time_offset_s
         } else {
             0.0
@@ -509,10 +538,15 @@ impl<'a> Problem<'a> {
         if blocks < 10 {
             return Err(CalibrationError::PoseInput(format!(
                 "only {} reference pose(s) fall inside the wheels' time span ({w0:.3}–{w1:.3} s, \
-                 less {margin:.2} s each side for the time offset): the two streams barely \
-                 overlap; check that both are stamped on the same clock (seconds) and that the \
-                 reference covers the drive",
-                selected.len()
+                 less {margin:.2} s each side for the time offset; at least 10 are needed): \
+                 check that both streams are stamped on the same clock (seconds) and that the \
+                 reference covers the drive{}",
+                selected.len(),
+                if margin > 0.0 {
+                    ", or lower --max-time-offset-s"
+                } else {
+                    ""
+                },
             )));
         }
         let mut free = vec![Param::LeftDiameter];
@@ -527,7 +561,7 @@ impl<'a> Problem<'a> {
                 free.push(Param::SensorYaw);
             }
         }
-        if config.fit_time_offset {
+        if fit_offset {
             free.push(Param::TimeOffset);
         }
         let windows = match (kind, config.window_s) {
@@ -545,17 +579,23 @@ impl<'a> Problem<'a> {
                         start = i;
                     }
                 }
-                // A short tail joins the window before it.
-                if out.len() > 1 && out[out.len() - 1].1 - out[out.len() - 1].0 < 5 {
-                    let tail = out.pop().map_or(0, |t| t.1);
-                    if let Some(last) = out.last_mut() {
-                        last.1 = tail;
+                // A window of fewer than ten samples joins the one before it (the first, the
+                // one after): its alignment would absorb everything it holds.
+                let mut merged: Vec<(usize, usize)> = Vec::new();
+                for w in out {
+                    match merged.last_mut() {
+                        Some(last) if last.1 - last.0 < 10 || w.1 - w.0 < 10 => last.1 = w.1,
+                        _ => merged.push(w),
                     }
                 }
-                out
+                merged
             }
         };
         let g = config.nominal;
+        let use_stated = kind == ReferenceKind::Absolute
+            && selected
+                .iter()
+                .all(|&i| recording.poses[i].stated_std.is_some());
         Ok(Self {
             recording,
             selected,
@@ -574,6 +614,7 @@ impl<'a> Problem<'a> {
                 0.0,
             ],
             max_offset: margin,
+            use_stated,
         })
     }
 
@@ -614,7 +655,20 @@ impl<'a> Problem<'a> {
             ReferenceKind::Absolute => self.selected[block],
             ReferenceKind::Relative => self.selected[block + 1],
         };
+        if !self.use_stated {
+            return 1.0;
+        }
         self.recording.poses[i].stated_std.map_or(1.0, |s| s[c])
+    }
+
+    /// Root mean square of the stated standard deviation of component `c` (1 when the
+    /// samples are not weighted by what they state).
+    fn stated_rms(&self, c: usize) -> f64 {
+        if !self.use_stated || self.blocks() == 0 {
+            return 1.0;
+        }
+        let sum: f64 = (0..self.blocks()).map(|b| self.stated(b, c).powi(2)).sum();
+        (sum / self.blocks() as f64).sqrt()
     }
 
     /// The predicted reference-frame poses at the selected stamps, before any alignment.
@@ -960,9 +1014,10 @@ impl<'a> Problem<'a> {
                     .collect();
                 let mut out = vec![Vec::new(); n];
                 for h in handles {
-                    // A column's thread cannot fail but by panicking, which is a bug: its
-                    // column stays empty and the Jacobian is built from the others as zero.
-                    for (j, col) in h.join().unwrap_or_default() {
+                    // A column's thread fails only by panicking, which is a bug: it goes on
+                    // up as the panic it is, never as a silent zero column.
+                    let cols = h.join().unwrap_or_else(|e| std::panic::resume_unwind(e));
+                    for (j, col) in cols {
                         out[j] = col;
                     }
                 }
@@ -1142,8 +1197,9 @@ fn robust_scales(problem: &Problem<'_>, r: &[f64], weights: &[f64]) -> Scales {
 /// for each class (positions, yaw) the ratio `λ = q/σ²` of the walk's variance per second to
 /// the white variance, with `σ²` profiled out (`σ̂² = Σν²/s / n` for innovations `ν` of
 /// normalised variance `s`, so `−2 log L = n log σ̂² + Σ log s`), searched on a logarithmic
-/// grid and refined; a walk is kept only when it beats none by a likelihood ratio of
-/// `e²` (about 5 % for one parameter, Wilks), so that noise in the search does not invent one.
+/// grid and refined; a walk is kept only when it lowers `−2 log L` by more than [`WALK_LR`]
+/// (the 95 % quantile of χ² with one degree of freedom, Wilks; conservative, as the walk's
+/// variance sits on the boundary at zero), so that noise in the search does not invent one.
 fn walk_scales(problem: &Problem<'_>, r: &[f64], weights: &[f64], white: Scales) -> Scales {
     let dim = problem.dim;
     // Σν²/s, Σ log s and the count over components `cs` for ratio `lambda` (σ² = 1).
@@ -1214,7 +1270,7 @@ fn walk_scales(problem: &Problem<'_>, r: &[f64], weights: &[f64], white: Scales)
                 best = (v, lambda);
             }
         }
-        if none - best.0 < 2.0 {
+        if none - best.0 < WALK_LR {
             return (sigma, 0.0);
         }
         // σ̂² at the best λ (in units of the stated σ²), then q = λσ̂².
@@ -1235,6 +1291,9 @@ fn walk_scales(problem: &Problem<'_>, r: &[f64], weights: &[f64], white: Scales)
         walk_yaw,
     }
 }
+
+/// Least drop of `−2 log L` that keeps a random walk: χ²₁'s 95 % quantile.
+const WALK_LR: f64 = 3.84;
 
 /// `χ²` 99.9 % quantiles for 2 and 3 degrees of freedom.
 fn gate(dim: usize) -> f64 {
@@ -1285,7 +1344,7 @@ fn fit_kind(
     // The time offset's basin: a lever arm along the direction of travel looks like a delay
     // while the robot drives straight, so the geometry and mounting are fitted first with the
     // offset held at zero, then the offset is searched on a coarse grid from there.
-    if config.fit_time_offset && start.is_none() {
+    if problem.free.contains(&Param::TimeOffset) && start.is_none() {
         let mut held = Problem::new(recording, config, kind)?;
         held.free.retain(|q| *q != Param::TimeOffset);
         let (xa, it) = levenberg_marquardt(&held, held.free_values(&p0), &weights, scales, 20);
@@ -1422,8 +1481,9 @@ fn fit_kind(
         covariance,
         free: problem.free.clone(),
         kind: decision,
-        residual_std_position_m: scales.position,
-        residual_std_yaw_rad: (dim == 3).then_some(scales.yaw),
+        residual_std_position_m: scales.position * problem.stated_rms(0),
+        stated_scale: problem.use_stated.then_some(scales.position),
+        residual_std_yaw_rad: (dim == 3).then_some(scales.yaw * problem.stated_rms(2)),
         walk_position_m2_s: scales.walk_position,
         walk_yaw_rad2_s: (dim == 3).then_some(scales.walk_yaw),
         compared: blocks,
@@ -1437,6 +1497,18 @@ fn fit_kind(
         iterations,
         span_s,
         nominal_wheelbase_m: config.nominal.wheelbase_m,
+        warnings: if problem.free.contains(&Param::TimeOffset)
+            && p[6].abs() >= 0.95 * problem.max_offset
+        {
+            vec![format!(
+                "the time offset {:.3} s is at its limit (±{:.2} s): the streams may be further \
+                 apart, and the geometry then absorbs the rest; raise --max-time-offset-s and fit \
+                 again",
+                p[6], problem.max_offset
+            )]
+        } else {
+            Vec::new()
+        },
     })
 }
 

@@ -257,8 +257,14 @@ fn inputs(args: &Args) -> Result<Inputs, Box<dyn std::error::Error>> {
 fn print_text(c: &PoseCalibration) {
     let s = c.summary();
     println!(
-        "fitted {} recording(s) as an {} reference: {}",
-        s.recordings_pooled, s.reference_kind, s.reference_kind_reason
+        "fitted {} recording(s) as {} reference: {}",
+        s.recordings_pooled,
+        if s.reference_kind == "absolute" {
+            "an absolute"
+        } else {
+            "a relative"
+        },
+        s.reference_kind_reason
     );
     println!("± is one standard deviation ({})", s.uncertainty);
     println!(
@@ -290,6 +296,9 @@ fn print_text(c: &PoseCalibration) {
             println!("{}: left out: {why}", r.name);
         }
         if let Some(f) = &r.fit {
+            for w in &f.warnings {
+                println!("{}: warning: {w}", r.name);
+            }
             println!(
                 "{}: {} compared, {} outlier(s) left out; residual σ {:.4} m{}; covariance × {:.2} \
                  for correlated residuals (lag-one ρ {:.2})",

@@ -124,13 +124,18 @@ pub fn run(
         "parameter", "truth", "fitted", "± (1σ)", "err/σ"
     );
     for (p, t, v, s) in &rows {
+        let z = if *s > 0.0 && s.is_finite() {
+            format!("{:.2}", (v - t) / s)
+        } else {
+            "—".into()
+        };
         println!(
-            "{:<24} {:>12.6} {:>12.6} {:>11.2e} {:>8.2}",
+            "{:<24} {:>12.6} {:>12.6} {:>11.2e} {:>8}",
             p.name(),
             t,
             v,
             s,
-            (v - t) / s
+            z
         );
     }
     if let Some(path) = bag {

@@ -18,7 +18,7 @@
 //! - [`validate`] checks each stream as `track --log` checks a log: time forward, samples
 //!   physical, spikes dropped, each drop counted;
 //! - [`mod@analyse`] infers the configured geometry, segments the runs and estimates;
-//! - [`reference`] reads a drive with a pose reference (the wheels and a pose topic) for
+//! - [`mod@reference`] reads a drive with a pose reference (the wheels and a pose topic) for
 //!   `odocal fit`, and [`tf`] one whose reference is the TF chain to `base_link`;
 //! - [`writer`] writes MCAP bags (simulated tests, converted recordings).
 

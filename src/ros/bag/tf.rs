@@ -10,7 +10,7 @@
 //! the base; between them it would only be the controller's odometry, which must not be taken
 //! for a reference. Static links are composed as they are. Planar: x, y and yaw of each link.
 
-use super::decode::{decode, stamp_or, Unzstd};
+use super::decode::{decode, stamp_or, Unzstd, ENCODINGS};
 use super::reference::{on_one_clock, WheelReader};
 use super::{open_container, BagError, BagOptions, Container};
 use crate::calibration::pose_reference::{Pose2, PoseRecording, ReferencePose};
@@ -76,19 +76,26 @@ pub fn read_tf_container(
         } else {
             tf_messages
         };
+        let expected = if is_joints {
+            types::JOINT_STATE
+        } else {
+            types::TF_MESSAGE
+        };
+        if !types::is(&m.channel.type_name, expected)
+            || !ENCODINGS.contains(&m.channel.encoding.as_str())
+        {
+            return Err(BagError::UnknownType {
+                topic: m.channel.topic.clone(),
+                type_name: m.channel.type_name.clone(),
+                encoding: m.channel.encoding.clone(),
+                expected,
+            });
+        }
         let data = unzstd.payload(&m, index)?;
         if is_joints {
             return wheels.add(&m, data, index, opts);
         }
         tf_messages += 1;
-        if !types::is(&m.channel.type_name, types::TF_MESSAGE) {
-            return Err(BagError::UnknownType {
-                topic: m.channel.topic.clone(),
-                type_name: m.channel.type_name.clone(),
-                encoding: m.channel.encoding.clone(),
-                expected: types::TF_MESSAGE,
-            });
-        }
         let tf: TfMessage =
             decode(&m.channel.encoding, data).map_err(|source| BagError::Decode {
                 topic: m.channel.topic.clone(),
@@ -156,7 +163,8 @@ pub fn read_tf_container(
                 .collect();
             return Err(BagError::Inference(format!(
                 "no TF chain from {fixed} to {base}: {child} has no parent in /tf or /tf_static \
-                 (the bag's links: {}); give the fixed frame with --reference tf:FRAME",
+                 (the bag's links: {}); give the fixed frame with --reference tf:FRAME, and \
+                 record /tf_static with transient-local durability so that its links are kept",
                 frames.join(", ")
             )));
         };
@@ -186,17 +194,34 @@ pub fn read_tf_container(
             chain.join(" → ")
         )));
     };
-    let stamps: Vec<f64> = moving
-        .iter()
-        .find(|(k, _)| *k == slowest)
-        .map(|(_, s)| s.iter().map(|(t, _)| *t).collect())
-        .unwrap_or_default();
+    // Only the stamps where the slowest link moved: a localization republishes its last
+    // correction (slam_toolbox at a fixed rate, AMCL on every scan while its filter waits for
+    // motion), and the chain at a republished stamp is the controller's own odometry.
+    let (mut stamps, mut repeated) = (Vec::new(), 0usize);
+    if let Some((_, s)) = moving.iter().find(|(k, _)| *k == slowest) {
+        let mut last: Option<Pose2> = None;
+        for (t, p) in s {
+            if last.is_some_and(|q| q == *p) {
+                repeated += 1;
+                continue;
+            }
+            last = Some(*p);
+            stamps.push(*t);
+        }
+    }
     notes.push(format!(
-        "reference: the TF chain {} at the stamps of {} → {} ({} samples)",
+        "reference: the TF chain {} at the stamps where {} → {} moved ({} samples{}); a \
+         localization's pose topic (/amcl_pose) is stamped at its scan and is the surer \
+         reference where the bag has one",
         chain.join(" → "),
         slowest.0,
         slowest.1,
-        stamps.len()
+        stamps.len(),
+        if repeated > 0 {
+            format!(", {repeated} republished unchanged left out")
+        } else {
+            String::new()
+        }
     ));
     let mut poses = Vec::with_capacity(stamps.len());
     'stamp: for &t in &stamps {
