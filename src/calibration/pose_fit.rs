@@ -710,30 +710,13 @@ impl<'a> Problem<'a> {
                     if scales.walks() {
                         align = self.align_whitened(&pred, a, b, align, weights, scales);
                     }
-                    for k in a..b {
-                        let q = align.compose(&pred[k]);
-                        let r = &poses[self.selected[k]];
-                        out.push(r.x_m - q.x);
-                        out.push(r.y_m - q.y);
-                        if let Some(yaw) = r.yaw_rad {
-                            out.push(wrap_angle(yaw - q.theta));
-                        }
-                    }
+                    out.extend(self.window_residuals(&pred, a, b, &align));
                 }
             }
             ReferenceKind::Relative => {
                 for k in 1..self.selected.len() {
                     let (r0, r1) = (&poses[self.selected[k - 1]], &poses[self.selected[k]]);
-                    let rd = Pose2 {
-                        x: r0.x_m,
-                        y: r0.y_m,
-                        theta: r0.yaw_rad.unwrap_or(0.0),
-                    }
-                    .between(&Pose2 {
-                        x: r1.x_m,
-                        y: r1.y_m,
-                        theta: r1.yaw_rad.unwrap_or(0.0),
-                    });
+                    let rd = r0.pose2().between(&r1.pose2());
                     let pd = pred[k - 1].between(&pred[k]);
                     out.push(rd.x - pd.x);
                     out.push(rd.y - pd.y);
@@ -1608,14 +1591,7 @@ pub(crate) fn span_variance_ratio(
     let odo = Odometry::integrate(&recording.wheels, Problem::geometry(p));
     let pred = problem.predicted(&odo, p);
     let poses = &recording.poses;
-    let ref_pose = |i: usize| {
-        let r = &poses[problem.selected[i]];
-        Pose2 {
-            x: r.x_m,
-            y: r.y_m,
-            theta: r.yaw_rad.unwrap_or(0.0),
-        }
-    };
+    let ref_pose = |i: usize| poses[problem.selected[i]].pose2();
     let spread = |lag: usize| {
         mad_std((lag..problem.selected.len()).flat_map(|j| {
             let rd = ref_pose(j - lag).between(&ref_pose(j));

@@ -50,6 +50,17 @@ pub struct ReferencePose {
     pub stated_std: Option<[f64; 3]>,
 }
 
+impl ReferencePose {
+    /// The pose as a [`Pose2`]; a position-only pose faces 0 (its yaw is never compared).
+    pub fn pose2(&self) -> Pose2 {
+        Pose2 {
+            x: self.x_m,
+            y: self.y_m,
+            theta: self.yaw_rad.unwrap_or(0.0),
+        }
+    }
+}
+
 /// How a reference's errors behave, which decides how it is fitted.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]

@@ -560,12 +560,7 @@ pub fn write_localization_bag(
             let Some(o) = odo.at(p.time_s, &mut hint) else {
                 continue;
             };
-            let r = Pose2 {
-                x: p.x_m,
-                y: p.y_m,
-                theta: p.yaw_rad.unwrap_or(0.0),
-            };
-            let correction = r.compose(&o.between(&Pose2::default()));
+            let correction = p.pose2().compose(&o.between(&Pose2::default()));
             let t = t0_s + p.time_s;
             w.write_topic("/tf", t, &tf(t, "map", "odom", correction))?;
             let stamped = ReferencePose { time_s: t, ..*p };
