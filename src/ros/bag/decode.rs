@@ -28,7 +28,7 @@ pub fn read_bag_bytes(bytes: Vec<u8>, path: &Path, opts: &BagOptions) -> Result<
 }
 
 /// The wire forms odocal decodes, as channels name them.
-pub(super) const ENCODINGS: [&str; 2] = ["cdr", "ros1"];
+const ENCODINGS: [&str; 2] = ["cdr", "ros1"];
 
 /// Decodes one message in its channel's wire form.
 pub(super) fn decode<T: DeserializeOwned>(encoding: &str, data: &[u8]) -> Result<T, WireError> {
@@ -125,14 +125,26 @@ fn resolve_topics(
 }
 
 fn check_type(ch: &Channel, role: Role) -> Result<(), BagError> {
-    if types::is(&ch.type_name, role.canonical()) && ENCODINGS.contains(&ch.encoding.as_str()) {
+    check_channel(ch, &[role.canonical()], role.canonical())
+}
+
+/// Refuses a channel whose type is none of `accepted` or whose wire form odocal does not
+/// decode, naming what it carries and what was `expected` there.
+pub(super) fn check_channel(
+    ch: &Channel,
+    accepted: &[&str],
+    expected: &'static str,
+) -> Result<(), BagError> {
+    if accepted.iter().any(|t| types::is(&ch.type_name, t))
+        && ENCODINGS.contains(&ch.encoding.as_str())
+    {
         Ok(())
     } else {
         Err(BagError::UnknownType {
             topic: ch.topic.clone(),
             type_name: ch.type_name.clone(),
             encoding: ch.encoding.clone(),
-            expected: role.canonical(),
+            expected,
         })
     }
 }

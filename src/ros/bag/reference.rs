@@ -5,7 +5,7 @@
 //! the [`PoseRecording`] `odocal fit` takes. A message's covariance, where it states one, gives
 //! its sample's standard deviations (x, y and yaw from the diagonal).
 
-use super::decode::{decode, stamp_or, Unzstd, ENCODINGS};
+use super::decode::{check_channel, decode, stamp_or, Unzstd};
 use super::validate::{self, Sample};
 use super::{open_container, BagError, BagOptions, Container};
 use crate::calibration::pose_reference::{PoseRecording, ReferencePose, WheelAngles};
@@ -187,14 +187,7 @@ pub fn read_pose_container(
         "geometry_msgs/PoseStamped, geometry_msgs/PoseWithCovarianceStamped or nav_msgs/Odometry";
     // A reference topic the bag lists with another type is refused before reading.
     if let Some(c) = listed.iter().find(|c| c.topic == reference) {
-        if !REFERENCE_TYPES.iter().any(|t| types::is(&c.type_name, t)) {
-            return Err(BagError::UnknownType {
-                topic: c.topic.clone(),
-                type_name: c.type_name.clone(),
-                encoding: c.encoding.clone(),
-                expected: EXPECTED,
-            });
-        }
+        check_channel(c, &REFERENCE_TYPES, EXPECTED)?;
     }
     let mut seen: BTreeMap<String, String> = listed
         .iter()
@@ -216,25 +209,12 @@ pub fn read_pose_container(
             return Ok(());
         }
         let index = if is_joints { wheels.messages } else { ref_msgs };
-        let expected = if is_joints {
-            types::JOINT_STATE
-        } else {
-            EXPECTED
-        };
-        let known = if is_joints {
-            types::is(&m.channel.type_name, types::JOINT_STATE)
-        } else {
-            REFERENCE_TYPES
-                .iter()
-                .any(|t| types::is(&m.channel.type_name, t))
-        };
-        if !known || !ENCODINGS.contains(&m.channel.encoding.as_str()) {
-            return Err(BagError::UnknownType {
-                topic: m.channel.topic.clone(),
-                type_name: m.channel.type_name.clone(),
-                encoding: m.channel.encoding.clone(),
-                expected,
-            });
+        if index == 0 {
+            if is_joints {
+                check_channel(m.channel, &[types::JOINT_STATE], types::JOINT_STATE)?;
+            } else {
+                check_channel(m.channel, &REFERENCE_TYPES, EXPECTED)?;
+            }
         }
         let data = unzstd.payload(&m, index)?;
         let enc = m.channel.encoding.as_str();

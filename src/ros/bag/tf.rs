@@ -10,7 +10,7 @@
 //! the base; between them it would only be the controller's odometry, which must not be taken
 //! for a reference. Static links are composed as they are. Planar: x, y and yaw of each link.
 
-use super::decode::{decode, stamp_or, Unzstd, ENCODINGS};
+use super::decode::{check_channel, decode, stamp_or, Unzstd};
 use super::reference::{on_one_clock, WheelReader};
 use super::{open_container, BagError, BagOptions, Container};
 use crate::calibration::pose_reference::{Pose2, PoseRecording, ReferencePose};
@@ -76,21 +76,13 @@ pub fn read_tf_container(
         } else {
             tf_messages
         };
+        // Two TF topics share one count: every message's channel is checked (a comparison).
         let expected = if is_joints {
             types::JOINT_STATE
         } else {
             types::TF_MESSAGE
         };
-        if !types::is(&m.channel.type_name, expected)
-            || !ENCODINGS.contains(&m.channel.encoding.as_str())
-        {
-            return Err(BagError::UnknownType {
-                topic: m.channel.topic.clone(),
-                type_name: m.channel.type_name.clone(),
-                encoding: m.channel.encoding.clone(),
-                expected,
-            });
-        }
+        check_channel(m.channel, &[expected], expected)?;
         let data = unzstd.payload(&m, index)?;
         if is_joints {
             return wheels.add(&m, data, index, opts);
