@@ -487,3 +487,96 @@ fn a_drive_from_a_bag_with_tf_fits_as_from_csv() {
     let err = read_tf_drive(&path, &BagOptions::default(), "world", "base_link").unwrap_err();
     assert!(err.to_string().contains("map → odom"), "{err}");
 }
+
+/// A bag in memory: channels and their messages as raw bytes, for the readers' error paths.
+struct RawBag(Vec<(odocal::ros::bag::Channel, Vec<u8>)>);
+
+impl odocal::ros::bag::Container for RawBag {
+    fn format(&self) -> &'static str {
+        "test"
+    }
+    fn channels(&self) -> Option<Vec<odocal::ros::bag::Channel>> {
+        let mut c: Vec<_> = self.0.iter().map(|(c, _)| c.clone()).collect();
+        c.dedup();
+        Some(c)
+    }
+    fn messages(
+        &self,
+        each: &mut dyn FnMut(
+            odocal::ros::bag::RawMessage<'_>,
+        ) -> Result<(), odocal::ros::bag::BagError>,
+    ) -> Result<(), odocal::ros::bag::BagError> {
+        for (i, (channel, data)) in self.0.iter().enumerate() {
+            each(odocal::ros::bag::RawMessage {
+                channel,
+                log_time_ns: 1_000_000_000 + i as u64 * 20_000_000,
+                data,
+            })?;
+        }
+        Ok(())
+    }
+}
+
+fn channel(topic: &str, type_name: &str) -> odocal::ros::bag::Channel {
+    odocal::ros::bag::Channel {
+        topic: topic.into(),
+        type_name: type_name.into(),
+        encoding: "cdr".into(),
+    }
+}
+
+/// Bad bytes on the reference topic, a reference topic the bag lacks, and a TF tree that
+/// never moves are each refused by name, with what to do; nothing panics.
+#[test]
+fn the_bag_readers_refuse_bad_bytes_a_missing_topic_and_a_still_tree_by_name() {
+    use odocal::ros::bag::reference::read_pose_container;
+    use odocal::ros::bag::tf::read_tf_container;
+    use odocal::ros::bag::{BagError, BagOptions};
+    use odocal::ros::msg::{cdr, types, Header, JointState, TfMessage, TransformStamped};
+    let joints = |t: f64| {
+        cdr::encode(&JointState {
+            header: Header {
+                stamp: odocal::ros::msg::Time::from_seconds(t),
+                frame_id: String::new(),
+            },
+            name: vec!["left_wheel_joint".into(), "right_wheel_joint".into()],
+            position: vec![t, 2.0 * t],
+            velocity: vec![],
+            effort: vec![],
+        })
+        .expect("encodes")
+    };
+    let js = channel("/joint_states", types::JOINT_STATE);
+    let pose = channel("/amcl_pose", types::POSE_WITH_COVARIANCE_STAMPED);
+    let mut messages: Vec<_> = (0..20)
+        .map(|i| (js.clone(), joints(1.0 + i as f64 * 0.02)))
+        .collect();
+    // A CDR header, then bytes that are no pose.
+    messages.push((pose.clone(), vec![0, 1, 0, 0, 0xff, 0xfe, 0x07]));
+    let opts = BagOptions::default();
+    match read_pose_container(&RawBag(messages.clone()), &opts, "/amcl_pose") {
+        Err(BagError::Decode { topic, index, .. }) => {
+            assert_eq!((topic.as_str(), index), ("/amcl_pose", 0));
+        }
+        other => panic!("bad bytes: {other:?}"),
+    }
+    messages.pop();
+    let err = read_pose_container(&RawBag(messages.clone()), &opts, "/amcl_pose").unwrap_err();
+    assert!(matches!(err, BagError::MissingTopic { .. }), "{err}");
+    assert!(err.to_string().contains("/joint_states"), "{err}");
+    // A tree whose every link is static is no reference.
+    let tf = cdr::encode(&TfMessage {
+        transforms: vec![TransformStamped {
+            header: Header {
+                stamp: odocal::ros::msg::Time::from_seconds(0.0),
+                frame_id: "map".into(),
+            },
+            child_frame_id: "base_link".into(),
+            ..TransformStamped::default()
+        }],
+    })
+    .expect("encodes");
+    messages.push((channel("/tf_static", types::TF_MESSAGE), tf));
+    let err = read_tf_container(&RawBag(messages), &opts, "map", "base_link").unwrap_err();
+    assert!(err.to_string().contains("never moves"), "{err}");
+}
