@@ -28,33 +28,11 @@ fn main() {
         wheelbase_m: 0.3,
     };
     let base = DrivingConfig {
-        kind,
-        outlier_fraction: if kind == ReferenceKind::Relative {
-            0.02
-        } else {
-            0.01
-        },
-        outlier_size_m: if kind == ReferenceKind::Relative {
-            0.1
-        } else {
-            0.3
-        },
-        // Chained scan matching: 1 mm and 0.1° per increment, 2 % gross failures of 5–15 cm.
-        position_sigma_m: if kind == ReferenceKind::Relative {
-            0.001
-        } else {
-            0.003
-        },
-        yaw_sigma_rad: if kind == ReferenceKind::Relative {
-            0.1f64.to_radians()
-        } else {
-            0.3f64.to_radians()
-        },
         // Optional third argument: the wheels' random slip per interval (relative σ), with
         // encoders of 4096 counts per revolution.
         wheel_slip_sigma: slip,
         encoder_counts_per_rev: (slip > 0.0).then_some(4096.0),
-        ..DrivingConfig::default()
+        ..DrivingConfig::with_reference(kind)
     };
     let truth = [
         (Param::LeftDiameter, base.truth.left_diameter_m),

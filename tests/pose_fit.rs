@@ -89,12 +89,7 @@ fn three_drives_under_chained_scan_matching_agree_within_their_errors() {
         .map(|i| {
             let config = DrivingConfig {
                 seed: 1000 + i,
-                kind: ReferenceKind::Relative,
-                position_sigma_m: 0.001,
-                yaw_sigma_rad: 0.1f64.to_radians(),
-                outlier_fraction: 0.02,
-                outlier_size_m: 0.1,
-                ..DrivingConfig::default()
+                ..DrivingConfig::with_reference(ReferenceKind::Relative)
             };
             let fit = fit_poses(&drive(config), &FitConfig::full(NOMINAL)).expect("fits");
             assert_eq!(
@@ -222,21 +217,10 @@ fn free_set(id: &str) -> Option<OptiOdomSet> {
 }
 
 fn calibrate_set(set: &OptiOdomSet) -> PoseCalibration {
-    let c = &set.configured;
-    let nominal = Geometry {
-        left_diameter_m: c.left_wheel_diameter_m,
-        right_diameter_m: c.right_wheel_diameter_m,
-        wheelbase_m: c.wheelbase_m,
-    };
-    let recordings: Vec<(String, PoseRecording)> = set
-        .runs
-        .iter()
-        .zip(set.pose_recordings())
-        .map(|(r, p)| (r.name.clone(), p))
-        .collect();
+    let recordings = set.pose_recordings();
     let config = FitConfig {
         kind: Some(ReferenceKind::Absolute),
-        ..FitConfig::full(nominal)
+        ..FitConfig::full(Geometry::from(&set.configured))
     };
     calibrate_from_poses(&recordings, &config).expect("calibrates")
 }
@@ -252,10 +236,9 @@ fn an_optiodom_free_set_fitted_dead_reckons_the_other_better_than_nominal_and_ba
     for (fit_on, evaluate) in [(&a, &b), (&b, &a)] {
         let calibration = calibrate_set(fit_on);
         let runs: Vec<_> = evaluate
-            .runs
+            .pose_recordings()
             .iter()
-            .zip(evaluate.pose_recordings())
-            .filter_map(|(r, p)| dead_reckon(&r.name, &p, &calibration))
+            .filter_map(|(name, p)| dead_reckon(name, p, &calibration))
             .collect();
         assert_eq!(runs.len(), evaluate.runs.len());
         let mean = |f: &dyn Fn(&odocal::calibration::pose_calibration::DeadReckoning) -> f64| {

@@ -124,6 +124,17 @@ pub struct Geometry {
     pub wheelbase_m: f64,
 }
 
+impl From<&crate::kinematics::WheelParams> for Geometry {
+    /// The geometry of a controller's parameters (its counts per revolution aside).
+    fn from(p: &crate::kinematics::WheelParams) -> Self {
+        Geometry {
+            left_diameter_m: p.left_wheel_diameter_m,
+            right_diameter_m: p.right_wheel_diameter_m,
+            wheelbase_m: p.wheelbase_m,
+        }
+    }
+}
+
 /// A planar pose with an unwrapped heading, for integration and interpolation.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct Pose2 {

@@ -494,11 +494,16 @@ impl OptiOdomSet {
     }
 
     /// Every run as a drive with a pose reference ([`RecordedRun::pose_recording`] with the
-    /// set's counts per wheel revolution), in run order.
-    pub fn pose_recordings(&self) -> Vec<PoseRecording> {
+    /// set's counts per wheel revolution), in run order, each named `<set id> <run file>`.
+    pub fn pose_recordings(&self) -> Vec<(String, PoseRecording)> {
         self.runs
             .iter()
-            .map(|run| run.pose_recording(self.configured.counts_per_wheel_rev))
+            .map(|run| {
+                (
+                    format!("{} {}", self.id, run.name),
+                    run.pose_recording(self.configured.counts_per_wheel_rev),
+                )
+            })
             .collect()
     }
 
@@ -814,7 +819,7 @@ mod tests {
         let Some(set) = free_set() else { return };
         let recordings = set.pose_recordings();
         assert_eq!(recordings.len(), set.runs.len());
-        let rec = &recordings[0];
+        let rec = &recordings[0].1;
         assert_eq!(rec.wheels.len(), rec.poses.len());
         assert_eq!(rec.wheels.len(), set.runs[0].samples.len());
         assert!(rec.wheels.windows(2).all(|w| w[1].time_s > w[0].time_s));

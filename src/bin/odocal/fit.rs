@@ -110,8 +110,7 @@ pub fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
     let mut evaluations = Vec::new();
     for dir in &args.evaluate {
         let set = OptiOdomSet::load(dir)?;
-        for (run, rec) in set.runs.iter().zip(set.pose_recordings()) {
-            let name = format!("{} {}", set.id, run.name);
+        for (name, rec) in set.pose_recordings() {
             if let Some(e) = dead_reckon(&name, &rec, &calibration) {
                 evaluations.push(e);
             }
@@ -160,11 +159,7 @@ type Inputs = (Vec<(String, PoseRecording)>, Geometry);
 fn nominal(args: &Args, needed_by: &str) -> Result<Geometry, Box<dyn std::error::Error>> {
     if let Some(yaml) = &args.ros_yaml {
         let p = odocal::ros::yaml::DiffDriveConfig::load(yaml, &args.controller)?.effective();
-        return Ok(Geometry {
-            left_diameter_m: p.left_wheel_diameter_m,
-            right_diameter_m: p.right_wheel_diameter_m,
-            wheelbase_m: p.wheelbase_m,
-        });
+        return Ok(Geometry::from(&p));
     }
     let (Some(d), Some(b)) = (args.wheel_diameter_m, args.wheelbase_m) else {
         return Err(format!(
@@ -228,12 +223,7 @@ fn inputs(args: &Args) -> Result<Inputs, Box<dyn std::error::Error>> {
     let mut nominal = None;
     for dir in &args.dataset {
         let set = OptiOdomSet::load(dir)?;
-        let c = &set.configured;
-        let g = Geometry {
-            left_diameter_m: c.left_wheel_diameter_m,
-            right_diameter_m: c.right_wheel_diameter_m,
-            wheelbase_m: c.wheelbase_m,
-        };
+        let g = Geometry::from(&set.configured);
         match nominal {
             None => nominal = Some(g),
             Some(n) if n != g => {
@@ -246,9 +236,7 @@ fn inputs(args: &Args) -> Result<Inputs, Box<dyn std::error::Error>> {
             }
             Some(_) => {}
         }
-        for (run, rec) in set.runs.iter().zip(set.pose_recordings()) {
-            recordings.push((format!("{} {}", set.id, run.name), rec));
-        }
+        recordings.extend(set.pose_recordings());
     }
     let nominal = nominal.ok_or("no data set given")?;
     Ok((recordings, nominal))

@@ -39,22 +39,11 @@ pub fn run(
     bag: Option<&std::path::Path>,
 ) -> Result<(), Box<dyn std::error::Error>> {
     crate::in_range("--drive-s", args.drive_s, 10.0, 3600.0)?;
-    let geometry = |p: &WheelParams| Geometry {
-        left_diameter_m: p.left_wheel_diameter_m,
-        right_diameter_m: p.right_wheel_diameter_m,
-        wheelbase_m: p.wheelbase_m,
-    };
-    let relative = args.reference_kind == ReferenceKind::Relative;
     let config = DrivingConfig {
-        truth: geometry(truth),
+        truth: Geometry::from(truth),
         duration_s: args.drive_s,
-        kind: args.reference_kind,
-        position_sigma_m: if relative { 0.001 } else { 0.003 },
-        yaw_sigma_rad: if relative { 0.1f64 } else { 0.3 }.to_radians(),
-        outlier_fraction: if relative { 0.02 } else { 0.01 },
-        outlier_size_m: if relative { 0.1 } else { 0.3 },
         seed,
-        ..DrivingConfig::default()
+        ..DrivingConfig::with_reference(args.reference_kind)
     };
     let drive = simulate_drive(&config)?;
     if let Some(dir) = &args.write_csv {
@@ -74,13 +63,13 @@ pub fn run(
         odocal::ros::bag::writer::write_localization_bag(
             path,
             &drive.recording,
-            geometry(nominal),
+            Geometry::from(nominal),
             1.7e9,
         )?;
     }
     let calibration = calibrate_from_poses(
         &[("simulated drive".into(), drive.recording)],
-        &FitConfig::full(geometry(nominal)),
+        &FitConfig::full(Geometry::from(nominal)),
     )?;
     let truth_of = |p: Param| match p {
         Param::LeftDiameter => config.truth.left_diameter_m,
