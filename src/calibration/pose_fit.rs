@@ -579,13 +579,21 @@ impl<'a> Problem<'a> {
                         start = i;
                     }
                 }
-                // A window of fewer than ten samples joins the one before it (the first, the
-                // one after): its alignment would absorb everything it holds.
+                // A window grows by the next until it holds ten samples, and a short last one
+                // joins the window before it: an alignment of a few samples would absorb
+                // everything they hold.
                 let mut merged: Vec<(usize, usize)> = Vec::new();
                 for w in out {
                     match merged.last_mut() {
-                        Some(last) if last.1 - last.0 < 10 || w.1 - w.0 < 10 => last.1 = w.1,
+                        Some(last) if last.1 - last.0 < 10 => last.1 = w.1,
                         _ => merged.push(w),
+                    }
+                }
+                if merged.len() > 1 && merged[merged.len() - 1].1 - merged[merged.len() - 1].0 < 10
+                {
+                    let tail = merged.pop().map_or(0, |t| t.1);
+                    if let Some(last) = merged.last_mut() {
+                        last.1 = tail;
                     }
                 }
                 merged
@@ -1753,6 +1761,56 @@ mod tests {
             "{}",
             fit.kind.reason
         );
+    }
+
+    #[test]
+    fn a_zero_offset_limit_fits_no_offset_and_an_offset_at_its_limit_is_warned_of() {
+        let rec = drive(TRUTH, Pose2::default(), 0.2, 0.001);
+        let mut config = FitConfig::full(nominal());
+        config.kind = Some(ReferenceKind::Absolute);
+        config.max_time_offset_s = 0.0;
+        let fit = fit_poses(&rec, &config).expect("fits");
+        assert!(!fit.free.contains(&Param::TimeOffset));
+        assert!(fit.std(Param::LeftDiameter).is_some_and(f64::is_finite));
+        config.max_time_offset_s = 0.1;
+        let fit = fit_poses(&rec, &config).expect("fits");
+        assert!(
+            (fit.value(Param::TimeOffset) - 0.1).abs() < 1e-3,
+            "{}",
+            fit.value(Param::TimeOffset)
+        );
+        assert!(
+            fit.warnings
+                .iter()
+                .any(|w| w.contains("--max-time-offset-s")),
+            "{:?}",
+            fit.warnings
+        );
+        config.max_time_offset_s = 0.5;
+        let fit = fit_poses(&rec, &config).expect("fits");
+        assert!(fit.warnings.is_empty(), "{:?}", fit.warnings);
+    }
+
+    #[test]
+    fn short_alignment_windows_join_their_neighbours() {
+        let rec = drive(TRUTH, Pose2::default(), 0.0, 0.002);
+        let mut config = FitConfig::full(nominal());
+        config.kind = Some(ReferenceKind::Absolute);
+        // Ten-second windows hold 100 poses at 10 Hz; half-second ones would hold 5 and are
+        // merged up to at least ten.
+        config.window_s = Some(10.0);
+        let long = fit_poses(&rec, &config).expect("fits");
+        config.window_s = Some(0.5);
+        let short = fit_poses(&rec, &config).expect("fits");
+        assert!(long.windows >= 10, "{}", long.windows);
+        // Pairs of half-second windows: about a tenth as many windows as poses.
+        let n = rec.poses.len();
+        assert!(
+            (n / 12..=n / 10).contains(&short.windows),
+            "{} of {n}",
+            short.windows
+        );
+        assert!(short.std(Param::Wheelbase).is_some_and(f64::is_finite));
     }
 
     #[test]
