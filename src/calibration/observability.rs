@@ -16,6 +16,7 @@
 //!   calibration must reach; a diameter or wheelbase worse than [`GEOMETRY_REL_STD_MAX`] is not
 //!   observed and is not written.
 
+use super::pool::upper_median;
 use super::pose_fit::{Param, PoseFit};
 use super::pose_reference::{Geometry, Odometry, Pose2, PoseRecording};
 use super::CalibrationError;
@@ -159,13 +160,12 @@ pub fn survey(recording: &PoseRecording, nominal: Geometry) -> DriveSurvey {
     }
 }
 
-fn median(mut v: Vec<f64>) -> Option<f64> {
+/// The median of at least ten steps (fewer tell nothing).
+fn median(v: Vec<f64>) -> Option<f64> {
     if v.len() < 10 {
         return None;
     }
-    let mid = v.len() / 2;
-    v.select_nth_unstable_by(mid, f64::total_cmp);
-    Some(v[mid])
+    upper_median(v)
 }
 
 impl DriveSurvey {

@@ -99,10 +99,15 @@ fn nan() -> f64 {
 }
 
 /// The upper median (the middle value, the larger of the two middle ones for an even count):
-/// what a recording without a scatter borrows and what a typical recording's variance is.
-fn upper_median(mut v: Vec<f64>) -> Option<f64> {
-    v.sort_by(f64::total_cmp);
-    v.get(v.len() / 2).copied()
+/// what a recording without a scatter borrows and what a typical recording's variance is, and
+/// the robust centre of the pose fit's residuals (selected in linear time, not sorted).
+pub(crate) fn upper_median(mut v: Vec<f64>) -> Option<f64> {
+    let mid = v.len() / 2;
+    if v.is_empty() {
+        return None;
+    }
+    v.select_nth_unstable_by(mid, f64::total_cmp);
+    Some(v[mid])
 }
 
 /// DerSimonian–Laird pooling of one scalar (of any scale, despite the name): the values, their

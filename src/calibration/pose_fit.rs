@@ -42,6 +42,7 @@
 //! one: an absolute reference's errors do not grow with the span (ratio ≈ 1), a chained one's do
 //! (ratio ≈ 10). Below `√10` it is called absolute and fitted again that way.
 
+use super::pool::upper_median;
 use super::pose_reference::{Geometry, Odometry, Pose2, PoseRecording, ReferenceKind};
 use super::CalibrationError;
 use crate::kinematics::wrap_angle;
@@ -1157,13 +1158,8 @@ fn levenberg_marquardt(
 
 /// Median of absolute values, scaled to a Gaussian standard deviation.
 fn mad_std(values: impl Iterator<Item = f64>) -> f64 {
-    let mut v: Vec<f64> = values.map(f64::abs).filter(|v| v.is_finite()).collect();
-    if v.is_empty() {
-        return 0.0;
-    }
-    let mid = v.len() / 2;
-    v.select_nth_unstable_by(mid, f64::total_cmp);
-    1.4826 * v[mid]
+    let v: Vec<f64> = values.map(f64::abs).filter(|v| v.is_finite()).collect();
+    upper_median(v).map_or(0.0, |m| 1.4826 * m)
 }
 
 /// Scales from residuals, robustly (median absolute value), over the blocks weighted > 0; no
