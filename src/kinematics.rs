@@ -52,13 +52,17 @@ pub const PHYSICAL_COUNTS_PER_REV: (f64, f64) = (1.0, 1e9);
 
 /// Wraps an angle to `(-π, π]`.
 pub fn wrap_angle(angle_rad: f64) -> f64 {
-    if !angle_rad.is_finite() {
+    if !angle_rad.is_finite() || (angle_rad > -PI && angle_rad <= PI) {
+        // Already in range (most angles a fit compares): returned as they are, exactly.
         return angle_rad;
     }
-    let mut a = (angle_rad + PI).rem_euclid(2.0 * PI) - PI;
-    // rem_euclid maps to [-π, π); the half-open interval we want is (-π, π].
+    // The nearest whole number of turns taken off (a division and a rounding: `rem_euclid`'s
+    // exact remainder cost a tenth of a pose fit), then the ends of the half-open interval.
+    let mut a = angle_rad - (angle_rad / (2.0 * PI)).round() * (2.0 * PI);
     if a <= -PI {
         a += 2.0 * PI;
+    } else if a > PI {
+        a -= 2.0 * PI;
     }
     a
 }

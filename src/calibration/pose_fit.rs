@@ -43,7 +43,7 @@
 //! (ratio ≈ 10). Below `√10` it is called absolute and fitted again that way.
 
 use super::pool::upper_median;
-use super::pose_reference::{Geometry, Odometry, Pose2, PoseRecording, ReferenceKind};
+use super::pose_reference::{Geometry, Odometry, Pose2, PoseRecording, ReferenceKind, Turn};
 use super::CalibrationError;
 use crate::kinematics::wrap_angle;
 use nalgebra::{DMatrix, DVector};
@@ -308,8 +308,12 @@ pub fn fit_poses(
             fit_kind(recording, config, kind, None, decision)
         }
         None => {
+            // The kind is told by a relative fit; on a long drive, of its first part only (the
+            // fit for the kind decided then starts from it): the decision needs the motion
+            // residuals' spread, not the last digit of the geometry.
+            let head = recording.head(DECISION_POSES);
             let relative = fit_kind(
-                recording,
+                head.as_ref().unwrap_or(recording),
                 config,
                 ReferenceKind::Relative,
                 None,
@@ -357,14 +361,12 @@ pub fn fit_poses(
                     kind.name()
                 ),
             };
-            match kind {
-                ReferenceKind::Relative => Ok(PoseFit {
+            match (kind, head) {
+                (ReferenceKind::Relative, None) => Ok(PoseFit {
                     kind: decision,
                     ..relative
                 }),
-                ReferenceKind::Absolute => {
-                    fit_kind(recording, config, kind, Some(relative.params), decision)
-                }
+                _ => fit_kind(recording, config, kind, Some(relative.params), decision),
             }
         }
     }
@@ -505,6 +507,8 @@ struct Problem<'a> {
     /// reference (a pose's σ is not its increment's) whose every sample states one (a mix
     /// would weigh the two kinds of sample by unrelated units).
     use_stated: bool,
+    /// The reference's motion between consecutive selected samples (relative), computed once.
+    reference_steps: Vec<Pose2>,
 }
 
 impl<'a> Problem<'a> {
@@ -607,7 +611,6 @@ impl<'a> Problem<'a> {
                 .all(|&i| recording.poses[i].stated_std.is_some());
         Ok(Self {
             recording,
-            selected,
             kind,
             dim: if has_yaw { 3 } else { 2 },
             windows,
@@ -624,6 +627,17 @@ impl<'a> Problem<'a> {
             ],
             max_offset: margin,
             use_stated,
+            reference_steps: match kind {
+                ReferenceKind::Relative => selected
+                    .windows(2)
+                    .map(|k| {
+                        let (r0, r1) = (&recording.poses[k[0]], &recording.poses[k[1]]);
+                        r0.pose2().between(&r1.pose2())
+                    })
+                    .collect(),
+                ReferenceKind::Absolute => Vec::new(),
+            },
+            selected,
         })
     }
 
@@ -681,22 +695,28 @@ impl<'a> Problem<'a> {
     }
 
     /// The predicted reference-frame poses at the selected stamps, before any alignment.
-    fn predicted(&self, odo: &Odometry<'_>, p: &[f64; PARAMS]) -> Vec<Pose2> {
+    fn predicted(&self, odo: &Odometry<'_>, p: &[f64; PARAMS]) -> (Vec<Pose2>, Vec<Turn>) {
         let mount = Pose2 {
             x: p[3],
             y: p[4],
             theta: p[5],
         };
+        let mount_turn = Turn::of(mount.theta);
         let delta = p[6].clamp(-self.max_offset, self.max_offset);
         let mut hint = 0;
-        let last = odo.poses().last().copied().unwrap_or_default();
+        let last = odo
+            .poses()
+            .last()
+            .map(|q| (*q, Turn::of(q.theta)))
+            .unwrap_or((Pose2::default(), Turn::of(0.0)));
         self.selected
             .iter()
             .map(|&i| {
                 let t = self.recording.poses[i].time_s - delta;
-                odo.at(t, &mut hint).unwrap_or(last).compose(&mount)
+                let (base, turn) = odo.at_turned(t, &mut hint).unwrap_or(last);
+                (base.compose_turned(turn, &mount), turn.then(mount_turn))
             })
-            .collect()
+            .unzip()
     }
 
     /// Residuals (reference minus prediction) for parameters `p`, block after block, `dim`
@@ -708,8 +728,7 @@ impl<'a> Problem<'a> {
         weights: &[f64],
         scales: Scales,
     ) -> Vec<f64> {
-        let pred = self.predicted(odo, p);
-        let poses = &self.recording.poses;
+        let (pred, turns) = self.predicted(odo, p);
         let dim = self.dim;
         let mut out = Vec::with_capacity(self.blocks() * dim);
         match self.kind {
@@ -723,10 +742,8 @@ impl<'a> Problem<'a> {
                 }
             }
             ReferenceKind::Relative => {
-                for k in 1..self.selected.len() {
-                    let (r0, r1) = (&poses[self.selected[k - 1]], &poses[self.selected[k]]);
-                    let rd = r0.pose2().between(&r1.pose2());
-                    let pd = pred[k - 1].between(&pred[k]);
+                for (k, rd) in self.reference_steps.iter().enumerate() {
+                    let pd = pred[k].between_turned(turns[k], &pred[k + 1]);
                     out.push(rd.x - pd.x);
                     out.push(rd.y - pd.y);
                     if dim == 3 {
@@ -818,8 +835,9 @@ impl<'a> Problem<'a> {
     fn window_residuals(&self, pred: &[Pose2], a: usize, b: usize, align: &Pose2) -> Vec<f64> {
         let poses = &self.recording.poses;
         let mut out = Vec::with_capacity((b - a) * self.dim);
+        let turn = Turn::of(align.theta);
         for k in a..b {
-            let q = align.compose(&pred[k]);
+            let q = align.compose_turned(turn, &pred[k]);
             let r = &poses[self.selected[k]];
             out.push(r.x_m - q.x);
             out.push(r.y_m - q.y);
@@ -846,8 +864,9 @@ impl<'a> Problem<'a> {
             let e = self.window_residuals(pred, a, b, &align);
             // ∂e/∂t_x = (−1, 0, 0), ∂e/∂t_y = (0, −1, 0), ∂e/∂φ = (y − t_y, −(x − t_x), −1).
             let mut cols = vec![vec![0.0; e.len()]; 3];
+            let turn = Turn::of(align.theta);
             for (k, pk) in pred[a..b].iter().enumerate() {
-                let q = align.compose(pk);
+                let q = align.compose_turned(turn, pk);
                 let i = k * dim;
                 cols[0][i] = -1.0;
                 cols[1][i + 1] = -1.0;
@@ -1083,12 +1102,15 @@ fn step(param: Param, p: &[f64; PARAMS]) -> f64 {
 }
 
 /// Levenberg–Marquardt at fixed weights; returns the solution and the iterations used.
+/// Levenberg–Marquardt from `x` on the whitened cost; converged when an iteration gains less
+/// than `tolerance` of the cost.
 fn levenberg_marquardt(
     problem: &Problem<'_>,
     mut x: Vec<f64>,
     weights: &[f64],
     scales: Scales,
     max_iterations: usize,
+    tolerance: f64,
 ) -> (Vec<f64>, usize) {
     let mut lambda = 1e-4;
     let mut cost = problem.cost(&x, weights, scales);
@@ -1135,9 +1157,7 @@ fn levenberg_marquardt(
             }
             let cn = problem.cost(&xn, weights, scales);
             if cn <= cost {
-                // Converged when an iteration gains less than a part in 10⁹: far below what
-                // the noise lets the parameters tell apart.
-                let small = (cost - cn) <= 1e-9 * cost.max(1e-300);
+                let small = (cost - cn) <= tolerance * cost.max(1e-300);
                 x = xn;
                 cost = cn;
                 lambda = (lambda / 10.0).max(1e-9);
@@ -1279,6 +1299,16 @@ fn walk_scales(problem: &Problem<'_>, r: &[f64], weights: &[f64], white: Scales)
     }
 }
 
+/// Reference samples the kind decision's relative fit uses at most (ten minutes at 10 Hz).
+const DECISION_POSES: usize = 6000;
+
+/// Convergence of the final stage: an iteration gaining less than a part in 10⁹ of the cost
+/// (for 10⁵ residuals, 10⁻⁴ in χ²: a hundredth of a standard deviation in the parameters), far
+/// below what the noise lets them tell apart.
+const TIGHT: f64 = 1e-9;
+/// Convergence of the stages before it, whose weights and scales change after them.
+const LOOSE: f64 = 1e-6;
+
 /// Least drop of `−2 log L` that keeps a random walk: χ²₁'s 95 % quantile.
 const WALK_LR: f64 = 3.84;
 
@@ -1334,7 +1364,8 @@ fn fit_kind(
     if problem.free.contains(&Param::TimeOffset) && start.is_none() {
         let mut held = Problem::new(recording, config, kind)?;
         held.free.retain(|q| *q != Param::TimeOffset);
-        let (xa, it) = levenberg_marquardt(&held, held.free_values(&p0), &weights, scales, 20);
+        let (xa, it) =
+            levenberg_marquardt(&held, held.free_values(&p0), &weights, scales, 20, LOOSE);
         iterations_before = it;
         p0 = held.full(&xa);
         if config.weighting == Weighting::Estimated {
@@ -1364,7 +1395,10 @@ fn fit_kind(
     let mut iterations = iterations_before;
     let stages = if config.robust { 12 } else { 1 };
     for stage in 0..stages {
-        let (xn, it) = levenberg_marquardt(&problem, x, &weights, scales, 50);
+        // The stages before the weights settle need not converge far: their weights and scales
+        // change after them. The last is converged tightly, below.
+        let tolerance = if config.robust { LOOSE } else { TIGHT };
+        let (xn, it) = levenberg_marquardt(&problem, x, &weights, scales, 50, tolerance);
         x = xn;
         iterations += it;
         if !config.robust {
@@ -1373,13 +1407,25 @@ fn fit_kind(
         let p = problem.full(&x);
         let r = residual_at(&p, &weights, scales);
         let huber = stage < 2;
+        let k2 = gate(dim);
+        let ones = vec![1.0; blocks];
         let new_scales = if huber {
-            robust_scales(&problem, &r, &vec![1.0; blocks])
+            robust_scales(&problem, &r, &ones)
+        } else if weights.iter().any(|w| *w > 0.0 && *w < 1.0) {
+            // The first gated stage follows Huber's, whose weights leave no block out: its
+            // scales come from the blocks that the robust scales' gate keeps, or the outliers
+            // would inflate them (by seven times on a localization's jumps) and the gate let
+            // them in for a stage.
+            let robust = robust_scales(&problem, &r, &ones);
+            let kept: Vec<f64> = block_chi2(&problem, &r, &ones, robust)
+                .iter()
+                .map(|d2| if *d2 <= k2 { 1.0 } else { 0.0 })
+                .collect();
+            settle_scales(&problem, &r, &kept, config)
         } else {
             settle_scales(&problem, &r, &weights, config)
         };
         let chi2 = block_chi2(&problem, &r, &weights, new_scales);
-        let k2 = gate(dim);
         let new_weights: Vec<f64> = chi2
             .iter()
             .map(|d2| {
@@ -1413,6 +1459,10 @@ fn fit_kind(
         weights = new_weights;
         scales = new_scales;
         if settled {
+            // Converged tightly under the settled weights and scales.
+            let (xn, it) = levenberg_marquardt(&problem, x, &weights, scales, 50, TIGHT);
+            x = xn;
+            iterations += it;
             break;
         }
     }
@@ -1593,13 +1643,13 @@ pub(crate) fn span_variance_ratio(
         return f64::NAN;
     };
     let odo = Odometry::integrate(&recording.wheels, Problem::geometry(p));
-    let pred = problem.predicted(&odo, p);
+    let (pred, turns) = problem.predicted(&odo, p);
     let poses = &recording.poses;
     let ref_pose = |i: usize| poses[problem.selected[i]].pose2();
     let spread = |lag: usize| {
         mad_std((lag..problem.selected.len()).flat_map(|j| {
             let rd = ref_pose(j - lag).between(&ref_pose(j));
-            let pd = pred[j - lag].between(&pred[j]);
+            let pd = pred[j - lag].between_turned(turns[j - lag], &pred[j]);
             [rd.x - pd.x, rd.y - pd.y]
         }))
     };
