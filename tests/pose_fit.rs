@@ -563,3 +563,102 @@ fn the_bag_readers_refuse_bad_bytes_a_missing_topic_and_a_still_tree_by_name() {
     let err = read_tf_container(&RawBag(messages), &opts, "map", "base_link").unwrap_err();
     assert!(err.to_string().contains("never moves"), "{err}");
 }
+
+/// The online filter fed the same drive (its wheels as a controller with the nominal geometry
+/// counts them, the poses as pose fixes, the reference's delay given) agrees with the batch
+/// fit within 3σ of their combined errors on both diameters and the wheelbase, and holds the
+/// truth and the mounting within its own 3σ; the outliers are gated.
+#[test]
+fn the_online_filter_with_pose_fixes_agrees_with_the_batch_fit() {
+    use odocal::calibration::online::{OnlineConfig, ScaleSource};
+    use odocal::calibration::recording::Recording;
+    use odocal::calibration::tracker::Tracker;
+    use odocal::kinematics::WheelParams;
+    for seed in 0..3 {
+        let config = DrivingConfig {
+            seed,
+            ..DrivingConfig::default()
+        };
+        let simulated = simulate_drive(&config).expect("simulates");
+        let recording = simulated.recording;
+        let fit = fit_poses(&recording, &FitConfig::full(NOMINAL)).expect("fits");
+        let configured = WheelParams::nominal(NOMINAL.left_diameter_m, NOMINAL.wheelbase_m, 4096.0);
+        let mut cfg = OnlineConfig::new(configured);
+        cfg.position_sigma_m = config.position_sigma_m;
+        cfg.heading_sigma_rad = config.yaw_sigma_rad;
+        cfg.slip_fraction = 0.002;
+        let mut tracker = Tracker::new(cfg, ScaleSource::Filter, 1.0).expect("filter");
+        tracker.set_pose_delay(config.delay_s);
+        tracker.feed_recording("sim", &Recording::of_pose_recording(&recording, NOMINAL));
+        let online = tracker.estimate().expect("estimates");
+        let scale_std = online.correction_std.expect("the scale is observed");
+        let c = online.correction;
+        let rows = [
+            (
+                Param::LeftDiameter,
+                NOMINAL.left_diameter_m,
+                c.left_diameter_scale,
+                scale_std[0],
+            ),
+            (
+                Param::RightDiameter,
+                NOMINAL.right_diameter_m,
+                c.right_diameter_scale,
+                scale_std[1],
+            ),
+            (
+                Param::Wheelbase,
+                NOMINAL.wheelbase_m,
+                c.wheelbase_scale,
+                scale_std[2],
+            ),
+        ];
+        for (p, nominal, factor, factor_std) in rows {
+            let (value, std) = (nominal * factor, nominal * factor_std);
+            let (batch, batch_std) = (fit.value(p), fit.std(p).expect("fitted"));
+            let truth = truth_of(&config)[p.index()].1;
+            assert!(
+                (value - batch).abs() < 3.0 * std.hypot(batch_std),
+                "seed {seed} {}: online {value} ± {std}, batch {batch} ± {batch_std}",
+                p.name()
+            );
+            assert!(
+                (value - truth).abs() < 3.0 * std,
+                "seed {seed} {}: online {value} ± {std}, truth {truth}",
+                p.name()
+            );
+            assert!(std < 0.002 * truth, "seed {seed} {}: σ {std}", p.name());
+        }
+        let (mount, mount_std) = tracker.filter().mount();
+        let true_mount = [config.sensor_x_m, config.sensor_y_m, config.sensor_yaw_rad];
+        for i in 0..3 {
+            assert!(
+                (mount[i] - true_mount[i]).abs() < 3.0 * mount_std[i],
+                "seed {seed} mount {i}: {} ± {} vs {}",
+                mount[i],
+                mount_std[i],
+                true_mount[i]
+            );
+        }
+        let gate = tracker.filter().gate_stats();
+        let (nis, fixes) = tracker.filter().nis_pose_mean();
+        // Most outliers rejected (those before the start went to the batch fit), few good
+        // fixes (the 99.9 % gate lets a thousandth of them go: about three), and no reset.
+        assert!(
+            gate.rejected <= simulated.outliers as u64 + 10
+                && gate.rejected >= simulated.outliers as u64 / 2
+                && gate.resets == 0,
+            "seed {seed}: {gate:?}, {} outliers",
+            simulated.outliers
+        );
+        // It started from a batch fit of the first two minutes at most (once the drive had
+        // turned half a turn both ways and driven a metre straight), then took every fix but
+        // the outliers, consistently.
+        let started = tracker.started_from.as_ref().expect("started").span_s;
+        assert!(started < 120.0, "started after {started} s");
+        assert!(
+            fixes > 1500 && (0.8..1.2).contains(&nis),
+            "{fixes} fixes, NIS {nis}"
+        );
+    }
+}

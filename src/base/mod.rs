@@ -24,6 +24,7 @@ pub use fanout::Fanout;
 pub use file_store::{FileStore, ParamFile};
 pub use guard::MotionGuard;
 
+pub use crate::calibration::pose_reference::ReferencePose;
 pub use crate::calibration::recording::{Clocks, HeadingSample, TravelSample, Validity};
 pub use crate::calibration::HeadingKind;
 use crate::kinematics::{Pose, WheelParams};
@@ -127,6 +128,24 @@ pub trait Drive: Send + Sync {
 
     /// The clock [`TravelSample::time_s`] is on ([`HeadingSource::clock`] explains); `None`:
     /// a clock of its own.
+    fn clock(&self) -> Option<String> {
+        None
+    }
+}
+
+/// An external reference of where a frame on the robot is (a localization, motion capture):
+/// the reference beside the heading that also observes the wheels' absolute scale. Its poses
+/// follow [`crate::calibration::pose_reference`]'s conventions (the reference frame's pose in
+/// a fixed world frame, the frame's mounting on the robot unknown).
+#[async_trait]
+pub trait PoseSource: Send + Sync {
+    /// Describes the source.
+    fn info(&self) -> ComponentInfo;
+
+    /// Poses from now on, as the reference gives them.
+    async fn stream(&self) -> Result<SampleStream<ReferencePose>, BaseError>;
+
+    /// The clock the poses are stamped on, by name ([`HeadingSource::clock`] explains).
     fn clock(&self) -> Option<String> {
         None
     }
@@ -313,6 +332,14 @@ impl Base {
     /// when both name it, else each on its own.
     pub fn clocks(&self) -> Clocks {
         match (self.drive.clock(), self.heading.clock()) {
+            (Some(a), Some(b)) if a == b => Clocks::Shared,
+            _ => Clocks::StartedTogether,
+        }
+    }
+
+    /// How the drive's travel and a pose reference's poses are stamped ([`Base::clocks`]).
+    pub fn clocks_with(&self, poses: &dyn PoseSource) -> Clocks {
+        match (self.drive.clock(), poses.clock()) {
             (Some(a), Some(b)) if a == b => Clocks::Shared,
             _ => Clocks::StartedTogether,
         }

@@ -75,11 +75,11 @@ pub enum CalibrationError {
     #[error("method legs needs the heading along the legs of every run (a heading stream during the runs)")]
     MissingLegHeadings,
     /// The online filter was given too little to estimate from.
-    #[error("too little data: {distance_m:.2} m driven and {heading_updates} heading reading(s); drive at least half a metre, with turns both ways, while the heading is read")]
+    #[error("too little data: {distance_m:.2} m driven and {heading_updates} heading reading(s) or reference pose(s) used; drive at least half a metre, with turns both ways, while the reference is read")]
     TooLittleData {
         /// Distance driven (m).
         distance_m: f64,
-        /// Heading readings used.
+        /// Heading readings and reference poses used.
         heading_updates: u64,
     },
     /// The estimate could not be turned into parameters.

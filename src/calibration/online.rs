@@ -1,8 +1,9 @@
 //! Online calibration: an augmented extended Kalman filter that estimates the odometry
-//! parameters from encoder increments and heading readings while the robot drives any path.
+//! parameters from encoder increments and heading readings — or the poses of an absolute
+//! reference (motion capture, a localization) — while the robot drives any path.
 //!
 //! # State
-//! `[x, y, θ, u_L, u_R, k, β]`: the pose (m, m, rad; CCW positive), the two combinations a
+//! `[x, y, θ, u_L, u_R, k, β, m_x, m_y, m_ψ]`: the pose (m, m, rad; CCW positive), the two combinations a
 //! heading sensor can observe — `u = (D_actual / D_configured) / E_b` per wheel, exactly the
 //! exact square inversion's `u_L`, `u_R` — the wheel scale `k = E_b` (observable only with
 //! absolute position fixes; otherwise it keeps its prior), and an optional constant heading
@@ -10,6 +11,17 @@
 //!
 //! `Δθ = (u_R s_R − u_L s_L) / b_cfg`, `Δs = k (u_R s_R + u_L s_L) / 2`,
 //! `x += Δs cos(θ + Δθ/2)`, `y += Δs sin(θ + Δθ/2)`.
+//!
+//! `m = (m_x, m_y, m_ψ)` is where a pose reference's frame sits in `base_link` (the
+//! conventions of [`super::pose_reference`]); it stays at its prior unless poses come. A pose
+//! fix of the reference frame in its world frame is `h = (x + m_x cos θ − m_y sin θ,
+//! y + m_x sin θ + m_y cos θ, θ + m_ψ)` (yaw innovation wrapped): the filter's world is the
+//! reference's, anchored by the first fix ([`OnlineEstimator::update_pose`]). With poses, `k`
+//! and so both diameters and the wheelbase in metres are observed ([`ScaleSource::Filter`]).
+//! The filter treats the reference as absolute (its errors independent from fix to fix); a
+//! reference chained from sample to sample (scan matching) is for the batch fit
+//! ([`super::pose_fit`]), and so is the time offset between the streams, which the filter
+//! takes as given.
 //!
 //! # Noise models
 //! Each wheel's configured travel per step is uncertain by `σ = slip_fraction·|s| +
@@ -40,7 +52,7 @@ use nalgebra::{Matrix2, SMatrix, SVector, Vector2};
 use serde::{Deserialize, Serialize};
 
 /// Number of state variables.
-pub const N: usize = 7;
+pub const N: usize = 10;
 type Vector = SVector<f64, N>;
 type Matrix = SMatrix<f64, N, N>;
 
@@ -51,6 +63,9 @@ const UL: usize = 3;
 const UR: usize = 4;
 const K: usize = 5;
 const BIAS: usize = 6;
+const MX: usize = 7;
+const MY: usize = 8;
+const MPSI: usize = 9;
 
 /// Noise models and priors of the filter.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -79,7 +94,26 @@ pub struct OnlineConfig {
     pub gate_nis: f64,
     /// After this many rejections in a row the heading is re-anchored to the reading.
     pub gate_recover_after: u32,
+    /// Prior standard deviation of the pose reference's lever arm `m_x`, `m_y` around 0 (m).
+    #[serde(default = "default_mount_prior_m")]
+    pub mount_prior_sigma_m: f64,
+    /// Prior standard deviation of the pose reference's yaw in `base_link` around 0 (rad).
+    #[serde(default = "default_mount_yaw_prior_rad")]
+    pub mount_yaw_prior_sigma_rad: f64,
 }
+
+fn default_mount_prior_m() -> f64 {
+    0.5
+}
+
+fn default_mount_yaw_prior_rad() -> f64 {
+    0.5
+}
+
+/// χ² at 99.9 % with two and three degrees of freedom: the gate of a pose fix without and
+/// with yaw.
+const CHI2_2_999: f64 = 13.816;
+const CHI2_3_999: f64 = 16.266;
 
 /// χ² with one degree of freedom at 99.9 %.
 pub const CHI2_1_999: f64 = 10.828;
@@ -114,6 +148,8 @@ impl OnlineConfig {
             parameter_walk: 0.0,
             gate_nis: CHI2_1_999,
             gate_recover_after: 25,
+            mount_prior_sigma_m: default_mount_prior_m(),
+            mount_yaw_prior_sigma_rad: default_mount_yaw_prior_rad(),
         }
     }
 }
@@ -177,7 +213,7 @@ impl Excitation {
     }
 }
 
-/// Counts of the heading gate.
+/// Counts of the gate (heading readings, or pose fixes when a pose reference is used).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 pub struct GateStats {
     /// Readings used.
@@ -212,8 +248,70 @@ pub struct OnlineEstimate {
     pub e_d_std: f64,
     /// Factors to apply to the configured parameters.
     pub correction: Correction,
+    /// Standard deviations of the factors (left diameter, right diameter, wheelbase) when the
+    /// filter observes the absolute scale ([`ScaleSource::Filter`]: pose or position fixes).
+    pub correction_std: Option<[f64; 3]>,
     /// Distance driven so far (m, by odometry).
     pub distance_m: f64,
+}
+
+/// A parameter in use that the drive says is off by more than its uncertainty allows.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Drift {
+    /// The parameter (with its unit).
+    pub parameter: &'static str,
+    /// The value in use (the controller's).
+    pub in_use: f64,
+    /// The value the drive says.
+    pub estimate: f64,
+    /// One standard deviation of the estimate.
+    pub std: f64,
+    /// `(estimate − in_use) / std`.
+    pub sigmas: f64,
+}
+
+impl OnlineEstimate {
+    /// The parameters in use (`configured`) that are off by more than `sigmas` standard
+    /// deviations of this estimate: both diameters and the wheelbase in metres when the
+    /// scale is observed, else `E_d` and `E_b` (1 in use).
+    pub fn drift(&self, configured: &WheelParams, sigmas: f64) -> Vec<Drift> {
+        let c = &self.correction;
+        let rows: Vec<(&'static str, f64, f64, f64)> = match self.correction_std {
+            Some([sl, sr, sb]) => vec![
+                (
+                    "left_wheel_diameter_m",
+                    configured.left_wheel_diameter_m,
+                    c.left_diameter_scale,
+                    sl,
+                ),
+                (
+                    "right_wheel_diameter_m",
+                    configured.right_wheel_diameter_m,
+                    c.right_diameter_scale,
+                    sr,
+                ),
+                ("wheelbase_m", configured.wheelbase_m, c.wheelbase_scale, sb),
+            ]
+            .into_iter()
+            .map(|(name, v, f, sf)| (name, v, v * f, v * sf))
+            .collect(),
+            None => vec![
+                ("E_d", 1.0, self.e_d, self.e_d_std),
+                ("E_b", 1.0, self.e_b, self.e_b_std),
+            ],
+        };
+        rows.into_iter()
+            .filter(|(_, _, _, std)| *std > 0.0 && std.is_finite())
+            .map(|(parameter, in_use, estimate, std)| Drift {
+                parameter,
+                in_use,
+                estimate,
+                std,
+                sigmas: (estimate - in_use) / std,
+            })
+            .filter(|d| d.sigmas.abs() > sigmas)
+            .collect()
+    }
 }
 
 /// The augmented EKF.
@@ -223,9 +321,12 @@ pub struct OnlineEstimator {
     x: Vector,
     p: Matrix,
     heading_initialized: bool,
+    /// Whether a pose fix has put the filter's pose in the reference's world frame.
+    anchored: bool,
     distance_m: f64,
     nis_heading: (f64, u64),
     nis_position: (f64, u64),
+    nis_pose: (f64, u64),
     prior: Matrix,
     gate: GateStats,
     rejected_in_a_row: u32,
@@ -257,6 +358,8 @@ impl OnlineEstimator {
             ("ratio_prior_sigma", cfg.ratio_prior_sigma),
             ("scale_prior_sigma", cfg.scale_prior_sigma),
             ("bias_prior_sigma_rad", cfg.bias_prior_sigma_rad),
+            ("mount_prior_sigma_m", cfg.mount_prior_sigma_m),
+            ("mount_yaw_prior_sigma_rad", cfg.mount_yaw_prior_sigma_rad),
         ] {
             if !(v.is_finite() && v > 0.0) {
                 return Err(CalibrationError::BadGeometry { name, value: v });
@@ -273,14 +376,19 @@ impl OnlineEstimator {
         if cfg.estimate_heading_bias {
             p[(BIAS, BIAS)] = cfg.bias_prior_sigma_rad.powi(2);
         }
+        p[(MX, MX)] = cfg.mount_prior_sigma_m.powi(2);
+        p[(MY, MY)] = cfg.mount_prior_sigma_m.powi(2);
+        p[(MPSI, MPSI)] = cfg.mount_yaw_prior_sigma_rad.powi(2);
         Ok(OnlineEstimator {
             cfg,
             x,
             p,
             heading_initialized: false,
+            anchored: false,
             distance_m: 0.0,
             nis_heading: (0.0, 0),
             nis_position: (0.0, 0),
+            nis_pose: (0.0, 0),
             prior: p,
             gate: GateStats::default(),
             rejected_in_a_row: 0,
@@ -297,7 +405,7 @@ impl OnlineEstimator {
         &self.cfg
     }
 
-    /// The state `[x, y, θ, u_L, u_R, k, β]`.
+    /// The state `[x, y, θ, u_L, u_R, k, β, m_x, m_y, m_ψ]`.
     pub fn state(&self) -> Vector {
         self.x
     }
@@ -323,6 +431,7 @@ impl OnlineEstimator {
             }
         }
         self.heading_initialized = false;
+        self.anchored = false;
     }
 
     /// Predicts with encoder count increments since the last step.
@@ -470,6 +579,233 @@ impl OnlineEstimator {
         Some(nis)
     }
 
+    /// Updates with a pose of the reference frame in the reference's world frame (m, m and
+    /// rad; `yaw_rad` `None` for a position-only reference) with standard deviations
+    /// `sigma` (x, y in m, yaw in rad; `None`: the configured `position_sigma_m` and
+    /// `heading_sigma_rad`). The first fix of a run anchors the pose (it needs a yaw): the
+    /// filter's world becomes the reference's, the pose's uncertainty the mounting's. A fix
+    /// whose NIS exceeds χ² at 99.9 % (a relocalisation, a marker swap) is rejected and
+    /// counted; `gate_recover_after` rejections in a row re-anchor the pose to the reference,
+    /// keeping the parameters. Returns the NIS of an accepted fix.
+    pub fn update_pose(
+        &mut self,
+        x_m: f64,
+        y_m: f64,
+        yaw_rad: Option<f64>,
+        sigma: Option<[f64; 3]>,
+    ) -> Option<f64> {
+        if !(x_m.is_finite() && y_m.is_finite() && yaw_rad.is_none_or(f64::is_finite)) {
+            return None;
+        }
+        let [sx, sy, syaw] = sigma
+            .filter(|s| s.iter().all(|v| v.is_finite() && *v > 0.0))
+            .unwrap_or([
+                self.cfg.position_sigma_m,
+                self.cfg.position_sigma_m,
+                self.cfg.heading_sigma_rad,
+            ]);
+        if !self.anchored {
+            let Some(yaw) = yaw_rad else {
+                // A position-only fix cannot tell which way the robot faces.
+                return None;
+            };
+            self.anchor(x_m, y_m, yaw, [sx * sx, sy * sy, syaw * syaw]);
+            return None;
+        }
+        let dim = if yaw_rad.is_some() { 3 } else { 2 };
+        let r = nalgebra::Matrix3::from_diagonal(&nalgebra::Vector3::new(
+            sx * sx,
+            sy * sy,
+            if yaw_rad.is_some() { syaw * syaw } else { 1.0 },
+        ));
+        // The measurement's Jacobian and innovation at state `x` (position only: the yaw row
+        // drops out — zero row, unit variance, zero innovation: it neither informs nor counts).
+        let linearise = |x: &Vector| {
+            let (s, c) = x[TH].sin_cos();
+            let (mx, my) = (x[MX], x[MY]);
+            let mut h = SMatrix::<f64, 3, N>::zeros();
+            h[(0, X)] = 1.0;
+            h[(0, TH)] = -s * mx - c * my;
+            h[(0, MX)] = c;
+            h[(0, MY)] = -s;
+            h[(1, Y)] = 1.0;
+            h[(1, TH)] = c * mx - s * my;
+            h[(1, MX)] = s;
+            h[(1, MY)] = c;
+            let mut nu = nalgebra::Vector3::new(
+                x_m - (x[X] + c * mx - s * my),
+                y_m - (x[Y] + s * mx + c * my),
+                0.0,
+            );
+            if let Some(yaw) = yaw_rad {
+                h[(2, TH)] = 1.0;
+                h[(2, MPSI)] = 1.0;
+                nu[2] = wrap_angle(yaw - (x[TH] + x[MPSI]));
+            }
+            (h, nu)
+        };
+        let (h0, nu0) = linearise(&self.x);
+        let s_inv = (h0 * self.p * h0.transpose() + r).try_inverse()?;
+        let nis = (nu0.transpose() * s_inv * nu0)[(0, 0)];
+        let gate = if dim == 3 { CHI2_3_999 } else { CHI2_2_999 };
+        if nis.is_nan() || nis > gate {
+            self.gate.rejected += 1;
+            self.rejected_in_a_row += 1;
+            if self.rejected_in_a_row >= self.cfg.gate_recover_after.max(1) {
+                if let Some(yaw) = yaw_rad {
+                    // The reference moved its world (a relocalisation): start from it again.
+                    self.anchor(x_m, y_m, yaw, [sx * sx, sy * sy, syaw * syaw]);
+                    self.gate.resets += 1;
+                }
+                self.rejected_in_a_row = 0;
+            }
+            return None;
+        }
+        self.rejected_in_a_row = 0;
+        self.gate.accepted += 1;
+        // Iterated update (Gauss–Newton on the posterior): the lever arm turns with the
+        // heading, so a fix linearised where the mounting is still unknown (at first, zero:
+        // no lever arm for the heading to turn) misplaces it; relinearising at the updated
+        // state, a few times, does not.
+        let prior = self.x;
+        let (mut h, mut kgain) = (h0, self.p * h0.transpose() * s_inv);
+        let mut x = prior + kgain * nu0;
+        for _ in 0..4 {
+            let (hi, nui) = linearise(&x);
+            let Some(si_inv) = (hi * self.p * hi.transpose() + r).try_inverse() else {
+                break;
+            };
+            let ki = self.p * hi.transpose() * si_inv;
+            let mut dx = prior - x;
+            dx[TH] = wrap_angle(dx[TH]);
+            dx[MPSI] = wrap_angle(dx[MPSI]);
+            let next = prior + ki * (nui - hi * dx);
+            let moved = (next - x).amax();
+            (x, h, kgain) = (next, hi, ki);
+            if moved < 1e-9 {
+                break;
+            }
+        }
+        self.x = x;
+        self.x[TH] = wrap_angle(self.x[TH]);
+        self.x[MPSI] = wrap_angle(self.x[MPSI]);
+        let ikh = Matrix::identity() - kgain * h;
+        self.p = ikh * self.p * ikh.transpose() + kgain * r * kgain.transpose();
+        self.nis_pose.0 += nis / dim as f64;
+        self.nis_pose.1 += 1;
+        Some(nis)
+    }
+
+    /// Starts the parameters and the pose reference's mounting from a batch fit of the drive so
+    /// far ([`super::pose_fit`]): its values, and its covariance carried into the state's
+    /// (`u = (D/D_cfg)/E_b`, `k = E_b = b/b_cfg`); the pose waits for the next fix to anchor
+    /// it. With fixes alone the filter's first metres are a bilinear problem (the lever arm
+    /// turns with a heading the mounting's yaw leaves unknown) that a linearised update
+    /// resolves wrongly and then trusts; the batch fit solves it where the drive observed it.
+    pub fn start_from_fit(&mut self, fit: &super::pose_fit::PoseFit) {
+        let cfg = &self.cfg.configured;
+        let [dl, dr, b, mx, my, mpsi, _] = fit.params;
+        let k = b / cfg.wheelbase_m;
+        let (ul, ur) = (
+            dl / cfg.left_wheel_diameter_m / k,
+            dr / cfg.right_wheel_diameter_m / k,
+        );
+        // ∂(u_L, u_R, k, m_x, m_y, m_ψ)/∂(D_L, D_R, b, x, y, ψ).
+        let mut j = SMatrix::<f64, 6, 6>::zeros();
+        j[(0, 0)] = ul / dl;
+        j[(0, 2)] = -ul / b;
+        j[(1, 1)] = ur / dr;
+        j[(1, 2)] = -ur / b;
+        j[(2, 2)] = 1.0 / cfg.wheelbase_m;
+        for i in 3..6 {
+            j[(i, i)] = 1.0;
+        }
+        let c = SMatrix::<f64, 6, 6>::from_fn(|a, bb| fit.covariance[a][bb]);
+        let cs = j * c * j.transpose();
+        let states = [UL, UR, K, MX, MY, MPSI];
+        let finite = cs.iter().all(|v| v.is_finite());
+        for (a, &i) in states.iter().enumerate() {
+            for jj in 0..N {
+                self.p[(i, jj)] = 0.0;
+                self.p[(jj, i)] = 0.0;
+            }
+            for (bb, &jj) in states.iter().enumerate() {
+                self.p[(i, jj)] = if finite {
+                    cs[(a, bb)]
+                } else if a == bb {
+                    self.prior[(i, i)]
+                } else {
+                    0.0
+                };
+            }
+        }
+        self.x[UL] = ul;
+        self.x[UR] = ur;
+        self.x[K] = k;
+        self.x[MX] = mx;
+        self.x[MY] = my;
+        self.x[MPSI] = wrap_angle(mpsi);
+        self.restart_pose();
+    }
+
+    /// Puts the pose where the reference fix `(x, y, yaw)` (variances `r`) and the current
+    /// mounting say, with the uncertainty the mounting's carries into it (its cross-covariance
+    /// kept, so that later fixes separate the two).
+    fn anchor(&mut self, x_m: f64, y_m: f64, yaw_rad: f64, r: [f64; 3]) {
+        let (mx, my, mpsi) = (self.x[MX], self.x[MY], self.x[MPSI]);
+        let th = wrap_angle(yaw_rad - mpsi);
+        let (s, c) = th.sin_cos();
+        // pose = g(fix, m): θ = ψ − m_ψ, (x, y) = p − R(θ)(m_x, m_y); its Jacobian in m.
+        let mut jm = SMatrix::<f64, 3, N>::zeros();
+        jm[(0, MX)] = -c;
+        jm[(0, MY)] = s;
+        jm[(0, MPSI)] = -(s * mx + c * my);
+        jm[(1, MX)] = -s;
+        jm[(1, MY)] = -c;
+        jm[(1, MPSI)] = c * mx - s * my;
+        jm[(2, MPSI)] = -1.0;
+        for i in [X, Y, TH] {
+            for j in 0..N {
+                self.p[(i, j)] = 0.0;
+                self.p[(j, i)] = 0.0;
+            }
+        }
+        let cross = jm * self.p; // 3 × N: the pose's covariance with every state.
+        let pose_cov = cross * jm.transpose();
+        for (a, i) in [X, Y, TH].into_iter().enumerate() {
+            for j in 0..N {
+                self.p[(i, j)] = cross[(a, j)];
+                self.p[(j, i)] = cross[(a, j)];
+            }
+        }
+        for (a, i) in [X, Y, TH].into_iter().enumerate() {
+            for (b, j) in [X, Y, TH].into_iter().enumerate() {
+                self.p[(i, j)] = pose_cov[(a, b)] + if a == b { r[a] } else { 0.0 };
+            }
+        }
+        self.x[X] = x_m - (c * mx - s * my);
+        self.x[Y] = y_m - (s * mx + c * my);
+        self.x[TH] = th;
+        self.anchored = true;
+        self.heading_initialized = true;
+    }
+
+    /// Mean NIS of the pose fixes used, per degree of freedom (≈ 1 for a consistent filter),
+    /// and their count.
+    pub fn nis_pose_mean(&self) -> (f64, u64) {
+        let (s, n) = self.nis_pose;
+        (if n > 0 { s / n as f64 } else { f64::NAN }, n)
+    }
+
+    /// The pose reference's mounting in `base_link` (x, y in m, yaw in rad) and its standard
+    /// deviations.
+    pub fn mount(&self) -> ([f64; 3], [f64; 3]) {
+        (
+            [self.x[MX], self.x[MY], self.x[MPSI]],
+            [MX, MY, MPSI].map(|i| self.p[(i, i)].max(0.0).sqrt()),
+        )
+    }
+
     /// Mean NIS of heading updates (≈ 1 for a consistent filter) and their count.
     pub fn nis_mean(&self) -> (f64, u64) {
         let (s, n) = self.nis_heading;
@@ -573,6 +909,13 @@ impl OnlineEstimator {
             }
             v.max(0.0)
         };
+        let correction_std = matches!(scale, ScaleSource::Filter).then(|| {
+            [
+                var([k, 0.0, ul]).sqrt(),
+                var([0.0, k, ur]).sqrt(),
+                var([0.0, 0.0, 1.0]).sqrt(),
+            ]
+        });
         Ok(OnlineEstimate {
             method: "online",
             e_b,
@@ -580,6 +923,7 @@ impl OnlineEstimator {
             e_b_std: var(grad_b).sqrt(),
             e_d_std: var(grad_d).sqrt(),
             correction,
+            correction_std,
             distance_m: self.distance_m,
         })
     }

@@ -27,6 +27,7 @@
 
 use super::legs::{leg_measurement, LegMeasurement, LegSample};
 use super::online::OnlineEstimator;
+use super::pose_reference::ReferencePose;
 use super::time_offset::{estimate_time_offset, unwrapped_heading_at, TimeOffset, MAX_OFFSET_S};
 use crate::kinematics::{wrap_angle, Displacement};
 use serde::{Deserialize, Serialize};
@@ -105,6 +106,10 @@ pub struct Recording {
     pub headings: Vec<HeadingSample>,
     /// How the two streams' clocks relate.
     pub clocks: Clocks,
+    /// Poses of an absolute reference (in place of headings; on the travel clock, its delay
+    /// removed), in time order.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub poses: Vec<ReferencePose>,
 }
 
 /// How completely a stream that should never pause covered its span.
@@ -240,6 +245,17 @@ impl Recording {
     /// The same recording with its heading stream on the travel clock (coarse step for
     /// separate clocks, then a significant offset removed), and how that was done.
     pub fn aligned(&self, wheelbase_m: f64) -> (Recording, Alignment) {
+        if !self.poses.is_empty() {
+            // A pose reference's delay is the batch fit's to find (`pose_fit`), not the turn
+            // rates' correlation: its poses go on as they are.
+            return (
+                self.clone(),
+                Alignment {
+                    comparable: true,
+                    ..Alignment::default()
+                },
+            );
+        }
         let comparable = self.comparable();
         if !comparable {
             return (
@@ -247,6 +263,7 @@ impl Recording {
                     travel: self.travel.clone(),
                     headings: Vec::new(),
                     clocks: Clocks::Shared,
+                    poses: Vec::new(),
                 },
                 Alignment {
                     comparable,
@@ -271,6 +288,7 @@ impl Recording {
                 })
                 .collect(),
             clocks: Clocks::Shared,
+            poses: Vec::new(),
         };
         (
             aligned,
@@ -326,14 +344,52 @@ impl Recording {
         }
     }
 
+    /// A drive against a pose reference as the online filter takes it: each wheel interval's
+    /// rotation as travel under the `configured` diameters (what a controller with them would
+    /// count), the poses as they are; one clock.
+    pub fn of_pose_recording(
+        drive: &super::pose_reference::PoseRecording,
+        configured: super::pose_reference::Geometry,
+    ) -> Recording {
+        let travel = drive
+            .wheels
+            .first()
+            .map(|w| TravelSample {
+                time_s: w.time_s,
+                left_m: 0.0,
+                right_m: 0.0,
+            })
+            .into_iter()
+            .chain(drive.wheels.windows(2).map(|w| TravelSample {
+                time_s: w[1].time_s,
+                left_m: (w[1].left_rad - w[0].left_rad) * 0.5 * configured.left_diameter_m,
+                right_m: (w[1].right_rad - w[0].right_rad) * 0.5 * configured.right_diameter_m,
+            }))
+            .collect();
+        Recording {
+            travel,
+            headings: Vec::new(),
+            clocks: Clocks::Shared,
+            poses: drive.poses.clone(),
+        }
+    }
+
     /// Every sample as one event stream in time order, on the travel clock ([`Merger`]).
     pub fn events(&self) -> Vec<Event> {
         let mut m = Merger::new(self.clocks);
         for t in &self.travel {
             m.push_travel(*t);
         }
-        for h in &self.headings {
-            m.push_heading(h.clone());
+        if self.poses.is_empty() {
+            for h in &self.headings {
+                m.push_heading(h.clone());
+            }
+        } else {
+            // A recording with a pose reference merges its poses (headings beside them are
+            // not a second reference stream: one merger holds one).
+            for p in &self.poses {
+                m.push_pose(*p);
+            }
         }
         m.finish()
     }
@@ -419,14 +475,16 @@ impl Track {
     }
 }
 
-/// A travel or heading sample in the merged time order of a recording (heading times on the
-/// travel clock).
+/// A travel sample, a heading reading or a reference pose in the merged time order of a
+/// recording (reference times on the travel clock).
 #[derive(Debug, Clone, PartialEq)]
 pub enum Event {
     /// Wheel travel over the interval ending at its time.
     Travel(TravelSample),
     /// A heading reading.
     Heading(HeadingSample),
+    /// A pose of an absolute reference ([`super::pose_reference`]'s conventions).
+    Pose(ReferencePose),
 }
 
 impl Event {
@@ -435,6 +493,25 @@ impl Event {
         match self {
             Event::Travel(t) => t.time_s,
             Event::Heading(h) => h.time_s,
+            Event::Pose(p) => p.time_s,
+        }
+    }
+
+    /// The same event `shift_s` later (a reference sample brought to the travel clock).
+    fn shifted(self, shift_s: f64) -> Event {
+        match self {
+            Event::Travel(t) => Event::Travel(TravelSample {
+                time_s: t.time_s + shift_s,
+                ..t
+            }),
+            Event::Heading(h) => Event::Heading(HeadingSample {
+                time_s: h.time_s + shift_s,
+                ..h
+            }),
+            Event::Pose(p) => Event::Pose(ReferencePose {
+                time_s: p.time_s + shift_s,
+                ..p
+            }),
         }
     }
 }
@@ -443,7 +520,8 @@ impl Event {
 /// out unmatched rather than growing without bound (a stream silent for hours).
 pub const MERGE_CAPACITY: usize = 1 << 20;
 
-/// Merges a travel and a heading stream into one time order as their samples arrive.
+/// Merges a travel stream and a reference stream (heading readings, or the poses of a pose
+/// reference) into one time order as their samples arrive.
 ///
 /// An event goes out once both streams have shown a later stamp (each stream arrives in its
 /// own time order, so nothing earlier can still come), ties with travel first; at the end
@@ -456,7 +534,8 @@ pub struct Merger {
     clocks: Clocks,
     firsts: (Option<f64>, Option<f64>),
     travel: VecDeque<TravelSample>,
-    headings: VecDeque<HeadingSample>,
+    /// The reference stream's samples, as events on their own clock.
+    headings: VecDeque<Event>,
     newest: (Option<f64>, Option<f64>),
 }
 
@@ -488,14 +567,25 @@ impl Merger {
 
     /// Takes a heading sample (on its own clock).
     pub fn push_heading(&mut self, s: HeadingSample) {
-        self.firsts.1.get_or_insert(s.time_s);
-        self.newest.1 = Some(self.newest.1.map_or(s.time_s, |t| t.max(s.time_s)));
-        self.headings.push_back(s);
+        self.push_reference(Event::Heading(s));
+    }
+
+    /// Takes a reference pose (on its own clock), in place of heading readings: one reference
+    /// stream per merger, in its own time order.
+    pub fn push_pose(&mut self, p: ReferencePose) {
+        self.push_reference(Event::Pose(p));
+    }
+
+    fn push_reference(&mut self, e: Event) {
+        let t = e.time_s();
+        self.firsts.1.get_or_insert(t);
+        self.newest.1 = Some(self.newest.1.map_or(t, |n| n.max(t)));
+        self.headings.push_back(e);
     }
 
     fn pop(&mut self, shift: f64, before: f64) -> Option<Event> {
         let t = self.travel.front().map(|s| s.time_s);
-        let h = self.headings.front().map(|s| s.time_s + shift);
+        let h = self.headings.front().map(|s| s.time_s() + shift);
         let over = self.travel.len() + self.headings.len() > MERGE_CAPACITY;
         let take_travel = match (t, h) {
             (Some(t), Some(h)) => t <= h,
@@ -510,12 +600,7 @@ impl Merger {
         if take_travel {
             self.travel.pop_front().map(Event::Travel)
         } else {
-            self.headings.pop_front().map(|s| {
-                Event::Heading(HeadingSample {
-                    time_s: s.time_s + shift,
-                    ..s
-                })
-            })
+            self.headings.pop_front().map(|e| e.shifted(shift))
         }
     }
 
@@ -563,7 +648,27 @@ impl Merger {
 #[derive(Debug, Clone, Default)]
 pub struct Feeder {
     last_s: Option<f64>,
-    waiting: Vec<(f64, f64)>,
+    waiting: Vec<(f64, Fix)>,
+}
+
+/// A reference sample waiting for the travel interval that holds it.
+#[derive(Debug, Clone, Copy)]
+enum Fix {
+    Heading(f64),
+    Pose(ReferencePose),
+}
+
+impl Fix {
+    fn apply(self, filter: &mut OnlineEstimator) {
+        match self {
+            Fix::Heading(v) => {
+                filter.update_heading(v);
+            }
+            Fix::Pose(p) => {
+                filter.update_pose(p.x_m, p.y_m, p.yaw_rad, p.stated_std);
+            }
+        }
+    }
 }
 
 impl Feeder {
@@ -574,13 +679,18 @@ impl Feeder {
 
     /// Feeds one event (events must come in time order, as a [`Merger`] gives them).
     pub fn feed(&mut self, filter: &mut OnlineEstimator, event: &Event) {
+        let fix = match event {
+            Event::Heading(h) => h.usable().map(|v| (h.time_s, Fix::Heading(v))),
+            Event::Pose(p) => Some((p.time_s, Fix::Pose(*p))),
+            Event::Travel(_) => None,
+        };
         match event {
-            Event::Heading(h) => {
-                let Some(v) = h.usable() else { return };
-                if self.last_s.is_none_or(|t| h.time_s <= t) {
-                    filter.update_heading(v);
+            Event::Heading(_) | Event::Pose(_) => {
+                let Some((time_s, fix)) = fix else { return };
+                if self.last_s.is_none_or(|t| time_s <= t) {
+                    fix.apply(filter);
                 } else {
-                    self.waiting.push((h.time_s, v));
+                    self.waiting.push((time_s, fix));
                 }
             }
             Event::Travel(s) => {
@@ -597,7 +707,7 @@ impl Feeder {
                         filter.predict_travel((f - done) * s.left_m, (f - done) * s.right_m);
                         done = f;
                     }
-                    filter.update_heading(v);
+                    v.apply(filter);
                 }
                 if done < 1.0 {
                     filter.predict_travel((1.0 - done) * s.left_m, (1.0 - done) * s.right_m);
@@ -610,7 +720,7 @@ impl Feeder {
     /// Applies readings still waiting for a travel interval (the driving ended before them).
     pub fn finish(&mut self, filter: &mut OnlineEstimator) {
         for (_, v) in std::mem::take(&mut self.waiting) {
-            filter.update_heading(v);
+            v.apply(filter);
         }
     }
 }
@@ -647,6 +757,7 @@ mod tests {
             travel: travel.clone(),
             headings: headings.clone(),
             clocks: Clocks::Shared,
+            poses: Vec::new(),
         }
         .events();
         assert_eq!(all_at_once.len(), 67);
@@ -680,6 +791,7 @@ mod tests {
             travel: vec![travel(100.0, 0.0, 0.0), travel(100.1, 0.1, 0.1)],
             headings: vec![heading(5.0, 0.3), heading(5.05, 0.3)],
             clocks: Clocks::StartedTogether,
+            poses: Vec::new(),
         };
         let times: Vec<f64> = rec.events().iter().map(Event::time_s).collect();
         assert_eq!(times, vec![100.0, 100.0, 100.05, 100.1]);

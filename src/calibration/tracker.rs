@@ -10,7 +10,10 @@
 //! replay of a live session's samples gives the same numbers as the session did (unless the
 //! replay removes an offset the live session could only report).
 
+use super::observability::{judge, survey};
 use super::online::{OnlineConfig, OnlineEstimate, OnlineEstimator, ScaleSource};
+use super::pose_fit::{fit_poses, FitConfig, PoseFit};
+use super::pose_reference::{Geometry, PoseRecording, ReferenceKind, ReferencePose, WheelAngles};
 use super::recording::{Clocks, Event, Feeder, HeadingSample, Merger, Recording, TravelSample};
 use super::time_offset::TimeOffset;
 use super::CalibrationError;
@@ -18,6 +21,23 @@ use serde::Serialize;
 
 /// Least driving (m) before the online filter reports an estimate.
 pub const MIN_DISTANCE_M: f64 = 0.5;
+
+/// Where a session with a pose reference stands before its filter starts.
+#[derive(Debug, Clone)]
+enum PoseStart {
+    /// Keeping the drive (wheel angles under the configured diameters, the poses) until it
+    /// observes enough for a batch fit.
+    Waiting(PoseRecording),
+    /// Started (or a heading session).
+    Started,
+}
+
+/// Wheel samples the start of a pose session keeps at most (an hour at 50 Hz; the oldest half
+/// goes beyond it).
+const START_SAMPLES_KEPT: usize = 180_000;
+/// Poses before the first attempt to start, and between attempts.
+const START_MIN_POSES: usize = 100;
+const START_EVERY_POSES: usize = 50;
 
 /// A time offset found in one run of input.
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -38,6 +58,11 @@ pub struct Tracker {
     feeder: Feeder,
     every_m: f64,
     next_m: f64,
+    pose_delay_s: f64,
+    pose_start: PoseStart,
+    /// The batch fit the filter's parameters and mounting started from, in a session with a
+    /// pose reference ([`OnlineEstimator::start_from_fit`]).
+    pub started_from: Option<PoseFit>,
     /// Estimates taken at each checkpoint.
     pub checkpoints: Vec<OnlineEstimate>,
     /// Clock offsets found between the travel and heading streams, per run checked.
@@ -64,6 +89,9 @@ impl Tracker {
             feeder: Feeder::new(),
             every_m,
             next_m: every_m,
+            pose_delay_s: 0.0,
+            pose_start: PoseStart::Waiting(PoseRecording::default()),
+            started_from: None,
             checkpoints: Vec::new(),
             time_offsets: Vec::new(),
         })
@@ -79,7 +107,9 @@ impl Tracker {
     /// Input with no driving or no heading readings has nothing to estimate from: that is
     /// [`CalibrationError::TooLittleData`], not the prior dressed up as a result.
     pub fn estimate(&self) -> Result<OnlineEstimate, CalibrationError> {
-        let (_, heading_updates) = self.filter.nis_mean();
+        let (_, headings) = self.filter.nis_mean();
+        let (_, poses) = self.filter.nis_pose_mean();
+        let heading_updates = headings + poses;
         let distance_m = self.filter.distance_m();
         if heading_updates < 2 || distance_m < MIN_DISTANCE_M {
             return Err(CalibrationError::TooLittleData {
@@ -110,10 +140,77 @@ impl Tracker {
     fn feed(&mut self, events: Vec<Event>) -> Vec<OnlineEstimate> {
         let mut out = Vec::new();
         for e in &events {
+            if self.hold(e) {
+                continue;
+            }
             self.feeder.feed(&mut self.filter, e);
             out.extend(self.maybe_checkpoint());
         }
         out
+    }
+
+    /// Until a session with a pose reference has observed enough for a batch fit, its poses
+    /// are held (and its travel kept beside the filter's prediction); then the fit starts the
+    /// filter, and the pose that completed it is its first fix. Returns whether `e` is held.
+    fn hold(&mut self, e: &Event) -> bool {
+        let PoseStart::Waiting(drive) = &mut self.pose_start else {
+            return false;
+        };
+        match e {
+            Event::Heading(_) => {
+                // A heading session: nothing to hold.
+                self.pose_start = PoseStart::Started;
+                false
+            }
+            Event::Travel(t) => {
+                let c = &self.filter.config().configured;
+                let (l, r) = drive
+                    .wheels
+                    .last()
+                    .map_or((0.0, 0.0), |w| (w.left_rad, w.right_rad));
+                if drive.wheels.len() >= START_SAMPLES_KEPT {
+                    drive.wheels.drain(..START_SAMPLES_KEPT / 2);
+                }
+                drive.wheels.push(WheelAngles {
+                    time_s: t.time_s,
+                    left_rad: l + t.left_m / (0.5 * c.left_wheel_diameter_m),
+                    right_rad: r + t.right_m / (0.5 * c.right_wheel_diameter_m),
+                });
+                false
+            }
+            Event::Pose(p) => {
+                if drive.poses.len() >= START_SAMPLES_KEPT / 5 {
+                    drive.poses.drain(..START_SAMPLES_KEPT / 10);
+                    let first = drive.poses[0].time_s;
+                    drive.wheels.retain(|w| w.time_s >= first - 1.0);
+                }
+                drive.poses.push(*p);
+                let n = drive.poses.len();
+                if n < START_MIN_POSES || n % START_EVERY_POSES != 0 {
+                    return true;
+                }
+                let nominal = Geometry::from(&self.filter.config().configured);
+                if survey(drive, nominal).require().is_err() {
+                    return true;
+                }
+                let config = FitConfig {
+                    kind: Some(ReferenceKind::Absolute),
+                    fit_time_offset: false,
+                    ..FitConfig::full(nominal)
+                };
+                let Ok(fit) = fit_poses(drive, &config) else {
+                    return true;
+                };
+                if judge(&fit).require_geometry().is_err() {
+                    return true;
+                }
+                self.filter.start_from_fit(&fit);
+                self.started_from = Some(fit);
+                self.pose_start = PoseStart::Started;
+                // The pose goes on to the filter as its first fix (anchoring the pose).
+                false
+            }
+        }
     }
 
     /// Starts a new stretch of driving whose streams' clocks relate as `clocks`: the pose
@@ -129,6 +226,24 @@ impl Tracker {
     /// Takes a live travel sample; returns the checkpoints passed.
     pub fn push_travel(&mut self, s: TravelSample) -> Vec<OnlineEstimate> {
         self.merger.push_travel(s);
+        let ready = self.merger.ready();
+        self.feed(ready)
+    }
+
+    /// The delay of a pose reference's stamps (s, positive: late; the pose stamped `t` is
+    /// the robot's at `t − delay_s`), taken off every pose fed from now on. The filter does
+    /// not estimate it: the batch fit does ([`super::pose_fit`]).
+    pub fn set_pose_delay(&mut self, delay_s: f64) {
+        self.pose_delay_s = if delay_s.is_finite() { delay_s } else { 0.0 };
+    }
+
+    /// Takes a live reference pose (in place of heading samples: one reference stream per
+    /// session); returns the checkpoints passed.
+    pub fn push_pose(&mut self, p: ReferencePose) -> Vec<OnlineEstimate> {
+        self.merger.push_pose(ReferencePose {
+            time_s: p.time_s - self.pose_delay_s,
+            ..p
+        });
         let ready = self.merger.ready();
         self.feed(ready)
     }
@@ -162,7 +277,13 @@ impl Tracker {
             });
         }
         let mut out = self.start_stream(Clocks::Shared);
-        out.extend(self.feed(aligned.events()));
+        // The poses' delay comes off before they are merged, as live (`push_pose`).
+        let mut aligned = aligned;
+        for p in &mut aligned.poses {
+            p.time_s -= self.pose_delay_s;
+        }
+        let events = aligned.events();
+        out.extend(self.feed(events));
         self.feeder.finish(&mut self.filter);
         out
     }

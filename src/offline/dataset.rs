@@ -157,6 +157,7 @@ impl RecordedRun {
             travel,
             headings,
             clocks: Clocks::Shared,
+            poses: Vec::new(),
         }
     }
 

@@ -10,6 +10,7 @@
 //! [`MAX_WHEEL_SPEED_M_S`]) and a bad one is named by its line. A log reads as a [`Recording`].
 
 use crate::base::BaseInfo;
+use crate::calibration::pose_reference::ReferencePose;
 use crate::calibration::recording::{Clocks, Event, HeadingSample, Recording, TravelSample};
 use crate::hal::TelemetrySample;
 use crate::kinematics::{WheelParams, MAX_WHEEL_SPEED_M_S};
@@ -67,6 +68,7 @@ enum LogLine {
     Telemetry(TelemetrySample),
     Travel(TravelSample),
     Heading(HeadingSample),
+    Pose(ReferencePose),
 }
 
 /// Writes a telemetry log.
@@ -112,6 +114,7 @@ impl LogWriter {
         self.line(&match e {
             Event::Travel(t) => LogLine::Travel(*t),
             Event::Heading(h) => LogLine::Heading(h.clone()),
+            Event::Pose(p) => LogLine::Pose(*p),
         })
     }
 
@@ -280,6 +283,10 @@ pub fn read_log(path: &Path) -> Result<(LogHeader, Recording), LogError> {
                 check_heading(recording.headings.last(), &r).map_err(bad)?;
                 recording.headings.push(r);
             }
+            LogLine::Pose(p) => {
+                check_pose(recording.poses.last(), &p).map_err(bad)?;
+                recording.poses.push(p);
+            }
         }
     }
     let header = header.ok_or_else(|| LogError::Malformed {
@@ -288,6 +295,26 @@ pub fn read_log(path: &Path) -> Result<(LogHeader, Recording), LogError> {
         reason: "empty log (no header line)".into(),
     })?;
     Ok((header, recording))
+}
+
+/// A logged reference pose: finite, and not before the one before it.
+fn check_pose(prev: Option<&ReferencePose>, p: &ReferencePose) -> Result<(), String> {
+    let finite = p.time_s.is_finite()
+        && p.x_m.is_finite()
+        && p.y_m.is_finite()
+        && p.yaw_rad.is_none_or(f64::is_finite);
+    if !finite {
+        return Err("a reference pose that is not a number".into());
+    }
+    if let Some(q) = prev {
+        if p.time_s < q.time_s {
+            return Err(format!(
+                "reference pose at {} s before the one at {} s",
+                p.time_s, q.time_s
+            ));
+        }
+    }
+    Ok(())
 }
 
 /// A telemetry log as a [`Recording`]: the count increments as wheel travel under the
@@ -319,6 +346,7 @@ pub fn recording_of(header: &LogHeader, samples: &[TelemetrySample]) -> Recordin
         travel,
         headings,
         clocks: Clocks::Shared,
+        poses: Vec::new(),
     }
 }
 

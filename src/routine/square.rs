@@ -63,6 +63,7 @@ impl SquareRecord {
             travel: self.travel.clone(),
             headings: self.headings.clone(),
             clocks: self.clocks,
+            poses: Vec::new(),
         }
     }
 }

@@ -100,6 +100,7 @@ pub async fn run_swing(
             travel: drain(&mut travel),
             headings: drain(&mut headings),
             clocks: base.clocks(),
+            poses: Vec::new(),
         };
         let track = recording.track(cmd.wheelbase_m);
         if !track.alignment.comparable {

@@ -10,7 +10,7 @@
 
 use super::config::{HARD_RATE_LIMIT_RAD_S, HARD_SPEED_LIMIT_M_S};
 use super::RoutineError;
-use crate::base::{Base, MotionGuard};
+use crate::base::{Base, MotionGuard, PoseSource};
 use crate::calibration::online::OnlineEstimate;
 use crate::calibration::recording::{Event, Recording};
 use crate::calibration::tracker::Tracker;
@@ -187,13 +187,15 @@ pub struct TrackOutcome {
     pub cancelled: bool,
 }
 
-/// **Moves the robot when `opts.path` is given**: tracks `base` live with `tracker` until the
+/// **Moves the robot when `opts.path` is given**: tracks `base` live with `tracker` (the poses of
+/// `poses` as the reference in place of the heading source, when given) until the
 /// path is driven, `opts.duration` passes or `cancel` fires (not an error: the outcome says
 /// [`TrackOutcome::cancelled`]; a base driving a path is stopped either way); hands every sample to `sink` and
 /// every checkpoint to `on_checkpoint`. At the end the streams' clock offset is checked (and
 /// reported in the tracker, not corrected: live samples cannot be re-read).
 pub async fn track_live(
     base: &Base,
+    poses: Option<&dyn PoseSource>,
     tracker: &mut Tracker,
     opts: &TrackOptions,
     sink: &mut dyn FnMut(&Event),
@@ -217,10 +219,22 @@ pub async fn track_live(
     let mut travel = base.drive.travel(opts.period).await?.ok_or_else(|| {
         RoutineError::Preflight("the drive cannot stream its wheel travel".into())
     })?;
-    let mut headings = base.heading.stream(opts.period).await?.ok_or_else(|| {
-        RoutineError::Preflight("the heading source cannot stream its readings".into())
-    })?;
-    let clocks = base.clocks();
+    // One reference stream: the pose source's when there is one, else the heading source's
+    // (a channel that never yields stands in for the one not read).
+    let (mut headings, mut pose_stream, clocks) = match poses {
+        Some(source) => (
+            tokio::sync::mpsc::channel(1).1,
+            source.stream().await?,
+            base.clocks_with(source),
+        ),
+        None => (
+            base.heading.stream(opts.period).await?.ok_or_else(|| {
+                RoutineError::Preflight("the heading source cannot stream its readings".into())
+            })?,
+            tokio::sync::mpsc::channel(1).1,
+            base.clocks(),
+        ),
+    };
     for e in tracker.start_stream(clocks) {
         on_checkpoint(&e);
     }
@@ -270,16 +284,22 @@ pub async fn track_live(
                 outcome.recording.headings.push(h.clone());
                 tracker.push_heading(h.clone())
             }
+            Event::Pose(p) => {
+                bound(&mut outcome.recording.poses);
+                outcome.recording.poses.push(*p);
+                tracker.push_pose(*p)
+            }
         };
         for c in passed {
             on_checkpoint(&c);
         }
     };
-    let (mut travel_open, mut headings_open) = (true, true);
+    let (mut travel_open, mut headings_open) = (true, poses.is_none());
+    let mut poses_open = poses.is_some();
     let result = loop {
-        if !(travel_open || headings_open) {
+        if !(travel_open || headings_open || poses_open) {
             break Err(RoutineError::Preflight(
-                "both streams ended: the drive and the heading source went away".into(),
+                "both streams ended: the drive and the reference went away".into(),
             ));
         }
         tokio::select! {
@@ -290,6 +310,10 @@ pub async fn track_live(
             h = headings.recv(), if headings_open => match h {
                 Some(h) => take(Event::Heading(h), &mut outcome, tracker),
                 None => headings_open = false,
+            },
+            p = pose_stream.recv(), if poses_open => match p {
+                Some(p) => take(Event::Pose(p), &mut outcome, tracker),
+                None => poses_open = false,
             },
             r = &mut driving, if !passive => {
                 match r {
@@ -321,6 +345,9 @@ pub async fn track_live(
     }
     while let Ok(h) = headings.try_recv() {
         take(Event::Heading(h), &mut outcome, tracker);
+    }
+    while let Ok(p) = pose_stream.try_recv() {
+        take(Event::Pose(p), &mut outcome, tracker);
     }
     for e in tracker.finish_stream() {
         on_checkpoint(&e);

@@ -100,6 +100,7 @@ async fn live(
     };
     let outcome = track_live(
         base,
+        None,
         tracker,
         &opts,
         &mut sink,

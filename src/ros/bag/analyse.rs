@@ -170,6 +170,7 @@ impl BagData {
             travel,
             headings,
             clocks: Clocks::Shared,
+            poses: Vec::new(),
         }
     }
 }
