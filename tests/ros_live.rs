@@ -842,3 +842,111 @@ fn odocal_heading_reads_a_ros_robots_imu_and_its_noise() {
     let sigma = v["sigma_deg"].as_f64().unwrap_or(f64::NAN);
     assert!((0.21..=0.39).contains(&sigma), "{v}");
 }
+
+/// `track` on a ROS robot with a localization topic (the mock's `/amcl_pose`: 10 Hz, 3 mm and
+/// 0.3°, 1 % jumps, the pose of a frame 12 cm ahead, 5 cm right and turned 6° on the robot):
+/// the online filter's both diameters and wheelbase agree with the batch fit of the same
+/// drive (the samples the session saw) within 3σ of their combined errors, and the true robot
+/// lies within 3σ of each.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn tracking_against_a_localization_topic_agrees_with_the_fit_of_the_same_drive() {
+    use odocal::calibration::online::{OnlineConfig, ScaleSource};
+    use odocal::calibration::pose_fit::{fit_poses, FitConfig, Param};
+    use odocal::calibration::pose_reference::{Geometry, Pose2};
+    use odocal::calibration::tracker::Tracker;
+    use odocal::mock::rosbridge::MockLocalization;
+    use odocal::ros::pose_source::RosPoseSource;
+    use odocal::routine::track::{track_live, DrivePath, TrackOptions};
+    let _one_at_a_time = END_TO_END.lock().await;
+    let (_dir, yaml) = yaml_file("ros-live-pose");
+    let server = mock(&yaml, |c| {
+        c.localization = Some(MockLocalization {
+            mount: Pose2 {
+                x: 0.12,
+                y: -0.05,
+                theta: 6f64.to_radians(),
+            },
+            ..MockLocalization::amcl()
+        })
+    })
+    .await;
+    let base = connect(&ros_config(server.url(), &yaml)).await.unwrap();
+    let poses = RosPoseSource::connect(&server.url(), "/amcl_pose", Duration::from_secs(5))
+        .await
+        .unwrap();
+    let configured = base.store.read().await.unwrap();
+    let mut cfg = OnlineConfig::new(configured);
+    cfg.slip_fraction = 0.002;
+    let mut tracker = Tracker::new(cfg, ScaleSource::Filter, 1.0).unwrap();
+    let opts = TrackOptions {
+        path: Some(DrivePath::Wander { area_m: 3.0 }),
+        motions: 40,
+        max_speed_m_s: 0.3,
+        max_rate_rad_s: 1.0,
+        ..TrackOptions::default()
+    };
+    let outcome = track_live(
+        &base,
+        Some(&poses),
+        &mut tracker,
+        &opts,
+        &mut |_| {},
+        &mut |_| {},
+        &CancellationToken::new(),
+    )
+    .await
+    .unwrap();
+    let online = tracker.estimate().unwrap();
+    let nominal = Geometry::from(&configured);
+    let drive = outcome.recording.pose_recording(nominal);
+    let fit = fit_poses(&drive, &FitConfig::full(nominal)).unwrap();
+    let truth = server.state().true_params();
+    let scale_std = online.correction_std.expect("the scale is observed");
+    let c = online.correction;
+    for (p, configured_m, factor, factor_std, true_m) in [
+        (
+            Param::LeftDiameter,
+            nominal.left_diameter_m,
+            c.left_diameter_scale,
+            scale_std[0],
+            truth.left_wheel_diameter_m,
+        ),
+        (
+            Param::RightDiameter,
+            nominal.right_diameter_m,
+            c.right_diameter_scale,
+            scale_std[1],
+            truth.right_wheel_diameter_m,
+        ),
+        (
+            Param::Wheelbase,
+            nominal.wheelbase_m,
+            c.wheelbase_scale,
+            scale_std[2],
+            truth.wheelbase_m,
+        ),
+    ] {
+        let (value, std) = (configured_m * factor, configured_m * factor_std);
+        let (batch, batch_std) = (fit.value(p), fit.std(p).unwrap());
+        let name = p.name();
+        assert!(
+            (value - batch).abs() < 3.0 * std.hypot(batch_std),
+            "{name}: track {value} ± {std}, fit {batch} ± {batch_std}"
+        );
+        assert!(
+            (value - true_m).abs() < 3.0 * std,
+            "{name}: track {value} ± {std}, truth {true_m}"
+        );
+        assert!(
+            (batch - true_m).abs() < 3.0 * batch_std,
+            "{name}: fit {batch} ± {batch_std}, truth {true_m}"
+        );
+    }
+    assert!(tracker.started_from.is_some(), "the filter started");
+    assert_eq!(poses.dropped(), 0);
+    assert!(
+        outcome.recording.poses.len() > 500,
+        "{} poses",
+        outcome.recording.poses.len()
+    );
+}

@@ -314,6 +314,15 @@ impl OnlineEstimate {
     }
 }
 
+/// The noise of pose fixes as a batch fit of the drive found it.
+#[derive(Debug, Clone, Copy)]
+struct FixNoise {
+    /// Factor on the standard deviations a fix states.
+    stated_scale: f64,
+    /// Standard deviations of fixes that state none (x, y in m; yaw in rad).
+    unstated: Option<[f64; 3]>,
+}
+
 /// The augmented EKF.
 #[derive(Debug, Clone)]
 pub struct OnlineEstimator {
@@ -323,6 +332,7 @@ pub struct OnlineEstimator {
     heading_initialized: bool,
     /// Whether a pose fix has put the filter's pose in the reference's world frame.
     anchored: bool,
+    fix_noise: FixNoise,
     distance_m: f64,
     nis_heading: (f64, u64),
     nis_position: (f64, u64),
@@ -385,6 +395,10 @@ impl OnlineEstimator {
             p,
             heading_initialized: false,
             anchored: false,
+            fix_noise: FixNoise {
+                stated_scale: 1.0,
+                unstated: None,
+            },
             distance_m: 0.0,
             nis_heading: (0.0, 0),
             nis_position: (0.0, 0),
@@ -597,13 +611,17 @@ impl OnlineEstimator {
         if !(x_m.is_finite() && y_m.is_finite() && yaw_rad.is_none_or(f64::is_finite)) {
             return None;
         }
-        let [sx, sy, syaw] = sigma
-            .filter(|s| s.iter().all(|v| v.is_finite() && *v > 0.0))
-            .unwrap_or([
+        // Stated deviations as the start's batch fit scaled them (a localization's covariance
+        // is a weight, seldom a calibrated variance); none stated: the fit's residual scatter,
+        // else the configured noise.
+        let [sx, sy, syaw] = match sigma.filter(|s| s.iter().all(|v| v.is_finite() && *v > 0.0)) {
+            Some(s) => s.map(|v| v * self.fix_noise.stated_scale),
+            None => self.fix_noise.unstated.unwrap_or([
                 self.cfg.position_sigma_m,
                 self.cfg.position_sigma_m,
                 self.cfg.heading_sigma_rad,
-            ]);
+            ]),
+        };
         if !self.anchored {
             let Some(yaw) = yaw_rad else {
                 // A position-only fix cannot tell which way the robot faces.
@@ -745,6 +763,22 @@ impl OnlineEstimator {
         self.x[MX] = mx;
         self.x[MY] = my;
         self.x[MPSI] = wrap_angle(mpsi);
+        let position = fit.residual_std_position_m;
+        self.fix_noise = FixNoise {
+            stated_scale: fit
+                .stated_scale
+                .filter(|s| s.is_finite() && *s > 0.0)
+                .unwrap_or(1.0),
+            unstated: (position.is_finite() && position > 0.0).then(|| {
+                [
+                    position,
+                    position,
+                    fit.residual_std_yaw_rad
+                        .filter(|s| s.is_finite() && *s > 0.0)
+                        .unwrap_or(self.cfg.heading_sigma_rad),
+                ]
+            }),
+        };
         self.restart_pose();
     }
 

@@ -27,7 +27,7 @@
 
 use super::legs::{leg_measurement, LegMeasurement, LegSample};
 use super::online::OnlineEstimator;
-use super::pose_reference::ReferencePose;
+use super::pose_reference::{ReferencePose, WheelAngles};
 use super::time_offset::{estimate_time_offset, unwrapped_heading_at, TimeOffset, MAX_OFFSET_S};
 use crate::kinematics::{wrap_angle, Displacement};
 use serde::{Deserialize, Serialize};
@@ -374,6 +374,24 @@ impl Recording {
         }
     }
 
+    /// The inverse of [`Recording::of_pose_recording`]: the travel summed into cumulative wheel
+    /// angles under the `configured` diameters, and the poses (for `fit` on a live session's
+    /// samples).
+    pub fn pose_recording(
+        &self,
+        configured: super::pose_reference::Geometry,
+    ) -> super::pose_reference::PoseRecording {
+        let mut wheels: Vec<WheelAngles> = Vec::with_capacity(self.travel.len());
+        for t in &self.travel {
+            let next = wheel_angles(wheels.last(), t, configured);
+            wheels.push(next);
+        }
+        super::pose_reference::PoseRecording {
+            wheels,
+            poses: self.poses.clone(),
+        }
+    }
+
     /// Every sample as one event stream in time order, on the travel clock ([`Merger`]).
     pub fn events(&self) -> Vec<Event> {
         let mut m = Merger::new(self.clocks);
@@ -472,6 +490,21 @@ impl Track {
         let within = self.readings[lo..].iter().take_while(|r| r.0 <= to_s);
         let n = within.clone().count();
         (crate::kinematics::circular_mean(within.map(|r| r.1)), n)
+    }
+}
+
+/// The cumulative wheel angles after travel `t` under the `configured` diameters, from
+/// `prev` (zero at the start).
+pub(crate) fn wheel_angles(
+    prev: Option<&WheelAngles>,
+    t: &TravelSample,
+    configured: super::pose_reference::Geometry,
+) -> WheelAngles {
+    let (l, r) = prev.map_or((0.0, 0.0), |w| (w.left_rad, w.right_rad));
+    WheelAngles {
+        time_s: t.time_s,
+        left_rad: l + t.left_m / (0.5 * configured.left_diameter_m),
+        right_rad: r + t.right_m / (0.5 * configured.right_diameter_m),
     }
 }
 

@@ -13,8 +13,10 @@
 use super::observability::{judge, survey};
 use super::online::{OnlineConfig, OnlineEstimate, OnlineEstimator, ScaleSource};
 use super::pose_fit::{fit_poses, FitConfig, PoseFit};
-use super::pose_reference::{Geometry, PoseRecording, ReferenceKind, ReferencePose, WheelAngles};
-use super::recording::{Clocks, Event, Feeder, HeadingSample, Merger, Recording, TravelSample};
+use super::pose_reference::{Geometry, PoseRecording, ReferenceKind, ReferencePose};
+use super::recording::{
+    wheel_angles, Clocks, Event, Feeder, HeadingSample, Merger, Recording, TravelSample,
+};
 use super::time_offset::TimeOffset;
 use super::CalibrationError;
 use serde::Serialize;
@@ -163,19 +165,12 @@ impl Tracker {
                 false
             }
             Event::Travel(t) => {
-                let c = &self.filter.config().configured;
-                let (l, r) = drive
-                    .wheels
-                    .last()
-                    .map_or((0.0, 0.0), |w| (w.left_rad, w.right_rad));
+                let configured = Geometry::from(&self.filter.config().configured);
+                let next = wheel_angles(drive.wheels.last(), t, configured);
                 if drive.wheels.len() >= START_SAMPLES_KEPT {
                     drive.wheels.drain(..START_SAMPLES_KEPT / 2);
                 }
-                drive.wheels.push(WheelAngles {
-                    time_s: t.time_s,
-                    left_rad: l + t.left_m / (0.5 * c.left_wheel_diameter_m),
-                    right_rad: r + t.right_m / (0.5 * c.right_wheel_diameter_m),
-                });
+                drive.wheels.push(next);
                 false
             }
             Event::Pose(p) => {

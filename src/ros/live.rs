@@ -240,7 +240,7 @@ mod tests {
 }
 
 /// The robot's clock: joint states, odometry and IMU messages carry its header stamps.
-fn robot_clock(url: &str) -> String {
+pub(super) fn robot_clock(url: &str) -> String {
     format!("ros:{url}")
 }
 
@@ -407,7 +407,7 @@ async fn wait_first<T>(
 }
 
 /// A message as its type, or why not, naming the field (`effort[1]: invalid type…`).
-fn decode<T: serde::de::DeserializeOwned>(v: &Value) -> Result<T, String> {
+pub(super) fn decode<T: serde::de::DeserializeOwned>(v: &Value) -> Result<T, String> {
     serde_path_to_error::deserialize(v).map_err(|e| format!("field `{}`: {}", e.path(), e.inner()))
 }
 
@@ -470,7 +470,7 @@ impl Rejects {
     }
 }
 
-fn stamp_of(v: &Value) -> Option<f64> {
+pub(super) fn stamp_of(v: &Value) -> Option<f64> {
     let s = v.get("header")?.get("stamp")?;
     let sec = s.get("sec").or_else(|| s.get("secs"))?.as_f64()?;
     let ns = s.get("nanosec").or_else(|| s.get("nsecs"))?.as_f64()?;
@@ -494,7 +494,9 @@ fn advance(odo: &mut Odo, stamp: f64, step: Displacement) {
 
 /// The next message of a subscription, passing over a lag (a slow reader loses messages, not
 /// the subscription); `None` once the connection is gone.
-async fn next_message(rx: &mut tokio::sync::broadcast::Receiver<Value>) -> Option<Value> {
+pub(super) async fn next_message(
+    rx: &mut tokio::sync::broadcast::Receiver<Value>,
+) -> Option<Value> {
     loop {
         match rx.recv().await {
             Ok(v) => return Some(v),

@@ -6,5 +6,6 @@ pub mod bag;
 pub mod fragment;
 pub mod live;
 pub mod msg;
+pub mod pose_source;
 pub mod rosbridge;
 pub mod yaml;

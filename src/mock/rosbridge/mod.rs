@@ -8,7 +8,8 @@
 //! `cmd_vel_timeout` without a command; the **true** robot moves those wheel rotations with its
 //! true geometry. It publishes `/joint_states` (wheel angles), `/odom` (the controller's
 //! odometry, configured geometry) and `/imu` (true yaw with noise) at their rates, stamped with
-//! the wall clock at start plus robot time (which can run faster than the wall clock).
+//! the wall clock at start plus robot time (which can run faster than the wall clock), and on
+//! request a localization's pose topic ([`MockLocalization`]).
 //! [`MockRosbridge::vanish`] drops every connection and stops listening while the robot keeps
 //! running, as a crashed `rosbridge_server` would.
 //!
@@ -17,8 +18,10 @@
 //! `null`, or as the bare token `NaN` inside fixed-size arrays (rosbridge_suite #916).
 
 mod conn;
+mod localization;
 mod services;
 
+pub use localization::MockLocalization;
 pub use services::ParamValue;
 
 use crate::kinematics::{Displacement, Pose, WheelParams};
@@ -79,6 +82,8 @@ pub struct MockRosConfig {
     pub read_only_parameters: Vec<String>,
     /// A parameter callback of the controller that refuses every set with this reason.
     pub refuse_parameter_sets: Option<String>,
+    /// A localization publishing the robot's pose ([`MockLocalization`]); none by default.
+    pub localization: Option<MockLocalization>,
 }
 
 impl MockRosConfig {
@@ -114,6 +119,7 @@ impl MockRosConfig {
             joint_glitch_every: None,
             read_only_parameters: Vec::new(),
             refuse_parameter_sets: None,
+            localization: None,
         })
     }
 }
@@ -344,6 +350,10 @@ async fn physics(
     let mut tick = tokio::time::interval(Duration::from_millis(1));
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
     let mut step: u64 = 0;
+    let mut localizer = cfg
+        .localization
+        .clone()
+        .map(|l| localization::Localizer::new(l, cfg.seed));
     loop {
         tick.tick().await;
         let wall_target = start.elapsed().as_secs_f64() * cfg.time_scale.max(1e-3);
@@ -396,6 +406,12 @@ async fn physics(
                 s.odo = g.odometry_step(&s.odo, dl, dr);
                 s.sim.set_time(t);
                 let stamp = s.stamp(t);
+                if let Some(loc) = localizer.as_mut() {
+                    let truth = s.sim.pose();
+                    if let Some((topic, msg)) = loc.at(t, &truth, |u| s.stamp(u)) {
+                        batch.push((topic, serde_json::to_value(msg).unwrap_or(Value::Null)));
+                    }
+                }
                 // A reading the sensor lost is a message not sent.
                 if let Some(yaw) = s.sim.heading_reading() {
                     let unknown = if cfg.effort == EffortStyle::BareNan {

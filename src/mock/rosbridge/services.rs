@@ -205,6 +205,12 @@ pub(super) fn topic_types(
     ] {
         t.insert(topic.to_string(), kind.to_string());
     }
+    if let Some(l) = &cfg.localization {
+        t.insert(
+            l.topic.clone(),
+            types::POSE_WITH_COVARIANCE_STAMPED.to_string(),
+        );
+    }
     t
 }
 
@@ -221,6 +227,7 @@ fn graph_of(
         "/imu" => vec![IMU_NODE.into()],
         "/odom" => vec![ctrl.clone()],
         "/rosout" => vec![ctrl.clone(), BROADCASTER_NODE.into(), IMU_NODE.into()],
+        t if cfg.localization.as_ref().is_some_and(|l| l.topic == t) => vec!["/amcl".into()],
         _ => vec![],
     };
     if advertised {

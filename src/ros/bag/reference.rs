@@ -46,6 +46,13 @@ pub fn read_pose_drive(
     read_pose_container(open_container(path)?.as_ref(), opts, reference)
 }
 
+/// The standard deviations of x, y and yaw a pose message's covariance states, when it states
+/// usable ones (positive and finite; AMCL's, a motion-capture bridge's).
+pub(crate) fn stated_std(c: &Covariance36) -> Option<[f64; 3]> {
+    let s = [c.0[0], c.0[7], c.0[35]].map(f64::sqrt);
+    s.iter().all(|v| v.is_finite() && *v > 0.0).then_some(s)
+}
+
 /// The wheel joints as a reader meets them: the wheels found by name in the first message
 /// that names them, later messages of other joint groups skipped.
 #[derive(Default)]
@@ -248,10 +255,7 @@ pub fn read_pose_container(
             t: stamp_or(&header, m.log_time_ns),
             value: (pose.position.x, pose.position.y, yaw),
         });
-        stated.push(cov.and_then(|c| {
-            let s = [c.0[0], c.0[7], c.0[35]].map(f64::sqrt);
-            s.iter().all(|v| v.is_finite() && *v > 0.0).then_some(s)
-        }));
+        stated.push(cov.as_ref().and_then(stated_std));
         Ok(())
     })?;
     notes.extend(bag.notes());
