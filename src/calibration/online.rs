@@ -968,6 +968,39 @@ mod tests {
     use super::*;
 
     #[test]
+    fn drift_names_each_parameter_in_use_off_by_more_than_its_uncertainty_allows() {
+        let configured = WheelParams::nominal(0.15, 0.39, 4096.0);
+        let mut e = OnlineEstimate {
+            method: "online",
+            e_b: 0.976,
+            e_d: 0.99995,
+            e_b_std: 1e-4,
+            e_d_std: 1e-4,
+            correction: Correction {
+                left_diameter_scale: 1.0001,
+                right_diameter_scale: 0.992,
+                wheelbase_scale: 0.976,
+            },
+            correction_std: Some([1e-4; 3]),
+            distance_m: 10.0,
+        };
+        let d = e.drift(&configured, 3.0);
+        let names: Vec<&str> = d.iter().map(|d| d.parameter).collect();
+        assert_eq!(names, ["right_wheel_diameter_m", "wheelbase_m"]);
+        assert!((d[1].estimate - 0.39 * 0.976).abs() < 1e-12);
+        assert!((d[1].std - 0.39e-4).abs() < 1e-12);
+        assert!((d[1].sigmas + 240.0).abs() < 1e-6, "{}", d[1].sigmas);
+        // Heading only: the ratios, against 1.
+        e.correction_std = None;
+        let names: Vec<&str> = e
+            .drift(&configured, 3.0)
+            .iter()
+            .map(|d| d.parameter)
+            .collect();
+        assert_eq!(names, ["E_b"]);
+    }
+
+    #[test]
     fn bad_configurations_are_refused() {
         let mut cfg = OnlineConfig::new(WheelParams::nominal(0.15, 0.39, 4096.0));
         cfg.heading_sigma_rad = 0.0;

@@ -435,6 +435,47 @@ mod tests {
             rec.headings[1].validity,
             Validity::Invalid("magnetic disturbance".into())
         );
+        // A session with a pose reference: its poses come back as they were written, with
+        // and without a stated covariance or a yaw; one stamped back in time is named.
+        let poses = [
+            ReferencePose {
+                time_s: 0.1,
+                x_m: 5.0,
+                y_m: -3.0,
+                yaw_rad: Some(1.0),
+                stated_std: Some([0.003, 0.003, 0.005]),
+            },
+            ReferencePose {
+                time_s: 0.2,
+                x_m: 5.01,
+                y_m: -3.0,
+                yaw_rad: None,
+                stated_std: None,
+            },
+        ];
+        let mut w = LogWriter::create(&path, header.clone()).unwrap();
+        for p in &poses {
+            w.event(&Event::Pose(*p)).unwrap();
+        }
+        w.event(&Event::Pose(ReferencePose {
+            time_s: 0.15,
+            ..poses[0]
+        }))
+        .unwrap();
+        w.flush().unwrap();
+        drop(w);
+        match read_log(&path) {
+            Err(LogError::Malformed { line, reason, .. }) => {
+                assert_eq!(line, 4);
+                assert!(reason.contains("before the one at 0.2 s"), "{reason}");
+            }
+            other => panic!("expected a malformed line 4, got {other:?}"),
+        }
+        let text = std::fs::read_to_string(&path).unwrap();
+        let kept: Vec<&str> = text.lines().take(3).collect();
+        std::fs::write(&path, kept.join("\n") + "\n").unwrap();
+        let (_, rec) = read_log(&path).unwrap();
+        assert_eq!(rec.poses, poses.to_vec());
         std::fs::remove_dir_all(&dir).unwrap();
     }
 

@@ -41,6 +41,15 @@ pub struct RobotArgs {
     ros: RosFlags,
 }
 
+impl RobotArgs {
+    /// The rosbridge URL of a ROS robot (`--base rosbridge://…`), if that is the base.
+    pub fn rosbridge_url(&self) -> Option<&str> {
+        self.base
+            .as_deref()
+            .filter(|b| b.starts_with("rosbridge://") || b.starts_with("ws://"))
+    }
+}
+
 /// ROS settings of `--base rosbridge://…` (a routine file's `[robot.ros]` table holds the same
 /// keys).
 #[derive(Debug, Clone, Default, clap::Args)]

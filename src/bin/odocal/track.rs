@@ -4,13 +4,17 @@
 use crate::print_json;
 use crate::robot::RobotArgs;
 use clap::ArgGroup;
-use odocal::base::Base;
+use odocal::base::{Base, PoseSource};
 use odocal::calibration::online::{OnlineConfig, OnlineEstimate, ScaleSource};
+use odocal::calibration::pose_reference::{Geometry, PoseRecording};
 use odocal::calibration::recording::Event;
+use odocal::calibration::recording::Recording;
 use odocal::calibration::tracker::Tracker;
 use odocal::kinematics::{SplitConvention, WheelParams};
 use odocal::offline::dataset::OptiOdomSet;
 use odocal::offline::log::{read_log, LogHeader, LogWriter};
+use odocal::offline::pose_csv::{read_poses, read_wheels};
+use odocal::ros::pose_source::RosPoseSource;
 use odocal::routine::config::WritePolicy;
 use odocal::routine::track::{track_live, DrivePath, TrackOptions, TrackOutcome};
 use odocal::routine::{write_parameters, RoutineEvent, RoutineUi};
@@ -55,9 +59,10 @@ async fn open(robot: &RobotArgs) -> Result<(Base, WheelParams), Box<dyn std::err
     Ok((base, params))
 }
 
-/// A live session: asks before a path is driven, writes every sample to `log` if given.
+/// A live session (against the pose reference given beside the base, else its heading): asks
+/// before a path is driven, writes every sample to `log` if given.
 async fn live(
-    base: &Base,
+    (base, poses): (&Base, Option<&dyn PoseSource>),
     tracker: &mut Tracker,
     period_ms: u64,
     duration_s: Option<f64>,
@@ -100,7 +105,7 @@ async fn live(
     };
     let outcome = track_live(
         base,
-        None,
+        poses,
         tracker,
         &opts,
         &mut sink,
@@ -162,7 +167,7 @@ pub async fn record(args: RecordArgs) -> CliResult {
         f64::INFINITY,
     )?;
     let outcome = live(
-        &base,
+        (&base, None),
         &mut tracker,
         args.period_ms,
         args.duration_s,
@@ -202,7 +207,7 @@ pub async fn record(args: RecordArgs) -> CliResult {
 
 /// Arguments of `odocal track`.
 #[derive(Debug, clap::Args)]
-#[command(group(ArgGroup::new("source").required(true).args(["port", "base", "log", "dataset"])))]
+#[command(group(ArgGroup::new("source").required(true).args(["port", "base", "log", "dataset", "poses"])))]
 pub struct TrackArgs {
     #[command(flatten)]
     robot: RobotArgs,
@@ -212,6 +217,29 @@ pub struct TrackArgs {
     /// A recorded OptiOdom set (ground-truth heading plays the compass).
     #[arg(long)]
     dataset: Option<PathBuf>,
+    /// Live on a ROS robot (--base rosbridge://…): calibrate against this pose topic
+    /// (PoseStamped, PoseWithCovarianceStamped such as /amcl_pose, or Odometry) instead of
+    /// the heading: both diameters and the wheelbase in metres, and where the reference frame
+    /// sits on the robot.
+    #[arg(long, conflicts_with_all = ["log", "dataset", "poses"])]
+    reference: Option<String>,
+    /// How late the reference's stamps are (s): the pose stamped t is the robot's at t − this
+    /// (`odocal fit` measures it).
+    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+    reference_delay_s: f64,
+    /// A pose reference from a file (t_s,x_m,y_m,yaw_rad; `odocal fit`'s format), with
+    /// --wheels, replayed through the online filter.
+    #[arg(long, requires = "wheels")]
+    poses: Option<PathBuf>,
+    /// The wheels of --poses (t_s,left_rad,right_rad).
+    #[arg(long, requires = "poses")]
+    wheels: Option<PathBuf>,
+    /// With --poses: the configured wheel diameter (m).
+    #[arg(long, requires = "poses")]
+    wheel_diameter_m: Option<f64>,
+    /// With --poses: the configured wheelbase (m).
+    #[arg(long, requires = "poses")]
+    wheelbase_m: Option<f64>,
     /// Live: also write every sample to this log (it replays to the same numbers).
     #[arg(long)]
     record: Option<PathBuf>,
@@ -249,6 +277,81 @@ pub struct TrackArgs {
     json: bool,
 }
 
+/// A parameter in use further than this many standard deviations from the drive's estimate
+/// is reported as drifted.
+const DRIFT_SIGMAS: f64 = 3.0;
+
+/// What a session with a pose reference found: the geometry in metres, the reference's
+/// mounting, and whether the parameters in use have drifted.
+fn print_pose_session(tracker: &Tracker, last: &OnlineEstimate, configured: &WheelParams) {
+    if let Some(fit) = &tracker.started_from {
+        println!(
+            "the filter started from a batch fit of the first {:.1} s (when the drive had \
+             turned both ways and driven straight), then took every pose fix",
+            fit.span_s
+        );
+    }
+    let c = &last.correction;
+    if let Some([sl, sr, sb]) = last.correction_std {
+        for (name, v, f, sf) in [
+            (
+                "left_wheel_diameter_m",
+                configured.left_wheel_diameter_m,
+                c.left_diameter_scale,
+                sl,
+            ),
+            (
+                "right_wheel_diameter_m",
+                configured.right_wheel_diameter_m,
+                c.right_diameter_scale,
+                sr,
+            ),
+            ("wheelbase_m", configured.wheelbase_m, c.wheelbase_scale, sb),
+        ] {
+            println!(
+                "{name:<24} {:.6} ± {:.6} (1σ; in use {v:.6})",
+                v * f,
+                v * sf
+            );
+        }
+    }
+    let (m, ms) = tracker.filter().mount();
+    println!(
+        "reference frame in base_link: x {:.4} ± {:.4} m, y {:.4} ± {:.4} m, yaw {:.2} ± {:.2}°",
+        m[0],
+        ms[0],
+        m[1],
+        ms[1],
+        m[2].to_degrees(),
+        ms[2].to_degrees()
+    );
+    let (nis, fixes) = tracker.filter().nis_pose_mean();
+    let gate = tracker.filter().gate_stats();
+    println!(
+        "{fixes} pose fixes, mean NIS per degree of freedom {nis:.2} (≈ 1 when the noise fits); \
+         {} rejected by the gate, {} re-anchor(s)",
+        gate.rejected, gate.resets
+    );
+    let drift = last.drift(configured, DRIFT_SIGMAS);
+    if drift.is_empty() {
+        println!(
+            "no drift: every parameter in use is within {DRIFT_SIGMAS}σ of what the drive says"
+        );
+    }
+    for d in drift {
+        println!(
+            "drift: {} in use {:.6} is off by {:+.6} ({:+.1}σ): the drive says {:.6} ± {:.6}; \
+             write it back with --write-back, or fit the recording with odocal fit",
+            d.parameter,
+            d.in_use,
+            d.estimate - d.in_use,
+            d.sigmas,
+            d.estimate,
+            d.std
+        );
+    }
+}
+
 fn show(e: &OnlineEstimate, json_out: bool, label: &str) {
     if !json_out {
         println!(
@@ -281,7 +384,13 @@ impl RoutineUi for StdinUi {
 
 /// Runs `odocal track`.
 pub async fn track(args: TrackArgs) -> CliResult {
-    let scale = ScaleSource::Convention(args.convention);
+    let with_poses = args.reference.is_some() || args.poses.is_some();
+    // A pose reference observes the absolute scale: the filter's own, not a convention's.
+    let scale = if with_poses {
+        ScaleSource::Filter
+    } else {
+        ScaleSource::Convention(args.convention)
+    };
     let config = |configured| {
         let mut c = OnlineConfig::new(configured);
         c.slip_fraction = args.slip_fraction;
@@ -291,15 +400,49 @@ pub async fn track(args: TrackArgs) -> CliResult {
     if !args.json {
         println!(
             "method online (the default with no squares to drive: an extended Kalman filter over \
-             every wheel and heading reading); ± is 1σ of the filter's covariance"
+             every wheel sample and heading reading or pose fix); ± is 1σ of the filter's \
+             covariance"
         );
         println!("{:>9} {:>10}   estimate", "", "driven");
     }
-    if args.write_back && (args.log.is_some() || args.dataset.is_some()) {
+    if args.write_back && (args.log.is_some() || args.dataset.is_some() || args.poses.is_some()) {
         return Err("--write-back writes to a live robot: give --port or --base".into());
     }
+    let poses = match &args.reference {
+        Some(topic) => {
+            let url = args.robot.rosbridge_url().ok_or(
+                "--reference reads a ROS topic: give --base rosbridge://HOST:PORT (for a \
+                 recording, use odocal fit, or track --poses with --wheels)",
+            )?;
+            Some(RosPoseSource::connect(url, topic, Duration::from_secs(5)).await?)
+        }
+        None => None,
+    };
     let mut base = None;
-    let (tracker, configured) = if let Some(dir) = &args.dataset {
+    let (tracker, configured) = if let (Some(p), Some(w)) = (&args.poses, &args.wheels) {
+        let (Some(d), Some(b)) = (args.wheel_diameter_m, args.wheelbase_m) else {
+            return Err(
+                "--poses needs the configured geometry: give --wheel-diameter-m and \
+                        --wheelbase-m (metres)"
+                    .into(),
+            );
+        };
+        crate::in_range("--wheel-diameter-m", d, 1e-3, 5.0)?;
+        crate::in_range("--wheelbase-m", b, 1e-2, 10.0)?;
+        // Wheels in radians: a "count" is a radian (see OnlineConfig's angle units).
+        let configured = WheelParams::nominal(d, b, std::f64::consts::TAU);
+        let drive = PoseRecording {
+            wheels: read_wheels(w)?,
+            poses: read_poses(p)?,
+        };
+        let mut t = Tracker::new(config(configured), scale, args.every_m)?;
+        t.set_pose_delay(args.reference_delay_s);
+        let recording = Recording::of_pose_recording(&drive, Geometry::from(&configured));
+        for e in t.feed_recording(&p.display().to_string(), &recording) {
+            show(&e, args.json, "");
+        }
+        (t, configured)
+    } else if let Some(dir) = &args.dataset {
         let set = OptiOdomSet::load(dir)?;
         let mut t = Tracker::new(config(set.configured), scale, args.every_m)?;
         for e in set.feed(&mut t) {
@@ -308,7 +451,14 @@ pub async fn track(args: TrackArgs) -> CliResult {
         (t, set.configured)
     } else if let Some(path) = &args.log {
         let (header, recording) = read_log(path)?;
+        // A log of a session with a pose reference replays as one.
+        let scale = if recording.poses.is_empty() {
+            scale
+        } else {
+            ScaleSource::Filter
+        };
         let mut t = Tracker::new(config(header.params), scale, args.every_m)?;
+        t.set_pose_delay(args.reference_delay_s);
         for e in t.feed_recording("log", &recording) {
             show(&e, args.json, "");
         }
@@ -316,6 +466,7 @@ pub async fn track(args: TrackArgs) -> CliResult {
     } else {
         let (b, configured) = open(&args.robot).await?;
         let mut t = Tracker::new(config(configured), scale, args.every_m)?;
+        t.set_pose_delay(args.reference_delay_s);
         let mut log = match &args.record {
             Some(p) => Some(LogWriter::create(
                 p,
@@ -324,7 +475,7 @@ pub async fn track(args: TrackArgs) -> CliResult {
             None => None,
         };
         let outcome = live(
-            &b,
+            (&b, poses.as_ref().map(|p| p as &dyn PoseSource)),
             &mut t,
             args.period_ms,
             args.duration_s,
@@ -371,6 +522,10 @@ pub async fn track(args: TrackArgs) -> CliResult {
     };
     let last = tracker.estimate()?;
     show(&last, args.json, "final");
+    let with_poses = with_poses || tracker.started_from.is_some();
+    if with_poses && !args.json {
+        print_pose_session(&tracker, &last, &configured);
+    }
     let (nis, updates) = tracker.filter().nis_mean();
     let gate = tracker.filter().gate_stats();
     let excitation = tracker.filter().excitation(scale)?;
@@ -407,9 +562,20 @@ pub async fn track(args: TrackArgs) -> CliResult {
     if args.json {
         let mut estimates: Vec<_> = tracker.checkpoints.clone();
         estimates.push(last);
+        let (mount, mount_std) = tracker.filter().mount();
+        let (pose_nis, pose_fixes) = tracker.filter().nis_pose_mean();
         return print_json(&json!({
             "configured": configured,
             "estimates": estimates,
+            "pose_reference": with_poses.then(|| json!({
+                "fixes": pose_fixes,
+                "nis_mean_per_dof": pose_nis,
+                "sensor_x_m": mount[0], "sensor_x_m_std": mount_std[0],
+                "sensor_y_m": mount[1], "sensor_y_m_std": mount_std[1],
+                "sensor_yaw_rad": mount[2], "sensor_yaw_rad_std": mount_std[2],
+                "started_after_s": tracker.started_from.as_ref().map(|f| f.span_s),
+                "drift": last.drift(&configured, DRIFT_SIGMAS),
+            })),
             "heading_updates": updates,
             "heading_nis_mean": nis,
             "heading_gate": gate,
@@ -418,11 +584,13 @@ pub async fn track(args: TrackArgs) -> CliResult {
             "written": written,
         }));
     }
-    println!(
-        "{updates} heading updates, mean NIS {nis:.2} (≈ 1 when the noise settings fit the robot); \
-         {} reading(s) rejected by the gate, {} heading re-anchor(s)",
-        gate.rejected, gate.resets
-    );
+    if !with_poses {
+        println!(
+            "{updates} heading updates, mean NIS {nis:.2} (≈ 1 when the noise settings fit the \
+             robot); {} reading(s) rejected by the gate, {} heading re-anchor(s)",
+            gate.rejected, gate.resets
+        );
+    }
     println!(
         "E_b {} (σ {:.0} % of the prior's), E_d {} (σ {:.0} % of the prior's)",
         excitation.e_b,
