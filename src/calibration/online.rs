@@ -255,7 +255,8 @@ pub struct OnlineEstimate {
     pub distance_m: f64,
 }
 
-/// A parameter in use that the drive says is off by more than its uncertainty allows.
+/// A parameter's estimate beside the value in use ([`OnlineEstimate::against`]); a drift
+/// when they differ by more than the uncertainty allows ([`OnlineEstimate::drift`]).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct Drift {
     /// The parameter (with its unit).
@@ -272,9 +273,18 @@ pub struct Drift {
 
 impl OnlineEstimate {
     /// The parameters in use (`configured`) that are off by more than `sigmas` standard
-    /// deviations of this estimate: both diameters and the wheelbase in metres when the
-    /// scale is observed, else `E_d` and `E_b` (1 in use).
+    /// deviations of this estimate ([`OnlineEstimate::against`]).
     pub fn drift(&self, configured: &WheelParams, sigmas: f64) -> Vec<Drift> {
+        self.against(configured)
+            .into_iter()
+            .filter(|d| d.sigmas.abs() > sigmas)
+            .collect()
+    }
+
+    /// Each parameter's estimate beside its value in use (`configured`): both diameters and
+    /// the wheelbase in metres when the scale is observed, else `E_d` and `E_b` (1 in use);
+    /// those without a finite positive standard deviation left out.
+    pub fn against(&self, configured: &WheelParams) -> Vec<Drift> {
         let c = &self.correction;
         let rows: Vec<(&'static str, f64, f64, f64)> = match self.correction_std {
             Some([sl, sr, sb]) => vec![
@@ -309,7 +319,6 @@ impl OnlineEstimate {
                 std,
                 sigmas: (estimate - in_use) / std,
             })
-            .filter(|d| d.sigmas.abs() > sigmas)
             .collect()
     }
 }

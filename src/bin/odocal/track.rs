@@ -291,27 +291,11 @@ fn print_pose_session(tracker: &Tracker, last: &OnlineEstimate, configured: &Whe
             fit.span_s
         );
     }
-    let c = &last.correction;
-    if let Some([sl, sr, sb]) = last.correction_std {
-        for (name, v, f, sf) in [
-            (
-                "left_wheel_diameter_m",
-                configured.left_wheel_diameter_m,
-                c.left_diameter_scale,
-                sl,
-            ),
-            (
-                "right_wheel_diameter_m",
-                configured.right_wheel_diameter_m,
-                c.right_diameter_scale,
-                sr,
-            ),
-            ("wheelbase_m", configured.wheelbase_m, c.wheelbase_scale, sb),
-        ] {
+    if last.correction_std.is_some() {
+        for p in last.against(configured) {
             println!(
-                "{name:<24} {:.6} ± {:.6} (1σ; in use {v:.6})",
-                v * f,
-                v * sf
+                "{:<24} {:.6} ± {:.6} (1σ; in use {:.6})",
+                p.parameter, p.estimate, p.std, p.in_use
             );
         }
     }
