@@ -57,8 +57,13 @@ pub fn wrap_angle(angle_rad: f64) -> f64 {
         return angle_rad;
     }
     // The nearest whole number of turns taken off (a division and a rounding: `rem_euclid`'s
-    // exact remainder cost a tenth of a pose fit), then the ends of the half-open interval.
-    let mut a = angle_rad - (angle_rad / (2.0 * PI)).round() * (2.0 * PI);
+    // exact remainder cost a tenth of a pose fit), then the ends of the half-open interval;
+    // beyond a million turns the product's rounding error exceeds a turn: the exact remainder.
+    let mut a = if angle_rad.abs() < 1e6 {
+        angle_rad - (angle_rad / (2.0 * PI)).round() * (2.0 * PI)
+    } else {
+        (angle_rad + PI).rem_euclid(2.0 * PI) - PI
+    };
     if a <= -PI {
         a += 2.0 * PI;
     } else if a > PI {
@@ -669,6 +674,28 @@ mod tests {
             wrap_angle((-179.9f64).to_radians() - 0.2f64.to_radians()),
             179.9f64.to_radians(),
             epsilon = 1e-12
+        );
+        // Every finite angle lands in (−π, π], however many turns it holds (the rounded
+        // number of turns is exact only below a million of them).
+        for a in [
+            1e5 + 0.3,
+            -7e5,
+            1.5e6,
+            4.97e17,
+            -1e18,
+            1e300,
+            -f64::MAX,
+            f64::MAX,
+        ] {
+            let w = wrap_angle(a);
+            assert!(w > -PI && w <= PI, "{a} wrapped to {w}");
+        }
+        // Below a million turns the fast path agrees with the exact remainder.
+        let a = 12345.678;
+        assert_relative_eq!(
+            wrap_angle(a),
+            (a + PI).rem_euclid(2.0 * PI) - PI,
+            epsilon = 1e-9
         );
     }
 

@@ -311,6 +311,62 @@ fn the_command_line_contract_on_csv_files() {
     let (ok, _, err) = common::odocal(&["fit", "--wheels", w, "--poses", p, "--json"]);
     assert!(!ok);
     assert!(err.contains("--wheel-diameter-m"), "{err}");
+    // `--report DIR`: fit.json (what --json prints) and the plots.
+    let report = dir.join("report");
+    let (ok, _, err) = common::odocal(&[
+        "fit",
+        "--wheels",
+        w,
+        "--poses",
+        p,
+        "--wheel-diameter-m",
+        "0.1",
+        "--wheelbase-m",
+        "0.3",
+        "--report",
+        report.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    let reported: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(report.join("fit.json")).expect("fit.json"))
+            .expect("JSON");
+    assert_eq!(reported["wheelbase_m"], json["wheelbase_m"]);
+    for (file, title) in [
+        ("pose_paths.svg", "path in the reference"),
+        ("pose_errors.svg", "distance from the reference"),
+        ("pose_mounting.svg", "the reference frame in base_link"),
+    ] {
+        let svg = std::fs::read_to_string(report.join(file)).expect(file);
+        assert!(svg.starts_with("<svg") && svg.contains(title), "{file}");
+    }
+    // `odocal export` writes the fitted geometry into the controller's YAML (a backup beside
+    // it first), and `odocal restore` of that backup puts the file back byte for byte.
+    let fit_json = report.join("fit.json");
+    let yaml = dir.join("diff_drive.yaml");
+    let original = common::DIFF_DRIVE_YAML;
+    std::fs::write(&yaml, original).expect("writes");
+    let (y, f) = (yaml.to_str().unwrap(), fit_json.to_str().unwrap());
+    let (ok, out, err) = common::odocal(&["export", "--from", f, "--ros2", y, "--force"]);
+    assert!(ok, "{err}");
+    let written = odocal::ros::yaml::DiffDriveConfig::load(&yaml, "diff_drive_controller")
+        .expect("a controller YAML")
+        .effective();
+    for (key, v) in [
+        ("left_wheel_diameter_m", written.left_wheel_diameter_m),
+        ("right_wheel_diameter_m", written.right_wheel_diameter_m),
+        ("wheelbase_m", written.wheelbase_m),
+    ] {
+        let fitted = json[key].as_f64().expect("fitted");
+        assert!((v - fitted).abs() < 1e-9 * fitted, "{key}: {v} vs {fitted}");
+    }
+    let backup = out
+        .split("odocal restore ")
+        .nth(1)
+        .and_then(|rest| rest.split(')').next())
+        .unwrap_or_else(|| panic!("the undo command in {out}"));
+    let (ok, _, err) = common::odocal(&["restore", backup, "--yes"]);
+    assert!(ok, "{err}");
+    assert_eq!(std::fs::read_to_string(&yaml).expect("reads"), original);
 }
 
 /// The same drive from a bag, its reference as each pose type a ROS robot publishes: the fit
@@ -660,5 +716,36 @@ fn the_online_filter_with_pose_fixes_agrees_with_the_batch_fit() {
             fixes > 1500 && (0.8..1.2).contains(&nis),
             "{fixes} fixes, NIS {nis}"
         );
+    }
+}
+
+/// The online filter takes an absolute reference with a yaw: a chained one (scan matching) and
+/// a position-only one (GNSS) are refused by name, pointing to `odocal fit`.
+#[test]
+fn the_online_filter_refuses_a_chained_or_position_only_reference_by_name() {
+    use odocal::calibration::online::{OnlineConfig, ScaleSource};
+    use odocal::calibration::recording::Recording;
+    use odocal::calibration::tracker::Tracker;
+    use odocal::kinematics::WheelParams;
+    let chained = DrivingConfig::with_reference(ReferenceKind::Relative);
+    let position_only = DrivingConfig {
+        position_only: true,
+        ..DrivingConfig::default()
+    };
+    for (config, expected) in [
+        (chained, "accumulates error"),
+        (position_only, "position-only"),
+    ] {
+        let recording = drive(config);
+        let configured = WheelParams::nominal(NOMINAL.left_diameter_m, NOMINAL.wheelbase_m, 4096.0);
+        let mut tracker =
+            Tracker::new(OnlineConfig::new(configured), ScaleSource::Filter, 1.0).expect("filter");
+        tracker.feed_recording("sim", &Recording::of_pose_recording(&recording, NOMINAL));
+        let err = tracker.estimate().expect_err("refused").to_string();
+        assert!(
+            err.contains(expected) && err.contains("odocal fit"),
+            "{err}"
+        );
+        assert!(tracker.started_from.is_none());
     }
 }

@@ -326,8 +326,8 @@ impl OnlineEstimate {
 /// The noise of pose fixes as a batch fit of the drive found it.
 #[derive(Debug, Clone, Copy)]
 struct FixNoise {
-    /// Factor on the standard deviations a fix states.
-    stated_scale: f64,
+    /// Factors on the standard deviations a fix states (position, yaw).
+    stated_scale: [f64; 2],
     /// Standard deviations of fixes that state none (x, y in m; yaw in rad).
     unstated: Option<[f64; 3]>,
 }
@@ -405,7 +405,7 @@ impl OnlineEstimator {
             heading_initialized: false,
             anchored: false,
             fix_noise: FixNoise {
-                stated_scale: 1.0,
+                stated_scale: [1.0, 1.0],
                 unstated: None,
             },
             distance_m: 0.0,
@@ -622,10 +622,23 @@ impl OnlineEstimator {
         }
         // Stated deviations as the start's batch fit scaled them (a localization's covariance
         // is a weight, seldom a calibrated variance); none stated: the fit's residual scatter,
-        // else the configured noise.
-        let [sx, sy, syaw] = match sigma.filter(|s| s.iter().all(|v| v.is_finite() && *v > 0.0)) {
-            Some(s) => s.map(|v| v * self.fix_noise.stated_scale),
-            None => self.fix_noise.unstated.unwrap_or([
+        // else the configured noise. Only the components used must be stated (a position-only
+        // reference states no yaw).
+        let usable = |v: f64| v.is_finite() && v > 0.0;
+        let stated =
+            sigma.filter(|s| usable(s[0]) && usable(s[1]) && (yaw_rad.is_none() || usable(s[2])));
+        let noise = self.fix_noise;
+        let [sx, sy, syaw] = match stated {
+            Some(s) => [
+                s[0] * noise.stated_scale[0],
+                s[1] * noise.stated_scale[0],
+                if usable(s[2]) {
+                    s[2] * noise.stated_scale[1]
+                } else {
+                    self.cfg.heading_sigma_rad
+                },
+            ],
+            None => noise.unstated.unwrap_or([
                 self.cfg.position_sigma_m,
                 self.cfg.position_sigma_m,
                 self.cfg.heading_sigma_rad,
@@ -774,10 +787,8 @@ impl OnlineEstimator {
         self.x[MPSI] = wrap_angle(mpsi);
         let position = fit.residual_std_position_m;
         self.fix_noise = FixNoise {
-            stated_scale: fit
-                .stated_scale
-                .filter(|s| s.is_finite() && *s > 0.0)
-                .unwrap_or(1.0),
+            stated_scale: [fit.stated_scale, fit.stated_scale_yaw]
+                .map(|s| s.filter(|s| s.is_finite() && *s > 0.0).unwrap_or(1.0)),
             unstated: (position.is_finite() && position > 0.0).then(|| {
                 [
                     position,
@@ -821,9 +832,23 @@ impl OnlineEstimator {
                 self.p[(j, i)] = cross[(a, j)];
             }
         }
+        // The fix's own noise, its yaw's through the lever arm too: J_z R J_zᵀ.
+        let jz = nalgebra::Matrix3::new(
+            1.0,
+            0.0,
+            s * mx + c * my,
+            0.0,
+            1.0,
+            -(c * mx - s * my),
+            0.0,
+            0.0,
+            1.0,
+        );
+        let noise =
+            jz * nalgebra::Matrix3::from_diagonal(&nalgebra::Vector3::from(r)) * jz.transpose();
         for (a, i) in [X, Y, TH].into_iter().enumerate() {
             for (b, j) in [X, Y, TH].into_iter().enumerate() {
-                self.p[(i, j)] = pose_cov[(a, b)] + if a == b { r[a] } else { 0.0 };
+                self.p[(i, j)] = pose_cov[(a, b)] + noise[(a, b)];
             }
         }
         self.x[X] = x_m - (c * mx - s * my);

@@ -322,6 +322,10 @@ pub struct FitSummary {
     pub e_b: f64,
     /// Its standard deviation.
     pub e_b_std: f64,
+    /// The nominal (configured) left wheel diameter the fit started from (m).
+    pub nominal_left_wheel_diameter_m: f64,
+    /// The nominal right wheel diameter (m).
+    pub nominal_right_wheel_diameter_m: f64,
     /// The nominal wheelbase `E_b` refers to (m).
     pub nominal_wheelbase_m: f64,
     /// How the reference was fitted: `absolute` or `relative`.
@@ -373,6 +377,8 @@ impl PoseCalibration {
             e_d_std: self.e_d.std,
             e_b: self.e_b.value,
             e_b_std: self.e_b.std,
+            nominal_left_wheel_diameter_m: self.nominal.left_diameter_m,
+            nominal_right_wheel_diameter_m: self.nominal.right_diameter_m,
             nominal_wheelbase_m: self.nominal.wheelbase_m,
             reference_kind: kind.as_ref().map_or("absolute", |k| k.kind.name()),
             reference_kind_reason: kind.map(|k| k.reason).unwrap_or_default(),

@@ -197,6 +197,8 @@ pub struct PoseFit {
     /// residuals say they are off by (1: the messages state their noise right; the stated
     /// covariance's scale is not trusted, only its shape).
     pub stated_scale: Option<f64>,
+    /// The same for the stated yaw deviations (`None` without yaw or stated deviations).
+    pub stated_scale_yaw: Option<f64>,
     /// Standard deviation of one yaw residual (rad), inliers; `None` without yaw.
     pub residual_std_yaw_rad: Option<f64>,
     /// Variance per second of the positions' random walk between reference and odometry
@@ -311,20 +313,38 @@ pub fn fit_poses(
             // The kind is told by a relative fit; on a long drive, of its first part only (the
             // fit for the kind decided then starts from it): the decision needs the motion
             // residuals' spread, not the last digit of the geometry.
-            let head = recording.head(DECISION_POSES);
-            let relative = fit_kind(
+            let undecided = || KindDecision {
+                kind: ReferenceKind::Relative,
+                decided_by: "data",
+                variance_ratio_10_to_1: None,
+                reason: String::new(),
+            };
+            // A head that cannot be fitted (the robot idle, poses before the wheels) leaves
+            // the decision to the whole recording.
+            let head_fit = recording.head(DECISION_POSES).and_then(|h| {
+                let fit = fit_kind(&h, config, ReferenceKind::Relative, None, undecided()).ok()?;
+                Some((h, fit))
+            });
+            let (head, relative) = match head_fit {
+                Some((h, fit)) => (Some(h), fit),
+                None => (
+                    None,
+                    fit_kind(
+                        recording,
+                        config,
+                        ReferenceKind::Relative,
+                        None,
+                        undecided(),
+                    )?,
+                ),
+            };
+            // The spread of the residuals on the samples that were fitted.
+            let ratio = span_variance_ratio(
                 head.as_ref().unwrap_or(recording),
                 config,
-                ReferenceKind::Relative,
-                None,
-                KindDecision {
-                    kind: ReferenceKind::Relative,
-                    decided_by: "data",
-                    variance_ratio_10_to_1: None,
-                    reason: String::new(),
-                },
-            )?;
-            let ratio = span_variance_ratio(recording, config, &relative.params, 10);
+                &relative.params,
+                10,
+            );
             let threshold = 10f64.sqrt();
             let (kind, why) = if !ratio.is_finite() {
                 (
@@ -1458,8 +1478,8 @@ fn fit_kind(
             && close(new_scales.walk_yaw, scales.walk_yaw);
         weights = new_weights;
         scales = new_scales;
-        if settled {
-            // Converged tightly under the settled weights and scales.
+        if settled || stage + 1 == stages {
+            // Converged tightly under the settled (or the last) weights and scales.
             let (xn, it) = levenberg_marquardt(&problem, x, &weights, scales, 50, TIGHT);
             x = xn;
             iterations += it;
@@ -1520,6 +1540,7 @@ fn fit_kind(
         kind: decision,
         residual_std_position_m: scales.position * problem.stated_rms(0),
         stated_scale: problem.use_stated.then_some(scales.position),
+        stated_scale_yaw: (problem.use_stated && dim == 3).then_some(scales.yaw),
         residual_std_yaw_rad: (dim == 3).then_some(scales.yaw * problem.stated_rms(2)),
         walk_position_m2_s: scales.walk_position,
         walk_yaw_rad2_s: (dim == 3).then_some(scales.walk_yaw),

@@ -406,23 +406,49 @@ pub fn final_position_error_m(
     mount: Pose2,
     offset_s: f64,
 ) -> Option<f64> {
+    let path = reckoned_path(recording, geometry, mount, offset_s)?;
+    if path.len() < 2 {
+        return None;
+    }
+    let (i, end) = path.last()?;
+    let last = &recording.poses[*i];
+    Some((end.x - last.x_m).hypot(end.y - last.y_m))
+}
+
+/// Dead reckoning as the reference would have seen it: the reference frame's pose at each
+/// reference stamp inside the wheels' span (its index in `recording.poses`, and the pose in
+/// the reference's world frame), from the odometry of `geometry` through the mounting `mount`
+/// and the time offset `offset_s`, started on the first such reference pose. `None` when the
+/// streams do not overlap or that pose has no yaw.
+pub fn reckoned_path(
+    recording: &PoseRecording,
+    geometry: Geometry,
+    mount: Pose2,
+    offset_s: f64,
+) -> Option<Vec<(usize, Pose2)>> {
     let odo = Odometry::integrate(&recording.wheels, geometry);
     let mut hint = 0;
-    let mut inside = recording
+    let inside: Vec<(usize, Pose2)> = recording
         .poses
         .iter()
-        .filter_map(|p| Some((p, odo.at(p.time_s - offset_s, &mut hint)?.compose(&mount))));
-    let (first, s0) = inside.next()?;
-    let (last, s1) = inside.last()?;
+        .enumerate()
+        .filter_map(|(i, p)| Some((i, odo.at(p.time_s - offset_s, &mut hint)?.compose(&mount))))
+        .collect();
+    let (first, s0) = inside.first()?;
+    let f = &recording.poses[*first];
     let r0 = Pose2 {
-        x: first.x_m,
-        y: first.y_m,
-        theta: first.yaw_rad?,
+        x: f.x_m,
+        y: f.y_m,
+        theta: f.yaw_rad?,
     };
     // The world pose of the odometry's origin, `r0 ∘ s0⁻¹`, puts the sensor on the first pose.
     let origin = r0.compose(&s0.between(&Pose2::default()));
-    let end = origin.compose(&s1);
-    Some((end.x - last.x_m).hypot(end.y - last.y_m))
+    Some(
+        inside
+            .into_iter()
+            .map(|(i, s)| (i, origin.compose(&s)))
+            .collect(),
+    )
 }
 
 #[cfg(test)]

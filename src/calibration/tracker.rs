@@ -28,16 +28,20 @@ pub const MIN_DISTANCE_M: f64 = 0.5;
 #[derive(Debug, Clone)]
 enum PoseStart {
     /// Keeping the drive (wheel angles under the configured diameters, the poses) until it
-    /// observes enough for a batch fit.
-    Waiting(PoseRecording),
+    /// observes enough for a batch fit, tried again once this many poses are kept.
+    Waiting(PoseRecording, usize),
     /// Started (or a heading session).
     Started,
+    /// The reference is not one the filter can take, and why.
+    Refused(String),
 }
 
 /// Wheel samples the start of a pose session keeps at most (an hour at 50 Hz; the oldest half
 /// goes beyond it).
 const START_SAMPLES_KEPT: usize = 180_000;
-/// Poses before the first attempt to start, and between attempts.
+/// Poses before the first attempt to start; after an attempt that fails, the next waits for
+/// half as many poses again as were kept (at least [`START_EVERY_POSES`] more), so that the
+/// batch fits, which run on the live loop, cost a bounded multiple of the last.
 const START_MIN_POSES: usize = 100;
 const START_EVERY_POSES: usize = 50;
 
@@ -92,7 +96,7 @@ impl Tracker {
             every_m,
             next_m: every_m,
             pose_delay_s: 0.0,
-            pose_start: PoseStart::Waiting(PoseRecording::default()),
+            pose_start: PoseStart::Waiting(PoseRecording::default(), START_MIN_POSES),
             started_from: None,
             checkpoints: Vec::new(),
             time_offsets: Vec::new(),
@@ -109,6 +113,9 @@ impl Tracker {
     /// Input with no driving or no heading readings has nothing to estimate from: that is
     /// [`CalibrationError::TooLittleData`], not the prior dressed up as a result.
     pub fn estimate(&self) -> Result<OnlineEstimate, CalibrationError> {
+        if let PoseStart::Refused(why) = &self.pose_start {
+            return Err(CalibrationError::Unsupported(why.clone()));
+        }
         let (_, headings) = self.filter.nis_mean();
         let (_, poses) = self.filter.nis_pose_mean();
         let heading_updates = headings + poses;
@@ -155,8 +162,9 @@ impl Tracker {
     /// are held (and its travel kept beside the filter's prediction); then the fit starts the
     /// filter, and the pose that completed it is its first fix. Returns whether `e` is held.
     fn hold(&mut self, e: &Event) -> bool {
-        let PoseStart::Waiting(drive) = &mut self.pose_start else {
-            return false;
+        let PoseStart::Waiting(drive, next_try) = &mut self.pose_start else {
+            // Started: everything goes on; refused: the poses are held for good.
+            return matches!(self.pose_start, PoseStart::Refused(_)) && matches!(e, Event::Pose(_));
         };
         match e {
             Event::Heading(_) => {
@@ -174,29 +182,49 @@ impl Tracker {
                 false
             }
             Event::Pose(p) => {
+                if p.yaw_rad.is_none() {
+                    self.pose_start = PoseStart::Refused(
+                        "a position-only reference (no yaw, as GNSS): the online filter needs a \
+                         yaw to anchor on; fit the recording with odocal fit"
+                            .into(),
+                    );
+                    return true;
+                }
                 if drive.poses.len() >= START_SAMPLES_KEPT / 5 {
                     drive.poses.drain(..START_SAMPLES_KEPT / 10);
                     let first = drive.poses[0].time_s;
                     drive.wheels.retain(|w| w.time_s >= first - 1.0);
+                    *next_try = (*next_try).min(drive.poses.len() + START_EVERY_POSES);
                 }
                 drive.poses.push(*p);
                 let n = drive.poses.len();
-                if n < START_MIN_POSES || n % START_EVERY_POSES != 0 {
+                if n < *next_try {
                     return true;
                 }
                 let nominal = Geometry::from(&self.filter.config().configured);
                 if survey(drive, nominal).require().is_err() {
+                    *next_try = n + START_EVERY_POSES;
                     return true;
                 }
+                // The kind from the data: a chained reference is not for this filter.
                 let config = FitConfig {
-                    kind: Some(ReferenceKind::Absolute),
                     fit_time_offset: false,
                     ..FitConfig::full(nominal)
                 };
-                let Ok(fit) = fit_poses(drive, &config) else {
-                    return true;
+                let fit = match fit_poses(drive, &config) {
+                    Ok(fit) if judge(&fit).require_geometry().is_ok() => fit,
+                    _ => {
+                        *next_try = n + (n / 2).max(START_EVERY_POSES);
+                        return true;
+                    }
                 };
-                if judge(&fit).require_geometry().is_err() {
+                if fit.kind.kind == ReferenceKind::Relative {
+                    self.pose_start = PoseStart::Refused(format!(
+                        "the reference accumulates error ({}): the online filter takes an \
+                         absolute reference (motion capture, a map's localization); fit the \
+                         recording with odocal fit",
+                        fit.kind.reason
+                    ));
                     return true;
                 }
                 self.filter.start_from_fit(&fit);

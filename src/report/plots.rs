@@ -20,9 +20,9 @@ use plotters::style::text_anchor::{HPos, Pos, VPos};
 use std::ops::Range;
 use std::path::{Path, PathBuf};
 
-type PlotResult<T> = Result<T, Box<dyn std::error::Error>>;
+pub(super) type PlotResult<T> = Result<T, Box<dyn std::error::Error>>;
 
-fn io(e: Box<dyn std::error::Error>) -> std::io::Error {
+pub(super) fn io(e: Box<dyn std::error::Error>) -> std::io::Error {
     std::io::Error::other(e.to_string())
 }
 
@@ -53,7 +53,7 @@ pub fn write_all(report: &Report, dir: &Path) -> std::io::Result<Vec<PathBuf>> {
 
 /// A white canvas of `size` pixels in `file`: the whole (to present), the plots' part and the
 /// legend's column at the right.
-fn canvas(file: &Path, size: (u32, u32)) -> PlotResult<(Area<'_>, Area<'_>, Area<'_>)> {
+pub(super) fn canvas(file: &Path, size: (u32, u32)) -> PlotResult<(Area<'_>, Area<'_>, Area<'_>)> {
     let root = SVGBackend::new(file, size).into_drawing_area();
     root.fill(&WHITE)?;
     let (plots, side) = root.split_horizontally(size.0 - LEGEND_PX);
@@ -91,10 +91,10 @@ const Y_LABELS_PX: u32 = 60;
 
 /// The chart type every plot here draws on.
 type Chart<'a, 'b> = ChartContext<'a, SVGBackend<'b>, Cartesian2d<RangedCoordf64, RangedCoordf64>>;
-type Area<'b> = DrawingArea<SVGBackend<'b>, Shift>;
+pub(super) type Area<'b> = DrawingArea<SVGBackend<'b>, Shift>;
 
 /// Whole numbers without a trailing ".0" (run 5, not 5.0), others with what they need.
-fn tick(v: &f64) -> String {
+pub(super) fn tick(v: &f64) -> String {
     // No "-0" where a tick lands a rounding error below zero.
     let v = if v.abs() < 1e-9 { 0.0 } else { *v };
     if (v - v.round()).abs() < 1e-9 {
@@ -106,7 +106,7 @@ fn tick(v: &f64) -> String {
 }
 
 /// A panel's area once its title is drawn, and the size of its plotting area (px).
-fn titled<'b>(area: &Area<'b>, title: &str) -> PlotResult<(Area<'b>, (u32, u32))> {
+pub(super) fn titled<'b>(area: &Area<'b>, title: &str) -> PlotResult<(Area<'b>, (u32, u32))> {
     let area = area
         .margin(10, 10, 10, 20)
         .titled(title, ("sans-serif", 17))?;
@@ -121,7 +121,7 @@ fn titled<'b>(area: &Area<'b>, title: &str) -> PlotResult<(Area<'b>, (u32, u32))
 }
 
 /// A chart on `area` (from [`titled`]) with labelled axes and a light mesh.
-fn chart<'a, 'b>(
+pub(super) fn chart<'a, 'b>(
     area: &'a Area<'b>,
     x: Range<f64>,
     y: Range<f64>,
@@ -146,7 +146,7 @@ fn chart<'a, 'b>(
 }
 
 /// The smallest box around `points` and the origin, padded by 5 % of its larger side.
-fn bounds<'a>(points: impl Iterator<Item = &'a [f64; 2]>) -> [Range<f64>; 2] {
+pub(super) fn bounds<'a>(points: impl Iterator<Item = &'a [f64; 2]>) -> [Range<f64>; 2] {
     let (mut x0, mut x1, mut y0, mut y1) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
     for p in points {
         x0 = x0.min(p[0]);
@@ -160,7 +160,7 @@ fn bounds<'a>(points: impl Iterator<Item = &'a [f64; 2]>) -> [Range<f64>; 2] {
 
 /// Axis ranges holding `[x, y]` in a plotting area of `px` pixels with equal scales (a
 /// square looks square): the narrower range is widened about its centre.
-fn equal_scale([x, y]: [Range<f64>; 2], (w, h): (u32, u32)) -> [Range<f64>; 2] {
+pub(super) fn equal_scale([x, y]: [Range<f64>; 2], (w, h): (u32, u32)) -> [Range<f64>; 2] {
     let (w, h) = (f64::from(w), f64::from(h));
     let per_px = ((x.end - x.start) / w).max((y.end - y.start) / h);
     let centred = |r: Range<f64>, px: f64| {
@@ -171,7 +171,7 @@ fn equal_scale([x, y]: [Range<f64>; 2], (w, h): (u32, u32)) -> [Range<f64>; 2] {
 }
 
 /// How a legend entry is drawn.
-enum Mark {
+pub(super) enum Mark {
     /// A line sample.
     Line(ShapeStyle),
     /// A filled dot.
@@ -187,7 +187,7 @@ enum Mark {
 }
 
 /// The legend, in its own margin beside the plots.
-fn legend(area: &Area<'_>, entries: &[(String, Mark)]) -> PlotResult<()> {
+pub(super) fn legend(area: &Area<'_>, entries: &[(String, Mark)]) -> PlotResult<()> {
     let area = area.margin(50, 10, 5, 5);
     let font = ("sans-serif", 13).into_font();
     let mut y = 0;

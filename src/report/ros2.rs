@@ -83,10 +83,46 @@ fn params(v: &Value, key: &str) -> Result<WheelParams, ExportError> {
     Ok(p)
 }
 
+/// `odocal fit --json`'s geometry (absolute, in metres) over its nominal one; wheel angles in
+/// radians (a ROS robot's; a merge keeps the file's own count).
+fn pose_fit_calibration(v: &Value) -> Result<Calibration, ExportError> {
+    let num = |key: &str| {
+        v[key]
+            .as_f64()
+            .ok_or_else(|| ExportError::NotAResult(format!("a pose fit without `{key}`")))
+    };
+    let geometry = |l: &str, r: &str, b: &str| -> Result<WheelParams, ExportError> {
+        let p = WheelParams {
+            left_wheel_diameter_m: num(l)?,
+            right_wheel_diameter_m: num(r)?,
+            wheelbase_m: num(b)?,
+            counts_per_wheel_rev: std::f64::consts::TAU,
+        };
+        p.validate()?;
+        Ok(p)
+    };
+    Ok(Calibration {
+        configured: geometry(
+            "nominal_left_wheel_diameter_m",
+            "nominal_right_wheel_diameter_m",
+            "nominal_wheelbase_m",
+        )?,
+        calibrated: geometry(
+            "left_wheel_diameter_m",
+            "right_wheel_diameter_m",
+            "wheelbase_m",
+        )?,
+        method: "pose-fit".into(),
+    })
+}
+
 /// Reads any odocal result: a routine report's final parameters, or `method`'s estimate
 /// (default: the result's `default_method`, else `exact`, else `online`) applied to its
 /// `configured` parameters.
 pub fn calibration_of(v: &Value, method: Option<&str>) -> Result<Calibration, ExportError> {
+    if v.get("reference_kind").is_some() && v.get("left_wheel_diameter_m").is_some() {
+        return pose_fit_calibration(v);
+    }
     if v.get("final_params").is_some() && v.get("original_params").is_some() && method.is_none() {
         return Ok(Calibration {
             configured: params(v, "original_params")?,

@@ -83,6 +83,12 @@ pub struct Args {
     /// Print one JSON object instead of tables.
     #[arg(long)]
     json: bool,
+    /// Also write a report into this directory (created if missing): fit.json (what --json
+    /// prints; `odocal export --from DIR/fit.json --ros2 YAML` writes it into the controller's
+    /// YAML with a backup) and SVG plots of the paths, the dead-reckoning error over time and
+    /// the fitted mounting.
+    #[arg(long)]
+    report: Option<PathBuf>,
 }
 
 /// Runs `odocal fit`.
@@ -116,20 +122,32 @@ pub fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
             }
         }
     }
-    if args.json {
-        let mut out = serde_json::to_value(calibration.summary())?;
-        if let Some(map) = out.as_object_mut() {
-            map.insert(
-                "recordings".into(),
-                serde_json::to_value(&calibration.recordings)?,
+    let mut out = serde_json::to_value(calibration.summary())?;
+    if let Some(map) = out.as_object_mut() {
+        map.insert(
+            "recordings".into(),
+            serde_json::to_value(&calibration.recordings)?,
+        );
+        map.insert("pooled".into(), serde_json::to_value(&calibration.pooled)?);
+        map.insert(
+            "baseline_geometry".into(),
+            serde_json::to_value(calibration.baseline_geometry)?,
+        );
+        map.insert("evaluations".into(), serde_json::to_value(&evaluations)?);
+    }
+    if let Some(dir) = &args.report {
+        let written = write_report(dir, &out, &calibration, &recordings)?;
+        if !args.json {
+            eprintln!(
+                "report in {}: {}; write the geometry into a controller's YAML with: odocal \
+                 export --from {} --ros2 YAML --force",
+                dir.display(),
+                written.join(", "),
+                dir.join("fit.json").display()
             );
-            map.insert("pooled".into(), serde_json::to_value(&calibration.pooled)?);
-            map.insert(
-                "baseline_geometry".into(),
-                serde_json::to_value(calibration.baseline_geometry)?,
-            );
-            map.insert("evaluations".into(), serde_json::to_value(&evaluations)?);
         }
+    }
+    if args.json {
         return print_json(&out);
     }
     print_text(&calibration);
@@ -150,6 +168,29 @@ pub fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
         }
     }
     Ok(())
+}
+
+/// Writes `fit.json` and the plots into `dir`; returns the files' names.
+fn write_report(
+    dir: &std::path::Path,
+    json: &serde_json::Value,
+    calibration: &odocal::calibration::pose_calibration::PoseCalibration,
+    recordings: &[(String, PoseRecording)],
+) -> Result<Vec<String>, Box<dyn std::error::Error>> {
+    let failed = |e: std::io::Error| format!("cannot write the report into {}: {e}", dir.display());
+    std::fs::create_dir_all(dir).map_err(failed)?;
+    std::fs::write(
+        dir.join("fit.json"),
+        serde_json::to_string_pretty(json)? + "\n",
+    )
+    .map_err(failed)?;
+    let mut names = vec!["fit.json".to_string()];
+    for f in odocal::report::pose_plots::write_pose_plots(calibration, recordings, dir)
+        .map_err(failed)?
+    {
+        names.extend(f.file_name().map(|n| n.to_string_lossy().into_owned()));
+    }
+    Ok(names)
 }
 
 /// Named recordings and the nominal geometry they start from.

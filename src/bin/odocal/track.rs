@@ -286,7 +286,7 @@ const DRIFT_SIGMAS: f64 = 3.0;
 fn print_pose_session(tracker: &Tracker, last: &OnlineEstimate, configured: &WheelParams) {
     if let Some(fit) = &tracker.started_from {
         println!(
-            "the filter started from a batch fit of the first {:.1} s (when the drive had \
+            "the filter started from a batch fit of {:.1} s of driving (once the drive had \
              turned both ways and driven straight), then took every pose fix",
             fit.span_s
         );
@@ -512,6 +512,12 @@ pub async fn track(args: TrackArgs) -> CliResult {
     }
     let (nis, updates) = tracker.filter().nis_mean();
     let gate = tracker.filter().gate_stats();
+    // A log of a pose session replays as one: its scale is the filter's too.
+    let scale = if with_poses {
+        ScaleSource::Filter
+    } else {
+        scale
+    };
     let excitation = tracker.filter().excitation(scale)?;
     let mut written = None;
     if let (true, Some(base)) = (args.write_back, &base) {

@@ -82,7 +82,10 @@ impl Localizer {
         if t_s + 1e-9 < self.next_s || self.cfg.rate_hz.is_nan() || self.cfg.rate_hz <= 0.0 {
             return None;
         }
-        self.next_s += 1.0 / self.cfg.rate_hz;
+        // The next stamp due after this one (several periods on when the physics stepped far).
+        while self.next_s <= t_s + 1e-9 {
+            self.next_s += 1.0 / self.cfg.rate_hz;
+        }
         let base = Pose2 {
             x: truth.x_m,
             y: truth.y_m,
