@@ -4,6 +4,7 @@
 
 #[cfg(feature = "plots")]
 pub mod plots;
+#[cfg(feature = "plots")]
 pub mod pose_plots;
 pub mod ros2;
 pub mod stated;
