@@ -950,3 +950,26 @@ async fn tracking_against_a_localization_topic_agrees_with_the_fit_of_the_same_d
         outcome.recording.poses.len()
     );
 }
+
+/// A pose reference that is not one: a topic the robot does not have, and one of another type,
+/// are refused by name before anything is read.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_missing_or_mistyped_pose_topic_is_refused_by_name() {
+    use odocal::ros::pose_source::RosPoseSource;
+    let (_dir, yaml) = yaml_file("ros-live-pose-refused");
+    let server = mock(&yaml, |_| {}).await;
+    let timeout = Duration::from_secs(5);
+    let err = match RosPoseSource::connect(&server.url(), "/amcl_pose", timeout).await {
+        Err(e) => e.to_string(),
+        Ok(_) => panic!("a topic the robot does not publish was accepted"),
+    };
+    assert!(err.contains("/amcl_pose is not a topic"), "{err}");
+    let err = match RosPoseSource::connect(&server.url(), "/imu", timeout).await {
+        Err(e) => e.to_string(),
+        Ok(_) => panic!("an IMU topic was taken as a pose reference"),
+    };
+    assert!(
+        err.contains("/imu carries") && err.contains("PoseStamped"),
+        "{err}"
+    );
+}
