@@ -464,6 +464,7 @@ fn position_fixes_make_the_wheel_scale_observable() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn live_telemetry_from_the_mock_calibrates_and_writes_back() {
+    use odocal::base::write::{write_once, Bounds, Commit, Question, WritePolicy, WriteRequest};
     use odocal::base::Base;
     use odocal::calibration::tracker::Tracker;
     use odocal::hal::link::LinkConfig;
@@ -471,9 +472,7 @@ async fn live_telemetry_from_the_mock_calibrates_and_writes_back() {
     use odocal::kinematics::Direction;
     use odocal::mock::{lock, spawn_duplex, FaultConfig, TimeMode};
     use odocal::protocol::message::ParamSource;
-    use odocal::routine::config::WritePolicy;
     use odocal::routine::square::{run_square, SquareCommand};
-    use odocal::routine::{write_parameters, Unattended};
     use std::time::Duration;
 
     let device = common::mock_device(COMPASS_DEG, 1);
@@ -526,17 +525,25 @@ async fn live_telemetry_from_the_mock_calibrates_and_writes_back() {
     );
     let new = e.correction.apply(&configured).unwrap();
     let backup_dir = std::env::temp_dir().join(format!("odocal-online-wb-{}", std::process::id()));
-    let (applied, backup) = write_parameters(
-        &base,
-        &new,
-        WritePolicy::Yes,
-        0.1,
-        &backup_dir,
-        &mut Unattended,
-        &tokio_util::sync::CancellationToken::new(),
+    let done = write_once(
+        base.store.clone(),
+        base.reconnect.clone(),
+        WriteRequest {
+            new,
+            bounds: Bounds::MaxChange {
+                fraction: 0.1,
+                wider: None,
+            },
+            policy: WritePolicy::Yes,
+            commit: Commit::Both,
+            backup_dir: &backup_dir,
+            question: Question::Plain("write?".into()),
+        },
+        &mut odocal::base::write::Unattended,
     )
     .await
     .unwrap();
+    let (applied, backup) = (done.applied, done.backup);
     assert!(backup.is_file());
     let d = lock(&device);
     assert_eq!(d.active_params(), applied);

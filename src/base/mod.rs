@@ -18,6 +18,7 @@ pub mod file_store;
 pub mod guard;
 pub mod heading_backend;
 pub mod transaction;
+pub mod write;
 
 pub use error::BaseError;
 pub use fanout::Fanout;

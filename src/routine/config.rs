@@ -11,28 +11,8 @@ pub const HARD_SPEED_LIMIT_M_S: f64 = 1.0;
 /// Fastest turn rate any routine may command (rad/s).
 pub const HARD_RATE_LIMIT_RAD_S: f64 = 3.0;
 
-/// What to do with the estimated parameters.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum WritePolicy {
-    /// Estimate and report; write nothing.
-    DryRun,
-    /// Show old → new and ask before writing.
-    Ask,
-    /// Write without asking.
-    Yes,
-}
-
-impl WritePolicy {
-    /// What the policy does, in words for reports.
-    pub fn describe(self) -> &'static str {
-        match self {
-            WritePolicy::DryRun => "none (dry run)",
-            WritePolicy::Ask => "after confirmation",
-            WritePolicy::Yes => "without asking",
-        }
-    }
-}
+/// What to do with the estimated parameters (the write service's policy).
+pub use crate::base::write::WritePolicy;
 
 /// Everything the recalibration routine needs to know: the procedure only. Where the robot is
 /// comes from elsewhere (a routine file's `[robot]` table, the command line: see

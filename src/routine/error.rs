@@ -3,6 +3,7 @@
 
 use super::config::ConfigError;
 use crate::base::transaction::Holds;
+use crate::base::write::{Undone, WriteError};
 use crate::base::BaseError;
 use crate::calibration::CalibrationError;
 use crate::kinematics::KinematicsError;
@@ -79,17 +80,57 @@ pub enum RoutineError {
     },
 }
 
+impl RoutineError {
+    /// `err` as it stands after the write service undid the run's writes ([`Undone`]).
+    pub fn after(err: RoutineError, undone: Undone) -> RoutineError {
+        match undone {
+            Undone::NothingWritten => err,
+            Undone::Restored {
+                committed,
+                reconnected,
+            } => RoutineError::Restored {
+                source: Box::new(err),
+                committed,
+                reconnected,
+            },
+            Undone::Failed {
+                error,
+                reconnect_error,
+                backup,
+                active,
+                committed,
+            } => RoutineError::RestoreFailed {
+                source: Box::new(err),
+                restore_error: error,
+                reconnect_error: reconnect_error.map(Into::into),
+                backup: backup.unwrap_or_default().into(),
+                active,
+                committed,
+            },
+        }
+    }
+}
+
+/// A refusal of the write service is the routine's refusal; a write that failed after the
+/// backup is the store's error as it stands after the undo.
+impl From<WriteError> for RoutineError {
+    fn from(e: WriteError) -> Self {
+        match e {
+            WriteError::Invalid(e) => RoutineError::Kinematics(e),
+            WriteError::OutOfBounds(why) => RoutineError::OutOfBounds(why),
+            WriteError::Declined(why) => RoutineError::Declined(why),
+            WriteError::DryRun => RoutineError::Declined("a dry run writes nothing".into()),
+            WriteError::Base(e) => RoutineError::Base(e),
+            WriteError::Failed { source, undone, .. } => {
+                RoutineError::after(RoutineError::Base(source), *undone)
+            }
+        }
+    }
+}
+
 /// What to do after a failed rollback, from what the store was found to hold.
 fn restore_advice(active: &Holds, committed: &Holds, backup: &std::path::Path) -> String {
-    match (active, committed) {
-        (Holds::Original, Holds::Original) => {
-            "The robot holds its original parameters: nothing to restore.".into()
-        }
-        _ => format!(
-            "Restore them with `odocal restore {}` (or by hand).",
-            backup.display()
-        ),
-    }
+    crate::base::write::restore_advice(active, committed, Some(backup))
 }
 
 #[cfg(test)]

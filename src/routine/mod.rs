@@ -1,12 +1,12 @@
 //! The scripted recalibration: from a mis-calibrated base to written, committed and verified
 //! parameters, safely, on any [`Base`].
 //!
-//! [`run`] drives a base through: proof that the store can take a write (a [`Transaction`],
+//! [`run`] drives a base through: proof that the store can take a write (a [`WriteSession`],
 //! before anything else), pre-flight checks (drive faults, heading validity and noise at rest,
 //! the watchdog), the user's leave to move, a backup of the parameters (before the robot first
 //! moves; declining leaves no file behind), calibration rounds of CW and CCW squares ([`square`]; each checked for
 //! plausibility, including the compass's sign convention against the commanded turns),
-//! estimation with every method, bounded write-back through the transaction under the
+//! estimation with every method, bounded write-back through the write service under the
 //! configured policy, iteration until converged, and verification squares. Any error or
 //! cancellation stops the base and rolls the parameters back. The result is a [`Report`].
 //! Nothing here knows which robot, protocol or simulator is behind the base.
@@ -25,7 +25,7 @@ pub use error::RoutineError;
 pub use report::Report;
 
 use crate::base::adjusted::Adjusted;
-use crate::base::transaction::Transaction;
+use crate::base::write::{self as write_service, Bounds, Commit, WriteSession, WriteUi};
 pub use crate::base::GroundTruth;
 use crate::base::{Base, BaseError, HeadingKind, MotionGuard, ParamStore};
 use crate::calibration::plan::Plan;
@@ -35,7 +35,7 @@ use crate::calibration::{
     default_method, default_method_reason, estimate_all, Estimate, Method, SquareTest,
 };
 use crate::kinematics::{wrap_angle, Direction, WheelParams};
-use config::{RoutineConfig, WritePolicy};
+use config::RoutineConfig;
 use planning::Stop;
 use report::{Outcome, Phase, RoundReport, RunReport, Stage};
 use square::{run_square, SquareCommand, SquareRecord};
@@ -178,7 +178,11 @@ pub async fn run(
     ui.event(&RoutineEvent::Stage(
         "reading the robot's parameters and proving they can be written back".into(),
     ));
-    let tx = cancellable(cancel, Transaction::prepare(base.store.clone(), None)).await?;
+    let session = cancellable(
+        cancel,
+        WriteSession::prepare(base.store.clone(), base.reconnect.clone(), None),
+    )
+    .await?;
     let base = base.clone();
     let mut run = Calibration {
         base,
@@ -186,7 +190,7 @@ pub async fn run(
         truth,
         ui,
         cancel,
-        tx,
+        session,
         report_dir: None,
         progress: Progress::default(),
         noise: heading::NoisePool::default(),
@@ -233,9 +237,9 @@ struct Calibration<'a> {
     truth: Option<&'a dyn GroundTruth>,
     ui: &'a mut dyn RoutineUi,
     cancel: &'a CancellationToken,
-    /// The one write path: proven writable before anything else, backed up before the robot
-    /// first moves, rolled back on failure.
-    tx: Transaction,
+    /// The one write path ([`crate::base::write`]): proven writable before anything else,
+    /// backed up before the robot first moves, undone on failure.
+    session: WriteSession,
     /// This run's report directory, once claimed ([`Calibration::claim_report_dir`]).
     report_dir: Option<std::path::PathBuf>,
     progress: Progress,
@@ -270,7 +274,7 @@ impl Calibration<'_> {
         self.make_plan();
         self.confirm_motion()?;
         self.back_up().await?;
-        let original = *self.tx.original();
+        let original = *self.session.original();
         self.swing(&original).await?;
         let rounds = self.rounds(&original).await?;
         let verification = self.verification(&rounds).await?;
@@ -287,7 +291,7 @@ impl Calibration<'_> {
             Outcome {
                 original_params: original,
                 backup_path: self
-                    .tx
+                    .session
                     .backup_path()
                     .map(std::path::Path::to_path_buf)
                     .unwrap_or_default(),
@@ -297,7 +301,7 @@ impl Calibration<'_> {
                 rounds: rounds.reports,
                 verification,
                 converged: rounds.converged,
-                written: self.tx.written(),
+                written: self.session.written(),
                 warnings: std::mem::take(&mut self.warnings),
             },
         );
@@ -326,7 +330,13 @@ impl Calibration<'_> {
                 break;
             }
             let proposed = rr.chosen.correction.apply(&current)?;
-            check_bounds(self.cfg.max_change, original, &proposed)?;
+            self.session.check(
+                &proposed,
+                Bounds::MaxChange {
+                    fraction: self.cfg.max_change,
+                    wider: Some("a skid-steer robot needs this: --allow-large-change"),
+                },
+            )?;
             rr.params_after = Some(proposed);
             if !self.authorise_write(&current, &proposed) {
                 reports.push(rr);
@@ -335,11 +345,12 @@ impl Calibration<'_> {
             self.progress.stage = Stage::WriteBack { round };
             // From here on, the parameters are what the store reports (rounded to its
             // resolution).
-            current = cancellable(self.cancel, self.tx.apply(&proposed)).await?;
+            current =
+                cancellable(self.cancel, self.session.write(&proposed, &Commit::Both)).await?;
             rr.written = true;
             reports.push(rr);
         }
-        if !converged && self.tx.written() {
+        if !converged && self.session.written() {
             self.warn(format!(
                 "not converged after {} round(s) (the last correction was still significant); \
                  the last estimate was written",
@@ -525,7 +536,7 @@ impl Calibration<'_> {
         let claimed = self.claim_report_dir()?;
         let file = ParamStore::file(self.base.store.as_ref());
         let dir = run_dir(self.cfg, claimed.as_deref(), file.as_deref(), true);
-        let path = cancellable(self.cancel, self.tx.back_up(&dir)).await?;
+        let path = cancellable(self.cancel, self.session.back_up(&dir)).await?;
         self.stage(format!(
             "backed up the robot's parameters to {}",
             path.display()
@@ -659,17 +670,24 @@ impl Calibration<'_> {
         })
     }
 
-    /// Whether the new parameters may be written: the policy, and the user's answer when it
-    /// asks ([`authorise`]).
+    /// Whether the new parameters may be written: the policy, and the user's answer to the
+    /// table of old → new when it asks ([`write_service::authorise`]).
     fn authorise_write(&mut self, current: &WheelParams, proposed: &WheelParams) -> bool {
-        let write = authorise(self.cfg.write_back, self.ui, current, proposed);
-        if !write {
-            self.stage(match self.cfg.write_back {
-                WritePolicy::DryRun => "dry run: nothing written".into(),
+        let question =
+            write_service::Question::OldToNew("Write these parameters and commit them?".into())
+                .text(current, proposed);
+        let answer = write_service::authorise(
+            self.cfg.write_back,
+            &mut AskRoutineUi(&mut *self.ui),
+            &question,
+        );
+        if let Err(refusal) = &answer {
+            self.stage(match refusal {
+                write_service::WriteError::DryRun => "dry run: nothing written".into(),
                 _ => "not written (declined)".into(),
             });
         }
-        write
+        answer.is_ok()
     }
 
     /// The verification squares after a write, judged against the first round ([`judge`]).
@@ -678,7 +696,7 @@ impl Calibration<'_> {
         current: &WheelParams,
         rounds: &[RoundReport],
     ) -> Result<Vec<RunReport>, RoutineError> {
-        if !self.tx.written() || self.cfg.verification_runs == 0 {
+        if !self.session.written() || self.cfg.verification_runs == 0 {
             return Ok(Vec::new());
         }
         self.stage("verification squares".into());
@@ -727,12 +745,12 @@ impl Calibration<'_> {
                 STOP_TIMEOUT.as_secs()
             )),
         };
-        let wrote = self.tx.written();
-        let err = undo(&self.base, &mut self.tx, err).await;
+        let wrote = self.session.written();
+        let err = RoutineError::after(err, self.session.undo().await);
         let mut ending = Ending {
             robot,
             parameters: ParamsAfterFailure::of(&err),
-            backup: self.tx.backup_path().map(std::path::Path::to_path_buf),
+            backup: self.session.backup_path().map(std::path::Path::to_path_buf),
         };
         // Nothing driven and nothing written: nothing happened, and nothing is left behind
         // (the backup of a store this run never changed, a report directory it made).
@@ -764,7 +782,7 @@ impl Calibration<'_> {
                     &self.progress,
                     &err,
                     (&dir, &prefix),
-                    self.tx.backup_path(),
+                    self.session.backup_path(),
                 )
                 .map_err(|e| {
                     format!(
@@ -1012,21 +1030,12 @@ pub fn convergence(
     })
 }
 
-/// The one confirmation of a write: by the policy, asking the user under
-/// [`WritePolicy::Ask`] with the table of old → new parameters.
-fn authorise(
-    policy: WritePolicy,
-    ui: &mut dyn RoutineUi,
-    current: &WheelParams,
-    proposed: &WheelParams,
-) -> bool {
-    match policy {
-        WritePolicy::DryRun => false,
-        WritePolicy::Yes => true,
-        WritePolicy::Ask => ui.confirm(&format!(
-            "Write these parameters and commit them?\n{}",
-            report::params_table(current, proposed)
-        )),
+/// The routine's user as the write service's: the same question, asked the same way.
+struct AskRoutineUi<'a>(&'a mut dyn RoutineUi);
+
+impl WriteUi for AskRoutineUi<'_> {
+    fn confirm(&mut self, question: &str) -> bool {
+        self.0.confirm(question)
     }
 }
 
@@ -1083,60 +1092,7 @@ pub fn check_output_dir(dir: &std::path::Path) -> Result<(), RoutineError> {
         .map_err(|e| fail(format!("a new file cannot be created there ({e})")))
 }
 
-/// How long reopening a store after its link was lost may take (a board that resets when its
-/// port opens needs about 2 s, a USB adapter re-enumerating a few more).
-pub const RECONNECT_TIMEOUT: Duration = Duration::from_secs(10);
-
-/// Rolls back `tx` after `err` and says what became of the parameters. When the rollback
-/// fails (the device vanished or reset mid-run) and the base can reconnect, it reconnects once
-/// and tries again; if that fails too, it reads back what each copy holds, so the error states
-/// what is true rather than what is feared.
-async fn undo(base: &Base, tx: &mut Transaction, err: RoutineError) -> RoutineError {
-    use crate::base::transaction::Rollback;
-    let mut outcome = tx.rollback().await;
-    let mut reconnected = false;
-    let mut reconnect_error = None;
-    if outcome.is_err() {
-        if let Some(reconnect) = &base.reconnect {
-            match tokio::time::timeout(RECONNECT_TIMEOUT, reconnect()).await {
-                Ok(Ok(store)) => {
-                    tx.reattach(store);
-                    reconnected = true;
-                    outcome = tx.rollback().await;
-                }
-                Ok(Err(e)) => reconnect_error = Some(e.to_string().into()),
-                Err(_) => {
-                    reconnect_error = Some(
-                        format!(
-                            "no connection within {}",
-                            crate::io::seconds(&RECONNECT_TIMEOUT)
-                        )
-                        .into(),
-                    )
-                }
-            }
-        }
-    }
-    match outcome {
-        Ok(Rollback::NothingWritten) => err,
-        Ok(outcome) => RoutineError::Restored {
-            source: Box::new(err),
-            committed: outcome == Rollback::RestoredAndCommitted,
-            reconnected,
-        },
-        Err(e) => {
-            let (active, committed) = tx.what_the_store_holds().await;
-            RoutineError::RestoreFailed {
-                source: Box::new(err),
-                restore_error: Box::new(e),
-                reconnect_error,
-                backup: tx.backup_path().unwrap_or(std::path::Path::new("")).into(),
-                active,
-                committed,
-            }
-        }
-    }
-}
+pub use crate::base::write::RECONNECT_TIMEOUT;
 
 /// What the host knows of the robot's parameters after a failed run: the statement a partial
 /// report makes, read from the error [`run`] returned after its rollback.
@@ -1408,72 +1364,6 @@ fn cramer_rao_std(
     cramer_rao_bound(e.e_b, e.e_d, cfg.split_convention(), &design)
         .ok()
         .map(|c| [c[(0, 0)].sqrt(), c[(1, 1)].sqrt()])
-}
-
-fn check_bounds(
-    max_change: f64,
-    original: &WheelParams,
-    proposed: &WheelParams,
-) -> Result<(), RoutineError> {
-    proposed.validate()?;
-    for (name, old, new) in [
-        (
-            "left wheel diameter",
-            original.left_wheel_diameter_m,
-            proposed.left_wheel_diameter_m,
-        ),
-        (
-            "right wheel diameter",
-            original.right_wheel_diameter_m,
-            proposed.right_wheel_diameter_m,
-        ),
-        ("wheelbase", original.wheelbase_m, proposed.wheelbase_m),
-    ] {
-        let change = new / old - 1.0;
-        if change.abs() > max_change {
-            return Err(RoutineError::OutOfBounds(format!(
-                "{name} would change by {:+.1} % ({old:.6} → {new:.6} m), more than the \
-                 allowed ±{:.1} %{}",
-                change * 100.0,
-                max_change * 100.0,
-                if max_change < 1.0 && change.abs() <= 1.0 {
-                    " (a skid-steer robot needs this: --allow-large-change)"
-                } else {
-                    ""
-                }
-            )));
-        }
-    }
-    Ok(())
-}
-
-/// Writes `new` under the routine's safety rules, for callers outside the routine (the online
-/// estimator's write-back): the store must show it can take them; changes beyond
-/// `max_change` are refused; it asks unless `policy` is `Yes` (and writes nothing for
-/// `DryRun`; declining leaves no file behind); a [`Transaction`] backs the store up (beside
-/// its file, or into `backup_dir`), writes, reads back, commits, reads back the committed
-/// copy, and rolls back on any failure. Returns the parameters as the store holds them and
-/// the backup.
-pub async fn write_parameters(
-    base: &Base,
-    new: &WheelParams,
-    policy: WritePolicy,
-    max_change: f64,
-    backup_dir: &std::path::Path,
-    ui: &mut dyn RoutineUi,
-    cancel: &CancellationToken,
-) -> Result<(WheelParams, std::path::PathBuf), RoutineError> {
-    let mut tx = cancellable(cancel, Transaction::prepare(base.store.clone(), Some(new))).await?;
-    let current = *tx.original();
-    check_bounds(max_change, &current, new)?;
-    if !authorise(policy, ui, &current, new) {
-        return Err(RoutineError::Declined("parameters not written".into()));
-    }
-    let backup = cancellable(cancel, tx.back_up(backup_dir)).await?;
-    match cancellable(cancel, tx.apply(new)).await {
-        Ok(applied) => Ok((applied, backup)),
-        Err(e) => Err(undo(base, &mut tx, e).await),
-    }
 }
 
 #[cfg(test)]

@@ -229,12 +229,15 @@ impl super::Calibration<'_> {
         let setting = Setting {
             space: None,
             footprint_m: DEFAULT_FOOTPRINT_M,
-            wheelbase_m: self.tx.original().wheelbase_m,
+            wheelbase_m: self.session.original().wheelbase_m,
             heading_sigma_rad: self.noise.std_rad(),
             heading_kind: self.base.heading.kind(),
             readings_per_s: None,
             run_scatter_rad: 0.0,
-            m_per_count: m_per_count_of(self.base.drive.rounds_to_counts(), self.tx.original()),
+            m_per_count: m_per_count_of(
+                self.base.drive.rounds_to_counts(),
+                self.session.original(),
+            ),
         };
         match plan_of(self.cfg, &setting) {
             Ok(p) => {

@@ -11,7 +11,6 @@ use crate::calibration::recording::{coverage, Coverage, Track};
 use crate::calibration::{Estimate, Method};
 use crate::kinematics::{Direction, Displacement, Pose, WheelParams};
 use serde::{Deserialize, Serialize};
-use std::fmt::Write as _;
 use std::path::PathBuf;
 
 /// Which part of the routine a run belongs to.
@@ -473,35 +472,4 @@ impl Report {
     }
 }
 
-/// Old → new parameters, one per line, with the relative change.
-pub fn params_table(old: &WheelParams, new: &WheelParams) -> String {
-    let mut s = String::new();
-    for (name, a, b) in [
-        (
-            "left wheel diameter (m)",
-            old.left_wheel_diameter_m,
-            new.left_wheel_diameter_m,
-        ),
-        (
-            "right wheel diameter (m)",
-            old.right_wheel_diameter_m,
-            new.right_wheel_diameter_m,
-        ),
-        ("wheelbase (m)", old.wheelbase_m, new.wheelbase_m),
-    ] {
-        let _ = writeln!(
-            s,
-            "  {name:<26} {a:>12.6} → {b:>12.6}  ({:+.3} %)",
-            (b / a - 1.0) * 100.0
-        );
-    }
-    // Written too when it changes (a restore may carry another count), so it is shown.
-    if old.counts_per_wheel_rev != new.counts_per_wheel_rev {
-        let _ = writeln!(
-            s,
-            "  {:<26} {:>12.3} → {:>12.3}",
-            "counts per wheel revolution", old.counts_per_wheel_rev, new.counts_per_wheel_rev
-        );
-    }
-    s
-}
+pub use crate::base::write::params_table;

@@ -176,3 +176,23 @@ pub async fn writing<T>(write: impl std::future::Future<Output = T>) -> T {
 pub fn deferred_signal() -> Option<&'static str> {
     *DEFERRED.lock().unwrap_or_else(|p| p.into_inner())
 }
+
+/// The terminal as the write service's user ([`odocal::base::write::WriteUi`]): asks on
+/// stdin unless `yes`, holds signals while a write is under way ([`guard_writes`]), and
+/// shows where the backup went.
+pub struct TerminalWriteUi {
+    /// Do not ask.
+    pub yes: bool,
+}
+
+impl odocal::base::write::WriteUi for TerminalWriteUi {
+    fn confirm(&mut self, question: &str) -> bool {
+        self.yes || tokio::task::block_in_place(|| yes(question))
+    }
+    fn writing(&mut self, on: bool) {
+        WRITING.store(on, std::sync::atomic::Ordering::SeqCst);
+    }
+    fn note(&mut self, line: &str) {
+        eprintln!("{line}");
+    }
+}

@@ -4,6 +4,7 @@
 use crate::print_json;
 use crate::robot::RobotArgs;
 use clap::ArgGroup;
+use odocal::base::write::{write_once, Bounds, Commit, Question, WriteRequest};
 use odocal::base::{Base, PoseSource};
 use odocal::calibration::online::{OnlineConfig, OnlineEstimate, ScaleSource};
 use odocal::calibration::pose_reference::{Geometry, PoseRecording};
@@ -17,12 +18,11 @@ use odocal::offline::pose_csv::{read_poses, read_wheels};
 use odocal::ros::pose_source::RosPoseSource;
 use odocal::routine::config::WritePolicy;
 use odocal::routine::track::{track_live, DrivePath, TrackOptions, TrackOutcome};
-use odocal::routine::{write_parameters, RoutineEvent, RoutineUi};
+use odocal::routine::{RoutineEvent, RoutineUi};
 use odocal::spec::RobotSection;
 use serde_json::json;
 use std::path::PathBuf;
 use std::time::Duration;
-use tokio_util::sync::CancellationToken;
 
 type CliResult = Result<(), Box<dyn std::error::Error>>;
 
@@ -528,19 +528,28 @@ pub async fn track(args: TrackArgs) -> CliResult {
             } else {
                 WritePolicy::Ask
             };
-            let (applied, backup) = write_parameters(
-                base,
-                &new,
+            let request = WriteRequest {
+                new,
+                bounds: Bounds::MaxChange {
+                    fraction: 0.1,
+                    wider: None,
+                },
                 policy,
-                0.1,
-                &args.backup_dir,
-                &mut StdinUi {
+                commit: Commit::Both,
+                backup_dir: &args.backup_dir,
+                question: Question::OldToNew("Write these parameters and commit them?".into()),
+            };
+            let done = write_once(
+                base.store.clone(),
+                base.reconnect.clone(),
+                request,
+                &mut crate::prompt::TerminalWriteUi {
                     yes: args.drive.yes,
                 },
-                &CancellationToken::new(),
             )
             .await?;
-            eprintln!("written and committed; backup in {}", backup.display());
+            eprintln!("written and committed; backup in {}", done.backup.display());
+            let applied = done.applied;
             written = Some(applied);
         } else {
             eprintln!(
