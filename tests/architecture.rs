@@ -7,8 +7,8 @@
 
 use std::path::{Path, PathBuf};
 
-/// Every `.rs` file under `src/` with its text, comments dropped (what a rule is about is code,
-/// not prose about it).
+/// Every `.rs` file under `src/` with its text, comments and `#[cfg(test)]` modules dropped
+/// (what a rule is about is the library's code, not prose about it nor its tests).
 fn sources() -> Vec<(PathBuf, String)> {
     fn walk(dir: &Path, out: &mut Vec<PathBuf>) {
         for e in std::fs::read_dir(dir).unwrap() {
@@ -30,17 +30,69 @@ fn sources() -> Vec<(PathBuf, String)> {
             let code: Vec<&str> = Vec::new();
             let text = std::fs::read_to_string(&p).unwrap();
             let mut kept = code;
+            // Inside a `#[cfg(test)] mod … {` block: its brace depth. Test code may use what
+            // the library itself must not (the simulator, a transaction to set a scene up).
+            let mut in_test: Option<i64> = None;
+            let mut cfg_test = false;
+            let mut in_string = false;
             for line in text.lines() {
                 let trimmed = line.trim_start();
                 if trimmed.starts_with("//") {
                     continue;
                 }
-                kept.push(line.split(" // ").next().unwrap_or(line));
+                let code = line.split(" // ").next().unwrap_or(line);
+                if let Some(depth) = in_test.as_mut() {
+                    *depth += braces(code, &mut in_string);
+                    if *depth <= 0 {
+                        in_test = None;
+                    }
+                    continue;
+                }
+                if cfg_test
+                    && (trimmed.starts_with("mod ") || trimmed.starts_with("pub mod "))
+                    && trimmed.ends_with('{')
+                {
+                    in_test = Some(1);
+                    cfg_test = false;
+                    continue;
+                }
+                cfg_test = trimmed == "#[cfg(test)]";
+                kept.push(code);
             }
             let rel = p.strip_prefix(root).unwrap().to_path_buf();
             (rel, kept.join("\n"))
         })
         .collect()
+}
+
+/// `{` minus `}` in `line` outside string and char literals; `in_string` carries a string
+/// literal from one line to the next.
+fn braces(line: &str, in_string: &mut bool) -> i64 {
+    let chars: Vec<char> = line.chars().collect();
+    let mut depth = 0;
+    let mut i = 0;
+    while i < chars.len() {
+        let c = chars[i];
+        if *in_string {
+            match c {
+                '\\' => i += 1,
+                '"' => *in_string = false,
+                _ => {}
+            }
+        } else {
+            match c {
+                '"' => *in_string = true,
+                // A char literal (`'{'`, `'\''`), not a lifetime.
+                '\'' if chars.get(i + 2) == Some(&'\'') => i += 2,
+                '\'' if chars.get(i + 1) == Some(&'\\') => i += 3,
+                '{' => depth += 1,
+                '}' => depth -= 1,
+                _ => {}
+            }
+        }
+        i += 1;
+    }
+    depth
 }
 
 fn under(path: &Path, dir: &str) -> bool {
@@ -157,6 +209,57 @@ fn clocks_are_aligned_and_squares_found_in_one_place_each() {
         assert!(
             outside.is_empty(),
             "`{needle}` belongs in {allowed:?}, found in {outside:?}"
+        );
+    }
+}
+
+/// Parameters reach a store through the write service alone (`base/write.rs`, over the
+/// transaction's mechanism in `base/transaction.rs`): the policy, the bounds, the backup, the
+/// read-back and the undo cannot be skipped by a command that writes on its own.
+#[test]
+fn parameters_are_written_through_the_write_service_only() {
+    let sources = sources();
+    let service = &["src/base/transaction.rs", "src/base/write.rs"][..];
+    for (needle, allowed) in [
+        ("Transaction", service),
+        ("backup_store(", service),
+        (".rollback()", service),
+        (".write_in_use(", service),
+        (".apply_text(", service),
+        ("what_the_store_holds", service),
+        ("Rollback", service),
+        // A store's own commit, inside its implementation of the seam.
+        (
+            ".commit().await",
+            &["src/base/transaction.rs", "src/ros/live.rs"][..],
+        ),
+        // The controller's requests, inside its client and its adapter to the seam.
+        (".set_params(", &["src/hal/base.rs"][..]),
+        (".save_params(", &["src/hal/base.rs"][..]),
+        (".restore_defaults(", &[][..]),
+        (
+            "Request::SetParams",
+            &["src/hal/mod.rs", "src/hal/conformance.rs"][..],
+        ),
+        (
+            "replace_atomically(",
+            &[
+                "src/io/files.rs",
+                "src/io/mod.rs",
+                "src/base/file_store.rs",
+                "src/base/transaction.rs",
+                "src/offline/pose_csv.rs",
+            ][..],
+        ),
+    ] {
+        let outside: Vec<String> = files_with(&sources, needle)
+            .into_iter()
+            .filter(|f| !allowed.contains(&f.as_str()))
+            .collect();
+        assert!(
+            outside.is_empty(),
+            "`{needle}` (a parameter write) belongs in {allowed:?}, found in {outside:?}: \
+             write through odocal::base::write"
         );
     }
 }

@@ -17,6 +17,7 @@ pub mod fanout;
 pub mod file_store;
 pub mod guard;
 pub mod heading_backend;
+pub mod restore;
 pub mod transaction;
 pub mod write;
 
@@ -203,8 +204,8 @@ pub fn host_time_s() -> f64 {
 ///
 /// `write` changes what the robot uses now (device RAM; for a file, the staged content);
 /// `commit` makes it survive a restart (device storage; for a file, the atomic replace).
-/// Use [`transaction::Transaction`] rather than these calls directly: it backs up first and
-/// rolls back on failure.
+/// Write through the write service ([`mod@write`]) rather than these calls directly: it backs up
+/// first, reads back, and undoes the write on failure.
 #[async_trait]
 pub trait ParamStore: Send + Sync {
     /// Describes the store (its `id` names backups).

@@ -16,7 +16,7 @@
 //! moves and writes once per round, keeps a [`WriteSession`] open for the run.
 
 use super::transaction::{Holds, Rollback, Transaction};
-use super::{BaseError, ParamStore, Reconnect};
+use super::{same_within, BaseError, ParamStore, Reconnect};
 use crate::kinematics::{KinematicsError, WheelParams};
 use serde::{Deserialize, Serialize};
 use std::fmt::Write as _;
@@ -308,10 +308,19 @@ impl WriteSession {
                 }
             }
         }
+        // A rollback the store took is read back like any write: a store that corrupts writes
+        // corrupts this one too, and "restored" must be true when it is said.
+        let outcome = match outcome {
+            Ok(Rollback::NothingWritten) => return Undone::NothingWritten,
+            Ok(outcome) => {
+                let committed = outcome == Rollback::RestoredAndCommitted;
+                self.read_back_original(committed).await.map(|()| committed)
+            }
+            Err(e) => Err(e),
+        };
         match outcome {
-            Ok(Rollback::NothingWritten) => Undone::NothingWritten,
-            Ok(outcome) => Undone::Restored {
-                committed: outcome == Rollback::RestoredAndCommitted,
+            Ok(committed) => Undone::Restored {
+                committed,
                 reconnected,
             },
             Err(e) => {
@@ -325,6 +334,41 @@ impl WriteSession {
                 }
             }
         }
+    }
+}
+
+impl WriteSession {
+    /// Whether the store holds the original again: the copy in use, and the committed copy
+    /// when `committed` was put back too.
+    async fn read_back_original(&self, committed: bool) -> Result<(), BaseError> {
+        let store = self.tx.store();
+        let original = *self.tx.original();
+        let resolution = store.resolution();
+        let timeout = super::transaction::ROLLBACK_TIMEOUT;
+        let no_answer = || BaseError::MotionTimeout { after: timeout };
+        let active = tokio::time::timeout(timeout, store.read())
+            .await
+            .map_err(|_| no_answer())??;
+        if !same_within(&active, &original, &resolution) {
+            return Err(BaseError::ReadBack {
+                copy: "in use",
+                written: original,
+                read: Some(active),
+            });
+        }
+        if committed {
+            let stored = tokio::time::timeout(timeout, store.read_committed())
+                .await
+                .map_err(|_| no_answer())??;
+            if !stored.is_some_and(|s| same_within(&s, &original, &resolution)) {
+                return Err(BaseError::ReadBack {
+                    copy: "committed",
+                    written: original,
+                    read: stored,
+                });
+            }
+        }
+        Ok(())
     }
 }
 

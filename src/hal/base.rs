@@ -357,6 +357,17 @@ impl ParamStore for Client {
             .map_err(to_base("store", "the parameters"))
     }
 
+    /// A value the wire cannot carry (SPEC.md §5 ParamsBlock) is refused before anything is
+    /// backed up or sent.
+    async fn check_write(&self, params: &WheelParams) -> Result<(), BaseError> {
+        crate::hal::wire_params(params)
+            .map(|_| ())
+            .map_err(|e| BaseError::InvalidArgument {
+                component: "store".into(),
+                reason: e.to_string(),
+            })
+    }
+
     async fn commit(&self) -> Result<(), BaseError> {
         self.save_params()
             .await

@@ -1,12 +1,11 @@
 //! Rendering what the routine did: the before/after summary, the Markdown report, the report
-//! directory (`report.json`, `report.md`, SVG plots with the `plots` feature) and the ROS 2
-//! export ([`ros2`]).
+//! directory (`report.json`, `report.md`, SVG plots with the `plots` feature). The ROS 2
+//! export, which writes a store, is `crate::ros::export`.
 
 #[cfg(feature = "plots")]
 pub mod plots;
 #[cfg(feature = "plots")]
 pub mod pose_plots;
-pub mod ros2;
 pub mod stated;
 
 use crate::io::create_new;

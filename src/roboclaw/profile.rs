@@ -30,7 +30,10 @@
 //! whole file beside it (the one backup format, [`crate::base::transaction`]), and replaces it
 //! atomically.
 
-use crate::base::{FileStore, HeadingKind, ParamFile};
+use crate::base::write::{
+    write_once, Bounds, Commit, Question, Unattended, WriteError, WritePolicy, WriteRequest,
+};
+use crate::base::{FileStore, HeadingKind, ParamFile, ParamStore};
 use crate::kinematics::{Deviation, WheelParams};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
@@ -55,6 +58,15 @@ pub enum ProfileError {
         /// Why.
         #[source]
         source: Box<crate::base::BaseError>,
+    },
+    /// The rewrite failed after the backup (what the file holds then is said).
+    #[error("{}: {source}", path.display())]
+    Write {
+        /// The profile.
+        path: PathBuf,
+        /// Why, and what became of the file.
+        #[source]
+        source: Box<crate::base::write::WriteError>,
     },
     /// Not a valid profile.
     #[error("{}: {message}", path.display())]
@@ -344,21 +356,33 @@ pub fn with_heading(
 /// is backed up beside itself first (a backup `odocal restore` takes, never replacing an
 /// earlier one), then replaced atomically. Returns the backup's path.
 pub async fn save_heading(path: &Path, heading: &HeadingSection) -> Result<PathBuf, ProfileError> {
-    let io = |source| ProfileError::Io {
-        path: path.to_path_buf(),
-        source,
-    };
     let text = read_bounded(path)?;
     let out = crate::io::keep_text_form(&text, &with_heading(&text, heading, path)?);
-    let store = ProfileStore::open(path)?;
-    let (backup, _) = crate::base::transaction::backup_store(&store, crate::io::dir_of(path))
-        .await
-        .map_err(|e| ProfileError::Backup {
+    let store = std::sync::Arc::new(ProfileStore::open(path)?);
+    // The geometry stays; the whole file is the write (backed up, replaced, read back, put
+    // back on failure: the write service).
+    let request = WriteRequest {
+        new: store.read().await.map_err(|e| ProfileError::Backup {
             path: path.to_path_buf(),
             source: Box::new(e),
-        })?;
-    crate::io::files::replace_atomically(path, &out).map_err(io)?;
-    Ok(backup)
+        })?,
+        bounds: Bounds::Physical,
+        policy: WritePolicy::Yes,
+        commit: Commit::WholeFile(out),
+        backup_dir: crate::io::dir_of(path),
+        question: Question::Plain(String::new()),
+    };
+    match write_once(store, None, request, &mut Unattended).await {
+        Ok(done) => Ok(done.backup),
+        Err(WriteError::Base(e)) => Err(ProfileError::Backup {
+            path: path.to_path_buf(),
+            source: Box::new(e),
+        }),
+        Err(e) => Err(ProfileError::Write {
+            path: path.to_path_buf(),
+            source: Box::new(e),
+        }),
+    }
 }
 
 /// The profile's format for a [`FileStore`]: its geometry is the parameters, the wiring and

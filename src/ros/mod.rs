@@ -3,6 +3,7 @@
 //! and a live base through rosbridge ([`rosbridge`]).
 
 pub mod bag;
+pub mod export;
 pub mod fragment;
 pub mod live;
 pub mod msg;

@@ -3,13 +3,15 @@
 use crate::print_json;
 use crate::SIM_HEADING_SIGMA_DEG;
 use clap::Subcommand;
-use odocal::base::transaction::Transaction;
+use odocal::base::write::{
+    write_once, Bounds, Commit, Question, WriteError, WritePolicy, WriteRequest, Written,
+};
 use odocal::hal::{open_port, Client};
 use odocal::kinematics::WheelParams;
 use odocal::mock::{
     lock, spawn_pty, CompassConvention, FaultConfig, MockConfig, MockDevice, TimeMode,
 };
-use odocal::protocol::message::{ParamSource, RestoreTarget};
+use odocal::protocol::message::ParamSource;
 use odocal::spec::DriveSpec;
 use serde_json::json;
 use std::path::PathBuf;
@@ -191,10 +193,14 @@ pub enum ParamsCommand {
         #[arg(long, default_value = ".")]
         backup_dir: PathBuf,
     },
-    /// Commit the active parameters to non-volatile storage.
+    /// Commit the active parameters to non-volatile storage (the stored copy is backed up
+    /// first, and read back after).
     Save {
         #[command(flatten)]
         port: PortArgs,
+        /// Directory for the backup (a new, uniquely named file; never overwritten).
+        #[arg(long, default_value = ".")]
+        backup_dir: PathBuf,
     },
     /// Restore factory defaults, or with --from the parameters of a backup file (RAM only, or
     /// also storage with --stored). Shows old → new, asks first (unless --yes), backs up first.
@@ -236,16 +242,6 @@ pub fn print_params(p: &WheelParams, json_out: bool, extra: serde_json::Value) -
     Ok(())
 }
 
-/// Backs the device's parameters up into a new file in `dir` (never overwriting one).
-async fn backup(
-    client: &Client,
-    dir: &std::path::Path,
-) -> Result<PathBuf, Box<dyn std::error::Error>> {
-    let (path, _) = odocal::base::transaction::backup_store(client, dir).await?;
-    eprintln!("backed up the current parameters to {}", path.display());
-    Ok(path)
-}
-
 /// Runs `odocal params ...`.
 pub async fn params(cmd: ParamsCommand) -> CliResult {
     match cmd {
@@ -277,37 +273,20 @@ pub async fn params(cmd: ParamsCommand) -> CliResult {
                 wheelbase_m: wheelbase_m.unwrap_or(current.wheelbase_m),
                 counts_per_wheel_rev: counts_per_rev.unwrap_or(current.counts_per_wheel_rev),
             };
-            wanted.validate()?;
-            odocal::hal::wire_params(&wanted)?;
-            // The one write path: backed up, written, read back, rolled back on failure.
-            let mut tx = Transaction::prepare(client.clone(), Some(&wanted)).await?;
-            let (saved_to, applied) = crate::prompt::writing(async {
-                let saved_to = tx.back_up(&backup_dir).await?;
-                eprintln!("backed up the current parameters to {}", saved_to.display());
-                match tx.write_in_use(&wanted).await {
-                    Ok(applied) => Ok((saved_to, applied)),
-                    Err(e) => Err(format!(
-                        "not written: {e} ({}; the earlier parameters are in {})",
-                        crate::restore::roll_back(&mut tx).await,
-                        saved_to.display()
-                    )
-                    .into()),
-                }
-            })
-            .await
-            .map_err(|e: Box<dyn std::error::Error>| e)?;
+            // The one write path: checked, backed up, written, read back, undone on failure.
+            let done = write_to(&client, wanted, Commit::InUse, &backup_dir, None).await?;
             eprintln!("written to RAM; run `odocal params save` to keep them across power cycles");
-            print_params(&applied, port.json, json!({ "backup": saved_to }))
+            print_params(&done.applied, port.json, json!({ "backup": done.backup }))
         }
-        ParamsCommand::Save { port } => {
-            let client = port.connect().await?;
-            let crc = crate::prompt::writing(client.save_params()).await?;
-            if port.json {
-                print_json(&json!({ "stored_crc": crc }))
-            } else {
-                println!("saved (stored copy CRC 0x{crc:04X})");
-                Ok(())
+        ParamsCommand::Save { port, backup_dir } => {
+            let client = Arc::new(port.connect().await?);
+            // What is in use, committed: the stored copy is backed up first and read back.
+            let active = client.get_params(ParamSource::Active).await?;
+            let done = write_to(&client, active, Commit::Both, &backup_dir, None).await?;
+            if !port.json {
+                println!("saved: the stored copy holds the parameters in use");
             }
+            print_params(&done.applied, port.json, json!({ "backup": done.backup }))
         }
         ParamsCommand::Restore {
             port,
@@ -321,19 +300,54 @@ pub async fn params(cmd: ParamsCommand) -> CliResult {
             port,
             stored,
             backup_dir,
+            yes,
             ..
         } => {
-            let client = port.connect().await?;
-            let saved_to = backup(&client, &backup_dir).await?;
-            let target = if stored {
-                RestoreTarget::ActiveAndStored
-            } else {
-                RestoreTarget::Active
-            };
-            let p = client.restore_defaults(target).await?;
-            print_params(&p, port.json, json!({ "backup": saved_to }))
+            let client = Arc::new(port.connect().await?);
+            // The factory parameters, written as any others: backed up, read back, undone on
+            // failure.
+            let factory = client.get_params(ParamSource::Factory).await?;
+            let commit = if stored { Commit::Both } else { Commit::InUse };
+            let question = Question::OldToNew(format!(
+                "restore the factory parameters{}?",
+                if stored { " and commit them" } else { "" }
+            ));
+            let ask = (!yes).then_some(question);
+            let done = write_to(&client, factory, commit, &backup_dir, ask).await?;
+            print_params(&done.applied, port.json, json!({ "backup": done.backup }))
         }
     }
+}
+
+/// Writes `new` to a controller through the write service, backing up into `dir`; asks `ask`
+/// first when given (else the command itself was the question).
+async fn write_to(
+    client: &Arc<Client>,
+    new: WheelParams,
+    commit: Commit,
+    dir: &std::path::Path,
+    ask: Option<Question>,
+) -> Result<Written, Box<dyn std::error::Error>> {
+    let request = WriteRequest {
+        new,
+        bounds: Bounds::Physical,
+        policy: match ask {
+            Some(_) => WritePolicy::Ask,
+            None => WritePolicy::Yes,
+        },
+        commit,
+        backup_dir: dir,
+        question: ask.unwrap_or(Question::Plain(String::new())),
+    };
+    let mut ui = crate::prompt::TerminalWriteUi { yes: false };
+    write_once(client.clone(), None, request, &mut ui)
+        .await
+        .map_err(|e| match e {
+            WriteError::Failed { .. } | WriteError::Declined(_) => {
+                format!("not written: {e}").into()
+            }
+            e => e.into(),
+        })
 }
 
 /// `params restore --from FILE`: `odocal restore FILE --to PORT` ([`crate::restore`]), to RAM

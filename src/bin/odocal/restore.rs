@@ -6,11 +6,10 @@
 //! that same file puts the whole file back as it was (the lines that change are shown).
 
 use crate::device::print_params;
-use odocal::base::transaction::{
-    backup_dir_for, check_same_file, check_store, text_changes, BackupError, BackupFile, Rollback,
-    Transaction,
-};
-use odocal::base::{same_within, ParamStore};
+use odocal::base::restore::{plan_restore, RestoreOptions};
+use odocal::base::transaction::{backup_dir_for, check_same_file, BackupError, BackupFile};
+use odocal::base::write::{params_table, write_once, WriteError, WritePolicy};
+use odocal::base::ParamStore;
 use odocal::spec::{StoreLocation, ODOCAL_BAUD};
 use serde_json::json;
 use std::path::{Path, PathBuf};
@@ -130,135 +129,82 @@ pub async fn restore(args: RestoreArgs) -> CliResult {
     restore_onto(store, &backup, &how).await
 }
 
-/// Puts `backup`'s parameters into `store`: refused for another store unless `any_device`;
-/// shows old → new; writes nothing when the store holds them already or on a dry run; asks
-/// unless `yes` (after proving the store writable, before any file is made); backs up what
-/// the store holds; writes (and commits when `commit`), rolling back on failure.
+/// Puts `backup`'s parameters into `store` ([`plan_restore`], then the write service):
+/// refused for another store unless `any_device`; shows old → new; writes nothing when the
+/// store holds them already or on a dry run; asks unless `yes`; backs up what the store holds;
+/// writes (and commits when `commit`), undoing it on failure.
 pub async fn restore_onto(
     store: Arc<dyn ParamStore>,
     backup: &BackupFile,
     how: &Restore<'_>,
 ) -> CliResult {
-    let here = store.info();
-    let from = how.from.display();
-    let same_store = match check_store(backup, how.from, store.as_ref()) {
-        Ok(()) => !how.not_its_file,
-        Err(BackupError::OtherStore { backup_id, .. }) if how.any_device => {
-            eprintln!(
-                "warning: restoring a backup of {} `{backup_id}` onto `{}` (its parameters only)",
-                here.kind, here.id
-            );
-            false
-        }
-        Err(e) => return Err(e.into()),
+    let options = RestoreOptions {
+        any_device: how.any_device,
+        not_its_file: how.not_its_file,
+        commit: how.commit,
     };
-    let target = backup.active;
-    let current = store.read().await?;
-    let resolution = store.resolution();
+    let plan = plan_restore(store.as_ref(), backup, how.from, options).await?;
+    if let Some(warning) = &plan.warning {
+        eprintln!("warning: {warning}");
+    }
     eprintln!(
-        "{from} (taken {}by odocal {}) onto {} `{}`:\n{}",
+        "{} (taken {}by odocal {}) onto {} `{}`:\n{}",
+        how.from.display(),
         backup
             .taken_utc
             .as_ref()
             .map_or(String::new(), |t| format!("{t} ")),
         backup.odocal_version,
-        here.kind,
-        here.id,
-        odocal::routine::report::params_table(&current, &target)
+        plan.store.kind,
+        plan.store.id,
+        params_table(&plan.current, &plan.target)
     );
-    // The whole file goes back when the backup holds it and this is the file it came from.
-    let whole = match (&backup.text, store.file(), same_store) {
-        (Some(then), Some(file), true) => Some((
-            then.as_str(),
-            odocal::io::read_bounded(&file, odocal::io::MAX_TEXT_FILE)
-                .map_err(|e| format!("cannot read {}: {e}", file.display()))?,
-        )),
-        _ => None,
-    };
-    if let Some((then, now)) = &whole {
-        let changes = text_changes(now, then);
-        if !changes.is_empty() {
-            eprintln!(
-                "the whole file goes back as it was: {} line(s) change (- now, + restored)",
-                changes.len()
-            );
-            for line in changes.iter().take(MAX_SHOWN) {
-                eprintln!("  {line}");
-            }
-            if changes.len() > MAX_SHOWN {
-                eprintln!("  … and {} more", changes.len() - MAX_SHOWN);
-            }
+    if !plan.changes.is_empty() {
+        eprintln!(
+            "the whole file goes back as it was: {} line(s) change (- now, + restored)",
+            plan.changes.len()
+        );
+        for line in plan.changes.iter().take(MAX_SHOWN) {
+            eprintln!("  {line}");
+        }
+        if plan.changes.len() > MAX_SHOWN {
+            eprintln!("  … and {} more", plan.changes.len() - MAX_SHOWN);
         }
     }
-    let committed_holds = !how.commit
-        || store
-            .read_committed()
-            .await
-            .ok()
-            .flatten()
-            .is_some_and(|c| same_within(&c, &target, &resolution));
     let extra = |written: bool| {
         json!({
             "restored_from": how.from,
-            "store": here,
-            "before": current,
+            "store": plan.store,
+            "before": plan.current,
             "written": written,
             "dry_run": how.dry_run,
         })
     };
-    let holds_already = match &whole {
-        Some((then, now)) => then == now,
-        None => same_within(&current, &target, &resolution) && committed_holds,
-    };
-    if holds_already {
+    if plan.holds_already {
         eprintln!("the store already holds these parameters: nothing to write");
-        return print_params(&current, how.json, extra(false));
-    }
-    if how.dry_run {
-        // Every check the real run makes before its question (Transaction::prepare), so a dry
-        // run fails where the real run would.
-        store.check_write(&target).await?;
-        eprintln!("dry run: nothing written");
-        return print_params(&current, how.json, extra(false));
-    }
-    // Proven writable before the question; nothing is made before the answer.
-    let mut tx = Transaction::prepare(store, Some(&target)).await?;
-    if !how.yes {
-        let question = format!(
-            "write them to {} `{}`{}?",
-            here.kind,
-            here.id,
-            if how.commit { " and commit them" } else { "" }
-        );
-        if !tokio::task::block_in_place(|| crate::prompt::yes(&question)) {
-            return Err("not restored: declined".into());
-        }
+        return print_params(&plan.current, how.json, extra(false));
     }
     let dir = match how.backup_dir_given {
         true => how.backup_dir.clone(),
-        false => backup_dir_for(tx.store().as_ref(), &how.backup_dir),
+        false => backup_dir_for(store.as_ref(), &how.backup_dir),
     };
-    // From the backup to the read-back (or the rollback), a signal waits for the end.
-    let (saved, applied) = crate::prompt::writing(async {
-        let saved = tx.back_up(&dir).await?;
-        eprintln!("backed up what the store holds now to {}", saved.display());
-        let written = match (&whole, how.commit) {
-            (Some((then, _)), _) => tx.apply_text(then, &target).await,
-            (None, true) => tx.apply(&target).await,
-            (None, false) => tx.write_in_use(&target).await,
-        };
-        match written {
-            Ok(p) => Ok((saved, p)),
-            Err(e) => Err(format!(
-                "not restored: {e} ({}; the earlier parameters are in {})",
-                roll_back(&mut tx).await,
-                saved.display()
-            )
-            .into()),
+    let policy = match (how.dry_run, how.yes) {
+        (true, _) => WritePolicy::DryRun,
+        (false, true) => WritePolicy::Yes,
+        (false, false) => WritePolicy::Ask,
+    };
+    let mut ui = crate::prompt::TerminalWriteUi { yes: how.yes };
+    let done = match write_once(store, None, plan.request(policy, &dir), &mut ui).await {
+        Ok(done) => done,
+        // Every check the real run makes before its question was made.
+        Err(WriteError::DryRun) => {
+            eprintln!("dry run: nothing written");
+            return print_params(&plan.current, how.json, extra(false));
         }
-    })
-    .await
-    .map_err(|e: Box<dyn std::error::Error>| e)?;
+        Err(WriteError::Declined(_)) => return Err("not restored: declined".into()),
+        Err(e @ WriteError::Failed { .. }) => return Err(format!("not restored: {e}").into()),
+        Err(e) => return Err(e.into()),
+    };
     eprintln!(
         "restored{}",
         if how.commit {
@@ -268,14 +214,6 @@ pub async fn restore_onto(
         }
     );
     let mut extra = extra(true);
-    extra["backup"] = json!(saved);
-    print_params(&applied, how.json, extra)
-}
-
-/// Rolls `tx` back after a failed write and says what the store holds then.
-pub async fn roll_back(tx: &mut Transaction) -> String {
-    match tx.rollback().await {
-        Ok(r) => r.to_string(),
-        Err(r) => Rollback::failed(&r),
-    }
+    extra["backup"] = json!(done.backup);
+    print_params(&done.applied, how.json, extra)
 }

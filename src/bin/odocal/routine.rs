@@ -731,7 +731,7 @@ fn through_link(path: &std::path::Path) -> String {
 
 /// Runs `odocal export`.
 pub async fn export(args: ExportArgs) -> CliResult {
-    use odocal::report::ros2::{calibration_of, export, Exported};
+    use odocal::ros::export::{calibration_of, export, Exported};
     let text = odocal::io::read_bounded(&args.from, odocal::io::MAX_TEXT_FILE)
         .map_err(|e| format!("cannot read {}: {e}", args.from.display()))?;
     let v: serde_json::Value = serde_json::from_str(&text)
@@ -747,7 +747,9 @@ pub async fn export(args: ExportArgs) -> CliResult {
         )
         .into());
     }
-    match crate::prompt::writing(export(&args.ros2, &args.controller, &cal)).await? {
+    let mut ui = crate::prompt::TerminalWriteUi { yes: true };
+    let exported = export(&args.ros2, &args.controller, &cal, &mut ui);
+    match crate::prompt::writing(exported).await? {
         Exported::Created => println!("wrote {} ({} calibration)", args.ros2.display(), cal.method),
         Exported::Merged { backup } => println!(
             "merged the {} calibration's multipliers into {}{} (undo: odocal restore {})",

@@ -2,11 +2,13 @@
 //!
 //! Any result odocal prints as JSON can be exported — a routine report (`demo`, `calibrate`,
 //! `run`), `estimate`, `track` or `bag` — and either merged into the controller's existing
-//! YAML (only the multipliers change; through the one transaction: backed up beside it, as
-//! every write odocal makes, then replaced atomically and read back) or written as a new file
-//! (never over an existing one).
+//! YAML (only the multipliers change; through the write service, [`crate::base::write`]:
+//! backed up beside it, as every write odocal makes, then replaced atomically and read back)
+//! or written as a new file (never over an existing one).
 
-use crate::base::transaction::Transaction;
+use crate::base::write::{
+    write_once, Bounds, Commit, Question, WriteError, WritePolicy, WriteRequest, WriteUi,
+};
 use crate::base::ParamStore;
 use crate::kinematics::WheelParams;
 use crate::ros::yaml::YamlStore;
@@ -43,17 +45,10 @@ pub enum ExportError {
     /// The target YAML is unusable.
     #[error(transparent)]
     Yaml(#[from] crate::ros::yaml::YamlError),
-    /// The target YAML could not be backed up, written or read back.
-    #[error("{source} ({undone}; the original is in {})", backup.as_ref().map_or_else(|| "the file still".into(), |b| b.display().to_string()))]
-    Store {
-        /// Why.
-        #[source]
-        source: Box<crate::base::BaseError>,
-        /// What the rollback achieved.
-        undone: String,
-        /// The backup, once taken.
-        backup: Option<PathBuf>,
-    },
+    /// The target YAML could not be read, backed up, written or read back (what the file holds
+    /// then is said).
+    #[error(transparent)]
+    Write(#[from] WriteError),
     /// Writing failed.
     #[error("{}: {source}", path.display())]
     Io {
@@ -219,13 +214,14 @@ fn check_plausible(cal: &Calibration) -> Result<(), ExportError> {
 }
 
 /// Writes `cal` for `controller` into `path`: merged into an existing YAML (multipliers only,
-/// through a [`Transaction`]: backed up beside the file, replaced atomically, read back,
-/// rolled back on failure) or a new file (never replacing anything). A calibration that scales
+/// through the write service: backed up beside the file, replaced atomically, read back,
+/// undone on failure) or a new file (never replacing anything). A calibration that scales
 /// a parameter beyond [`MAX_FACTOR`] is refused.
 pub async fn export(
     path: &Path,
     controller: &str,
     cal: &Calibration,
+    ui: &mut dyn WriteUi,
 ) -> Result<Exported, ExportError> {
     check_plausible(cal)?;
     let io = |source| ExportError::Io {
@@ -233,36 +229,26 @@ pub async fn export(
         source,
     };
     if path.exists() {
-        let failed = |source, undone: &str, backup: Option<&Path>| ExportError::Store {
-            source: Box::new(source),
-            undone: undone.into(),
-            backup: backup.map(Path::to_path_buf),
-        };
         let store = std::sync::Arc::new(YamlStore::open(path, controller)?);
-        let current = store
-            .read()
-            .await
-            .map_err(|e| failed(e, "nothing was changed", None))?;
+        let current = store.read().await.map_err(WriteError::Base)?;
         // A ROS robot's wheel angles are radians: the count stays the file's own.
         let new = WheelParams {
             counts_per_wheel_rev: current.counts_per_wheel_rev,
             ..cal.calibrated
         };
-        let mut tx = Transaction::prepare(store, Some(&new))
-            .await
-            .map_err(|e| failed(e, "nothing was changed", None))?;
-        let backup = tx
-            .back_up(crate::io::dir_of(path))
-            .await
-            .map_err(|e| failed(e, "nothing was changed", None))?;
-        if let Err(e) = tx.apply(&new).await {
-            let undone = match tx.rollback().await {
-                Ok(r) => r.to_string(),
-                Err(r) => crate::base::transaction::Rollback::failed(&r),
-            };
-            return Err(failed(e, &undone, Some(&backup)));
-        }
-        return Ok(Exported::Merged { backup });
+        let request = WriteRequest {
+            new,
+            // Checked against the result's own configuration above ([`check_plausible`]).
+            bounds: Bounds::Physical,
+            policy: WritePolicy::Yes,
+            commit: Commit::Both,
+            backup_dir: crate::io::dir_of(path),
+            question: Question::Plain(String::new()),
+        };
+        let done = write_once(store, None, request, ui).await?;
+        return Ok(Exported::Merged {
+            backup: done.backup,
+        });
     }
     let text = ros2_diff_drive_yaml(controller, &cal.configured, &cal.calibrated);
     let mut f = std::fs::OpenOptions::new()
