@@ -202,15 +202,20 @@ fn clocks_are_aligned_and_squares_found_in_one_place_each() {
         ("tokio_serial::new(", &["src/io/serial.rs"][..]),
         ("open_native_async", &["src/io/serial.rs"][..]),
     ] {
-        let outside: Vec<String> = files_with(&sources, needle)
-            .into_iter()
-            .filter(|f| !allowed.contains(&f.as_str()))
-            .collect();
-        assert!(
-            outside.is_empty(),
-            "`{needle}` belongs in {allowed:?}, found in {outside:?}"
-        );
+        only_in(&sources, needle, allowed, "");
     }
+}
+
+/// Fails when `needle` is in the code of a file outside `allowed`; `hint` says what to do.
+fn only_in(sources: &[(PathBuf, String)], needle: &str, allowed: &[&str], hint: &str) {
+    let outside: Vec<String> = files_with(sources, needle)
+        .into_iter()
+        .filter(|f| !allowed.contains(&f.as_str()))
+        .collect();
+    assert!(
+        outside.is_empty(),
+        "`{needle}` belongs in {allowed:?}, found in {outside:?}{hint}"
+    );
 }
 
 /// Parameters reach a store through the write service alone (`base/write.rs`, over the
@@ -252,15 +257,8 @@ fn parameters_are_written_through_the_write_service_only() {
             ][..],
         ),
     ] {
-        let outside: Vec<String> = files_with(&sources, needle)
-            .into_iter()
-            .filter(|f| !allowed.contains(&f.as_str()))
-            .collect();
-        assert!(
-            outside.is_empty(),
-            "`{needle}` (a parameter write) belongs in {allowed:?}, found in {outside:?}: \
-             write through odocal::base::write"
-        );
+        let hint = ": a parameter write goes through odocal::base::write";
+        only_in(&sources, needle, allowed, hint);
     }
 }
 

@@ -1,4 +1,4 @@
-//! The only way parameters get written: a transaction over a [`ParamStore`].
+//! The mechanism under the one write service: a transaction over a [`ParamStore`].
 //!
 //! [`Transaction::prepare`] reads what the store holds and proves the store could take a write
 //! (a dry run: a file that cannot be rewritten is refused before the robot moves), creating
@@ -8,8 +8,8 @@
 //! [`Transaction::begin`] is both at once. [`Transaction::apply`] (refused until the backup
 //! exists) writes, reads back, commits and reads back the committed copy;
 //! [`Transaction::rollback`] puts the original back, in use and, if a commit may have
-//! happened, committed too. Callers decide *whether* to write (policy, bounds, confirmation);
-//! this file decides *how*.
+//! happened, committed too. The write service ([`super::write`]) decides *whether* to write
+//! (policy, bounds, confirmation) and is the only caller; this file decides *how*.
 //!
 //! One backup format for every store, a JSON [`BackupFile`]; for a store that is a file it
 //! holds the whole file as well, so that `odocal restore` undoes every change odocal made to
@@ -54,7 +54,7 @@ pub struct BackupFile {
     pub text: Option<String>,
 }
 
-/// What a rollback achieved.
+/// What a rollback achieved (the write service's [`super::write::Undone`] says it to the user).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 pub enum Rollback {
     /// Nothing had been written: nothing to undo.
@@ -63,26 +63,6 @@ pub enum Rollback {
     Restored,
     /// The original parameters are in use and committed again.
     RestoredAndCommitted,
-}
-
-impl Rollback {
-    /// What a failed rollback leaves, in the same words as [`Rollback`]'s `Display`.
-    pub fn failed(error: &impl std::fmt::Display) -> String {
-        format!("putting the earlier parameters back failed too: {error}")
-    }
-}
-
-/// What the store holds after the rollback, as every command says it.
-impl std::fmt::Display for Rollback {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(match self {
-            Rollback::NothingWritten => "nothing was changed",
-            Rollback::Restored => "the earlier parameters are in use again",
-            Rollback::RestoredAndCommitted => {
-                "the earlier parameters are in use and committed again"
-            }
-        })
-    }
 }
 
 /// A write in progress; see the module documentation.

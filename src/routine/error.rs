@@ -132,27 +132,3 @@ impl From<WriteError> for RoutineError {
 fn restore_advice(active: &Holds, committed: &Holds, backup: &std::path::Path) -> String {
     crate::base::write::restore_advice(active, committed, Some(backup))
 }
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn a_failed_rollback_says_what_the_store_holds_and_what_to_do() {
-        let err = RoutineError::RestoreFailed {
-            source: Box::new(RoutineError::Cancelled),
-            restore_error: Box::new(BaseError::WatchdogTripped),
-            reconnect_error: None,
-            backup: std::path::Path::new("/tmp/odocal-backup-x.json").into(),
-            active: Holds::New,
-            committed: Holds::Unknown("no answer".into()),
-        };
-        let text = err.to_string();
-        assert!(text.contains("in use the new parameters"), "{text}");
-        assert!(text.contains("committed unknown (no answer)"), "{text}");
-        assert!(
-            text.contains("odocal restore /tmp/odocal-backup-x.json"),
-            "{text}"
-        );
-    }
-}
