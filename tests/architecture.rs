@@ -37,7 +37,9 @@ fn sources() -> Vec<(PathBuf, String)> {
             let mut in_string = false;
             for line in text.lines() {
                 let trimmed = line.trim_start();
+                // Dropped lines stay as empty ones: line numbers are the file's.
                 if trimmed.starts_with("//") {
+                    kept.push("");
                     continue;
                 }
                 let code = line.split(" // ").next().unwrap_or(line);
@@ -46,6 +48,7 @@ fn sources() -> Vec<(PathBuf, String)> {
                     if *depth <= 0 {
                         in_test = None;
                     }
+                    kept.push("");
                     continue;
                 }
                 if cfg_test
@@ -54,6 +57,7 @@ fn sources() -> Vec<(PathBuf, String)> {
                 {
                     in_test = Some(1);
                     cfg_test = false;
+                    kept.push("");
                     continue;
                 }
                 cfg_test = trimmed == "#[cfg(test)]";
@@ -341,4 +345,127 @@ fn layers_only_use_the_layers_below_them() {
         }
     }
     assert!(broken.is_empty(), "{}", broken.join("\n"));
+}
+
+/// Each function in `sources` under `dir` longer than `limit` lines, as `file:line name
+/// (lines)`: from its `fn` line to its closing brace (braces counted outside strings and
+/// chars; a declaration without a body is skipped).
+fn long_functions(sources: &[(PathBuf, String)], dir: &str, limit: usize) -> Vec<String> {
+    let mut long = Vec::new();
+    for (path, code) in sources.iter().filter(|(p, _)| under(p, dir)) {
+        let lines: Vec<&str> = code.lines().collect();
+        for (i, line) in lines.iter().enumerate() {
+            let Some(name) = fn_name(line) else {
+                continue;
+            };
+            let (mut depth, mut opened, mut in_string) = (0i64, false, false);
+            for (j, l) in lines.iter().enumerate().skip(i) {
+                depth += braces(l, &mut in_string);
+                opened |= l.contains('{');
+                if !opened && l.trim_end().ends_with(';') {
+                    break;
+                }
+                if opened && depth <= 0 {
+                    if j - i + 1 > limit {
+                        long.push(format!(
+                            "{}:{} {name} ({} lines)",
+                            path.display(),
+                            i + 1,
+                            j - i + 1
+                        ));
+                    }
+                    break;
+                }
+            }
+        }
+    }
+    long
+}
+
+/// The name of the function a line declares, if it does (`fn NAME` as a word).
+fn fn_name(line: &str) -> Option<&str> {
+    let at = line.find("fn ")?;
+    let before = line[..at].trim_end();
+    let declares = before.is_empty()
+        || before.ends_with("pub")
+        || before.ends_with(')')
+        || before.ends_with("async")
+        || before.ends_with("const")
+        || before.ends_with("unsafe");
+    let rest = &line[at + 3..];
+    let end = rest.find(|c: char| !(c.is_alphanumeric() || c == '_'))?;
+    (declares && end > 0).then(|| &rest[..end])
+}
+
+/// The files of the binary and the `crate::FILE` uses between them; a circle between them
+/// means two files that cannot be read (or moved) apart.
+#[test]
+fn the_command_line_files_use_each_other_without_circles() {
+    let sources = sources();
+    let files: Vec<(String, &String)> = sources
+        .iter()
+        .filter(|(p, _)| under(p, "src/bin/odocal"))
+        .filter_map(|(p, code)| Some((p.file_stem()?.to_str()?.to_string(), code)))
+        .collect();
+    let names: Vec<&str> = files.iter().map(|(n, _)| n.as_str()).collect();
+    let uses = |code: &str| -> Vec<usize> {
+        (0..names.len())
+            .filter(|&k| code.contains(&format!("crate::{}", names[k])))
+            .collect()
+    };
+    let graph: Vec<Vec<usize>> = files.iter().map(|(_, code)| uses(code)).collect();
+    // Depth-first search for a back edge; the circle is the path from the file it returns to.
+    fn visit(
+        k: usize,
+        graph: &[Vec<usize>],
+        state: &mut [u8],
+        path: &mut Vec<usize>,
+    ) -> Option<Vec<usize>> {
+        state[k] = 1;
+        path.push(k);
+        for &n in graph[k].iter().filter(|&&n| n != k) {
+            if state[n] == 1 {
+                let start = path.iter().position(|&p| p == n).unwrap_or(0);
+                return Some([&path[start..], &[n]].concat());
+            }
+            if state[n] == 0 {
+                if let Some(circle) = visit(n, graph, state, path) {
+                    return Some(circle);
+                }
+            }
+        }
+        path.pop();
+        state[k] = 2;
+        None
+    }
+    let mut state = vec![0u8; names.len()];
+    for k in 0..names.len() {
+        if state[k] != 0 {
+            continue;
+        }
+        if let Some(circle) = visit(k, &graph, &mut state, &mut Vec::new()) {
+            let circle: Vec<&str> = circle.iter().map(|&i| names[i]).collect();
+            panic!("a circle between the binary's files: {}", circle.join(" → "));
+        }
+    }
+}
+
+/// The binary parses and prints: what it decides lives in the library, with tests.
+#[test]
+#[ignore = "issue 31, chunks 4-6: src/bin is still over 2 500 lines with functions over 60"]
+fn the_command_line_is_thin() {
+    let sources = sources();
+    // Every line of every file, comments and tests included (`wc -l`).
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let lines: usize = sources
+        .iter()
+        .filter(|(p, _)| under(p, "src/bin"))
+        .map(|(p, _)| std::fs::read_to_string(root.join(p)).map_or(0, |t| t.lines().count()))
+        .sum();
+    let long = long_functions(&sources, "src/bin", 60);
+    assert!(
+        lines <= 2500 && long.is_empty(),
+        "src/bin: {lines} lines (at most 2 500); functions over 60 lines:\n{}",
+        long.join("\n")
+    );
 }

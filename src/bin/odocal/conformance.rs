@@ -68,14 +68,14 @@ pub async fn run(args: Args) -> CliResult {
         time_scale: args.time_scale,
         only: args.rules.clone(),
     };
-    crate::in_range(
+    odocal::io::check_range(
         "--max-speed-m-s",
         args.max_speed_m_s,
         conformance::MIN_SPEED_M_S,
         1.0,
     )?;
     if let Some(k) = args.time_scale {
-        crate::in_range("--time-scale", k, 1.0, 100.0)?;
+        odocal::io::check_range("--time-scale", k, 1.0, 100.0)?;
     }
     crate::sensor::confirm(
         args.yes,
@@ -113,7 +113,7 @@ pub async fn run(args: Args) -> CliResult {
         report.count(Outcome::Skip),
     );
     if json {
-        crate::print_json(&serde_json::to_value(&report)?)?;
+        crate::out::print_json(&serde_json::to_value(&report)?)?;
     } else {
         println!(
             "{} ({}): {pass} passed, {fail} failed, {skip} skipped",
@@ -156,7 +156,7 @@ pub struct KitArgs {
 /// with 0.15 m wheels, a 0.39 m wheelbase and 4096 counts per revolution) on a new
 /// pseudo-terminal, whose path it prints first.
 pub async fn kit_device(args: KitArgs) -> CliResult {
-    crate::in_range("--time-scale", args.real_time, 0.01, 1000.0)?;
+    odocal::io::check_range("--time-scale", args.real_time, 0.01, 1000.0)?;
     let robot = ParamsBlock {
         left_wheel_diameter_nm: 150_000_000,
         right_wheel_diameter_nm: 150_000_000,
@@ -173,7 +173,7 @@ pub async fn kit_device(args: KitArgs) -> CliResult {
         "kit device on {} (real time ×{}); Ctrl-C to stop",
         server.path, args.real_time
     );
-    crate::serve_until_stopped(args.ignore_stdin).await;
+    crate::args::serve_until_stopped(args.ignore_stdin).await;
     if let Some(link) = &args.link {
         let _ = std::fs::remove_file(link);
     }

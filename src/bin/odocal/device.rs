@@ -1,7 +1,7 @@
 //! `odocal mock-device`, `params`, `status` and `heading`: the device-facing commands.
 
-use crate::print_json;
-use crate::SIM_HEADING_SIGMA_DEG;
+use crate::args::SIM_HEADING_SIGMA_DEG;
+use crate::out::{print_json, print_params};
 use clap::Subcommand;
 use odocal::base::write::{
     write_once, Bounds, Commit, Question, WriteError, WritePolicy, WriteRequest, Written,
@@ -23,7 +23,7 @@ type CliResult = Result<(), Box<dyn std::error::Error>>;
 #[derive(Debug, clap::Args)]
 pub struct MockArgs {
     #[command(flatten)]
-    truth: crate::TrueRobotArgs,
+    truth: crate::args::TrueRobotArgs,
     /// Factory wheel diameter (m).
     #[arg(long, default_value_t = 0.15)]
     wheel_diameter_m: f64,
@@ -63,9 +63,9 @@ pub struct MockArgs {
     #[arg(long)]
     ignore_stdin: bool,
     #[command(flatten)]
-    compass: crate::MockCompassArgs,
+    compass: crate::args::MockCompassArgs,
     #[command(flatten)]
-    sensor: crate::HeadingModelArgs,
+    sensor: crate::args::HeadingModelArgs,
 }
 
 /// Runs `odocal mock-device`.
@@ -120,7 +120,7 @@ pub async fn mock_device(args: MockArgs) -> CliResult {
             " or closing stdin"
         }
     );
-    crate::serve_until_stopped(args.ignore_stdin).await;
+    crate::args::serve_until_stopped(args.ignore_stdin).await;
     let counters = lock(&device).counters();
     eprintln!(
         "mock device stopped: {} requests executed ({} retries answered again), {} of {} \
@@ -224,22 +224,6 @@ pub enum ParamsCommand {
         #[arg(long, default_value = ".")]
         backup_dir: PathBuf,
     },
-}
-
-/// Prints parameters as a table, or as JSON with `extra`'s fields.
-pub fn print_params(p: &WheelParams, json_out: bool, extra: serde_json::Value) -> CliResult {
-    if json_out {
-        let mut v = serde_json::to_value(p)?;
-        if let (Some(obj), Some(extra)) = (v.as_object_mut(), extra.as_object()) {
-            obj.extend(extra.clone());
-        }
-        return print_json(&v);
-    }
-    println!("left_wheel_diameter_m  {:.9}", p.left_wheel_diameter_m);
-    println!("right_wheel_diameter_m {:.9}", p.right_wheel_diameter_m);
-    println!("wheelbase_m            {:.9}", p.wheelbase_m);
-    println!("counts_per_wheel_rev   {:.6}", p.counts_per_wheel_rev);
-    Ok(())
 }
 
 /// Runs `odocal params ...`.

@@ -1,10 +1,13 @@
 //! `odocal estimate`: calibrate from measurements typed in by hand.
 
-use crate::stated::{default_line, disagreement_lines, pm_b, pm_d, within_session_legend, Basis};
-use crate::{print_json, ConventionArgs};
+use crate::args::ConventionArgs;
+use crate::out::print_json;
 use odocal::calibration::uncertainty::{cramer_rao_bound, heading_error_sigma, TestDesign};
 use odocal::calibration::{self, Estimate, Method, RunMeasurement, SquareTest};
 use odocal::kinematics::WheelParams;
+use odocal::report::stated::{
+    default_line, disagreement_lines, pm_b, pm_d, within_session_legend, Basis,
+};
 use serde_json::json;
 
 /// Arguments of `odocal estimate`.
@@ -111,14 +114,14 @@ pub fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
         if v > hi || (v > 0.0 && v < lo) {
             return Err(format!(
                 "{flag} must be in [{lo}, {hi}] m, got {}",
-                crate::compact(v)
+                odocal::io::compact(v)
             )
             .into());
         }
     }
     if let Some(d) = args.wheel_diameter_m {
         let (lo, hi) = odocal::kinematics::PHYSICAL_DIAMETER_M;
-        crate::in_range("--wheel-diameter-m", d, lo, hi)?;
+        odocal::io::check_range("--wheel-diameter-m", d, lo, hi)?;
     }
     let mut test = SquareTest {
         side_m: args.side_m,
@@ -135,7 +138,7 @@ pub fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
             return Err(format!(
                 "--heading-sigma-deg must be in [1e-6, 45] deg (the sensor's noise per \
                  reading), got {}",
-                crate::compact(s)
+                odocal::io::compact(s)
             )
             .into());
         }

@@ -1,7 +1,7 @@
 //! `odocal fit`: calibrate from any driving against a pose reference (motion capture, a
 //! localization, scan matching, GNSS): parses the inputs, prints the calibration.
 
-use crate::print_json;
+use crate::out::print_json;
 use odocal::calibration::pose_calibration::{calibrate_from_poses, dead_reckon, PoseCalibration};
 use odocal::calibration::pose_fit::{FitConfig, Param};
 use odocal::calibration::pose_reference::{Geometry, PoseRecording, ReferenceKind};
@@ -98,7 +98,7 @@ pub fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
         ("--max-time-offset-s", args.max_time_offset_s, 0.0, 10.0),
         ("--window-s", args.window_s.unwrap_or(10.0), 1.0, 1e6),
     ] {
-        crate::in_range(flag, v, lo, hi)?;
+        odocal::io::check_range(flag, v, lo, hi)?;
     }
     // A data set's reference is motion capture: absolute by its kind.
     let kind = args
@@ -209,8 +209,8 @@ fn nominal(args: &Args, needed_by: &str) -> Result<Geometry, Box<dyn std::error:
         )
         .into());
     };
-    crate::in_range("--wheel-diameter-m", d, 1e-3, 5.0)?;
-    crate::in_range("--wheelbase-m", b, 1e-2, 10.0)?;
+    odocal::io::check_range("--wheel-diameter-m", d, 1e-3, 5.0)?;
+    odocal::io::check_range("--wheelbase-m", b, 1e-2, 10.0)?;
     Ok(Geometry {
         left_diameter_m: d,
         right_diameter_m: d,

@@ -1,7 +1,7 @@
 //! `odocal ports`: the serial ports this machine has, with USB ids where known, so a user can
 //! tell the motor controller's adapter from the compass's.
 
-use crate::print_json;
+use crate::out::print_json;
 use serde_json::json;
 
 /// Arguments of `odocal ports`.

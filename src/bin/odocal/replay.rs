@@ -1,11 +1,12 @@
 //! `odocal replay`: calibrate on recorded square sets of one robot (pooled), evaluate on
 //! recorded runs.
 
-use crate::stated::{
+use crate::args::ConventionArgs;
+use crate::out::print_json;
+use odocal::offline::dataset::{replay, OptiOdomSet};
+use odocal::report::stated::{
     default_line, disagreement_lines, pm, pm_b, pm_d, within_session_legend, Basis,
 };
-use crate::{print_json, ConventionArgs};
-use odocal::offline::dataset::{replay, OptiOdomSet};
 use serde_json::json;
 use std::path::PathBuf;
 

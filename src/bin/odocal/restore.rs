@@ -5,7 +5,7 @@
 //! parameters are written, read back, committed and read back. A backup of a file restored to
 //! that same file puts the whole file back as it was (the lines that change are shown).
 
-use crate::device::print_params;
+use crate::out::print_params;
 use odocal::base::restore::{plan_restore, RestoreOptions};
 use odocal::base::transaction::{backup_dir_for, check_same_file, BackupError, BackupFile};
 use odocal::base::write::{params_table, write_once, WriteError, WritePolicy};

@@ -1,7 +1,7 @@
 //! RoboClaw controllers: `odocal status --port roboclaw:…` and `odocal mock-roboclaw`.
 
-use crate::print_json;
-use crate::SIM_HEADING_SIGMA_DEG;
+use crate::args::SIM_HEADING_SIGMA_DEG;
+use crate::out::print_json;
 use odocal::roboclaw::client::{RoboClaw, RoboClawConfig};
 use odocal::roboclaw::profile::Profile;
 use serde_json::json;
@@ -53,7 +53,7 @@ pub struct MockArgs {
     #[arg(long)]
     profile: PathBuf,
     #[command(flatten)]
-    truth: crate::TrueRobotArgs,
+    truth: crate::args::TrueRobotArgs,
     /// The simulated compass's noise per sentence (deg; σ).
     #[arg(long = "heading-sigma-deg", alias = "compass-sigma-deg", default_value_t = SIM_HEADING_SIGMA_DEG)]
     compass_sigma_deg: f64,
@@ -83,7 +83,7 @@ pub struct MockArgs {
     #[arg(long)]
     ignore_stdin: bool,
     #[command(flatten)]
-    sensor: crate::HeadingModelArgs,
+    sensor: crate::args::HeadingModelArgs,
 }
 
 /// Runs `odocal mock-roboclaw`: prints `roboclaw:PATH` and `nmea:PATH`, serves until Ctrl-C or
@@ -91,7 +91,7 @@ pub struct MockArgs {
 pub async fn mock(args: MockArgs) -> CliResult {
     use odocal::mock::roboclaw::{spawn_ptys, MockRoboClawConfig};
     args.truth.check()?;
-    crate::in_ranges(&[
+    odocal::io::check_ranges(&[
         ("--heading-sigma-deg", args.compass_sigma_deg, 0.0, 10.0),
         ("--compass-hz", args.compass_hz, 0.1, 100.0),
         ("--time-scale", args.time_scale, 0.01, 100.0),
@@ -141,7 +141,7 @@ pub async fn mock(args: MockArgs) -> CliResult {
             " or closing stdin"
         }
     );
-    crate::serve_until_stopped(args.ignore_stdin).await;
+    crate::args::serve_until_stopped(args.ignore_stdin).await;
     drop(ptys);
     Ok(())
 }

@@ -1,12 +1,12 @@
 //! `odocal bag` (and the ROS flags other commands share): calibrate from a ROS bag.
 
-use crate::print_json;
-use crate::stated::{
-    default_line, disagreement_lines, pm, pm_b, pm_d, within_session_legend, Basis,
-};
-use crate::SIM_HEADING_SIGMA_DEG;
+use crate::args::SIM_HEADING_SIGMA_DEG;
+use crate::out::print_json;
 use odocal::calibration::Method;
 use odocal::kinematics::SplitConvention;
+use odocal::report::stated::{
+    default_line, disagreement_lines, pm, pm_b, pm_d, within_session_legend, Basis,
+};
 use odocal::ros::bag::{self, BagOptions, GeometrySource, RosTopics};
 use odocal::ros::yaml::DiffDriveConfig;
 use serde_json::json;
@@ -371,7 +371,7 @@ pub struct MockArgs {
     #[arg(long = "tcp-port", alias = "port", default_value_t = 9090)]
     port: u16,
     #[command(flatten)]
-    truth: crate::TrueRobotArgs,
+    truth: crate::args::TrueRobotArgs,
     /// The simulated heading sensor's (IMU's) noise per reading (deg; σ).
     #[arg(long = "heading-sigma-deg", alias = "compass-sigma-deg", default_value_t = SIM_HEADING_SIGMA_DEG)]
     compass_sigma_deg: f64,
@@ -402,16 +402,16 @@ pub struct MockArgs {
     #[arg(long, requires = "localization", allow_hyphen_values = true)]
     localization_mount: Option<String>,
     #[command(flatten)]
-    compass: crate::MockCompassArgs,
+    compass: crate::args::MockCompassArgs,
     #[command(flatten)]
-    sensor: crate::HeadingModelArgs,
+    sensor: crate::args::HeadingModelArgs,
 }
 
 /// Runs `odocal mock-rosbridge`.
 pub async fn mock(args: MockArgs) -> Result<(), Box<dyn std::error::Error>> {
     use odocal::mock::rosbridge::{MockRosConfig, MockRosbridge};
     args.truth.check()?;
-    crate::in_ranges(&[
+    odocal::io::check_ranges(&[
         ("--heading-sigma-deg", args.compass_sigma_deg, 0.0, 10.0),
         ("--time-scale", args.time_scale, 0.01, 100.0),
     ])?;
@@ -435,7 +435,7 @@ pub async fn mock(args: MockArgs) -> Result<(), Box<dyn std::error::Error>> {
             let [x, y, yaw] = v[..] else {
                 return Err(format!("--localization-mount {m:?}: expected X_M,Y_M,YAW_DEG").into());
             };
-            crate::in_ranges(&[
+            odocal::io::check_ranges(&[
                 ("--localization-mount x", x, -5.0, 5.0),
                 ("--localization-mount y", y, -5.0, 5.0),
                 ("--localization-mount yaw", yaw, -180.0, 180.0),
@@ -476,6 +476,6 @@ pub async fn mock(args: MockArgs) -> Result<(), Box<dyn std::error::Error>> {
             " or closing stdin"
         }
     );
-    crate::serve_until_stopped(args.ignore_stdin).await;
+    crate::args::serve_until_stopped(args.ignore_stdin).await;
     Ok(())
 }

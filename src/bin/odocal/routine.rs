@@ -1,8 +1,8 @@
 //! `odocal demo`, `calibrate`, `run` and `export`: the recalibration routine's commands.
 
-use crate::print_json;
+use crate::args::SIM_HEADING_SIGMA_DEG;
+use crate::out::print_json;
 use crate::robot::RobotArgs;
-use crate::SIM_HEADING_SIGMA_DEG;
 use indicatif::{ProgressBar, ProgressStyle};
 use odocal::base::Base;
 use odocal::calibration::plan::duration_text;
@@ -225,9 +225,9 @@ fn print_outcome(report: &Report, json_out: bool, files: &[PathBuf]) -> CliResul
                 "{:<13} {:>9.6} {:>10} {:>9.6} {:>10}{}",
                 e.method.name(),
                 e.e_b,
-                crate::stated::pm_b(e),
+                odocal::report::stated::pm_b(e),
                 e.e_d,
-                crate::stated::pm_d(e),
+                odocal::report::stated::pm_d(e),
                 if e.method == r.chosen.method {
                     "  ← chosen"
                 } else {
@@ -235,14 +235,14 @@ fn print_outcome(report: &Report, json_out: bool, files: &[PathBuf]) -> CliResul
                 }
             );
         }
-        for line in crate::stated::within_session_legend(&r.estimates) {
+        for line in odocal::report::stated::within_session_legend(&r.estimates) {
             println!("{line}");
         }
         println!("chosen: {}, {}", r.chosen.method, r.chosen_because);
-        for line in crate::stated::disagreement_lines(
+        for line in odocal::report::stated::disagreement_lines(
             Some(r.chosen.method),
             "the method chosen",
-            crate::stated::Basis::Session,
+            odocal::report::stated::Basis::Session,
             &r.estimates,
         ) {
             println!("{line}");
@@ -321,7 +321,7 @@ pub struct DemoArgs {
     #[arg(long)]
     target_ed_std: Option<f64>,
     #[command(flatten)]
-    sensor: crate::HeadingModelArgs,
+    sensor: crate::args::HeadingModelArgs,
 }
 
 /// Runs `odocal demo`.

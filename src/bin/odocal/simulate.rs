@@ -1,10 +1,11 @@
 //! `odocal simulate`: the paper's simulation study on a configurable robot.
 
-use crate::stated::pm;
-use crate::SIM_HEADING_SIGMA_DEG;
-use crate::{print_json, ConventionArgs};
+use crate::args::ConventionArgs;
+use crate::args::SIM_HEADING_SIGMA_DEG;
+use crate::out::print_json;
 use odocal::kinematics::{SplitConvention, WheelParams};
 use odocal::offline::study::{run_trials, StudyConfig};
+use odocal::report::stated::pm;
 use odocal::sim::NoiseModel;
 use serde_json::json;
 
@@ -73,7 +74,7 @@ pub struct Args {
     bag: Option<std::path::PathBuf>,
     /// How the --write-bag's IMU errs (a deviation, a gyro's scale, a late or lossy stream).
     #[command(flatten)]
-    sensor: crate::HeadingModelArgs,
+    sensor: crate::args::HeadingModelArgs,
     /// Instead of squares, normal driving under a pose reference (5 minutes; the reference at
     /// 10 Hz, mounted off the axle, 60 ms late, noisy, 1 % outliers), fitted as `odocal fit`
     /// does: the truth against the fit.
@@ -125,7 +126,7 @@ fn write_bag(args: &Args, path: &std::path::Path) -> Result<(), Box<dyn std::err
 
 /// Runs `odocal simulate`.
 pub fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
-    use crate::in_range;
+    use odocal::io::check_range as in_range;
     // Bounds before anything is simulated: memory and time grow with runs × trials.
     in_range("--runs", args.runs as f64, 1.0, 1000.0)?;
     in_range("--trials", args.trials as f64, 1.0, 100_000.0)?;

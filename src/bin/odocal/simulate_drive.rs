@@ -1,7 +1,7 @@
 //! `odocal simulate --drive`: normal driving under a pose reference, simulated and fitted; the
 //! truth against the fit, and the drive as `odocal fit`'s CSV files or as a bag on request.
 
-use crate::print_json;
+use crate::out::print_json;
 use odocal::calibration::pose_calibration::calibrate_from_poses;
 use odocal::calibration::pose_fit::{FitConfig, Param};
 use odocal::calibration::pose_reference::{Geometry, ReferenceKind};
@@ -38,7 +38,7 @@ pub fn run(
     json_out: bool,
     bag: Option<&std::path::Path>,
 ) -> Result<(), Box<dyn std::error::Error>> {
-    crate::in_range("--drive-s", args.drive_s, 10.0, 3600.0)?;
+    odocal::io::check_range("--drive-s", args.drive_s, 10.0, 3600.0)?;
     let config = DrivingConfig {
         truth: Geometry::from(truth),
         duration_s: args.drive_s,

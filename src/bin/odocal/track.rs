@@ -1,7 +1,7 @@
 //! `odocal record` and `odocal track`: logs of a live session and the online estimator, on any
 //! base (a controller of our protocol, a ROS robot, a RoboClaw with a compass).
 
-use crate::print_json;
+use crate::out::print_json;
 use crate::robot::RobotArgs;
 use clap::ArgGroup;
 use odocal::base::write::{write_once, Bounds, Commit, Question, WriteRequest};
@@ -411,8 +411,8 @@ pub async fn track(args: TrackArgs) -> CliResult {
                     .into(),
             );
         };
-        crate::in_range("--wheel-diameter-m", d, 1e-3, 5.0)?;
-        crate::in_range("--wheelbase-m", b, 1e-2, 10.0)?;
+        odocal::io::check_range("--wheel-diameter-m", d, 1e-3, 5.0)?;
+        odocal::io::check_range("--wheelbase-m", b, 1e-2, 10.0)?;
         // Wheels in radians: a "count" is a radian (see OnlineConfig's angle units).
         let configured = WheelParams::nominal(d, b, std::f64::consts::TAU);
         let drive = PoseRecording {
