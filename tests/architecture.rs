@@ -445,7 +445,10 @@ fn the_command_line_files_use_each_other_without_circles() {
         }
         if let Some(circle) = visit(k, &graph, &mut state, &mut Vec::new()) {
             let circle: Vec<&str> = circle.iter().map(|&i| names[i]).collect();
-            panic!("a circle between the binary's files: {}", circle.join(" → "));
+            panic!(
+                "a circle between the binary's files: {}",
+                circle.join(" → ")
+            );
         }
     }
 }

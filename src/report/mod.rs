@@ -7,6 +7,7 @@ pub mod plots;
 #[cfg(feature = "plots")]
 pub mod pose_plots;
 pub mod stated;
+pub mod text;
 
 use crate::io::create_new;
 use crate::kinematics::Direction;

@@ -15,6 +15,7 @@ pub mod config;
 pub mod error;
 pub mod heading;
 pub mod planning;
+pub mod progress;
 pub mod report;
 pub mod spin;
 pub mod square;

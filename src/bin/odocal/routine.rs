@@ -5,15 +5,14 @@ use crate::out::print_json;
 use crate::robot::RobotArgs;
 use indicatif::{ProgressBar, ProgressStyle};
 use odocal::base::Base;
-use odocal::calibration::plan::duration_text;
 use odocal::calibration::Method;
 use odocal::demo::{run_demo, DemoOptions};
 use odocal::kinematics::SplitConvention;
 use odocal::routine::config::{RoutineConfig, WritePolicy};
+use odocal::routine::progress::{RobotClock, Shown};
 use odocal::routine::report::Report;
 use odocal::routine::{run, RoutineEvent, RoutineUi};
 use odocal::spec::{BaseSpec, DriveSpec, RobotSection, RoutineFile};
-use serde_json::json;
 use std::io::IsTerminal;
 use std::path::PathBuf;
 
@@ -23,10 +22,8 @@ type CliResult = Result<(), Box<dyn std::error::Error>>;
 /// robot time (tenths of a second of motion at the speed limits), so its ETA is the robot's.
 struct TerminalUi {
     bar: Option<ProgressBar>,
-    /// Robot time the bar has counted (s), kept exact between its whole ticks.
-    counted_s: f64,
-    /// Robot time this phase plans at the speed limits (s), extensions included.
-    planned_s: f64,
+    /// Robot time counted and planned, and what to show of each event.
+    clock: RobotClock,
     /// Where a run that stopped left the robot and its parameters.
     ending: Option<odocal::routine::Ending>,
     quiet: bool,
@@ -54,8 +51,7 @@ impl TerminalUi {
     fn new(quiet: bool, assume_yes: bool) -> Self {
         TerminalUi {
             bar: None,
-            counted_s: 0.0,
-            planned_s: 0.0,
+            clock: RobotClock::default(),
             ending: None,
             quiet,
             assume_yes,
@@ -87,17 +83,17 @@ impl RoutineUi for TerminalUi {
     }
 
     fn event(&mut self, event: &RoutineEvent) {
-        match event {
-            RoutineEvent::Stage(s) => self.say(&format!("· {s}")),
-            RoutineEvent::Warning(w) => self.say(&format!("warning: {w}")),
-            RoutineEvent::Plan { robot_time_s, .. } => {
+        let ticks = |s: f64| (s * TICKS_PER_S).round() as u64;
+        match self.clock.update(event) {
+            Shown::Line(line) => self.say(&line),
+            Shown::Step(line) if self.bar.is_none() => self.say(&line),
+            Shown::Step(_) | Shown::Nothing => {}
+            Shown::Phase(robot_time_s) => {
                 if let Some(b) = self.bar.take() {
                     b.finish_and_clear();
                 }
-                self.counted_s = 0.0;
-                self.planned_s = *robot_time_s;
                 if !self.quiet && std::io::stderr().is_terminal() {
-                    let bar = ProgressBar::new((robot_time_s * TICKS_PER_S).round() as u64);
+                    let bar = ProgressBar::new(ticks(robot_time_s));
                     bar.set_style(
                         ProgressStyle::with_template(
                             "{bar:30} {msg} · robot time {prefix} · ETA {eta}",
@@ -107,65 +103,25 @@ impl RoutineUi for TerminalUi {
                     self.bar = Some(bar);
                 }
             }
-            RoutineEvent::Extend { robot_time_s, .. } => {
-                self.planned_s += robot_time_s;
+            Shown::Extend(robot_time_s) => {
                 if let Some(b) = &self.bar {
-                    b.inc_length((robot_time_s * TICKS_PER_S).round() as u64);
+                    b.inc_length(ticks(robot_time_s));
                 }
             }
-            RoutineEvent::Motion {
-                phase,
-                run,
-                of,
-                direction,
-                motion,
-                duration_s,
+            Shown::Motion {
+                message,
+                prefix,
+                position_s,
             } => {
-                self.counted_s += duration_s;
                 if let Some(b) = &self.bar {
-                    let what = if motion % 2 == 1 { "leg" } else { "turn" };
-                    b.set_message(format!(
-                        "{phase}: run {run}/{of} {direction}, {what} {}/4",
-                        motion.div_ceil(2)
-                    ));
-                    let length_s = b.length().unwrap_or(0) as f64 / TICKS_PER_S;
-                    b.set_prefix(format!(
-                        "{} of {}",
-                        duration_text(self.counted_s),
-                        duration_text(length_s)
-                    ));
-                    b.set_position((self.counted_s * TICKS_PER_S).round() as u64);
+                    b.set_message(message);
+                    b.set_prefix(prefix);
+                    b.set_position(ticks(position_s));
                 }
             }
-            RoutineEvent::Realigned {
-                turn_rad, left_rad, ..
-            } => {
-                if self.bar.is_none() {
-                    self.say(&format!(
-                        "  turned {:+.2}° back to the first square's heading ({:.2}° off now)",
-                        turn_rad.to_degrees(),
-                        left_rad.abs().to_degrees()
-                    ));
-                }
-            }
-            RoutineEvent::RunDone {
-                phase,
-                run,
-                of,
-                direction,
-                heading_error_deg,
-            } => {
-                if self.bar.is_none() {
-                    let left_s = (self.planned_s - self.counted_s).max(0.0);
-                    self.say(&format!(
-                        "  {phase}: square {run} of {of} ({direction}) done, heading error \
-                         {heading_error_deg:+.3}° · robot time {} so far, about {} left in this phase",
-                        duration_text(self.counted_s),
-                        duration_text(left_s)
-                    ));
-                }
-            }
-            RoutineEvent::Ended(ending) => self.ending = Some(ending.clone()),
+        }
+        if let RoutineEvent::Ended(ending) = event {
+            self.ending = Some(ending.clone());
         }
     }
 }
@@ -181,99 +137,9 @@ impl Drop for TerminalUi {
 /// A token cancelled by Ctrl-C.
 fn print_outcome(report: &Report, json_out: bool, files: &[PathBuf]) -> CliResult {
     if json_out {
-        let mut v = serde_json::to_value(report)?;
-        // The paths (hundreds of points per run, most of the report's size) stay in the report
-        // directory's report.json; stdout gets everything else.
-        let strip = |runs: Option<&mut serde_json::Value>| {
-            for run in runs.and_then(|r| r.as_array_mut()).into_iter().flatten() {
-                if let Some(obj) = run.as_object_mut() {
-                    obj.remove("odometry_path");
-                    obj.remove("true_path");
-                    obj.remove("samples");
-                }
-            }
-        };
-        if let Some(rounds) = v.get_mut("rounds").and_then(|r| r.as_array_mut()) {
-            for round in rounds {
-                strip(round.get_mut("runs"));
-            }
-        }
-        strip(v.get_mut("verification"));
-        if let Some(swing) = v.get_mut("swing").and_then(|s| s.as_object_mut()) {
-            swing.remove("measured");
-        }
-        if let Some(obj) = v.as_object_mut() {
-            obj.insert("report_files".into(), json!(files));
-            obj.insert(
-                "paths".into(),
-                json!(
-                    "odometry_path, true_path and samples of each run, and the swing's measured \
-                     points, are in report.json"
-                ),
-            );
-        }
-        return print_json(&v);
+        return print_json(&odocal::report::text::outcome_json(report, files)?);
     }
-    if let Some(r) = report.rounds.last() {
-        println!("estimates (round {}):", r.round);
-        println!(
-            "{:<13} {:>9} {:>10} {:>9} {:>10}",
-            "method", "E_b", "±", "E_d", "±"
-        );
-        for e in &r.estimates {
-            println!(
-                "{:<13} {:>9.6} {:>10} {:>9.6} {:>10}{}",
-                e.method.name(),
-                e.e_b,
-                odocal::report::stated::pm_b(e),
-                e.e_d,
-                odocal::report::stated::pm_d(e),
-                if e.method == r.chosen.method {
-                    "  ← chosen"
-                } else {
-                    ""
-                }
-            );
-        }
-        for line in odocal::report::stated::within_session_legend(&r.estimates) {
-            println!("{line}");
-        }
-        println!("chosen: {}, {}", r.chosen.method, r.chosen_because);
-        for line in odocal::report::stated::disagreement_lines(
-            Some(r.chosen.method),
-            "the method chosen",
-            odocal::report::stated::Basis::Session,
-            &r.estimates,
-        ) {
-            println!("{line}");
-        }
-        println!();
-    }
-    println!(
-        "{} round(s), {}, {}",
-        report.rounds.len(),
-        if report.converged {
-            "converged"
-        } else {
-            "not converged"
-        },
-        if report.written {
-            "parameters written and committed"
-        } else {
-            "nothing written"
-        }
-    );
-    print!("{}", odocal::report::summary_table(report));
-    println!(
-        "backup of the original parameters: {}",
-        report.backup_path.display()
-    );
-    for f in files {
-        println!("wrote {}", f.display());
-    }
-    for w in &report.warnings {
-        println!("warning: {w}");
-    }
+    print!("{}", odocal::report::text::outcome(report, files));
     Ok(())
 }
 
