@@ -26,10 +26,14 @@ struct Faults {
     corrupt_commit: bool,
     /// Every request after this many writes fails (the link is gone).
     gone_after_writes: Option<usize>,
+    /// The first commit lands but its answer is lost (a timeout): whether it happened is
+    /// unknown to the host.
+    first_commit_unanswered: bool,
 }
 
 /// An in-memory controller with a copy in use and a committed copy.
 struct Faulty {
+    commits: AtomicUsize,
     active: Mutex<WheelParams>,
     committed: Mutex<Option<WheelParams>>,
     writes: AtomicUsize,
@@ -39,6 +43,7 @@ struct Faulty {
 impl Faulty {
     fn new(p: WheelParams, faults: Faults) -> Arc<Self> {
         Arc::new(Faulty {
+            commits: AtomicUsize::new(0),
             active: Mutex::new(p),
             committed: Mutex::new(Some(p)),
             writes: AtomicUsize::new(0),
@@ -94,6 +99,11 @@ impl ParamStore for Faulty {
             stored.wheelbase_m *= 1.02;
         }
         *self.committed.lock().unwrap() = Some(stored);
+        if self.faults.first_commit_unanswered && self.commits.fetch_add(1, Ordering::SeqCst) == 0 {
+            return Err(BaseError::MotionTimeout {
+                after: std::time::Duration::from_secs(1),
+            });
+        }
         Ok(())
     }
     async fn read_committed(&self) -> Result<Option<WheelParams>, BaseError> {
@@ -364,5 +374,53 @@ async fn refusals_write_nothing_and_leave_no_file() {
     assert_eq!(done.applied, changed());
     assert_eq!(store.committed(), Some(changed()));
     assert_eq!(read_backup(&done.backup).unwrap().active, original());
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// `params save` of parameters never committed: the stored copy differs from the one in use.
+/// A save whose answer is lost may have landed, so it is undone, and undoing it puts the
+/// stored copy the backup holds back (not the copy in use, which is what was being saved).
+#[tokio::test]
+async fn an_unanswered_save_is_undone_to_the_stored_copy_the_backup_holds() {
+    let dir = common::scratch("write-save");
+    let store = Faulty::new(
+        original(),
+        Faults {
+            first_commit_unanswered: true,
+            ..Faults::default()
+        },
+    );
+    // In use: changed (set, never saved); stored: the original.
+    *store.active.lock().unwrap() = changed();
+    let save = WriteRequest {
+        new: changed(),
+        bounds: Bounds::Physical,
+        policy: WritePolicy::Yes,
+        commit: Commit::Both,
+        backup_dir: &dir,
+        question: Question::Plain(String::new()),
+    };
+    let err = write_once(store.clone(), None, save, &mut Ui::new(true))
+        .await
+        .unwrap_err();
+    match &err {
+        WriteError::Failed { undone, .. } => assert!(
+            matches!(
+                **undone,
+                Undone::Restored {
+                    committed: true,
+                    ..
+                }
+            ),
+            "{undone}"
+        ),
+        other => panic!("expected a failed save, got {other}"),
+    }
+    assert_eq!(
+        store.committed(),
+        Some(original()),
+        "the stored copy is back"
+    );
+    assert_eq!(store.active(), changed(), "what was in use is in use");
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -69,6 +69,9 @@ pub enum Rollback {
 pub struct Transaction {
     store: Arc<dyn ParamStore>,
     original: WheelParams,
+    /// The committed copy the backup holds (when the store had one readable): what a rollback
+    /// of a commit puts back, which need not be what was in use (`params save`).
+    original_committed: Option<WheelParams>,
     backup_path: Option<PathBuf>,
     written: bool,
     committed: bool,
@@ -119,6 +122,7 @@ impl Transaction {
         Ok(Transaction {
             store,
             original,
+            original_committed: None,
             backup_path: None,
             written: false,
             committed: false,
@@ -137,6 +141,7 @@ impl Transaction {
         }
         let (path, backup) = backup_store(self.store.as_ref(), dir).await?;
         self.original = backup.active;
+        self.original_committed = backup.committed;
         self.original_text = backup.text;
         self.backup_path = Some(path.clone());
         Ok(path)
@@ -156,6 +161,11 @@ impl Transaction {
     /// The parameters the store held at the start (when backed up: what the backup holds).
     pub fn original(&self) -> &WheelParams {
         &self.original
+    }
+
+    /// The committed copy the backup holds, when the store had one it could read.
+    pub fn original_committed(&self) -> Option<&WheelParams> {
+        self.original_committed.as_ref()
     }
 
     /// The backup file, once [`Transaction::back_up`] wrote it.
@@ -288,8 +298,8 @@ impl Transaction {
     /// link may have come back, or the file may be readable).
     pub async fn what_the_store_holds(&self) -> (Holds, Holds) {
         let resolution = self.store.resolution();
-        let classify = |p: &WheelParams| {
-            if same_within(p, &self.original, &resolution) {
+        let classify_as = |p: &WheelParams, original: &WheelParams| {
+            if same_within(p, original, &resolution) {
                 Holds::Original
             } else if self
                 .last_written
@@ -301,7 +311,7 @@ impl Transaction {
             }
         };
         let active = match tokio::time::timeout(ROLLBACK_TIMEOUT, self.store.read()).await {
-            Ok(Ok(p)) => classify(&p),
+            Ok(Ok(p)) => classify_as(&p, &self.original),
             Ok(Err(e)) => Holds::Unknown(e.to_string()),
             Err(_) => Holds::Unknown(format!(
                 "no answer in {}",
@@ -310,7 +320,10 @@ impl Transaction {
         };
         let committed =
             match tokio::time::timeout(ROLLBACK_TIMEOUT, self.store.read_committed()).await {
-                Ok(Ok(Some(p))) => classify(&p),
+                Ok(Ok(Some(p))) => classify_as(
+                    &p,
+                    self.original_committed.as_ref().unwrap_or(&self.original),
+                ),
                 Ok(Ok(None)) => Holds::Unknown("the store has no committed copy".into()),
                 Ok(Err(e)) => Holds::Unknown(e.to_string()),
                 Err(_) => Holds::Unknown(format!(
@@ -341,9 +354,17 @@ impl Transaction {
             return Ok(Rollback::RestoredAndCommitted);
         }
         let undo = async {
-            self.store.write(&self.original).await?;
             if self.committed {
+                // The committed copy as the backup holds it, then what was in use (the two
+                // differ after a `params save` of parameters never committed before).
+                let stored = self.original_committed.unwrap_or(self.original);
+                self.store.write(&stored).await?;
                 self.store.commit().await?;
+                if stored != self.original {
+                    self.store.write(&self.original).await?;
+                }
+            } else {
+                self.store.write(&self.original).await?;
             }
             Ok::<_, BaseError>(())
         };

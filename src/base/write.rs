@@ -200,10 +200,14 @@ pub enum WriteError {
     #[error("dry run: nothing written")]
     DryRun,
     /// The store could not be read, proven writable or backed up: nothing was written.
-    #[error(transparent)]
+    #[error("{}", nothing_changed(.0))]
     Base(#[from] BaseError),
-    /// The write failed after the backup; the backup was put back, or `undone` says why not.
-    #[error("{source} ({undone}; the earlier parameters are in {})", backup.display())]
+    /// The write failed after the backup; the backup was put back, or `undone` says why not
+    /// (and names the backup to restore from).
+    #[error("{source} ({undone}{})", match **undone {
+        Undone::Failed { .. } => String::new(),
+        _ => format!("; the earlier parameters are in {}", backup.display()),
+    })]
     Failed {
         /// Why the write failed.
         source: BaseError,
@@ -212,6 +216,15 @@ pub enum WriteError {
         /// The backup taken before the write.
         backup: PathBuf,
     },
+}
+
+/// An error from before anything was written, saying so (once).
+fn nothing_changed(e: &BaseError) -> String {
+    let text = e.to_string();
+    match text.contains("nothing was changed") {
+        true => text,
+        false => format!("{text} (nothing was changed)"),
+    }
 }
 
 /// One change of one store, open for as long as its caller needs: proven writable, backed up,
@@ -338,11 +351,14 @@ impl WriteSession {
 }
 
 impl WriteSession {
-    /// Whether the store holds the original again: the copy in use, and the committed copy
-    /// when `committed` was put back too.
+    /// Whether the store holds the original again: the copy in use, and the committed copy as
+    /// the backup holds it, when `committed` was put back too. A committed copy that was not to
+    /// change is compared as well when it can be read (a store that committed without saying
+    /// so is found out).
     async fn read_back_original(&self, committed: bool) -> Result<(), BaseError> {
         let store = self.tx.store();
         let original = *self.tx.original();
+        let stored_original = self.tx.original_committed().copied();
         let resolution = store.resolution();
         let timeout = super::transaction::ROLLBACK_TIMEOUT;
         let no_answer = || BaseError::MotionTimeout { after: timeout };
@@ -356,19 +372,26 @@ impl WriteSession {
                 read: Some(active),
             });
         }
-        if committed {
-            let stored = tokio::time::timeout(timeout, store.read_committed())
-                .await
-                .map_err(|_| no_answer())??;
-            if !stored.is_some_and(|s| same_within(&s, &original, &resolution)) {
-                return Err(BaseError::ReadBack {
-                    copy: "committed",
-                    written: original,
-                    read: stored,
-                });
-            }
+        let stored = tokio::time::timeout(timeout, store.read_committed())
+            .await
+            .map_err(|_| no_answer());
+        let (expected, stored) = match (committed, stored_original) {
+            (true, expected) => (expected.unwrap_or(original), stored??),
+            // Untouched, as far as the store said: checked when it answers.
+            (false, Some(expected)) => match stored {
+                Ok(Ok(stored)) => (expected, stored),
+                _ => return Ok(()),
+            },
+            (false, None) => return Ok(()),
+        };
+        match stored {
+            Some(s) if same_within(&s, &expected, &resolution) => Ok(()),
+            read => Err(BaseError::ReadBack {
+                copy: "committed",
+                written: expected,
+                read,
+            }),
         }
-        Ok(())
     }
 }
 

@@ -50,16 +50,8 @@ pub enum ProfileError {
         #[source]
         source: std::io::Error,
     },
-    /// The backup taken before a rewrite could not be made (nothing was rewritten).
-    #[error("{}: no backup could be taken, so nothing was written: {source}", path.display())]
-    Backup {
-        /// The profile.
-        path: PathBuf,
-        /// Why.
-        #[source]
-        source: Box<crate::base::BaseError>,
-    },
-    /// The rewrite failed after the backup (what the file holds then is said).
+    /// The rewrite failed: before anything was written, or after the backup (what the file
+    /// holds then is said).
     #[error("{}: {source}", path.display())]
     Write {
         /// The profile.
@@ -361,11 +353,12 @@ pub async fn save_heading(path: &Path, heading: &HeadingSection) -> Result<PathB
     let store = std::sync::Arc::new(ProfileStore::open(path)?);
     // The geometry stays; the whole file is the write (backed up, replaced, read back, put
     // back on failure: the write service).
+    let current = store.read().await.map_err(|e| ProfileError::Write {
+        path: path.to_path_buf(),
+        source: Box::new(WriteError::Base(e)),
+    })?;
     let request = WriteRequest {
-        new: store.read().await.map_err(|e| ProfileError::Backup {
-            path: path.to_path_buf(),
-            source: Box::new(e),
-        })?,
+        new: current,
         bounds: Bounds::Physical,
         policy: WritePolicy::Yes,
         commit: Commit::WholeFile(out),
@@ -374,10 +367,6 @@ pub async fn save_heading(path: &Path, heading: &HeadingSection) -> Result<PathB
     };
     match write_once(store, None, request, &mut Unattended).await {
         Ok(done) => Ok(done.backup),
-        Err(WriteError::Base(e)) => Err(ProfileError::Backup {
-            path: path.to_path_buf(),
-            source: Box::new(e),
-        }),
         Err(e) => Err(ProfileError::Write {
             path: path.to_path_buf(),
             source: Box::new(e),

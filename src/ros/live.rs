@@ -1282,11 +1282,15 @@ impl ParamStore for RosStore {
                 .await
                 .map_err(|e| BaseError::backend("store (live)", e))?;
             if !refused.is_empty() {
-                return Err(BaseError::Refused {
-                    component: "store (live)".into(),
-                    what: service,
-                    reason: refused.join("; "),
-                });
+                // Not `Refused`: the file was replaced already, so the commit happened and a
+                // rollback must put the file back too.
+                return Err(BaseError::backend(
+                    "store (live)",
+                    std::io::Error::other(format!(
+                        "the file was written, but the running controller refused {service}: {}",
+                        refused.join("; ")
+                    )),
+                ));
             }
             *self.running.write().unwrap_or_else(|p| p.into_inner()) = staged;
         }

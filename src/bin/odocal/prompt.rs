@@ -77,6 +77,17 @@ pub fn ctrl_c_token(note: Option<&'static str>) -> CancellationToken {
             // Time for the link to put the stop on the wire (a drive's emergency stop queues
             // it, it does not wait for an answer that may never come).
             tokio::time::sleep(std::time::Duration::from_millis(200)).await;
+            // A parameter write under way (`track --write-back`) ends first: backed up and read
+            // back, or undone; never cut in half. Its own timeouts bound it; so does this.
+            let writing_since = std::time::Instant::now();
+            if WRITING.load(std::sync::atomic::Ordering::SeqCst) {
+                eprintln!("\n{why}: the write under way finishes first (backed up and read back, or undone)");
+            }
+            while WRITING.load(std::sync::atomic::Ordering::SeqCst)
+                && writing_since.elapsed() < DEADLINE
+            {
+                tokio::time::sleep(std::time::Duration::from_millis(20)).await;
+            }
             eprintln!(
                 "\n{why}: the robot was told to stop, leaving now. A restore cut short may have \
                  left the new parameters in place: check with `odocal params get` (or the \

@@ -548,7 +548,7 @@ pub async fn track(args: TrackArgs) -> CliResult {
                 },
             )
             .await?;
-            eprintln!("written and committed; backup in {}", done.backup.display());
+            eprintln!("written and committed");
             let applied = done.applied;
             written = Some(applied);
         } else {
