@@ -50,6 +50,7 @@ pub mod mock;
 pub mod nmea;
 pub mod offline;
 pub mod protocol;
+pub mod ranges;
 pub mod report;
 pub mod roboclaw;
 pub mod ros;

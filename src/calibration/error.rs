@@ -97,6 +97,9 @@ pub enum CalibrationError {
         /// What to drive so that they are observed.
         advice: String,
     },
+    /// A number given is outside what the computation can take (the flag or field is named).
+    #[error("{0}")]
+    OutOfRange(String),
     /// The request is valid but not supported by this computation.
     #[error("unsupported: {0}")]
     Unsupported(String),

@@ -22,6 +22,7 @@
 //! positive and must be negated before it gets here.
 
 pub mod agreement;
+pub mod by_hand;
 pub mod error;
 pub mod exact;
 pub mod gyro;

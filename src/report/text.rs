@@ -1,7 +1,10 @@
 //! The text a person reads at the end of a command, rendered from what the library returned
 //! (the binary prints it as it is): a calibration's outcome, and its JSON view for stdout.
 
-use super::stated;
+use super::stated::{
+    self, default_line, disagreement_lines, pm_b, pm_d, within_session_legend, Basis,
+};
+use crate::calibration::by_hand::HandReport;
 use crate::routine::report::Report;
 use serde_json::json;
 use std::fmt::Write as _;
@@ -112,6 +115,123 @@ pub fn outcome(report: &Report, files: &[PathBuf]) -> String {
     }
     for w in &report.warnings {
         let _ = writeln!(out, "warning: {w}");
+    }
+    out
+}
+
+/// A hand-typed square test's estimates as stdout's JSON ([`estimates`]'s numbers).
+pub fn estimates_json(r: &HandReport) -> serde_json::Value {
+    let estimates: Vec<_> = r
+        .rows
+        .iter()
+        .map(|(e, p)| {
+            let mut v = serde_json::to_value(e).unwrap_or_default();
+            if let (Some(p), Some(obj)) = (p, v.as_object_mut()) {
+                obj.insert(
+                    "left_wheel_diameter_m".into(),
+                    json!(p.left_wheel_diameter_m),
+                );
+                obj.insert(
+                    "right_wheel_diameter_m".into(),
+                    json!(p.right_wheel_diameter_m),
+                );
+                obj.insert("wheelbase_m".into(), json!(p.wheelbase_m));
+            }
+            v
+        })
+        .collect();
+    json!({
+        "convention": r.convention.name(),
+        "configured": r.configured,
+        "default_method": r.default,
+        "warnings": r.warnings,
+        "estimates": estimates,
+        "failures": r.failures.iter().map(|(m, e)| json!({"method": m.name(), "error": e})).collect::<Vec<_>>(),
+        "cramer_rao_std": r.cramer_rao_std.map(|[b, d]| json!({"e_b": b, "e_d": d})),
+    })
+}
+
+/// A hand-typed square test's estimates as the terminal shows them: every method with its ±
+/// and what the ± means, the Cramér–Rao bound, the default method and any disagreement, the
+/// corrected parameters, and the methods that could not estimate.
+pub fn estimates(r: &HandReport) -> String {
+    let mut out = String::new();
+    let _ = writeln!(
+        out,
+        "square {} m, wheelbase {} m, {} CW + {} CCW runs, convention {}",
+        r.test.side_m,
+        r.test.wheelbase_m,
+        r.test.cw.len(),
+        r.test.ccw.len(),
+        r.convention.name()
+    );
+    let _ = writeln!(
+        out,
+        "{:<13} {:>9} {:>10} {:>9} {:>10}",
+        "method", "E_b", "±", "E_d", "±"
+    );
+    for (e, _) in &r.rows {
+        let _ = writeln!(
+            out,
+            "{:<13} {:>9.6} {:>10} {:>9.6} {:>10}{}",
+            e.method.name(),
+            e.e_b,
+            pm_b(e),
+            e.e_d,
+            pm_d(e),
+            if Some(e.method) == r.default {
+                "  (default)"
+            } else {
+                ""
+            }
+        );
+    }
+    let estimates = r.estimates();
+    for line in within_session_legend(&estimates) {
+        let _ = writeln!(out, "{line}");
+    }
+    let _ = match r.cramer_rao_std {
+        Some([b, d]) => writeln!(
+            out,
+            "Cramér–Rao bound (std): E_b {:.5}, E_d {:.5}: the least error any method can have \
+             from these headings with {} deg of noise per reading (no stated ± is below what \
+             that noise gives)",
+            b,
+            d,
+            r.heading_sigma_deg.unwrap_or(f64::NAN)
+        ),
+        None => writeln!(
+            out,
+            "(give --heading-sigma-deg, the sensor's noise per reading, for the Cramér–Rao bound \
+             and a ± with one run per direction)"
+        ),
+    };
+    if let Some(m) = r.default {
+        let _ = writeln!(out, "{}", default_line(m));
+    }
+    for line in disagreement_lines(r.default, "the default", Basis::Session, &estimates) {
+        let _ = writeln!(out, "{line}");
+    }
+    if r.configured.is_some() {
+        let _ = writeln!(
+            out,
+            "\ncorrected parameters (left D, right D, wheelbase, m):"
+        );
+        for (e, p) in &r.rows {
+            if let Some(p) = p {
+                let _ = writeln!(
+                    out,
+                    "{:<13} {:.6} {:.6} {:.6}",
+                    e.method.name(),
+                    p.left_wheel_diameter_m,
+                    p.right_wheel_diameter_m,
+                    p.wheelbase_m
+                );
+            }
+        }
+    }
+    for (m, e) in &r.failures {
+        let _ = writeln!(out, "{m}: not estimated: {e}");
     }
     out
 }

@@ -2,8 +2,8 @@
 //! convention, a mock's true robot, its heading sensor's errors and its extra NMEA compass,
 //! and how a mock server is stopped.
 
-use odocal::io::{check_range as in_range, check_ranges as in_ranges};
 use odocal::kinematics::SplitConvention;
+use odocal::ranges::{check_range as in_range, check_ranges as in_ranges};
 
 /// Convention flags shared by the subcommands that estimate.
 #[derive(Debug, Clone, clap::Args)]

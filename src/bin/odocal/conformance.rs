@@ -68,14 +68,14 @@ pub async fn run(args: Args) -> CliResult {
         time_scale: args.time_scale,
         only: args.rules.clone(),
     };
-    odocal::io::check_range(
+    odocal::ranges::check_range(
         "--max-speed-m-s",
         args.max_speed_m_s,
         conformance::MIN_SPEED_M_S,
         1.0,
     )?;
     if let Some(k) = args.time_scale {
-        odocal::io::check_range("--time-scale", k, 1.0, 100.0)?;
+        odocal::ranges::check_range("--time-scale", k, 1.0, 100.0)?;
     }
     crate::sensor::confirm(
         args.yes,
@@ -156,7 +156,7 @@ pub struct KitArgs {
 /// with 0.15 m wheels, a 0.39 m wheelbase and 4096 counts per revolution) on a new
 /// pseudo-terminal, whose path it prints first.
 pub async fn kit_device(args: KitArgs) -> CliResult {
-    odocal::io::check_range("--time-scale", args.real_time, 0.01, 1000.0)?;
+    odocal::ranges::check_range("--time-scale", args.real_time, 0.01, 1000.0)?;
     let robot = ParamsBlock {
         left_wheel_diameter_nm: 150_000_000,
         right_wheel_diameter_nm: 150_000_000,

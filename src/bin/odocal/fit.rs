@@ -98,7 +98,7 @@ pub fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
         ("--max-time-offset-s", args.max_time_offset_s, 0.0, 10.0),
         ("--window-s", args.window_s.unwrap_or(10.0), 1.0, 1e6),
     ] {
-        odocal::io::check_range(flag, v, lo, hi)?;
+        odocal::ranges::check_range(flag, v, lo, hi)?;
     }
     // A data set's reference is motion capture: absolute by its kind.
     let kind = args
@@ -209,8 +209,8 @@ fn nominal(args: &Args, needed_by: &str) -> Result<Geometry, Box<dyn std::error:
         )
         .into());
     };
-    odocal::io::check_range("--wheel-diameter-m", d, 1e-3, 5.0)?;
-    odocal::io::check_range("--wheelbase-m", b, 1e-2, 10.0)?;
+    odocal::ranges::check_range("--wheel-diameter-m", d, 1e-3, 5.0)?;
+    odocal::ranges::check_range("--wheelbase-m", b, 1e-2, 10.0)?;
     Ok(Geometry {
         left_diameter_m: d,
         right_diameter_m: d,

@@ -6,7 +6,7 @@ use crate::out::print_json;
 use crate::routine::ShapeFlags;
 use odocal::calibration::plan::{Space, Target};
 use odocal::calibration::{HeadingKind, Method};
-use odocal::io::check_range as in_range;
+use odocal::ranges::check_range as in_range;
 use odocal::routine::config::RoutineConfig;
 use odocal::routine::planning::{expected_method, plan_of, Setting, DEFAULT_FOOTPRINT_M};
 use serde_json::json;
@@ -107,7 +107,7 @@ pub fn run(args: Args) -> CliResult {
     if args.heading_sigma_deg > 0.0 && args.heading_sigma_deg < 1e-6 {
         return Err(format!(
             "--heading-sigma-deg must be 0 (noise-free) or in [1e-6, 45] deg, got {}",
-            odocal::io::compact(args.heading_sigma_deg)
+            odocal::ranges::compact(args.heading_sigma_deg)
         )
         .into());
     }

@@ -91,7 +91,7 @@ pub struct MockArgs {
 pub async fn mock(args: MockArgs) -> CliResult {
     use odocal::mock::roboclaw::{spawn_ptys, MockRoboClawConfig};
     args.truth.check()?;
-    odocal::io::check_ranges(&[
+    odocal::ranges::check_ranges(&[
         ("--heading-sigma-deg", args.compass_sigma_deg, 0.0, 10.0),
         ("--compass-hz", args.compass_hz, 0.1, 100.0),
         ("--time-scale", args.time_scale, 0.01, 100.0),

@@ -411,7 +411,7 @@ pub struct MockArgs {
 pub async fn mock(args: MockArgs) -> Result<(), Box<dyn std::error::Error>> {
     use odocal::mock::rosbridge::{MockRosConfig, MockRosbridge};
     args.truth.check()?;
-    odocal::io::check_ranges(&[
+    odocal::ranges::check_ranges(&[
         ("--heading-sigma-deg", args.compass_sigma_deg, 0.0, 10.0),
         ("--time-scale", args.time_scale, 0.01, 100.0),
     ])?;
@@ -435,7 +435,7 @@ pub async fn mock(args: MockArgs) -> Result<(), Box<dyn std::error::Error>> {
             let [x, y, yaw] = v[..] else {
                 return Err(format!("--localization-mount {m:?}: expected X_M,Y_M,YAW_DEG").into());
             };
-            odocal::io::check_ranges(&[
+            odocal::ranges::check_ranges(&[
                 ("--localization-mount x", x, -5.0, 5.0),
                 ("--localization-mount y", y, -5.0, 5.0),
                 ("--localization-mount yaw", yaw, -180.0, 180.0),

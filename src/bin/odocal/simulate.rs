@@ -126,7 +126,7 @@ fn write_bag(args: &Args, path: &std::path::Path) -> Result<(), Box<dyn std::err
 
 /// Runs `odocal simulate`.
 pub fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
-    use odocal::io::check_range as in_range;
+    use odocal::ranges::check_range as in_range;
     // Bounds before anything is simulated: memory and time grow with runs × trials.
     in_range("--runs", args.runs as f64, 1.0, 1000.0)?;
     in_range("--trials", args.trials as f64, 1.0, 100_000.0)?;

@@ -38,7 +38,7 @@ pub fn run(
     json_out: bool,
     bag: Option<&std::path::Path>,
 ) -> Result<(), Box<dyn std::error::Error>> {
-    odocal::io::check_range("--drive-s", args.drive_s, 10.0, 3600.0)?;
+    odocal::ranges::check_range("--drive-s", args.drive_s, 10.0, 3600.0)?;
     let config = DrivingConfig {
         truth: Geometry::from(truth),
         duration_s: args.drive_s,

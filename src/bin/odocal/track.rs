@@ -411,8 +411,8 @@ pub async fn track(args: TrackArgs) -> CliResult {
                     .into(),
             );
         };
-        odocal::io::check_range("--wheel-diameter-m", d, 1e-3, 5.0)?;
-        odocal::io::check_range("--wheelbase-m", b, 1e-2, 10.0)?;
+        odocal::ranges::check_range("--wheel-diameter-m", d, 1e-3, 5.0)?;
+        odocal::ranges::check_range("--wheelbase-m", b, 1e-2, 10.0)?;
         // Wheels in radians: a "count" is a radian (see OnlineConfig's angle units).
         let configured = WheelParams::nominal(d, b, std::f64::consts::TAU);
         let drive = PoseRecording {
