@@ -2,9 +2,10 @@
 //! (the binary prints it as it is): a calibration's outcome, and its JSON view for stdout.
 
 use super::stated::{
-    self, default_line, disagreement_lines, pm_b, pm_d, within_session_legend, Basis,
+    self, default_line, disagreement_lines, pm, pm_b, pm_d, within_session_legend, Basis,
 };
 use crate::calibration::by_hand::HandReport;
+use crate::offline::dataset::{OptiOdomSet, Replay};
 use crate::routine::report::Report;
 use serde_json::json;
 use std::fmt::Write as _;
@@ -232,6 +233,135 @@ pub fn estimates(r: &HandReport) -> String {
     }
     for (m, e) in &r.failures {
         let _ = writeln!(out, "{m}: not estimated: {e}");
+    }
+    out
+}
+
+/// A replay as stdout's JSON: the estimates against the first set's configuration, pooled
+/// when several sets were given, and the evaluations.
+pub fn replay_json(r: &Replay, calibrated_on: &OptiOdomSet) -> serde_json::Value {
+    json!({
+        "datasets": r.datasets,
+        "configured": calibrated_on.configured,
+        "estimates": r.estimates,
+        "default_method": r.default_method,
+        "uncertainty": r.uncertainty,
+        "pooled": r.pooled,
+        "failures": r.failures.iter().map(|(m, e)| json!({"method": m.name(), "error": e})).collect::<Vec<_>>(),
+        "evaluations": r.evaluations,
+    })
+}
+
+/// A replay as the terminal shows it: what it calibrated on, each method's estimate with its
+/// ± (a prediction for the next session when sets are pooled), the default method and any
+/// disagreement, the failures, and the odometry errors on each set evaluated.
+pub fn replay(r: &Replay, sets: &[OptiOdomSet]) -> String {
+    let mut out = String::new();
+    let Some(calib) = sets.first() else {
+        return out;
+    };
+    let runs: usize = sets.iter().map(|s| s.runs.len()).sum();
+    let _ = writeln!(
+        out,
+        "calibrated on {} ({runs} runs, side {} m); estimates against {}'s configuration: \
+         D_L {} D_R {} b {}",
+        r.datasets.join(", "),
+        calib.side_m.unwrap_or(f64::NAN),
+        calib.id,
+        calib.configured.left_wheel_diameter_m,
+        calib.configured.right_wheel_diameter_m,
+        calib.configured.wheelbase_m
+    );
+    let pooled = r.datasets.len() > 1;
+    if pooled {
+        let _ = writeln!(
+            out,
+            "± is one standard deviation of what the next session of this robot will read \
+             (a prediction: the pooled value's standard error, the session-to-session spread \
+             and one session's own scatter; --json has each quantity's std_err and \
+             prediction_std)"
+        );
+    }
+    let _ = writeln!(
+        out,
+        "{:<13} {:>9} {:>10} {:>9} {:>10} {:>16}",
+        "method", "E_b", "±", "E_d", "±", "E_b spread"
+    );
+    for (e, p) in r.estimates.iter().zip(&r.pooled) {
+        let spread = if pooled {
+            format!(
+                "{:.5}",
+                p.ln_wheelbase_over_diameter.recording_spread * e.e_b
+            )
+        } else {
+            "—".into()
+        };
+        let mark = if r.default_method == Some(e.method) {
+            "  (default)"
+        } else {
+            ""
+        };
+        let (b, d) = if pooled {
+            let (b, d) = p.prediction_std(e);
+            (pm(b), pm(d))
+        } else {
+            (pm_b(e), pm_d(e))
+        };
+        let _ = writeln!(
+            out,
+            "{:<13} {:>9.5} {:>10} {:>9.5} {:>10} {:>16}{mark}",
+            e.method.name(),
+            e.e_b,
+            b,
+            e.e_d,
+            d,
+            spread
+        );
+    }
+    if !pooled {
+        for line in within_session_legend(&r.estimates) {
+            let _ = writeln!(out, "{line}");
+        }
+    }
+    if let Some(m) = r.default_method {
+        let _ = writeln!(out, "{}", default_line(m));
+    }
+    for line in disagreement_lines(
+        r.default_method,
+        "the default",
+        if pooled {
+            Basis::Pooled
+        } else {
+            Basis::Session
+        },
+        &r.estimates,
+    ) {
+        let _ = writeln!(out, "{line}");
+    }
+    for (m, e) in &r.failures {
+        let _ = writeln!(out, "{m}: not estimated: {e}");
+    }
+    let _ = writeln!(
+        out,
+        "\n{:<16} {:<13} {:>18} {:>16} {:>18} {:>16}",
+        "evaluated on",
+        "parameters",
+        "|heading err| deg",
+        "position err m",
+        "systematic hdg deg",
+        "systematic pos m"
+    );
+    for r in &r.evaluations {
+        let _ = writeln!(
+            out,
+            "{:<16} {:<13} {:>18.3} {:>16.4} {:>18.3} {:>16.4}",
+            r.dataset,
+            r.method,
+            r.heading_error_deg,
+            r.position_error_m,
+            r.systematic_heading_error_deg,
+            r.systematic_position_error_m
+        );
     }
     out
 }
