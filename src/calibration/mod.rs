@@ -41,6 +41,7 @@ pub mod pose_fit;
 pub mod pose_reference;
 pub mod recording;
 pub mod segment;
+pub mod stated;
 pub mod swing;
 pub mod time_offset;
 pub mod tracker;

@@ -6,7 +6,7 @@
 pub mod plots;
 #[cfg(feature = "plots")]
 pub mod pose_plots;
-pub mod stated;
+pub use crate::calibration::stated;
 pub mod text;
 
 use crate::io::create_new;

@@ -2,14 +2,9 @@
 
 use crate::args::SIM_HEADING_SIGMA_DEG;
 use crate::out::print_json;
-use odocal::calibration::Method;
 use odocal::kinematics::SplitConvention;
-use odocal::report::stated::{
-    default_line, disagreement_lines, pm, pm_b, pm_d, within_session_legend, Basis,
-};
-use odocal::ros::bag::{self, BagOptions, GeometrySource, RosTopics};
+use odocal::ros::bag::{self, BagOptions, RosTopics};
 use odocal::ros::yaml::DiffDriveConfig;
-use serde_json::json;
 use std::path::PathBuf;
 
 /// Where a ROS robot's geometry and data are.
@@ -133,229 +128,16 @@ pub fn run(args: BagArgs) -> Result<(), Box<dyn std::error::Error>> {
             return Err(format!("--side-m must be in (0, 100] m, got {s}").into());
         }
     }
-    let mut reports = Vec::new();
-    let mut nominal_of_first = None;
-    let mut kinds = Vec::new();
-    for file in &args.files {
-        let data = bag::read_bag(file, &opts)?;
-        kinds.push(data.heading_kind);
-        let (configured, geometry, nominal) = match (&cfg, &args.ros.ros_yaml) {
-            (Some(c), Some(yaml)) => (
-                c.effective(),
-                GeometrySource::Yaml {
-                    file: yaml.clone(),
-                    controller: c.controller.clone(),
-                },
-                (c.wheel_radius_m, c.wheel_separation_m),
-            ),
-            _ => {
-                let g = bag::infer_geometry(&data)?;
-                (
-                    g.params(),
-                    GeometrySource::Inferred(g),
-                    (g.wheel_radius_m, g.wheel_separation_m),
-                )
-            }
-        };
-        nominal_of_first.get_or_insert(nominal);
-        reports.push(bag::analyse(
-            file, &data, configured, geometry, nominal, &opts,
-        )?);
-    }
-    let nominal = nominal_of_first.unwrap_or((f64::NAN, f64::NAN));
-    let (kind, kind_from) = bag::heading_kind(args.heading_kind, &kinds);
-    let pooled = bag::pool(&reports, nominal, args.convention, kind)?;
+    let yaml = match (&cfg, &args.ros.ros_yaml) {
+        (Some(c), Some(path)) => Some((path.as_path(), c)),
+        _ => None,
+    };
+    let session = bag::session::analyse_files(&args.files, &opts, yaml, args.heading_kind)?;
     if args.json {
-        if let [report] = reports.as_slice() {
-            let mut v = serde_json::to_value(report)?;
-            v["default_method"] = json!(pooled.default_method);
-            return print_json(&v);
-        }
-        return print_json(&json!({
-            "bags": reports,
-            "pooled": pooled.methods,
-            "estimates": pooled.estimates,
-            "uncertainty": pooled.methods.uncertainty,
-            "default_method": pooled.default_method,
-        }));
+        return print_json(&session.json()?);
     }
-    for report in &reports {
-        print_bag(report, &args.ros, pooled.default_method);
-    }
-    println!("IMU yaw: {kind} ({kind_from})");
-    if reports.len() > 1 {
-        println!(
-            "\npooled over {} bags, against {}'s configuration; ± is one standard deviation of \
-             what the next bag of this robot will read (a prediction: the pooled value's \
-             standard error, the bag-to-bag spread and one bag's own scatter; --json has each \
-             quantity's std_err and prediction_std)",
-            reports.len(),
-            reports[0].file.display()
-        );
-        println!(
-            "{:<14}{:>11}{:>11}{:>11}{:>11}   {:>12}{:>12}{:>12}",
-            "method", "E_b", "±", "E_d", "±", "sep_mult", "left_mult", "right_mult"
-        );
-        for e in &pooled.estimates {
-            let mark = if pooled.default_method == Some(e.estimate.method) {
-                "  (default)"
-            } else {
-                ""
-            };
-            let (b, d) = pooled
-                .methods
-                .pooled
-                .iter()
-                .find(|p| p.method == e.estimate.method)
-                .map_or((None, None), |p| p.prediction_std(&e.estimate));
-            println!(
-                "{:<14}{:>11.6}{:>11}{:>11.6}{:>11}   {:>12.6}{:>12.6}{:>12.6}{mark}",
-                e.estimate.method.name(),
-                e.estimate.e_b,
-                pm(b),
-                e.estimate.e_d,
-                pm(d),
-                e.multipliers.wheel_separation_multiplier,
-                e.multipliers.left_wheel_radius_multiplier,
-                e.multipliers.right_wheel_radius_multiplier
-            );
-        }
-        for (m, bags) in &pooled.methods.missing {
-            println!("{:<14}– not estimated on {}", m.name(), bags.join(", "));
-        }
-    }
-    if let Some(m) = pooled.default_method {
-        println!("{}", default_line(m));
-    }
-    if reports.len() > 1 {
-        let estimates: Vec<_> = pooled
-            .estimates
-            .iter()
-            .map(|e| e.estimate.clone())
-            .collect();
-        for line in disagreement_lines(
-            pooled.default_method,
-            "the default",
-            Basis::Pooled,
-            &estimates,
-        ) {
-            println!("{line}");
-        }
-    }
+    print!("{}", session.text(&args.ros.topics()));
     Ok(())
-}
-
-fn print_bag(report: &bag::BagReport, ros: &RosArgs, default: Option<Method>) {
-    println!("== {}", report.file.display());
-    match &report.geometry {
-        GeometrySource::Yaml { file, controller } => println!(
-            "configured geometry from {} ({controller}): wheel radius {:.6} m, separation {:.6} m",
-            file.display(),
-            0.5 * report.configured.left_wheel_diameter_m,
-            report.configured.wheelbase_m
-        ),
-        GeometrySource::Inferred(g) => println!(
-            "configured geometry INFERRED from {} against {} (no --ros-yaml given): wheel radius \
-             {:.6} m, separation {:.6} m over {} intervals",
-            ros.odom_topic,
-            ros.joint_states_topic,
-            g.wheel_radius_m,
-            g.wheel_separation_m,
-            g.intervals
-        ),
-    }
-    println!(
-        "{} messages; {} square run(s), side {:.3} m (from {})",
-        report.messages,
-        report.runs.len(),
-        report.side_m,
-        report.side_source
-    );
-    for r in &report.runs {
-        println!(
-            "  {:>7.1}–{:<7.1} s  {:<3}  heading error {:+.3}°",
-            r.start_s,
-            r.end_s,
-            r.direction,
-            r.heading_error_rad.to_degrees()
-        );
-    }
-    for s in &report.skipped {
-        println!("  skipped: {s}");
-    }
-    for n in &report.notes {
-        println!("note: {n}");
-    }
-    println!(
-        "\n{:<14}{:>11}{:>11}{:>11}{:>11}   {:>12}{:>12}{:>12}",
-        "method", "E_b", "±", "E_d", "±", "sep_mult", "left_mult", "right_mult"
-    );
-    for e in &report.estimates {
-        println!(
-            "{:<14}{:>11.6}{:>11}{:>11.6}{:>11}   {:>12.6}{:>12.6}{:>12.6}{}",
-            e.estimate.method.name(),
-            e.estimate.e_b,
-            pm_b(&e.estimate),
-            e.estimate.e_d,
-            pm_d(&e.estimate),
-            e.multipliers.wheel_separation_multiplier,
-            e.multipliers.left_wheel_radius_multiplier,
-            e.multipliers.right_wheel_radius_multiplier,
-            if default == Some(e.estimate.method) {
-                "  (default)"
-            } else {
-                ""
-            }
-        );
-    }
-    let estimates: Vec<_> = report
-        .estimates
-        .iter()
-        .map(|e| e.estimate.clone())
-        .collect();
-    for line in within_session_legend(&estimates) {
-        println!("{line}");
-    }
-    for line in disagreement_lines(default, "the default", Basis::Session, &estimates) {
-        println!("{line}");
-    }
-    for (m, why) in &report.failures {
-        println!("{:<14}– {why}", m.name());
-    }
-    if let Some(o) = &report.online {
-        println!(
-            "{:<14}{:>11.6}{:>11}{:>11.6}{:>11}   (± is 1σ of the online filter over the whole bag, {:.1} m driven, mean NIS {:.2})",
-            "online",
-            o.e_b,
-            pm(Some(o.e_b_std)),
-            o.e_d,
-            pm(Some(o.e_d_std)),
-            o.distance_m,
-            report.online_nis.unwrap_or(f64::NAN)
-        );
-    }
-    if let Some(g) = &report.online_gate {
-        if g.rejected > 0 {
-            println!(
-                "online: {} IMU reading(s) rejected by the gate, {} re-anchor(s)",
-                g.rejected, g.resets
-            );
-        }
-    }
-    if let Some(advice) = report.online_excitation.as_ref().and_then(|x| x.advice()) {
-        println!("online: {advice}");
-    }
-    if let Some(o) = &report.time_offset {
-        if o.significant() {
-            println!(
-                "warning: the IMU {} the joint states by {:.3} s (rate correlation {:.2}, {:.2} at 0 s); corrected for the online filter",
-                if o.offset_s >= 0.0 { "lags" } else { "leads" },
-                o.offset_s.abs(),
-                o.correlation,
-                o.correlation_at_zero
-            );
-        }
-    }
 }
 
 /// Arguments of `odocal mock-rosbridge`.

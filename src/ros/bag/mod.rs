@@ -29,6 +29,7 @@ pub mod mcap;
 pub mod reference;
 pub mod ros1;
 pub mod rosbag2;
+pub mod session;
 pub mod sqlite3;
 pub mod tf;
 pub mod validate;

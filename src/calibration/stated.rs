@@ -5,8 +5,8 @@
 //! session when sessions are pooled, and "—" where a method states nothing; the default method
 //! with its reason; and methods that disagree beyond what they state.
 
-use crate::calibration::agreement::{disagreements, DISAGREEMENT_SIGMAS};
-use crate::calibration::{default_method_reason, Estimate, Method};
+use super::agreement::{disagreements, DISAGREEMENT_SIGMAS};
+use super::{default_method_reason, Estimate, Method};
 
 /// A standard error as a table cell: "± 0.00031", "± <0.00001", or "—" when there is none.
 pub fn pm(std_err: Option<f64>) -> String {
