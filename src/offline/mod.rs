@@ -4,6 +4,7 @@
 //! [`crate::calibration::recording::Recording`] and goes through the one pipeline from there.
 
 pub mod dataset;
+pub mod drive_study;
 pub mod log;
 pub mod pose_csv;
 pub mod study;

@@ -6,6 +6,7 @@ use super::stated::{
 };
 use crate::calibration::by_hand::HandReport;
 use crate::offline::dataset::{OptiOdomSet, Replay};
+use crate::offline::study::{MethodSummary, StudyConfig, StudyOutcome};
 use crate::routine::report::Report;
 use serde_json::json;
 use std::fmt::Write as _;
@@ -364,4 +365,95 @@ pub fn replay(r: &Replay, sets: &[OptiOdomSet]) -> String {
         );
     }
     out
+}
+
+/// The paper's simulation study as run (`odocal simulate`): its settings, the trials, and each
+/// method's mean estimate, error and `E_max,sys` after calibration.
+pub struct Study<'a> {
+    /// The study's settings.
+    pub config: &'a StudyConfig,
+    /// Trials run.
+    pub trials: usize,
+    /// Each trial's outcome.
+    pub studies: &'a [StudyOutcome],
+    /// Each method over the trials.
+    pub summaries: &'a [MethodSummary],
+}
+
+impl Study<'_> {
+    /// Mean `E_max,sys` before calibration over the trials (m).
+    fn before_m(&self) -> f64 {
+        self.studies
+            .iter()
+            .map(|s| s.e_max_sys_before_m)
+            .sum::<f64>()
+            / self.studies.len() as f64
+    }
+
+    /// Every method that failed in a trial, with why.
+    fn failures(&self) -> Vec<serde_json::Value> {
+        self.studies
+            .iter()
+            .flat_map(|s| s.failures.iter())
+            .map(|(m, e)| json!({"method": m.name(), "error": e}))
+            .collect()
+    }
+
+    /// The study as stdout's JSON.
+    pub fn json(&self) -> serde_json::Value {
+        json!({
+            "truth": self.studies.first().map(|s| s.truth),
+            "config": self.config,
+            "trials": self.trials,
+            "e_max_sys_before_m": self.before_m(),
+            "estimates": self.summaries,
+            "failures": self.failures(),
+        })
+    }
+
+    /// The study as the terminal shows it.
+    pub fn text(&self) -> String {
+        let cfg = self.config;
+        let mut out = String::new();
+        let _ = writeln!(
+            out,
+            "true E_b {} E_d {} ({} split), {} m square, {} run(s) each way, {} trial(s), \
+             write-back {}",
+            cfg.true_e_b,
+            cfg.true_e_d,
+            cfg.truth_split.name(),
+            cfg.side_m,
+            cfg.runs,
+            self.trials,
+            cfg.convention.name()
+        );
+        let _ = writeln!(
+            out,
+            "E_max,sys before calibration: {:.4} m",
+            self.before_m()
+        );
+        let _ = writeln!(
+            out,
+            "{:<13} {:>9} {:>10} {:>9} {:>10} {:>11} {:>11} {:>12}",
+            "method", "E_b", "±", "E_d", "±", "E_b err pp", "E_d err pp", "E_max,sys m"
+        );
+        for s in self.summaries {
+            let _ = writeln!(
+                out,
+                "{:<13} {:>9.6} {:>10} {:>9.6} {:>10} {:>11.4} {:>11.4} {:>12.4}",
+                s.method.name(),
+                s.e_b,
+                pm(s.e_b_std_err),
+                s.e_d,
+                pm(s.e_d_std_err),
+                s.e_b_error_pp,
+                s.e_d_error_pp,
+                s.e_max_sys_m
+            );
+        }
+        for f in self.failures() {
+            let _ = writeln!(out, "not estimated: {f}");
+        }
+        out
+    }
 }

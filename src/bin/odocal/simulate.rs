@@ -5,7 +5,7 @@ use crate::args::SIM_HEADING_SIGMA_DEG;
 use crate::out::print_json;
 use odocal::kinematics::{SplitConvention, WheelParams};
 use odocal::offline::study::{run_trials, StudyConfig};
-use odocal::report::stated::pm;
+use odocal::report::text::Study;
 use odocal::sim::NoiseModel;
 use serde_json::json;
 
@@ -186,52 +186,15 @@ pub fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
         },
     };
     let (studies, summaries) = run_trials(&cfg, args.seed, args.trials)?;
-    let before = studies.iter().map(|s| s.e_max_sys_before_m).sum::<f64>() / studies.len() as f64;
-    let failures: Vec<_> = studies
-        .iter()
-        .flat_map(|s| s.failures.iter())
-        .map(|(m, e)| json!({"method": m.name(), "error": e}))
-        .collect();
+    let study = Study {
+        config: &cfg,
+        trials: args.trials,
+        studies: &studies,
+        summaries: &summaries,
+    };
     if args.json {
-        return print_json(&json!({
-            "truth": studies.first().map(|s| s.truth),
-            "config": cfg,
-            "trials": args.trials,
-            "e_max_sys_before_m": before,
-            "estimates": summaries,
-            "failures": failures,
-        }));
+        return print_json(&study.json());
     }
-    println!(
-        "true E_b {} E_d {} ({} split), {} m square, {} run(s) each way, {} trial(s), write-back {}",
-        cfg.true_e_b,
-        cfg.true_e_d,
-        cfg.truth_split.name(),
-        cfg.side_m,
-        cfg.runs,
-        args.trials,
-        cfg.convention.name()
-    );
-    println!("E_max,sys before calibration: {before:.4} m");
-    println!(
-        "{:<13} {:>9} {:>10} {:>9} {:>10} {:>11} {:>11} {:>12}",
-        "method", "E_b", "±", "E_d", "±", "E_b err pp", "E_d err pp", "E_max,sys m"
-    );
-    for s in &summaries {
-        println!(
-            "{:<13} {:>9.6} {:>10} {:>9.6} {:>10} {:>11.4} {:>11.4} {:>12.4}",
-            s.method.name(),
-            s.e_b,
-            pm(s.e_b_std_err),
-            s.e_d,
-            pm(s.e_d_std_err),
-            s.e_b_error_pp,
-            s.e_d_error_pp,
-            s.e_max_sys_m
-        );
-    }
-    for f in failures {
-        println!("not estimated: {f}");
-    }
+    print!("{}", study.text());
     Ok(())
 }

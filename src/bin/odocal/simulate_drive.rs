@@ -2,13 +2,11 @@
 //! truth against the fit, and the drive as `odocal fit`'s CSV files or as a bag on request.
 
 use crate::out::print_json;
-use odocal::calibration::pose_calibration::calibrate_from_poses;
-use odocal::calibration::pose_fit::{FitConfig, Param};
 use odocal::calibration::pose_reference::{Geometry, ReferenceKind};
 use odocal::kinematics::WheelParams;
+use odocal::offline::drive_study::compare;
 use odocal::offline::pose_csv::{write_poses, write_wheels};
 use odocal::sim::driving::{simulate_drive, DrivingConfig};
-use serde_json::json;
 use std::path::PathBuf;
 
 /// The flags of `odocal simulate --drive`.
@@ -67,66 +65,11 @@ pub fn run(
             1.7e9,
         )?;
     }
-    let calibration = calibrate_from_poses(
-        &[("simulated drive".into(), drive.recording)],
-        &FitConfig::full(Geometry::from(nominal)),
-    )?;
-    let truth_of = |p: Param| match p {
-        Param::LeftDiameter => config.truth.left_diameter_m,
-        Param::RightDiameter => config.truth.right_diameter_m,
-        Param::Wheelbase => config.truth.wheelbase_m,
-        Param::SensorX => config.sensor_x_m,
-        Param::SensorY => config.sensor_y_m,
-        Param::SensorYaw => config.sensor_yaw_rad,
-        Param::TimeOffset => config.delay_s,
-    };
-    let rows: Vec<(Param, f64, f64, f64)> = Param::ALL
-        .iter()
-        .filter_map(|p| {
-            let q = calibration.get(*p)?;
-            Some((*p, truth_of(*p), q.value, q.std))
-        })
-        .collect();
+    let comparison = compare(&config, &drive, Geometry::from(nominal))?;
     if json_out {
-        let summary = calibration.summary();
-        return print_json(&json!({
-            "truth": rows.iter().map(|(p, t, _, _)| (p.name().to_string(), json!(t))).collect::<serde_json::Map<_, _>>(),
-            "fit": summary,
-            "outliers_simulated": drive.outliers,
-        }));
+        return print_json(&comparison.json());
     }
-    let summary = calibration.summary();
-    println!(
-        "{:.0} s of driving, {} reference poses ({} of them outliers), fitted as {}: {}",
-        args.drive_s,
-        calibration
-            .recordings
-            .first()
-            .and_then(|r| r.fit.as_ref())
-            .map_or(0, |f| f.compared),
-        drive.outliers,
-        summary.reference_kind,
-        summary.reference_kind_reason
-    );
-    println!(
-        "{:<24} {:>12} {:>12} {:>11} {:>8}",
-        "parameter", "truth", "fitted", "± (1σ)", "err/σ"
-    );
-    for (p, t, v, s) in &rows {
-        let z = if *s > 0.0 && s.is_finite() {
-            format!("{:.2}", (v - t) / s)
-        } else {
-            "—".into()
-        };
-        println!(
-            "{:<24} {:>12.6} {:>12.6} {:>11.2e} {:>8}",
-            p.name(),
-            t,
-            v,
-            s,
-            z
-        );
-    }
+    print!("{}", comparison.text());
     if let Some(path) = bag {
         println!(
             "wrote {0} (/joint_states, /amcl_pose, /tf, /tf_static); fit it with: odocal fit \
