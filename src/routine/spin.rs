@@ -46,3 +46,31 @@ pub async fn run_spin(
         odometry_turn_rad: odometry,
     })
 }
+
+/// A spin's result: where the robot stopped against its mark (or a reference compass), and
+/// the gyro's scale error that follows.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct SpinOutcome {
+    /// What the spin measured.
+    pub spin: SpinRecord,
+    /// How far past the mark it stopped, in the direction it turned (deg; negative: short).
+    pub past_mark_deg: f64,
+    /// `reference` when a second compass said it, `mark` when the user did.
+    pub past_mark_from: &'static str,
+    /// The gyro's scale error (0.01: it reads 1 % more turn).
+    pub gyro_scale_error: f64,
+}
+
+/// The scale error in words, and the flag that removes it.
+impl std::fmt::Display for SpinOutcome {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let s = self.gyro_scale_error;
+        writeln!(
+            f,
+            "gyro scale error {:+.3} % (it reads {:.5} times every turn)\n\
+             to remove it: calibrate --gyro-scale-error {s:.5}",
+            100.0 * s,
+            1.0 + s
+        )
+    }
+}

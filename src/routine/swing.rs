@@ -144,3 +144,88 @@ fn points_at_readings(track: &Track) -> Vec<SwingPoint> {
         })
         .collect()
 }
+
+/// A swing's result as a person reads it: the curve fitted on top of what was `applied`
+/// already (a flag, a profile's saved curve), the whole curve to keep, and where it was saved
+/// (the profile and its backup), if it was.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SwingOutcome {
+    /// The fit of what was left in the readings.
+    pub fit: SwingFit,
+    /// The deviation already removed from the readings (rad).
+    pub applied: crate::kinematics::Deviation,
+    /// The profile it was saved in, and that profile's backup.
+    pub saved: Option<(std::path::PathBuf, std::path::PathBuf)>,
+}
+
+impl SwingOutcome {
+    /// The whole curve (applied and fitted), A1, B1, A2, B2 in degrees.
+    pub fn total_deg(&self) -> [f64; 4] {
+        std::array::from_fn(|k| (self.applied.0[k] + self.fit.deviation.0[k]).to_degrees())
+    }
+
+    /// The whole curve as `--compass-deviation-deg` takes it.
+    pub fn flag(&self) -> String {
+        self.total_deg().map(|c| format!("{c:.3}")).join(",")
+    }
+
+    /// As stdout's JSON.
+    pub fn json(&self) -> serde_json::Value {
+        serde_json::json!({
+            "fit": self.fit,
+            "already_removed_deg": self.applied.0.map(f64::to_degrees),
+            "compass_deviation_deg": self.flag(),
+            "advice": self.fit.advice(),
+            "saved_to": self.saved.as_ref().map(|s| &s.0),
+            "profile_backup": self.saved.as_ref().map(|s| &s.1),
+        })
+    }
+}
+
+/// The curve with each coefficient's ± (one standard error), how far it moves the heading,
+/// what is left after the fit, and how to use or keep it.
+impl std::fmt::Display for SwingOutcome {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let fit = &self.fit;
+        let se = fit.deviation_std_err_rad.map(f64::to_degrees);
+        let [a1, b1, a2, b2] = fit.deviation.0.map(f64::to_degrees);
+        writeln!(
+            f,
+            "compass deviation d(ψ) = A1·sin ψ + B1·cos ψ + A2·sin 2ψ + B2·cos 2ψ\n  \
+             A1 {a1:+.3}° ± {:.3}°  B1 {b1:+.3}° ± {:.3}°  A2 {a2:+.3}° ± {:.3}°  B2 {b2:+.3}° ± {:.3}°\n  \
+             up to {:.2}° with the heading; {:.2}° left after the fit (noise and what four harmonics \
+             do not describe); {} readings",
+            se[0],
+            se[1],
+            se[2],
+            se[3],
+            fit.amplitude_rad.to_degrees(),
+            fit.residual_rms_rad.to_degrees(),
+            fit.points
+        )?;
+        if let Some(advice) = fit.advice() {
+            writeln!(f, "advice: {advice}")?;
+        }
+        let flag = self.flag();
+        if !self.applied.is_zero() {
+            writeln!(
+                f,
+                "(on top of the deviation already removed: the whole curve is {flag} degrees)"
+            )?;
+        }
+        match &self.saved {
+            Some((path, backup)) => writeln!(
+                f,
+                "saved in {} ([heading]; the earlier file is {}): every command with this \
+                 profile removes it",
+                path.display(),
+                backup.display()
+            ),
+            None => writeln!(
+                f,
+                "to remove it from every reading: --compass-deviation-deg {flag}, or --save it \
+                 in the robot profile (calibrate also swings by itself unless --no-swing)"
+            ),
+        }
+    }
+}

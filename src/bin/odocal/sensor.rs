@@ -8,10 +8,9 @@ use odocal::calibration::gyro::scale_from_spin;
 use odocal::kinematics::wrap_angle;
 use odocal::roboclaw::profile::{save_heading, HeadingSection};
 use odocal::routine::heading::mean_heading;
-use odocal::routine::spin::run_spin;
-use odocal::routine::swing::{run_swing, SwingCommand};
+use odocal::routine::spin::{run_spin, SpinOutcome};
+use odocal::routine::swing::{run_swing, SwingCommand, SwingOutcome};
 use odocal::spec::{HeadingSpec, RobotSection, StoreSpec};
-use serde_json::json;
 use std::time::Duration;
 
 type CliResult = Result<(), Box<dyn std::error::Error>>;
@@ -134,67 +133,24 @@ pub async fn swing(args: SwingArgs) -> CliResult {
         }
         why => format!("no swing: {why}"),
     })?;
-    let total_deg: [f64; 4] =
-        std::array::from_fn(|k| (applied.0[k] + fit.deviation.0[k]).to_degrees());
-    let flag = total_deg.map(|c| format!("{c:.3}")).join(",");
-    let saved = match &save_to {
-        Some(path) => {
-            let kind = base.heading.kind();
-            let section = HeadingSection {
-                kind: (kind == HeadingKind::Magnetic).then_some(kind),
-                compass_deviation_deg: Some(total_deg),
-            };
-            let backup = save_heading(path, &section).await?;
-            Some((path.clone(), backup))
-        }
-        None => None,
+    let mut outcome = SwingOutcome {
+        fit,
+        applied,
+        saved: None,
     };
+    if let Some(path) = &save_to {
+        let kind = base.heading.kind();
+        let section = HeadingSection {
+            kind: (kind == HeadingKind::Magnetic).then_some(kind),
+            compass_deviation_deg: Some(outcome.total_deg()),
+        };
+        let backup = save_heading(path, &section).await?;
+        outcome.saved = Some((path.clone(), backup));
+    }
     if args.json {
-        println!(
-            "{}",
-            serde_json::to_string_pretty(&json!({
-                "fit": fit,
-                "already_removed_deg": applied.0.map(f64::to_degrees),
-                "compass_deviation_deg": flag,
-                "advice": fit.advice(),
-                "saved_to": saved.as_ref().map(|s| &s.0),
-                "profile_backup": saved.as_ref().map(|s| &s.1),
-            }))?
-        );
-        return Ok(());
-    }
-    let se = fit.deviation_std_err_rad.map(f64::to_degrees);
-    let [a1, b1, a2, b2] = fit.deviation.0.map(f64::to_degrees);
-    println!(
-        "compass deviation d(ψ) = A1·sin ψ + B1·cos ψ + A2·sin 2ψ + B2·cos 2ψ\n  \
-         A1 {a1:+.3}° ± {:.3}°  B1 {b1:+.3}° ± {:.3}°  A2 {a2:+.3}° ± {:.3}°  B2 {b2:+.3}° ± {:.3}°\n  \
-         up to {:.2}° with the heading; {:.2}° left after the fit (noise and what four harmonics \
-         do not describe); {} readings",
-        se[0],
-        se[1],
-        se[2],
-        se[3],
-        fit.amplitude_rad.to_degrees(),
-        fit.residual_rms_rad.to_degrees(),
-        fit.points
-    );
-    if let Some(advice) = fit.advice() {
-        println!("advice: {advice}");
-    }
-    if !applied.is_zero() {
-        println!("(on top of the deviation already removed: the whole curve is {flag} degrees)");
-    }
-    match &saved {
-        Some((path, backup)) => println!(
-            "saved in {} ([heading]; the earlier file is {}): every command with this profile \
-             removes it",
-            path.display(),
-            backup.display()
-        ),
-        None => println!(
-            "to remove it from every reading: --compass-deviation-deg {flag}, or --save it in the \
-             robot profile (calibrate also swings by itself unless --no-swing)"
-        ),
+        println!("{}", serde_json::to_string_pretty(&outcome.json())?);
+    } else {
+        print!("{outcome}");
     }
     Ok(())
 }
@@ -274,23 +230,20 @@ pub async fn spin(args: SpinArgs) -> CliResult {
         f64::from(args.turns),
         past_deg.to_radians(),
     )?;
+    let outcome = SpinOutcome {
+        spin: record,
+        past_mark_deg: past_deg,
+        past_mark_from: if reference.is_some() {
+            "reference"
+        } else {
+            "mark"
+        },
+        gyro_scale_error: s,
+    };
     if args.json {
-        println!(
-            "{}",
-            serde_json::to_string_pretty(&json!({
-                "spin": record,
-                "past_mark_deg": past_deg,
-                "past_mark_from": if reference.is_some() { "reference" } else { "mark" },
-                "gyro_scale_error": s,
-            }))?
-        );
-        return Ok(());
+        println!("{}", serde_json::to_string_pretty(&outcome)?);
+    } else {
+        print!("{outcome}");
     }
-    println!(
-        "gyro scale error {:+.3} % (it reads {:.5} times every turn)\n\
-         to remove it: calibrate --gyro-scale-error {s:.5}",
-        100.0 * s,
-        1.0 + s
-    );
     Ok(())
 }
