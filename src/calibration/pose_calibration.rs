@@ -393,3 +393,83 @@ impl PoseCalibration {
         }
     }
 }
+
+/// The fit as the terminal shows it: what kind of reference and why, each parameter with its
+/// ± (one standard deviation) beside the nominal, E_d and E_b, and each recording's fit.
+impl std::fmt::Display for PoseCalibration {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let c = self;
+        let s = c.summary();
+        writeln!(
+            f,
+            "fitted {} recording(s) as {} reference: {}",
+            s.recordings_pooled,
+            if s.reference_kind == "absolute" {
+                "an absolute"
+            } else {
+                "a relative"
+            },
+            s.reference_kind_reason
+        )?;
+        writeln!(f, "± is one standard deviation ({})", s.uncertainty)?;
+        writeln!(
+            f,
+            "{:<24} {:>14} {:>12} {:>14}",
+            "parameter", "value", "±", "nominal"
+        )?;
+        let nominal = |p: Param| match p {
+            Param::LeftDiameter => format!("{:.6}", c.nominal.left_diameter_m),
+            Param::RightDiameter => format!("{:.6}", c.nominal.right_diameter_m),
+            Param::Wheelbase => format!("{:.6}", c.nominal.wheelbase_m),
+            _ => "—".into(),
+        };
+        for q in &c.pooled {
+            let p = Param::ALL.iter().copied().find(|p| p.name() == q.parameter);
+            writeln!(
+                f,
+                "{:<24} {:>14.6} {:>12.2e} {:>14}",
+                q.parameter,
+                q.value,
+                q.std,
+                p.map_or("—".into(), nominal)
+            )?;
+        }
+        writeln!(
+            f,
+            "{:<24} {:>14.6} {:>12.2e}\n{:<24} {:>14.6} {:>12.2e}",
+            "E_d = D_R/D_L", s.e_d, s.e_d_std, "E_b = b/b_nominal", s.e_b, s.e_b_std
+        )?;
+        for r in &c.recordings {
+            if let Some(why) = &r.left_out {
+                writeln!(f, "{}: left out: {why}", r.name)?;
+            }
+            if let Some(fit) = &r.fit {
+                for w in &fit.warnings {
+                    writeln!(f, "{}: warning: {w}", r.name)?;
+                }
+                writeln!(
+            f,
+                "{}: {} compared, {} outlier(s) left out; residual σ {:.4} m{}; covariance × {:.2} \
+                 for correlated residuals (lag-one ρ {:.2})",
+                r.name,
+                fit.compared,
+                fit.outliers,
+                fit.residual_std_position_m,
+                fit.residual_std_yaw_rad
+                    .map_or(String::new(), |y| format!(", {:.3}°", y.to_degrees())),
+                fit.variance_inflation,
+                fit.lag_one_correlation
+            )?;
+            }
+            if let Some(b) = &r.baseline {
+                writeln!(
+                    f,
+                    "{}: baseline (two multipliers, as the ROS scripts): wheel_radius_multiplier \
+                 {:.5}, wheel_separation_multiplier {:.5}",
+                    r.name, b.wheel_radius_multiplier, b.wheel_separation_multiplier
+                )?;
+            }
+        }
+        Ok(())
+    }
+}

@@ -2,8 +2,8 @@
 //! localization, scan matching, GNSS): parses the inputs, prints the calibration.
 
 use crate::out::print_json;
-use odocal::calibration::pose_calibration::{calibrate_from_poses, dead_reckon, PoseCalibration};
-use odocal::calibration::pose_fit::{FitConfig, Param};
+use odocal::calibration::pose_calibration::{calibrate_from_poses, dead_reckon};
+use odocal::calibration::pose_fit::FitConfig;
 use odocal::calibration::pose_reference::{Geometry, PoseRecording, ReferenceKind};
 use odocal::offline::dataset::OptiOdomSet;
 use odocal::offline::pose_csv::{read_poses, read_wheels};
@@ -150,7 +150,7 @@ pub fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
     if args.json {
         return print_json(&out);
     }
-    print_text(&calibration);
+    print!("{calibration}");
     if !evaluations.is_empty() {
         println!(
             "\ndead reckoning from the reference's first pose, distance from its last (m):\n\
@@ -281,72 +281,4 @@ fn inputs(args: &Args) -> Result<Inputs, Box<dyn std::error::Error>> {
     }
     let nominal = nominal.ok_or("no data set given")?;
     Ok((recordings, nominal))
-}
-
-fn print_text(c: &PoseCalibration) {
-    let s = c.summary();
-    println!(
-        "fitted {} recording(s) as {} reference: {}",
-        s.recordings_pooled,
-        if s.reference_kind == "absolute" {
-            "an absolute"
-        } else {
-            "a relative"
-        },
-        s.reference_kind_reason
-    );
-    println!("± is one standard deviation ({})", s.uncertainty);
-    println!(
-        "{:<24} {:>14} {:>12} {:>14}",
-        "parameter", "value", "±", "nominal"
-    );
-    let nominal = |p: Param| match p {
-        Param::LeftDiameter => format!("{:.6}", c.nominal.left_diameter_m),
-        Param::RightDiameter => format!("{:.6}", c.nominal.right_diameter_m),
-        Param::Wheelbase => format!("{:.6}", c.nominal.wheelbase_m),
-        _ => "—".into(),
-    };
-    for q in &c.pooled {
-        let p = Param::ALL.iter().copied().find(|p| p.name() == q.parameter);
-        println!(
-            "{:<24} {:>14.6} {:>12.2e} {:>14}",
-            q.parameter,
-            q.value,
-            q.std,
-            p.map_or("—".into(), nominal)
-        );
-    }
-    println!(
-        "{:<24} {:>14.6} {:>12.2e}\n{:<24} {:>14.6} {:>12.2e}",
-        "E_d = D_R/D_L", s.e_d, s.e_d_std, "E_b = b/b_nominal", s.e_b, s.e_b_std
-    );
-    for r in &c.recordings {
-        if let Some(why) = &r.left_out {
-            println!("{}: left out: {why}", r.name);
-        }
-        if let Some(f) = &r.fit {
-            for w in &f.warnings {
-                println!("{}: warning: {w}", r.name);
-            }
-            println!(
-                "{}: {} compared, {} outlier(s) left out; residual σ {:.4} m{}; covariance × {:.2} \
-                 for correlated residuals (lag-one ρ {:.2})",
-                r.name,
-                f.compared,
-                f.outliers,
-                f.residual_std_position_m,
-                f.residual_std_yaw_rad
-                    .map_or(String::new(), |y| format!(", {:.3}°", y.to_degrees())),
-                f.variance_inflation,
-                f.lag_one_correlation
-            );
-        }
-        if let Some(b) = &r.baseline {
-            println!(
-                "{}: baseline (two multipliers, as the ROS scripts): wheel_radius_multiplier \
-                 {:.5}, wheel_separation_multiplier {:.5}",
-                r.name, b.wheel_radius_multiplier, b.wheel_separation_multiplier
-            );
-        }
-    }
 }
