@@ -8,6 +8,7 @@ pub mod plots;
 pub mod pose_plots;
 pub use crate::calibration::stated;
 pub mod text;
+pub mod track;
 
 use crate::io::create_new;
 use crate::kinematics::Direction;

@@ -10,6 +10,9 @@
 
 use super::config::{HARD_RATE_LIMIT_RAD_S, HARD_SPEED_LIMIT_M_S};
 use super::RoutineError;
+use crate::base::write::{
+    write_once, Bounds, Commit, Question, WriteError, WritePolicy, WriteRequest, WriteUi,
+};
 use crate::base::{Base, MotionGuard, PoseSource};
 use crate::calibration::online::OnlineEstimate;
 use crate::calibration::recording::{Event, Recording};
@@ -354,6 +357,49 @@ pub async fn track_live(
     }
     tracker.check_time_offset("live", &outcome.recording);
     Ok(outcome)
+}
+
+/// What `track --write-back` did with the session's last estimate.
+#[derive(Debug, Clone, PartialEq)]
+pub enum WriteBack {
+    /// Written and committed: the parameters as the store holds them.
+    Written(crate::kinematics::WheelParams),
+    /// Not written: the estimate is not yet precise enough (why, and what to do).
+    TooUncertain(String),
+}
+
+/// Writes the parameters `last` says the robot has (its correction applied to `configured`,
+/// the parameters in use) through the write service, when both of E_b's and E_d's standard
+/// deviations are below `max_std`: within ±10 % of what the store holds, asked under
+/// `policy`, backed up into `backup_dir` first.
+pub async fn write_back(
+    base: &Base,
+    last: &OnlineEstimate,
+    configured: &crate::kinematics::WheelParams,
+    max_std: f64,
+    policy: WritePolicy,
+    backup_dir: &std::path::Path,
+    ui: &mut dyn WriteUi,
+) -> Result<WriteBack, WriteError> {
+    if !(last.e_b_std < max_std && last.e_d_std < max_std) {
+        return Ok(WriteBack::TooUncertain(format!(
+            "uncertainty (E_b ± {:.5}, E_d ± {:.5}) above --max-std {max_std}; drive more",
+            last.e_b_std, last.e_d_std
+        )));
+    }
+    let request = WriteRequest {
+        new: last.correction.apply(configured)?,
+        bounds: Bounds::MaxChange {
+            fraction: 0.1,
+            wider: None,
+        },
+        policy,
+        commit: Commit::Both,
+        backup_dir,
+        question: Question::OldToNew("Write these parameters and commit them?".into()),
+    };
+    let done = write_once(base.store.clone(), base.reconnect.clone(), request, ui).await?;
+    Ok(WriteBack::Written(done.applied))
 }
 
 #[cfg(test)]

@@ -4,7 +4,6 @@
 use crate::out::print_json;
 use crate::robot::RobotArgs;
 use clap::ArgGroup;
-use odocal::base::write::{write_once, Bounds, Commit, Question, WriteRequest};
 use odocal::base::{Base, PoseSource};
 use odocal::calibration::online::{OnlineConfig, OnlineEstimate, ScaleSource};
 use odocal::calibration::pose_reference::{Geometry, PoseRecording};
@@ -15,12 +14,14 @@ use odocal::kinematics::{SplitConvention, WheelParams};
 use odocal::offline::dataset::OptiOdomSet;
 use odocal::offline::log::{read_log, LogHeader, LogWriter};
 use odocal::offline::pose_csv::{read_poses, read_wheels};
+use odocal::report::track::{pose_session, TrackSummary};
 use odocal::ros::pose_source::RosPoseSource;
 use odocal::routine::config::WritePolicy;
-use odocal::routine::track::{track_live, DrivePath, TrackOptions, TrackOutcome};
+use odocal::routine::track::{
+    track_live, write_back, DrivePath, TrackOptions, TrackOutcome, WriteBack,
+};
 use odocal::routine::{RoutineEvent, RoutineUi};
 use odocal::spec::RobotSection;
-use serde_json::json;
 use std::path::PathBuf;
 use std::time::Duration;
 
@@ -277,65 +278,6 @@ pub struct TrackArgs {
     json: bool,
 }
 
-/// A parameter in use further than this many standard deviations from the drive's estimate
-/// is reported as drifted.
-const DRIFT_SIGMAS: f64 = 3.0;
-
-/// What a session with a pose reference found: the geometry in metres, the reference's
-/// mounting, and whether the parameters in use have drifted.
-fn print_pose_session(tracker: &Tracker, last: &OnlineEstimate, configured: &WheelParams) {
-    if let Some(fit) = &tracker.started_from {
-        println!(
-            "the filter started from a batch fit of {:.1} s of driving (once the drive had \
-             turned both ways and driven straight), then took every pose fix",
-            fit.span_s
-        );
-    }
-    if last.correction_std.is_some() {
-        for p in last.against(configured) {
-            println!(
-                "{:<24} {:.6} ± {:.6} (1σ; in use {:.6})",
-                p.parameter, p.estimate, p.std, p.in_use
-            );
-        }
-    }
-    let (m, ms) = tracker.filter().mount();
-    println!(
-        "reference frame in base_link: x {:.4} ± {:.4} m, y {:.4} ± {:.4} m, yaw {:.2} ± {:.2}°",
-        m[0],
-        ms[0],
-        m[1],
-        ms[1],
-        m[2].to_degrees(),
-        ms[2].to_degrees()
-    );
-    let (nis, fixes) = tracker.filter().nis_pose_mean();
-    let gate = tracker.filter().gate_stats();
-    println!(
-        "{fixes} pose fixes, mean NIS per degree of freedom {nis:.2} (≈ 1 when the noise fits); \
-         {} rejected by the gate, {} re-anchor(s)",
-        gate.rejected, gate.resets
-    );
-    let drift = last.drift(configured, DRIFT_SIGMAS);
-    if drift.is_empty() {
-        println!(
-            "no drift: every parameter in use is within {DRIFT_SIGMAS}σ of what the drive says"
-        );
-    }
-    for d in drift {
-        println!(
-            "drift: {} in use {:.6} is off by {:+.6} ({:+.1}σ): the drive says {:.6} ± {:.6}; \
-             write it back with --write-back, or fit the recording with odocal fit",
-            d.parameter,
-            d.in_use,
-            d.estimate - d.in_use,
-            d.sigmas,
-            d.estimate,
-            d.std
-        );
-    }
-}
-
 fn show(e: &OnlineEstimate, json_out: bool, label: &str) {
     if !json_out {
         println!(
@@ -366,6 +308,17 @@ impl RoutineUi for StdinUi {
     }
 }
 
+/// The filter's settings for a session whose parameters in use are `configured`.
+fn online_config(args: &TrackArgs, configured: WheelParams) -> OnlineConfig {
+    let mut c = OnlineConfig::new(configured);
+    c.slip_fraction = args.slip_fraction;
+    c.heading_sigma_rad = args.heading_sigma_deg.to_radians();
+    c
+}
+
+/// A tracker fed, the parameters in use, and the live base when there was one.
+type Session = (Tracker, WheelParams, Option<Base>);
+
 /// Runs `odocal track`.
 pub async fn track(args: TrackArgs) -> CliResult {
     let with_poses = args.reference.is_some() || args.poses.is_some();
@@ -374,12 +327,6 @@ pub async fn track(args: TrackArgs) -> CliResult {
         ScaleSource::Filter
     } else {
         ScaleSource::Convention(args.convention)
-    };
-    let config = |configured| {
-        let mut c = OnlineConfig::new(configured);
-        c.slip_fraction = args.slip_fraction;
-        c.heading_sigma_rad = args.heading_sigma_deg.to_radians();
-        c
     };
     if !args.json {
         println!(
@@ -392,6 +339,80 @@ pub async fn track(args: TrackArgs) -> CliResult {
     if args.write_back && (args.log.is_some() || args.dataset.is_some() || args.poses.is_some()) {
         return Err("--write-back writes to a live robot: give --port or --base".into());
     }
+    let session = match (&args.poses, &args.wheels, &args.dataset, &args.log) {
+        (Some(p), Some(w), _, _) => from_files(&args, p, w, scale)?,
+        (_, _, Some(dir), _) => {
+            let set = OptiOdomSet::load(dir)?;
+            let mut t = Tracker::new(online_config(&args, set.configured), scale, args.every_m)?;
+            for e in set.feed(&mut t) {
+                show(&e, args.json, "");
+            }
+            (t, set.configured, None)
+        }
+        (_, _, None, Some(path)) => from_log(&args, path, scale)?,
+        _ => live_session(&args, scale).await?,
+    };
+    finish(&args, session, with_poses, scale).await
+}
+
+/// `--poses` with `--wheels`: the files replayed through the filter.
+fn from_files(
+    args: &TrackArgs,
+    poses: &std::path::Path,
+    wheels: &std::path::Path,
+    scale: ScaleSource,
+) -> Result<Session, Box<dyn std::error::Error>> {
+    let (Some(d), Some(b)) = (args.wheel_diameter_m, args.wheelbase_m) else {
+        return Err(
+            "--poses needs the configured geometry: give --wheel-diameter-m and \
+                    --wheelbase-m (metres)"
+                .into(),
+        );
+    };
+    odocal::ranges::check_range("--wheel-diameter-m", d, 1e-3, 5.0)?;
+    odocal::ranges::check_range("--wheelbase-m", b, 1e-2, 10.0)?;
+    // Wheels in radians: a "count" is a radian (see OnlineConfig's angle units).
+    let configured = WheelParams::nominal(d, b, std::f64::consts::TAU);
+    let drive = PoseRecording {
+        wheels: read_wheels(wheels)?,
+        poses: read_poses(poses)?,
+    };
+    let mut t = Tracker::new(online_config(args, configured), scale, args.every_m)?;
+    t.set_pose_delay(args.reference_delay_s);
+    let recording = Recording::of_pose_recording(&drive, Geometry::from(&configured));
+    for e in t.feed_recording(&poses.display().to_string(), &recording) {
+        show(&e, args.json, "");
+    }
+    Ok((t, configured, None))
+}
+
+/// `--log`: a recorded session replayed (a log of a session with a pose reference replays as
+/// one).
+fn from_log(
+    args: &TrackArgs,
+    path: &std::path::Path,
+    scale: ScaleSource,
+) -> Result<Session, Box<dyn std::error::Error>> {
+    let (header, recording) = read_log(path)?;
+    let scale = if recording.poses.is_empty() {
+        scale
+    } else {
+        ScaleSource::Filter
+    };
+    let mut t = Tracker::new(online_config(args, header.params), scale, args.every_m)?;
+    t.set_pose_delay(args.reference_delay_s);
+    for e in t.feed_recording("log", &recording) {
+        show(&e, args.json, "");
+    }
+    Ok((t, header.params, None))
+}
+
+/// A live robot (`--port`, `--base`), perhaps driven, perhaps against a pose topic, perhaps
+/// recorded.
+async fn live_session(
+    args: &TrackArgs,
+    scale: ScaleSource,
+) -> Result<Session, Box<dyn std::error::Error>> {
     let poses = match &args.reference {
         Some(topic) => {
             let url = args.robot.rosbridge_url().ok_or(
@@ -402,116 +423,64 @@ pub async fn track(args: TrackArgs) -> CliResult {
         }
         None => None,
     };
-    let mut base = None;
-    let (tracker, configured) = if let (Some(p), Some(w)) = (&args.poses, &args.wheels) {
-        let (Some(d), Some(b)) = (args.wheel_diameter_m, args.wheelbase_m) else {
-            return Err(
-                "--poses needs the configured geometry: give --wheel-diameter-m and \
-                        --wheelbase-m (metres)"
-                    .into(),
-            );
-        };
-        odocal::ranges::check_range("--wheel-diameter-m", d, 1e-3, 5.0)?;
-        odocal::ranges::check_range("--wheelbase-m", b, 1e-2, 10.0)?;
-        // Wheels in radians: a "count" is a radian (see OnlineConfig's angle units).
-        let configured = WheelParams::nominal(d, b, std::f64::consts::TAU);
-        let drive = PoseRecording {
-            wheels: read_wheels(w)?,
-            poses: read_poses(p)?,
-        };
-        let mut t = Tracker::new(config(configured), scale, args.every_m)?;
-        t.set_pose_delay(args.reference_delay_s);
-        let recording = Recording::of_pose_recording(&drive, Geometry::from(&configured));
-        for e in t.feed_recording(&p.display().to_string(), &recording) {
-            show(&e, args.json, "");
-        }
-        (t, configured)
-    } else if let Some(dir) = &args.dataset {
-        let set = OptiOdomSet::load(dir)?;
-        let mut t = Tracker::new(config(set.configured), scale, args.every_m)?;
-        for e in set.feed(&mut t) {
-            show(&e, args.json, "");
-        }
-        (t, set.configured)
-    } else if let Some(path) = &args.log {
-        let (header, recording) = read_log(path)?;
-        // A log of a session with a pose reference replays as one.
-        let scale = if recording.poses.is_empty() {
-            scale
-        } else {
-            ScaleSource::Filter
-        };
-        let mut t = Tracker::new(config(header.params), scale, args.every_m)?;
-        t.set_pose_delay(args.reference_delay_s);
-        for e in t.feed_recording("log", &recording) {
-            show(&e, args.json, "");
-        }
-        (t, header.params)
-    } else {
-        let (b, configured) = open(&args.robot).await?;
-        let mut t = Tracker::new(config(configured), scale, args.every_m)?;
-        t.set_pose_delay(args.reference_delay_s);
-        let mut log = match &args.record {
-            Some(p) => Some(LogWriter::create(
-                p,
-                header(&b, configured, args.period_ms),
-            )?),
-            None => None,
-        };
-        let outcome = live(
-            (&b, poses.as_ref().map(|p| p as &dyn PoseSource)),
-            &mut t,
-            args.period_ms,
-            args.duration_s,
-            Some(&args.drive),
-            log.as_mut(),
-            |e| show(e, args.json, ""),
-        )
-        .await;
-        let outcome = match outcome {
-            Ok(o) => o,
-            Err(e) => {
-                // An error: what was estimated until then is still worth seeing.
-                if let Some(l) = log.as_mut() {
-                    let _ = l.flush();
-                }
-                match t.estimate() {
-                    Ok(last) if !args.json => {
-                        show(&last, false, "last");
-                        println!(
-                            "(the estimate when tracking stopped, ± 1σ of the online filter; \
-                         nothing written)"
-                        );
-                    }
-                    _ => {}
-                }
-                return Err(e);
-            }
-        };
-        if outcome.cancelled && !args.json {
-            println!(
-                "stopped by Ctrl-C (or SIGTERM, SIGHUP){}",
-                if args.drive.drive.is_some() {
-                    "; the robot is stopped"
-                } else {
-                    ""
-                }
-            );
-        }
-        if let Some(l) = log.as_mut() {
-            l.flush()?;
-        }
-        base = Some(b);
-        (t, configured)
+    let (b, configured) = open(&args.robot).await?;
+    let mut t = Tracker::new(online_config(args, configured), scale, args.every_m)?;
+    t.set_pose_delay(args.reference_delay_s);
+    let mut log = match &args.record {
+        Some(p) => Some(LogWriter::create(
+            p,
+            header(&b, configured, args.period_ms),
+        )?),
+        None => None,
     };
+    let outcome = live(
+        (&b, poses.as_ref().map(|p| p as &dyn PoseSource)),
+        &mut t,
+        args.period_ms,
+        args.duration_s,
+        Some(&args.drive),
+        log.as_mut(),
+        |e| show(e, args.json, ""),
+    )
+    .await;
+    // Flushed whatever happened: what was recorded until then is kept.
+    let flushed = log.as_mut().map_or(Ok(()), |l| l.flush());
+    let outcome = outcome.inspect_err(|_| {
+        // An error: what was estimated until then is still worth seeing.
+        if let (Ok(last), false) = (t.estimate(), args.json) {
+            show(&last, false, "last");
+            println!(
+                "(the estimate when tracking stopped, ± 1σ of the online filter; nothing written)"
+            );
+        }
+    })?;
+    flushed?;
+    if outcome.cancelled && !args.json {
+        println!(
+            "stopped by Ctrl-C (or SIGTERM, SIGHUP){}",
+            if args.drive.drive.is_some() {
+                "; the robot is stopped"
+            } else {
+                ""
+            }
+        );
+    }
+    Ok((t, configured, Some(b)))
+}
+
+/// The last estimate, the pose session's findings, the write-back, and the summary.
+async fn finish(
+    args: &TrackArgs,
+    (tracker, configured, base): Session,
+    with_poses: bool,
+    scale: ScaleSource,
+) -> CliResult {
     let last = tracker.estimate()?;
     show(&last, args.json, "final");
     let with_poses = with_poses || tracker.started_from.is_some();
     if with_poses && !args.json {
-        print_pose_session(&tracker, &last, &configured);
+        print!("{}", pose_session(&tracker, &last, &configured));
     }
-    let (nis, updates) = tracker.filter().nis_mean();
-    let gate = tracker.filter().gate_stats();
     // A log of a pose session replays as one: its scale is the filter's too.
     let scale = if with_poses {
         ScaleSource::Filter
@@ -521,106 +490,34 @@ pub async fn track(args: TrackArgs) -> CliResult {
     let excitation = tracker.filter().excitation(scale)?;
     let mut written = None;
     if let (true, Some(base)) = (args.write_back, &base) {
-        if last.e_b_std < args.max_std && last.e_d_std < args.max_std {
-            let new = last.correction.apply(&configured)?;
-            let policy = if args.drive.yes {
-                WritePolicy::Yes
-            } else {
-                WritePolicy::Ask
-            };
-            let request = WriteRequest {
-                new,
-                bounds: Bounds::MaxChange {
-                    fraction: 0.1,
-                    wider: None,
-                },
-                policy,
-                commit: Commit::Both,
-                backup_dir: &args.backup_dir,
-                question: Question::OldToNew("Write these parameters and commit them?".into()),
-            };
-            let done = write_once(
-                base.store.clone(),
-                base.reconnect.clone(),
-                request,
-                &mut crate::prompt::TerminalWriteUi {
-                    yes: args.drive.yes,
-                },
-            )
-            .await?;
-            eprintln!("written and committed");
-            let applied = done.applied;
-            written = Some(applied);
+        let policy = if args.drive.yes {
+            WritePolicy::Yes
         } else {
-            eprintln!(
-                "not written: uncertainty (E_b ± {:.5}, E_d ± {:.5}) above --max-std {}; drive more",
-                last.e_b_std, last.e_d_std, args.max_std
-            );
+            WritePolicy::Ask
+        };
+        let mut ui = crate::prompt::TerminalWriteUi {
+            yes: args.drive.yes,
+        };
+        let dir = &args.backup_dir;
+        match write_back(base, &last, &configured, args.max_std, policy, dir, &mut ui).await? {
+            WriteBack::Written(p) => {
+                eprintln!("written and committed");
+                written = Some(p);
+            }
+            WriteBack::TooUncertain(why) => eprintln!("not written: {why}"),
         }
     }
+    let summary = TrackSummary {
+        tracker: &tracker,
+        last: &last,
+        configured: &configured,
+        with_poses,
+        excitation: &excitation,
+        written,
+    };
     if args.json {
-        let mut estimates: Vec<_> = tracker.checkpoints.clone();
-        estimates.push(last);
-        let (mount, mount_std) = tracker.filter().mount();
-        let (pose_nis, pose_fixes) = tracker.filter().nis_pose_mean();
-        return print_json(&json!({
-            "configured": configured,
-            "estimates": estimates,
-            "pose_reference": with_poses.then(|| json!({
-                "fixes": pose_fixes,
-                "nis_mean_per_dof": pose_nis,
-                "sensor_x_m": mount[0], "sensor_x_m_std": mount_std[0],
-                "sensor_y_m": mount[1], "sensor_y_m_std": mount_std[1],
-                "sensor_yaw_rad": mount[2], "sensor_yaw_rad_std": mount_std[2],
-                "started_after_s": tracker.started_from.as_ref().map(|f| f.span_s),
-                "drift": last.drift(&configured, DRIFT_SIGMAS),
-            })),
-            "heading_updates": updates,
-            "heading_nis_mean": nis,
-            "heading_gate": gate,
-            "excitation": excitation,
-            "time_offsets": tracker.time_offsets,
-            "written": written,
-        }));
+        return print_json(&summary.json());
     }
-    if !with_poses {
-        println!(
-            "{updates} heading updates, mean NIS {nis:.2} (≈ 1 when the noise settings fit the \
-             robot); {} reading(s) rejected by the gate, {} heading re-anchor(s)",
-            gate.rejected, gate.resets
-        );
-    }
-    println!(
-        "E_b {} (σ {:.0} % of the prior's), E_d {} (σ {:.0} % of the prior's)",
-        excitation.e_b,
-        100.0 * excitation.e_b_ratio,
-        excitation.e_d,
-        100.0 * excitation.e_d_ratio
-    );
-    if let Some(advice) = excitation.advice() {
-        println!("warning: {advice}");
-    }
-    for o in &tracker.time_offsets {
-        let what = if o.corrected {
-            "corrected"
-        } else if o.offset.significant() {
-            "NOT corrected (live); fix the clocks or the sensor delay"
-        } else {
-            "below the warning threshold"
-        };
-        let prefix = if o.offset.significant() {
-            "warning: "
-        } else {
-            ""
-        };
-        println!(
-            "{prefix}{}: heading stream {} the encoders by {:.3} s (rate correlation {:.2}, {:.2} at 0 s): {what}",
-            o.run,
-            if o.offset.offset_s >= 0.0 { "lags" } else { "leads" },
-            o.offset.offset_s.abs(),
-            o.offset.correlation,
-            o.offset.correlation_at_zero
-        );
-    }
+    print!("{}", summary.text());
     Ok(())
 }
