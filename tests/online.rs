@@ -464,7 +464,7 @@ fn position_fixes_make_the_wheel_scale_observable() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn live_telemetry_from_the_mock_calibrates_and_writes_back() {
-    use odocal::base::write::{write_once, Bounds, Commit, Question, WritePolicy, WriteRequest};
+    use odocal::base::write::WritePolicy;
     use odocal::base::Base;
     use odocal::calibration::tracker::Tracker;
     use odocal::hal::link::LinkConfig;
@@ -473,6 +473,7 @@ async fn live_telemetry_from_the_mock_calibrates_and_writes_back() {
     use odocal::mock::{lock, spawn_duplex, FaultConfig, TimeMode};
     use odocal::protocol::message::ParamSource;
     use odocal::routine::square::{run_square, SquareCommand};
+    use odocal::routine::track::{write_back, WriteBack};
     use std::time::Duration;
 
     let device = common::mock_device(COMPASS_DEG, 1);
@@ -523,32 +524,41 @@ async fn live_telemetry_from_the_mock_calibrates_and_writes_back() {
         (e.e_d - 0.992).abs() < 3.0 * e.e_d_std && e.e_d_std < 0.002,
         "{e:?}"
     );
-    let new = e.correction.apply(&configured).unwrap();
     let backup_dir = std::env::temp_dir().join(format!("odocal-online-wb-{}", std::process::id()));
-    let done = write_once(
-        base.store.clone(),
-        base.reconnect.clone(),
-        WriteRequest {
-            new,
-            bounds: Bounds::MaxChange {
-                fraction: 0.1,
-                wider: None,
-            },
-            policy: WritePolicy::Yes,
-            commit: Commit::Both,
-            backup_dir: &backup_dir,
-            question: Question::Plain("write?".into()),
-        },
-        &mut odocal::base::write::Unattended,
-    )
-    .await
-    .unwrap();
-    let (applied, backup) = (done.applied, done.backup);
+    let _ = std::fs::remove_dir_all(&backup_dir);
+    // What `track --write-back` does: refused while the estimate is not precise enough...
+    let ui = &mut odocal::base::write::Unattended;
+    let policy = WritePolicy::Yes;
+    let early = write_back(&base, &e, &configured, 1e-9, policy, &backup_dir, ui)
+        .await
+        .unwrap();
+    assert!(
+        matches!(&early, WriteBack::TooUncertain(why) if why.contains("--max-std")),
+        "{early:?}"
+    );
+    assert!(
+        !backup_dir.exists(),
+        "nothing backed up for a write not made"
+    );
+    // ... and written through the write service once it is.
+    let done = write_back(&base, &e, &configured, 0.002, policy, &backup_dir, ui)
+        .await
+        .unwrap();
+    let WriteBack::Written(applied) = done else {
+        panic!("not written: {done:?}");
+    };
+    let backup = std::fs::read_dir(&backup_dir)
+        .unwrap()
+        .next()
+        .unwrap()
+        .unwrap()
+        .path();
     assert!(backup.is_file());
     let d = lock(&device);
     assert_eq!(d.active_params(), applied);
     assert_eq!(d.stored_params(), Some(applied));
     assert!((applied.wheelbase_m / d.sim().truth().wheelbase_m - 1.0).abs() < 0.003);
+    let _ = std::fs::remove_dir_all(&backup_dir);
 }
 
 #[test]
