@@ -125,7 +125,47 @@ pub async fn plan_restore(
     })
 }
 
+/// How many changed lines of a file a restore shows before asking.
+const MAX_SHOWN: usize = 20;
+
 impl RestorePlan {
+    /// What the restore of `backup` (read from `from`) will do, as shown before the question:
+    /// a warning if any, old → new, and the lines of the file that change.
+    pub fn text(&self, from: &Path, backup: &BackupFile) -> String {
+        use std::fmt::Write as _;
+        let mut out = String::new();
+        if let Some(warning) = &self.warning {
+            let _ = writeln!(out, "warning: {warning}");
+        }
+        let _ = writeln!(
+            out,
+            "{} (taken {}by odocal {}) onto {} `{}`:\n{}",
+            from.display(),
+            backup
+                .taken_utc
+                .as_ref()
+                .map_or(String::new(), |t| format!("{t} ")),
+            backup.odocal_version,
+            self.store.kind,
+            self.store.id,
+            super::write::params_table(&self.current, &self.target)
+        );
+        if !self.changes.is_empty() {
+            let _ = writeln!(
+                out,
+                "the whole file goes back as it was: {} line(s) change (- now, + restored)",
+                self.changes.len()
+            );
+            for line in self.changes.iter().take(MAX_SHOWN) {
+                let _ = writeln!(out, "  {line}");
+            }
+            if self.changes.len() > MAX_SHOWN {
+                let _ = writeln!(out, "  … and {} more", self.changes.len() - MAX_SHOWN);
+            }
+        }
+        out
+    }
+
     /// The write that carries the plan out, under `policy`, backing up into `backup_dir`.
     pub fn request<'a>(&self, policy: WritePolicy, backup_dir: &'a Path) -> WriteRequest<'a> {
         WriteRequest {

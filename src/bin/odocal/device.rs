@@ -247,20 +247,13 @@ pub async fn params(cmd: ParamsCommand) -> CliResult {
             counts_per_rev,
             backup_dir,
         } => {
-            let client = Arc::new(port.connect().await?);
-            let current = client.get_params(ParamSource::Active).await?;
-            let wanted = WheelParams {
-                left_wheel_diameter_m: left_wheel_diameter_m
-                    .unwrap_or(current.left_wheel_diameter_m),
-                right_wheel_diameter_m: right_wheel_diameter_m
-                    .unwrap_or(current.right_wheel_diameter_m),
-                wheelbase_m: wheelbase_m.unwrap_or(current.wheelbase_m),
-                counts_per_wheel_rev: counts_per_rev.unwrap_or(current.counts_per_wheel_rev),
-            };
-            // The one write path: checked, backed up, written, read back, undone on failure.
-            let done = write_to(&client, wanted, Commit::InUse, &backup_dir, None).await?;
-            eprintln!("written to RAM; run `odocal params save` to keep them across power cycles");
-            print_params(&done.applied, port.json, json!({ "backup": done.backup }))
+            let given = [
+                left_wheel_diameter_m,
+                right_wheel_diameter_m,
+                wheelbase_m,
+                counts_per_rev,
+            ];
+            set(&port, given, &backup_dir).await
         }
         ParamsCommand::Save { port, backup_dir } => {
             let client = Arc::new(port.connect().await?);
@@ -286,21 +279,45 @@ pub async fn params(cmd: ParamsCommand) -> CliResult {
             backup_dir,
             yes,
             ..
-        } => {
-            let client = Arc::new(port.connect().await?);
-            // The factory parameters, written as any others: backed up, read back, undone on
-            // failure.
-            let factory = client.get_params(ParamSource::Factory).await?;
-            let commit = if stored { Commit::Both } else { Commit::InUse };
-            let question = Question::OldToNew(format!(
-                "restore the factory parameters{}?",
-                if stored { " and commit them" } else { "" }
-            ));
-            let ask = (!yes).then_some(question);
-            let done = write_to(&client, factory, commit, &backup_dir, ask).await?;
-            print_params(&done.applied, port.json, json!({ "backup": done.backup }))
-        }
+        } => restore_factory(&port, stored, yes, &backup_dir).await,
     }
+}
+
+/// `params set`: the fields given, the others as they are; to RAM.
+async fn set(port: &PortArgs, given: [Option<f64>; 4], backup_dir: &std::path::Path) -> CliResult {
+    let client = Arc::new(port.connect().await?);
+    let current = client.get_params(ParamSource::Active).await?;
+    let [left, right, wheelbase, counts] = given;
+    let wanted = WheelParams {
+        left_wheel_diameter_m: left.unwrap_or(current.left_wheel_diameter_m),
+        right_wheel_diameter_m: right.unwrap_or(current.right_wheel_diameter_m),
+        wheelbase_m: wheelbase.unwrap_or(current.wheelbase_m),
+        counts_per_wheel_rev: counts.unwrap_or(current.counts_per_wheel_rev),
+    };
+    // The one write path: checked, backed up, written, read back, undone on failure.
+    let done = write_to(&client, wanted, Commit::InUse, backup_dir, None).await?;
+    eprintln!("written to RAM; run `odocal params save` to keep them across power cycles");
+    print_params(&done.applied, port.json, json!({ "backup": done.backup }))
+}
+
+/// `params restore` without `--from`: the factory parameters, written as any others (asked
+/// unless `yes`, backed up, read back, undone on failure); stored too with `stored`.
+async fn restore_factory(
+    port: &PortArgs,
+    stored: bool,
+    yes: bool,
+    backup_dir: &std::path::Path,
+) -> CliResult {
+    let client = Arc::new(port.connect().await?);
+    let factory = client.get_params(ParamSource::Factory).await?;
+    let commit = if stored { Commit::Both } else { Commit::InUse };
+    let question = Question::OldToNew(format!(
+        "restore the factory parameters{}?",
+        if stored { " and commit them" } else { "" }
+    ));
+    let ask = (!yes).then_some(question);
+    let done = write_to(&client, factory, commit, backup_dir, ask).await?;
+    print_params(&done.applied, port.json, json!({ "backup": done.backup }))
 }
 
 /// Writes `new` to a controller through the write service, backing up into `dir`; asks `ask`

@@ -8,7 +8,7 @@
 use crate::out::print_params;
 use odocal::base::restore::{plan_restore, RestoreOptions};
 use odocal::base::transaction::{backup_dir_for, check_same_file, BackupError, BackupFile};
-use odocal::base::write::{params_table, write_once, WriteError, WritePolicy};
+use odocal::base::write::{write_once, WriteError, WritePolicy};
 use odocal::base::ParamStore;
 use odocal::spec::{StoreLocation, ODOCAL_BAUD};
 use serde_json::json;
@@ -16,9 +16,6 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 type CliResult = Result<(), Box<dyn std::error::Error>>;
-
-/// How many changed lines of a file a restore shows before asking.
-const MAX_SHOWN: usize = 20;
 
 /// Arguments of `odocal restore`.
 #[derive(Debug, clap::Args)]
@@ -144,33 +141,7 @@ pub async fn restore_onto(
         commit: how.commit,
     };
     let plan = plan_restore(store.as_ref(), backup, how.from, options).await?;
-    if let Some(warning) = &plan.warning {
-        eprintln!("warning: {warning}");
-    }
-    eprintln!(
-        "{} (taken {}by odocal {}) onto {} `{}`:\n{}",
-        how.from.display(),
-        backup
-            .taken_utc
-            .as_ref()
-            .map_or(String::new(), |t| format!("{t} ")),
-        backup.odocal_version,
-        plan.store.kind,
-        plan.store.id,
-        params_table(&plan.current, &plan.target)
-    );
-    if !plan.changes.is_empty() {
-        eprintln!(
-            "the whole file goes back as it was: {} line(s) change (- now, + restored)",
-            plan.changes.len()
-        );
-        for line in plan.changes.iter().take(MAX_SHOWN) {
-            eprintln!("  {line}");
-        }
-        if plan.changes.len() > MAX_SHOWN {
-            eprintln!("  … and {} more", plan.changes.len() - MAX_SHOWN);
-        }
-    }
+    eprint!("{}", plan.text(how.from, backup));
     let extra = |written: bool| {
         json!({
             "restored_from": how.from,

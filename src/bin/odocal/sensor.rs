@@ -79,24 +79,28 @@ pub fn confirm(yes: bool, what: &str) -> CliResult {
     }
 }
 
+/// Why `--save` needs a profile.
+const SAVE_NEEDS_PROFILE: &str = "--save keeps the curve in a robot profile: give --profile \
+     (for other robots, pass the printed --compass-deviation-deg)";
+
+/// A turn-rate limit a robot may be given (rad/s).
+fn check_rate(rate_rad_s: f64) -> CliResult {
+    if rate_rad_s.is_finite() && rate_rad_s > 0.0 && rate_rad_s <= 3.0 {
+        return Ok(());
+    }
+    Err(format!("--max-rate-rad-s {rate_rad_s}: must be in (0, 3]").into())
+}
+
 /// Runs `odocal swing`: **moves the robot** (turns in place).
 pub async fn swing(args: SwingArgs) -> CliResult {
-    if !(args.rate_rad_s.is_finite() && args.rate_rad_s > 0.0 && args.rate_rad_s <= 3.0) {
-        return Err(format!("--max-rate-rad-s {}: must be in (0, 3]", args.rate_rad_s).into());
-    }
+    check_rate(args.rate_rad_s)?;
     if !(1..=10).contains(&args.turns) {
         return Err(format!("--turns {}: must be 1..=10", args.turns).into());
     }
     let spec = args.robot.spec(RobotSection::default())?;
     let save_to = match (&spec.store, args.save) {
         (StoreSpec::Profile(path), true) => Some(path.clone()),
-        (_, true) => {
-            return Err(
-                "--save keeps the curve in a robot profile: give --profile (for other \
-                        robots, pass the printed --compass-deviation-deg)"
-                    .into(),
-            )
-        }
+        (_, true) => return Err(SAVE_NEEDS_PROFILE.into()),
         _ => None,
     };
     // What is already removed from the readings (a flag, or the profile's saved curve): the
@@ -155,11 +159,32 @@ pub async fn swing(args: SwingArgs) -> CliResult {
     Ok(())
 }
 
+/// How far past its mark the robot stopped, in the direction it turned (deg): given, read off
+/// a reference compass (its deviation the same after whole turns), or asked.
+async fn past_mark_deg(
+    args: &SpinArgs,
+    reference: Option<&dyn odocal::base::HeadingSource>,
+    before: Option<f64>,
+) -> Result<f64, Box<dyn std::error::Error>> {
+    let sign = f64::from(args.turns.signum());
+    Ok(match (args.past_mark_deg, reference, before) {
+        (Some(d), _, _) => d,
+        (None, Some(r), Some(before)) => {
+            let after = mean_heading(r, args.heading_samples).await?;
+            sign * wrap_angle(after - before).to_degrees()
+        }
+        _ => crate::prompt::answer(
+            "How far past the mark did it stop, in degrees, in the direction it turned \
+             (negative if short of it)?",
+        )?
+        .parse::<f64>()
+        .map_err(|e| format!("not a number of degrees: {e}"))?,
+    })
+}
+
 /// Runs `odocal spin`: **moves the robot** (turns in place), then asks where it stopped.
 pub async fn spin(args: SpinArgs) -> CliResult {
-    if !(args.rate_rad_s.is_finite() && args.rate_rad_s > 0.0 && args.rate_rad_s <= 3.0) {
-        return Err(format!("--max-rate-rad-s {}: must be in (0, 3]", args.rate_rad_s).into());
-    }
+    check_rate(args.rate_rad_s)?;
     if !(1..=20).contains(&args.turns.unsigned_abs()) {
         return Err(format!("--turns {}: must be 1..=20 either way", args.turns).into());
     }
@@ -210,20 +235,7 @@ pub async fn spin(args: SpinArgs) -> CliResult {
             return Err(format!("interrupted ({name}): the robot was stopped").into());
         }
     };
-    let sign = f64::from(args.turns.signum());
-    let past_deg = match (args.past_mark_deg, &reference, reference_before) {
-        (Some(d), _, _) => d,
-        (None, Some(r), Some(before)) => {
-            let after = mean_heading(r.as_ref(), args.heading_samples).await?;
-            sign * wrap_angle(after - before).to_degrees()
-        }
-        _ => crate::prompt::answer(
-            "How far past the mark did it stop, in degrees, in the direction it turned \
-             (negative if short of it)?",
-        )?
-        .parse::<f64>()
-        .map_err(|e| format!("not a number of degrees: {e}"))?,
-    };
+    let past_deg = past_mark_deg(&args, reference.as_deref(), reference_before).await?;
     let s = scale_from_spin(
         record.heading_before_rad,
         record.heading_after_rad,
