@@ -394,6 +394,51 @@ impl PoseCalibration {
     }
 }
 
+impl PoseCalibration {
+    /// The fit as `fit.json` and stdout's JSON hold it: the summary, each recording's fit, the
+    /// pooled parameters, the baseline geometry, and the dead reckoning on other recordings.
+    pub fn json(&self, evaluations: &[DeadReckoning]) -> serde_json::Result<serde_json::Value> {
+        let mut out = serde_json::to_value(self.summary())?;
+        if let Some(map) = out.as_object_mut() {
+            map.insert("recordings".into(), serde_json::to_value(&self.recordings)?);
+            map.insert("pooled".into(), serde_json::to_value(&self.pooled)?);
+            map.insert(
+                "baseline_geometry".into(),
+                serde_json::to_value(self.baseline_geometry)?,
+            );
+            map.insert("evaluations".into(), serde_json::to_value(evaluations)?);
+        }
+        Ok(out)
+    }
+}
+
+/// Dead reckoning on other recordings as a table: the distance from the reference's last pose
+/// with the fitted, the nominal and the baseline geometry (m); empty when there is none.
+pub fn evaluations_text(evaluations: &[DeadReckoning]) -> String {
+    use std::fmt::Write as _;
+    let mut out = String::new();
+    if evaluations.is_empty() {
+        return out;
+    }
+    let _ = writeln!(
+        out,
+        "\ndead reckoning from the reference's first pose, distance from its last (m):\n\
+         {:<34} {:>10} {:>10} {:>10}",
+        "recording", "fitted", "nominal", "baseline"
+    );
+    for e in evaluations {
+        let _ = writeln!(
+            out,
+            "{:<34} {:>10.4} {:>10.4} {:>10}",
+            e.name,
+            e.calibrated_m,
+            e.nominal_m,
+            e.baseline_m.map_or("—".into(), |b| format!("{b:.4}"))
+        );
+    }
+    out
+}
+
 /// The fit as the terminal shows it: what kind of reference and why, each parameter with its
 /// ± (one standard deviation) beside the nominal, E_d and E_b, and each recording's fit.
 impl std::fmt::Display for PoseCalibration {

@@ -2,7 +2,7 @@
 //! localization, scan matching, GNSS): parses the inputs, prints the calibration.
 
 use crate::out::print_json;
-use odocal::calibration::pose_calibration::{calibrate_from_poses, dead_reckon};
+use odocal::calibration::pose_calibration::{calibrate_from_poses, dead_reckon, evaluations_text};
 use odocal::calibration::pose_fit::FitConfig;
 use odocal::calibration::pose_reference::{Geometry, PoseRecording, ReferenceKind};
 use odocal::offline::dataset::OptiOdomSet;
@@ -122,19 +122,7 @@ pub fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
             }
         }
     }
-    let mut out = serde_json::to_value(calibration.summary())?;
-    if let Some(map) = out.as_object_mut() {
-        map.insert(
-            "recordings".into(),
-            serde_json::to_value(&calibration.recordings)?,
-        );
-        map.insert("pooled".into(), serde_json::to_value(&calibration.pooled)?);
-        map.insert(
-            "baseline_geometry".into(),
-            serde_json::to_value(calibration.baseline_geometry)?,
-        );
-        map.insert("evaluations".into(), serde_json::to_value(&evaluations)?);
-    }
+    let out = calibration.json(&evaluations)?;
     if let Some(dir) = &args.report {
         let written = write_report(dir, &out, &calibration, &recordings)?;
         if !args.json {
@@ -150,23 +138,7 @@ pub fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
     if args.json {
         return print_json(&out);
     }
-    print!("{calibration}");
-    if !evaluations.is_empty() {
-        println!(
-            "\ndead reckoning from the reference's first pose, distance from its last (m):\n\
-             {:<34} {:>10} {:>10} {:>10}",
-            "recording", "fitted", "nominal", "baseline"
-        );
-        for e in &evaluations {
-            println!(
-                "{:<34} {:>10.4} {:>10.4} {:>10}",
-                e.name,
-                e.calibrated_m,
-                e.nominal_m,
-                e.baseline_m.map_or("—".into(), |b| format!("{b:.4}"))
-            );
-        }
-    }
+    print!("{calibration}{}", evaluations_text(&evaluations));
     Ok(())
 }
 
@@ -218,6 +190,40 @@ fn nominal(args: &Args, needed_by: &str) -> Result<Geometry, Box<dyn std::error:
     })
 }
 
+/// `--bag BAG --reference TOPIC` (or `tf:FRAME`): the drive read from the bag.
+fn bag_inputs(
+    args: &Args,
+    bag: &std::path::Path,
+    reference: &str,
+) -> Result<Inputs, Box<dyn std::error::Error>> {
+    let nominal = nominal(args, "--bag")?;
+    let opts = odocal::ros::bag::BagOptions {
+        topics: odocal::ros::bag::RosTopics {
+            joint_states: args.joint_states_topic.clone(),
+            ..Default::default()
+        },
+        left_joint: args.left_joint.clone(),
+        right_joint: args.right_joint.clone(),
+        ..Default::default()
+    };
+    let (recording, notes) = match reference.strip_prefix("tf:") {
+        Some(fixed) => {
+            let d = odocal::ros::bag::tf::read_tf_drive(bag, &opts, fixed, &args.base_frame)?;
+            (d.recording, d.notes)
+        }
+        None => {
+            let d = odocal::ros::bag::reference::read_pose_drive(bag, &opts, reference)?;
+            (d.recording, d.notes)
+        }
+    };
+    for note in &notes {
+        eprintln!("note: {note}");
+    }
+    let name = format!("{} {reference}", bag.display());
+    Ok((vec![(name, recording)], nominal))
+}
+
+/// What `odocal fit` fits: files, a bag, or data sets of one configuration.
 fn inputs(args: &Args) -> Result<Inputs, Box<dyn std::error::Error>> {
     if let (Some(w), Some(p)) = (&args.wheels, &args.poses) {
         let nominal = nominal(args, "--wheels and --poses")?;
@@ -228,31 +234,7 @@ fn inputs(args: &Args) -> Result<Inputs, Box<dyn std::error::Error>> {
         return Ok((vec![(p.display().to_string(), rec)], nominal));
     }
     if let (Some(bag), Some(reference)) = (&args.bag, &args.reference) {
-        let nominal = nominal(args, "--bag")?;
-        let opts = odocal::ros::bag::BagOptions {
-            topics: odocal::ros::bag::RosTopics {
-                joint_states: args.joint_states_topic.clone(),
-                ..Default::default()
-            },
-            left_joint: args.left_joint.clone(),
-            right_joint: args.right_joint.clone(),
-            ..Default::default()
-        };
-        let (recording, notes) = match reference.strip_prefix("tf:") {
-            Some(fixed) => {
-                let d = odocal::ros::bag::tf::read_tf_drive(bag, &opts, fixed, &args.base_frame)?;
-                (d.recording, d.notes)
-            }
-            None => {
-                let d = odocal::ros::bag::reference::read_pose_drive(bag, &opts, reference)?;
-                (d.recording, d.notes)
-            }
-        };
-        for note in &notes {
-            eprintln!("note: {note}");
-        }
-        let name = format!("{} {reference}", bag.display());
-        return Ok((vec![(name, recording)], nominal));
+        return bag_inputs(args, bag, reference);
     }
     if args.dataset.is_empty() {
         return Err("nothing to fit: give --wheels W.csv --poses P.csv (with \
