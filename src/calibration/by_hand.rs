@@ -26,8 +26,8 @@ pub struct HandInput {
     pub cw_xy_m: Option<Vec<[f64; 2]>>,
     /// End point of each counter-clockwise run (m), when measured.
     pub ccw_xy_m: Option<Vec<[f64; 2]>>,
-    /// One method, or every method (`None`).
-    pub method: Option<Method>,
+    /// One method by name, or `all`.
+    pub method: String,
     /// How the diameter correction is split between the wheels.
     pub convention: SplitConvention,
     /// Wheel diameter configured during the test (m): the corrected parameters are given.
@@ -107,6 +107,12 @@ fn check_ranges(input: &HandInput) -> Result<(), String> {
         let (lo, hi) = PHYSICAL_DIAMETER_M;
         crate::ranges::check_range("--wheel-diameter-m", d, lo, hi)?;
     }
+    Ok(())
+}
+
+/// Refuses a sensor noise no sensor has (checked after the runs, as `odocal estimate` always
+/// did: a count of positions that does not match the runs is named first).
+fn check_sigma(input: &HandInput) -> Result<(), String> {
     match input.heading_sigma_deg {
         // Below a millionth of a degree no sensor reads, and its square would underflow.
         Some(s) if !(s.is_finite() && (1e-6..=45.0).contains(&s)) => Err(format!(
@@ -129,6 +135,7 @@ pub fn estimate_by_hand(input: &HandInput) -> Result<HandReport, CalibrationErro
         ccw: runs(&input.ccw_heading_deg, input.ccw_xy_m.as_ref())
             .map_err(CalibrationError::OutOfRange)?,
     };
+    check_sigma(input).map_err(CalibrationError::OutOfRange)?;
     // A stated sensor noise is each run's noise: a ± is never below what it gives (a few runs'
     // scatter is often far below it by chance), and one run per direction still gets one.
     // One reading at each end of a run: the run's heading error has √2 times its noise.
@@ -141,7 +148,14 @@ pub fn estimate_by_hand(input: &HandInput) -> Result<HandReport, CalibrationErro
         }
     }
     let convention = input.convention;
-    let results: Vec<(Method, Result<Estimate, CalibrationError>)> = match input.method {
+    let method = match input.method.as_str() {
+        "all" => None,
+        name => Some(
+            name.parse::<Method>()
+                .map_err(|e| CalibrationError::OutOfRange(e.to_string()))?,
+        ),
+    };
+    let results: Vec<(Method, Result<Estimate, CalibrationError>)> = match method {
         None => {
             // Input no square test can produce is refused before anything is estimated.
             test.validate()?;
@@ -220,7 +234,7 @@ mod tests {
             ccw_heading_deg: vec![1.0, 1.1, 0.9],
             cw_xy_m: None,
             ccw_xy_m: None,
-            method: None,
+            method: "all".into(),
             convention: SplitConvention::LeftNominal,
             wheel_diameter_m: Some(0.15),
             heading_sigma_deg: Some(0.5),

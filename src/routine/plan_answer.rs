@@ -17,8 +17,8 @@ use std::fmt::Write as _;
 pub struct PlanRequest {
     /// The routine's settings (its shape flags applied).
     pub cfg: RoutineConfig,
-    /// The free floor, when given.
-    pub floor: Option<Space>,
+    /// The free floor as given, `WIDTH,LENGTH` (m), when given.
+    pub floor: Option<String>,
     /// The longest side to consider (m), instead of a floor.
     pub side_max_m: Option<f64>,
     /// Squares of exactly this side (m).
@@ -88,17 +88,32 @@ fn check(r: &PlanRequest) -> Result<(), String> {
     if let Some(t) = r.target_end_m {
         check_range("--target-end-m", t, 1e-6, 10.0)?;
     }
-    if let Some((d, n)) = r.wheel {
-        check_range("--wheel-diameter-m", d, 0.01, 2.0)?;
-        check_range("--counts-per-rev", n, 1.0, 1e9)?;
-    }
     Ok(())
+}
+
+/// `--floor-m WIDTH,LENGTH` (m).
+pub fn parse_floor(s: &str) -> Result<Space, String> {
+    let parts: Vec<&str> = s.split(',').map(str::trim).collect();
+    let [w, l] = parts.as_slice() else {
+        return Err(format!(
+            "--floor-m {s:?}: give WIDTH,LENGTH in metres, e.g. 5,9"
+        ));
+    };
+    let num = |v: &str| {
+        v.parse::<f64>()
+            .map_err(|_| format!("--floor-m {s:?}: {v:?} is not a number of metres"))
+    };
+    Ok(Space::Floor {
+        width_m: num(w)?,
+        length_m: num(l)?,
+    })
 }
 
 /// Plans `request`; an error names the flag to change.
 pub fn answer(request: PlanRequest) -> Result<PlanAnswer, Box<dyn std::error::Error>> {
     check(&request)?;
-    let space = match (request.floor, request.side_max_m, request.side_m) {
+    let floor = request.floor.as_deref().map(parse_floor).transpose()?;
+    let space = match (floor, request.side_max_m, request.side_m) {
         (floor, _, Some(side)) => {
             if let Some(floor) = floor {
                 side_fits(floor, side, request.footprint_m)?;
@@ -109,6 +124,10 @@ pub fn answer(request: PlanRequest) -> Result<PlanAnswer, Box<dyn std::error::Er
         (None, Some(s), None) => Space::MaxSide(s),
         (None, None, None) => return Err("give --floor-m W,L, --side-max-m or --side-m".into()),
     };
+    if let Some((d, n)) = request.wheel {
+        check_range("--wheel-diameter-m", d, 0.01, 2.0)?;
+        check_range("--counts-per-rev", n, 1.0, 1e9)?;
+    }
     let cfg = &request.cfg;
     cfg.validate()?;
     let setting = Setting {

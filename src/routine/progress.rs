@@ -13,6 +13,9 @@ pub struct RobotClock {
     pub counted_s: f64,
     /// Robot time this phase plans at the speed limits (s).
     pub planned_s: f64,
+    /// The same to the tenth of a second per plan and extension, as a bar counts it (s): the
+    /// total a bar shows.
+    pub bar_s: f64,
 }
 
 /// What to show for one event.
@@ -40,6 +43,11 @@ pub enum Shown {
     Nothing,
 }
 
+/// `s` to the tenth of a second, as a bar counts it: the total shown is the bar's.
+fn tenths(s: f64) -> f64 {
+    (s * 10.0).round() / 10.0
+}
+
 impl RobotClock {
     /// Counts `event` and says what to show for it.
     pub fn update(&mut self, event: &RoutineEvent) -> Shown {
@@ -50,11 +58,13 @@ impl RobotClock {
                 *self = RobotClock {
                     counted_s: 0.0,
                     planned_s: *robot_time_s,
+                    bar_s: tenths(*robot_time_s),
                 };
                 Shown::Phase(*robot_time_s)
             }
             RoutineEvent::Extend { robot_time_s, .. } => {
                 self.planned_s += robot_time_s;
+                self.bar_s += tenths(*robot_time_s);
                 Shown::Extend(*robot_time_s)
             }
             RoutineEvent::Motion {
@@ -75,7 +85,7 @@ impl RobotClock {
                     prefix: format!(
                         "{} of {}",
                         duration_text(self.counted_s),
-                        duration_text(self.planned_s)
+                        duration_text(self.bar_s)
                     ),
                     position_s: self.counted_s,
                 }

@@ -3,7 +3,6 @@
 use crate::args::ConventionArgs;
 use crate::out::print_json;
 use odocal::calibration::by_hand::{estimate_by_hand, HandInput};
-use odocal::calibration::Method;
 
 /// Arguments of `odocal estimate`.
 #[derive(Debug, clap::Args)]
@@ -78,10 +77,6 @@ fn parse_xy_list(s: &str) -> Result<XyList, String> {
 
 /// Runs `odocal estimate`.
 pub fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
-    let method = match args.method.as_str() {
-        "all" => None,
-        m => Some(m.parse::<Method>()?),
-    };
     let input = HandInput {
         side_m: args.side_m,
         wheelbase_m: args.wheelbase_m,
@@ -89,7 +84,7 @@ pub fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
         ccw_heading_deg: args.ccw_heading_deg,
         cw_xy_m: args.cw_xy_m.map(|l| l.0),
         ccw_xy_m: args.ccw_xy_m.map(|l| l.0),
-        method,
+        method: args.method,
         convention: args.convention.convention(),
         wheel_diameter_m: args.wheel_diameter_m,
         heading_sigma_deg: args.compass_sigma_deg,

@@ -4,7 +4,6 @@
 
 use crate::out::print_json;
 use crate::routine::ShapeFlags;
-use odocal::calibration::plan::Space;
 use odocal::calibration::HeadingKind;
 use odocal::routine::config::RoutineConfig;
 use odocal::routine::plan_answer::PlanRequest;
@@ -67,31 +66,13 @@ pub struct Args {
     json: bool,
 }
 
-fn parse_floor(s: &str) -> Result<Space, String> {
-    let parts: Vec<&str> = s.split(',').map(str::trim).collect();
-    let [w, l] = parts.as_slice() else {
-        return Err(format!(
-            "--floor-m {s:?}: give WIDTH,LENGTH in metres, e.g. 5,9"
-        ));
-    };
-    let num = |v: &str| {
-        v.parse::<f64>()
-            .map_err(|_| format!("--floor-m {s:?}: {v:?} is not a number of metres"))
-    };
-    Ok(Space::Floor {
-        width_m: num(w)?,
-        length_m: num(l)?,
-    })
-}
-
 /// Runs `odocal plan`.
 pub fn run(args: Args) -> CliResult {
-    let floor = args.floor_m.as_deref().map(parse_floor).transpose()?;
     let mut cfg = RoutineConfig::default();
     args.shape.apply(&mut cfg);
     let answer = odocal::routine::plan_answer::answer(PlanRequest {
         cfg,
-        floor,
+        floor: args.floor_m,
         side_max_m: args.side_max_m,
         side_m: args.side_m,
         heading_sigma_deg: args.heading_sigma_deg,

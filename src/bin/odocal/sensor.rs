@@ -253,7 +253,9 @@ pub async fn spin(args: SpinArgs) -> CliResult {
         gyro_scale_error: s,
     };
     if args.json {
-        println!("{}", serde_json::to_string_pretty(&outcome)?);
+        // Through a `Value`: its keys in the order every command's JSON has (sorted).
+        let value = serde_json::to_value(outcome)?;
+        println!("{}", serde_json::to_string_pretty(&value)?);
     } else {
         print!("{outcome}");
     }

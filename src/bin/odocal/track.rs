@@ -454,7 +454,6 @@ async fn live_session(
             );
         }
     })?;
-    flushed?;
     if outcome.cancelled && !args.json {
         println!(
             "stopped by Ctrl-C (or SIGTERM, SIGHUP){}",
@@ -465,6 +464,7 @@ async fn live_session(
             }
         );
     }
+    flushed?;
     Ok((t, configured, Some(b)))
 }
 
