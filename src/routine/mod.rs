@@ -1094,8 +1094,6 @@ pub fn check_output_dir(dir: &std::path::Path) -> Result<(), RoutineError> {
         .map_err(|e| fail(format!("a new file cannot be created there ({e})")))
 }
 
-pub use crate::base::write::RECONNECT_TIMEOUT;
-
 /// What the host knows of the robot's parameters after a failed run: the statement a partial
 /// report makes, read from the error [`run`] returned after its rollback.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
