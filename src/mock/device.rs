@@ -125,6 +125,25 @@ pub struct DeviceCounters {
     pub telemetry_over_bound: u64,
 }
 
+impl std::fmt::Display for DeviceCounters {
+    /// What the device did, in a sentence (`mock-device` says it when it stops).
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{} requests executed ({} retries answered again), {} of {} motions completed, {} \
+             STOP(s), {} watchdog trip(s), {} telemetry samples ({} not sent)",
+            self.executed_requests,
+            self.replayed_answers,
+            self.motions_completed,
+            self.motions_accepted,
+            self.stops,
+            self.watchdog_trips,
+            self.telemetry_samples,
+            self.telemetry_over_bound
+        )
+    }
+}
+
 /// Most events one step of device time ([`MockDevice::advance`]) returns; telemetry beyond it
 /// is skipped and counted.
 pub const MAX_EVENTS_PER_STEP: usize = 50_000;

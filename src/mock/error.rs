@@ -18,4 +18,7 @@ pub enum MockError {
     /// A fault specification (`corrupt=0.01,drop=0.05,…`) that cannot be used.
     #[error("faults: {0}")]
     Faults(String),
+    /// A setting the mock cannot simulate (the message names the flag and its range).
+    #[error("{0}")]
+    Setting(String),
 }

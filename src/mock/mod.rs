@@ -11,6 +11,7 @@ pub mod device;
 pub mod error;
 pub mod kit;
 pub mod nmea;
+pub mod options;
 pub mod pty;
 pub mod roboclaw;
 pub mod rosbridge;

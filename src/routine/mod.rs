@@ -14,6 +14,7 @@
 pub mod config;
 pub mod error;
 pub mod heading;
+pub mod overrides;
 pub mod plan_answer;
 pub mod planning;
 pub mod progress;

@@ -61,8 +61,8 @@ async fn stop_base(port: &str, baud: u32) {
     }
 }
 
-/// Runs `odocal conformance`: **moves the robot**.
-pub async fn run(args: Args) -> CliResult {
+/// The checks' options, the flags in their ranges.
+fn options(args: &Args) -> Result<Options, Box<dyn std::error::Error>> {
     let options = Options {
         max_speed_m_s: args.max_speed_m_s,
         time_scale: args.time_scale,
@@ -77,6 +77,12 @@ pub async fn run(args: Args) -> CliResult {
     if let Some(k) = args.time_scale {
         odocal::ranges::check_range("--time-scale", k, 1.0, 100.0)?;
     }
+    Ok(options)
+}
+
+/// Runs `odocal conformance`: **moves the robot**.
+pub async fn run(args: Args) -> CliResult {
+    let options = options(&args)?;
     crate::sensor::confirm(
         args.yes,
         &format!(
@@ -107,13 +113,19 @@ pub async fn run(args: Args) -> CliResult {
             return Err(format!("conformance stopped: {e} (the base was stopped)").into());
         }
     };
+    summarise(&report, &args)
+}
+
+/// The last line (or the JSON report), and an error naming each rule that failed.
+fn summarise(report: &conformance::Report, args: &Args) -> CliResult {
+    let json = args.json;
     let (pass, fail, skip) = (
         report.count(Outcome::Pass),
         report.count(Outcome::Fail),
         report.count(Outcome::Skip),
     );
     if json {
-        crate::out::print_json(&serde_json::to_value(&report)?)?;
+        crate::out::print_json(&serde_json::to_value(report)?)?;
     } else {
         println!(
             "{} ({}): {pass} passed, {fail} failed, {skip} skipped",

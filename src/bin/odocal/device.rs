@@ -1,6 +1,5 @@
 //! `odocal mock-device`, `params`, `status` and `heading`: the device-facing commands.
 
-use crate::args::SIM_HEADING_SIGMA_DEG;
 use crate::out::{print_json, print_params};
 use clap::Subcommand;
 use odocal::base::write::{
@@ -8,9 +7,7 @@ use odocal::base::write::{
 };
 use odocal::hal::{open_port, Client};
 use odocal::kinematics::WheelParams;
-use odocal::mock::{
-    lock, spawn_pty, CompassConvention, FaultConfig, MockConfig, MockDevice, TimeMode,
-};
+use odocal::mock::{lock, spawn_pty, MockDevice, TimeMode};
 use odocal::protocol::message::ParamSource;
 use odocal::spec::DriveSpec;
 use serde_json::json;
@@ -23,70 +20,20 @@ type CliResult = Result<(), Box<dyn std::error::Error>>;
 #[derive(Debug, clap::Args)]
 pub struct MockArgs {
     #[command(flatten)]
-    truth: crate::args::TrueRobotArgs,
-    /// Factory wheel diameter (m).
-    #[arg(long, default_value_t = 0.15)]
-    wheel_diameter_m: f64,
-    /// Factory wheelbase (m).
-    #[arg(long, default_value_t = 0.39)]
-    wheelbase_m: f64,
-    /// Encoder counts per wheel revolution.
-    #[arg(long, default_value_t = 4096.0)]
-    counts_per_rev: f64,
-    /// The simulated compass's noise per reading (deg; σ).
-    #[arg(long = "heading-sigma-deg", alias = "compass-sigma-deg", default_value_t = SIM_HEADING_SIGMA_DEG)]
-    compass_sigma_deg: f64,
-    /// Constant compass bias (deg).
-    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
-    compass_bias_deg: f64,
-    /// Report headings clockwise-positive (a misconfigured firmware) instead of as the spec says.
-    #[arg(long)]
-    clockwise_compass: bool,
-    /// Seed of the device's random draws.
-    #[arg(long, default_value_t = 1)]
-    seed: u64,
-    /// Run the device's clock this many times faster than the wall clock (1: real time, what
-    /// `conformance` needs) instead of in virtual time (motions end the moment they are
-    /// accepted; what `calibrate` on the mock is quickest with).
-    #[arg(long = "time-scale", alias = "real-time")]
-    real_time: Option<f64>,
-    /// Keep the non-volatile parameter copy in this file (survives restarts).
-    #[arg(long)]
-    storage: Option<PathBuf>,
+    device: odocal::mock::options::DeviceOptions,
     /// Also write the terminal's path to this file.
     #[arg(long)]
     link: Option<PathBuf>,
-    /// Faults, e.g. "corrupt=0.01,drop=0.05,latency-ms=5,disconnect-after=200,busy-every=7".
-    #[arg(long)]
-    faults: Option<FaultConfig>,
     /// Serve until Ctrl-C only (by default closing stdin also stops the device).
     #[arg(long)]
     ignore_stdin: bool,
     #[command(flatten)]
     compass: crate::args::MockCompassArgs,
-    #[command(flatten)]
-    sensor: crate::args::HeadingModelArgs,
 }
 
 /// Runs `odocal mock-device`.
 pub async fn mock_device(args: MockArgs) -> CliResult {
-    let nominal =
-        WheelParams::nominal(args.wheel_diameter_m, args.wheelbase_m, args.counts_per_rev);
-    args.truth.check()?;
-    let mut cfg = MockConfig::with_ratios(nominal, args.truth.true_eb, args.truth.true_ed)?;
-    cfg.noise.compass_sigma_rad = args.compass_sigma_deg.to_radians();
-    cfg.noise.compass_bias_rad = args.compass_bias_deg.to_radians();
-    cfg.heading_model = args.sensor.model()?;
-    cfg.seed = args.seed;
-    cfg.storage_path = args.storage;
-    if args.clockwise_compass {
-        cfg.compass = CompassConvention::Clockwise;
-    }
-    let time = match args.real_time {
-        Some(scale) if scale.is_finite() && scale > 0.0 => TimeMode::RealTime { scale },
-        Some(scale) => return Err(format!("--time-scale must be > 0, got {scale}").into()),
-        None => TimeMode::Virtual,
-    };
+    let (cfg, time) = args.device.config()?;
     let device = MockDevice::new(cfg)?;
     if let Some(why) = device.storage_discarded() {
         eprintln!(
@@ -95,7 +42,8 @@ pub async fn mock_device(args: MockArgs) -> CliResult {
         );
     }
     let device = Arc::new(Mutex::new(device));
-    let server = spawn_pty(device.clone(), time, args.faults.unwrap_or_default())?;
+    let faults = args.device.faults.clone().unwrap_or_default();
+    let server = spawn_pty(device.clone(), time, faults)?;
     println!("{}", server.path);
     let scale = match time {
         TimeMode::RealTime { scale } => scale,
@@ -114,26 +62,10 @@ pub async fn mock_device(args: MockArgs) -> CliResult {
             TimeMode::Virtual => "virtual time".to_string(),
             TimeMode::RealTime { scale } => format!("real time ×{scale}"),
         },
-        if args.ignore_stdin {
-            ""
-        } else {
-            " or closing stdin"
-        }
+        crate::args::or_stdin(args.ignore_stdin)
     );
     crate::args::serve_until_stopped(args.ignore_stdin).await;
-    let counters = lock(&device).counters();
-    eprintln!(
-        "mock device stopped: {} requests executed ({} retries answered again), {} of {} \
-         motions completed, {} STOP(s), {} watchdog trip(s), {} telemetry samples ({} not sent)",
-        counters.executed_requests,
-        counters.replayed_answers,
-        counters.motions_completed,
-        counters.motions_accepted,
-        counters.stops,
-        counters.watchdog_trips,
-        counters.telemetry_samples,
-        counters.telemetry_over_bound
-    );
+    eprintln!("mock device stopped: {}", lock(&device).counters());
     if let Some(link) = &args.link {
         let _ = std::fs::remove_file(link);
     }

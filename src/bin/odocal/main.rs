@@ -173,7 +173,29 @@ fn main() -> ExitCode {
         Ok(cli) => cli,
         Err(e) => e.exit(),
     };
-    let result = match cli.command {
+    let code = match dispatch(cli.command) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e}");
+            ExitCode::FAILURE
+        }
+    };
+    // A signal held while a store was written: the write ended (said above), now leave as
+    // the signal asked.
+    let code = match prompt::deferred_signal() {
+        Some(name) => {
+            eprintln!("{name} came during the write, which was finished first: leaving");
+            ExitCode::from(130)
+        }
+        None => code,
+    };
+    peak_memory();
+    code
+}
+
+/// Runs the command.
+fn dispatch(chosen: Command) -> Result<(), Box<dyn std::error::Error>> {
+    match chosen {
         Command::Demo(args) => block_on(routine::demo(args)),
         Command::Calibrate(args) => block_on(routine::calibrate(args)),
         Command::Plan(args) => plan::run(args),
@@ -203,25 +225,7 @@ fn main() -> ExitCode {
             Ok(())
         }
         Command::Man { out } => man(out),
-    };
-    let code = match result {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(e) => {
-            eprintln!("error: {e}");
-            ExitCode::FAILURE
-        }
-    };
-    // A signal held while a store was written: the write ended (said above), now leave as
-    // the signal asked.
-    let code = match prompt::deferred_signal() {
-        Some(name) => {
-            eprintln!("{name} came during the write, which was finished first: leaving");
-            ExitCode::from(130)
-        }
-        None => code,
-    };
-    peak_memory();
-    code
+    }
 }
 
 /// With `ODOCAL_PEAK_MEMORY` set, the last line on standard error is this process's peak

@@ -3,9 +3,9 @@
 //! distance, and the predicted standard errors ([`odocal::calibration::plan`]).
 
 use crate::out::print_json;
-use crate::routine::ShapeFlags;
 use odocal::calibration::HeadingKind;
 use odocal::routine::config::RoutineConfig;
+use odocal::routine::overrides::Shape;
 use odocal::routine::plan_answer::PlanRequest;
 use odocal::routine::planning::DEFAULT_FOOTPRINT_M;
 
@@ -60,7 +60,7 @@ pub struct Args {
     #[arg(long)]
     target_end_m: Option<f64>,
     #[command(flatten)]
-    shape: ShapeFlags,
+    shape: Shape,
     /// Print the plan as one JSON object.
     #[arg(long)]
     json: bool,

@@ -1,6 +1,5 @@
 //! `odocal bag` (and the ROS flags other commands share): calibrate from a ROS bag.
 
-use crate::args::SIM_HEADING_SIGMA_DEG;
 use crate::out::print_json;
 use odocal::kinematics::SplitConvention;
 use odocal::ros::bag::{self, BagOptions, RosTopics};
@@ -153,110 +152,44 @@ pub struct MockArgs {
     #[arg(long = "tcp-port", alias = "port", default_value_t = 9090)]
     port: u16,
     #[command(flatten)]
-    truth: crate::args::TrueRobotArgs,
-    /// The simulated heading sensor's (IMU's) noise per reading (deg; σ).
-    #[arg(long = "heading-sigma-deg", alias = "compass-sigma-deg", default_value_t = SIM_HEADING_SIGMA_DEG)]
-    compass_sigma_deg: f64,
-    /// Robot seconds per wall-clock second (1: real time).
-    #[arg(long, default_value_t = 1.0)]
-    time_scale: f64,
-    /// Velocity topic the controller obeys.
-    #[arg(long, default_value = "/cmd_vel")]
-    cmd_vel: String,
-    /// The controller expects geometry_msgs/TwistStamped there (Jazzy's default), not Twist.
-    #[arg(long = "twist-stamped", alias = "cmd-vel-stamped")]
-    cmd_vel_stamped: bool,
-    /// How /joint_states carries `effort`, as real robots send it: empty, zero, null (NaN as
-    /// rosbridge writes it in a variable-length array) or nan (the bare token NaN, also in the
-    /// IMU's fixed-size covariance: rosbridge_suite #916).
-    #[arg(long, default_value = "empty")]
-    effort: odocal::mock::rosbridge::EffortStyle,
+    robot: odocal::mock::options::RosOptions,
     /// Keep serving when stdin closes (stop with Ctrl-C only).
     #[arg(long)]
     ignore_stdin: bool,
-    /// Also publish a localization on this topic (geometry_msgs/PoseWithCovarianceStamped, as
-    /// AMCL's /amcl_pose): 10 Hz, 3 mm and 0.3° of noise, 1 % jumps, in a world frame of its
-    /// own; for `odocal track --reference` and `odocal fit`.
-    #[arg(long)]
-    localization: Option<String>,
-    /// Where the localized frame sits on the robot: X_M,Y_M,YAW_DEG in base_link (a
-    /// motion-capture body's markers, a lidar) [default: base_link itself].
-    #[arg(long, requires = "localization", allow_hyphen_values = true)]
-    localization_mount: Option<String>,
     #[command(flatten)]
     compass: crate::args::MockCompassArgs,
-    #[command(flatten)]
-    sensor: crate::args::HeadingModelArgs,
 }
 
 /// Runs `odocal mock-rosbridge`.
 pub async fn mock(args: MockArgs) -> Result<(), Box<dyn std::error::Error>> {
-    use odocal::mock::rosbridge::{MockRosConfig, MockRosbridge};
-    args.truth.check()?;
-    odocal::ranges::check_ranges(&[
-        ("--heading-sigma-deg", args.compass_sigma_deg, 0.0, 10.0),
-        ("--time-scale", args.time_scale, 0.01, 100.0),
-    ])?;
+    use odocal::mock::rosbridge::MockRosbridge;
+    let o = &args.robot;
+    o.truth.check()?;
     let controller = DiffDriveConfig::load(&args.ros_yaml, &args.controller)?;
-    let mut cfg = MockRosConfig::with_ratios(controller, args.truth.true_eb, args.truth.true_ed)?;
-    cfg.noise.compass_sigma_rad = args.compass_sigma_deg.to_radians();
-    cfg.heading_model = args.sensor.model()?;
-    cfg.time_scale = args.time_scale;
-    cfg.cmd_vel = args.cmd_vel.clone();
-    cfg.cmd_vel_stamped = args.cmd_vel_stamped;
-    cfg.effort = args.effort;
-    if let Some(topic) = &args.localization {
-        let mut loc = odocal::mock::rosbridge::MockLocalization::amcl();
-        loc.topic.clone_from(topic);
-        if let Some(m) = &args.localization_mount {
-            let v: Vec<f64> = m
-                .split(',')
-                .map(|x| x.trim().parse::<f64>())
-                .collect::<Result<_, _>>()
-                .map_err(|_| format!("--localization-mount {m:?}: expected X_M,Y_M,YAW_DEG"))?;
-            let [x, y, yaw] = v[..] else {
-                return Err(format!("--localization-mount {m:?}: expected X_M,Y_M,YAW_DEG").into());
-            };
-            odocal::ranges::check_ranges(&[
-                ("--localization-mount x", x, -5.0, 5.0),
-                ("--localization-mount y", y, -5.0, 5.0),
-                ("--localization-mount yaw", yaw, -180.0, 180.0),
-            ])?;
-            loc.mount = odocal::calibration::pose_reference::Pose2 {
-                x,
-                y,
-                theta: yaw.to_radians(),
-            };
-        }
-        cfg.localization = Some(loc);
-    }
+    let cfg = o.config(controller)?;
     let server =
         MockRosbridge::spawn(cfg, std::net::SocketAddr::from(([127, 0, 0, 1], args.port))).await?;
     println!("{}", server.url());
     let _compass = args
         .compass
-        .spawn(server.separate_compass(), args.time_scale)?;
+        .spawn(server.separate_compass(), o.time_scale)?;
     eprintln!(
         "mock rosbridge: a ROS 2 robot with diff_drive_controller (true E_b {}, E_d {}) on {}; \
          /joint_states, /odom, /imu{}; obeys {} ({}). Ctrl-C{} stops it.",
-        args.truth.true_eb,
-        args.truth.true_ed,
+        o.truth.true_eb,
+        o.truth.true_ed,
         server.url(),
-        args.localization
+        o.localization
             .as_deref()
             .map(|t| format!(", {t}"))
             .unwrap_or_default(),
-        args.cmd_vel,
-        if args.cmd_vel_stamped {
+        o.cmd_vel,
+        if o.cmd_vel_stamped {
             "TwistStamped"
         } else {
             "Twist"
         },
-        if args.ignore_stdin {
-            ""
-        } else {
-            " or closing stdin"
-        }
+        crate::args::or_stdin(args.ignore_stdin)
     );
     crate::args::serve_until_stopped(args.ignore_stdin).await;
     Ok(())

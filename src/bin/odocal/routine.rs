@@ -5,10 +5,9 @@ use crate::out::print_json;
 use crate::robot::RobotArgs;
 use indicatif::{ProgressBar, ProgressStyle};
 use odocal::base::Base;
-use odocal::calibration::Method;
 use odocal::demo::{run_demo, DemoOptions};
-use odocal::kinematics::SplitConvention;
-use odocal::routine::config::{RoutineConfig, WritePolicy};
+use odocal::routine::config::RoutineConfig;
+use odocal::routine::overrides::Overrides;
 use odocal::routine::progress::{RobotClock, Shown};
 use odocal::routine::report::Report;
 use odocal::routine::{run, RoutineEvent, RoutineUi};
@@ -187,7 +186,7 @@ pub struct DemoArgs {
     #[arg(long)]
     target_ed_std: Option<f64>,
     #[command(flatten)]
-    sensor: crate::args::HeadingModelArgs,
+    sensor: odocal::mock::options::SensorErrors,
 }
 
 /// Runs `odocal demo`.
@@ -236,195 +235,25 @@ pub async fn demo(args: DemoArgs) -> CliResult {
     finish(&report, Some(&args.report_dir), args.json)
 }
 
-/// The settings that decide what a calibration drives and costs: `calibrate` and `plan` take
-/// them alike (they override a routine file).
-#[derive(Debug, Clone, clap::Args)]
-pub struct ShapeFlags {
-    /// Squares per direction per round [default: 5].
-    #[arg(long)]
-    runs: Option<usize>,
-    /// Straight-leg speed limit (m/s, at most 1.0) [default: 0.2].
-    #[arg(long)]
-    max_speed_m_s: Option<f64>,
-    /// Turn-rate limit (rad/s, at most 3.0) [default: 0.5].
-    #[arg(long)]
-    max_rate_rad_s: Option<f64>,
-    /// Pause before each heading reading for the base to settle (s) [default: 0.5].
-    #[arg(long)]
-    settle_s: Option<f64>,
-    /// Heading readings averaged at rest before and after each square [default: 5].
-    #[arg(long)]
-    heading_samples: Option<usize>,
-    /// Estimator to write: umbmark, lee, heading-only, jung-chung, exact, legs or
-    /// matched-legs [default: with the heading along the legs, matched-legs for a compass or
-    /// an IMU of unknown kind, legs for a gyro or a reference; else exact].
-    #[arg(long)]
-    method: Option<Method>,
-    /// Skip the compass swing (two slow full turns in place each way before the squares,
-    /// which measure the compass's deviation and remove it from every reading).
-    #[arg(long)]
-    no_swing: bool,
-    /// Verification squares per direction [default: 3].
-    #[arg(long)]
-    verification_runs: Option<usize>,
-    /// Most calibration rounds [default: 3].
-    #[arg(long)]
-    max_rounds: Option<usize>,
-    /// Drive squares in clockwise and counter-clockwise pairs until the written estimate's
-    /// stated standard error of E_b is at most this (--runs is then unused); a later round
-    /// only when the first wrote, stopping once it confirms (its squares are the verification).
-    #[arg(long)]
-    target_eb_std: Option<f64>,
-    /// As --target-eb-std, for E_d (both when both are given).
-    #[arg(long)]
-    target_ed_std: Option<f64>,
-    /// With a target, the most squares per direction a round may drive [default: 20].
-    #[arg(long)]
-    max_runs: Option<usize>,
-}
-
-impl ShapeFlags {
-    /// Sets what the flags give.
-    pub fn apply(&self, cfg: &mut RoutineConfig) {
-        macro_rules! set {
-            ($($f:ident => $t:ident),*) => { $(if let Some(v) = self.$f { cfg.$t = v; })* };
-        }
-        set!(runs => runs_per_direction, max_speed_m_s => max_speed_m_s,
-             max_rate_rad_s => max_rate_rad_s, verification_runs => verification_runs,
-             max_rounds => max_rounds, settle_s => settle_s,
-             heading_samples => heading_samples, max_runs => max_runs_per_direction);
-        for (flag, setting) in [
-            (self.target_eb_std, &mut cfg.target_e_b_std),
-            (self.target_ed_std, &mut cfg.target_e_d_std),
-        ] {
-            if flag.is_some() {
-                *setting = flag;
-            }
-        }
-        if self.method.is_some() {
-            cfg.method = self.method;
-        }
-        cfg.swing &= !self.no_swing;
-    }
-}
-
 /// Routine settings that can be given as flags (they override a routine file).
 #[derive(Debug, Clone, clap::Args)]
 pub struct RoutineFlags {
-    /// Square side (m) [default: 4].
-    #[arg(long)]
-    side_m: Option<f64>,
     #[command(flatten)]
-    shape: ShapeFlags,
-    /// Do not turn back to the first square's heading before each square.
-    #[arg(long)]
-    no_realign: bool,
-    /// The gyro's scale error as `odocal spin` measured it (0.01: the gyro reads 1 % more
-    /// than every turn); removed from every heading before estimating.
-    #[arg(long, allow_hyphen_values = true)]
-    gyro_scale_error: Option<f64>,
-    /// Diameter split for estimation and write-back: left-nominal, mean-preserving or
-    /// measured-scale:COMMANDED_M,MEASURED_M [default: left-nominal].
-    #[arg(long)]
-    convention: Option<SplitConvention>,
-    /// Straight-line check: commanded distance (m); with --straight-measured-m.
-    #[arg(long, requires = "straight_measured_m")]
-    straight_commanded_m: Option<f64>,
-    /// Straight-line check: measured distance (m).
-    #[arg(long, requires = "straight_commanded_m")]
-    straight_measured_m: Option<f64>,
-    /// Also stop when |E_b − 1| and |E_d − 1| are below this [default: stop when a round's
-    /// correction is not significant (within two standard errors) or would change the heading
-    /// by less than 0.1° per square].
-    #[arg(long)]
-    tolerance: Option<f64>,
-    /// Estimate and report only; write nothing (with --yes: move without asking, still write
-    /// nothing).
-    #[arg(long)]
-    dry_run: bool,
-    /// Answer yes to every question: move, and write unless --dry-run.
-    #[arg(long)]
-    yes: bool,
-    /// Refuse to write any parameter changed by more than this fraction, at most 0.25 unless
-    /// --allow-large-change [default: 0.1; 1.0 with --allow-large-change].
-    #[arg(long)]
-    max_change: Option<f64>,
-    /// Keep the written parameters even when verification does not show them clearly better
-    /// (by default they are restored and odocal exits non-zero).
-    #[arg(long)]
-    keep_worse: bool,
-    /// Allow changes of up to 100 % (skid-steer robots need wheelbase multipliers of 1.5–1.9);
-    /// asks you to type LARGE unless --yes.
-    #[arg(long)]
-    allow_large_change: bool,
-    /// Where to write the backup of the robot's parameters (and a partial report if the run
-    /// stops) [default: this run's report directory; without one, beside a profile or YAML,
-    /// else the current directory].
-    #[arg(long)]
-    backup_dir: Option<PathBuf>,
-    /// Where to write report.json, report.md, report.html and the plots (a new directory
-    /// beside an earlier report, never over it) [default: odocal-report on a robot; none on
-    /// the simulated one].
-    #[arg(long)]
-    report_dir: Option<PathBuf>,
+    set: Overrides,
     /// Print the whole report as one JSON object.
     #[arg(long)]
     json: bool,
 }
 
 impl RoutineFlags {
-    fn apply(&self, cfg: &mut RoutineConfig) -> Result<(), Box<dyn std::error::Error>> {
-        if let Some(s) = self.side_m {
-            cfg.side_m = s;
-        }
-        self.shape.apply(cfg);
-        if let Some(t) = self.tolerance {
-            cfg.tolerance = Some(t);
-        }
-        cfg.keep_worse |= self.keep_worse;
-        if let Some(g) = self.gyro_scale_error {
-            cfg.gyro_scale_error = Some(g);
-        }
-        cfg.realign &= !self.no_realign;
-        if self.allow_large_change {
-            cfg.allow_large_change = true;
-            cfg.max_change = self.max_change.unwrap_or(1.0);
-            if !self.yes {
-                let typed = crate::prompt::answer(&format!(
-                    "--allow-large-change lets odocal write parameters up to {:.0} % away from \
-                     what the robot holds now. Type LARGE to allow it:",
-                    100.0 * cfg.max_change
-                ))?;
-                if typed != "LARGE" {
-                    return Err("large changes not confirmed (type LARGE, or give --yes)".into());
-                }
+    /// Applies the flags, asking for LARGE first when --allow-large-change comes without --yes.
+    fn apply(&self, cfg: &mut RoutineConfig) -> CliResult {
+        self.set.apply(cfg)?;
+        if let Some(question) = self.set.needs_large_confirmation(cfg) {
+            if crate::prompt::answer(&question)? != "LARGE" {
+                return Err("large changes not confirmed (type LARGE, or give --yes)".into());
             }
-        } else if let Some(m) = self.max_change {
-            cfg.max_change = m;
         }
-        if let Some(c) = self.convention {
-            cfg.convention = c;
-        }
-        if let (Some(commanded_m), Some(measured_m)) =
-            (self.straight_commanded_m, self.straight_measured_m)
-        {
-            cfg.convention = SplitConvention::MeasuredScale {
-                commanded_m,
-                measured_m,
-            };
-        }
-        if self.dry_run {
-            cfg.write_back = WritePolicy::DryRun;
-        } else if self.yes {
-            cfg.write_back = WritePolicy::Yes;
-        }
-        if let Some(d) = &self.report_dir {
-            cfg.report_dir = Some(d.clone());
-        }
-        if let Some(d) = &self.backup_dir {
-            cfg.backup_dir = Some(d.clone());
-        }
-        cfg.validate()?;
         Ok(())
     }
 }
@@ -483,7 +312,7 @@ async fn run_on(mut cfg: RoutineConfig, spec: BaseSpec, flags: &RoutineFlags) ->
         );
         eprintln!("{}", connected(&base));
     }
-    let mut ui = TerminalUi::new(flags.json, flags.yes);
+    let mut ui = TerminalUi::new(flags.json, flags.set.yes);
     let token =
         crate::prompt::ctrl_c_token(Some("stopping the robot and restoring the parameters…"));
     let drive = base.drive.clone();
@@ -504,7 +333,7 @@ async fn run_simulated(mut cfg: RoutineConfig, flags: &RoutineFlags) -> CliResul
         routine: cfg.clone(),
         ..DemoOptions::default()
     };
-    let mut ui = TerminalUi::new(flags.json, flags.yes);
+    let mut ui = TerminalUi::new(flags.json, flags.set.yes);
     let token =
         crate::prompt::ctrl_c_token(Some("stopping the robot and restoring the parameters…"));
     let (report, _) = match run_demo(&opts, &mut ui, &token).await {

@@ -91,6 +91,38 @@ fn check_rate(rate_rad_s: f64) -> CliResult {
     Err(format!("--max-rate-rad-s {rate_rad_s}: must be in (0, 3]").into())
 }
 
+/// `fut`, the robot's motion, unless a signal comes first: then the robot is stopped.
+async fn or_stopped<T>(
+    base: &odocal::base::Base,
+    fut: impl std::future::Future<Output = T>,
+) -> Result<T, Box<dyn std::error::Error>> {
+    tokio::select! {
+        r = fut => Ok(r),
+        name = crate::prompt::signal() => {
+            let _ = base.drive.stop().await;
+            let name = name.unwrap_or("a signal");
+            Err(format!("interrupted ({name}): the robot was stopped").into())
+        }
+    }
+}
+
+/// Keeps the curve (what was already removed and what the swing found) in the profile at
+/// `path`, through the write service (backed up first); returns the outcome with where.
+async fn save_curve(
+    base: &odocal::base::Base,
+    path: &std::path::Path,
+    mut outcome: SwingOutcome,
+) -> Result<SwingOutcome, Box<dyn std::error::Error>> {
+    let kind = base.heading.kind();
+    let section = HeadingSection {
+        kind: (kind == HeadingKind::Magnetic).then_some(kind),
+        compass_deviation_deg: Some(outcome.total_deg()),
+    };
+    let backup = save_heading(path, &section).await?;
+    outcome.saved = Some((path.to_path_buf(), backup));
+    Ok(outcome)
+}
+
 /// Runs `odocal swing`: **moves the robot** (turns in place).
 pub async fn swing(args: SwingArgs) -> CliResult {
     check_rate(args.rate_rad_s)?;
@@ -123,33 +155,21 @@ pub async fn swing(args: SwingArgs) -> CliResult {
         // Not measured here: the residual is judged against a fixed allowance.
         noise_std_rad: None,
     };
-    let fit = tokio::select! {
-        r = run_swing(&base, &cmd) => r?,
-        name = crate::prompt::signal() => {
-            let _ = base.drive.stop().await;
-            let name = name.unwrap_or("a signal");
-            return Err(format!("interrupted ({name}): the robot was stopped").into());
-        }
-    }
-    .map_err(|why| match why {
-        odocal::routine::swing::NoSwing::Refused(why) => {
-            format!("the swing's fit was refused, nothing was saved: {why}")
-        }
-        why => format!("no swing: {why}"),
-    })?;
+    let fit = or_stopped(&base, run_swing(&base, &cmd))
+        .await??
+        .map_err(|why| match why {
+            odocal::routine::swing::NoSwing::Refused(why) => {
+                format!("the swing's fit was refused, nothing was saved: {why}")
+            }
+            why => format!("no swing: {why}"),
+        })?;
     let mut outcome = SwingOutcome {
         fit,
         applied,
         saved: None,
     };
     if let Some(path) = &save_to {
-        let kind = base.heading.kind();
-        let section = HeadingSection {
-            kind: (kind == HeadingKind::Magnetic).then_some(kind),
-            compass_deviation_deg: Some(outcome.total_deg()),
-        };
-        let backup = save_heading(path, &section).await?;
-        outcome.saved = Some((path.clone(), backup));
+        outcome = save_curve(&base, path, outcome).await?;
     }
     if args.json {
         println!("{}", serde_json::to_string_pretty(&outcome.json())?);
@@ -182,8 +202,8 @@ async fn past_mark_deg(
     })
 }
 
-/// Runs `odocal spin`: **moves the robot** (turns in place), then asks where it stopped.
-pub async fn spin(args: SpinArgs) -> CliResult {
+/// `spin`'s flags, checked before anything is opened.
+fn check_spin(args: &SpinArgs) -> CliResult {
     check_rate(args.rate_rad_s)?;
     if !(1..=20).contains(&args.turns.unsigned_abs()) {
         return Err(format!("--turns {}: must be 1..=20 either way", args.turns).into());
@@ -195,20 +215,35 @@ pub async fn spin(args: SpinArgs) -> CliResult {
         )
         .into());
     }
+    Ok(())
+}
+
+/// `spin --reference`, opened, and its heading before the turn.
+async fn open_reference(
+    args: &SpinArgs,
+) -> Result<
+    Option<(std::sync::Arc<dyn odocal::base::HeadingSource>, f64)>,
+    Box<dyn std::error::Error>,
+> {
+    let Some(text) = &args.reference else {
+        return Ok(None);
+    };
+    let r = text
+        .parse::<HeadingSpec>()?
+        .open()
+        .await?
+        .ok_or("--reference: give a heading source of its own (nmea:PORT…), not drive")?;
+    let before = mean_heading(r.as_ref(), args.heading_samples).await?;
+    Ok(Some((r, before)))
+}
+
+/// Runs `odocal spin`: **moves the robot** (turns in place), then asks where it stopped.
+pub async fn spin(args: SpinArgs) -> CliResult {
+    check_spin(&args)?;
     let base = args.robot.spec(RobotSection::default())?.open().await?;
-    let reference = match &args.reference {
-        Some(text) => Some(
-            text.parse::<HeadingSpec>()?
-                .open()
-                .await?
-                .ok_or("--reference: give a heading source of its own (nmea:PORT…), not drive")?,
-        ),
-        None => None,
-    };
-    let reference_before = match &reference {
-        Some(r) => Some(mean_heading(r.as_ref(), args.heading_samples).await?),
-        None => None,
-    };
+    let reference = open_reference(&args).await?;
+    let reference_before = reference.as_ref().map(|r| r.1);
+    let reference = reference.map(|r| r.0);
     confirm(
         args.yes,
         &format!(
@@ -227,14 +262,8 @@ pub async fn spin(args: SpinArgs) -> CliResult {
             args.rate_rad_s
         ),
     )?;
-    let record = tokio::select! {
-        r = run_spin(&base, args.turns, args.rate_rad_s, args.heading_samples) => r?,
-        name = crate::prompt::signal() => {
-            let _ = base.drive.stop().await;
-            let name = name.unwrap_or("a signal");
-            return Err(format!("interrupted ({name}): the robot was stopped").into());
-        }
-    };
+    let spin = run_spin(&base, args.turns, args.rate_rad_s, args.heading_samples);
+    let record = or_stopped(&base, spin).await??;
     let past_deg = past_mark_deg(&args, reference.as_deref(), reference_before).await?;
     let s = scale_from_spin(
         record.heading_before_rad,

@@ -74,7 +74,7 @@ pub struct Args {
     bag: Option<std::path::PathBuf>,
     /// How the --write-bag's IMU errs (a deviation, a gyro's scale, a late or lossy stream).
     #[command(flatten)]
-    sensor: crate::args::HeadingModelArgs,
+    sensor: odocal::mock::options::SensorErrors,
     /// Instead of squares, normal driving under a pose reference (5 minutes; the reference at
     /// 10 Hz, mounted off the axle, 60 ms late, noisy, 1 % outliers), fitted as `odocal fit`
     /// does: the truth against the fit.
@@ -124,8 +124,8 @@ fn write_bag(args: &Args, path: &std::path::Path) -> Result<(), Box<dyn std::err
     Ok(())
 }
 
-/// Runs `odocal simulate`.
-pub fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
+/// Every flag in its range, before anything is simulated.
+fn check(args: &Args) -> Result<(), Box<dyn std::error::Error>> {
     use odocal::ranges::check_range as in_range;
     // Bounds before anything is simulated: memory and time grow with runs × trials.
     in_range("--runs", args.runs as f64, 1.0, 1000.0)?;
@@ -152,6 +152,33 @@ pub fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
                 .into(),
         );
     }
+    Ok(())
+}
+
+/// The study the flags describe.
+fn study_config(args: &Args) -> StudyConfig {
+    StudyConfig {
+        nominal: WheelParams::nominal(args.wheel_diameter_m, args.wheelbase_m, args.counts_per_rev),
+        true_e_b: args.true_eb,
+        true_e_d: args.true_ed,
+        truth_split: args.truth_split,
+        side_m: args.side_m,
+        lee_side_m: args.lee_side_m,
+        runs: args.runs,
+        convention: args.convention.convention(),
+        noise: NoiseModel {
+            compass_sigma_rad: args.compass_sigma_deg.to_radians(),
+            compass_bias_rad: args.compass_bias_deg.to_radians(),
+            quantise_encoders: args.quantise,
+            wheel_slip_sigma: args.slip_sigma,
+            position_sigma_m: args.position_sigma_m,
+        },
+    }
+}
+
+/// Runs `odocal simulate`.
+pub fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
+    check(&args)?;
     if args.drive.drive {
         let nominal = WheelParams::nominal(args.wheel_diameter_m, args.wheelbase_m, 1.0);
         let truth =
@@ -168,23 +195,7 @@ pub fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
     if let Some(path) = &args.bag {
         return write_bag(&args, path);
     }
-    let cfg = StudyConfig {
-        nominal: WheelParams::nominal(args.wheel_diameter_m, args.wheelbase_m, args.counts_per_rev),
-        true_e_b: args.true_eb,
-        true_e_d: args.true_ed,
-        truth_split: args.truth_split,
-        side_m: args.side_m,
-        lee_side_m: args.lee_side_m,
-        runs: args.runs,
-        convention: args.convention.convention(),
-        noise: NoiseModel {
-            compass_sigma_rad: args.compass_sigma_deg.to_radians(),
-            compass_bias_rad: args.compass_bias_deg.to_radians(),
-            quantise_encoders: args.quantise,
-            wheel_slip_sigma: args.slip_sigma,
-            position_sigma_m: args.position_sigma_m,
-        },
-    };
+    let cfg = study_config(&args);
     let (studies, summaries) = run_trials(&cfg, args.seed, args.trials)?;
     let study = Study {
         config: &cfg,

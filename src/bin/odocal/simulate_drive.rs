@@ -27,6 +27,24 @@ pub struct DriveArgs {
     write_csv: Option<PathBuf>,
 }
 
+/// `--write-csv`: the drive as `odocal fit`'s two files in a new directory.
+fn write_csv(
+    dir: &std::path::Path,
+    recording: &odocal::calibration::pose_reference::PoseRecording,
+) -> Result<(), Box<dyn std::error::Error>> {
+    if dir.exists() {
+        return Err(format!(
+            "{} exists; --write-csv writes a new directory (give another path)",
+            dir.display()
+        )
+        .into());
+    }
+    std::fs::create_dir_all(dir)?;
+    write_wheels(&dir.join("wheels.csv"), &recording.wheels)?;
+    write_poses(&dir.join("poses.csv"), &recording.poses)?;
+    Ok(())
+}
+
 /// Simulates the drive of a robot of `truth` configured with `nominal`, fits it, prints both.
 pub fn run(
     args: &DriveArgs,
@@ -45,16 +63,7 @@ pub fn run(
     };
     let drive = simulate_drive(&config)?;
     if let Some(dir) = &args.write_csv {
-        if dir.exists() {
-            return Err(format!(
-                "{} exists; --write-csv writes a new directory (give another path)",
-                dir.display()
-            )
-            .into());
-        }
-        std::fs::create_dir_all(dir)?;
-        write_wheels(&dir.join("wheels.csv"), &drive.recording.wheels)?;
-        write_poses(&dir.join("poses.csv"), &drive.recording.poses)?;
+        write_csv(dir, &drive.recording)?;
     }
     if let Some(path) = bag {
         // A ROS clock does not start at zero: the bag's stamps from the session's start.
