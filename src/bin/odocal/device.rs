@@ -42,7 +42,7 @@ pub async fn mock_device(args: MockArgs) -> CliResult {
         );
     }
     let device = Arc::new(Mutex::new(device));
-    let faults = args.device.faults.clone().unwrap_or_default();
+    let faults = args.device.faults.unwrap_or_default();
     let server = spawn_pty(device.clone(), time, faults)?;
     println!("{}", server.path);
     let scale = match time {
