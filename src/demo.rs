@@ -76,6 +76,72 @@ impl Default for DemoOptions {
     }
 }
 
+/// The demo as a user sets it (with the `cli` feature, `odocal demo`'s flags, their doc
+/// comments the help): the simulated robot, its link's faults, where the report goes, and the
+/// routine's targets.
+#[derive(Debug, Clone)]
+#[cfg_attr(feature = "cli", derive(clap::Args))]
+pub struct DemoSettings {
+    /// True E_b of the simulated robot.
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 0.976))]
+    pub true_eb: f64,
+    /// True E_d of the simulated robot.
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 0.992))]
+    pub true_ed: f64,
+    /// The simulated compass's noise per reading (deg; σ).
+    #[cfg_attr(feature = "cli", arg(long = "heading-sigma-deg", alias = "compass-sigma-deg", default_value_t = crate::mock::options::SIM_HEADING_SIGMA_DEG))]
+    pub compass_sigma_deg: f64,
+    /// Seed of the simulated robot.
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 1))]
+    pub seed: u64,
+    /// Link faults, as for `mock-device` (e.g. "corrupt=0.01,drop=0.05").
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub faults: Option<FaultConfig>,
+    /// Where to write report.json, report.md and the plots.
+    #[cfg_attr(feature = "cli", arg(long, default_value = "odocal-demo-report"))]
+    pub report_dir: std::path::PathBuf,
+    /// Allow parameter changes of up to 100 % (a simulated skid-steer robot, --true-eb 1.5).
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub allow_large_change: bool,
+    /// Stop each round's squares once the stated standard error of E_b is at most this (as
+    /// `calibrate --target-eb-std`).
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub target_eb_std: Option<f64>,
+    /// As --target-eb-std, for E_d.
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub target_ed_std: Option<f64>,
+    /// How the simulated robot's heading sensor errs.
+    #[cfg_attr(feature = "cli", command(flatten))]
+    pub sensor: crate::mock::options::SensorErrors,
+}
+
+impl DemoSettings {
+    /// The demo these settings describe, checked. Its backup goes into the report directory
+    /// (a second run's is `…-2`).
+    pub fn options(&self) -> Result<DemoOptions, DemoError> {
+        let mut opts = DemoOptions {
+            true_e_b: self.true_eb,
+            true_e_d: self.true_ed,
+            compass_sigma_deg: self.compass_sigma_deg,
+            seed: self.seed,
+            faults: self.faults.unwrap_or_default(),
+            heading_model: self.sensor.model()?,
+            ..DemoOptions::default()
+        };
+        opts.faults.seed = self.seed;
+        opts.routine.backup_dir = None;
+        opts.routine.report_dir = Some(self.report_dir.clone());
+        if self.allow_large_change {
+            opts.routine.allow_large_change = true;
+            opts.routine.max_change = 1.0;
+        }
+        opts.routine.target_e_b_std = self.target_eb_std;
+        opts.routine.target_e_d_std = self.target_ed_std;
+        opts.routine.validate().map_err(RoutineError::from)?;
+        Ok(opts)
+    }
+}
+
 /// The mock device's simulator as ground truth.
 pub struct MockTruth(pub SharedDevice);
 

@@ -94,6 +94,69 @@ impl PoseCalibration {
     }
 }
 
+/// The fit as a user sets it (with the `cli` feature, `odocal fit`'s flags, their doc
+/// comments the help).
+#[derive(Debug, Clone, PartialEq)]
+#[cfg_attr(feature = "cli", derive(clap::Args))]
+pub struct FitSettings {
+    /// How the reference errs: absolute (motion capture, a map's localization, GNSS) or
+    /// relative (chained scan matching, visual odometry) [default: absolute for a --dataset,
+    /// which is motion capture; otherwise decided from the data].
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub reference_kind: Option<super::pose_reference::ReferenceKind>,
+    /// Take the reference frame as base_link itself (do not fit its mounting).
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub no_mounting: bool,
+    /// Take the streams' stamps as simultaneous (do not fit a time offset).
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub no_time_offset: bool,
+    /// Largest time offset searched (s).
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 0.5))]
+    pub max_time_offset_s: f64,
+    /// Absolute references: align windows of this length separately (s) instead of the whole
+    /// trajectory (for long drives on slippery floors).
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub window_s: Option<f64>,
+}
+
+impl Default for FitSettings {
+    fn default() -> Self {
+        FitSettings {
+            reference_kind: None,
+            no_mounting: false,
+            no_time_offset: false,
+            max_time_offset_s: 0.5,
+            window_s: None,
+        }
+    }
+}
+
+impl FitSettings {
+    /// The full fit from `nominal` with these settings, checked; `motion_capture` says the
+    /// recordings are a data set's, whose reference is absolute by its kind.
+    pub fn config(
+        &self,
+        nominal: Geometry,
+        motion_capture: bool,
+    ) -> Result<FitConfig, CalibrationError> {
+        for (flag, v, lo, hi) in [
+            ("--max-time-offset-s", self.max_time_offset_s, 0.0, 10.0),
+            ("--window-s", self.window_s.unwrap_or(10.0), 1.0, 1e6),
+        ] {
+            crate::ranges::check_range(flag, v, lo, hi).map_err(CalibrationError::OutOfRange)?;
+        }
+        let absolute = super::pose_reference::ReferenceKind::Absolute;
+        Ok(FitConfig {
+            kind: self.reference_kind.or(motion_capture.then_some(absolute)),
+            fit_mounting: !self.no_mounting,
+            fit_time_offset: !self.no_time_offset,
+            max_time_offset_s: self.max_time_offset_s,
+            window_s: self.window_s,
+            ..FitConfig::full(nominal)
+        })
+    }
+}
+
 /// Calibrates from `recordings` (name, recording), all of one robot, by `config`.
 pub fn calibrate_from_poses(
     recordings: &[(String, PoseRecording)],
@@ -516,5 +579,49 @@ impl std::fmt::Display for PoseCalibration {
             }
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::calibration::pose_reference::ReferenceKind;
+
+    #[test]
+    fn fit_settings_make_the_full_fit_and_refuse_what_is_out_of_range() {
+        let nominal = Geometry {
+            left_diameter_m: 0.1,
+            right_diameter_m: 0.1,
+            wheelbase_m: 0.4,
+        };
+        let s = FitSettings::default();
+        let full = s.config(nominal, false).unwrap();
+        assert_eq!(full, FitConfig::full(nominal));
+        assert_eq!(
+            s.config(nominal, true).unwrap().kind,
+            Some(ReferenceKind::Absolute),
+            "a data set's motion capture is absolute"
+        );
+        let relative = FitSettings {
+            reference_kind: Some(ReferenceKind::Relative),
+            no_mounting: true,
+            ..FitSettings::default()
+        };
+        let c = relative.config(nominal, true).unwrap();
+        assert_eq!(c.kind, Some(ReferenceKind::Relative), "what is given wins");
+        assert!(!c.fit_mounting && c.fit_time_offset);
+        for bad in [
+            FitSettings {
+                max_time_offset_s: 11.0,
+                ..FitSettings::default()
+            },
+            FitSettings {
+                window_s: Some(0.5),
+                ..FitSettings::default()
+            },
+        ] {
+            let e = bad.config(nominal, false).unwrap_err();
+            assert!(matches!(e, CalibrationError::OutOfRange(_)), "{e}");
+        }
     }
 }

@@ -19,6 +19,7 @@ use super::recording::{
 };
 use super::time_offset::TimeOffset;
 use super::CalibrationError;
+use crate::kinematics::{SplitConvention, WheelParams};
 use serde::Serialize;
 
 /// Least driving (m) before the online filter reports an estimate.
@@ -54,6 +55,70 @@ pub struct RunTimeOffset {
     pub offset: TimeOffset,
     /// Whether the heading was re-read at the shifted time before it was fed.
     pub corrected: bool,
+}
+
+/// The online filter's settings a session chooses (with the `cli` feature, `odocal track`'s
+/// flags, their doc comments the help).
+#[derive(Debug, Clone, PartialEq)]
+#[cfg_attr(feature = "cli", derive(clap::Args))]
+pub struct TrackerSettings {
+    /// Diameter split for E_b.
+    #[cfg_attr(feature = "cli", arg(long, default_value = "left-nominal"))]
+    pub convention: SplitConvention,
+    /// Relative wheel slip per step assumed by the filter.
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 0.01))]
+    pub slip_fraction: f64,
+    /// Heading noise per reading assumed by the filter (deg).
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 0.37))]
+    pub heading_sigma_deg: f64,
+    /// Print an estimate every this many metres driven.
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 1.0))]
+    pub every_m: f64,
+    /// How late the reference's stamps are (s): the pose stamped t is the robot's at t − this
+    /// (`odocal fit` measures it).
+    #[cfg_attr(
+        feature = "cli",
+        arg(long, default_value_t = 0.0, allow_hyphen_values = true)
+    )]
+    pub reference_delay_s: f64,
+}
+
+impl Default for TrackerSettings {
+    fn default() -> Self {
+        TrackerSettings {
+            convention: SplitConvention::LeftNominal,
+            slip_fraction: 0.01,
+            heading_sigma_deg: 0.37,
+            every_m: 1.0,
+            reference_delay_s: 0.0,
+        }
+    }
+}
+
+impl TrackerSettings {
+    /// Where the wheels' absolute scale comes from: a pose reference observes it (the
+    /// filter's own), headings alone do not (the convention's).
+    pub fn scale(&self, with_poses: bool) -> ScaleSource {
+        if with_poses {
+            ScaleSource::Filter
+        } else {
+            ScaleSource::Convention(self.convention)
+        }
+    }
+
+    /// A tracker for a session whose parameters in use are `configured`, its pose delay set.
+    pub fn tracker(
+        &self,
+        configured: WheelParams,
+        scale: ScaleSource,
+    ) -> Result<Tracker, CalibrationError> {
+        let mut c = OnlineConfig::new(configured);
+        c.slip_fraction = self.slip_fraction;
+        c.heading_sigma_rad = self.heading_sigma_deg.to_radians();
+        let mut t = Tracker::new(c, scale, self.every_m)?;
+        t.set_pose_delay(self.reference_delay_s);
+        Ok(t)
+    }
 }
 
 /// The online estimator with checkpoints every `every_m` metres driven.

@@ -19,7 +19,7 @@ use crate::calibration::online::OnlineEstimate;
 use crate::calibration::pool::{
     pool_methods, Pooled, PooledMethods, RecordingEstimates, UncertaintyKind,
 };
-use crate::calibration::pose_reference::{PoseRecording, ReferencePose, WheelAngles};
+use crate::calibration::pose_reference::{Geometry, PoseRecording, ReferencePose, WheelAngles};
 use crate::calibration::recording::{Clocks, HeadingSample, Recording, TravelSample, Validity};
 use crate::calibration::tracker::Tracker;
 use crate::calibration::{self, Estimate, Method, RunMeasurement, SquareTest};
@@ -64,6 +64,15 @@ pub enum DatasetError {
     /// The directory holds no metadata file or no runs.
     #[error("{0}: not an OptiOdom set (needs one *_metadata.csv and *_run-NN.csv files)")]
     NotASet(PathBuf),
+    /// A set pooled with others was recorded with another nominal geometry than the first.
+    #[error(
+        "{0} was recorded with another nominal geometry than the first set; pool sets recorded \
+         with one configuration"
+    )]
+    OtherGeometry(String),
+    /// Sets were to be pooled, but none was given.
+    #[error("no data set given")]
+    NoSets,
     /// Square calibration was asked of a set without a side length.
     #[error("{0}: no square side `L` in the metadata; not a square set")]
     NotASquareSet(String),
@@ -591,6 +600,26 @@ impl OptiOdomSet {
         }
         (heading, position)
     }
+}
+
+/// The drives of data sets of one robot in one configuration, pooled, and that configuration's
+/// geometry (the sets' metadata; sets recorded with another are refused).
+pub fn pool_pose_recordings(
+    dirs: &[PathBuf],
+) -> Result<(Vec<(String, PoseRecording)>, Geometry), DatasetError> {
+    let mut recordings = Vec::new();
+    let mut nominal = None;
+    for dir in dirs {
+        let set = OptiOdomSet::load(dir)?;
+        let g = Geometry::from(&set.configured);
+        if nominal.is_some_and(|n| n != g) {
+            return Err(DatasetError::OtherGeometry(set.id));
+        }
+        nominal = Some(g);
+        recordings.extend(set.pose_recordings());
+    }
+    let nominal = nominal.ok_or(DatasetError::NoSets)?;
+    Ok((recordings, nominal))
 }
 
 /// One row of a replay evaluation.

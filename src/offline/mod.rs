@@ -8,3 +8,4 @@ pub mod drive_study;
 pub mod log;
 pub mod pose_csv;
 pub mod study;
+pub mod track_replay;

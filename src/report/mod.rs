@@ -431,3 +431,26 @@ pub fn write_dir(report: &Report, dir: &Path) -> std::io::Result<Vec<PathBuf>> {
     written.push(page);
     Ok(written)
 }
+
+/// `odocal fit --report DIR`: `fit.json` (`json`, what `fit --json` prints) and, with the
+/// `plots` feature, the pose plots of the recordings `calibration` was fitted from, into `dir`
+/// (created if missing; these files replaced). Returns the names written.
+pub fn write_fit_dir(
+    dir: &Path,
+    json: &serde_json::Value,
+    calibration: &crate::calibration::pose_calibration::PoseCalibration,
+    recordings: &[(String, crate::calibration::pose_reference::PoseRecording)],
+) -> std::io::Result<Vec<String>> {
+    std::fs::create_dir_all(dir)?;
+    let text = serde_json::to_string_pretty(json).map_err(std::io::Error::other)? + "\n";
+    std::fs::write(dir.join("fit.json"), text)?;
+    #[allow(unused_mut)]
+    let mut names = vec!["fit.json".to_string()];
+    #[cfg(feature = "plots")]
+    for f in pose_plots::write_pose_plots(calibration, recordings, dir)? {
+        names.extend(f.file_name().map(|n| n.to_string_lossy().into_owned()));
+    }
+    #[cfg(not(feature = "plots"))]
+    let _ = (calibration, recordings);
+    Ok(names)
+}

@@ -165,6 +165,57 @@ impl Default for TrackOptions {
     }
 }
 
+/// A path to drive while tracking (with the `cli` feature, `odocal track`'s and `record`'s
+/// flags, their doc comments the help).
+#[derive(Debug, Clone, PartialEq)]
+#[cfg_attr(feature = "cli", derive(clap::Args))]
+pub struct PathOptions {
+    /// MOVES THE ROBOT: drive this path while tracking: squares:SIDE_M (alternating
+    /// clockwise and counter-clockwise) or wander:AREA_M (random stretches and turns both
+    /// ways inside a square of that side). Asks first unless --yes.
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub drive: Option<DrivePath>,
+    /// Motions of the path.
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 40))]
+    pub motions: usize,
+    /// Straight speed limit of the path (m/s, at most 1.0).
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 0.2))]
+    pub max_speed_m_s: f64,
+    /// Turn-rate limit of the path (rad/s, at most 3.0).
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 0.5))]
+    pub max_rate_rad_s: f64,
+    /// Seed of a wandering path.
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 1))]
+    pub seed: u64,
+}
+
+impl TrackOptions {
+    /// A session sampled every `period_ms` (at least 1), for `duration_s` (negative: none) if
+    /// given, driving `path` if it names one.
+    pub fn new(period_ms: u64, duration_s: Option<f64>, path: &PathOptions) -> Self {
+        TrackOptions {
+            period: Duration::from_millis(period_ms.max(1)),
+            duration: duration_s.map(|s| Duration::from_secs_f64(s.max(0.0))),
+            path: path.drive,
+            motions: path.motions,
+            max_speed_m_s: path.max_speed_m_s,
+            max_rate_rad_s: path.max_rate_rad_s,
+            seed: path.seed,
+        }
+    }
+
+    /// The question to ask before the path is driven, when there is one.
+    pub fn question(&self) -> Option<String> {
+        self.path.map(|p| {
+            format!(
+                "The robot will drive {} motions of {p} at up to {} m/s and {} rad/s. Is the \
+                 area clear and may it move?",
+                self.motions, self.max_speed_m_s, self.max_rate_rad_s
+            )
+        })
+    }
+}
+
 /// Samples of each stream a session keeps for the clock-offset check at its end (an hour at
 /// 50 Hz); beyond it the oldest go, so a session of any length holds bounded memory.
 pub const LIVE_SAMPLES_KEPT: usize = 180_000;

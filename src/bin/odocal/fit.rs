@@ -2,11 +2,12 @@
 //! localization, scan matching, GNSS): parses the inputs, prints the calibration.
 
 use crate::out::print_json;
+use odocal::calibration::pose_calibration::FitSettings;
 use odocal::calibration::pose_calibration::{calibrate_from_poses, dead_reckon, evaluations_text};
-use odocal::calibration::pose_fit::FitConfig;
-use odocal::calibration::pose_reference::{Geometry, PoseRecording, ReferenceKind};
-use odocal::offline::dataset::OptiOdomSet;
+use odocal::calibration::pose_reference::{Geometry, PoseRecording};
+use odocal::offline::dataset::{pool_pose_recordings, OptiOdomSet};
 use odocal::offline::pose_csv::{read_poses, read_wheels};
+use odocal::ros::bag::reference::read_reference_drive;
 use std::path::PathBuf;
 
 /// Arguments of `odocal fit`.
@@ -58,24 +59,8 @@ pub struct Args {
     /// Nominal wheelbase (m) the fit starts from; E_b is relative to it (with --wheels).
     #[arg(long)]
     wheelbase_m: Option<f64>,
-    /// How the reference errs: absolute (motion capture, a map's localization, GNSS) or
-    /// relative (chained scan matching, visual odometry) [default: absolute for a --dataset,
-    /// which is motion capture; otherwise decided from the data].
-    #[arg(long)]
-    reference_kind: Option<ReferenceKind>,
-    /// Take the reference frame as base_link itself (do not fit its mounting).
-    #[arg(long)]
-    no_mounting: bool,
-    /// Take the streams' stamps as simultaneous (do not fit a time offset).
-    #[arg(long)]
-    no_time_offset: bool,
-    /// Largest time offset searched (s).
-    #[arg(long, default_value_t = 0.5)]
-    max_time_offset_s: f64,
-    /// Absolute references: align windows of this length separately (s) instead of the whole
-    /// trajectory (for long drives on slippery floors).
-    #[arg(long)]
-    window_s: Option<f64>,
+    #[command(flatten)]
+    fit: FitSettings,
     /// OptiOdom sets to dead-reckon with the result (and with the nominal geometry and the
     /// two-multiplier baseline), final-position errors compared; repeatable.
     #[arg(long)]
@@ -94,37 +79,19 @@ pub struct Args {
 /// Runs `odocal fit`.
 pub fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
     let (recordings, nominal) = inputs(&args)?;
-    for (flag, v, lo, hi) in [
-        ("--max-time-offset-s", args.max_time_offset_s, 0.0, 10.0),
-        ("--window-s", args.window_s.unwrap_or(10.0), 1.0, 1e6),
-    ] {
-        odocal::ranges::check_range(flag, v, lo, hi)?;
-    }
-    // A data set's reference is motion capture: absolute by its kind.
-    let kind = args
-        .reference_kind
-        .or((!args.dataset.is_empty()).then_some(ReferenceKind::Absolute));
-    let config = FitConfig {
-        kind,
-        fit_mounting: !args.no_mounting,
-        fit_time_offset: !args.no_time_offset,
-        max_time_offset_s: args.max_time_offset_s,
-        window_s: args.window_s,
-        ..FitConfig::full(nominal)
-    };
+    let config = args.fit.config(nominal, !args.dataset.is_empty())?;
     let calibration = calibrate_from_poses(&recordings, &config)?;
     let mut evaluations = Vec::new();
     for dir in &args.evaluate {
         let set = OptiOdomSet::load(dir)?;
         for (name, rec) in set.pose_recordings() {
-            if let Some(e) = dead_reckon(&name, &rec, &calibration) {
-                evaluations.push(e);
-            }
+            evaluations.extend(dead_reckon(&name, &rec, &calibration));
         }
     }
     let out = calibration.json(&evaluations)?;
     if let Some(dir) = &args.report {
-        let written = write_report(dir, &out, &calibration, &recordings)?;
+        let written = odocal::report::write_fit_dir(dir, &out, &calibration, &recordings)
+            .map_err(|e| format!("cannot write the report into {}: {e}", dir.display()))?;
         if !args.json {
             eprintln!(
                 "report in {}: {}; write the geometry into a controller's YAML with: odocal \
@@ -140,29 +107,6 @@ pub fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
     }
     print!("{calibration}{}", evaluations_text(&evaluations));
     Ok(())
-}
-
-/// Writes `fit.json` and the plots into `dir`; returns the files' names.
-fn write_report(
-    dir: &std::path::Path,
-    json: &serde_json::Value,
-    calibration: &odocal::calibration::pose_calibration::PoseCalibration,
-    recordings: &[(String, PoseRecording)],
-) -> Result<Vec<String>, Box<dyn std::error::Error>> {
-    let failed = |e: std::io::Error| format!("cannot write the report into {}: {e}", dir.display());
-    std::fs::create_dir_all(dir).map_err(failed)?;
-    std::fs::write(
-        dir.join("fit.json"),
-        serde_json::to_string_pretty(json)? + "\n",
-    )
-    .map_err(failed)?;
-    let mut names = vec!["fit.json".to_string()];
-    for f in odocal::report::pose_plots::write_pose_plots(calibration, recordings, dir)
-        .map_err(failed)?
-    {
-        names.extend(f.file_name().map(|n| n.to_string_lossy().into_owned()));
-    }
-    Ok(names)
 }
 
 /// Named recordings and the nominal geometry they start from.
@@ -190,39 +134,6 @@ fn nominal(args: &Args, needed_by: &str) -> Result<Geometry, Box<dyn std::error:
     })
 }
 
-/// `--bag BAG --reference TOPIC` (or `tf:FRAME`): the drive read from the bag.
-fn bag_inputs(
-    args: &Args,
-    bag: &std::path::Path,
-    reference: &str,
-) -> Result<Inputs, Box<dyn std::error::Error>> {
-    let nominal = nominal(args, "--bag")?;
-    let opts = odocal::ros::bag::BagOptions {
-        topics: odocal::ros::bag::RosTopics {
-            joint_states: args.joint_states_topic.clone(),
-            ..Default::default()
-        },
-        left_joint: args.left_joint.clone(),
-        right_joint: args.right_joint.clone(),
-        ..Default::default()
-    };
-    let (recording, notes) = match reference.strip_prefix("tf:") {
-        Some(fixed) => {
-            let d = odocal::ros::bag::tf::read_tf_drive(bag, &opts, fixed, &args.base_frame)?;
-            (d.recording, d.notes)
-        }
-        None => {
-            let d = odocal::ros::bag::reference::read_pose_drive(bag, &opts, reference)?;
-            (d.recording, d.notes)
-        }
-    };
-    for note in &notes {
-        eprintln!("note: {note}");
-    }
-    let name = format!("{} {reference}", bag.display());
-    Ok((vec![(name, recording)], nominal))
-}
-
 /// What `odocal fit` fits: files, a bag, or data sets of one configuration.
 fn inputs(args: &Args) -> Result<Inputs, Box<dyn std::error::Error>> {
     if let (Some(w), Some(p)) = (&args.wheels, &args.poses) {
@@ -234,7 +145,22 @@ fn inputs(args: &Args) -> Result<Inputs, Box<dyn std::error::Error>> {
         return Ok((vec![(p.display().to_string(), rec)], nominal));
     }
     if let (Some(bag), Some(reference)) = (&args.bag, &args.reference) {
-        return bag_inputs(args, bag, reference);
+        let nominal = nominal(args, "--bag")?;
+        let opts = odocal::ros::bag::BagOptions {
+            topics: odocal::ros::bag::RosTopics {
+                joint_states: args.joint_states_topic.clone(),
+                ..Default::default()
+            },
+            left_joint: args.left_joint.clone(),
+            right_joint: args.right_joint.clone(),
+            ..Default::default()
+        };
+        let (recording, notes) = read_reference_drive(bag, &opts, reference, &args.base_frame)?;
+        notes.iter().for_each(|note| eprintln!("note: {note}"));
+        return Ok((
+            vec![(format!("{} {reference}", bag.display()), recording)],
+            nominal,
+        ));
     }
     if args.dataset.is_empty() {
         return Err("nothing to fit: give --wheels W.csv --poses P.csv (with \
@@ -242,25 +168,5 @@ fn inputs(args: &Args) -> Result<Inputs, Box<dyn std::error::Error>> {
                     --dataset DIR"
             .into());
     }
-    let mut recordings = Vec::new();
-    let mut nominal = None;
-    for dir in &args.dataset {
-        let set = OptiOdomSet::load(dir)?;
-        let g = Geometry::from(&set.configured);
-        match nominal {
-            None => nominal = Some(g),
-            Some(n) if n != g => {
-                return Err(format!(
-                    "{} was recorded with another nominal geometry than the first set; pool \
-                     sets recorded with one configuration",
-                    set.id
-                )
-                .into())
-            }
-            Some(_) => {}
-        }
-        recordings.extend(set.pose_recordings());
-    }
-    let nominal = nominal.ok_or("no data set given")?;
-    Ok((recordings, nominal))
+    Ok(pool_pose_recordings(&args.dataset)?)
 }

@@ -1,6 +1,5 @@
 //! `odocal demo`, `calibrate`, `run` and `export`: the recalibration routine's commands.
 
-use crate::args::SIM_HEADING_SIGMA_DEG;
 use crate::out::print_json;
 use crate::robot::RobotArgs;
 use indicatif::{ProgressBar, ProgressStyle};
@@ -154,65 +153,16 @@ fn finish(report: &Report, report_dir: Option<&PathBuf>, json_out: bool) -> CliR
 /// Arguments of `odocal demo`.
 #[derive(Debug, clap::Args)]
 pub struct DemoArgs {
-    /// True E_b of the simulated robot.
-    #[arg(long, default_value_t = 0.976)]
-    true_eb: f64,
-    /// True E_d of the simulated robot.
-    #[arg(long, default_value_t = 0.992)]
-    true_ed: f64,
-    /// The simulated compass's noise per reading (deg; σ).
-    #[arg(long = "heading-sigma-deg", alias = "compass-sigma-deg", default_value_t = SIM_HEADING_SIGMA_DEG)]
-    compass_sigma_deg: f64,
-    /// Seed of the simulated robot.
-    #[arg(long, default_value_t = 1)]
-    seed: u64,
-    /// Link faults, as for `mock-device` (e.g. "corrupt=0.01,drop=0.05").
-    #[arg(long)]
-    faults: Option<String>,
-    /// Where to write report.json, report.md and the plots.
-    #[arg(long, default_value = "odocal-demo-report")]
-    report_dir: PathBuf,
+    #[command(flatten)]
+    demo: odocal::demo::DemoSettings,
     /// Print the whole report as one JSON object.
     #[arg(long)]
     json: bool,
-    /// Allow parameter changes of up to 100 % (a simulated skid-steer robot, --true-eb 1.5).
-    #[arg(long)]
-    allow_large_change: bool,
-    /// Stop each round's squares once the stated standard error of E_b is at most this (as
-    /// `calibrate --target-eb-std`).
-    #[arg(long)]
-    target_eb_std: Option<f64>,
-    /// As --target-eb-std, for E_d.
-    #[arg(long)]
-    target_ed_std: Option<f64>,
-    #[command(flatten)]
-    sensor: odocal::mock::options::SensorErrors,
 }
 
 /// Runs `odocal demo`.
 pub async fn demo(args: DemoArgs) -> CliResult {
-    let mut opts = DemoOptions {
-        true_e_b: args.true_eb,
-        true_e_d: args.true_ed,
-        compass_sigma_deg: args.compass_sigma_deg,
-        seed: args.seed,
-        ..DemoOptions::default()
-    };
-    if let Some(f) = &args.faults {
-        opts.faults = f.parse::<odocal::mock::FaultConfig>()?;
-    }
-    opts.faults.seed = args.seed;
-    opts.heading_model = args.sensor.model()?;
-    // The backup goes into this run's report directory (a second run's is `…-2`).
-    opts.routine.backup_dir = None;
-    opts.routine.report_dir = Some(args.report_dir.clone());
-    if args.allow_large_change {
-        opts.routine.allow_large_change = true;
-        opts.routine.max_change = 1.0;
-    }
-    opts.routine.target_e_b_std = args.target_eb_std;
-    opts.routine.target_e_d_std = args.target_ed_std;
-    opts.routine.validate()?;
+    let opts = args.demo.options()?;
     if !args.json {
         eprintln!(
             "odocal demo: a simulated robot (E_b {}, E_d {}, D {} m, b {} m, compass σ {}°) on a \
@@ -232,7 +182,7 @@ pub async fn demo(args: DemoArgs) -> CliResult {
         Err(e) => return Err(ui.ended(e)),
     };
     drop(ui);
-    finish(&report, Some(&args.report_dir), args.json)
+    finish(&report, Some(&args.demo.report_dir), args.json)
 }
 
 /// Routine settings that can be given as flags (they override a routine file).

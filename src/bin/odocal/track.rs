@@ -6,48 +6,28 @@ use crate::robot::RobotArgs;
 use clap::ArgGroup;
 use odocal::base::{Base, PoseSource};
 use odocal::calibration::online::{OnlineConfig, OnlineEstimate, ScaleSource};
-use odocal::calibration::pose_reference::{Geometry, PoseRecording};
 use odocal::calibration::recording::Event;
-use odocal::calibration::recording::Recording;
-use odocal::calibration::tracker::Tracker;
-use odocal::kinematics::{SplitConvention, WheelParams};
-use odocal::offline::dataset::OptiOdomSet;
-use odocal::offline::log::{read_log, LogHeader, LogWriter};
-use odocal::offline::pose_csv::{read_poses, read_wheels};
+use odocal::calibration::tracker::{Tracker, TrackerSettings};
+use odocal::kinematics::WheelParams;
+use odocal::offline::log::{LogHeader, LogWriter};
+use odocal::offline::track_replay::{replay_dataset, replay_files, replay_log};
 use odocal::report::track::{pose_session, TrackSummary};
 use odocal::ros::pose_source::RosPoseSource;
 use odocal::routine::config::WritePolicy;
 use odocal::routine::track::{
-    track_live, write_back, DrivePath, TrackOptions, TrackOutcome, WriteBack,
+    track_live, write_back, PathOptions, TrackOptions, TrackOutcome, WriteBack,
 };
-use odocal::routine::{RoutineEvent, RoutineUi};
 use odocal::spec::RobotSection;
 use std::path::PathBuf;
 use std::time::Duration;
 
 type CliResult = Result<(), Box<dyn std::error::Error>>;
 
-/// A token cancelled by Ctrl-C.
 /// How a live session drives, if it does.
 #[derive(Debug, Clone, clap::Args)]
 pub struct DriveArgs {
-    /// MOVES THE ROBOT: drive this path while tracking: squares:SIDE_M (alternating
-    /// clockwise and counter-clockwise) or wander:AREA_M (random stretches and turns both
-    /// ways inside a square of that side). Asks first unless --yes.
-    #[arg(long)]
-    drive: Option<DrivePath>,
-    /// Motions of the path.
-    #[arg(long, default_value_t = 40)]
-    motions: usize,
-    /// Straight speed limit of the path (m/s, at most 1.0).
-    #[arg(long, default_value_t = 0.2)]
-    max_speed_m_s: f64,
-    /// Turn-rate limit of the path (rad/s, at most 3.0).
-    #[arg(long, default_value_t = 0.5)]
-    max_rate_rad_s: f64,
-    /// Seed of a wandering path.
-    #[arg(long, default_value_t = 1)]
-    seed: u64,
+    #[command(flatten)]
+    path: PathOptions,
     /// Answer yes: drive without asking (`track --write-back`: also write without asking).
     #[arg(long)]
     yes: bool,
@@ -65,32 +45,17 @@ async fn open(robot: &RobotArgs) -> Result<(Base, WheelParams), Box<dyn std::err
 async fn live(
     (base, poses): (&Base, Option<&dyn PoseSource>),
     tracker: &mut Tracker,
-    period_ms: u64,
-    duration_s: Option<f64>,
-    drive: Option<&DriveArgs>,
+    (period_ms, duration_s): (u64, Option<f64>),
+    drive: &DriveArgs,
     log: Option<&mut LogWriter>,
     mut on_checkpoint: impl FnMut(&OnlineEstimate),
 ) -> Result<TrackOutcome, Box<dyn std::error::Error>> {
-    let path = drive.and_then(|d| d.drive);
-    if let (Some(p), Some(d)) = (path, drive) {
-        let question = format!(
-            "The robot will drive {} motions of {p} at up to {} m/s and {} rad/s. Is the \
-             area clear and may it move?",
-            d.motions, d.max_speed_m_s, d.max_rate_rad_s
-        );
-        if !d.yes && !(StdinUi { yes: false }).confirm(&question) {
+    let opts = TrackOptions::new(period_ms, duration_s, &drive.path);
+    if let Some(question) = opts.question().filter(|_| !drive.yes) {
+        if !tokio::task::block_in_place(|| crate::prompt::yes(&question)) {
             return Err("the robot may not move (not driven)".into());
         }
     }
-    let opts = TrackOptions {
-        period: Duration::from_millis(period_ms.max(1)),
-        duration: duration_s.map(|s| Duration::from_secs_f64(s.max(0.0))),
-        path,
-        motions: drive.map_or(0, |d| d.motions),
-        max_speed_m_s: drive.map_or(0.2, |d| d.max_speed_m_s),
-        max_rate_rad_s: drive.map_or(0.5, |d| d.max_rate_rad_s),
-        seed: drive.map_or(1, |d| d.seed),
-    };
     if opts.path.is_some() {
         let drive = base.drive.clone();
         crate::prompt::stop_on_forced_exit(move || drive.emergency_stop());
@@ -156,7 +121,7 @@ pub async fn record(args: RecordArgs) -> CliResult {
     eprintln!(
         "recording wheel travel and headings to {} ({})",
         args.out.display(),
-        match (args.drive.drive, args.duration_s) {
+        match (args.drive.path.drive, args.duration_s) {
             (Some(_), _) => "while driving the path".to_string(),
             (None, Some(s)) => format!("for {s} s"),
             (None, None) => "Ctrl-C to stop".to_string(),
@@ -170,9 +135,8 @@ pub async fn record(args: RecordArgs) -> CliResult {
     let outcome = live(
         (&base, None),
         &mut tracker,
-        args.period_ms,
-        args.duration_s,
-        Some(&args.drive),
+        (args.period_ms, args.duration_s),
+        &args.drive,
         Some(&mut log),
         |_| {},
     )
@@ -224,10 +188,6 @@ pub struct TrackArgs {
     /// sits on the robot.
     #[arg(long, conflicts_with_all = ["log", "dataset", "poses"])]
     reference: Option<String>,
-    /// How late the reference's stamps are (s): the pose stamped t is the robot's at t − this
-    /// (`odocal fit` measures it).
-    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
-    reference_delay_s: f64,
     /// A pose reference from a file (t_s,x_m,y_m,yaw_rad; `odocal fit`'s format), with
     /// --wheels, replayed through the online filter.
     #[arg(long, requires = "wheels")]
@@ -244,18 +204,8 @@ pub struct TrackArgs {
     /// Live: also write every sample to this log (it replays to the same numbers).
     #[arg(long)]
     record: Option<PathBuf>,
-    /// Diameter split for E_b.
-    #[arg(long, default_value = "left-nominal")]
-    convention: SplitConvention,
-    /// Relative wheel slip per step assumed by the filter.
-    #[arg(long, default_value_t = 0.01)]
-    slip_fraction: f64,
-    /// Heading noise per reading assumed by the filter (deg).
-    #[arg(long, default_value_t = 0.37)]
-    heading_sigma_deg: f64,
-    /// Print an estimate every this many metres driven.
-    #[arg(long, default_value_t = 1.0)]
-    every_m: f64,
+    #[command(flatten)]
+    filter: TrackerSettings,
     /// Live: requested sample period (ms).
     #[arg(long, default_value_t = 20)]
     period_ms: u64,
@@ -287,35 +237,6 @@ fn show(e: &OnlineEstimate, json_out: bool, label: &str) {
     }
 }
 
-struct StdinUi {
-    yes: bool,
-}
-
-impl RoutineUi for StdinUi {
-    fn confirm(&mut self, question: &str) -> bool {
-        if self.yes {
-            return true;
-        }
-        tokio::task::block_in_place(|| crate::prompt::yes(question))
-    }
-    fn event(&mut self, event: &RoutineEvent) {
-        match event {
-            RoutineEvent::Stage(s) => eprintln!("· {s}"),
-            RoutineEvent::Warning(w) => eprintln!("warning: {w}"),
-            // The write-back reports nothing else; a new event is shown where it is made.
-            _ => {}
-        }
-    }
-}
-
-/// The filter's settings for a session whose parameters in use are `configured`.
-fn online_config(args: &TrackArgs, configured: WheelParams) -> OnlineConfig {
-    let mut c = OnlineConfig::new(configured);
-    c.slip_fraction = args.slip_fraction;
-    c.heading_sigma_rad = args.heading_sigma_deg.to_radians();
-    c
-}
-
 /// A tracker fed, the parameters in use, and the live base when there was one.
 type Session = (Tracker, WheelParams, Option<Base>);
 
@@ -323,11 +244,7 @@ type Session = (Tracker, WheelParams, Option<Base>);
 pub async fn track(args: TrackArgs) -> CliResult {
     let with_poses = args.reference.is_some() || args.poses.is_some();
     // A pose reference observes the absolute scale: the filter's own, not a convention's.
-    let scale = if with_poses {
-        ScaleSource::Filter
-    } else {
-        ScaleSource::Convention(args.convention)
-    };
+    let scale = args.filter.scale(with_poses);
     if !args.json {
         println!(
             "method online (the default with no squares to drive: an extended Kalman filter over \
@@ -339,72 +256,19 @@ pub async fn track(args: TrackArgs) -> CliResult {
     if args.write_back && (args.log.is_some() || args.dataset.is_some() || args.poses.is_some()) {
         return Err("--write-back writes to a live robot: give --port or --base".into());
     }
-    let session = match (&args.poses, &args.wheels, &args.dataset, &args.log) {
-        (Some(p), Some(w), _, _) => from_files(&args, p, w, scale)?,
-        (_, _, Some(dir), _) => {
-            let set = OptiOdomSet::load(dir)?;
-            let mut t = Tracker::new(online_config(&args, set.configured), scale, args.every_m)?;
-            for e in set.feed(&mut t) {
-                show(&e, args.json, "");
-            }
-            (t, set.configured, None)
+    let shown = |e: &OnlineEstimate| show(e, args.json, "");
+    let f = &args.filter;
+    let replayed = match (&args.poses, &args.wheels, &args.dataset, &args.log) {
+        (Some(p), Some(w), _, _) => {
+            let geometry = (args.wheel_diameter_m, args.wheelbase_m);
+            replay_files(f, (p, w), geometry, scale, shown)?
         }
-        (_, _, None, Some(path)) => from_log(&args, path, scale)?,
-        _ => live_session(&args, scale).await?,
+        (_, _, Some(dir), _) => replay_dataset(f, dir, scale, shown)?,
+        (_, _, None, Some(path)) => replay_log(f, path, scale, shown)?,
+        _ => return finish(&args, live_session(&args, scale).await?, with_poses, scale).await,
     };
+    let session = (replayed.tracker, replayed.configured, None);
     finish(&args, session, with_poses, scale).await
-}
-
-/// `--poses` with `--wheels`: the files replayed through the filter.
-fn from_files(
-    args: &TrackArgs,
-    poses: &std::path::Path,
-    wheels: &std::path::Path,
-    scale: ScaleSource,
-) -> Result<Session, Box<dyn std::error::Error>> {
-    let (Some(d), Some(b)) = (args.wheel_diameter_m, args.wheelbase_m) else {
-        return Err(
-            "--poses needs the configured geometry: give --wheel-diameter-m and \
-                    --wheelbase-m (metres)"
-                .into(),
-        );
-    };
-    odocal::ranges::check_range("--wheel-diameter-m", d, 1e-3, 5.0)?;
-    odocal::ranges::check_range("--wheelbase-m", b, 1e-2, 10.0)?;
-    // Wheels in radians: a "count" is a radian (see OnlineConfig's angle units).
-    let configured = WheelParams::nominal(d, b, std::f64::consts::TAU);
-    let drive = PoseRecording {
-        wheels: read_wheels(wheels)?,
-        poses: read_poses(poses)?,
-    };
-    let mut t = Tracker::new(online_config(args, configured), scale, args.every_m)?;
-    t.set_pose_delay(args.reference_delay_s);
-    let recording = Recording::of_pose_recording(&drive, Geometry::from(&configured));
-    for e in t.feed_recording(&poses.display().to_string(), &recording) {
-        show(&e, args.json, "");
-    }
-    Ok((t, configured, None))
-}
-
-/// `--log`: a recorded session replayed (a log of a session with a pose reference replays as
-/// one).
-fn from_log(
-    args: &TrackArgs,
-    path: &std::path::Path,
-    scale: ScaleSource,
-) -> Result<Session, Box<dyn std::error::Error>> {
-    let (header, recording) = read_log(path)?;
-    let scale = if recording.poses.is_empty() {
-        scale
-    } else {
-        ScaleSource::Filter
-    };
-    let mut t = Tracker::new(online_config(args, header.params), scale, args.every_m)?;
-    t.set_pose_delay(args.reference_delay_s);
-    for e in t.feed_recording("log", &recording) {
-        show(&e, args.json, "");
-    }
-    Ok((t, header.params, None))
 }
 
 /// A live robot (`--port`, `--base`), perhaps driven, perhaps against a pose topic, perhaps
@@ -424,8 +288,7 @@ async fn live_session(
         None => None,
     };
     let (b, configured) = open(&args.robot).await?;
-    let mut t = Tracker::new(online_config(args, configured), scale, args.every_m)?;
-    t.set_pose_delay(args.reference_delay_s);
+    let mut t = args.filter.tracker(configured, scale)?;
     let mut log = match &args.record {
         Some(p) => Some(LogWriter::create(
             p,
@@ -436,9 +299,8 @@ async fn live_session(
     let outcome = live(
         (&b, poses.as_ref().map(|p| p as &dyn PoseSource)),
         &mut t,
-        args.period_ms,
-        args.duration_s,
-        Some(&args.drive),
+        (args.period_ms, args.duration_s),
+        &args.drive,
         log.as_mut(),
         |e| show(e, args.json, ""),
     )
@@ -457,7 +319,7 @@ async fn live_session(
     if outcome.cancelled && !args.json {
         println!(
             "stopped by Ctrl-C (or SIGTERM, SIGHUP){}",
-            if args.drive.drive.is_some() {
+            if args.drive.path.drive.is_some() {
                 "; the robot is stopped"
             } else {
                 ""

@@ -36,6 +36,27 @@ pub struct PoseDrive {
     pub notes: Vec<String>,
 }
 
+/// The drive against `reference` in the bag at `path`: a pose topic (as [`read_pose_drive`])
+/// or `tf:FRAME`, the TF chain from FRAME (map, world) to `base_frame` (as
+/// [`super::tf::read_tf_drive`]); with the notes on what was read.
+pub fn read_reference_drive(
+    path: &Path,
+    opts: &BagOptions,
+    reference: &str,
+    base_frame: &str,
+) -> Result<(PoseRecording, Vec<String>), BagError> {
+    Ok(match reference.strip_prefix("tf:") {
+        Some(fixed) => {
+            let d = super::tf::read_tf_drive(path, opts, fixed, base_frame)?;
+            (d.recording, d.notes)
+        }
+        None => {
+            let d = read_pose_drive(path, opts, reference)?;
+            (d.recording, d.notes)
+        }
+    })
+}
+
 /// Reads the wheel joints (`opts.topics.joint_states`, joints by `opts`' names) and the pose
 /// reference on `reference` from the bag at `path`.
 pub fn read_pose_drive(
