@@ -89,7 +89,7 @@ pub struct DemoSettings {
     #[cfg_attr(feature = "cli", arg(long, default_value_t = 0.992))]
     pub true_ed: f64,
     /// The simulated compass's noise per reading (deg; σ).
-    #[cfg_attr(feature = "cli", arg(long = "heading-sigma-deg", alias = "compass-sigma-deg", default_value_t = crate::mock::options::SIM_HEADING_SIGMA_DEG))]
+    #[cfg_attr(feature = "cli", arg(long = "heading-sigma-deg", alias = "compass-sigma-deg", default_value_t = crate::sim::sensor::SIM_HEADING_SIGMA_DEG))]
     pub compass_sigma_deg: f64,
     /// Seed of the simulated robot.
     #[cfg_attr(feature = "cli", arg(long, default_value_t = 1))]

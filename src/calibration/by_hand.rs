@@ -11,30 +11,88 @@ use super::uncertainty::{cramer_rao_bound, heading_error_sigma, TestDesign};
 use super::{CalibrationError, Estimate, HeadingKind, Method, RunMeasurement, SquareTest};
 use crate::kinematics::{SplitConvention, WheelParams, PHYSICAL_DIAMETER_M};
 
-/// What was measured, as typed.
+/// What was measured, as typed (with the `cli` feature, `odocal estimate`'s flags, their doc
+/// comments the help).
 #[derive(Debug, Clone, PartialEq)]
+#[cfg_attr(feature = "cli", derive(clap::Args))]
 pub struct HandInput {
     /// Square side (m).
+    #[cfg_attr(feature = "cli", arg(long))]
     pub side_m: f64,
-    /// Wheelbase configured during the test (m).
+    /// Wheelbase configured on the controller during the test (m).
+    #[cfg_attr(feature = "cli", arg(long))]
     pub wheelbase_m: f64,
-    /// Heading error of each clockwise run (deg).
+    /// Final-minus-start heading error of each clockwise run (deg, counter-clockwise positive;
+    /// negate a compass azimuth), comma-separated.
+    #[cfg_attr(
+        feature = "cli",
+        arg(
+            long,
+            value_delimiter = ',',
+            allow_hyphen_values = true,
+            required = true
+        )
+    )]
     pub cw_heading_deg: Vec<f64>,
-    /// Heading error of each counter-clockwise run (deg).
+    /// Same for each counter-clockwise run.
+    #[cfg_attr(
+        feature = "cli",
+        arg(
+            long,
+            value_delimiter = ',',
+            allow_hyphen_values = true,
+            required = true
+        )
+    )]
     pub ccw_heading_deg: Vec<f64>,
-    /// End point of each clockwise run (m), when measured.
-    pub cw_xy_m: Option<Vec<[f64; 2]>>,
-    /// End point of each counter-clockwise run (m), when measured.
-    pub ccw_xy_m: Option<Vec<[f64; 2]>>,
-    /// One method by name, or `all`.
+    /// Final position of each clockwise run in the start frame (x along the first leg, y to its
+    /// left), as "x,y;x,y" (m). Enables UMBmark and Lee.
+    #[cfg_attr(feature = "cli", arg(long, allow_hyphen_values = true))]
+    pub cw_xy_m: Option<EndPoints>,
+    /// Same for each counter-clockwise run.
+    #[cfg_attr(feature = "cli", arg(long, allow_hyphen_values = true))]
+    pub ccw_xy_m: Option<EndPoints>,
+    /// Method to run: all, umbmark, lee, heading-only, jung-chung or exact.
+    #[cfg_attr(feature = "cli", arg(long, default_value = "all"))]
     pub method: String,
     /// How the diameter correction is split between the wheels.
-    pub convention: SplitConvention,
-    /// Wheel diameter configured during the test (m): the corrected parameters are given.
+    #[cfg_attr(feature = "cli", command(flatten))]
+    pub convention: super::convention::ConventionChoice,
+    /// Wheel diameter configured during the test (m); prints the corrected parameters.
+    #[cfg_attr(feature = "cli", arg(long))]
     pub wheel_diameter_m: Option<f64>,
-    /// The heading sensor's noise per reading (deg, σ): the Cramér–Rao bound, and a floor
-    /// under every stated ±.
+    /// The heading sensor's noise per reading (deg; σ); prints the Cramér–Rao bound for this
+    /// test.
+    #[cfg_attr(
+        feature = "cli",
+        arg(long = "heading-sigma-deg", alias = "compass-sigma-deg")
+    )]
     pub heading_sigma_deg: Option<f64>,
+}
+
+/// End points of runs, typed as `x,y;x,y` (m).
+#[derive(Debug, Clone, PartialEq)]
+pub struct EndPoints(pub Vec<[f64; 2]>);
+
+impl std::str::FromStr for EndPoints {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, String> {
+        s.split(';')
+            .filter(|p| !p.trim().is_empty())
+            .map(|pair| {
+                let v: Vec<&str> = pair.split(',').map(str::trim).collect();
+                match v.as_slice() {
+                    [x, y] => Ok([
+                        x.parse::<f64>().map_err(|e| format!("{x:?}: {e}"))?,
+                        y.parse::<f64>().map_err(|e| format!("{y:?}: {e}"))?,
+                    ]),
+                    _ => Err(format!("{pair:?} is not \"x,y\"")),
+                }
+            })
+            .collect::<Result<Vec<_>, _>>()
+            .map(EndPoints)
+    }
 }
 
 /// What came of it.
@@ -130,10 +188,13 @@ pub fn estimate_by_hand(input: &HandInput) -> Result<HandReport, CalibrationErro
     let mut test = SquareTest {
         side_m: input.side_m,
         wheelbase_m: input.wheelbase_m,
-        cw: runs(&input.cw_heading_deg, input.cw_xy_m.as_ref())
+        cw: runs(&input.cw_heading_deg, input.cw_xy_m.as_ref().map(|e| &e.0))
             .map_err(CalibrationError::OutOfRange)?,
-        ccw: runs(&input.ccw_heading_deg, input.ccw_xy_m.as_ref())
-            .map_err(CalibrationError::OutOfRange)?,
+        ccw: runs(
+            &input.ccw_heading_deg,
+            input.ccw_xy_m.as_ref().map(|e| &e.0),
+        )
+        .map_err(CalibrationError::OutOfRange)?,
     };
     check_sigma(input).map_err(CalibrationError::OutOfRange)?;
     // A stated sensor noise is each run's noise: a ± is never below what it gives (a few runs'
@@ -147,7 +208,7 @@ pub fn estimate_by_hand(input: &HandInput) -> Result<HandReport, CalibrationErro
             run.noise_variance_rad2 = Some(sigma * sigma);
         }
     }
-    let convention = input.convention;
+    let convention = input.convention.convention();
     let method = match input.method.as_str() {
         "all" => None,
         name => Some(
@@ -235,7 +296,7 @@ mod tests {
             cw_xy_m: None,
             ccw_xy_m: None,
             method: "all".into(),
-            convention: SplitConvention::LeftNominal,
+            convention: Default::default(),
             wheel_diameter_m: Some(0.15),
             heading_sigma_deg: Some(0.5),
         }
@@ -266,7 +327,7 @@ mod tests {
         let e = estimate_by_hand(&i).unwrap_err().to_string();
         assert!(e.contains("--heading-sigma-deg"), "{e}");
         let mut i = input();
-        i.cw_xy_m = Some(vec![[0.0, 0.0]]);
+        i.cw_xy_m = Some(EndPoints(vec![[0.0, 0.0]]));
         let e = estimate_by_hand(&i).unwrap_err().to_string();
         assert!(e.contains("3 headings but 1 positions"), "{e}");
     }

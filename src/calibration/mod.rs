@@ -23,6 +23,7 @@
 
 pub mod agreement;
 pub mod by_hand;
+pub mod convention;
 pub mod error;
 pub mod exact;
 pub mod gyro;

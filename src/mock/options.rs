@@ -18,9 +18,7 @@ use crate::ros::yaml::DiffDriveConfig;
 use crate::sim::sensor::{HeadingModel, SensorKind};
 use std::path::PathBuf;
 
-/// The simulated heading sensor's noise per reading (deg, σ) every mock and simulation starts
-/// with unless told otherwise: a real compass's at rest (`--heading-sigma-deg`).
-pub const SIM_HEADING_SIGMA_DEG: f64 = 0.37;
+pub use crate::sim::sensor::SIM_HEADING_SIGMA_DEG;
 
 /// A setting a mock cannot simulate (the message names the flag and its range).
 fn setting(message: String) -> MockError {

@@ -19,6 +19,9 @@ pub enum StudyError {
     /// The measurements could not be calibrated at all.
     #[error(transparent)]
     Calibration(#[from] CalibrationError),
+    /// A setting outside what the study can take (the flag and its range are named).
+    #[error("{0}")]
+    OutOfRange(String),
     /// Zero runs or trials were asked for.
     #[error("{0} must be at least 1")]
     Count(&'static str),
@@ -45,6 +48,129 @@ pub struct StudyConfig {
     pub convention: SplitConvention,
     /// Sensor and wheel noise.
     pub noise: NoiseModel,
+}
+
+/// The study as a user sets it (with the `cli` feature, `odocal simulate`'s flags, their doc
+/// comments the help).
+#[derive(Debug, Clone, PartialEq)]
+#[cfg_attr(feature = "cli", derive(clap::Args))]
+pub struct StudySettings {
+    /// True E_b of the simulated robot.
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 0.976))]
+    pub true_eb: f64,
+    /// True E_d of the simulated robot.
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 0.992))]
+    pub true_ed: f64,
+    /// Square side (m).
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 4.0))]
+    pub side_m: f64,
+    /// Square side of Lee's own track (m).
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 2.0))]
+    pub lee_side_m: f64,
+    /// Nominal (configured) wheelbase (m).
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 0.39))]
+    pub wheelbase_m: f64,
+    /// Nominal (configured) wheel diameter (m).
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 0.15))]
+    pub wheel_diameter_m: f64,
+    /// Encoder counts per wheel revolution.
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 10_000.0))]
+    pub counts_per_rev: f64,
+    /// How the true E_d splits into two true diameters.
+    #[cfg_attr(feature = "cli", arg(long, default_value = "left-nominal"))]
+    pub truth_split: SplitConvention,
+    /// The split for estimation and write-back.
+    #[cfg_attr(feature = "cli", command(flatten))]
+    pub convention: crate::calibration::convention::ConventionChoice,
+    /// Runs per direction (calibration and verification).
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 1))]
+    pub runs: usize,
+    /// The simulated compass's noise per reading (deg; σ; 0 reproduces the paper's noise-free
+    /// tables).
+    #[cfg_attr(feature = "cli", arg(long = "heading-sigma-deg", alias = "compass-sigma-deg", default_value_t = crate::sim::sensor::SIM_HEADING_SIGMA_DEG))]
+    pub compass_sigma_deg: f64,
+    /// Constant compass bias (deg).
+    #[cfg_attr(
+        feature = "cli",
+        arg(long, default_value_t = 0.0, allow_hyphen_values = true)
+    )]
+    pub compass_bias_deg: f64,
+    /// Relative wheel slip per motion (standard deviation, e.g. 0.001).
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 0.0))]
+    pub slip_sigma: f64,
+    /// Noise of each measured final-position axis (m), seen by UMBmark and Lee.
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 0.0))]
+    pub position_sigma_m: f64,
+    /// Round wheel targets to whole encoder counts.
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub quantise: bool,
+    /// Seed of the first trial (trial k uses seed + k).
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 1))]
+    pub seed: u64,
+    /// Independent trials to average.
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 1))]
+    pub trials: usize,
+}
+
+impl StudySettings {
+    /// Every setting in its range, before anything is simulated (memory and time grow with
+    /// runs × trials).
+    pub fn check(&self) -> Result<(), StudyError> {
+        crate::ranges::check_ranges(&[
+            ("--runs", self.runs as f64, 1.0, 1000.0),
+            ("--trials", self.trials as f64, 1.0, 100_000.0),
+            ("--side-m", self.side_m, 0.01, 100.0),
+            ("--lee-side-m", self.lee_side_m, 0.01, 100.0),
+            ("--wheelbase-m", self.wheelbase_m, 0.01, 10.0),
+            ("--wheel-diameter-m", self.wheel_diameter_m, 0.001, 5.0),
+            ("--counts-per-rev", self.counts_per_rev, 1.0, 1e9),
+            ("--true-eb", self.true_eb, 0.2, 5.0),
+            ("--true-ed", self.true_ed, 0.5, 2.0),
+            ("--heading-sigma-deg", self.compass_sigma_deg, 0.0, 45.0),
+            ("--compass-bias-deg", self.compass_bias_deg, -180.0, 180.0),
+            ("--slip-sigma", self.slip_sigma, 0.0, 0.5),
+            ("--position-sigma-m", self.position_sigma_m, 0.0, 10.0),
+        ])
+        .map_err(StudyError::OutOfRange)
+    }
+
+    /// The robot as configured (`counts_per_rev` counts per wheel turn) and as it truly is.
+    pub fn robot(&self, counts_per_rev: f64) -> Result<(WheelParams, WheelParams), StudyError> {
+        let nominal = WheelParams::nominal(self.wheel_diameter_m, self.wheelbase_m, counts_per_rev);
+        let truth =
+            WheelParams::from_ratios(&nominal, self.true_eb, self.true_ed, &self.truth_split)?;
+        Ok((nominal, truth))
+    }
+
+    /// The compass's and the wheels' noise.
+    pub fn noise(&self) -> NoiseModel {
+        NoiseModel {
+            compass_sigma_rad: self.compass_sigma_deg.to_radians(),
+            compass_bias_rad: self.compass_bias_deg.to_radians(),
+            quantise_encoders: self.quantise,
+            wheel_slip_sigma: self.slip_sigma,
+            position_sigma_m: self.position_sigma_m,
+        }
+    }
+
+    /// The study these settings describe.
+    pub fn config(&self) -> StudyConfig {
+        StudyConfig {
+            nominal: WheelParams::nominal(
+                self.wheel_diameter_m,
+                self.wheelbase_m,
+                self.counts_per_rev,
+            ),
+            true_e_b: self.true_eb,
+            true_e_d: self.true_ed,
+            truth_split: self.truth_split,
+            side_m: self.side_m,
+            lee_side_m: self.lee_side_m,
+            runs: self.runs,
+            convention: self.convention.convention(),
+            noise: self.noise(),
+        }
+    }
 }
 
 impl StudyConfig {
@@ -385,6 +511,44 @@ pub fn accuracy_study(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn paper_settings() -> StudySettings {
+        StudySettings {
+            true_eb: 0.976,
+            true_ed: 0.992,
+            side_m: 4.0,
+            lee_side_m: 2.0,
+            wheelbase_m: 0.39,
+            wheel_diameter_m: 0.15,
+            counts_per_rev: 10_000.0,
+            truth_split: SplitConvention::LeftNominal,
+            convention: Default::default(),
+            runs: 1,
+            compass_sigma_deg: 0.0,
+            compass_bias_deg: 0.0,
+            slip_sigma: 0.0,
+            position_sigma_m: 0.0,
+            quantise: false,
+            seed: 1,
+            trials: 1,
+        }
+    }
+
+    #[test]
+    fn settings_describe_the_papers_study_and_refuse_what_would_not_fit() {
+        let s = paper_settings();
+        s.check().unwrap();
+        assert_eq!(s.config(), StudyConfig::paper(0.976, 0.992));
+        let (nominal, truth) = s.robot(1.0).unwrap();
+        assert!((truth.wheelbase_m / nominal.wheelbase_m - 0.976).abs() < 1e-12);
+        let too_many = StudySettings {
+            trials: 1_000_000,
+            ..paper_settings()
+        };
+        assert!(
+            matches!(too_many.check(), Err(StudyError::OutOfRange(m)) if m.contains("--trials"))
+        );
+    }
 
     #[test]
     fn zero_runs_or_trials_are_refused() {

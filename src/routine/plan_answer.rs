@@ -3,6 +3,7 @@
 //! whose estimate would be written, and the words and flags to drive it.
 
 use super::config::RoutineConfig;
+use super::overrides::Shape;
 use super::planning::{expected_method, plan_input, plan_of, Setting};
 use crate::calibration::plan::{
     duration_text, floor_needed, largest_side, plan, Plan, Space, Target,
@@ -12,33 +13,66 @@ use crate::ranges::{check_range, compact};
 use serde_json::json;
 use std::fmt::Write as _;
 
-/// What `odocal plan` is asked: the routine's settings, and the robot and floor as given.
+/// What `odocal plan` is asked: the robot and floor as given, and the routine's shape (with the
+/// `cli` feature, `odocal plan`'s flags, their doc comments the help).
 #[derive(Debug, Clone, PartialEq)]
+#[cfg_attr(feature = "cli", derive(clap::Args))]
+#[cfg_attr(feature = "cli", command(group(clap::ArgGroup::new("space").required(true).multiple(true).args(["floor_m", "side_max_m", "side_m"]))))]
 pub struct PlanRequest {
-    /// The routine's settings (its shape flags applied).
-    pub cfg: RoutineConfig,
-    /// The free floor as given, `WIDTH,LENGTH` (m), when given.
-    pub floor: Option<String>,
-    /// The longest side to consider (m), instead of a floor.
+    /// The free floor, WIDTH,LENGTH (m, either way round): the clockwise and counter-clockwise
+    /// squares lie either side of the first leg.
+    #[cfg_attr(feature = "cli", arg(long = "floor-m", value_name = "W,L"))]
+    pub floor_m: Option<String>,
+    /// The longest square side to consider (m), instead of --floor-m.
+    #[cfg_attr(feature = "cli", arg(long, conflicts_with = "floor_m"))]
     pub side_max_m: Option<f64>,
-    /// Squares of exactly this side (m).
+    /// Squares of exactly this side (m) instead of the largest that fits (with --floor-m: it
+    /// must fit).
+    #[cfg_attr(feature = "cli", arg(long, conflicts_with = "side_max_m"))]
     pub side_m: Option<f64>,
-    /// The heading sensor's noise per reading at rest (deg).
+    /// The heading sensor's noise per reading at rest (deg): `odocal heading --heading-samples 50`
+    /// prints it.
+    #[cfg_attr(feature = "cli", arg(long))]
     pub heading_sigma_deg: f64,
-    /// The wheelbase configured (m).
+    /// The wheelbase configured on the robot (m).
+    #[cfg_attr(feature = "cli", arg(long))]
     pub wheelbase_m: f64,
-    /// Wheel diameter (m) and counts per revolution, for the rounding to whole counts.
-    pub wheel: Option<(f64, f64)>,
-    /// What the heading sensor is.
+    /// The wheel diameter configured on the robot (m): with --counts-per-rev, the end point
+    /// counts the rounding of every motion to whole encoder counts (a controller that drives to
+    /// wheel targets in counts: our protocol's devices, a RoboClaw).
+    #[cfg_attr(feature = "cli", arg(long, requires = "counts_per_rev"))]
+    pub wheel_diameter_m: Option<f64>,
+    /// Encoder counts per wheel revolution (with --wheel-diameter-m).
+    #[cfg_attr(feature = "cli", arg(long, requires = "wheel_diameter_m"))]
+    pub counts_per_rev: Option<f64>,
+    /// What the heading sensor is (decides the default method and the compass swing):
+    /// magnetic, gyro, reference or unknown.
+    #[cfg_attr(feature = "cli", arg(long, default_value = "unknown"))]
     pub heading_kind: HeadingKind,
-    /// Heading readings per second, when not the telemetry rate.
+    /// Heading readings per second [default: the telemetry rate, 50].
+    #[cfg_attr(feature = "cli", arg(long))]
     pub heading_hz: Option<f64>,
-    /// The robot's largest width (m).
+    /// The robot's largest width (m), added to the floor the squares need.
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = super::planning::DEFAULT_FOOTPRINT_M))]
     pub footprint_m: f64,
-    /// Scatter of a run's heading error beyond the sensor's noise (deg).
+    /// Scatter of a run's heading error beyond the sensor's noise (deg), from an earlier
+    /// calibration of this robot on this floor (slip, bumps); 0 when unknown.
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 0.0))]
     pub run_scatter_deg: f64,
-    /// Target RMS end-point error of one square (m).
+    /// Target RMS end-point error (m) of one square of the plan's side driven with the
+    /// calibrated parameters (the rounding to whole encoder counts included when known).
+    #[cfg_attr(feature = "cli", arg(long))]
     pub target_end_m: Option<f64>,
+    /// What the calibration drives: the routine's defaults with these set.
+    #[cfg_attr(feature = "cli", command(flatten))]
+    pub shape: Shape,
+}
+
+impl PlanRequest {
+    /// Wheel diameter (m) and counts per revolution, when both are given.
+    fn wheel(&self) -> Option<(f64, f64)> {
+        self.wheel_diameter_m.zip(self.counts_per_rev)
+    }
 }
 
 /// What it gets back.
@@ -50,6 +84,8 @@ pub struct PlanAnswer {
     pub fixed: Plan,
     /// The method whose estimate would be written.
     pub method: Method,
+    /// The routine's settings planned (its defaults with the request's shape).
+    pub cfg: RoutineConfig,
     /// The request.
     pub request: PlanRequest,
 }
@@ -112,7 +148,7 @@ pub fn parse_floor(s: &str) -> Result<Space, String> {
 /// Plans `request`; an error names the flag to change.
 pub fn answer(request: PlanRequest) -> Result<PlanAnswer, Box<dyn std::error::Error>> {
     check(&request)?;
-    let floor = request.floor.as_deref().map(parse_floor).transpose()?;
+    let floor = request.floor_m.as_deref().map(parse_floor).transpose()?;
     let space = match (floor, request.side_max_m, request.side_m) {
         (floor, _, Some(side)) => {
             if let Some(floor) = floor {
@@ -124,11 +160,12 @@ pub fn answer(request: PlanRequest) -> Result<PlanAnswer, Box<dyn std::error::Er
         (None, Some(s), None) => Space::MaxSide(s),
         (None, None, None) => return Err("give --floor-m W,L, --side-max-m or --side-m".into()),
     };
-    if let Some((d, n)) = request.wheel {
+    if let Some((d, n)) = request.wheel() {
         check_range("--wheel-diameter-m", d, 0.01, 2.0)?;
         check_range("--counts-per-rev", n, 1.0, 1e9)?;
     }
-    let cfg = &request.cfg;
+    let mut cfg = RoutineConfig::default();
+    request.shape.apply(&mut cfg);
     cfg.validate()?;
     let setting = Setting {
         space: Some(space),
@@ -139,11 +176,11 @@ pub fn answer(request: PlanRequest) -> Result<PlanAnswer, Box<dyn std::error::Er
         readings_per_s: request.heading_hz,
         run_scatter_rad: request.run_scatter_deg.to_radians(),
         m_per_count: request
-            .wheel
+            .wheel()
             .map_or(0.0, |(d, n)| std::f64::consts::PI * d / n),
     };
     // An end-point target is the plan's alone: the routine stops on standard errors.
-    let mut input = plan_input(cfg, &setting);
+    let mut input = plan_input(&cfg, &setting);
     input.target = Target {
         end_point_m: request.target_end_m,
         ..input.target
@@ -156,11 +193,12 @@ pub fn answer(request: PlanRequest) -> Result<PlanAnswer, Box<dyn std::error::Er
         ..cfg.clone()
     };
     let fixed = plan_of(&fixed_cfg, &setting)?;
-    let method = expected_method(cfg, request.heading_kind);
+    let method = expected_method(&cfg, request.heading_kind);
     Ok(PlanAnswer {
         plan: planned,
         fixed,
         method,
+        cfg,
         request,
     })
 }
@@ -187,7 +225,7 @@ impl PlanAnswer {
 
     /// Why the rounds stop: the targets, or a fixed number of squares.
     fn stopping(&self) -> String {
-        let cfg = &self.request.cfg;
+        let cfg = &self.cfg;
         if !self.plan.sequential {
             return "a fixed number of squares (--target-eb-std or --target-ed-std instead drives \
                     them in pairs until the estimate is that precise)"
@@ -211,7 +249,7 @@ impl PlanAnswer {
 
     /// The flags of `odocal calibrate` that drive this plan.
     fn flags(&self) -> String {
-        let (plan, cfg) = (&self.plan, &self.request.cfg);
+        let (plan, cfg) = (&self.plan, &self.cfg);
         let mut flags = format!("--side-m {}", plan.side_m);
         for (flag, v) in [
             ("--target-eb-std", cfg.target_e_b_std),
@@ -290,7 +328,7 @@ impl PlanAnswer {
         Err(format!(
             "the target is not reached within {} runs per direction: more floor, more readings \
              at rest (--heading-samples), a quieter heading sensor or --max-runs",
-            self.request.cfg.max_runs_per_direction
+            self.cfg.max_runs_per_direction
         ))
     }
 }

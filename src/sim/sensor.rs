@@ -30,6 +30,10 @@ pub enum SensorKind {
     Gyro,
 }
 
+/// The simulated heading sensor's noise per reading (deg, σ) every mock and simulation starts
+/// with unless told otherwise: a real compass's at rest (`--heading-sigma-deg`).
+pub const SIM_HEADING_SIGMA_DEG: f64 = 0.37;
+
 pub use crate::kinematics::Deviation;
 
 /// How the heading sensor errs; every term off by default.

@@ -1,37 +1,5 @@
-//! Flags several commands share (a leaf: it uses no other file of the binary): the split
-//! convention, a mock's true robot, its heading sensor's errors and its extra NMEA compass,
-//! and how a mock server is stopped.
-
-use odocal::kinematics::SplitConvention;
-
-/// Convention flags shared by the subcommands that estimate.
-#[derive(Debug, Clone, clap::Args)]
-pub struct ConventionArgs {
-    /// Diameter split for estimation and write-back: left-nominal, mean-preserving or
-    /// measured-scale:COMMANDED_M,MEASURED_M.
-    #[arg(long, default_value = "left-nominal")]
-    convention: SplitConvention,
-    /// Straight-line scale check: distance commanded (m). With --straight-measured-m, fixes
-    /// the absolute wheel scale (overrides --convention).
-    #[arg(long, requires = "straight_measured_m")]
-    straight_commanded_m: Option<f64>,
-    /// Straight-line scale check: distance measured start to end with a tape (m).
-    #[arg(long, requires = "straight_commanded_m")]
-    straight_measured_m: Option<f64>,
-}
-
-impl ConventionArgs {
-    /// The library convention these flags select.
-    pub fn convention(&self) -> SplitConvention {
-        match (self.straight_commanded_m, self.straight_measured_m) {
-            (Some(commanded_m), Some(measured_m)) => SplitConvention::MeasuredScale {
-                commanded_m,
-                measured_m,
-            },
-            _ => self.convention,
-        }
-    }
-}
+//! Flags several commands share (a leaf: it uses no other file of the binary): a mock's extra
+//! NMEA compass and how a mock server is stopped.
 
 /// A mock NMEA compass on the simulated robot of a mock server (`--nmea`): its terminal is
 /// printed as `nmea:PATH` on the line after the server's own.
@@ -56,8 +24,6 @@ impl MockCompassArgs {
         Ok(Some(pty))
     }
 }
-
-pub use odocal::mock::options::SIM_HEADING_SIGMA_DEG;
 
 /// " or closing stdin" unless a mock server ignores its stdin: how the server is stopped.
 pub fn or_stdin(ignore_stdin: bool) -> &'static str {

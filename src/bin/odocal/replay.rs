@@ -1,8 +1,8 @@
 //! `odocal replay`: calibrate on recorded square sets of one robot (pooled), evaluate on
 //! recorded runs.
 
-use crate::args::ConventionArgs;
 use crate::out::print_json;
+use odocal::calibration::convention::ConventionChoice;
 use odocal::offline::dataset::{replay, OptiOdomSet};
 use std::path::PathBuf;
 
@@ -18,7 +18,7 @@ pub struct Args {
     #[arg(long)]
     evaluate: Vec<PathBuf>,
     #[command(flatten)]
-    convention: ConventionArgs,
+    convention: ConventionChoice,
     /// Print one JSON object instead of tables.
     #[arg(long)]
     json: bool,
