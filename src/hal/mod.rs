@@ -14,6 +14,7 @@ pub mod base;
 pub mod conformance;
 pub mod error;
 pub mod link;
+pub mod status;
 
 pub use error::{HalError, LinkError};
 
@@ -552,6 +553,15 @@ impl Client {
     /// Reads the status.
     pub async fn status(&self) -> Result<Status, HalError> {
         expect!(self.request(Request::GetStatus).await?, Response::GetStatus(s) => s)
+    }
+
+    /// Who the device is and how it is now ([`status::DeviceStatus`], what `odocal status`
+    /// shows).
+    pub async fn device_status(&self) -> Result<status::DeviceStatus, HalError> {
+        Ok(status::DeviceStatus {
+            device: *self.device_info(),
+            status: self.status().await?,
+        })
     }
 
     /// Reads the encoders (raw, wrapping counters).

@@ -459,6 +459,17 @@ impl RoboClaw {
         Ok(packet::be_u32(&d, 0).unwrap_or(0))
     }
 
+    /// Firmware, battery, status bits and both encoders ([`StatusReport`], what `odocal
+    /// status` shows of a RoboClaw).
+    pub async fn status_report(&self) -> Result<StatusReport, RoboClawError> {
+        Ok(StatusReport {
+            firmware: self.version().await?,
+            battery_v: self.battery_v().await?,
+            status: self.status().await?,
+            encoders: [self.encoder(1).await?, self.encoder(2).await?],
+        })
+    }
+
     /// Both motors' buffer lengths ([`packet::BUFFER_IDLE`] when finished).
     pub async fn buffers(&self) -> Result<(u8, u8), RoboClawError> {
         let d = self.read(cmd::READ_BUFFERS, 2).await?;
@@ -485,5 +496,40 @@ impl RoboClaw {
             Ordering::Relaxed,
         );
         Ok(set)
+    }
+}
+
+/// What `odocal status` shows of a RoboClaw.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StatusReport {
+    /// The firmware's version string.
+    pub firmware: String,
+    /// Main battery (V).
+    pub battery_v: f64,
+    /// Status bits.
+    pub status: u32,
+    /// Encoder M1 and M2: the count and its status bits.
+    pub encoders: [(u32, u8); 2],
+}
+
+impl StatusReport {
+    /// The report as JSON.
+    pub fn json(&self) -> serde_json::Value {
+        let [(m1, s1), (m2, s2)] = self.encoders;
+        serde_json::json!({
+            "firmware": self.firmware, "battery_v": self.battery_v, "status": self.status,
+            "encoders": [{"count": m1, "status": s1}, {"count": m2, "status": s2}],
+        })
+    }
+}
+
+impl std::fmt::Display for StatusReport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let [(m1, s1), (m2, s2)] = self.encoders;
+        writeln!(f, "{}", self.firmware.escape_debug())?;
+        writeln!(f, "main battery       {:.1} V", self.battery_v)?;
+        writeln!(f, "status bits        0x{:08X}", self.status)?;
+        writeln!(f, "encoder M1         {m1} (status 0x{s1:02X})")?;
+        writeln!(f, "encoder M2         {m2} (status 0x{s2:02X})")
     }
 }

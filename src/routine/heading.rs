@@ -19,6 +19,61 @@ pub fn circular_std(angles: &[f64]) -> f64 {
     NoisePool::of(angles).std_rad()
 }
 
+/// The heading at rest as `odocal heading` reads it: the circular mean of readings and, of two
+/// or more, their spread (the noise per reading `odocal plan --heading-sigma-deg` wants).
+#[derive(Debug, Clone, PartialEq)]
+pub struct HeadingReading {
+    /// Circular mean (rad, counter-clockwise positive, wrapped to (−π, π]).
+    pub mean_rad: f64,
+    /// Readings averaged.
+    pub samples: usize,
+    /// Their sample standard deviation (rad), of two or more.
+    pub sigma_rad: Option<f64>,
+}
+
+impl HeadingReading {
+    /// `n` readings of `source`, averaged.
+    pub async fn read(source: &dyn HeadingSource, n: usize) -> Result<Self, RoutineError> {
+        let all = readings(source, n).await?;
+        Ok(HeadingReading {
+            mean_rad: circular_mean(&all),
+            samples: all.len(),
+            sigma_rad: (all.len() > 1).then(|| circular_std(&all)),
+        })
+    }
+
+    /// The reading as JSON (radians and degrees).
+    pub fn json(&self) -> serde_json::Value {
+        serde_json::json!({
+            "heading_rad": self.mean_rad,
+            "heading_deg": self.mean_rad.to_degrees(),
+            "samples": self.samples,
+            "sigma_rad": self.sigma_rad,
+            "sigma_deg": self.sigma_rad.map(f64::to_degrees),
+        })
+    }
+}
+
+impl std::fmt::Display for HeadingReading {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "heading {:.3}° ({:.6} rad, counter-clockwise positive, mean of {})",
+            self.mean_rad.to_degrees(),
+            self.mean_rad,
+            self.samples
+        )?;
+        if let Some(s) = self.sigma_rad {
+            write!(
+                f,
+                "; σ {:.3}° per reading (odocal plan --heading-sigma-deg)",
+                s.to_degrees()
+            )?;
+        }
+        Ok(())
+    }
+}
+
 /// The spread of readings at rest pooled over several rests: each rest's squared deviations
 /// about its own circular mean, so that a heading that differs from rest to rest (the robot
 /// turned) adds nothing.

@@ -320,22 +320,11 @@ pub async fn status(port: PortArgs) -> CliResult {
     {
         return crate::roboclaw::roboclaw_status(&port.port, &path, address, baud, port.json).await;
     }
-    let client = port.connect().await?;
-    let s = client.status().await?;
+    let report = port.connect().await?.device_status().await?;
     if port.json {
-        return print_json(&json!({ "device": client.device_info(), "status": s }));
+        return print_json(&report.json());
     }
-    let info = client.device_info();
-    println!(
-        "{} (protocol {}.{}, serial {:#x})",
-        info.firmware_id, info.major, info.minor, info.serial_number
-    );
-    println!("motion state       {}", s.motion_state);
-    println!("queue depth        {}", s.queue_depth);
-    println!("completed motions  {}", s.completed_motions);
-    println!("fault flags        {:#06x}", s.fault_flags);
-    println!("watchdog           {}", s.watchdog_state);
-    println!("uptime             {:.1} s", f64::from(s.uptime_ms) / 1e3);
+    print!("{report}");
     Ok(())
 }
 
@@ -345,7 +334,7 @@ pub async fn status(port: PortArgs) -> CliResult {
 #[derive(Debug, clap::Args)]
 pub struct HeadingArgs {
     #[command(flatten)]
-    robot: crate::robot::RobotArgs,
+    robot: odocal::spec::flags::RobotFlags,
     /// Readings to average (circular mean); with two or more, their σ is printed too (the
     /// noise per reading `odocal plan` needs: hold the robot still).
     #[arg(long = "heading-samples", alias = "samples", default_value_t = 1)]
@@ -357,7 +346,7 @@ pub struct HeadingArgs {
 
 /// Runs `odocal heading`.
 pub async fn heading(args: HeadingArgs) -> CliResult {
-    use odocal::routine::heading::{circular_mean, circular_std, readings};
+    use odocal::routine::heading::HeadingReading;
     // The whole robot is kept open while its sensor is read.
     let mut _robot = None;
     let source = match args.robot.heading_alone() {
@@ -370,28 +359,10 @@ pub async fn heading(args: HeadingArgs) -> CliResult {
             heading
         }
     };
-    let all = readings(source.as_ref(), args.samples).await?;
-    let mean = circular_mean(&all);
-    // The noise per reading at rest: what `odocal plan --heading-sigma-deg` wants.
-    let sigma = (all.len() > 1).then(|| circular_std(&all));
+    let reading = HeadingReading::read(source.as_ref(), args.samples).await?;
     if args.json {
-        return print_json(&json!({
-            "heading_rad": mean,
-            "heading_deg": mean.to_degrees(),
-            "samples": all.len(),
-            "sigma_rad": sigma,
-            "sigma_deg": sigma.map(f64::to_degrees),
-        }));
+        return print_json(&reading.json());
     }
-    println!(
-        "heading {:.3}° ({:.6} rad, counter-clockwise positive, mean of {}){}",
-        mean.to_degrees(),
-        mean,
-        all.len(),
-        sigma.map_or(String::new(), |s| format!(
-            "; σ {:.3}° per reading (odocal plan --heading-sigma-deg)",
-            s.to_degrees()
-        ))
-    );
+    println!("{reading}");
     Ok(())
 }

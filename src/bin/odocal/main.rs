@@ -12,7 +12,6 @@ mod prompt;
 mod replay;
 mod restore;
 mod roboclaw;
-mod robot;
 mod ros;
 mod routine;
 mod sensor;

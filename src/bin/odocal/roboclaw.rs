@@ -3,7 +3,6 @@
 use crate::out::print_json;
 use odocal::roboclaw::client::{RoboClaw, RoboClawConfig};
 use odocal::roboclaw::profile::Profile;
-use serde_json::json;
 use std::path::PathBuf;
 
 type CliResult = Result<(), Box<dyn std::error::Error>>;
@@ -16,32 +15,20 @@ pub async fn roboclaw_status(
     baud: u32,
     json_out: bool,
 ) -> CliResult {
-    let claw = RoboClaw::open(
-        port,
-        RoboClawConfig {
-            address,
-            baud,
-            ..RoboClawConfig::default()
-        },
-    )?;
-    let version = claw.version().await.map_err(|e| {
+    let config = RoboClawConfig {
+        address,
+        baud,
+        ..RoboClawConfig::default()
+    };
+    let claw = RoboClaw::open(port, config)?;
+    claw.version().await.map_err(|e| {
         format!("{spec}: no answer to the version request ({e}): not a RoboClaw, or the wrong baud or address")
     })?;
-    let battery = claw.battery_v().await?;
-    let status = claw.status().await?;
-    let (m1, s1) = claw.encoder(1).await?;
-    let (m2, s2) = claw.encoder(2).await?;
+    let report = claw.status_report().await?;
     if json_out {
-        return print_json(&json!({
-            "firmware": version, "battery_v": battery, "status": status,
-            "encoders": [{"count": m1, "status": s1}, {"count": m2, "status": s2}],
-        }));
+        return print_json(&report.json());
     }
-    println!("{}", version.escape_debug());
-    println!("main battery       {battery:.1} V");
-    println!("status bits        0x{status:08X}");
-    println!("encoder M1         {m1} (status 0x{s1:02X})");
-    println!("encoder M2         {m2} (status 0x{s2:02X})");
+    print!("{report}");
     Ok(())
 }
 

@@ -1,7 +1,6 @@
 //! `odocal demo`, `calibrate`, `run` and `export`: the recalibration routine's commands.
 
 use crate::out::print_json;
-use crate::robot::RobotArgs;
 use indicatif::{ProgressBar, ProgressStyle};
 use odocal::base::Base;
 use odocal::demo::{run_demo, DemoOptions};
@@ -10,6 +9,7 @@ use odocal::routine::overrides::Overrides;
 use odocal::routine::progress::{RobotClock, Shown};
 use odocal::routine::report::Report;
 use odocal::routine::{run, RoutineEvent, RoutineUi};
+use odocal::spec::flags::RobotFlags;
 use odocal::spec::{BaseSpec, DriveSpec, RobotSection, RoutineFile};
 use std::io::IsTerminal;
 use std::path::PathBuf;
@@ -212,7 +212,7 @@ impl RoutineFlags {
 #[derive(Debug, clap::Args)]
 pub struct CalibrateArgs {
     #[command(flatten)]
-    robot: RobotArgs,
+    robot: RobotFlags,
     /// A routine file to start from (flags override it).
     #[arg(long)]
     config: Option<PathBuf>,

@@ -2,7 +2,6 @@
 //! The swing fits a compass's deviation curve; the spin measures a gyro's scale error against
 //! a mark on the floor. Both print the flag that gives the result to `calibrate`.
 
-use crate::robot::RobotArgs;
 use odocal::base::HeadingKind;
 use odocal::calibration::gyro::scale_from_spin;
 use odocal::kinematics::wrap_angle;
@@ -10,6 +9,7 @@ use odocal::roboclaw::profile::{save_heading, HeadingSection};
 use odocal::routine::heading::mean_heading;
 use odocal::routine::spin::{run_spin, SpinOutcome};
 use odocal::routine::swing::{run_swing, SwingCommand, SwingOutcome};
+use odocal::spec::flags::RobotFlags;
 use odocal::spec::{HeadingSpec, RobotSection, StoreSpec};
 use std::time::Duration;
 
@@ -19,7 +19,7 @@ type CliResult = Result<(), Box<dyn std::error::Error>>;
 #[derive(Debug, clap::Args)]
 pub struct SwingArgs {
     #[command(flatten)]
-    robot: RobotArgs,
+    robot: RobotFlags,
     /// Full turns each way.
     #[arg(long, default_value_t = 2)]
     turns: u32,
@@ -43,7 +43,7 @@ pub struct SwingArgs {
 #[derive(Debug, clap::Args)]
 pub struct SpinArgs {
     #[command(flatten)]
-    robot: RobotArgs,
+    robot: RobotFlags,
     /// Full turns (negative: clockwise). More turns, a finer scale: 0.5° at the mark over 5
     /// turns is 0.03 %.
     #[arg(long, default_value_t = 5)]

@@ -2,7 +2,6 @@
 //! base (a controller of our protocol, a ROS robot, a RoboClaw with a compass).
 
 use crate::out::print_json;
-use crate::robot::RobotArgs;
 use clap::ArgGroup;
 use odocal::base::{Base, PoseSource};
 use odocal::calibration::online::{OnlineConfig, OnlineEstimate, ScaleSource};
@@ -17,6 +16,7 @@ use odocal::routine::config::WritePolicy;
 use odocal::routine::track::{
     track_live, write_back, PathOptions, TrackOptions, TrackOutcome, WriteBack,
 };
+use odocal::spec::flags::RobotFlags;
 use odocal::spec::RobotSection;
 use std::path::PathBuf;
 use std::time::Duration;
@@ -34,7 +34,7 @@ pub struct DriveArgs {
 }
 
 /// Opens the robot and reads the parameters its travel is converted with.
-async fn open(robot: &RobotArgs) -> Result<(Base, WheelParams), Box<dyn std::error::Error>> {
+async fn open(robot: &RobotFlags) -> Result<(Base, WheelParams), Box<dyn std::error::Error>> {
     let base = robot.spec(RobotSection::default())?.open().await?;
     let params = base.store.read().await?;
     Ok((base, params))
@@ -89,7 +89,7 @@ async fn live(
 #[derive(Debug, clap::Args)]
 pub struct RecordArgs {
     #[command(flatten)]
-    robot: RobotArgs,
+    robot: RobotFlags,
     /// The log to write (JSON lines).
     #[arg(long)]
     out: PathBuf,
@@ -175,7 +175,7 @@ pub async fn record(args: RecordArgs) -> CliResult {
 #[command(group(ArgGroup::new("source").required(true).args(["port", "base", "log", "dataset", "poses"])))]
 pub struct TrackArgs {
     #[command(flatten)]
-    robot: RobotArgs,
+    robot: RobotFlags,
     /// A log written by `odocal record` or `track --record`.
     #[arg(long)]
     log: Option<PathBuf>,

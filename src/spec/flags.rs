@@ -1,47 +1,48 @@
-//! The flags that say where a robot is, shared by `calibrate`, `track` and `record`: they become
-//! a [`RobotSection`] laid over a routine file's, and the library makes the spec.
+//! The flags that say where a robot is, shared by `calibrate`, `track`, `record`, `heading`,
+//! `swing` and `spin` (with the `cli` feature they are the command line's, their doc comments
+//! the help): they become a [`RobotSection`] laid over a routine file's, and that the spec.
 
-use odocal::ros::live::{RosBaseConfig, WheelSource};
-use odocal::spec::{BaseSpec, RobotSection};
+use super::{BaseSpec, RobotSection, SpecError};
+use crate::ros::live::{RosBaseConfig, WheelSource};
 use std::path::PathBuf;
 
-type Error = Box<dyn std::error::Error>;
-
 /// Where the robot is.
-#[derive(Debug, Clone, clap::Args)]
-pub struct RobotArgs {
+#[derive(Debug, Clone, Default, PartialEq)]
+#[cfg_attr(feature = "cli", derive(clap::Args))]
+pub struct RobotFlags {
     /// Serial port of a motor controller that speaks odocal's protocol.
-    #[arg(long, conflicts_with = "base")]
-    port: Option<String>,
+    #[cfg_attr(feature = "cli", arg(long, conflicts_with = "base"))]
+    pub port: Option<String>,
     /// The drive: rosbridge://HOST:PORT (a ROS robot; needs --ros-yaml),
     /// 'roboclaw:PORT?address=128&baud=38400' (needs --heading and --profile), or
     /// odocal:PORT?baud=115200. Quote it: a shell ends the command at `&`.
-    #[arg(long)]
-    base: Option<String>,
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub base: Option<String>,
     /// Baud rate of an odocal-protocol controller [default: 115200].
-    #[arg(long)]
-    baud: Option<u32>,
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub baud: Option<u32>,
     /// The heading source, when it is not the drive's own: nmea:PORT[?baud=4800].
-    #[arg(long)]
-    heading: Option<String>,
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub heading: Option<String>,
     /// The robot profile of a drive that keeps no parameters (a RoboClaw): geometry, wiring,
     /// limits; written back.
-    #[arg(long)]
-    profile: Option<PathBuf>,
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub profile: Option<PathBuf>,
     /// What the heading sensor is: magnetic (a compass; deviation possible), gyro
     /// (integrated; its scale error enters E_b), reference (ground truth) or unknown
     /// [default: what the backend says; a ROS IMU is unknown].
-    #[arg(long)]
-    heading_kind: Option<String>,
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub heading_kind: Option<String>,
     /// A compass deviation to remove from every reading, A1,B1,A2,B2 in degrees
     /// (d(ψ) = A1·sin ψ + B1·cos ψ + A2·sin 2ψ + B2·cos 2ψ, as `odocal swing` prints it).
-    #[arg(long, allow_hyphen_values = true)]
-    compass_deviation_deg: Option<String>,
-    #[command(flatten)]
-    ros: RosFlags,
+    #[cfg_attr(feature = "cli", arg(long, allow_hyphen_values = true))]
+    pub compass_deviation_deg: Option<String>,
+    /// The ROS settings of `--base rosbridge://…`.
+    #[cfg_attr(feature = "cli", command(flatten))]
+    pub ros: RosFlags,
 }
 
-impl RobotArgs {
+impl RobotFlags {
     /// The rosbridge URL of a ROS robot (`--base rosbridge://…`), if that is the base.
     pub fn rosbridge_url(&self) -> Option<&str> {
         self.base
@@ -52,37 +53,38 @@ impl RobotArgs {
 
 /// ROS settings of `--base rosbridge://…` (a routine file's `[robot.ros]` table holds the same
 /// keys).
-#[derive(Debug, Clone, Default, clap::Args)]
+#[derive(Debug, Clone, Default, PartialEq)]
+#[cfg_attr(feature = "cli", derive(clap::Args))]
 pub struct RosFlags {
     /// The controller's ros2_control YAML: the geometry is read from it and the calibrated
     /// multipliers are written into it (backed up first, into the run's report directory).
-    #[arg(long)]
-    ros_yaml: Option<PathBuf>,
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub ros_yaml: Option<PathBuf>,
     /// The diff_drive_controller's name, `ns/name` to pick one namespace's [default:
     /// diff_drive_controller].
-    #[arg(long)]
-    controller: Option<String>,
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub controller: Option<String>,
     /// Velocity topic [default: /cmd_vel; newer setups use /diff_drive_controller/cmd_vel].
-    #[arg(long)]
-    cmd_vel: Option<String>,
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub cmd_vel: Option<String>,
     /// Publish geometry_msgs/TwistStamped instead of Twist.
-    #[arg(long)]
-    twist_stamped: bool,
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub twist_stamped: bool,
     /// Where the drive's odometry comes from: joint-states or odom [default: joint-states].
-    #[arg(long)]
-    wheel_source: Option<String>,
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub wheel_source: Option<String>,
     /// Joint states topic [default: /joint_states].
-    #[arg(long)]
-    joint_states_topic: Option<String>,
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub joint_states_topic: Option<String>,
     /// IMU topic [default: /imu].
-    #[arg(long)]
-    imu_topic: Option<String>,
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub imu_topic: Option<String>,
     /// Odometry topic [default: /odom].
-    #[arg(long)]
-    odom_topic: Option<String>,
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub odom_topic: Option<String>,
     /// Also set the written multipliers on the running controller (set_parameters).
-    #[arg(long)]
-    ros_set_live: bool,
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub ros_set_live: bool,
 }
 
 impl RosFlags {
@@ -100,7 +102,7 @@ impl RosFlags {
     }
 
     /// `c` with the flags given laid over it.
-    fn apply(&self, mut c: RosBaseConfig) -> Result<RosBaseConfig, Error> {
+    fn apply(&self, mut c: RosBaseConfig) -> Result<RosBaseConfig, SpecError> {
         if let Some(y) = &self.ros_yaml {
             c.yaml = y.clone();
         }
@@ -117,7 +119,10 @@ impl RosFlags {
                 "joint-states" => WheelSource::JointStates,
                 "odom" => WheelSource::Odom,
                 other => {
-                    return Err(format!("--wheel-source {other}: use joint-states or odom").into())
+                    return Err(super::parse_err(
+                        other,
+                        "--wheel-source: use joint-states or odom",
+                    ))
                 }
             };
         }
@@ -134,12 +139,12 @@ impl RosFlags {
     }
 }
 
-impl RobotArgs {
+impl RobotFlags {
     /// A heading sensor to read without opening the robot (`odocal heading`): `--heading`, or
     /// `--port` (a heading spec, or an odocal-protocol controller) when there is no `--base`;
     /// with its baud rate.
     pub fn heading_alone(&self) -> Option<(String, u32)> {
-        let baud = self.baud.unwrap_or(odocal::hal::DEFAULT_BAUD);
+        let baud = self.baud.unwrap_or(crate::hal::DEFAULT_BAUD);
         match (&self.heading, &self.port, &self.base) {
             (Some(h), _, _) => Some((h.clone(), baud)),
             (None, Some(p), None) => Some((p.clone(), baud)),
@@ -162,7 +167,7 @@ impl RobotArgs {
     }
 
     /// The robot: a routine file's section (if any) with these flags laid over it.
-    pub fn spec(&self, file: RobotSection) -> Result<BaseSpec, Error> {
+    pub fn spec(&self, file: RobotSection) -> Result<BaseSpec, SpecError> {
         let ros = match (file.ros.clone(), self.ros.any()) {
             (Some(c), _) => Some(self.ros.apply(c)?),
             (None, true) => Some(self.ros.apply(RosBaseConfig::default())?),
@@ -172,6 +177,64 @@ impl RobotArgs {
             ros,
             ..self.section()
         };
-        Ok(file.over(flags).spec()?)
+        file.over(flags).spec()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_heading_is_read_alone_unless_a_base_is_given() {
+        let port = RobotFlags {
+            port: Some("/dev/ttyUSB0".into()),
+            ..RobotFlags::default()
+        };
+        let baud = crate::hal::DEFAULT_BAUD;
+        assert_eq!(port.heading_alone(), Some(("/dev/ttyUSB0".into(), baud)));
+        assert_eq!(port.section().drive.as_deref(), Some("/dev/ttyUSB0"));
+        let base = RobotFlags {
+            base: Some("rosbridge://127.0.0.1:9090".into()),
+            ..RobotFlags::default()
+        };
+        assert_eq!(base.heading_alone(), None);
+        assert_eq!(base.rosbridge_url(), Some("rosbridge://127.0.0.1:9090"));
+        let compass = RobotFlags {
+            heading: Some("nmea:/dev/ttyUSB1".into()),
+            baud: Some(4800),
+            ..base
+        };
+        assert_eq!(
+            compass.heading_alone(),
+            Some(("nmea:/dev/ttyUSB1".into(), 4800))
+        );
+    }
+
+    #[test]
+    fn ros_flags_lay_over_a_configuration_and_refuse_an_unknown_wheel_source() {
+        assert!(!RosFlags::default().any());
+        let flags = RosFlags {
+            cmd_vel: Some("/diff_drive_controller/cmd_vel".into()),
+            wheel_source: Some("odom".into()),
+            twist_stamped: true,
+            ..RosFlags::default()
+        };
+        assert!(flags.any());
+        let c = flags.apply(RosBaseConfig::default()).unwrap();
+        assert_eq!(c.cmd_vel, "/diff_drive_controller/cmd_vel");
+        assert_eq!(c.wheel_source, WheelSource::Odom);
+        assert!(c.twist_stamped);
+        assert_eq!(
+            c.topics,
+            RosBaseConfig::default().topics,
+            "topics not given stay"
+        );
+        let bad = RosFlags {
+            wheel_source: Some("gps".into()),
+            ..RosFlags::default()
+        };
+        let e = bad.apply(RosBaseConfig::default()).unwrap_err();
+        assert!(e.to_string().contains("joint-states or odom"), "{e}");
     }
 }

@@ -17,6 +17,8 @@
 //! | store | `drive` (the drive's own); `profile:PATH` (a robot profile, for a drive that keeps no parameters) |
 //! | a store on its own ([`StoreLocation`]: `odocal restore --to`) | a controller's `PORT` (or `odocal:PORT?baud=…`); `profile:PATH`; `ros-yaml:PATH[?controller=diff_drive_controller]` (a controller's ros2_control YAML) |
 
+pub mod flags;
+
 use crate::base::adjusted::Adjusted;
 use crate::base::heading_backend::{HeadingBackend, PortSpec};
 use crate::base::transaction::{BackupError, BackupFile};
