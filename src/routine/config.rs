@@ -133,6 +133,27 @@ pub struct ConfigError {
     pub message: String,
 }
 
+impl ConfigError {
+    /// A setting that cannot be used, with no line of a file to point at.
+    pub fn new(message: impl Into<String>) -> Self {
+        ConfigError {
+            line: None,
+            message: message.into(),
+        }
+    }
+}
+
+/// A turn-rate limit a robot may be given: in (0, 3] rad/s
+/// ([`HARD_RATE_LIMIT_RAD_S`]).
+pub fn check_rate_limit(rate_rad_s: f64) -> Result<(), ConfigError> {
+    if rate_rad_s.is_finite() && rate_rad_s > 0.0 && rate_rad_s <= HARD_RATE_LIMIT_RAD_S {
+        return Ok(());
+    }
+    Err(ConfigError::new(format!(
+        "--max-rate-rad-s {rate_rad_s}: must be in (0, 3]"
+    )))
+}
+
 impl RoutineConfig {
     /// The precision the settings ask for, when they ask for one (the round's squares then stop
     /// once it is reached).

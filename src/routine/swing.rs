@@ -5,6 +5,7 @@
 //! is cumulative, so a lost travel sample only coarsens it), not a heading interpolated at the
 //! travel's times: across readings a lossy link lost, an interpolated heading is invented.
 
+use super::config::ConfigError;
 use super::RoutineError;
 use crate::base::{Base, MotionGuard, SampleStream};
 use crate::calibration::recording::{Recording, Track};
@@ -26,6 +27,52 @@ pub struct SwingCommand {
     /// The compass's noise per reading at rest (rad), when known: what the fit's residual is
     /// judged against.
     pub noise_std_rad: Option<f64>,
+}
+
+/// A swing as a user sets it (with the `cli` feature, `odocal swing`'s flags).
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "cli", derive(clap::Args))]
+pub struct SwingSettings {
+    /// Full turns each way.
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 2))]
+    pub turns: u32,
+    /// Turn-rate limit (rad/s): slow, so that a compass that filters keeps up.
+    #[cfg_attr(feature = "cli", arg(long = "max-rate-rad-s", alias = "rate-rad-s", default_value_t = SWING_RATE_RAD_S))]
+    pub rate_rad_s: f64,
+}
+
+impl SwingSettings {
+    /// Both settings in their ranges: 1–10 turns, a rate in (0, 3] rad/s.
+    pub fn check(&self) -> Result<(), ConfigError> {
+        super::config::check_rate_limit(self.rate_rad_s)?;
+        if !(1..=10).contains(&self.turns) {
+            return Err(ConfigError::new(format!(
+                "--turns {}: must be 1..=10",
+                self.turns
+            )));
+        }
+        Ok(())
+    }
+
+    /// What is asked before the robot turns.
+    pub fn question(&self) -> String {
+        format!(
+            "The robot will turn in place {} full turn(s) each way at up to {} rad/s.",
+            self.turns, self.rate_rad_s
+        )
+    }
+
+    /// The swing of a robot whose odometry uses `wheelbase_m`, its streams at 50 Hz; its
+    /// residual judged against a fixed allowance (the noise is not measured first).
+    pub fn command(&self, wheelbase_m: f64) -> SwingCommand {
+        SwingCommand {
+            turns_per_direction: self.turns,
+            rate_rad_s: self.rate_rad_s,
+            wheelbase_m,
+            stream_period: Duration::from_millis(20),
+            noise_std_rad: None,
+        }
+    }
 }
 
 /// Why a swing gave no deviation curve.
@@ -227,5 +274,29 @@ impl std::fmt::Display for SwingOutcome {
                  in the robot profile (calibrate also swings by itself unless --no-swing)"
             ),
         }
+    }
+}
+
+#[cfg(test)]
+mod settings_tests {
+    use super::*;
+
+    #[test]
+    fn swing_settings_are_checked_and_make_the_command() {
+        let s = SwingSettings {
+            turns: 2,
+            rate_rad_s: SWING_RATE_RAD_S,
+        };
+        s.check().unwrap();
+        let c = s.command(0.39);
+        assert_eq!((c.turns_per_direction, c.wheelbase_m), (2, 0.39));
+        assert!(SwingSettings { turns: 11, ..s }.check().is_err());
+        let e = SwingSettings {
+            rate_rad_s: 0.0,
+            ..s
+        }
+        .check()
+        .unwrap_err();
+        assert!(e.to_string().contains("--max-rate-rad-s"), "{e}");
     }
 }

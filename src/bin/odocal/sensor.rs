@@ -3,15 +3,13 @@
 //! a mark on the floor. Both print the flag that gives the result to `calibrate`.
 
 use odocal::base::HeadingKind;
-use odocal::calibration::gyro::scale_from_spin;
 use odocal::kinematics::wrap_angle;
 use odocal::roboclaw::profile::{save_heading, HeadingSection};
 use odocal::routine::heading::mean_heading;
-use odocal::routine::spin::{run_spin, SpinOutcome};
-use odocal::routine::swing::{run_swing, SwingCommand, SwingOutcome};
+use odocal::routine::spin::{run_spin, SpinOutcome, SpinSettings};
+use odocal::routine::swing::{run_swing, SwingOutcome, SwingSettings};
 use odocal::spec::flags::RobotFlags;
 use odocal::spec::{HeadingSpec, RobotSection, StoreSpec};
-use std::time::Duration;
 
 type CliResult = Result<(), Box<dyn std::error::Error>>;
 
@@ -20,12 +18,8 @@ type CliResult = Result<(), Box<dyn std::error::Error>>;
 pub struct SwingArgs {
     #[command(flatten)]
     robot: RobotFlags,
-    /// Full turns each way.
-    #[arg(long, default_value_t = 2)]
-    turns: u32,
-    /// Turn-rate limit (rad/s): slow, so that a compass that filters keeps up.
-    #[arg(long = "max-rate-rad-s", alias = "rate-rad-s", default_value_t = 0.5)]
-    rate_rad_s: f64,
+    #[command(flatten)]
+    swing: SwingSettings,
     /// Save the curve in the robot profile's [heading] table (a profile store only; backed up
     /// beside it first, for `odocal restore`): every later command with this profile removes
     /// it.
@@ -44,16 +38,8 @@ pub struct SwingArgs {
 pub struct SpinArgs {
     #[command(flatten)]
     robot: RobotFlags,
-    /// Full turns (negative: clockwise). More turns, a finer scale: 0.5° at the mark over 5
-    /// turns is 0.03 %.
-    #[arg(long, default_value_t = 5)]
-    turns: i32,
-    /// Turn-rate limit (rad/s).
-    #[arg(long = "max-rate-rad-s", alias = "rate-rad-s", default_value_t = 0.5)]
-    rate_rad_s: f64,
-    /// Readings averaged at rest before and after.
-    #[arg(long, default_value_t = 10)]
-    heading_samples: usize,
+    #[command(flatten)]
+    spin: SpinSettings,
     /// How far past the start mark the robot stopped (deg, in the direction it turned;
     /// negative when short of it). Asked for when not given and there is no --reference.
     #[arg(long, allow_hyphen_values = true)]
@@ -82,14 +68,6 @@ pub fn confirm(yes: bool, what: &str) -> CliResult {
 /// Why `--save` needs a profile.
 const SAVE_NEEDS_PROFILE: &str = "--save keeps the curve in a robot profile: give --profile \
      (for other robots, pass the printed --compass-deviation-deg)";
-
-/// A turn-rate limit a robot may be given (rad/s).
-fn check_rate(rate_rad_s: f64) -> CliResult {
-    if rate_rad_s.is_finite() && rate_rad_s > 0.0 && rate_rad_s <= 3.0 {
-        return Ok(());
-    }
-    Err(format!("--max-rate-rad-s {rate_rad_s}: must be in (0, 3]").into())
-}
 
 /// `fut`, the robot's motion, unless a signal comes first: then the robot is stopped.
 async fn or_stopped<T>(
@@ -125,10 +103,7 @@ async fn save_curve(
 
 /// Runs `odocal swing`: **moves the robot** (turns in place).
 pub async fn swing(args: SwingArgs) -> CliResult {
-    check_rate(args.rate_rad_s)?;
-    if !(1..=10).contains(&args.turns) {
-        return Err(format!("--turns {}: must be 1..=10", args.turns).into());
-    }
+    args.swing.check()?;
     let spec = args.robot.spec(RobotSection::default())?;
     let save_to = match (&spec.store, args.save) {
         (StoreSpec::Profile(path), true) => Some(path.clone()),
@@ -139,22 +114,8 @@ pub async fn swing(args: SwingArgs) -> CliResult {
     // swing measures what is left, and the curve to keep is both.
     let (_, applied) = spec.heading_correction()?;
     let base = spec.open().await?;
-    confirm(
-        args.yes,
-        &format!(
-            "The robot will turn in place {} full turn(s) each way at up to {} rad/s.",
-            args.turns, args.rate_rad_s
-        ),
-    )?;
-    let params = base.store.read().await?;
-    let cmd = SwingCommand {
-        turns_per_direction: args.turns,
-        rate_rad_s: args.rate_rad_s,
-        wheelbase_m: params.wheelbase_m,
-        stream_period: Duration::from_millis(20),
-        // Not measured here: the residual is judged against a fixed allowance.
-        noise_std_rad: None,
-    };
+    confirm(args.yes, &args.swing.question())?;
+    let cmd = args.swing.command(base.store.read().await?.wheelbase_m);
     let fit = or_stopped(&base, run_swing(&base, &cmd))
         .await??
         .map_err(|why| match why {
@@ -186,11 +147,11 @@ async fn past_mark_deg(
     reference: Option<&dyn odocal::base::HeadingSource>,
     before: Option<f64>,
 ) -> Result<f64, Box<dyn std::error::Error>> {
-    let sign = f64::from(args.turns.signum());
+    let sign = f64::from(args.spin.turns.signum());
     Ok(match (args.past_mark_deg, reference, before) {
         (Some(d), _, _) => d,
         (None, Some(r), Some(before)) => {
-            let after = mean_heading(r, args.heading_samples).await?;
+            let after = mean_heading(r, args.spin.heading_samples).await?;
             sign * wrap_angle(after - before).to_degrees()
         }
         _ => crate::prompt::answer(
@@ -200,22 +161,6 @@ async fn past_mark_deg(
         .parse::<f64>()
         .map_err(|e| format!("not a number of degrees: {e}"))?,
     })
-}
-
-/// `spin`'s flags, checked before anything is opened.
-fn check_spin(args: &SpinArgs) -> CliResult {
-    check_rate(args.rate_rad_s)?;
-    if !(1..=20).contains(&args.turns.unsigned_abs()) {
-        return Err(format!("--turns {}: must be 1..=20 either way", args.turns).into());
-    }
-    if !(1..=100).contains(&args.heading_samples) {
-        return Err(format!(
-            "--heading-samples {}: must be 1..=100",
-            args.heading_samples
-        )
-        .into());
-    }
-    Ok(())
 }
 
 /// `spin --reference`, opened, and its heading before the turn.
@@ -233,54 +178,26 @@ async fn open_reference(
         .open()
         .await?
         .ok_or("--reference: give a heading source of its own (nmea:PORT…), not drive")?;
-    let before = mean_heading(r.as_ref(), args.heading_samples).await?;
+    let before = mean_heading(r.as_ref(), args.spin.heading_samples).await?;
     Ok(Some((r, before)))
 }
 
 /// Runs `odocal spin`: **moves the robot** (turns in place), then asks where it stopped.
 pub async fn spin(args: SpinArgs) -> CliResult {
-    check_spin(&args)?;
+    args.spin.check()?;
     let base = args.robot.spec(RobotSection::default())?.open().await?;
     let reference = open_reference(&args).await?;
     let reference_before = reference.as_ref().map(|r| r.1);
     let reference = reference.map(|r| r.0);
-    confirm(
-        args.yes,
-        &format!(
-            "{}It will turn in place {} full turn(s) {} at up to {} rad/s.",
-            if reference.is_some() {
-                ""
-            } else {
-                "Mark the robot's heading on the floor (a line along its side). "
-            },
-            args.turns.unsigned_abs(),
-            if args.turns > 0 {
-                "counter-clockwise"
-            } else {
-                "clockwise"
-            },
-            args.rate_rad_s
-        ),
-    )?;
-    let spin = run_spin(&base, args.turns, args.rate_rad_s, args.heading_samples);
-    let record = or_stopped(&base, spin).await??;
+    confirm(args.yes, &args.spin.question(reference.is_some()))?;
+    let SpinSettings {
+        turns,
+        rate_rad_s,
+        heading_samples,
+    } = args.spin;
+    let record = or_stopped(&base, run_spin(&base, turns, rate_rad_s, heading_samples)).await??;
     let past_deg = past_mark_deg(&args, reference.as_deref(), reference_before).await?;
-    let s = scale_from_spin(
-        record.heading_before_rad,
-        record.heading_after_rad,
-        f64::from(args.turns),
-        past_deg.to_radians(),
-    )?;
-    let outcome = SpinOutcome {
-        spin: record,
-        past_mark_deg: past_deg,
-        past_mark_from: if reference.is_some() {
-            "reference"
-        } else {
-            "mark"
-        },
-        gyro_scale_error: s,
-    };
+    let outcome = SpinOutcome::of(record, past_deg, reference.is_some())?;
     if args.json {
         // Through a `Value`: its keys in the order every command's JSON has (sorted).
         let value = serde_json::to_value(outcome)?;
