@@ -30,6 +30,45 @@ pub enum ExportError {
         /// The methods it has.
         available: Vec<String>,
     },
+    /// The result file could not be read.
+    #[error("cannot read {}: {source}", path.display())]
+    Unreadable {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        #[source]
+        source: std::io::Error,
+    },
+    /// The result file is not JSON.
+    #[error("{}: not JSON ({source})", path.display())]
+    NotJson {
+        /// The file.
+        path: PathBuf,
+        /// Where it stops being JSON.
+        #[source]
+        source: serde_json::Error,
+    },
+    /// The result in this file cannot be exported.
+    #[error("{}: {source}", path.display())]
+    In {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        #[source]
+        source: Box<ExportError>,
+    },
+    /// The target exists and merging into it was not asked for.
+    #[error(
+        "{} exists: not changed. --force merges the {method} calibration's multipliers into it \
+         (everything else stays; a backup of it goes beside it, for `odocal restore`)",
+        path.display()
+    )]
+    Exists {
+        /// The target.
+        path: PathBuf,
+        /// The calibration's method.
+        method: String,
+    },
     /// The parameters are not a robot.
     #[error(transparent)]
     Kinematics(#[from] crate::kinematics::KinematicsError),
@@ -166,6 +205,67 @@ pub fn calibration_of(v: &Value, method: Option<&str>) -> Result<Calibration, Ex
         configured,
         method: wanted,
     })
+}
+
+/// An export as a user asks for it (with the `cli` feature, `odocal export`'s flags).
+#[derive(Debug, Clone, PartialEq)]
+#[cfg_attr(feature = "cli", derive(clap::Args))]
+pub struct ExportSettings {
+    /// Any odocal result as JSON: a report.json (demo, calibrate, run), or the --json output of
+    /// estimate, track or bag.
+    #[cfg_attr(feature = "cli", arg(long, alias = "report"))]
+    pub from: PathBuf,
+    /// The ros2_control YAML: merged into if it exists (multipliers only, backed up beside it
+    /// for `odocal restore`), created otherwise.
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub ros2: PathBuf,
+    /// The controller's name in the YAML.
+    #[cfg_attr(
+        feature = "cli",
+        arg(
+            long,
+            alias = "controller-name",
+            default_value = "diff_drive_controller"
+        )
+    )]
+    pub controller: String,
+    /// Which estimate to export [default: the result's default method, else exact].
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub method: Option<String>,
+    /// Merge into an existing --ros2 file (its multipliers change; a backup `odocal restore`
+    /// takes goes beside it first). Without it an existing file is left alone.
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub force: bool,
+}
+
+impl ExportSettings {
+    /// The calibration to export, read from the result file; refused when the target exists
+    /// and merging was not asked for.
+    pub fn calibration(&self) -> Result<Calibration, ExportError> {
+        let path = || self.from.clone();
+        let text =
+            crate::io::read_bounded(&self.from, crate::io::MAX_TEXT_FILE).map_err(|source| {
+                ExportError::Unreadable {
+                    path: path(),
+                    source,
+                }
+            })?;
+        let v: Value = serde_json::from_str(&text).map_err(|source| ExportError::NotJson {
+            path: path(),
+            source,
+        })?;
+        let cal = calibration_of(&v, self.method.as_deref()).map_err(|e| ExportError::In {
+            path: path(),
+            source: Box::new(e),
+        })?;
+        if self.ros2.exists() && !self.force {
+            return Err(ExportError::Exists {
+                path: self.ros2.clone(),
+                method: cal.method.clone(),
+            });
+        }
+        Ok(cal)
+    }
 }
 
 /// What [`export`] did.

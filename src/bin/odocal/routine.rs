@@ -340,28 +340,8 @@ pub async fn run_file(args: RunArgs) -> CliResult {
 /// Arguments of `odocal export`.
 #[derive(Debug, clap::Args)]
 pub struct ExportArgs {
-    /// Any odocal result as JSON: a report.json (demo, calibrate, run), or the --json output of
-    /// estimate, track or bag.
-    #[arg(long, alias = "report")]
-    from: PathBuf,
-    /// The ros2_control YAML: merged into if it exists (multipliers only, backed up beside it
-    /// for `odocal restore`), created otherwise.
-    #[arg(long)]
-    ros2: PathBuf,
-    /// The controller's name in the YAML.
-    #[arg(
-        long,
-        alias = "controller-name",
-        default_value = "diff_drive_controller"
-    )]
-    controller: String,
-    /// Which estimate to export [default: the result's default method, else exact].
-    #[arg(long)]
-    method: Option<String>,
-    /// Merge into an existing --ros2 file (its multipliers change; a backup `odocal restore`
-    /// takes goes beside it first). Without it an existing file is left alone.
-    #[arg(long)]
-    force: bool,
+    #[command(flatten)]
+    export: odocal::ros::export::ExportSettings,
 }
 
 /// ", a link to <target>: that file was written" when `path` is a symbolic link.
@@ -376,31 +356,18 @@ fn through_link(path: &std::path::Path) -> String {
 
 /// Runs `odocal export`.
 pub async fn export(args: ExportArgs) -> CliResult {
-    use odocal::ros::export::{calibration_of, export, Exported};
-    let text = odocal::io::read_bounded(&args.from, odocal::io::MAX_TEXT_FILE)
-        .map_err(|e| format!("cannot read {}: {e}", args.from.display()))?;
-    let v: serde_json::Value = serde_json::from_str(&text)
-        .map_err(|e| format!("{}: not JSON ({e})", args.from.display()))?;
-    let cal = calibration_of(&v, args.method.as_deref())
-        .map_err(|e| format!("{}: {e}", args.from.display()))?;
-    if args.ros2.exists() && !args.force {
-        return Err(format!(
-            "{} exists: not changed. --force merges the {} calibration's multipliers into it \
-             (everything else stays; a backup of it goes beside it, for `odocal restore`)",
-            args.ros2.display(),
-            cal.method
-        )
-        .into());
-    }
+    use odocal::ros::export::{export, Exported};
+    let how = &args.export;
+    let cal = how.calibration()?;
     let mut ui = crate::prompt::TerminalWriteUi { yes: true };
-    let exported = export(&args.ros2, &args.controller, &cal, &mut ui);
+    let exported = export(&how.ros2, &how.controller, &cal, &mut ui);
     match crate::prompt::writing(exported).await? {
-        Exported::Created => println!("wrote {} ({} calibration)", args.ros2.display(), cal.method),
+        Exported::Created => println!("wrote {} ({} calibration)", how.ros2.display(), cal.method),
         Exported::Merged { backup } => println!(
             "merged the {} calibration's multipliers into {}{} (undo: odocal restore {})",
             cal.method,
-            args.ros2.display(),
-            through_link(&args.ros2),
+            how.ros2.display(),
+            through_link(&how.ros2),
             backup.display()
         ),
     }

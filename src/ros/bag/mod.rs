@@ -248,6 +248,12 @@ whose messages go forward, or each run's files in order"
     /// A time range is not usable.
     #[error("time range {0}")]
     Range(String),
+    /// A setting is out of its range (the flag is named).
+    #[error("{0}")]
+    Setting(String),
+    /// The controller's YAML could not be used.
+    #[error(transparent)]
+    Yaml(#[from] crate::ros::yaml::YamlError),
     /// Writing a bag failed.
     #[error("writing {}: {source}", path.display())]
     Write {

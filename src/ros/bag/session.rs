@@ -27,6 +27,137 @@ pub struct BagSession {
     pub kind_from: &'static str,
 }
 
+/// Where a ROS robot's geometry and data are.
+#[derive(Debug, Clone, PartialEq)]
+#[cfg_attr(feature = "cli", derive(clap::Args))]
+pub struct RosSource {
+    /// The controller's ros2_control YAML (its `ros__parameters:` at any nesting: `/**:`,
+    /// namespaced keys, several documents).
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub ros_yaml: Option<PathBuf>,
+    /// The diff_drive_controller's name (`ns/name` to pick one namespace's).
+    #[cfg_attr(feature = "cli", arg(long, default_value = "diff_drive_controller"))]
+    pub controller: String,
+    /// Wheel joint states topic (sensor_msgs/JointState).
+    #[cfg_attr(feature = "cli", arg(long, default_value = "/joint_states"))]
+    pub joint_states_topic: String,
+    /// IMU topic (sensor_msgs/Imu with an orientation).
+    #[cfg_attr(feature = "cli", arg(long, default_value = "/imu"))]
+    pub imu_topic: String,
+    /// The controller's odometry topic (nav_msgs/Odometry).
+    #[cfg_attr(feature = "cli", arg(long, default_value = "/odom"))]
+    pub odom_topic: String,
+    /// Left wheel joint name [default: the YAML's first left_wheel_names, else the one name
+    /// with "left"].
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub left_joint: Option<String>,
+    /// Right wheel joint name [default: the YAML's first right_wheel_names, else the one name
+    /// with "right"].
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub right_joint: Option<String>,
+}
+
+impl RosSource {
+    /// The topics.
+    pub fn topics(&self) -> RosTopics {
+        RosTopics {
+            joint_states: self.joint_states_topic.clone(),
+            imu: self.imu_topic.clone(),
+            odom: self.odom_topic.clone(),
+        }
+    }
+
+    /// The YAML section, if a file was given.
+    pub fn config(&self) -> Result<Option<DiffDriveConfig>, BagError> {
+        Ok(match &self.ros_yaml {
+            Some(p) => Some(DiffDriveConfig::load(p, &self.controller)?),
+            None => None,
+        })
+    }
+}
+
+/// A bag session as a user sets it (with the `cli` feature, `odocal bag`'s flags).
+#[derive(Debug, Clone, PartialEq)]
+#[cfg_attr(feature = "cli", derive(clap::Args))]
+pub struct BagSettings {
+    /// Where the robot's geometry and data are.
+    #[cfg_attr(feature = "cli", command(flatten))]
+    pub ros: RosSource,
+    /// Explicit runs instead of finding them: START:END seconds from the bag's first message;
+    /// repeatable.
+    #[cfg_attr(feature = "cli", arg(long = "range"))]
+    pub ranges: Vec<String>,
+    /// Square side (m) [default: the bag's metadata, else the mean leg length by odometry].
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub side_m: Option<f64>,
+    /// Shortest rest (s) that separates one run from the next.
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 0.5))]
+    pub min_rest_s: f64,
+    /// Diameter split: left-nominal, mean-preserving or measured-scale:COMMANDED_M,MEASURED_M.
+    #[cfg_attr(feature = "cli", arg(long, default_value = "left-nominal"))]
+    pub convention: crate::kinematics::SplitConvention,
+    /// What the IMU's yaw is: magnetic (a compass or a 9-axis fusion: it may deviate), gyro
+    /// (integrated), reference (ground truth) or unknown. It decides the default method
+    /// [default: what the bag's `odocal` metadata says (bags odocal wrote), else unknown].
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub heading_kind: Option<HeadingKind>,
+}
+
+/// `START:END` seconds, as `--range` gives it.
+fn parse_range(s: &str) -> Result<(f64, f64), BagError> {
+    let bad = |why: String| BagError::Setting(format!("--range {s}: {why}"));
+    let (a, b) = s
+        .split_once(':')
+        .ok_or_else(|| bad("expected START:END in seconds".into()))?;
+    let num = |v: &str| {
+        v.trim()
+            .parse::<f64>()
+            .map_err(|_| bad(format!("{v:?} is not a number of seconds")))
+    };
+    Ok((num(a)?, num(b)?))
+}
+
+impl BagSettings {
+    /// Reads and analyses `files` as bags of one robot with these settings
+    /// ([`analyse_files`]); the wheel joints default to the YAML's first of each side.
+    pub fn analyse(&self, files: &[PathBuf]) -> Result<BagSession, BagError> {
+        let cfg = self.ros.config()?;
+        let first = |names: fn(&DiffDriveConfig) -> &Vec<String>| {
+            cfg.as_ref().and_then(|c| names(c).first().cloned())
+        };
+        let opts = BagOptions {
+            topics: self.ros.topics(),
+            left_joint: self
+                .ros
+                .left_joint
+                .clone()
+                .or_else(|| first(|c| &c.left_wheel_names)),
+            right_joint: (self.ros.right_joint.clone()).or_else(|| first(|c| &c.right_wheel_names)),
+            min_rest_s: self.min_rest_s,
+            ranges: self
+                .ranges
+                .iter()
+                .map(|r| parse_range(r))
+                .collect::<Result<_, _>>()?,
+            side_m: self.side_m,
+            convention: self.convention,
+        };
+        if let Some(s) = opts
+            .side_m
+            .filter(|s| !(s.is_finite() && *s > 0.0 && *s <= 100.0))
+        {
+            return Err(BagError::Setting(format!(
+                "--side-m must be in (0, 100] m, got {s}"
+            )));
+        }
+        let yaml = match (&cfg, &self.ros.ros_yaml) {
+            (Some(c), Some(path)) => Some((path.as_path(), c)),
+            _ => None,
+        };
+        analyse_files(files, &opts, yaml, self.heading_kind)
+    }
+}
+
 /// Reads and analyses `files` as bags of one robot: geometry from `yaml` (the controller's
 /// file and its section) when given, else inferred from each bag; the IMU's kind `given`, else
 /// from the bags' metadata.
@@ -296,5 +427,49 @@ fn online_text(out: &mut String, report: &BagReport) {
             o.correlation,
             o.correlation_at_zero
         );
+    }
+}
+
+#[cfg(test)]
+mod settings_tests {
+    use super::*;
+
+    fn settings() -> BagSettings {
+        BagSettings {
+            ros: RosSource {
+                ros_yaml: None,
+                controller: "diff_drive_controller".into(),
+                joint_states_topic: "/joint_states".into(),
+                imu_topic: "/imu".into(),
+                odom_topic: "/odom".into(),
+                left_joint: None,
+                right_joint: None,
+            },
+            ranges: Vec::new(),
+            side_m: None,
+            min_rest_s: 0.5,
+            convention: crate::kinematics::SplitConvention::LeftNominal,
+            heading_kind: None,
+        }
+    }
+
+    #[test]
+    fn ranges_are_start_end_seconds_and_a_side_is_checked_before_any_bag_is_read() {
+        assert_eq!(parse_range(" 1.5 : 20").unwrap(), (1.5, 20.0));
+        for bad in ["12", "a:3", "1:"] {
+            let e = parse_range(bad).unwrap_err();
+            assert!(
+                matches!(&e, BagError::Setting(m) if m.starts_with("--range")),
+                "{e}"
+            );
+        }
+        let s = BagSettings {
+            side_m: Some(-4.0),
+            ..settings()
+        };
+        let none: [PathBuf; 0] = [];
+        let e = s.analyse(&none).unwrap_err();
+        assert!(e.to_string().contains("--side-m"), "{e}");
+        assert!(matches!(settings().analyse(&none), Err(BagError::NoBags)));
     }
 }
