@@ -65,18 +65,37 @@ const STATUS_POLL: Duration = Duration::from_millis(50);
 /// The lowest speed limit: the vectors' short motions must complete within their windows.
 pub const MIN_SPEED_M_S: f64 = 0.05;
 
-/// How to run the checks.
+/// How to run the checks (with the `cli` feature, `odocal conformance`'s flags).
 #[derive(Debug, Clone, PartialEq)]
+#[cfg_attr(feature = "cli", derive(clap::Args))]
 pub struct Options {
-    /// Wheel speed limit (m/s), in [[`MIN_SPEED_M_S`], 1]; turn rates follow from it and the
+    /// Wheel speed limit of every motion (m/s, 0.05 to 1); turn rates follow from it and the
     /// wheelbase.
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 0.1))]
     pub max_speed_m_s: f64,
-    /// Device seconds per second of wall clock (a simulator in sped-up time; 1 for hardware);
-    /// `None`: measured from the device's uptime (STATUS `uptime_ms`). A given scale must agree
-    /// with the measured rate within 25 %.
+    /// The device's clock runs this many times faster than the wall clock: a simulator such as
+    /// `odocal mock-device --time-scale K` (1 for hardware) [default: measured from the
+    /// device's uptime]. A given scale must agree with the measured rate within 25 %.
+    #[cfg_attr(feature = "cli", arg(long))]
     pub time_scale: Option<f64>,
-    /// Run only the rules whose section starts with one of these ("7.3"); all if empty.
+    /// Check only this SPEC section (e.g. 7.3; repeatable) [default: every rule].
+    #[cfg_attr(feature = "cli", arg(long = "rule"))]
     pub only: Vec<String>,
+}
+
+impl Options {
+    /// Both numbers in their ranges, before anything moves.
+    pub fn check(&self) -> Result<(), ConformanceError> {
+        let speed = ("--max-speed-m-s", self.max_speed_m_s, MIN_SPEED_M_S, 1.0);
+        let scale = self.time_scale.map(|k| ("--time-scale", k, 1.0, 100.0));
+        crate::ranges::check_ranges(
+            &[Some(speed), scale]
+                .into_iter()
+                .flatten()
+                .collect::<Vec<_>>(),
+        )
+        .map_err(ConformanceError::InvalidArgument)
+    }
 }
 
 impl Default for Options {
@@ -171,6 +190,49 @@ impl Report {
     /// How many rules had this outcome.
     pub fn count(&self, outcome: Outcome) -> usize {
         self.rules.iter().filter(|r| r.outcome == outcome).count()
+    }
+
+    /// The last line: the device, and how many rules passed, failed and were skipped.
+    pub fn summary(&self, port: &str) -> String {
+        format!(
+            "{} ({port}): {} passed, {} failed, {} skipped",
+            self.device.firmware_id,
+            self.count(Outcome::Pass),
+            self.count(Outcome::Fail),
+            self.count(Outcome::Skip)
+        )
+    }
+
+    /// What failed, naming each rule and where its reason was printed; `None` when nothing did.
+    pub fn failure(&self, reasons_in: &str) -> Option<String> {
+        let failed: Vec<String> = (self.rules.iter())
+            .filter(|r| r.outcome == Outcome::Fail)
+            .map(|r| format!("§{} {}", r.section, r.rule))
+            .collect();
+        (!failed.is_empty()).then(|| {
+            format!(
+                "{} rule(s) failed: {} (the reasons are {reasons_in}; SPEC.md §7 says what \
+                 each rule asks of the firmware)",
+                failed.len(),
+                failed.join("; ")
+            )
+        })
+    }
+}
+
+/// One line per rule: outcome, section, rule and why.
+impl std::fmt::Display for RuleResult {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let outcome = match self.outcome {
+            Outcome::Pass => "PASS",
+            Outcome::Fail => "FAIL",
+            Outcome::Skip => "SKIP",
+        };
+        write!(f, "{outcome}  §{:<5} {}", self.section, self.rule)?;
+        if let Some(why) = &self.reason {
+            write!(f, " — {why}")?;
+        }
+        Ok(())
     }
 }
 
@@ -1301,4 +1363,66 @@ pub async fn run_port(
     let port = crate::io::serial::open(path, baud)
         .map_err(|e| ConformanceError::Io(std::io::Error::other(format!("{path}: {e}"))))?;
     run(port, options, progress).await
+}
+
+#[cfg(test)]
+mod report_tests {
+    use super::*;
+
+    fn rule(section: &str, outcome: Outcome, reason: Option<&str>) -> RuleResult {
+        RuleResult {
+            section: section.into(),
+            rule: "a rule".into(),
+            outcome,
+            reason: reason.map(String::from),
+        }
+    }
+
+    #[test]
+    fn options_are_checked_and_failures_are_named() {
+        Options::default().check().unwrap();
+        for bad in [
+            Options {
+                max_speed_m_s: 0.01,
+                ..Options::default()
+            },
+            Options {
+                time_scale: Some(0.5),
+                ..Options::default()
+            },
+        ] {
+            assert!(matches!(
+                bad.check(),
+                Err(ConformanceError::InvalidArgument(_))
+            ));
+        }
+        let failed = rule("7.3", Outcome::Fail, Some("late"));
+        assert_eq!(failed.to_string(), "FAIL  §7.3   a rule — late");
+        let report = Report {
+            device: DeviceInfo {
+                major: 1,
+                minor: 0,
+                firmware_id: crate::protocol::message::FirmwareId::new("kit").unwrap(),
+                firmware_version: 0,
+                capabilities: 0,
+                serial_number: 7,
+                max_speed_mm_s: 1000,
+                max_rate_mrad_s: 3000,
+            },
+            rules: vec![rule("7.1", Outcome::Pass, None), failed],
+        };
+        assert!(report
+            .summary("/dev/x")
+            .ends_with("(/dev/x): 1 passed, 1 failed, 0 skipped"));
+        let why = report.failure("above").unwrap();
+        assert!(
+            why.starts_with("1 rule(s) failed: §7.3 a rule (the reasons are above"),
+            "{why}"
+        );
+        let passed = Report {
+            rules: vec![rule("7.1", Outcome::Pass, None)],
+            ..report
+        };
+        assert_eq!(passed.failure("above"), None);
+    }
 }

@@ -47,6 +47,15 @@ pub fn kit_config(robot: ParamsBlock) -> DeviceConfig {
     }
 }
 
+/// The ideal robot `odocal kit-device` serves: 0.15 m wheels, a 0.39 m wheelbase, 4096 counts
+/// per revolution.
+pub const IDEAL_ROBOT: ParamsBlock = ParamsBlock {
+    left_wheel_diameter_nm: 150_000_000,
+    right_wheel_diameter_nm: 150_000_000,
+    wheelbase_nm: 390_000_000,
+    counts_per_wheel_rev_micro: 4_096_000_000,
+};
+
 /// [`kit`], shared for a server.
 pub fn kit_device(robot: ParamsBlock, time_scale: f64) -> Result<SharedKit, super::MockError> {
     Ok(Arc::new(Mutex::new(kit(robot, time_scale)?)))

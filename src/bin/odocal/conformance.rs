@@ -2,8 +2,7 @@
 //! checked against SPEC.md §7 in real time, and the protocol crate's device kit served as one.
 
 type CliResult = Result<(), Box<dyn std::error::Error>>;
-use odocal::hal::conformance::{self, Options, Outcome, RuleResult};
-use odocal::protocol::message::ParamsBlock;
+use odocal::hal::conformance::{self, Options};
 use std::path::PathBuf;
 
 /// Arguments of `odocal conformance`.
@@ -15,37 +14,14 @@ pub struct Args {
     /// Baud rate.
     #[arg(long, default_value_t = 115_200)]
     baud: u32,
-    /// Wheel speed limit of every motion (m/s, 0.05 to 1); turn rates follow from it and the
-    /// wheelbase.
-    #[arg(long, default_value_t = 0.1)]
-    max_speed_m_s: f64,
-    /// Check only this SPEC section (e.g. 7.3; repeatable).
-    #[arg(long = "rule")]
-    rules: Vec<String>,
-    /// The device's clock runs this many times faster than the wall clock: a simulator such as
-    /// `odocal mock-device --time-scale K` (1 for hardware) [default: measured from the
-    /// device's uptime].
-    #[arg(long)]
-    time_scale: Option<f64>,
+    #[command(flatten)]
+    options: Options,
     /// Print JSON instead of one line per rule.
     #[arg(long)]
     json: bool,
     /// Do not ask before moving the robot.
     #[arg(long)]
     yes: bool,
-}
-
-fn line(r: &RuleResult) -> String {
-    let outcome = match r.outcome {
-        Outcome::Pass => "PASS",
-        Outcome::Fail => "FAIL",
-        Outcome::Skip => "SKIP",
-    };
-    let reason = r
-        .reason
-        .as_deref()
-        .map_or_else(String::new, |why| format!(" — {why}"));
-    format!("{outcome}  §{:<5} {}{reason}", r.section, r.rule)
 }
 
 /// Stops the base on its own link (after an error or Ctrl-C ended the checks' link).
@@ -61,41 +37,23 @@ async fn stop_base(port: &str, baud: u32) {
     }
 }
 
-/// The checks' options, the flags in their ranges.
-fn options(args: &Args) -> Result<Options, Box<dyn std::error::Error>> {
-    let options = Options {
-        max_speed_m_s: args.max_speed_m_s,
-        time_scale: args.time_scale,
-        only: args.rules.clone(),
-    };
-    odocal::ranges::check_range(
-        "--max-speed-m-s",
-        args.max_speed_m_s,
-        conformance::MIN_SPEED_M_S,
-        1.0,
-    )?;
-    if let Some(k) = args.time_scale {
-        odocal::ranges::check_range("--time-scale", k, 1.0, 100.0)?;
-    }
-    Ok(options)
-}
-
 /// Runs `odocal conformance`: **moves the robot**.
 pub async fn run(args: Args) -> CliResult {
-    let options = options(&args)?;
+    let options = &args.options;
+    options.check()?;
     crate::sensor::confirm(
         args.yes,
         &format!(
             "odocal conformance MOVES THE ROBOT: short drives and turns in place (one of them \
              up to two full turns, stopped at once) at up to {} m/s per wheel, for a minute or \
              so. Ctrl-C stops the base.",
-            args.max_speed_m_s
+            options.max_speed_m_s
         ),
     )?;
     let json = args.json;
-    let checks = conformance::run_port(&args.port, args.baud, &options, |r| {
+    let checks = conformance::run_port(&args.port, args.baud, options, |r| {
         if !json {
-            println!("{}", line(r));
+            println!("{r}");
         }
     });
     let report = tokio::select! {
@@ -118,36 +76,15 @@ pub async fn run(args: Args) -> CliResult {
 
 /// The last line (or the JSON report), and an error naming each rule that failed.
 fn summarise(report: &conformance::Report, args: &Args) -> CliResult {
-    let json = args.json;
-    let (pass, fail, skip) = (
-        report.count(Outcome::Pass),
-        report.count(Outcome::Fail),
-        report.count(Outcome::Skip),
-    );
-    if json {
+    if args.json {
         crate::out::print_json(&serde_json::to_value(report)?)?;
     } else {
-        println!(
-            "{} ({}): {pass} passed, {fail} failed, {skip} skipped",
-            report.device.firmware_id, args.port
-        );
+        println!("{}", report.summary(&args.port));
     }
-    if fail > 0 {
-        let failed: Vec<String> = report
-            .rules
-            .iter()
-            .filter(|r| r.outcome == Outcome::Fail)
-            .map(|r| format!("§{} {}", r.section, r.rule))
-            .collect();
-        return Err(format!(
-            "{fail} rule(s) failed: {} (the reasons are {}; SPEC.md §7 says what each rule \
-             asks of the firmware)",
-            failed.join("; "),
-            if json { "in the JSON" } else { "above" }
-        )
-        .into());
+    match report.failure(if args.json { "in the JSON" } else { "above" }) {
+        Some(failed) => Err(failed.into()),
+        None => Ok(()),
     }
-    Ok(())
 }
 
 /// Arguments of the hidden `odocal kit-device`.
@@ -169,13 +106,7 @@ pub struct KitArgs {
 /// pseudo-terminal, whose path it prints first.
 pub async fn kit_device(args: KitArgs) -> CliResult {
     odocal::ranges::check_range("--time-scale", args.real_time, 0.01, 1000.0)?;
-    let robot = ParamsBlock {
-        left_wheel_diameter_nm: 150_000_000,
-        right_wheel_diameter_nm: 150_000_000,
-        wheelbase_nm: 390_000_000,
-        counts_per_wheel_rev_micro: 4_096_000_000,
-    };
-    let device = odocal::mock::kit::kit_device(robot, args.real_time)?;
+    let device = odocal::mock::kit::kit_device(odocal::mock::kit::IDEAL_ROBOT, args.real_time)?;
     let server = odocal::mock::kit::spawn_kit_pty(device, args.real_time)?;
     println!("{}", server.path);
     if let Some(link) = &args.link {
