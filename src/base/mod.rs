@@ -295,6 +295,18 @@ pub struct BaseInfo {
     pub store: ComponentInfo,
 }
 
+/// "drive KIND ID; heading KIND ID; parameters in KIND ID": what connected, in a line.
+impl std::fmt::Display for BaseInfo {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let (d, h, s) = (&self.drive, &self.heading, &self.store);
+        write!(
+            f,
+            "drive {} {}; heading {} {}; parameters in {} {}",
+            d.kind, d.id, h.kind, h.id, s.kind, s.id
+        )
+    }
+}
+
 impl Base {
     /// Composes a base from three components (which may be one device, several, or files).
     pub fn new(

@@ -82,6 +82,24 @@ pub enum SpecError {
     /// A backup file could not be read.
     #[error(transparent)]
     Backup(#[from] BackupError),
+    /// A routine file could not be read.
+    #[error("cannot read {}: {source}", path.display())]
+    RoutineUnreadable {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        #[source]
+        source: std::io::Error,
+    },
+    /// A routine file is not one (the line and what is wrong on it).
+    #[error("{}: {source}", path.display())]
+    RoutineFile {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong.
+        #[source]
+        source: ConfigError,
+    },
 }
 
 fn parse_err(text: &str, reason: impl Into<String>) -> SpecError {
@@ -589,6 +607,21 @@ const TOP_LEVEL_ROBOT_KEYS: [&str; 5] = ["port", "baud", "heading", "profile", "
 
 impl RoutineFile {
     /// Parses a routine file; errors name the line.
+    /// Reads the routine file at `path`; an error names the file (and the line).
+    pub fn load(path: &Path) -> Result<Self, SpecError> {
+        let text = crate::io::read_bounded(path, crate::io::MAX_TEXT_FILE).map_err(|source| {
+            SpecError::RoutineUnreadable {
+                path: path.to_path_buf(),
+                source,
+            }
+        })?;
+        RoutineFile::from_toml(&text).map_err(|source| SpecError::RoutineFile {
+            path: path.to_path_buf(),
+            source,
+        })
+    }
+
+    /// Parses a routine file's text.
     pub fn from_toml(text: &str) -> Result<Self, ConfigError> {
         let mut table = parse_table(text)?;
         let mut robot = match table.remove("robot") {

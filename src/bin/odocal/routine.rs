@@ -2,7 +2,6 @@
 
 use crate::out::print_json;
 use indicatif::{ProgressBar, ProgressStyle};
-use odocal::base::Base;
 use odocal::demo::{run_demo, DemoOptions};
 use odocal::routine::config::RoutineConfig;
 use odocal::routine::overrides::Overrides;
@@ -13,6 +12,7 @@ use odocal::spec::flags::RobotFlags;
 use odocal::spec::{BaseSpec, DriveSpec, RobotSection, RoutineFile};
 use std::io::IsTerminal;
 use std::path::PathBuf;
+use tokio_util::sync::CancellationToken;
 
 type CliResult = Result<(), Box<dyn std::error::Error>>;
 
@@ -174,15 +174,12 @@ pub async fn demo(args: DemoArgs) -> CliResult {
             opts.compass_sigma_deg
         );
     }
-    let mut ui = TerminalUi::new(args.json, true);
-    let token =
-        crate::prompt::ctrl_c_token(Some("stopping the robot and restoring the parameters…"));
-    let (report, _device) = match run_demo(&opts, &mut ui, &token).await {
-        Ok(done) => done,
-        Err(e) => return Err(ui.ended(e)),
+    let go = async |ui: &mut TerminalUi, token: &CancellationToken| {
+        run_demo(&opts, ui, token)
+            .await
+            .map(|(report, _device)| report)
     };
-    drop(ui);
-    finish(&report, Some(&args.demo.report_dir), args.json)
+    reported((args.json, true), Some(&args.demo.report_dir), go).await
 }
 
 /// Routine settings that can be given as flags (they override a routine file).
@@ -220,22 +217,22 @@ pub struct CalibrateArgs {
     flags: RoutineFlags,
 }
 
-fn read_routine_file(path: &std::path::Path) -> Result<RoutineFile, Box<dyn std::error::Error>> {
-    let text = odocal::io::read_bounded(path, odocal::io::MAX_TEXT_FILE)
-        .map_err(|e| format!("cannot read {}: {e}", path.display()))?;
-    RoutineFile::from_toml(&text).map_err(|e| format!("{}: {e}", path.display()).into())
-}
-
-/// Says what connected, in a line.
-fn connected(base: &Base) -> String {
-    let info = base.info();
-    let part = |c: &odocal::base::ComponentInfo| format!("{} {}", c.kind, c.id);
-    format!(
-        "connected: drive {}; heading {}; parameters in {}",
-        part(&info.drive),
-        part(&info.heading),
-        part(&info.store)
-    )
+/// Runs the routine `go` with a terminal UI, then writes the report into its directory and
+/// prints the outcome; a run that stopped ends with where the robot and its parameters are.
+async fn reported<E: std::error::Error + 'static>(
+    (json, yes): (bool, bool),
+    report_dir: Option<&PathBuf>,
+    go: impl AsyncFnOnce(&mut TerminalUi, &CancellationToken) -> Result<Report, E>,
+) -> CliResult {
+    let mut ui = TerminalUi::new(json, yes);
+    let token =
+        crate::prompt::ctrl_c_token(Some("stopping the robot and restoring the parameters…"));
+    let report = match go(&mut ui, &token).await {
+        Ok(report) => report,
+        Err(e) => return Err(ui.ended(e)),
+    };
+    drop(ui);
+    finish(&report, report_dir, json)
 }
 
 /// **Moves the robot**: the routine on the robot `spec` names.
@@ -260,19 +257,14 @@ async fn run_on(mut cfg: RoutineConfig, spec: BaseSpec, flags: &RoutineFlags) ->
             },
             cfg.max_speed_m_s
         );
-        eprintln!("{}", connected(&base));
+        eprintln!("connected: {}", base.info());
     }
-    let mut ui = TerminalUi::new(flags.json, flags.set.yes);
-    let token =
-        crate::prompt::ctrl_c_token(Some("stopping the robot and restoring the parameters…"));
     let drive = base.drive.clone();
     crate::prompt::stop_on_forced_exit(move || drive.emergency_stop());
-    let report = match run(&base, &cfg, None, &mut ui, &token).await {
-        Ok(report) => report,
-        Err(e) => return Err(ui.ended(e)),
+    let go = async |ui: &mut TerminalUi, token: &CancellationToken| {
+        run(&base, &cfg, None, ui, token).await
     };
-    drop(ui);
-    finish(&report, cfg.report_dir.as_ref(), flags.json)
+    reported((flags.json, flags.set.yes), cfg.report_dir.as_ref(), go).await
 }
 
 /// The built-in simulated robot with these settings (it moves nobody's hardware: no need to
@@ -283,15 +275,12 @@ async fn run_simulated(mut cfg: RoutineConfig, flags: &RoutineFlags) -> CliResul
         routine: cfg.clone(),
         ..DemoOptions::default()
     };
-    let mut ui = TerminalUi::new(flags.json, flags.set.yes);
-    let token =
-        crate::prompt::ctrl_c_token(Some("stopping the robot and restoring the parameters…"));
-    let (report, _) = match run_demo(&opts, &mut ui, &token).await {
-        Ok(done) => done,
-        Err(e) => return Err(ui.ended(e)),
+    let go = async |ui: &mut TerminalUi, token: &CancellationToken| {
+        run_demo(&opts, ui, token)
+            .await
+            .map(|(report, _device)| report)
     };
-    drop(ui);
-    finish(&report, cfg.report_dir.as_ref(), flags.json)
+    reported((flags.json, flags.set.yes), cfg.report_dir.as_ref(), go).await
 }
 
 /// The routine on whatever the spec names.
@@ -306,7 +295,7 @@ async fn run_spec(cfg: RoutineConfig, spec: BaseSpec, flags: &RoutineFlags) -> C
 pub async fn calibrate(args: CalibrateArgs) -> CliResult {
     let (robot, mut cfg) = match &args.config {
         Some(p) => {
-            let f = read_routine_file(p)?;
+            let f = RoutineFile::load(p)?;
             (f.robot, f.routine)
         }
         None => (RobotSection::default(), RoutineConfig::default()),
@@ -328,7 +317,7 @@ pub struct RunArgs {
 
 /// Runs `odocal run`.
 pub async fn run_file(args: RunArgs) -> CliResult {
-    let RoutineFile { robot, routine } = read_routine_file(&args.routine)?;
+    let RoutineFile { robot, routine } = RoutineFile::load(&args.routine)?;
     let mut cfg = routine;
     args.flags.apply(&mut cfg)?;
     let spec = robot
