@@ -17,9 +17,12 @@ use crate::base::{Base, MotionGuard, PoseSource};
 use crate::calibration::online::OnlineEstimate;
 use crate::calibration::recording::{Event, Recording};
 use crate::calibration::tracker::Tracker;
+use crate::kinematics::WheelParams;
+use crate::offline::log::{LogError, LogHeader, LogWriter};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use std::f64::consts::{FRAC_PI_2, PI};
+use std::path::Path;
 use std::str::FromStr;
 use std::time::Duration;
 use tokio_util::sync::CancellationToken;
@@ -239,6 +242,77 @@ pub struct TrackOutcome {
     /// Whether `cancel` ended it (Ctrl-C: the usual way to end tracking without a path or a
     /// duration); what arrived until then is kept.
     pub cancelled: bool,
+}
+
+/// Why a logged session ([`track_logged`]) failed.
+#[derive(Debug, thiserror::Error)]
+pub enum LoggedError {
+    /// The session failed.
+    #[error(transparent)]
+    Routine(#[from] RoutineError),
+    /// Writing the log failed (what was written until then is kept).
+    #[error(transparent)]
+    Log(#[from] LogError),
+}
+
+/// The header of a log of a live session on `base`, whose travel is converted with `params`.
+pub fn log_header(base: &Base, params: WheelParams, period_ms: u64) -> LogHeader {
+    LogHeader {
+        odocal_version: env!("CARGO_PKG_VERSION").into(),
+        device: None,
+        params,
+        period_ms,
+        base: Some(base.info()),
+        clocks: base.clocks(),
+    }
+}
+
+/// [`track_live`] with every sample written to `log` when given, in the order it arrived (the
+/// log replays to the same numbers). A write that fails ends the logging; the session runs
+/// on, and the failure is returned once it ends (the log is not flushed here).
+pub async fn track_logged(
+    (base, poses): (&Base, Option<&dyn PoseSource>),
+    tracker: &mut Tracker,
+    opts: &TrackOptions,
+    mut log: Option<&mut LogWriter>,
+    on_checkpoint: &mut dyn FnMut(&OnlineEstimate),
+    cancel: &CancellationToken,
+) -> Result<TrackOutcome, LoggedError> {
+    let mut error = None;
+    let mut sink = |e: &Event| {
+        if let (Some(w), None) = (log.as_deref_mut(), &error) {
+            if let Err(e) = w.event(e) {
+                error = Some(e);
+            }
+        }
+    };
+    let outcome = track_live(base, poses, tracker, opts, &mut sink, on_checkpoint, cancel).await;
+    if let Some(e) = error {
+        return Err(e.into());
+    }
+    Ok(outcome?)
+}
+
+impl TrackOutcome {
+    /// Refuses a recording that holds no wheel travel, saying why that happens (what was
+    /// written to `out` was its header only); `duration_s` is the session's limit, if any.
+    pub fn check_recorded(&self, duration_s: Option<f64>, out: &Path) -> Result<(), String> {
+        if !self.recording.travel.is_empty() {
+            return Ok(());
+        }
+        Err(format!(
+            "no telemetry arrived {} ({} written with its header only). The robot answers but \
+             sends no wheel travel: a controller may stream only while the robot moves (drive \
+             it while recording, or give --drive), and `odocal mock-device` in virtual time \
+             (the default) never advances while idle: start it with --time-scale 1 to record \
+             from it",
+            match (self.cancelled, duration_s) {
+                (false, Some(s)) => format!("in {s:.1} s"),
+                _ => "before it was stopped".to_string(),
+            },
+            out.display()
+        ))
+    }
 }
 
 /// **Moves the robot when `opts.path` is given**: tracks `base` live with `tracker` (the poses of
@@ -495,5 +569,29 @@ mod tests {
             "squares:2".parse::<DrivePath>(),
             Ok(DrivePath::Squares { side_m: 2.0 })
         );
+    }
+}
+
+#[cfg(test)]
+mod outcome_tests {
+    use super::*;
+
+    #[test]
+    fn a_recording_without_travel_is_refused_saying_why() {
+        let mut outcome = TrackOutcome {
+            recording: Recording::default(),
+            motions_driven: 0,
+            cancelled: false,
+        };
+        let out = Path::new("session.jsonl");
+        let e = outcome.check_recorded(Some(2.0), out).unwrap_err();
+        assert!(
+            e.starts_with("no telemetry arrived in 2.0 s (session.jsonl written"),
+            "{e}"
+        );
+        assert!(e.contains("--time-scale 1"), "{e}");
+        outcome.cancelled = true;
+        let e = outcome.check_recorded(Some(2.0), out).unwrap_err();
+        assert!(e.contains("before it was stopped"), "{e}");
     }
 }

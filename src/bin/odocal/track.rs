@@ -5,16 +5,15 @@ use crate::out::print_json;
 use clap::ArgGroup;
 use odocal::base::{Base, PoseSource};
 use odocal::calibration::online::{OnlineConfig, OnlineEstimate, ScaleSource};
-use odocal::calibration::recording::Event;
 use odocal::calibration::tracker::{Tracker, TrackerSettings};
 use odocal::kinematics::WheelParams;
-use odocal::offline::log::{LogHeader, LogWriter};
+use odocal::offline::log::LogWriter;
 use odocal::offline::track_replay::{replay_dataset, replay_files, replay_log};
 use odocal::report::track::{pose_session, TrackSummary};
 use odocal::ros::pose_source::RosPoseSource;
 use odocal::routine::config::WritePolicy;
 use odocal::routine::track::{
-    track_live, write_back, PathOptions, TrackOptions, TrackOutcome, WriteBack,
+    log_header, track_logged, write_back, PathOptions, TrackOptions, TrackOutcome, WriteBack,
 };
 use odocal::spec::flags::RobotFlags;
 use odocal::spec::RobotSection;
@@ -60,29 +59,9 @@ async fn live(
         let drive = base.drive.clone();
         crate::prompt::stop_on_forced_exit(move || drive.emergency_stop());
     }
-    let mut error = None;
-    let mut log = log;
-    let mut sink = |e: &Event| {
-        if let (Some(w), None) = (log.as_deref_mut(), &error) {
-            if let Err(e) = w.event(e) {
-                error = Some(e);
-            }
-        }
-    };
-    let outcome = track_live(
-        base,
-        poses,
-        tracker,
-        &opts,
-        &mut sink,
-        &mut on_checkpoint,
-        &crate::prompt::ctrl_c_token(None),
-    )
-    .await;
-    if let Some(e) = error {
-        return Err(e.into());
-    }
-    Ok(outcome?)
+    let token = crate::prompt::ctrl_c_token(None);
+    let on = &mut on_checkpoint;
+    Ok(track_logged((base, poses), tracker, &opts, log, on, &token).await?)
 }
 
 /// Arguments of `odocal record`.
@@ -103,21 +82,10 @@ pub struct RecordArgs {
     drive: DriveArgs,
 }
 
-fn header(base: &Base, params: WheelParams, period_ms: u64) -> LogHeader {
-    LogHeader {
-        odocal_version: env!("CARGO_PKG_VERSION").into(),
-        device: None,
-        params,
-        period_ms,
-        base: Some(base.info()),
-        clocks: base.clocks(),
-    }
-}
-
 /// Runs `odocal record`.
 pub async fn record(args: RecordArgs) -> CliResult {
     let (base, params) = open(&args.robot).await?;
-    let mut log = LogWriter::create(&args.out, header(&base, params, args.period_ms))?;
+    let mut log = LogWriter::create(&args.out, log_header(&base, params, args.period_ms))?;
     eprintln!(
         "recording wheel travel and headings to {} ({})",
         args.out.display(),
@@ -145,22 +113,8 @@ pub async fn record(args: RecordArgs) -> CliResult {
     if outcome.cancelled {
         eprintln!("stopped by Ctrl-C (or SIGTERM, SIGHUP)");
     }
+    outcome.check_recorded(args.duration_s, &args.out)?;
     let rec = &outcome.recording;
-    if rec.travel.is_empty() {
-        return Err(format!(
-            "no telemetry arrived {} ({} written with its header only). The robot \
-             answers but sends no wheel travel: a controller may stream only while the robot \
-             moves (drive it while recording, or give --drive), and `odocal mock-device` in \
-             virtual time (the default) never advances while idle: start it with --time-scale 1 \
-             to record from it",
-            match (outcome.cancelled, args.duration_s) {
-                (false, Some(s)) => format!("in {s:.1} s"),
-                _ => "before it was stopped".to_string(),
-            },
-            args.out.display()
-        )
-        .into());
-    }
     println!(
         "recorded {} travel samples and {} headings to {}",
         rec.travel.len(),
@@ -292,7 +246,7 @@ async fn live_session(
     let mut log = match &args.record {
         Some(p) => Some(LogWriter::create(
             p,
-            header(&b, configured, args.period_ms),
+            log_header(&b, configured, args.period_ms),
         )?),
         None => None,
     };
