@@ -14,6 +14,7 @@ pub mod base;
 pub mod conformance;
 pub mod error;
 pub mod link;
+pub mod params;
 pub mod status;
 
 pub use error::{HalError, LinkError};

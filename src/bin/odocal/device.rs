@@ -2,11 +2,9 @@
 
 use crate::out::{print_json, print_params};
 use clap::Subcommand;
-use odocal::base::write::{
-    write_once, Bounds, Commit, Question, WriteError, WritePolicy, WriteRequest, Written,
-};
+use odocal::base::write::{WriteError, Written};
+use odocal::hal::params::{self, ParamsError, ParamsPatch};
 use odocal::hal::{open_port, Client};
-use odocal::kinematics::WheelParams;
 use odocal::mock::{lock, spawn_pty, MockDevice, TimeMode};
 use odocal::protocol::message::ParamSource;
 use odocal::spec::DriveSpec;
@@ -109,18 +107,8 @@ pub enum ParamsCommand {
     Set {
         #[command(flatten)]
         port: PortArgs,
-        /// Left wheel diameter (m).
-        #[arg(long)]
-        left_wheel_diameter_m: Option<f64>,
-        /// Right wheel diameter (m).
-        #[arg(long)]
-        right_wheel_diameter_m: Option<f64>,
-        /// Wheelbase (m).
-        #[arg(long)]
-        wheelbase_m: Option<f64>,
-        /// Encoder counts per wheel revolution.
-        #[arg(long)]
-        counts_per_rev: Option<f64>,
+        #[command(flatten)]
+        patch: ParamsPatch,
         /// Directory for the backup (a new, uniquely named file; never overwritten).
         #[arg(long, default_value = ".")]
         backup_dir: PathBuf,
@@ -173,25 +161,17 @@ pub async fn params(cmd: ParamsCommand) -> CliResult {
         }
         ParamsCommand::Set {
             port,
-            left_wheel_diameter_m,
-            right_wheel_diameter_m,
-            wheelbase_m,
-            counts_per_rev,
+            patch,
             backup_dir,
         } => {
-            let given = [
-                left_wheel_diameter_m,
-                right_wheel_diameter_m,
-                wheelbase_m,
-                counts_per_rev,
-            ];
-            set(&port, given, &backup_dir).await
+            let client = Arc::new(port.connect().await?);
+            let done = written(params::set(&client, &patch, &backup_dir, &mut ui()).await)?;
+            eprintln!("written to RAM; run `odocal params save` to keep them across power cycles");
+            print_params(&done.applied, port.json, json!({ "backup": done.backup }))
         }
         ParamsCommand::Save { port, backup_dir } => {
             let client = Arc::new(port.connect().await?);
-            // What is in use, committed: the stored copy is backed up first and read back.
-            let active = client.get_params(ParamSource::Active).await?;
-            let done = write_to(&client, active, Commit::Both, &backup_dir, None).await?;
+            let done = written(params::save(&client, &backup_dir, &mut ui()).await)?;
             if !port.json {
                 println!("saved: the stored copy holds the parameters in use");
             }
@@ -211,76 +191,29 @@ pub async fn params(cmd: ParamsCommand) -> CliResult {
             backup_dir,
             yes,
             ..
-        } => restore_factory(&port, stored, yes, &backup_dir).await,
+        } => {
+            let client = Arc::new(port.connect().await?);
+            let how = (stored, yes);
+            let done = params::restore_factory(&client, how, &backup_dir, &mut ui()).await;
+            let done = written(done)?;
+            print_params(&done.applied, port.json, json!({ "backup": done.backup }))
+        }
     }
 }
 
-/// `params set`: the fields given, the others as they are; to RAM.
-async fn set(port: &PortArgs, given: [Option<f64>; 4], backup_dir: &std::path::Path) -> CliResult {
-    let client = Arc::new(port.connect().await?);
-    let current = client.get_params(ParamSource::Active).await?;
-    let [left, right, wheelbase, counts] = given;
-    let wanted = WheelParams {
-        left_wheel_diameter_m: left.unwrap_or(current.left_wheel_diameter_m),
-        right_wheel_diameter_m: right.unwrap_or(current.right_wheel_diameter_m),
-        wheelbase_m: wheelbase.unwrap_or(current.wheelbase_m),
-        counts_per_wheel_rev: counts.unwrap_or(current.counts_per_wheel_rev),
-    };
-    // The one write path: checked, backed up, written, read back, undone on failure.
-    let done = write_to(&client, wanted, Commit::InUse, backup_dir, None).await?;
-    eprintln!("written to RAM; run `odocal params save` to keep them across power cycles");
-    print_params(&done.applied, port.json, json!({ "backup": done.backup }))
+/// The terminal's answers to a write's questions.
+fn ui() -> crate::prompt::TerminalWriteUi {
+    crate::prompt::TerminalWriteUi { yes: false }
 }
 
-/// `params restore` without `--from`: the factory parameters, written as any others (asked
-/// unless `yes`, backed up, read back, undone on failure); stored too with `stored`.
-async fn restore_factory(
-    port: &PortArgs,
-    stored: bool,
-    yes: bool,
-    backup_dir: &std::path::Path,
-) -> CliResult {
-    let client = Arc::new(port.connect().await?);
-    let factory = client.get_params(ParamSource::Factory).await?;
-    let commit = if stored { Commit::Both } else { Commit::InUse };
-    let question = Question::OldToNew(format!(
-        "restore the factory parameters{}?",
-        if stored { " and commit them" } else { "" }
-    ));
-    let ask = (!yes).then_some(question);
-    let done = write_to(&client, factory, commit, backup_dir, ask).await?;
-    print_params(&done.applied, port.json, json!({ "backup": done.backup }))
-}
-
-/// Writes `new` to a controller through the write service, backing up into `dir`; asks `ask`
-/// first when given (else the command itself was the question).
-async fn write_to(
-    client: &Arc<Client>,
-    new: WheelParams,
-    commit: Commit,
-    dir: &std::path::Path,
-    ask: Option<Question>,
-) -> Result<Written, Box<dyn std::error::Error>> {
-    let request = WriteRequest {
-        new,
-        bounds: Bounds::Physical,
-        policy: match ask {
-            Some(_) => WritePolicy::Ask,
-            None => WritePolicy::Yes,
-        },
-        commit,
-        backup_dir: dir,
-        question: ask.unwrap_or(Question::Plain(String::new())),
-    };
-    let mut ui = crate::prompt::TerminalWriteUi { yes: false };
-    write_once(client.clone(), None, request, &mut ui)
-        .await
-        .map_err(|e| match e {
-            WriteError::Failed { .. } | WriteError::Declined(_) => {
-                format!("not written: {e}").into()
-            }
-            e => e.into(),
-        })
+/// A write's outcome, a failed or declined one said as "not written: …".
+fn written(done: Result<Written, ParamsError>) -> Result<Written, Box<dyn std::error::Error>> {
+    done.map_err(|e| match e {
+        ParamsError::Write(e @ (WriteError::Failed { .. } | WriteError::Declined(_))) => {
+            format!("not written: {e}").into()
+        }
+        e => e.into(),
+    })
 }
 
 /// `params restore --from FILE`: `odocal restore FILE --to PORT` ([`crate::restore`]), to RAM
