@@ -7,11 +7,14 @@
 //! ([`crate::base::write::write_once`], with [`RestorePlan::request`]): proven writable,
 //! asked, backed up, written, read back, undone on failure.
 
-use super::transaction::{check_store, text_changes, BackupError, BackupFile};
-use super::write::{Bounds, Commit, Question, WritePolicy, WriteRequest};
+use super::transaction::{backup_dir_for, check_store, text_changes, BackupError, BackupFile};
+use super::write::{
+    write_once, Bounds, Commit, Question, WriteError, WritePolicy, WriteRequest, WriteUi, Written,
+};
 use super::{same_within, BaseError, ComponentInfo, ParamStore};
 use crate::kinematics::WheelParams;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 /// How a restore may go.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -34,6 +37,9 @@ pub enum RestoreError {
     /// The store could not be read.
     #[error(transparent)]
     Base(#[from] BaseError),
+    /// The write was refused, declined or failed (what the store holds then is said).
+    #[error(transparent)]
+    Write(#[from] WriteError),
     /// The store's file could not be read.
     #[error("cannot read {}: {source}", path.display())]
     File {
@@ -123,6 +129,53 @@ pub async fn plan_restore(
         holds_already,
         commit: options.commit,
     })
+}
+
+/// What [`restore`] did.
+#[derive(Debug)]
+pub enum Restored {
+    /// The store held the backup's parameters already: nothing written.
+    HoldsAlready,
+    /// A dry run: every check the real run makes before its question was made; nothing written.
+    DryRun,
+    /// Written (and committed when asked), read back.
+    Written(Written),
+}
+
+/// Where a restore puts the backup of what the store holds now: `given`, else beside the
+/// store's file, else `default` (beside the backup restored).
+pub struct BackupDir<'a> {
+    /// The directory asked for.
+    pub given: Option<&'a Path>,
+    /// Where it goes for a store that is not a file, when none was asked for.
+    pub default: &'a Path,
+}
+
+/// Puts `backup` (read from `from`) into `store`: plans it ([`plan_restore`]; refused for
+/// another store unless `options.any_device`), shows the plan (`ui.note`), and unless the store
+/// holds it already writes it through the write service with `policy` (asks, backs up what
+/// the store holds, writes and commits, reads back, undoes on failure).
+pub async fn restore(
+    store: Arc<dyn ParamStore>,
+    (backup, from): (&BackupFile, &Path),
+    options: RestoreOptions,
+    (policy, dir): (WritePolicy, BackupDir<'_>),
+    ui: &mut dyn WriteUi,
+) -> Result<(RestorePlan, Restored), RestoreError> {
+    let plan = plan_restore(store.as_ref(), backup, from, options).await?;
+    ui.note(plan.text(from, backup).trim_end());
+    if plan.holds_already {
+        return Ok((plan, Restored::HoldsAlready));
+    }
+    let dir = match dir.given {
+        Some(d) => d.to_path_buf(),
+        None => backup_dir_for(store.as_ref(), dir.default),
+    };
+    match write_once(store, None, plan.request(policy, &dir), ui).await {
+        Ok(done) => Ok((plan, Restored::Written(done))),
+        Err(WriteError::DryRun) => Ok((plan, Restored::DryRun)),
+        Err(e) => Err(e.into()),
+    }
 }
 
 /// How many changed lines of a file a restore shows before asking.

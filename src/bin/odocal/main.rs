@@ -210,7 +210,7 @@ fn dispatch(chosen: Command) -> Result<(), Box<dyn std::error::Error>> {
         Command::Conformance(args) => block_on(conformance::run(args)),
         Command::KitDevice(args) => block_on(conformance::kit_device(args)),
         Command::Params { command } => block_on(guarded(device::params(command))),
-        Command::Restore(args) => block_on(guarded(restore::restore(args))),
+        Command::Restore(args) => block_on(guarded(restore::run(args))),
         Command::Status(port) => block_on(device::status(port)),
         Command::Heading(args) => block_on(device::heading(args)),
         Command::Swing(args) => block_on(sensor::swing(args)),

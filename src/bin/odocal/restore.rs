@@ -6,9 +6,9 @@
 //! that same file puts the whole file back as it was (the lines that change are shown).
 
 use crate::out::print_params;
-use odocal::base::restore::{plan_restore, RestoreOptions};
-use odocal::base::transaction::{backup_dir_for, check_same_file, BackupError, BackupFile};
-use odocal::base::write::{write_once, WriteError, WritePolicy};
+use odocal::base::restore::{restore, BackupDir, RestoreError, RestoreOptions, Restored};
+use odocal::base::transaction::{check_same_file, BackupError, BackupFile};
+use odocal::base::write::{WriteError, WritePolicy};
 use odocal::base::ParamStore;
 use odocal::spec::{StoreLocation, ODOCAL_BAUD};
 use serde_json::json;
@@ -73,7 +73,7 @@ pub struct Restore<'a> {
 }
 
 /// Runs `odocal restore`.
-pub async fn restore(args: RestoreArgs) -> CliResult {
+pub async fn run(args: RestoreArgs) -> CliResult {
     let to = args
         .to
         .as_deref()
@@ -126,10 +126,8 @@ pub async fn restore(args: RestoreArgs) -> CliResult {
     restore_onto(store, &backup, &how).await
 }
 
-/// Puts `backup`'s parameters into `store` ([`plan_restore`], then the write service):
-/// refused for another store unless `any_device`; shows old → new; writes nothing when the
-/// store holds them already or on a dry run; asks unless `yes`; backs up what the store holds;
-/// writes (and commits when `commit`), undoing it on failure.
+/// Puts `backup`'s parameters into `store` ([`odocal::base::restore::restore`]) and prints
+/// what the store holds after.
 pub async fn restore_onto(
     store: Arc<dyn ParamStore>,
     backup: &BackupFile,
@@ -140,8 +138,22 @@ pub async fn restore_onto(
         not_its_file: how.not_its_file,
         commit: how.commit,
     };
-    let plan = plan_restore(store.as_ref(), backup, how.from, options).await?;
-    eprint!("{}", plan.text(how.from, backup));
+    let policy = match (how.dry_run, how.yes) {
+        (true, _) => WritePolicy::DryRun,
+        (false, true) => WritePolicy::Yes,
+        (false, false) => WritePolicy::Ask,
+    };
+    let dir = BackupDir {
+        given: how.backup_dir_given.then_some(how.backup_dir.as_path()),
+        default: &how.backup_dir,
+    };
+    let mut ui = crate::prompt::TerminalWriteUi { yes: how.yes };
+    let done = restore(store, (backup, how.from), options, (policy, dir), &mut ui).await;
+    let (plan, restored) = done.map_err(|e| match e {
+        RestoreError::Write(WriteError::Declined(_)) => "not restored: declined".into(),
+        RestoreError::Write(e @ WriteError::Failed { .. }) => format!("not restored: {e}"),
+        e => e.to_string(),
+    })?;
     let extra = |written: bool| {
         json!({
             "restored_from": how.from,
@@ -151,30 +163,16 @@ pub async fn restore_onto(
             "dry_run": how.dry_run,
         })
     };
-    if plan.holds_already {
-        eprintln!("the store already holds these parameters: nothing to write");
-        return print_params(&plan.current, how.json, extra(false));
-    }
-    let dir = match how.backup_dir_given {
-        true => how.backup_dir.clone(),
-        false => backup_dir_for(store.as_ref(), &how.backup_dir),
-    };
-    let policy = match (how.dry_run, how.yes) {
-        (true, _) => WritePolicy::DryRun,
-        (false, true) => WritePolicy::Yes,
-        (false, false) => WritePolicy::Ask,
-    };
-    let mut ui = crate::prompt::TerminalWriteUi { yes: how.yes };
-    let done = match write_once(store, None, plan.request(policy, &dir), &mut ui).await {
-        Ok(done) => done,
-        // Every check the real run makes before its question was made.
-        Err(WriteError::DryRun) => {
+    let done = match restored {
+        Restored::HoldsAlready => {
+            eprintln!("the store already holds these parameters: nothing to write");
+            return print_params(&plan.current, how.json, extra(false));
+        }
+        Restored::DryRun => {
             eprintln!("dry run: nothing written");
             return print_params(&plan.current, how.json, extra(false));
         }
-        Err(WriteError::Declined(_)) => return Err("not restored: declined".into()),
-        Err(e @ WriteError::Failed { .. }) => return Err(format!("not restored: {e}").into()),
-        Err(e) => return Err(e.into()),
+        Restored::Written(done) => done,
     };
     eprintln!(
         "restored{}",
