@@ -18,6 +18,7 @@
 //! | a store on its own ([`StoreLocation`]: `odocal restore --to`) | a controller's `PORT` (or `odocal:PORT?baud=…`); `profile:PATH`; `ros-yaml:PATH[?controller=diff_drive_controller]` (a controller's ros2_control YAML) |
 
 pub mod flags;
+pub mod restore_target;
 
 use crate::base::adjusted::Adjusted;
 use crate::base::heading_backend::{HeadingBackend, PortSpec};
@@ -82,6 +83,15 @@ pub enum SpecError {
     /// A backup file could not be read.
     #[error(transparent)]
     Backup(#[from] BackupError),
+    /// A backup does not say which store it was taken from.
+    #[error("{}: {source}", path.display())]
+    InBackup {
+        /// The backup.
+        path: PathBuf,
+        /// Why.
+        #[source]
+        source: Box<SpecError>,
+    },
     /// A routine file could not be read.
     #[error("cannot read {}: {source}", path.display())]
     RoutineUnreadable {

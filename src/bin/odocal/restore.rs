@@ -7,10 +7,11 @@
 
 use crate::out::print_params;
 use odocal::base::restore::{restore, BackupDir, RestoreError, RestoreOptions, Restored};
-use odocal::base::transaction::{check_same_file, BackupError, BackupFile};
+use odocal::base::transaction::BackupFile;
 use odocal::base::write::{WriteError, WritePolicy};
 use odocal::base::ParamStore;
-use odocal::spec::{StoreLocation, ODOCAL_BAUD};
+use odocal::spec::restore_target::locate;
+use odocal::spec::ODOCAL_BAUD;
 use serde_json::json;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -65,7 +66,8 @@ pub struct Restore<'a> {
     pub backup_dir: PathBuf,
     /// `backup_dir` was asked for: it is used for a file's backup too.
     pub backup_dir_given: bool,
-    /// The file the backup names failed [`check_same_file`] (and `any_device` allowed it):
+    /// The file the backup names failed
+    /// [`odocal::base::transaction::check_same_file`] (and `any_device` allowed it):
     /// its parameters only, never its whole text.
     pub not_its_file: bool,
     /// Print JSON.
@@ -74,42 +76,14 @@ pub struct Restore<'a> {
 
 /// Runs `odocal restore`.
 pub async fn run(args: RestoreArgs) -> CliResult {
-    let to = args
-        .to
-        .as_deref()
-        .map(|text| StoreLocation::parse(text, args.baud))
-        .transpose()?;
-    let controller = match &to {
-        Some(StoreLocation::RosYaml { controller, .. }) => Some(controller.as_str()),
-        _ => None,
-    };
-    let backup = StoreLocation::read_backup(&args.backup, controller)?;
-    let named_by_backup = to.is_none();
-    let location = match to {
-        Some(location) => location,
-        None => StoreLocation::of_backup(&backup, args.baud)
-            .map_err(|e| format!("{}: {e}", args.backup.display()))?,
-    };
+    let located = locate(&args.backup, args.to.as_deref(), args.baud)?;
     if !args.json {
-        eprintln!("restoring to {location}");
+        eprintln!("restoring to {}", located.location);
     }
-    let store = location.open().await?;
-    // A file the backup names is trusted only when the backup vouches for it; a store the
-    // user chose with --to is theirs to choose, but only a file the backup vouches for gets
-    // its whole text back (else its parameters only).
-    let not_its_file = match check_same_file(&backup, &args.backup, store.as_ref()) {
-        Ok(()) => false,
-        Err(e) if named_by_backup && !args.any_device => return Err(e.into()),
-        Err(BackupError::NotItsFile { file, changed, .. }) => {
-            eprintln!(
-                "warning: {} differs from the file this backup holds in {changed} line(s) \
-                 beyond the parameters: restoring its parameters only",
-                file.display()
-            );
-            true
-        }
-        Err(e) => return Err(e.into()),
-    };
+    let opened = located.open(&args.backup, args.any_device).await?;
+    if let Some(warning) = &opened.not_its_file {
+        eprintln!("warning: {warning}");
+    }
     let how = Restore {
         from: &args.backup,
         dry_run: args.dry_run,
@@ -117,13 +91,13 @@ pub async fn run(args: RestoreArgs) -> CliResult {
         any_device: args.any_device,
         commit: true,
         backup_dir_given: args.backup_dir.is_some(),
-        not_its_file,
+        not_its_file: opened.not_its_file.is_some(),
         backup_dir: args
             .backup_dir
             .unwrap_or_else(|| odocal::io::dir_of(&args.backup).to_path_buf()),
         json: args.json,
     };
-    restore_onto(store, &backup, &how).await
+    restore_onto(opened.store, &located.backup, &how).await
 }
 
 /// Puts `backup`'s parameters into `store` ([`odocal::base::restore::restore`]) and prints
