@@ -144,6 +144,7 @@ pub enum Restored {
 
 /// Where a restore puts the backup of what the store holds now: `given`, else beside the
 /// store's file, else `default` (beside the backup restored).
+#[derive(Debug, Clone, Copy)]
 pub struct BackupDir<'a> {
     /// The directory asked for.
     pub given: Option<&'a Path>,

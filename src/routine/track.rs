@@ -8,7 +8,7 @@
 //! guarded motion at a time ([`MotionGuard`]): an error, a cancellation or the end of the
 //! session stops the base.
 
-use super::config::{HARD_RATE_LIMIT_RAD_S, HARD_SPEED_LIMIT_M_S};
+use super::config::{ConfigError, HARD_RATE_LIMIT_RAD_S, HARD_SPEED_LIMIT_M_S};
 use super::RoutineError;
 use crate::base::write::{
     write_once, Bounds, Commit, Question, WriteError, WritePolicy, WriteRequest, WriteUi,
@@ -23,6 +23,7 @@ use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use std::f64::consts::{FRAC_PI_2, PI};
 use std::path::Path;
+use std::path::PathBuf;
 use std::str::FromStr;
 use std::time::Duration;
 use tokio_util::sync::CancellationToken;
@@ -190,6 +191,74 @@ pub struct PathOptions {
     /// Seed of a wandering path.
     #[cfg_attr(feature = "cli", arg(long, default_value_t = 1))]
     pub seed: u64,
+}
+
+/// Where `odocal track` gets its samples — a log, a data set, a wheels and poses pair, or
+/// the live robot (against a pose topic if given) — and what it does with a live estimate
+/// (with the `cli` feature, `odocal track`'s flags).
+#[derive(Debug, Clone, PartialEq)]
+#[cfg_attr(feature = "cli", derive(clap::Args))]
+pub struct TrackSettings {
+    /// A log written by `odocal record` or `track --record`.
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub log: Option<PathBuf>,
+    /// A recorded OptiOdom set (ground-truth heading plays the compass).
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub dataset: Option<PathBuf>,
+    /// Live on a ROS robot (--base rosbridge://…): calibrate against this pose topic
+    /// (PoseStamped, PoseWithCovarianceStamped such as /amcl_pose, or Odometry) instead of
+    /// the heading: both diameters and the wheelbase in metres, and where the reference frame
+    /// sits on the robot.
+    #[cfg_attr(feature = "cli", arg(long, conflicts_with_all = ["log", "dataset", "poses"]))]
+    pub reference: Option<String>,
+    /// A pose reference from a file (t_s,x_m,y_m,yaw_rad; `odocal fit`'s format), with
+    /// --wheels, replayed through the online filter.
+    #[cfg_attr(feature = "cli", arg(long, requires = "wheels"))]
+    pub poses: Option<PathBuf>,
+    /// The wheels of --poses (t_s,left_rad,right_rad).
+    #[cfg_attr(feature = "cli", arg(long, requires = "poses"))]
+    pub wheels: Option<PathBuf>,
+    /// With --poses: the configured wheel diameter (m).
+    #[cfg_attr(feature = "cli", arg(long, requires = "poses"))]
+    pub wheel_diameter_m: Option<f64>,
+    /// With --poses: the configured wheelbase (m).
+    #[cfg_attr(feature = "cli", arg(long, requires = "poses"))]
+    pub wheelbase_m: Option<f64>,
+    /// Live: also write every sample to this log (it replays to the same numbers).
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub record: Option<PathBuf>,
+    /// Live: requested sample period (ms).
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 20))]
+    pub period_ms: u64,
+    /// Live: stop after this long [default: until Ctrl-C, or the end of the --drive path].
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub duration_s: Option<f64>,
+    /// Live: write the estimate back when both standard deviations are below --max-std.
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub write_back: bool,
+    /// Largest standard deviation of E_b and E_d that justifies a write-back.
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 0.002))]
+    pub max_std: f64,
+    /// Where the parameter backup goes before a write-back.
+    #[cfg_attr(feature = "cli", arg(long, default_value = "."))]
+    pub backup_dir: PathBuf,
+}
+
+impl TrackSettings {
+    /// A pose reference is the session's reference (a topic, or a poses file).
+    pub fn with_poses(&self) -> bool {
+        self.reference.is_some() || self.poses.is_some()
+    }
+
+    /// Refuses a write-back from a recording: it writes to a live robot only.
+    pub fn check(&self) -> Result<(), ConfigError> {
+        let replay = self.log.is_some() || self.dataset.is_some() || self.poses.is_some();
+        if self.write_back && replay {
+            let why = "--write-back writes to a live robot: give --port or --base";
+            return Err(ConfigError::new(why));
+        }
+        Ok(())
+    }
 }
 
 impl TrackOptions {
@@ -593,5 +662,50 @@ mod outcome_tests {
         outcome.cancelled = true;
         let e = outcome.check_recorded(Some(2.0), out).unwrap_err();
         assert!(e.contains("before it was stopped"), "{e}");
+    }
+}
+
+#[cfg(test)]
+mod settings_tests {
+    use super::*;
+
+    fn live() -> TrackSettings {
+        TrackSettings {
+            log: None,
+            dataset: None,
+            reference: None,
+            poses: None,
+            wheels: None,
+            wheel_diameter_m: None,
+            wheelbase_m: None,
+            record: None,
+            period_ms: 20,
+            duration_s: None,
+            write_back: true,
+            max_std: 0.002,
+            backup_dir: PathBuf::from("."),
+        }
+    }
+
+    #[test]
+    fn a_write_back_goes_to_a_live_robot_only() {
+        live().check().unwrap();
+        assert!(!live().with_poses());
+        let replay = TrackSettings {
+            log: Some(PathBuf::from("session.jsonl")),
+            ..live()
+        };
+        let e = replay.check().unwrap_err();
+        assert!(
+            e.to_string()
+                .contains("--write-back writes to a live robot"),
+            "{e}"
+        );
+        let against_poses = TrackSettings {
+            reference: Some("/amcl_pose".into()),
+            ..live()
+        };
+        assert!(against_poses.with_poses());
+        against_poses.check().unwrap();
     }
 }

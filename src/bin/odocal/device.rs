@@ -230,14 +230,17 @@ async fn restore_from(
     let client = port.connect().await?;
     let how = crate::restore::Restore {
         from: file,
-        dry_run: false,
-        yes,
-        any_device,
-        commit: stored,
-        backup_dir: backup_dir.to_path_buf(),
-        backup_dir_given: true,
-        // A device, judged by its serial number alone.
-        not_its_file: false,
+        options: odocal::base::restore::RestoreOptions {
+            any_device,
+            // A device, judged by its serial number alone.
+            not_its_file: false,
+            commit: stored,
+        },
+        policy: crate::restore::policy(false, yes),
+        dir: odocal::base::restore::BackupDir {
+            given: Some(backup_dir),
+            default: backup_dir,
+        },
         json: port.json,
     };
     crate::restore::restore_onto(Arc::new(client), &backup, &how).await

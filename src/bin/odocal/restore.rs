@@ -53,25 +53,23 @@ pub struct RestoreArgs {
 pub struct Restore<'a> {
     /// The backup file.
     pub from: &'a Path,
-    /// Show, write nothing.
-    pub dry_run: bool,
-    /// Do not ask.
-    pub yes: bool,
-    /// Allow a backup of another store.
-    pub any_device: bool,
-    /// Commit (storage, the file) too; else the copy in use only (a device's RAM).
-    pub commit: bool,
-    /// Where the backup goes for a store that is not a file (a file's goes beside it), unless
-    /// `backup_dir_given`.
-    pub backup_dir: PathBuf,
-    /// `backup_dir` was asked for: it is used for a file's backup too.
-    pub backup_dir_given: bool,
-    /// The file the backup names failed
-    /// [`odocal::base::transaction::check_same_file`] (and `any_device` allowed it):
-    /// its parameters only, never its whole text.
-    pub not_its_file: bool,
+    /// Which store may take it, and what is written.
+    pub options: RestoreOptions,
+    /// Ask, write without asking, or show and write nothing.
+    pub policy: WritePolicy,
+    /// Where the backup of what the store holds goes.
+    pub dir: BackupDir<'a>,
     /// Print JSON.
     pub json: bool,
+}
+
+/// The policy of `--dry-run` and `--yes`.
+pub fn policy(dry_run: bool, yes: bool) -> WritePolicy {
+    match (dry_run, yes) {
+        (true, _) => WritePolicy::DryRun,
+        (false, true) => WritePolicy::Yes,
+        (false, false) => WritePolicy::Ask,
+    }
 }
 
 /// Runs `odocal restore`.
@@ -84,17 +82,19 @@ pub async fn run(args: RestoreArgs) -> CliResult {
     if let Some(warning) = &opened.not_its_file {
         eprintln!("warning: {warning}");
     }
+    let beside_backup = odocal::io::dir_of(&args.backup).to_path_buf();
     let how = Restore {
         from: &args.backup,
-        dry_run: args.dry_run,
-        yes: args.yes,
-        any_device: args.any_device,
-        commit: true,
-        backup_dir_given: args.backup_dir.is_some(),
-        not_its_file: opened.not_its_file.is_some(),
-        backup_dir: args
-            .backup_dir
-            .unwrap_or_else(|| odocal::io::dir_of(&args.backup).to_path_buf()),
+        options: RestoreOptions {
+            any_device: args.any_device,
+            not_its_file: opened.not_its_file.is_some(),
+            commit: true,
+        },
+        policy: policy(args.dry_run, args.yes),
+        dir: BackupDir {
+            given: args.backup_dir.as_deref(),
+            default: &beside_backup,
+        },
         json: args.json,
     };
     restore_onto(opened.store, &located.backup, &how).await
@@ -107,22 +107,16 @@ pub async fn restore_onto(
     backup: &BackupFile,
     how: &Restore<'_>,
 ) -> CliResult {
-    let options = RestoreOptions {
-        any_device: how.any_device,
-        not_its_file: how.not_its_file,
-        commit: how.commit,
-    };
-    let policy = match (how.dry_run, how.yes) {
-        (true, _) => WritePolicy::DryRun,
-        (false, true) => WritePolicy::Yes,
-        (false, false) => WritePolicy::Ask,
-    };
-    let dir = BackupDir {
-        given: how.backup_dir_given.then_some(how.backup_dir.as_path()),
-        default: &how.backup_dir,
-    };
-    let mut ui = crate::prompt::TerminalWriteUi { yes: how.yes };
-    let done = restore(store, (backup, how.from), options, (policy, dir), &mut ui).await;
+    let yes = how.policy == WritePolicy::Yes;
+    let mut ui = crate::prompt::TerminalWriteUi { yes };
+    let done = restore(
+        store,
+        (backup, how.from),
+        how.options,
+        (how.policy, how.dir),
+        &mut ui,
+    )
+    .await;
     let (plan, restored) = done.map_err(|e| match e {
         RestoreError::Write(WriteError::Declined(_)) => "not restored: declined".into(),
         RestoreError::Write(e @ WriteError::Failed { .. }) => format!("not restored: {e}"),
@@ -134,7 +128,7 @@ pub async fn restore_onto(
             "store": plan.store,
             "before": plan.current,
             "written": written,
-            "dry_run": how.dry_run,
+            "dry_run": how.policy == WritePolicy::DryRun,
         })
     };
     let done = match restored {
@@ -150,7 +144,7 @@ pub async fn restore_onto(
     };
     eprintln!(
         "restored{}",
-        if how.commit {
+        if how.options.commit {
             " and committed"
         } else {
             " to RAM; run `odocal params save` to keep them across power cycles"

@@ -13,7 +13,8 @@ use odocal::report::track::{pose_session, TrackSummary};
 use odocal::ros::pose_source::RosPoseSource;
 use odocal::routine::config::WritePolicy;
 use odocal::routine::track::{
-    log_header, track_logged, write_back, PathOptions, TrackOptions, TrackOutcome, WriteBack,
+    log_header, track_logged, write_back, PathOptions, TrackOptions, TrackOutcome, TrackSettings,
+    WriteBack,
 };
 use odocal::spec::flags::RobotFlags;
 use odocal::spec::RobotSection;
@@ -130,53 +131,12 @@ pub async fn record(args: RecordArgs) -> CliResult {
 pub struct TrackArgs {
     #[command(flatten)]
     robot: RobotFlags,
-    /// A log written by `odocal record` or `track --record`.
-    #[arg(long)]
-    log: Option<PathBuf>,
-    /// A recorded OptiOdom set (ground-truth heading plays the compass).
-    #[arg(long)]
-    dataset: Option<PathBuf>,
-    /// Live on a ROS robot (--base rosbridge://…): calibrate against this pose topic
-    /// (PoseStamped, PoseWithCovarianceStamped such as /amcl_pose, or Odometry) instead of
-    /// the heading: both diameters and the wheelbase in metres, and where the reference frame
-    /// sits on the robot.
-    #[arg(long, conflicts_with_all = ["log", "dataset", "poses"])]
-    reference: Option<String>,
-    /// A pose reference from a file (t_s,x_m,y_m,yaw_rad; `odocal fit`'s format), with
-    /// --wheels, replayed through the online filter.
-    #[arg(long, requires = "wheels")]
-    poses: Option<PathBuf>,
-    /// The wheels of --poses (t_s,left_rad,right_rad).
-    #[arg(long, requires = "poses")]
-    wheels: Option<PathBuf>,
-    /// With --poses: the configured wheel diameter (m).
-    #[arg(long, requires = "poses")]
-    wheel_diameter_m: Option<f64>,
-    /// With --poses: the configured wheelbase (m).
-    #[arg(long, requires = "poses")]
-    wheelbase_m: Option<f64>,
-    /// Live: also write every sample to this log (it replays to the same numbers).
-    #[arg(long)]
-    record: Option<PathBuf>,
+    #[command(flatten)]
+    session: TrackSettings,
     #[command(flatten)]
     filter: TrackerSettings,
-    /// Live: requested sample period (ms).
-    #[arg(long, default_value_t = 20)]
-    period_ms: u64,
-    /// Live: stop after this long [default: until Ctrl-C, or the end of the --drive path].
-    #[arg(long)]
-    duration_s: Option<f64>,
     #[command(flatten)]
     drive: DriveArgs,
-    /// Live: write the estimate back when both standard deviations are below --max-std.
-    #[arg(long)]
-    write_back: bool,
-    /// Largest standard deviation of E_b and E_d that justifies a write-back.
-    #[arg(long, default_value_t = 0.002)]
-    max_std: f64,
-    /// Where the parameter backup goes before a write-back.
-    #[arg(long, default_value = ".")]
-    backup_dir: PathBuf,
     /// Print one JSON object.
     #[arg(long)]
     json: bool,
@@ -196,7 +156,7 @@ type Session = (Tracker, WheelParams, Option<Base>);
 
 /// Runs `odocal track`.
 pub async fn track(args: TrackArgs) -> CliResult {
-    let with_poses = args.reference.is_some() || args.poses.is_some();
+    let with_poses = args.session.with_poses();
     // A pose reference observes the absolute scale: the filter's own, not a convention's.
     let scale = args.filter.scale(with_poses);
     if !args.json {
@@ -207,14 +167,17 @@ pub async fn track(args: TrackArgs) -> CliResult {
         );
         println!("{:>9} {:>10}   estimate", "", "driven");
     }
-    if args.write_back && (args.log.is_some() || args.dataset.is_some() || args.poses.is_some()) {
-        return Err("--write-back writes to a live robot: give --port or --base".into());
-    }
+    args.session.check()?;
     let shown = |e: &OnlineEstimate| show(e, args.json, "");
     let f = &args.filter;
-    let replayed = match (&args.poses, &args.wheels, &args.dataset, &args.log) {
+    let replayed = match (
+        &args.session.poses,
+        &args.session.wheels,
+        &args.session.dataset,
+        &args.session.log,
+    ) {
         (Some(p), Some(w), _, _) => {
-            let geometry = (args.wheel_diameter_m, args.wheelbase_m);
+            let geometry = (args.session.wheel_diameter_m, args.session.wheelbase_m);
             replay_files(f, (p, w), geometry, scale, shown)?
         }
         (_, _, Some(dir), _) => replay_dataset(f, dir, scale, shown)?,
@@ -231,7 +194,7 @@ async fn live_session(
     args: &TrackArgs,
     scale: ScaleSource,
 ) -> Result<Session, Box<dyn std::error::Error>> {
-    let poses = match &args.reference {
+    let poses = match &args.session.reference {
         Some(topic) => {
             let url = args.robot.rosbridge_url().ok_or(
                 "--reference reads a ROS topic: give --base rosbridge://HOST:PORT (for a \
@@ -243,17 +206,17 @@ async fn live_session(
     };
     let (b, configured) = open(&args.robot).await?;
     let mut t = args.filter.tracker(configured, scale)?;
-    let mut log = match &args.record {
+    let mut log = match &args.session.record {
         Some(p) => Some(LogWriter::create(
             p,
-            log_header(&b, configured, args.period_ms),
+            log_header(&b, configured, args.session.period_ms),
         )?),
         None => None,
     };
     let outcome = live(
         (&b, poses.as_ref().map(|p| p as &dyn PoseSource)),
         &mut t,
-        (args.period_ms, args.duration_s),
+        (args.session.period_ms, args.session.duration_s),
         &args.drive,
         log.as_mut(),
         |e| show(e, args.json, ""),
@@ -305,7 +268,7 @@ async fn finish(
     };
     let excitation = tracker.filter().excitation(scale)?;
     let mut written = None;
-    if let (true, Some(base)) = (args.write_back, &base) {
+    if let (true, Some(base)) = (args.session.write_back, &base) {
         let policy = if args.drive.yes {
             WritePolicy::Yes
         } else {
@@ -314,8 +277,18 @@ async fn finish(
         let mut ui = crate::prompt::TerminalWriteUi {
             yes: args.drive.yes,
         };
-        let dir = &args.backup_dir;
-        match write_back(base, &last, &configured, args.max_std, policy, dir, &mut ui).await? {
+        let dir = &args.session.backup_dir;
+        match write_back(
+            base,
+            &last,
+            &configured,
+            args.session.max_std,
+            policy,
+            dir,
+            &mut ui,
+        )
+        .await?
+        {
             WriteBack::Written(p) => {
                 eprintln!("written and committed");
                 written = Some(p);
