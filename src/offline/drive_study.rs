@@ -4,11 +4,53 @@
 
 use crate::calibration::pose_calibration::{calibrate_from_poses, PoseCalibration};
 use crate::calibration::pose_fit::{FitConfig, Param};
-use crate::calibration::pose_reference::Geometry;
+use crate::calibration::pose_reference::{Geometry, ReferenceKind};
 use crate::calibration::CalibrationError;
 use crate::sim::driving::{DrivingConfig, SimulatedDrive};
 use serde_json::json;
 use std::fmt::Write as _;
+
+/// A simulated drive as a user sets it (with the `cli` feature, `odocal simulate --drive`'s
+/// flags).
+#[derive(Debug, Clone, PartialEq)]
+#[cfg_attr(feature = "cli", derive(clap::Args))]
+pub struct DriveSettings {
+    /// Instead of squares, normal driving under a pose reference (5 minutes; the reference at
+    /// 10 Hz, mounted off the axle, 60 ms late, noisy, 1 % outliers), fitted as `odocal fit`
+    /// does: the truth against the fit.
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub drive: bool,
+    /// The simulated reference: absolute (motion capture, 3 mm / 0.3°, 1 % outliers of
+    /// 15–45 cm) or relative (chained scan matching, 1 mm / 0.1° per increment, 2 % failures).
+    #[cfg_attr(
+        feature = "cli",
+        arg(long, default_value = "absolute", requires = "drive")
+    )]
+    pub reference_kind: ReferenceKind,
+    /// Length of the drive (s).
+    #[cfg_attr(
+        feature = "cli",
+        arg(long, default_value_t = 300.0, requires = "drive")
+    )]
+    pub drive_s: f64,
+    /// Also write the drive to this new directory as wheels.csv and poses.csv (for `odocal fit`).
+    #[cfg_attr(feature = "cli", arg(long, requires = "drive"))]
+    pub write_csv: Option<std::path::PathBuf>,
+}
+
+impl DriveSettings {
+    /// The drive of a robot of `truth`, from `seed`; its length checked (10 s to an hour).
+    pub fn config(&self, truth: Geometry, seed: u64) -> Result<DrivingConfig, CalibrationError> {
+        crate::ranges::check_range("--drive-s", self.drive_s, 10.0, 3600.0)
+            .map_err(CalibrationError::OutOfRange)?;
+        Ok(DrivingConfig {
+            truth,
+            duration_s: self.drive_s,
+            seed,
+            ..DrivingConfig::with_reference(self.reference_kind)
+        })
+    }
+}
 
 /// The fit of a simulated drive beside its truth.
 #[derive(Debug, Clone)]

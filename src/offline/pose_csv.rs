@@ -280,6 +280,26 @@ pub fn write_poses(path: &Path, poses: &[ReferencePose]) -> std::io::Result<()> 
     crate::io::replace_atomically(path, &poses_to_csv(poses))
 }
 
+/// Writes a drive as `wheels.csv` and `poses.csv` (what `odocal fit --wheels --poses` reads)
+/// into `dir`, which must not exist yet (it is created).
+pub fn write_new_dir(
+    dir: &Path,
+    drive: &crate::calibration::pose_reference::PoseRecording,
+) -> std::io::Result<()> {
+    if dir.exists() {
+        return Err(std::io::Error::new(
+            std::io::ErrorKind::AlreadyExists,
+            format!(
+                "{} exists; --write-csv writes a new directory (give another path)",
+                dir.display()
+            ),
+        ));
+    }
+    std::fs::create_dir_all(dir)?;
+    write_wheels(&dir.join("wheels.csv"), &drive.wheels)?;
+    write_poses(&dir.join("poses.csv"), &drive.poses)
+}
+
 /// The text of a wheels file: [`WHEELS_HEADER`] and one row per sample, each number in
 /// Rust's shortest exact form.
 pub fn wheels_to_csv(wheels: &[WheelAngles]) -> String {

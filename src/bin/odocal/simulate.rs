@@ -23,11 +23,9 @@ pub struct Args {
     /// How the --write-bag's IMU errs (a deviation, a gyro's scale, a late or lossy stream).
     #[command(flatten)]
     sensor: odocal::mock::options::SensorErrors,
-    /// Instead of squares, normal driving under a pose reference (5 minutes; the reference at
-    /// 10 Hz, mounted off the axle, 60 ms late, noisy, 1 % outliers), fitted as `odocal fit`
-    /// does: the truth against the fit.
+    /// `--drive`: normal driving under a pose reference instead of squares.
     #[command(flatten)]
-    pub drive: crate::simulate_drive::DriveArgs,
+    pub drive: odocal::offline::drive_study::DriveSettings,
 }
 
 /// Writes the simulated square test as a ROS 2 bag.
