@@ -1,10 +1,11 @@
 //! Input and output every layer above shares: bounded reads, atomic writes, files created new,
 //! backups ([`files`]), the size bounds of every kind of file odocal reads ([`SIZE_BOUNDS`]),
-//! and opening serial ports ([`serial`]).
+//! opening serial ports ([`serial`]) and the signals that end a session ([`signals`]).
 
 pub mod budget;
 pub mod files;
 pub mod serial;
+pub mod signals;
 
 pub use files::*;
 
@@ -76,6 +77,16 @@ pub fn seconds(d: &std::time::Duration) -> String {
     } else {
         format!("{s:.1} s")
     }
+}
+
+/// This process's peak resident memory as Linux counts it for this program alone (`VmHWM` of
+/// `/proc/self/status`: unlike a parent's `wait4`, which also counts what the parent held when
+/// it started the child), e.g. `"41236 kB"`; `None` where there is no such line. For the memory
+/// figures of the benchmarks and the hostile-input tests.
+pub fn peak_resident_memory() -> Option<String> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let kib = status.lines().find_map(|l| l.strip_prefix("VmHWM:"))?;
+    Some(kib.trim().to_string())
 }
 
 #[cfg(test)]

@@ -155,6 +155,21 @@ pub fn check_rate_limit(rate_rad_s: f64) -> Result<(), ConfigError> {
 }
 
 impl RoutineConfig {
+    /// What a calibration on the robot at `place` will do, said before it connects and moves.
+    pub fn motion_notice(&self, place: &str) -> String {
+        format!(
+            "odocal calibrate: this MOVES THE ROBOT on {place}: squares of {} m, {} per direction \
+             per round, at up to {} m/s (the plan, with time and floor, follows the pre-flight \
+             checks). Ctrl-C stops it at any time.",
+            self.side_m,
+            match self.target() {
+                Some(_) => format!("until the target (at most {})", self.max_runs_per_direction),
+                None => self.runs_per_direction.to_string(),
+            },
+            self.max_speed_m_s
+        )
+    }
+
     /// The precision the settings ask for, when they ask for one (the round's squares then stop
     /// once it is reached).
     pub fn target(&self) -> Option<Target> {

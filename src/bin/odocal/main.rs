@@ -228,16 +228,11 @@ fn dispatch(chosen: Command) -> Result<(), Box<dyn std::error::Error>> {
 }
 
 /// With `ODOCAL_PEAK_MEMORY` set, the last line on standard error is this process's peak
-/// resident memory, as Linux counts it for this program alone (`VmHWM`: unlike a parent's
-/// `wait4`, which also counts what the parent held when it started the child). For the
-/// memory figures of the benchmarks and the hostile-input tests.
+/// resident memory ([`odocal::io::peak_resident_memory`]).
 fn peak_memory() {
-    if std::env::var_os("ODOCAL_PEAK_MEMORY").is_none() {
-        return;
-    }
-    let status = std::fs::read_to_string("/proc/self/status").unwrap_or_default();
-    match status.lines().find_map(|l| l.strip_prefix("VmHWM:")) {
-        Some(kib) => eprintln!("peak resident memory: {}", kib.trim()),
-        None => eprintln!("peak resident memory: unknown (no /proc/self/status VmHWM here)"),
+    if std::env::var_os("ODOCAL_PEAK_MEMORY").is_some() {
+        let peak = odocal::io::peak_resident_memory();
+        let unknown = || "unknown (no /proc/self/status VmHWM here)".to_string();
+        eprintln!("peak resident memory: {}", peak.unwrap_or_else(unknown));
     }
 }

@@ -245,18 +245,7 @@ async fn run_on(mut cfg: RoutineConfig, spec: BaseSpec, flags: &RoutineFlags) ->
     // the robot will move.
     let base = spec.open().await?;
     if !flags.json {
-        eprintln!(
-            "odocal calibrate: this MOVES THE ROBOT on {}: squares of {} m, {} per direction \
-             per round, at up to {} m/s (the plan, with time and floor, follows the pre-flight \
-             checks). Ctrl-C stops it at any time.",
-            spec.place(),
-            cfg.side_m,
-            match cfg.target() {
-                Some(_) => format!("until the target (at most {})", cfg.max_runs_per_direction),
-                None => cfg.runs_per_direction.to_string(),
-            },
-            cfg.max_speed_m_s
-        );
+        eprintln!("{}", cfg.motion_notice(&spec.place()));
         eprintln!("connected: {}", base.info());
     }
     let drive = base.drive.clone();
