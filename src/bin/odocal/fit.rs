@@ -7,7 +7,7 @@ use odocal::calibration::pose_calibration::{calibrate_from_poses, dead_reckon, e
 use odocal::calibration::pose_reference::{Geometry, PoseRecording};
 use odocal::offline::dataset::{pool_pose_recordings, OptiOdomSet};
 use odocal::offline::pose_csv::{read_poses, read_wheels};
-use odocal::ros::bag::reference::read_reference_drive;
+use odocal::ros::bag::reference::BagDriveSettings;
 use std::path::PathBuf;
 
 /// Arguments of `odocal fit`.
@@ -25,26 +25,8 @@ pub struct Args {
     /// recording; the nominal geometry comes from the set's metadata.
     #[arg(long, conflicts_with = "bag")]
     dataset: Vec<PathBuf>,
-    /// A ROS bag (any format `odocal bag` reads) with the wheel joints and --reference.
-    #[arg(long, requires = "reference", conflicts_with = "wheels")]
-    bag: Option<PathBuf>,
-    /// The bag's pose reference: a geometry_msgs/PoseStamped, PoseWithCovarianceStamped
-    /// (/amcl_pose) or nav_msgs/Odometry topic (its covariance, when it states one, weights the
-    /// samples), or `tf:FRAME` for the TF chain from FRAME (map, world) to --base-frame.
-    #[arg(long, requires = "bag")]
-    reference: Option<String>,
-    /// The robot's frame at the end of a `tf:` chain.
-    #[arg(long, default_value = "base_link")]
-    base_frame: String,
-    /// The bag's sensor_msgs/JointState topic.
-    #[arg(long, default_value = "/joint_states")]
-    joint_states_topic: String,
-    /// Left wheel joint [default: the one joint name containing "left"].
-    #[arg(long)]
-    left_joint: Option<String>,
-    /// Right wheel joint [default: the one joint name containing "right"].
-    #[arg(long)]
-    right_joint: Option<String>,
+    #[command(flatten)]
+    bag: BagDriveSettings,
     /// The controller's ros2_control YAML: the nominal geometry (instead of
     /// --wheel-diameter-m and --wheelbase-m; both wheels and the wheelbase as the controller
     /// uses them, multipliers included).
@@ -144,23 +126,12 @@ fn inputs(args: &Args) -> Result<Inputs, Box<dyn std::error::Error>> {
         };
         return Ok((vec![(p.display().to_string(), rec)], nominal));
     }
-    if let (Some(bag), Some(reference)) = (&args.bag, &args.reference) {
+    if args.bag.bag.is_some() {
         let nominal = nominal(args, "--bag")?;
-        let opts = odocal::ros::bag::BagOptions {
-            topics: odocal::ros::bag::RosTopics {
-                joint_states: args.joint_states_topic.clone(),
-                ..Default::default()
-            },
-            left_joint: args.left_joint.clone(),
-            right_joint: args.right_joint.clone(),
-            ..Default::default()
-        };
-        let (recording, notes) = read_reference_drive(bag, &opts, reference, &args.base_frame)?;
-        notes.iter().for_each(|note| eprintln!("note: {note}"));
-        return Ok((
-            vec![(format!("{} {reference}", bag.display()), recording)],
-            nominal,
-        ));
+        if let Some((name, recording, notes)) = args.bag.read()? {
+            notes.iter().for_each(|note| eprintln!("note: {note}"));
+            return Ok((vec![(name, recording)], nominal));
+        }
     }
     if args.dataset.is_empty() {
         return Err("nothing to fit: give --wheels W.csv --poses P.csv (with \

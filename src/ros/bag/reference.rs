@@ -14,7 +14,7 @@ use crate::ros::msg::{
     PoseWithCovarianceStamped,
 };
 use std::collections::BTreeMap;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 /// The types a pose reference may have.
 pub const REFERENCE_TYPES: [&str; 3] = [
@@ -34,6 +34,61 @@ pub struct PoseDrive {
     pub joints_topic: String,
     /// Choices made while reading, and samples dropped.
     pub notes: Vec<String>,
+}
+
+/// A drive with a pose reference from a bag, as a user names it (with the `cli` feature,
+/// `odocal fit`'s flags).
+#[derive(Debug, Clone, PartialEq)]
+#[cfg_attr(feature = "cli", derive(clap::Args))]
+pub struct BagDriveSettings {
+    /// A ROS bag (any format `odocal bag` reads) with the wheel joints and --reference.
+    #[cfg_attr(
+        feature = "cli",
+        arg(long, requires = "reference", conflicts_with = "wheels")
+    )]
+    pub bag: Option<PathBuf>,
+    /// The bag's pose reference: a geometry_msgs/PoseStamped, PoseWithCovarianceStamped
+    /// (/amcl_pose) or nav_msgs/Odometry topic (its covariance, when it states one, weights the
+    /// samples), or `tf:FRAME` for the TF chain from FRAME (map, world) to --base-frame.
+    #[cfg_attr(feature = "cli", arg(long, requires = "bag"))]
+    pub reference: Option<String>,
+    /// The robot's frame at the end of a `tf:` chain.
+    #[cfg_attr(feature = "cli", arg(long, default_value = "base_link"))]
+    pub base_frame: String,
+    /// The bag's sensor_msgs/JointState topic.
+    #[cfg_attr(feature = "cli", arg(long, default_value = "/joint_states"))]
+    pub joint_states_topic: String,
+    /// Left wheel joint [default: the one joint name containing "left"].
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub left_joint: Option<String>,
+    /// Right wheel joint [default: the one joint name containing "right"].
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub right_joint: Option<String>,
+}
+
+impl BagDriveSettings {
+    /// The drive, named `BAG REFERENCE`, with notes on what was read; `None` when no bag was
+    /// given.
+    pub fn read(&self) -> Result<Option<(String, PoseRecording, Vec<String>)>, BagError> {
+        let (Some(bag), Some(reference)) = (&self.bag, &self.reference) else {
+            return Ok(None);
+        };
+        let opts = BagOptions {
+            topics: super::RosTopics {
+                joint_states: self.joint_states_topic.clone(),
+                ..Default::default()
+            },
+            left_joint: self.left_joint.clone(),
+            right_joint: self.right_joint.clone(),
+            ..Default::default()
+        };
+        let (recording, notes) = read_reference_drive(bag, &opts, reference, &self.base_frame)?;
+        Ok(Some((
+            format!("{} {reference}", bag.display()),
+            recording,
+            notes,
+        )))
+    }
 }
 
 /// The drive against `reference` in the bag at `path`: a pose topic (as [`read_pose_drive`])
