@@ -19,6 +19,15 @@ pub mod status;
 
 pub use error::{HalError, LinkError};
 
+/// Stops the base over a link of its own (after an error or a signal ended the link that was
+/// driving it): opens `port` at `baud`, sends STOP, closes.
+pub async fn stop_over_new_link(port: &str, baud: u32) -> Result<(), HalError> {
+    let (client, _) = open_port(port, baud).await?;
+    let stopped = client.stop().await;
+    client.close().await;
+    stopped
+}
+
 use crate::kinematics::{wrap_angle, WheelParams};
 use crate::protocol::frame::{MAJOR, VERSION};
 use crate::protocol::message::{

@@ -23,6 +23,94 @@ pub fn open(path: &str, baud: u32) -> Result<tokio_serial::SerialStream, tokio_s
         })
 }
 
+/// One serial port of this machine, with its USB ids where known (`odocal ports`): what tells
+/// the motor controller's adapter from the compass's.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PortInfo {
+    /// Its path.
+    pub port: String,
+    /// usb, pci, bluetooth or unknown.
+    pub kind: &'static str,
+    /// Vendor id (hex), of a USB port.
+    pub vid: Option<String>,
+    /// Product id (hex), of a USB port.
+    pub pid: Option<String>,
+    /// Manufacturer, of a USB port that says.
+    pub manufacturer: Option<String>,
+    /// Product, of a USB port that says.
+    pub product: Option<String>,
+    /// Serial number, of a USB port that says.
+    pub serial_number: Option<String>,
+}
+
+/// The serial ports of this machine.
+pub fn list_ports() -> Result<Vec<PortInfo>, tokio_serial::Error> {
+    use serialport::SerialPortType as T;
+    Ok(serialport::available_ports()?
+        .into_iter()
+        .map(|p| {
+            let mut info = PortInfo {
+                port: p.port_name,
+                kind: "unknown",
+                vid: None,
+                pid: None,
+                manufacturer: None,
+                product: None,
+                serial_number: None,
+            };
+            match p.port_type {
+                T::UsbPort(u) => {
+                    info.kind = "usb";
+                    info.vid = Some(format!("{:04x}", u.vid));
+                    info.pid = Some(format!("{:04x}", u.pid));
+                    (info.manufacturer, info.product) = (u.manufacturer, u.product);
+                    info.serial_number = u.serial_number;
+                }
+                T::PciPort => info.kind = "pci",
+                T::BluetoothPort => info.kind = "bluetooth",
+                T::Unknown => {}
+            }
+            info
+        })
+        .collect())
+}
+
+impl PortInfo {
+    /// The port as JSON: `port` and `type`, and for USB the ids, maker, product and serial
+    /// number (null when it does not say).
+    pub fn json(&self) -> serde_json::Value {
+        let mut v = serde_json::json!({ "port": self.port, "type": self.kind });
+        if self.kind == "usb" {
+            v["vid"] = self.vid.clone().into();
+            v["pid"] = self.pid.clone().into();
+            v["manufacturer"] = self.manufacturer.clone().into();
+            v["product"] = self.product.clone().into();
+            v["serial_number"] = self.serial_number.clone().into();
+        }
+        v
+    }
+}
+
+/// A port in a line: its path, and for USB the ids, maker, product and serial number.
+impl std::fmt::Display for PortInfo {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let (Some(vid), Some(pid)) = (&self.vid, &self.pid) else {
+            return write!(f, "{:<20} {}", self.port, self.kind);
+        };
+        let text = |o: &Option<String>| o.clone().unwrap_or_default();
+        write!(
+            f,
+            "{:<20} usb {vid}:{pid}  {} {} {}",
+            self.port,
+            text(&self.manufacturer),
+            text(&self.product),
+            (self.serial_number.as_ref())
+                .map(|s| format!("(serial {s})"))
+                .unwrap_or_default()
+        )
+    }
+}
+
 /// What `odocal ports` is for, said where a port is wrong.
 const SEE_PORTS: &str = "`odocal ports` lists the serial ports of this machine";
 

@@ -26,14 +26,8 @@ pub struct Args {
 
 /// Stops the base on its own link (after an error or Ctrl-C ended the checks' link).
 async fn stop_base(port: &str, baud: u32) {
-    match odocal::hal::open_port(port, baud).await {
-        Ok((client, _)) => {
-            if let Err(e) = client.stop().await {
-                eprintln!("warning: STOP failed: {e}");
-            }
-            client.close().await;
-        }
-        Err(e) => eprintln!("warning: could not reopen {port} to send STOP: {e}"),
+    if let Err(e) = odocal::hal::stop_over_new_link(port, baud).await {
+        eprintln!("warning: could not send STOP over {port}: {e}");
     }
 }
 
