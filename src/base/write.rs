@@ -41,6 +41,16 @@ pub enum WritePolicy {
 }
 
 impl WritePolicy {
+    /// The policy of a command's `--dry-run` and `--yes`: a dry run writes nothing (`--yes`
+    /// or not); else `--yes` writes without asking, and without it odocal asks.
+    pub fn of_flags(dry_run: bool, yes: bool) -> Self {
+        match (dry_run, yes) {
+            (true, _) => WritePolicy::DryRun,
+            (false, true) => WritePolicy::Yes,
+            (false, false) => WritePolicy::Ask,
+        }
+    }
+
     /// What the policy does, in words for reports.
     pub fn describe(self) -> &'static str {
         match self {

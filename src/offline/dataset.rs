@@ -421,6 +421,11 @@ fn read_run(path: &Path, max_counts_per_s: f64) -> Result<RecordedRun, DatasetEr
 }
 
 impl OptiOdomSet {
+    /// Reads the sets in `dirs`, in that order.
+    pub fn load_all(dirs: &[PathBuf]) -> Result<Vec<Self>, DatasetError> {
+        dirs.iter().map(OptiOdomSet::load).collect()
+    }
+
     /// Reads a set from its directory.
     pub fn load(dir: impl AsRef<Path>) -> Result<Self, DatasetError> {
         let dir = dir.as_ref();

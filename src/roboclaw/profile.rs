@@ -344,6 +344,17 @@ pub fn with_heading(
     Ok(out)
 }
 
+impl HeadingSection {
+    /// The table a compass swing keeps: the whole deviation curve (what was already removed
+    /// and what the swing found), and the kind when the sensor is magnetic.
+    pub fn of_swing(kind: HeadingKind, deviation_deg: [f64; 4]) -> Self {
+        HeadingSection {
+            kind: (kind == HeadingKind::Magnetic).then_some(kind),
+            compass_deviation_deg: Some(deviation_deg),
+        }
+    }
+}
+
 /// **Rewrites the profile at `path`** with its `[heading]` table set to `heading`: the file
 /// is backed up beside itself first (a backup `odocal restore` takes, never replacing an
 /// earlier one), then replaced atomically. Returns the backup's path.

@@ -3,8 +3,10 @@
 //! the help): they become a [`RobotSection`] laid over a routine file's, and that the spec.
 
 use super::{BaseSpec, RobotSection, SpecError};
+use crate::base::{Base, HeadingSource};
 use crate::ros::live::{RosBaseConfig, WheelSource};
 use std::path::PathBuf;
+use std::sync::Arc;
 
 /// Where the robot is.
 #[derive(Debug, Clone, Default, PartialEq)]
@@ -150,6 +152,18 @@ impl RobotFlags {
             (None, Some(p), None) => Some((p.clone(), baud)),
             _ => None,
         }
+    }
+
+    /// The heading source these flags name, read alone when they allow it
+    /// ([`Self::heading_alone`]), else the whole robot's, which comes along (kept open while
+    /// its sensor is read).
+    pub async fn open_heading(&self) -> Result<(Arc<dyn HeadingSource>, Option<Base>), SpecError> {
+        if let Some((text, baud)) = self.heading_alone() {
+            let source = self.section().open_heading_alone(&text, baud).await?;
+            return Ok((source, None));
+        }
+        let base = self.spec(RobotSection::default())?.open().await?;
+        Ok((base.heading.clone(), Some(base)))
     }
 
     /// The robot section of these flags alone (no routine file).

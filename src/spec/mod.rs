@@ -484,6 +484,19 @@ fn with_profile(
 }
 
 impl BaseSpec {
+    /// The robot profile a compass swing keeps its curve in (`swing --save`): only a profile
+    /// store keeps one; other robots take the printed curve as a flag.
+    pub fn profile_for_curve(&self) -> Result<&Path, SpecError> {
+        match &self.store {
+            StoreSpec::Profile(path) => Ok(path),
+            _ => Err(SpecError::Combination(
+                "--save keeps the curve in a robot profile: give --profile (for other robots, \
+                 pass the printed --compass-deviation-deg)"
+                    .into(),
+            )),
+        }
+    }
+
     /// A robot of these parts, checked to make one: a RoboClaw needs a profile and a heading
     /// source of its own; a drive that keeps its parameters takes no profile.
     pub fn new(

@@ -236,7 +236,7 @@ async fn restore_from(
             not_its_file: false,
             commit: stored,
         },
-        policy: crate::restore::policy(false, yes),
+        policy: odocal::base::write::WritePolicy::of_flags(false, yes),
         dir: odocal::base::restore::BackupDir {
             given: Some(backup_dir),
             default: backup_dir,
@@ -283,18 +283,7 @@ pub struct HeadingArgs {
 /// Runs `odocal heading`.
 pub async fn heading(args: HeadingArgs) -> CliResult {
     use odocal::routine::heading::HeadingReading;
-    // The whole robot is kept open while its sensor is read.
-    let mut _robot = None;
-    let source = match args.robot.heading_alone() {
-        Some((text, baud)) => args.robot.section().open_heading_alone(&text, baud).await?,
-        None => {
-            let spec = args.robot.spec(odocal::spec::RobotSection::default())?;
-            let base = spec.open().await?;
-            let heading = base.heading.clone();
-            _robot = Some(base);
-            heading
-        }
-    };
+    let (source, _robot) = args.robot.open_heading().await?;
     let reading = HeadingReading::read(source.as_ref(), args.samples).await?;
     if args.json {
         return print_json(&reading.json());

@@ -30,11 +30,7 @@ pub struct Args {
 
 /// Runs `odocal replay`.
 pub fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
-    let sets = args
-        .dataset
-        .iter()
-        .map(OptiOdomSet::load)
-        .collect::<Result<Vec<_>, _>>()?;
+    let sets = OptiOdomSet::load_all(&args.dataset)?;
     let calib = &sets[0];
     if let Some(path) = &args.write_bag {
         if sets.len() > 1 {
@@ -49,13 +45,9 @@ pub fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
         );
         return Ok(());
     }
-    let evaluate = if args.evaluate.is_empty() {
-        sets.clone()
-    } else {
-        args.evaluate
-            .iter()
-            .map(OptiOdomSet::load)
-            .collect::<Result<Vec<_>, _>>()?
+    let evaluate = match args.evaluate.is_empty() {
+        true => sets.clone(),
+        false => OptiOdomSet::load_all(&args.evaluate)?,
     };
     let report = replay(&sets, &evaluate, args.convention.convention())?;
     if args.json {

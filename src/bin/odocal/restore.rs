@@ -63,15 +63,6 @@ pub struct Restore<'a> {
     pub json: bool,
 }
 
-/// The policy of `--dry-run` and `--yes`.
-pub fn policy(dry_run: bool, yes: bool) -> WritePolicy {
-    match (dry_run, yes) {
-        (true, _) => WritePolicy::DryRun,
-        (false, true) => WritePolicy::Yes,
-        (false, false) => WritePolicy::Ask,
-    }
-}
-
 /// Runs `odocal restore`.
 pub async fn run(args: RestoreArgs) -> CliResult {
     let located = locate(&args.backup, args.to.as_deref(), args.baud)?;
@@ -90,7 +81,7 @@ pub async fn run(args: RestoreArgs) -> CliResult {
             not_its_file: opened.not_its_file.is_some(),
             commit: true,
         },
-        policy: policy(args.dry_run, args.yes),
+        policy: WritePolicy::of_flags(args.dry_run, args.yes),
         dir: BackupDir {
             given: args.backup_dir.as_deref(),
             default: &beside_backup,

@@ -2,14 +2,13 @@
 //! The swing fits a compass's deviation curve; the spin measures a gyro's scale error against
 //! a mark on the floor. Both print the flag that gives the result to `calibrate`.
 
-use odocal::base::HeadingKind;
 use odocal::kinematics::wrap_angle;
 use odocal::roboclaw::profile::{save_heading, HeadingSection};
 use odocal::routine::heading::mean_heading;
 use odocal::routine::spin::{run_spin, SpinOutcome, SpinSettings};
 use odocal::routine::swing::{run_swing, SwingOutcome, SwingSettings};
 use odocal::spec::flags::RobotFlags;
-use odocal::spec::{HeadingSpec, RobotSection, StoreSpec};
+use odocal::spec::{HeadingSpec, RobotSection};
 
 type CliResult = Result<(), Box<dyn std::error::Error>>;
 
@@ -65,10 +64,6 @@ pub fn confirm(yes: bool, what: &str) -> CliResult {
     }
 }
 
-/// Why `--save` needs a profile.
-const SAVE_NEEDS_PROFILE: &str = "--save keeps the curve in a robot profile: give --profile \
-     (for other robots, pass the printed --compass-deviation-deg)";
-
 /// `fut`, the robot's motion, unless a signal comes first: then the robot is stopped.
 async fn or_stopped<T>(
     base: &odocal::base::Base,
@@ -91,11 +86,7 @@ async fn save_curve(
     path: &std::path::Path,
     mut outcome: SwingOutcome,
 ) -> Result<SwingOutcome, Box<dyn std::error::Error>> {
-    let kind = base.heading.kind();
-    let section = HeadingSection {
-        kind: (kind == HeadingKind::Magnetic).then_some(kind),
-        compass_deviation_deg: Some(outcome.total_deg()),
-    };
+    let section = HeadingSection::of_swing(base.heading.kind(), outcome.total_deg());
     let backup = save_heading(path, &section).await?;
     outcome.saved = Some((path.to_path_buf(), backup));
     Ok(outcome)
@@ -105,11 +96,8 @@ async fn save_curve(
 pub async fn swing(args: SwingArgs) -> CliResult {
     args.swing.check()?;
     let spec = args.robot.spec(RobotSection::default())?;
-    let save_to = match (&spec.store, args.save) {
-        (StoreSpec::Profile(path), true) => Some(path.clone()),
-        (_, true) => return Err(SAVE_NEEDS_PROFILE.into()),
-        _ => None,
-    };
+    let save_to = args.save.then(|| spec.profile_for_curve()).transpose()?;
+    let save_to = save_to.map(std::path::Path::to_path_buf);
     // What is already removed from the readings (a flag, or the profile's saved curve): the
     // swing measures what is left, and the curve to keep is both.
     let (_, applied) = spec.heading_correction()?;

@@ -2,6 +2,7 @@
 //! base (a controller of our protocol, a ROS robot, a RoboClaw with a compass).
 
 use crate::out::print_json;
+use crate::prompt::TerminalWriteUi;
 use clap::ArgGroup;
 use odocal::base::{Base, PoseSource};
 use odocal::calibration::online::{OnlineConfig, OnlineEstimate, ScaleSource};
@@ -269,26 +270,10 @@ async fn finish(
     let excitation = tracker.filter().excitation(scale)?;
     let mut written = None;
     if let (true, Some(base)) = (args.session.write_back, &base) {
-        let policy = if args.drive.yes {
-            WritePolicy::Yes
-        } else {
-            WritePolicy::Ask
-        };
-        let mut ui = crate::prompt::TerminalWriteUi {
-            yes: args.drive.yes,
-        };
-        let dir = &args.session.backup_dir;
-        match write_back(
-            base,
-            &last,
-            &configured,
-            args.session.max_std,
-            policy,
-            dir,
-            &mut ui,
-        )
-        .await?
-        {
+        let yes = args.drive.yes;
+        let (policy, mut ui) = (WritePolicy::of_flags(false, yes), TerminalWriteUi { yes });
+        let (dir, max_std) = (&args.session.backup_dir, args.session.max_std);
+        match write_back(base, &last, &configured, max_std, policy, dir, &mut ui).await? {
             WriteBack::Written(p) => {
                 eprintln!("written and committed");
                 written = Some(p);
