@@ -164,7 +164,9 @@ pub async fn restore(
     ui: &mut dyn WriteUi,
 ) -> Result<(RestorePlan, Restored), RestoreError> {
     let plan = plan_restore(store.as_ref(), backup, from, options).await?;
-    ui.note(plan.text(from, backup).trim_end());
+    // The note's line end is the text's last one.
+    let text = plan.text(from, backup);
+    ui.note(text.strip_suffix('\n').unwrap_or(&text));
     if plan.holds_already {
         return Ok((plan, Restored::HoldsAlready));
     }

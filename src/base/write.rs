@@ -661,3 +661,15 @@ mod tests {
         assert_eq!(ui.0, 1);
     }
 }
+
+#[cfg(test)]
+mod policy_tests {
+    use super::*;
+
+    #[test]
+    fn a_dry_run_writes_nothing_yes_or_not() {
+        assert_eq!(WritePolicy::of_flags(true, true), WritePolicy::DryRun);
+        assert_eq!(WritePolicy::of_flags(false, true), WritePolicy::Yes);
+        assert_eq!(WritePolicy::of_flags(false, false), WritePolicy::Ask);
+    }
+}

@@ -65,7 +65,11 @@ pub struct HandInput {
     /// test.
     #[cfg_attr(
         feature = "cli",
-        arg(long = "heading-sigma-deg", alias = "compass-sigma-deg")
+        arg(
+            long = "heading-sigma-deg",
+            alias = "compass-sigma-deg",
+            value_name = "COMPASS_SIGMA_DEG"
+        )
     )]
     pub heading_sigma_deg: Option<f64>,
 }
@@ -286,6 +290,17 @@ pub fn estimate_by_hand(input: &HandInput) -> Result<HandReport, CalibrationErro
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn end_points_are_typed_as_x_y_pairs() {
+        let e: EndPoints = "0.1,-0.2; 0.3,0.4;".parse().unwrap();
+        assert_eq!(e, EndPoints(vec![[0.1, -0.2], [0.3, 0.4]]));
+        assert!("0.1"
+            .parse::<EndPoints>()
+            .unwrap_err()
+            .contains("is not \"x,y\""));
+        assert!("a,1".parse::<EndPoints>().is_err());
+    }
 
     fn input() -> HandInput {
         HandInput {

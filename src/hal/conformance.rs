@@ -79,7 +79,7 @@ pub struct Options {
     #[cfg_attr(feature = "cli", arg(long))]
     pub time_scale: Option<f64>,
     /// Check only this SPEC section (e.g. 7.3; repeatable) [default: every rule].
-    #[cfg_attr(feature = "cli", arg(long = "rule"))]
+    #[cfg_attr(feature = "cli", arg(long = "rule", value_name = "RULES"))]
     pub only: Vec<String>,
 }
 

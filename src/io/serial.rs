@@ -147,3 +147,42 @@ pub fn check_path(path: &str) -> Result<(), tokio_serial::Error> {
 pub fn transmission(bytes: usize, baud: u32) -> std::time::Duration {
     std::time::Duration::from_secs_f64(10.0 * bytes as f64 / f64::from(baud.max(1)))
 }
+
+#[cfg(test)]
+mod port_tests {
+    use super::*;
+
+    #[test]
+    fn a_usb_port_shows_its_ids_and_says_null_where_it_does_not_tell() {
+        let usb = PortInfo {
+            port: "/dev/ttyUSB0".into(),
+            kind: "usb",
+            vid: Some("0403".into()),
+            pid: Some("6001".into()),
+            manufacturer: Some("FTDI".into()),
+            product: None,
+            serial_number: Some("A1".into()),
+        };
+        assert_eq!(
+            usb.to_string(),
+            "/dev/ttyUSB0         usb 0403:6001  FTDI  (serial A1)"
+        );
+        let v = usb.json();
+        assert_eq!(v["vid"], "0403");
+        assert!(v["product"].is_null() && v.get("product").is_some());
+        let pci = PortInfo {
+            port: "/dev/ttyS0".into(),
+            kind: "pci",
+            vid: None,
+            pid: None,
+            manufacturer: None,
+            product: None,
+            serial_number: None,
+        };
+        assert_eq!(pci.to_string(), "/dev/ttyS0           pci");
+        assert_eq!(
+            pci.json(),
+            serde_json::json!({"port": "/dev/ttyS0", "type": "pci"})
+        );
+    }
+}

@@ -65,7 +65,7 @@ impl TrueRobot {
             self.true_ed,
             &SplitConvention::LeftNominal,
         )
-        .map_err(|e| setting(format!("the true robot: {e}")))
+        .map_err(|e| setting(e.to_string()))
     }
 }
 
@@ -314,17 +314,22 @@ pub struct RosOptions {
 }
 
 impl RosOptions {
-    /// The mock's configuration for a robot whose controller is configured as `controller`.
-    pub fn config(&self, controller: DiffDriveConfig) -> Result<MockRosConfig, MockError> {
+    /// Every setting in its range (before the controller's file is read).
+    pub fn check(&self) -> Result<(), MockError> {
         self.truth.check()?;
         check_ranges(&[
             ("--heading-sigma-deg", self.compass_sigma_deg, 0.0, 10.0),
             ("--time-scale", self.time_scale, 0.01, 100.0),
         ])
-        .map_err(setting)?;
+        .map_err(setting)
+    }
+
+    /// The mock's configuration for a robot whose controller is configured as `controller`.
+    pub fn config(&self, controller: DiffDriveConfig) -> Result<MockRosConfig, MockError> {
+        self.check()?;
         let mut cfg =
             MockRosConfig::with_ratios(controller, self.truth.true_eb, self.truth.true_ed)
-                .map_err(|e| setting(format!("the true robot: {e}")))?;
+                .map_err(|e| setting(e.to_string()))?;
         cfg.noise.compass_sigma_rad = self.compass_sigma_deg.to_radians();
         cfg.heading_model = self.sensor.model()?;
         cfg.time_scale = self.time_scale;
@@ -409,9 +414,8 @@ pub struct RoboClawOptions {
 }
 
 impl RoboClawOptions {
-    /// The mock's configuration for the robot `profile` describes (its geometry is the
-    /// configured one, its wiring the mock's).
-    pub fn config(&self, profile: &Profile) -> Result<MockRoboClawConfig, MockError> {
+    /// Every setting in its range (before the profile is read).
+    pub fn check(&self) -> Result<(), MockError> {
         self.truth.check()?;
         check_ranges(&[
             ("--heading-sigma-deg", self.compass_sigma_deg, 0.0, 10.0),
@@ -430,6 +434,13 @@ impl RoboClawOptions {
         if let Some(a) = self.address.filter(|a| !(128..=135).contains(a)) {
             return Err(setting(format!("--address {a}: a RoboClaw's is 128-135")));
         }
+        Ok(())
+    }
+
+    /// The mock's configuration for the robot `profile` describes (its geometry is the
+    /// configured one, its wiring the mock's).
+    pub fn config(&self, profile: &Profile) -> Result<MockRoboClawConfig, MockError> {
+        self.check()?;
         let truth = self.truth.params(&profile.params())?;
         let mut cfg = MockRoboClawConfig::new(truth);
         cfg.left_on_m1 = profile.wiring.left_channel == Channel::M1;
@@ -520,6 +531,38 @@ mod tests {
         );
         c.nmea_hz = 1000.0;
         assert!(refusal(c.config(1.0).unwrap_err()).contains("--nmea-hz"));
+    }
+
+    #[test]
+    fn a_roboclaw_mock_refuses_a_talker_or_rate_it_cannot_simulate() {
+        let o = RoboClawOptions {
+            truth: TrueRobot::default(),
+            compass_sigma_deg: SIM_HEADING_SIGMA_DEG,
+            compass_hz: 10.0,
+            talker: "HC".into(),
+            time_scale: 1.0,
+            address: Some(128),
+            lose_ack_rate: 0.0,
+            answer_delay_ms: 0,
+            bad_checksum_rate: 0.0,
+            sensor: SensorErrors::default(),
+        };
+        o.check().unwrap();
+        let lower = RoboClawOptions {
+            talker: "hc".into(),
+            ..o.clone()
+        };
+        assert!(refusal(lower.check().unwrap_err()).contains("--talker"));
+        let lossy = RoboClawOptions {
+            lose_ack_rate: 1.5,
+            ..o.clone()
+        };
+        assert!(refusal(lossy.check().unwrap_err()).contains("--lose-ack-rate"));
+        let address = RoboClawOptions {
+            address: Some(7),
+            ..o
+        };
+        assert!(refusal(address.check().unwrap_err()).contains("--address"));
     }
 
     #[test]

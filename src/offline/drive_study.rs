@@ -15,9 +15,7 @@ use std::fmt::Write as _;
 #[derive(Debug, Clone, PartialEq)]
 #[cfg_attr(feature = "cli", derive(clap::Args))]
 pub struct DriveSettings {
-    /// Instead of squares, normal driving under a pose reference (5 minutes; the reference at
-    /// 10 Hz, mounted off the axle, 60 ms late, noisy, 1 % outliers), fitted as `odocal fit`
-    /// does: the truth against the fit.
+    /// Simulate normal driving under a pose reference instead of squares.
     #[cfg_attr(feature = "cli", arg(long))]
     pub drive: bool,
     /// The simulated reference: absolute (motion capture, 3 mm / 0.3°, 1 % outliers of

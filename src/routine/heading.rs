@@ -390,3 +390,32 @@ mod tests {
         }
     }
 }
+
+#[cfg(test)]
+mod reading_tests {
+    use super::*;
+
+    #[test]
+    fn a_reading_says_its_mean_and_its_spread_in_degrees() {
+        let one = HeadingReading {
+            mean_rad: std::f64::consts::FRAC_PI_2,
+            samples: 1,
+            sigma_rad: None,
+        };
+        assert_eq!(
+            one.to_string(),
+            "heading 90.000° (1.570796 rad, counter-clockwise positive, mean of 1)"
+        );
+        let many = HeadingReading {
+            samples: 50,
+            sigma_rad: Some(0.5f64.to_radians()),
+            ..one
+        };
+        assert!(many
+            .to_string()
+            .ends_with("; σ 0.500° per reading (odocal plan --heading-sigma-deg)"));
+        let v = many.json();
+        assert!((v["sigma_deg"].as_f64().unwrap() - 0.5).abs() < 1e-12);
+        assert_eq!(v["samples"], 50);
+    }
+}

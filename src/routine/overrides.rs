@@ -270,21 +270,3 @@ mod tests {
         assert_eq!(cfg.write_back, WritePolicy::Yes);
     }
 }
-
-#[cfg(test)]
-mod notice_tests {
-    use super::*;
-
-    #[test]
-    fn the_motion_notice_says_what_moves_and_how_far() {
-        let mut cfg = RoutineConfig::default();
-        let n = cfg.motion_notice("/dev/ttyUSB0");
-        assert!(
-            n.contains("MOVES THE ROBOT on /dev/ttyUSB0: squares of 4 m, 5 per direction"),
-            "{n}"
-        );
-        cfg.target_e_b_std = Some(0.001);
-        let n = cfg.motion_notice("x");
-        assert!(n.contains("until the target (at most 20)"), "{n}");
-    }
-}

@@ -262,8 +262,8 @@ impl TrackSettings {
 }
 
 impl TrackOptions {
-    /// A session sampled every `period_ms` (at least 1), for `duration_s` (negative: none) if
-    /// given, driving `path` if it names one.
+    /// A session sampled every `period_ms` (at least 1), for `duration_s` if given (a
+    /// negative one ends it at once), driving `path` if it names one.
     pub fn new(period_ms: u64, duration_s: Option<f64>, path: &PathOptions) -> Self {
         TrackOptions {
             period: Duration::from_millis(period_ms.max(1)),
@@ -685,6 +685,30 @@ mod settings_tests {
             max_std: 0.002,
             backup_dir: PathBuf::from("."),
         }
+    }
+
+    #[test]
+    fn a_path_is_asked_about_and_a_session_without_one_is_not() {
+        let path = PathOptions {
+            drive: Some("squares:2".parse().unwrap()),
+            motions: 8,
+            max_speed_m_s: 0.2,
+            max_rate_rad_s: 0.5,
+            seed: 1,
+        };
+        let opts = TrackOptions::new(0, Some(-1.0), &path);
+        assert_eq!(opts.period, Duration::from_millis(1));
+        assert_eq!(opts.duration, Some(Duration::ZERO));
+        let q = opts.question().unwrap();
+        assert!(
+            q.starts_with("The robot will drive 8 motions of squares"),
+            "{q}"
+        );
+        let still = PathOptions {
+            drive: None,
+            ..path
+        };
+        assert_eq!(TrackOptions::new(20, None, &still).question(), None);
     }
 
     #[test]

@@ -121,10 +121,9 @@ impl RosFlags {
                 "joint-states" => WheelSource::JointStates,
                 "odom" => WheelSource::Odom,
                 other => {
-                    return Err(super::parse_err(
-                        other,
-                        "--wheel-source: use joint-states or odom",
-                    ))
+                    return Err(SpecError::Flag(format!(
+                        "--wheel-source {other}: use joint-states or odom"
+                    )))
                 }
             };
         }

@@ -59,6 +59,9 @@ pub enum SpecError {
         /// What is wrong, and the forms that are right.
         reason: String,
     },
+    /// A flag's value cannot be used (the message names the flag and what it takes).
+    #[error("{0}")]
+    Flag(String),
     /// The parts do not make a robot (a RoboClaw without a profile, a drive without a heading).
     #[error("{0}")]
     Combination(String),
@@ -629,7 +632,6 @@ pub struct RoutineFile {
 const TOP_LEVEL_ROBOT_KEYS: [&str; 5] = ["port", "baud", "heading", "profile", "ros"];
 
 impl RoutineFile {
-    /// Parses a routine file; errors name the line.
     /// Reads the routine file at `path`; an error names the file (and the line).
     pub fn load(path: &Path) -> Result<Self, SpecError> {
         let text = crate::io::read_bounded(path, crate::io::MAX_TEXT_FILE).map_err(|source| {
@@ -644,7 +646,7 @@ impl RoutineFile {
         })
     }
 
-    /// Parses a routine file's text.
+    /// Parses a routine file; errors name the line.
     pub fn from_toml(text: &str) -> Result<Self, ConfigError> {
         let mut table = parse_table(text)?;
         let mut robot = match table.remove("robot") {

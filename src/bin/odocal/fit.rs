@@ -15,7 +15,7 @@ use std::path::PathBuf;
 pub struct Args {
     /// Wheels CSV: header `t_s,left_rad,right_rad`, cumulative rotation (rad, forward
     /// positive), any rate.
-    #[arg(long, requires = "poses", conflicts_with = "dataset")]
+    #[arg(long, requires = "poses", conflicts_with_all = ["dataset", "bag"])]
     wheels: Option<PathBuf>,
     /// Reference CSV: header `t_s,x_m,y_m,yaw_rad` (yaw optional), the reference frame's pose
     /// in a fixed world frame, any rate.

@@ -49,7 +49,7 @@ pub struct MockArgs {
 /// stdin closes.
 pub async fn mock(args: MockArgs) -> CliResult {
     let o = &args.robot;
-    o.truth.check()?;
+    o.check()?;
     let cfg = o.config(&Profile::load(&args.profile)?)?;
     let ptys = odocal::mock::roboclaw::spawn_ptys(cfg)?;
     println!("roboclaw:{}", ptys.roboclaw_path);

@@ -1,4 +1,5 @@
-//! `odocal bag` (and the ROS flags other commands share): calibrate from a ROS bag.
+//! `odocal bag` and `odocal mock-rosbridge`: calibrate from a ROS bag; serve a simulated ROS
+//! robot.
 
 use crate::out::print_json;
 use odocal::ros::bag::session::BagSettings;
@@ -56,7 +57,7 @@ pub struct MockArgs {
 pub async fn mock(args: MockArgs) -> Result<(), Box<dyn std::error::Error>> {
     use odocal::mock::rosbridge::MockRosbridge;
     let o = &args.robot;
-    o.truth.check()?;
+    o.check()?;
     let controller = DiffDriveConfig::load(&args.ros_yaml, &args.controller)?;
     let cfg = o.config(controller)?;
     let server =

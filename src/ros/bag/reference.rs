@@ -42,10 +42,7 @@ pub struct PoseDrive {
 #[cfg_attr(feature = "cli", derive(clap::Args))]
 pub struct BagDriveSettings {
     /// A ROS bag (any format `odocal bag` reads) with the wheel joints and --reference.
-    #[cfg_attr(
-        feature = "cli",
-        arg(long, requires = "reference", conflicts_with = "wheels")
-    )]
+    #[cfg_attr(feature = "cli", arg(long, requires = "reference"))]
     pub bag: Option<PathBuf>,
     /// The bag's pose reference: a geometry_msgs/PoseStamped, PoseWithCovarianceStamped
     /// (/amcl_pose) or nav_msgs/Odometry topic (its covariance, when it states one, weights the
