@@ -24,6 +24,15 @@ pub fn compact(v: f64) -> String {
     }
 }
 
+/// A nominal geometry typed as `--wheel-diameter-m` and `--wheelbase-m` (m): a wheel of
+/// 1 mm to 5 m, a wheelbase of 1 cm to 10 m.
+pub fn check_geometry(wheel_diameter_m: f64, wheelbase_m: f64) -> Result<(), String> {
+    check_ranges(&[
+        ("--wheel-diameter-m", wheel_diameter_m, 1e-3, 5.0),
+        ("--wheelbase-m", wheelbase_m, 1e-2, 10.0),
+    ])
+}
+
 /// [`check_range`] for several flags: (flag, value, lowest, highest).
 pub fn check_ranges(checks: &[(&str, f64, f64, f64)]) -> Result<(), String> {
     checks

@@ -100,11 +100,7 @@ pub fn replay_files(
                 .into(),
         ));
     };
-    crate::ranges::check_ranges(&[
-        ("--wheel-diameter-m", d, 1e-3, 5.0),
-        ("--wheelbase-m", b, 1e-2, 10.0),
-    ])
-    .map_err(ReplayError::Geometry)?;
+    crate::ranges::check_geometry(d, b).map_err(ReplayError::Geometry)?;
     // Wheels in radians: a "count" is a radian (see OnlineConfig's angle units).
     let configured = WheelParams::nominal(d, b, std::f64::consts::TAU);
     let drive = PoseRecording {

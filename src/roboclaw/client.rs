@@ -459,11 +459,12 @@ impl RoboClaw {
         Ok(packet::be_u32(&d, 0).unwrap_or(0))
     }
 
-    /// Firmware, battery, status bits and both encoders ([`StatusReport`], what `odocal
-    /// status` shows of a RoboClaw).
-    pub async fn status_report(&self) -> Result<StatusReport, RoboClawError> {
+    /// Battery, status bits and both encoders beside `firmware` (the [`Self::version`] read
+    /// first, the answer that tells a RoboClaw is there): [`StatusReport`], what `odocal
+    /// status` shows of a RoboClaw.
+    pub async fn status_report(&self, firmware: String) -> Result<StatusReport, RoboClawError> {
         Ok(StatusReport {
-            firmware: self.version().await?,
+            firmware,
             battery_v: self.battery_v().await?,
             status: self.status().await?,
             encoders: [self.encoder(1).await?, self.encoder(2).await?],

@@ -107,8 +107,7 @@ fn nominal(args: &Args, needed_by: &str) -> Result<Geometry, Box<dyn std::error:
         )
         .into());
     };
-    odocal::ranges::check_range("--wheel-diameter-m", d, 1e-3, 5.0)?;
-    odocal::ranges::check_range("--wheelbase-m", b, 1e-2, 10.0)?;
+    odocal::ranges::check_geometry(d, b)?;
     Ok(Geometry {
         left_diameter_m: d,
         right_diameter_m: d,

@@ -21,10 +21,10 @@ pub async fn roboclaw_status(
         ..RoboClawConfig::default()
     };
     let claw = RoboClaw::open(port, config)?;
-    claw.version().await.map_err(|e| {
+    let firmware = claw.version().await.map_err(|e| {
         format!("{spec}: no answer to the version request ({e}): not a RoboClaw, or the wrong baud or address")
     })?;
-    let report = claw.status_report().await?;
+    let report = claw.status_report(firmware).await?;
     if json_out {
         return print_json(&report.json());
     }
