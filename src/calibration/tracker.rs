@@ -168,6 +168,12 @@ impl Tracker {
         })
     }
 
+    /// Where the wheels' absolute scale comes from in this session (the excitation is judged
+    /// on it).
+    pub fn scale_source(&self) -> ScaleSource {
+        self.scale
+    }
+
     /// The filter.
     pub fn filter(&self) -> &OnlineEstimator {
         &self.filter

@@ -58,7 +58,7 @@ impl ParamsPatch {
 
 /// Writes `new` through the write service, backing up into `dir`; asks `ask` first when
 /// given (else the command itself was the question).
-pub async fn write_to(
+async fn write_to(
     client: &Arc<Client>,
     new: WheelParams,
     commit: Commit,

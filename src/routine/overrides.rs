@@ -177,10 +177,8 @@ impl Overrides {
                 measured_m,
             };
         }
-        if self.dry_run {
-            cfg.write_back = WritePolicy::DryRun;
-        } else if self.yes {
-            cfg.write_back = WritePolicy::Yes;
+        if self.dry_run || self.yes {
+            cfg.write_back = WritePolicy::of_flags(self.dry_run, self.yes);
         }
         if let Some(d) = &self.report_dir {
             cfg.report_dir = Some(d.clone());

@@ -183,10 +183,10 @@ pub async fn track(args: TrackArgs) -> CliResult {
         }
         (_, _, Some(dir), _) => replay_dataset(f, dir, scale, shown)?,
         (_, _, None, Some(path)) => replay_log(f, path, scale, shown)?,
-        _ => return finish(&args, live_session(&args, scale).await?, with_poses, scale).await,
+        _ => return finish(&args, live_session(&args, scale).await?, with_poses).await,
     };
     let session = (replayed.tracker, replayed.configured, None);
-    finish(&args, session, with_poses, scale).await
+    finish(&args, session, with_poses).await
 }
 
 /// A live robot (`--port`, `--base`), perhaps driven, perhaps against a pose topic, perhaps
@@ -253,7 +253,6 @@ async fn finish(
     args: &TrackArgs,
     (tracker, configured, base): Session,
     with_poses: bool,
-    scale: ScaleSource,
 ) -> CliResult {
     let last = tracker.estimate()?;
     show(&last, args.json, "final");
@@ -261,13 +260,8 @@ async fn finish(
     if with_poses && !args.json {
         print!("{}", pose_session(&tracker, &last, &configured));
     }
-    // A log of a pose session replays as one: its scale is the filter's too.
-    let scale = if with_poses {
-        ScaleSource::Filter
-    } else {
-        scale
-    };
-    let excitation = tracker.filter().excitation(scale)?;
+    // The scale the session was tracked on (a log of a pose session replays as one).
+    let excitation = tracker.filter().excitation(tracker.scale_source())?;
     let mut written = None;
     if let (true, Some(base)) = (args.session.write_back, &base) {
         let yes = args.drive.yes;
