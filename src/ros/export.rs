@@ -239,8 +239,7 @@ pub struct ExportSettings {
 }
 
 impl ExportSettings {
-    /// The calibration to export, read from the result file; refused when the target exists
-    /// and merging was not asked for.
+    /// The calibration to export, read from the result file.
     pub fn calibration(&self) -> Result<Calibration, ExportError> {
         let path = || self.from.clone();
         let text =
@@ -258,12 +257,6 @@ impl ExportSettings {
             path: path(),
             source: Box::new(e),
         })?;
-        if self.ros2.exists() && !self.force {
-            return Err(ExportError::Exists {
-                path: self.ros2.clone(),
-                method: cal.method.clone(),
-            });
-        }
         Ok(cal)
     }
 }
@@ -313,16 +306,23 @@ fn check_plausible(cal: &Calibration) -> Result<(), ExportError> {
     Ok(())
 }
 
-/// Writes `cal` for `controller` into `path`: merged into an existing YAML (multipliers only,
-/// through the write service: backed up beside the file, replaced atomically, read back,
-/// undone on failure) or a new file (never replacing anything). A calibration that scales
+/// Writes `cal` for `controller` into `path`: merged into an existing YAML when `merge`
+/// (multipliers only, through the write service: backed up beside the file, replaced
+/// atomically, read back, undone on failure; without `merge` an existing file is refused,
+/// [`ExportError::Exists`]) or a new file (never replacing anything). A calibration that scales
 /// a parameter beyond [`MAX_FACTOR`] is refused.
 pub async fn export(
-    path: &Path,
+    (path, merge): (&Path, bool),
     controller: &str,
     cal: &Calibration,
     ui: &mut dyn WriteUi,
 ) -> Result<Exported, ExportError> {
+    if path.exists() && !merge {
+        return Err(ExportError::Exists {
+            path: path.to_path_buf(),
+            method: cal.method.clone(),
+        });
+    }
     check_plausible(cal)?;
     let io = |source| ExportError::Io {
         path: path.to_path_buf(),
@@ -412,6 +412,69 @@ pub fn ros2_diff_drive_yaml(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn settings(from: &Path, ros2: &Path) -> ExportSettings {
+        ExportSettings {
+            from: from.to_path_buf(),
+            ros2: ros2.to_path_buf(),
+            controller: "diff_drive_controller".into(),
+            method: None,
+            force: false,
+        }
+    }
+
+    #[tokio::test]
+    async fn a_result_that_cannot_be_read_and_a_target_that_exists_are_refused_by_name() {
+        let dir = std::env::temp_dir().join(format!("odocal-export-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let (json, yaml) = (dir.join("result.json"), dir.join("robot.yaml"));
+        let e = settings(&json, &yaml).calibration().unwrap_err();
+        assert!(matches!(e, ExportError::Unreadable { .. }), "{e}");
+        std::fs::write(&json, "{ not json").unwrap();
+        let e = settings(&json, &yaml).calibration().unwrap_err();
+        assert!(matches!(e, ExportError::NotJson { .. }), "{e}");
+        std::fs::write(&json, r#"{"unrelated": 1}"#).unwrap();
+        let e = settings(&json, &yaml).calibration().unwrap_err();
+        assert!(
+            matches!(&e, ExportError::In { source, .. } if matches!(**source, ExportError::NotAResult(_))),
+            "{e}"
+        );
+        assert!(
+            e.to_string().starts_with(&json.display().to_string()),
+            "{e}"
+        );
+
+        let nominal = WheelParams::nominal(0.15, 0.39, std::f64::consts::TAU);
+        let cal = Calibration {
+            configured: nominal,
+            calibrated: WheelParams {
+                wheelbase_m: 0.38,
+                ..nominal
+            },
+            method: "exact".into(),
+        };
+        std::fs::write(&yaml, "kept: as it was\n").unwrap();
+        let ui = &mut crate::base::write::Unattended;
+        let e = export((&yaml, false), "diff_drive_controller", &cal, ui)
+            .await
+            .unwrap_err();
+        assert!(matches!(e, ExportError::Exists { .. }), "{e}");
+        assert!(
+            e.to_string()
+                .contains("--force merges the exact calibration"),
+            "{e}"
+        );
+        assert_eq!(std::fs::read_to_string(&yaml).unwrap(), "kept: as it was\n");
+        let new = dir.join("new.yaml");
+        let made = export((&new, false), "diff_drive_controller", &cal, ui)
+            .await
+            .unwrap();
+        assert_eq!(made, Exported::Created);
+        assert!(std::fs::read_to_string(&new)
+            .unwrap()
+            .contains("wheel_separation_multiplier"));
+    }
 
     #[test]
     fn multipliers_reproduce_the_calibrated_geometry() {

@@ -338,7 +338,7 @@ pub async fn export(args: ExportArgs) -> CliResult {
     let how = &args.export;
     let cal = how.calibration()?;
     let mut ui = crate::prompt::TerminalWriteUi { yes: true };
-    let exported = export(&how.ros2, &how.controller, &cal, &mut ui);
+    let exported = export((&how.ros2, how.force), &how.controller, &cal, &mut ui);
     match crate::prompt::writing(exported).await? {
         Exported::Created => println!("wrote {} ({} calibration)", how.ros2.display(), cal.method),
         Exported::Merged { backup } => println!(
