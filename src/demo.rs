@@ -82,12 +82,9 @@ impl Default for DemoOptions {
 #[derive(Debug, Clone)]
 #[cfg_attr(feature = "cli", derive(clap::Args))]
 pub struct DemoSettings {
-    /// True E_b of the simulated robot.
-    #[cfg_attr(feature = "cli", arg(long, default_value_t = 0.976))]
-    pub true_eb: f64,
-    /// True E_d of the simulated robot.
-    #[cfg_attr(feature = "cli", arg(long, default_value_t = 0.992))]
-    pub true_ed: f64,
+    /// The simulated robot's true errors (checked as every mock checks them).
+    #[cfg_attr(feature = "cli", command(flatten))]
+    pub truth: crate::mock::options::TrueRobot,
     /// The simulated compass's noise per reading (deg; σ).
     #[cfg_attr(feature = "cli", arg(long = "heading-sigma-deg", alias = "compass-sigma-deg", default_value_t = crate::sim::sensor::SIM_HEADING_SIGMA_DEG))]
     pub compass_sigma_deg: f64,
@@ -119,9 +116,10 @@ impl DemoSettings {
     /// The demo these settings describe, checked. Its backup goes into the report directory
     /// (a second run's is `…-2`).
     pub fn options(&self) -> Result<DemoOptions, DemoError> {
+        self.truth.check()?;
         let mut opts = DemoOptions {
-            true_e_b: self.true_eb,
-            true_e_d: self.true_ed,
+            true_e_b: self.truth.true_eb,
+            true_e_d: self.truth.true_ed,
             compass_sigma_deg: self.compass_sigma_deg,
             seed: self.seed,
             faults: self.faults.unwrap_or_default(),
