@@ -203,7 +203,7 @@ pub async fn params(cmd: ParamsCommand) -> CliResult {
 
 /// The terminal's answers to a write's questions.
 fn ui() -> crate::prompt::TerminalWriteUi {
-    crate::prompt::TerminalWriteUi { yes: false }
+    crate::prompt::TerminalWriteUi
 }
 
 /// A write's outcome, a failed or declined one said as "not written: …".

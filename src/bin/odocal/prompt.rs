@@ -144,16 +144,13 @@ pub fn deferred_signal() -> Option<&'static str> {
 }
 
 /// The terminal as the write service's user ([`odocal::base::write::WriteUi`]): asks on
-/// stdin unless `yes`, holds signals while a write is under way ([`guard_writes`]), and
-/// shows where the backup went.
-pub struct TerminalWriteUi {
-    /// Do not ask.
-    pub yes: bool,
-}
+/// stdin (the service asks only under `WritePolicy::Ask`: `--yes` is the policy's), holds
+/// signals while a write is under way ([`guard_writes`]), and shows where the backup went.
+pub struct TerminalWriteUi;
 
 impl odocal::base::write::WriteUi for TerminalWriteUi {
     fn confirm(&mut self, question: &str) -> bool {
-        self.yes || tokio::task::block_in_place(|| yes(question))
+        tokio::task::block_in_place(|| yes(question))
     }
     fn writing(&mut self, on: bool) {
         WRITING.store(on, std::sync::atomic::Ordering::SeqCst);

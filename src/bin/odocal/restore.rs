@@ -98,8 +98,7 @@ pub async fn restore_onto(
     backup: &BackupFile,
     how: &Restore<'_>,
 ) -> CliResult {
-    let yes = how.policy == WritePolicy::Yes;
-    let mut ui = crate::prompt::TerminalWriteUi { yes };
+    let mut ui = crate::prompt::TerminalWriteUi;
     let done = restore(
         store,
         (backup, how.from),

@@ -337,7 +337,7 @@ pub async fn export(args: ExportArgs) -> CliResult {
     use odocal::ros::export::{export, Exported};
     let how = &args.export;
     let cal = how.calibration()?;
-    let mut ui = crate::prompt::TerminalWriteUi { yes: true };
+    let mut ui = crate::prompt::TerminalWriteUi;
     let exported = export((&how.ros2, how.force), &how.controller, &cal, &mut ui);
     match crate::prompt::writing(exported).await? {
         Exported::Created => println!("wrote {} ({} calibration)", how.ros2.display(), cal.method),

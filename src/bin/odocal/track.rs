@@ -264,8 +264,10 @@ async fn finish(
     let excitation = tracker.filter().excitation(tracker.scale_source())?;
     let mut written = None;
     if let (true, Some(base)) = (args.session.write_back, &base) {
-        let yes = args.drive.yes;
-        let (policy, mut ui) = (WritePolicy::of_flags(false, yes), TerminalWriteUi { yes });
+        let (policy, mut ui) = (
+            WritePolicy::of_flags(false, args.drive.yes),
+            TerminalWriteUi,
+        );
         let (dir, max_std) = (&args.session.backup_dir, args.session.max_std);
         match write_back(base, &last, &configured, max_std, policy, dir, &mut ui).await? {
             WriteBack::Written(p) => {
