@@ -221,6 +221,39 @@ fn clocks_are_aligned_and_squares_found_in_one_place_each() {
     }
 }
 
+/// A drive, a heading source and a store are each one module plus one line in
+/// `src/spec/registry.rs`: only the registry lists the backends, an option that was given is a
+/// key (never a substring of the text), and no code outside a backend recognises its text form.
+#[test]
+fn backends_are_listed_in_the_registry_only() {
+    let sources = sources();
+    let hint = ": a backend is its module plus one line in src/spec/registry.rs";
+    for (needle, allowed) in [
+        (
+            "&crate::hal::base::DRIVE_BACKEND",
+            &["src/spec/registry.rs"][..],
+        ),
+        (
+            "&crate::ros::live::DRIVE_BACKEND",
+            &["src/spec/registry.rs"][..],
+        ),
+        (
+            "&crate::roboclaw::DRIVE_BACKEND",
+            &["src/spec/registry.rs"][..],
+        ),
+        (
+            "&crate::nmea::HEADING_BACKEND",
+            &["src/spec/registry.rs"][..],
+        ),
+        ("::STORE_BACKEND,", &["src/spec/registry.rs"][..]),
+        ("contains(\"baud=\")", &[][..]),
+        ("starts_with(\"rosbridge://\")", &["src/ros/live.rs"][..]),
+        ("strip_prefix(\"profile:\")", &[][..]),
+    ] {
+        only_in(&sources, needle, allowed, hint);
+    }
+}
+
 /// Fails when `needle` is in the code of a file outside `allowed`; `hint` says what to do.
 fn only_in(sources: &[(PathBuf, String)], needle: &str, allowed: &[&str], hint: &str) {
     let outside: Vec<String> = files_with(sources, needle)

@@ -1,37 +1,16 @@
 //! A heading source that stands apart from the drive, as a backend module offers it: its
 //! text form (`scheme:PORT?key=value&…`), the options it takes, and how it opens.
 //!
-//! Each such backend module exports one [`HeadingBackend`]; [`crate::spec::HEADING_BACKENDS`]
+//! Each such backend module exports one [`HeadingBackend`]; [`crate::spec::registry::HEADING_BACKENDS`]
 //! lists them, so a new heading source (a serial IMU, a second compass protocol) is its module
 //! plus one line there. The spec parser, the command line and the routine file learn its
 //! scheme from that list.
 
 use super::{BaseError, HeadingSource};
 use futures_util::future::BoxFuture;
-use std::collections::BTreeMap;
-use std::str::FromStr;
 use std::sync::Arc;
 
-/// A port and its options, as `scheme:PORT?k=v&k=v` gives them.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct PortSpec {
-    /// The port (a device path).
-    pub port: String,
-    /// Options by key (only keys the backend lists).
-    pub options: BTreeMap<String, String>,
-}
-
-impl PortSpec {
-    /// Option `key` as a `T`, or `default` when it is not given; an error names the option.
-    pub fn option<T: FromStr>(&self, key: &str, default: T) -> Result<T, String> {
-        match self.options.get(key) {
-            None => Ok(default),
-            Some(v) => v
-                .parse()
-                .map_err(|_| format!("{key}={v} is not a number in range")),
-        }
-    }
-}
+pub use super::port_spec::PortSpec;
 
 /// How a heading backend opens: the future a [`HeadingBackend::open`] returns.
 pub type OpenHeading = BoxFuture<'static, Result<Arc<dyn HeadingSource>, BaseError>>;

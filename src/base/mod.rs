@@ -12,12 +12,15 @@
 //! back, commit, read back the committed copy, and roll back on any failure.
 
 pub mod adjusted;
+pub mod drive_backend;
 pub mod error;
 pub mod fanout;
 pub mod file_store;
 pub mod guard;
 pub mod heading_backend;
+pub mod port_spec;
 pub mod restore;
+pub mod store_backend;
 pub mod transaction;
 pub mod write;
 

@@ -2,6 +2,9 @@
 //! and a parameter store at once (`Base::single(client)`).
 
 use super::{Client, HalError, TelemetrySample};
+use crate::base::drive_backend::{DriveBackend, DriveOpen, HeadingPart, OpenDrive, StorePart};
+use crate::base::port_spec::PortSpec;
+use crate::base::store_backend::{OpenStore, StoreBackend};
 use crate::base::{
     Achieved, BaseError, ComponentInfo, Drive, HeadingKind, HeadingSample, HeadingSource,
     ParamStore, Preflight, SampleStream, TravelSample, Validity, STREAM_CAPACITY,
@@ -237,6 +240,69 @@ impl Drive for Client {
         }
         v
     }
+}
+
+/// The drive of a controller that speaks odocal's protocol: `PORT` or
+/// `odocal:PORT[?baud=115200]`; its compass is the heading source, its memory the store.
+pub const DRIVE_BACKEND: DriveBackend = DriveBackend {
+    name: "odocal",
+    what: "an odocal-protocol controller",
+    form: "PORT or odocal:PORT[?baud=115200]",
+    options: &["baud"],
+    recognise: |text| PortSpec::parse(text, "odocal", &["baud"]),
+    bare_port: true,
+    heading: HeadingPart::Own,
+    store: StorePart::Own,
+    settings: None,
+    check: |spec| baud_of(spec).map(drop),
+    ready: |_| Ok(()),
+    place: |spec| spec.port.clone(),
+    open: |how: DriveOpen| -> OpenDrive {
+        Box::pin(async move {
+            let (port, baud) = (how.target.spec.port.clone(), baud_of(&how.target.spec)?);
+            let (client, _) = super::open_port(&port, baud).await?;
+            // A device that resets or is re-plugged mid-run is reopened to restore the backup.
+            let reconnect = reconnect_port(client.clone(), port, baud);
+            Ok(crate::base::Base::single(client).with_reconnect(reconnect))
+        })
+    },
+};
+
+/// A controller of odocal's protocol as a store on its own (its memory and storage), as
+/// `odocal restore --to PORT` names it.
+pub const STORE_BACKEND: StoreBackend = StoreBackend {
+    kind: KIND,
+    scheme: "odocal",
+    form: "PORT or odocal:PORT[?baud=115200]",
+    options: &["baud"],
+    bare_port: true,
+    complete: |spec| {
+        spec.or_option("baud", super::DEFAULT_BAUD);
+        baud_of(spec).map(drop)
+    },
+    of_backup: |backup, _| {
+        StoreBackend::detail(backup, "port")
+            .map(PortSpec::bare)
+            .ok_or("which port the controller was on")
+    },
+    show: |spec| match baud_of(spec) {
+        Ok(super::DEFAULT_BAUD) => spec.port.clone(),
+        _ => spec.text("odocal"),
+    },
+    open: |spec: PortSpec| -> OpenStore {
+        Box::pin(async move {
+            let baud = baud_of(&spec)?;
+            Ok(
+                std::sync::Arc::new(super::open_port(&spec.port, baud).await?.0)
+                    as std::sync::Arc<dyn ParamStore>,
+            )
+        })
+    },
+};
+
+/// The `baud` option (odocal's default unless given).
+fn baud_of(spec: &PortSpec) -> Result<u32, String> {
+    spec.option("baud", super::DEFAULT_BAUD)
 }
 
 /// A [`crate::base::Reconnect`] for a device on a serial port: closes `old`'s link (a port

@@ -6,9 +6,50 @@ pub mod drive;
 pub mod packet;
 pub mod profile;
 
+use crate::base::drive_backend::{DriveBackend, DriveOpen, HeadingPart, OpenDrive, StorePart};
+use crate::base::port_spec::PortSpec;
 use crate::base::{Base, HeadingSource};
 use profile::ProfileStore;
 use std::sync::Arc;
+
+/// Baud rate of a RoboClaw unless configured.
+pub const DEFAULT_BAUD: u32 = 38_400;
+/// Packet serial address of a RoboClaw unless configured.
+pub const DEFAULT_ADDRESS: u8 = 0x80;
+
+/// A RoboClaw on a serial port: `roboclaw:PORT[?address=128&baud=38400]`. A drive only: its
+/// geometry and wiring are in a robot profile (`profile:PATH`), and it has no heading sensor.
+pub const DRIVE_BACKEND: DriveBackend = DriveBackend {
+    name: "roboclaw",
+    what: "a RoboClaw",
+    form: "roboclaw:PORT[?address=128&baud=38400]",
+    options: &["address", "baud"],
+    recognise: |text| PortSpec::parse(text, "roboclaw", &["address", "baud"]),
+    bare_port: false,
+    heading: HeadingPart::Needed,
+    store: StorePart::Profile,
+    settings: None,
+    check: |spec| config_of(spec).map(drop),
+    ready: |_| Ok(()),
+    place: |spec| spec.port.clone(),
+    open: |how: DriveOpen| -> OpenDrive {
+        Box::pin(async move {
+            let heading = how.heading.ok_or("a RoboClaw needs a heading source")?;
+            let profile = how.profile.ok_or("a RoboClaw needs a robot profile")?;
+            let claw = client::RoboClaw::open(&how.target.spec.port, config_of(&how.target.spec)?)?;
+            Ok(base(claw, heading, ProfileStore::open(&profile)?).await?)
+        })
+    },
+};
+
+/// The connection a RoboClaw spec's options give (address, baud; defaults unless given).
+pub fn config_of(spec: &PortSpec) -> Result<client::RoboClawConfig, String> {
+    Ok(client::RoboClawConfig {
+        address: spec.option("address", DEFAULT_ADDRESS)?,
+        baud: spec.option("baud", DEFAULT_BAUD)?,
+        ..client::RoboClawConfig::default()
+    })
+}
 
 /// A robot made of a RoboClaw drive, any heading source (an NMEA compass, an IMU) and its
 /// profile file as the store: the drive counts with the profile's geometry, which a written

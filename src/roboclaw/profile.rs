@@ -30,6 +30,8 @@
 //! whole file beside it (the one backup format, [`crate::base::transaction`]), and replaces it
 //! atomically.
 
+use crate::base::port_spec::PortSpec;
+use crate::base::store_backend::{OpenStore, StoreBackend};
 use crate::base::write::{
     write_once, Bounds, Commit, Question, Unattended, WriteError, WritePolicy, WriteRequest,
 };
@@ -385,6 +387,32 @@ pub async fn save_heading(path: &Path, heading: &HeadingSection) -> Result<PathB
     }
 }
 
+/// The kind a robot profile gives in its descriptions (and backups).
+pub const KIND: &str = "robot-profile";
+
+/// A robot profile as a store on its own: `profile:PATH`.
+pub const STORE_BACKEND: StoreBackend = StoreBackend {
+    kind: KIND,
+    scheme: "profile",
+    form: "profile:PATH",
+    options: &[],
+    bare_port: false,
+    complete: |_| Ok(()),
+    of_backup: |_, file| {
+        file.map(|f| PortSpec::bare(f.display().to_string()))
+            .ok_or("which file")
+    },
+    show: |spec| spec.text("profile"),
+    open: |spec: PortSpec| -> OpenStore {
+        Box::pin(async move {
+            Ok(
+                std::sync::Arc::new(ProfileStore::open(Path::new(&spec.port))?)
+                    as std::sync::Arc<dyn ParamStore>,
+            )
+        })
+    },
+};
+
 /// The profile's format for a [`FileStore`]: its geometry is the parameters, the wiring and
 /// limits come along for the drive.
 #[derive(Debug, Clone, Copy, Default)]
@@ -395,7 +423,7 @@ impl ParamFile for ProfileFile {
     type Error = ProfileError;
 
     fn kind(&self) -> &'static str {
-        "robot-profile"
+        KIND
     }
 
     fn written_keys(&self) -> &'static [&'static str] {

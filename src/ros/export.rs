@@ -225,7 +225,7 @@ pub struct ExportSettings {
         arg(
             long,
             alias = "controller-name",
-            default_value = "diff_drive_controller"
+            default_value = crate::ros::yaml::DEFAULT_CONTROLLER
         )
     )]
     pub controller: String,

@@ -15,6 +15,10 @@ use super::bag::RosTopics;
 use super::msg::{types, yaw_of, Imu, JointState, Odometry, Twist, TwistStamped};
 use super::rosbridge::{RosbridgeClient, RosbridgeError};
 use super::yaml::{DiffDriveConfig, YamlStore, MULTIPLIER_KEYS};
+use crate::base::drive_backend::{
+    DriveBackend, DriveOpen, DriveTarget, HeadingPart, OpenDrive, StorePart,
+};
+use crate::base::port_spec::PortSpec;
 use crate::base::{
     Achieved, Base, BaseError, ComponentInfo, Drive, Fanout, HeadingSample, HeadingSource,
     ParamStore, Preflight, SampleStream, TravelSample, Validity,
@@ -75,7 +79,7 @@ impl Default for RosBaseConfig {
         RosBaseConfig {
             url: "rosbridge://localhost:9090".into(),
             yaml: std::path::PathBuf::new(),
-            controller: "diff_drive_controller".into(),
+            controller: super::yaml::DEFAULT_CONTROLLER.into(),
             topics: RosTopics::default(),
             cmd_vel: "/cmd_vel".into(),
             twist_stamped: false,
@@ -88,6 +92,52 @@ impl Default for RosBaseConfig {
             first_message_timeout_s: 5.0,
         }
     }
+}
+
+/// A ROS robot through rosbridge: `rosbridge://HOST:PORT` or `ws://HOST:PORT`, with the
+/// `[robot.ros]` settings ([`RosBaseConfig`]); its IMU is the heading source, the controller's
+/// YAML the store.
+pub const DRIVE_BACKEND: DriveBackend = DriveBackend {
+    name: "rosbridge",
+    what: "a ROS robot",
+    form: "rosbridge://HOST:PORT",
+    options: &[],
+    recognise: |text| {
+        (text.starts_with("rosbridge://") || text.starts_with("ws://"))
+            .then(|| Ok(PortSpec::bare(text)))
+    },
+    bare_port: false,
+    heading: HeadingPart::Own,
+    store: StorePart::Own,
+    settings: Some("ros"),
+    check: |_| Ok(()),
+    ready: |target| {
+        if config_of(target)?.yaml.as_os_str().is_empty() {
+            return Err(
+                "a ROS robot needs the controller's ros2_control YAML (--ros-yaml, or \
+                        `yaml` in the routine file's [robot.ros] table)"
+                    .into(),
+            );
+        }
+        Ok(())
+    },
+    place: |spec| spec.port.clone(),
+    open: |how: DriveOpen| -> OpenDrive {
+        Box::pin(async move { Ok(connect(&config_of(&how.target)?).await?) })
+    },
+};
+
+/// The settings of a ROS drive's target, its URL from the drive's text.
+pub fn config_of(target: &DriveTarget) -> Result<RosBaseConfig, String> {
+    let settings = match &target.settings {
+        Some(v) => serde_json::from_value(v.clone())
+            .map_err(|e| format!("the ROS settings ([robot.ros]) cannot be read: {e}"))?,
+        None => RosBaseConfig::default(),
+    };
+    Ok(RosBaseConfig {
+        url: target.spec.port.clone(),
+        ..settings
+    })
 }
 
 /// Errors connecting a ROS base.
@@ -364,8 +414,13 @@ async fn wait_first<T>(
     (topic, rejects, timeout): (String, Rejects, Duration),
 ) -> Result<(), RosbridgeError> {
     let mut rx = rx.clone();
-    let waited = tokio::time::timeout(timeout, rx.wait_for(|v| ready(v))).await;
-    if matches!(waited, Ok(Ok(_))) {
+    // The `Ref` a wait returns holds the channel's lock: drop it here, not across the awaits
+    // below (which would also make the connection's future not `Send`).
+    let arrived = matches!(
+        tokio::time::timeout(timeout, rx.wait_for(|v| ready(v))).await,
+        Ok(Ok(_))
+    );
+    if arrived {
         return Ok(());
     }
     if let Some(reason) = client.closed() {

@@ -26,6 +26,8 @@
 mod locate;
 pub(crate) mod tree;
 
+use crate::base::port_spec::PortSpec;
+use crate::base::store_backend::{OpenStore, StoreBackend};
 use crate::base::{FileStore, ParamFile};
 use crate::kinematics::WheelParams;
 use locate::Section;
@@ -799,6 +801,43 @@ pub struct ControllerYaml {
 
 /// The kind of store a controller's YAML is, in descriptions and backups.
 pub const KIND: &str = "ros2-control-yaml";
+
+/// The controller a `ros-yaml:` store (and a ROS robot) names unless told.
+pub const DEFAULT_CONTROLLER: &str = "diff_drive_controller";
+
+/// A controller's ros2_control YAML as a store on its own:
+/// `ros-yaml:PATH[?controller=diff_drive_controller]`, its multipliers as [`YamlStore`]
+/// writes them.
+pub const STORE_BACKEND: StoreBackend = StoreBackend {
+    kind: KIND,
+    scheme: "ros-yaml",
+    form: "ros-yaml:PATH[?controller=diff_drive_controller]",
+    options: &["controller"],
+    bare_port: false,
+    complete: |spec| {
+        spec.or_option("controller", DEFAULT_CONTROLLER);
+        Ok(())
+    },
+    of_backup: |backup, file| {
+        let mut spec = PortSpec::bare(file.ok_or("which file")?.display().to_string());
+        let controller = StoreBackend::detail(backup, "controller").ok_or("which controller")?;
+        spec.or_option("controller", controller);
+        Ok(spec)
+    },
+    show: |spec| spec.text("ros-yaml"),
+    open: |spec: PortSpec| -> OpenStore {
+        Box::pin(async move {
+            let controller = spec
+                .options
+                .get("controller")
+                .map_or(DEFAULT_CONTROLLER, |c| c);
+            Ok(
+                std::sync::Arc::new(YamlStore::open(Path::new(&spec.port), controller)?)
+                    as std::sync::Arc<dyn crate::base::ParamStore>,
+            )
+        })
+    },
+};
 
 impl ParamFile for ControllerYaml {
     type Content = DiffDriveConfig;

@@ -20,7 +20,8 @@ pub struct RobotFlags {
     /// odocal:PORT?baud=115200. Quote it: a shell ends the command at `&`.
     #[cfg_attr(feature = "cli", arg(long))]
     pub base: Option<String>,
-    /// Baud rate of an odocal-protocol controller [default: 115200].
+    /// Baud rate of a drive on a serial port whose spec gives none [default: the drive's:
+    /// 115200 for odocal's protocol, 38400 for a RoboClaw].
     #[cfg_attr(feature = "cli", arg(long))]
     pub baud: Option<u32>,
     /// The heading source, when it is not the drive's own: nmea:PORT[?baud=4800].
@@ -49,7 +50,7 @@ impl RobotFlags {
     pub fn rosbridge_url(&self) -> Option<&str> {
         self.base
             .as_deref()
-            .filter(|b| b.starts_with("rosbridge://") || b.starts_with("ws://"))
+            .filter(|b| (crate::ros::live::DRIVE_BACKEND.recognise)(b).is_some())
     }
 }
 

@@ -36,10 +36,7 @@ pub fn locate(path: &Path, to: Option<&str>, baud: u32) -> Result<Located, SpecE
     let to = to
         .map(|text| StoreLocation::parse(text, baud))
         .transpose()?;
-    let controller = match &to {
-        Some(StoreLocation::RosYaml { controller, .. }) => Some(controller.as_str()),
-        _ => None,
-    };
+    let controller = to.as_ref().and_then(|l| l.option("controller"));
     let backup = StoreLocation::read_backup(path, controller)?;
     let named_by_backup = to.is_none();
     let location = match to {

@@ -248,13 +248,18 @@ async fn restore_from(
 
 /// Runs `odocal status`.
 pub async fn status(port: PortArgs) -> CliResult {
-    if let DriveSpec::RoboClaw {
-        port: path,
-        address,
-        baud,
-    } = port.port.parse::<DriveSpec>()?
-    {
-        return crate::roboclaw::roboclaw_status(&port.port, &path, address, baud, port.json).await;
+    let drive = port.port.parse::<DriveSpec>()?;
+    if drive.is(&odocal::roboclaw::DRIVE_BACKEND) {
+        let cfg = odocal::roboclaw::config_of(&drive.target.spec)?;
+        let path = &drive.target.spec.port;
+        return crate::roboclaw::roboclaw_status(
+            &port.port,
+            path,
+            cfg.address,
+            cfg.baud,
+            port.json,
+        )
+        .await;
     }
     let report = port.connect().await?.device_status().await?;
     if port.json {

@@ -9,7 +9,7 @@ use odocal::routine::progress::{RobotClock, Shown};
 use odocal::routine::report::Report;
 use odocal::routine::{run, RoutineEvent, RoutineUi};
 use odocal::spec::flags::RobotFlags;
-use odocal::spec::{BaseSpec, DriveSpec, RobotSection, RoutineFile};
+use odocal::spec::{BaseSpec, RobotSection, RoutineFile};
 use std::io::IsTerminal;
 use std::path::PathBuf;
 use tokio_util::sync::CancellationToken;
@@ -274,10 +274,10 @@ async fn run_simulated(mut cfg: RoutineConfig, flags: &RoutineFlags) -> CliResul
 
 /// The routine on whatever the spec names.
 async fn run_spec(cfg: RoutineConfig, spec: BaseSpec, flags: &RoutineFlags) -> CliResult {
-    match spec.drive {
-        DriveSpec::Simulated => run_simulated(cfg, flags).await,
-        _ => run_on(cfg, spec, flags).await,
+    if spec.drive.is(&odocal::spec::registry::SIMULATED) {
+        return run_simulated(cfg, flags).await;
     }
+    run_on(cfg, spec, flags).await
 }
 
 /// Runs `odocal calibrate`.

@@ -36,7 +36,7 @@ pub struct RosSource {
     #[cfg_attr(feature = "cli", arg(long))]
     pub ros_yaml: Option<PathBuf>,
     /// The diff_drive_controller's name (`ns/name` to pick one namespace's).
-    #[cfg_attr(feature = "cli", arg(long, default_value = "diff_drive_controller"))]
+    #[cfg_attr(feature = "cli", arg(long, default_value = crate::ros::yaml::DEFAULT_CONTROLLER))]
     pub controller: String,
     /// Wheel joint states topic (sensor_msgs/JointState).
     #[cfg_attr(feature = "cli", arg(long, default_value = "/joint_states"))]
