@@ -55,5 +55,6 @@ pub mod report;
 pub mod roboclaw;
 pub mod ros;
 pub mod routine;
+pub mod samples;
 pub mod sim;
 pub mod spec;

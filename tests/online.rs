@@ -247,9 +247,7 @@ fn write_random_log(
     truth: &Correction,
     delay_samples: usize,
 ) {
-    use odocal::hal::TelemetrySample;
-    use odocal::offline::log::{LogHeader, LogWriter};
-    use odocal::protocol::message::MotionState;
+    use odocal::offline::log::{LogHeader, LogWriter, TelemetryLine};
     let mut sim = noisy_robot(nominal, truth, 42);
     let header = LogHeader {
         odocal_version: "test".into(),
@@ -275,16 +273,13 @@ fn write_random_log(
         } else {
             headings[0]
         };
-        log.sample(&TelemetrySample {
+        log.sample(&TelemetryLine {
             sample_index: step,
             device_time_s: f64::from(step) * dt,
             left_counts: cl.round() as i64,
             right_counts: cr.round() as i64,
             heading_rad,
             heading_valid: true,
-            motion_state: MotionState::Moving,
-            queue_depth: 0,
-            dropped_before: 0,
         })
         .unwrap();
     }
@@ -563,9 +558,7 @@ async fn live_telemetry_from_the_mock_calibrates_and_writes_back() {
 
 #[test]
 fn a_log_without_driving_is_an_error_not_a_nan() {
-    use odocal::hal::TelemetrySample;
-    use odocal::offline::log::{LogHeader, LogWriter};
-    use odocal::protocol::message::MotionState;
+    use odocal::offline::log::{LogHeader, LogWriter, TelemetryLine};
     let dir = common::scratch("track-empty");
     std::fs::create_dir_all(&dir).unwrap();
     let header = LogHeader {
@@ -585,16 +578,13 @@ fn a_log_without_driving_is_an_error_not_a_nan() {
     let still = dir.join("still.jsonl");
     let mut log = LogWriter::create(&still, header).unwrap();
     for i in 0..50u32 {
-        log.sample(&TelemetrySample {
+        log.sample(&TelemetryLine {
             sample_index: i,
             device_time_s: f64::from(i) * 0.02,
             left_counts: 0,
             right_counts: 0,
             heading_rad: 0.1,
             heading_valid: true,
-            motion_state: MotionState::Idle,
-            queue_depth: 0,
-            dropped_before: 0,
         })
         .unwrap();
     }

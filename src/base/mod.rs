@@ -29,10 +29,10 @@ pub use fanout::Fanout;
 pub use file_store::{FileStore, ParamFile};
 pub use guard::MotionGuard;
 
-pub use crate::calibration::pose_reference::ReferencePose;
-pub use crate::calibration::recording::{Clocks, HeadingSample, TravelSample, Validity};
-pub use crate::calibration::HeadingKind;
 use crate::kinematics::{Pose, WheelParams};
+pub use crate::samples::{
+    Clocks, HeadingKind, HeadingSample, ReferencePose, TravelSample, Validity,
+};
 use async_trait::async_trait;
 use serde::{Deserialize, Serialize};
 use std::sync::Arc;

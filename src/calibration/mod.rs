@@ -49,6 +49,7 @@ pub mod tracker;
 pub mod umbmark;
 pub mod uncertainty;
 
+pub use crate::samples::HeadingKind;
 pub use error::CalibrationError;
 
 use crate::kinematics::{Correction, Direction, Displacement, SplitConvention};
@@ -534,72 +535,6 @@ pub fn estimate(
         .then(|| standard_errors(method, test, &obs, &ctx, true))
         .flatten();
     Ok(Estimate::of(method, correction, std_err, &ctx.convention).with_noise_std_err(noise))
-}
-
-/// What a heading sensor measures, which decides what can go wrong with it.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum HeadingKind {
-    /// An absolute heading from the Earth's field (a compass, a 9-axis IMU's fused yaw): it
-    /// deviates near motors, batteries and steel, by a curve of the azimuth.
-    Magnetic,
-    /// A heading integrated from a gyro (a 6-axis IMU): no deviation, but its scale error
-    /// enters `E_b` one to one.
-    Gyro,
-    /// An external reference (motion capture): the true heading.
-    Reference,
-    /// Not known (a ROS IMU may be either): treated as magnetic where it matters.
-    #[default]
-    Unknown,
-}
-
-impl HeadingKind {
-    /// The kind's stable name (CLI and JSON).
-    pub fn name(self) -> &'static str {
-        match self {
-            HeadingKind::Magnetic => "magnetic",
-            HeadingKind::Gyro => "gyro",
-            HeadingKind::Reference => "reference",
-            HeadingKind::Unknown => "unknown",
-        }
-    }
-
-    /// Whether its readings may carry a deviation curve.
-    pub fn may_deviate(self) -> bool {
-        matches!(self, HeadingKind::Magnetic | HeadingKind::Unknown)
-    }
-}
-
-/// What a simulated sensor measures, as a backend would report it.
-impl From<crate::sim::sensor::SensorKind> for HeadingKind {
-    fn from(kind: crate::sim::sensor::SensorKind) -> Self {
-        match kind {
-            crate::sim::sensor::SensorKind::Compass => HeadingKind::Magnetic,
-            crate::sim::sensor::SensorKind::Gyro => HeadingKind::Gyro,
-        }
-    }
-}
-
-impl fmt::Display for HeadingKind {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(self.name())
-    }
-}
-
-impl FromStr for HeadingKind {
-    type Err = String;
-
-    fn from_str(s: &str) -> Result<Self, String> {
-        [
-            HeadingKind::Magnetic,
-            HeadingKind::Gyro,
-            HeadingKind::Reference,
-            HeadingKind::Unknown,
-        ]
-        .into_iter()
-        .find(|k| k.name() == s)
-        .ok_or_else(|| format!("{s:?}: use magnetic, gyro, reference or unknown"))
-    }
 }
 
 /// The method to write back unless the user names one, by what the data holds and what the

@@ -21,6 +21,8 @@
 use crate::kinematics::{sinc, Displacement};
 use serde::{Deserialize, Serialize};
 
+pub use crate::samples::ReferencePose;
+
 /// Cumulative wheel rotations at one instant (rad, forward positive).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct WheelAngles {
@@ -30,24 +32,6 @@ pub struct WheelAngles {
     pub left_rad: f64,
     /// Right wheel's cumulative rotation (rad).
     pub right_rad: f64,
-}
-
-/// One pose of the reference frame in the reference's world frame.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-pub struct ReferencePose {
-    /// Time on the reference's clock (s).
-    pub time_s: f64,
-    /// x (m).
-    pub x_m: f64,
-    /// y (m).
-    pub y_m: f64,
-    /// Yaw (rad, counter-clockwise positive); `None` for a position-only reference.
-    pub yaw_rad: Option<f64>,
-    /// Standard deviations the source states for this pose (x, y in m; yaw in rad), e.g. from
-    /// a message's covariance; `None` when it states none. They weight the samples relative to
-    /// each other; the overall scale is still estimated from the residuals.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub stated_std: Option<[f64; 3]>,
 }
 
 impl ReferencePose {

@@ -22,8 +22,8 @@
 //!    way), each heading reading applied at its own time inside the travel interval that holds
 //!    it.
 //!
-//! The sample types are defined here, in the pure layer, and re-exported by the seam
-//! ([`crate::base`]), whose backends produce them.
+//! The sample types are [`crate::samples`]' (below both this layer and the seam, whose
+//! backends produce them); they are re-exported here under their old paths.
 
 use super::legs::{leg_measurement, LegMeasurement, LegSample};
 use super::online::OnlineEstimator;
@@ -31,71 +31,9 @@ use super::pose_reference::{ReferencePose, WheelAngles};
 use super::time_offset::{estimate_time_offset, unwrapped_heading_at, TimeOffset, MAX_OFFSET_S};
 use crate::kinematics::{wrap_angle, Displacement};
 use serde::{Deserialize, Serialize};
+
+pub use crate::samples::{Clocks, HeadingSample, TravelSample, Validity};
 use std::collections::VecDeque;
-
-/// Wheel travel since the previous sample of the same stream, as the drive believes it
-/// (encoder counts times the *configured* travel per count; metres, forward positive).
-///
-/// A sample covers the time since the stream's previous one: a drive that sends nothing at
-/// rest sends a zero sample when the wheels start again, so that the first travel of a motion
-/// is not spread over the rest before it.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-pub struct TravelSample {
-    /// Time on the drive's clock (s); streams of different devices need not share a clock.
-    pub time_s: f64,
-    /// Left wheel travel since the previous sample (m).
-    pub left_m: f64,
-    /// Right wheel travel since the previous sample (m).
-    pub right_m: f64,
-}
-
-/// Whether a heading reading may be used, and if not, why.
-#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case", tag = "state", content = "reason")]
-pub enum Validity {
-    /// Usable.
-    Valid,
-    /// Not usable, with the sensor's or the backend's reason.
-    Invalid(String),
-}
-
-impl Validity {
-    /// `true` for [`Validity::Valid`].
-    pub fn is_valid(&self) -> bool {
-        matches!(self, Validity::Valid)
-    }
-}
-
-/// One heading reading.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct HeadingSample {
-    /// Time on the heading source's clock (s).
-    pub time_s: f64,
-    /// Heading (rad), counter-clockwise positive, wrapped to (−π, π].
-    pub heading_rad: f64,
-    /// Whether it may be used.
-    pub validity: Validity,
-}
-
-impl HeadingSample {
-    /// The heading when the reading may be used and is a number.
-    pub fn usable(&self) -> Option<f64> {
-        (self.validity.is_valid() && self.heading_rad.is_finite()).then_some(self.heading_rad)
-    }
-}
-
-/// How the clocks of a recording's two streams relate.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum Clocks {
-    /// Both streams are stamped by one clock (one device; header stamps of one robot; this
-    /// host's clock for devices read by it).
-    #[default]
-    Shared,
-    /// Each stream has a clock of its own and both streams were started at the same moment:
-    /// their first samples are taken as simultaneous, then the correlation refines it.
-    StartedTogether,
-}
 
 /// Wheel travel and headings of one stretch of driving, each on its stream's clock.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]

@@ -196,14 +196,14 @@ pub struct TelemetrySample {
 
 impl TelemetrySample {
     /// The heading of this sample as the seam has it, on the device's clock.
-    pub fn heading_sample(&self) -> crate::base::HeadingSample {
-        crate::base::HeadingSample {
+    pub fn heading_sample(&self) -> crate::samples::HeadingSample {
+        crate::samples::HeadingSample {
             time_s: self.device_time_s,
             heading_rad: self.heading_rad,
             validity: if self.heading_valid {
-                crate::base::Validity::Valid
+                crate::samples::Validity::Valid
             } else {
-                crate::base::Validity::Invalid("telemetry marks the heading invalid".into())
+                crate::samples::Validity::Invalid("telemetry marks the heading invalid".into())
             },
         }
     }

@@ -257,6 +257,57 @@ pub struct OptiOdomSet {
     pub runs: Vec<RecordedRun>,
 }
 
+impl OptiOdomSet {
+    /// The set's runs as one continuous recording on one clock, one sample per control cycle:
+    /// the wheel travel the controller counted (under [`Self::configured`]) and the
+    /// motion-capture heading, with `rest_s` of stillness before and after every run. Each
+    /// run's ground truth starts at its own origin: the heading continues from where the
+    /// previous run ended, so the headings are one continuous sensor's.
+    pub fn to_recording(&self, rest_s: f64) -> Recording {
+        let mut rec = Recording {
+            clocks: Clocks::Shared,
+            ..Recording::default()
+        };
+        let mut t = 0.0;
+        let push = |rec: &mut Recording, t: f64, (left_m, right_m): (f64, f64), yaw: f64| {
+            rec.travel.push(TravelSample {
+                time_s: t,
+                left_m,
+                right_m,
+            });
+            rec.headings.push(HeadingSample {
+                time_s: t,
+                heading_rad: wrap_angle(yaw),
+                validity: Validity::Valid,
+            });
+        };
+        let still = (rest_s / CYCLE_S).round() as u64;
+        let mut heading_offset = 0.0;
+        for run in &self.runs {
+            let first = run.samples.first().map_or(0.0, |s| s.truth.heading_rad);
+            let mut yaw = heading_offset + first;
+            for _ in 0..still {
+                t += CYCLE_S;
+                push(&mut rec, t, (0.0, 0.0), yaw);
+            }
+            let mut prev = first;
+            for s in run.samples.iter().skip(1) {
+                yaw += wrap_angle(s.truth.heading_rad - prev);
+                prev = s.truth.heading_rad;
+                t += CYCLE_S;
+                let travel = self.configured.travel_m(s.left_counts, s.right_counts);
+                push(&mut rec, t, travel, yaw);
+            }
+            heading_offset = yaw - first;
+            for _ in 0..still {
+                t += CYCLE_S;
+                push(&mut rec, t, (0.0, 0.0), yaw);
+            }
+        }
+        rec
+    }
+}
+
 fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> DatasetError + '_ {
     move |source| DatasetError::Io {
         path: path.to_path_buf(),

@@ -5,16 +5,15 @@
 //! line is a wheel travel sample (`"type": "travel"`, a [`TravelSample`]) or a heading reading
 //! (`"type": "heading"`, a [`HeadingSample`]) of any base, in the order they arrived. Logs of
 //! earlier versions hold our protocol's telemetry instead (`"type": "telemetry"`, a
-//! [`TelemetrySample`], counts unwrapped by the host); they read the same way. Every line is
+//! [`TelemetryLine`], counts unwrapped by the host); they read the same way. The log's types
+//! are its own: no backend's type is part of the format. Every line is
 //! checked as it is read (time goes forward in each stream, no wheel faster than
 //! [`MAX_WHEEL_SPEED_M_S`]) and a bad one is named by its line. A log reads as a [`Recording`].
 
 use crate::base::BaseInfo;
 use crate::calibration::pose_reference::ReferencePose;
 use crate::calibration::recording::{Clocks, Event, HeadingSample, Recording, TravelSample};
-use crate::hal::TelemetrySample;
 use crate::kinematics::{WheelParams, MAX_WHEEL_SPEED_M_S};
-use crate::protocol::message::DeviceInfo;
 use serde::{Deserialize, Serialize};
 use std::io::{BufRead, Write};
 use std::path::{Path, PathBuf};
@@ -47,8 +46,10 @@ pub enum LogError {
 pub struct LogHeader {
     /// odocal version that wrote the log.
     pub odocal_version: String,
-    /// The device, when it speaks our protocol.
-    pub device: Option<DeviceInfo>,
+    /// The device, when it speaks our protocol: its HELLO answer as earlier versions logged it
+    /// (kept as written; nothing is read from it).
+    #[serde(default)]
+    pub device: Option<serde_json::Value>,
     /// Parameters in use while recording (the wheel travel's conversion).
     pub params: WheelParams,
     /// Requested sample period (ms).
@@ -61,11 +62,44 @@ pub struct LogHeader {
     pub clocks: Clocks,
 }
 
+/// One telemetry sample of odocal's protocol, as earlier versions logged it (counts unwrapped
+/// by the host). Fields the reading does not use (the motion state, the queue) are ignored.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct TelemetryLine {
+    /// Device sample index.
+    pub sample_index: u32,
+    /// Device time since the first sample seen (s), unwrapped.
+    pub device_time_s: f64,
+    /// Left encoder counts, unwrapped.
+    pub left_counts: i64,
+    /// Right encoder counts, unwrapped.
+    pub right_counts: i64,
+    /// Heading (rad), counter-clockwise positive.
+    pub heading_rad: f64,
+    /// Whether the heading may be used.
+    pub heading_valid: bool,
+}
+
+impl TelemetryLine {
+    /// The heading of this sample, on the device's clock.
+    pub fn heading_sample(&self) -> HeadingSample {
+        HeadingSample {
+            time_s: self.device_time_s,
+            heading_rad: self.heading_rad,
+            validity: if self.heading_valid {
+                crate::samples::Validity::Valid
+            } else {
+                crate::samples::Validity::Invalid("telemetry marks the heading invalid".into())
+            },
+        }
+    }
+}
+
 #[derive(Serialize, Deserialize)]
 #[serde(tag = "type", rename_all = "snake_case")]
 enum LogLine {
     Header(Box<LogHeader>),
-    Telemetry(TelemetrySample),
+    Telemetry(TelemetryLine),
     Travel(TravelSample),
     Heading(HeadingSample),
     Pose(ReferencePose),
@@ -105,7 +139,7 @@ impl LogWriter {
     }
 
     /// Appends one telemetry sample of our protocol (the format of earlier versions).
-    pub fn sample(&mut self, s: &TelemetrySample) -> Result<(), LogError> {
+    pub fn sample(&mut self, s: &TelemetryLine) -> Result<(), LogError> {
         self.line(&LogLine::Telemetry(*s))
     }
 
@@ -129,11 +163,7 @@ impl LogWriter {
 
 /// Checks one logged sample against the one before: time goes forward, the sample index
 /// increases, and neither wheel turned further than [`MAX_WHEEL_SPEED_M_S`] allows.
-fn check_step(
-    prev: &TelemetrySample,
-    s: &TelemetrySample,
-    params: &WheelParams,
-) -> Result<(), String> {
+fn check_step(prev: &TelemetryLine, s: &TelemetryLine, params: &WheelParams) -> Result<(), String> {
     let dt = s.device_time_s - prev.device_time_s;
     if !(dt.is_finite() && dt > 0.0) {
         return Err(format!(
@@ -231,7 +261,7 @@ pub fn read_log(path: &Path) -> Result<(LogHeader, Recording), LogError> {
         })?;
     let mut header: Option<LogHeader> = None;
     let mut recording = Recording::default();
-    let mut last_telemetry: Option<TelemetrySample> = None;
+    let mut last_telemetry: Option<TelemetryLine> = None;
     for (i, line) in std::io::BufReader::new(file).lines().enumerate() {
         let bad = |reason: String| LogError::Malformed {
             path: path.to_path_buf(),
@@ -320,9 +350,9 @@ fn check_pose(prev: Option<&ReferencePose>, p: &ReferencePose) -> Result<(), Str
 /// A telemetry log as a [`Recording`]: the count increments as wheel travel under the
 /// header's parameters, the heading of each sample (marked invalid where the device said so),
 /// both on the device's clock.
-pub fn recording_of(header: &LogHeader, samples: &[TelemetrySample]) -> Recording {
+pub fn recording_of(header: &LogHeader, samples: &[TelemetryLine]) -> Recording {
     let mut travel = Vec::with_capacity(samples.len());
-    let mut prev: Option<&TelemetrySample> = None;
+    let mut prev: Option<&TelemetryLine> = None;
     for s in samples {
         let (left_m, right_m) = match prev {
             Some(p) => header.params.travel_m(
@@ -338,10 +368,7 @@ pub fn recording_of(header: &LogHeader, samples: &[TelemetrySample]) -> Recordin
         });
         prev = Some(s);
     }
-    let headings = samples
-        .iter()
-        .map(TelemetrySample::heading_sample)
-        .collect();
+    let headings = samples.iter().map(TelemetryLine::heading_sample).collect();
     Recording {
         travel,
         headings,
@@ -354,7 +381,6 @@ pub fn recording_of(header: &LogHeader, samples: &[TelemetrySample]) -> Recordin
 mod tests {
     use super::*;
     use crate::calibration::recording::Validity;
-    use crate::protocol::message::MotionState;
 
     /// A log's header for the tests: nominal 0.15 m wheels, 0.39 m wheelbase, 20 ms samples.
     fn test_header() -> LogHeader {
@@ -374,16 +400,13 @@ mod tests {
         std::fs::create_dir_all(&dir).unwrap();
         let path = dir.join("t.jsonl");
         let header = test_header();
-        let sample = TelemetrySample {
+        let sample = TelemetryLine {
             sample_index: 7,
             device_time_s: 0.14,
             left_counts: 5_000_000_000,
             right_counts: -3,
             heading_rad: 0.5,
             heading_valid: true,
-            motion_state: MotionState::Moving,
-            queue_depth: 1,
-            dropped_before: 0,
         };
         let mut w = LogWriter::create(&path, header.clone()).unwrap();
         w.sample(&sample).unwrap();
@@ -485,18 +508,15 @@ mod tests {
         std::fs::create_dir_all(&dir).unwrap();
         let path = dir.join("t.jsonl");
         let header = test_header();
-        let sample = |i: u32, t: f64, l: i64| TelemetrySample {
+        let sample = |i: u32, t: f64, l: i64| TelemetryLine {
             sample_index: i,
             device_time_s: t,
             left_counts: l,
             right_counts: l,
             heading_rad: 0.0,
             heading_valid: true,
-            motion_state: MotionState::Moving,
-            queue_depth: 0,
-            dropped_before: 0,
         };
-        let write = |samples: &[TelemetrySample]| {
+        let write = |samples: &[TelemetryLine]| {
             let mut w = LogWriter::create(&path, header.clone()).unwrap();
             for s in samples {
                 w.sample(s).unwrap();

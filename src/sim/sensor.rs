@@ -208,6 +208,16 @@ impl HeadingSensor {
     }
 }
 
+/// What a simulated sensor measures, as a backend would report it.
+impl From<SensorKind> for crate::samples::HeadingKind {
+    fn from(kind: SensorKind) -> Self {
+        match kind {
+            SensorKind::Compass => crate::samples::HeadingKind::Magnetic,
+            SensorKind::Gyro => crate::samples::HeadingKind::Gyro,
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -37,7 +37,16 @@ pub fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
             return Err("--write-bag converts one set; give one --dataset".into());
         }
         let topics = odocal::ros::bag::RosTopics::default();
-        let n = odocal::ros::bag::writer::write_optiodom_bag(path, calib, 2.0, &topics)?;
+        let recording = calib.to_recording(2.0);
+        // Motion capture: the heading is the reference.
+        let about = (calib.side_m, odocal::calibration::HeadingKind::Reference);
+        let n = odocal::ros::bag::writer::write_recording_bag(
+            path,
+            &recording,
+            &calib.configured,
+            about,
+            &topics,
+        )?;
         println!(
             "wrote {} ({n} messages, {} runs)",
             path.display(),

@@ -3,12 +3,13 @@
 
 use super::{BagError, RosTopics};
 use crate::calibration::pose_reference::{PoseRecording, ReferencePose};
+use crate::calibration::recording::Recording;
+use crate::calibration::HeadingKind;
 use crate::kinematics::{wrap_angle, Direction, WheelParams};
 use crate::ros::msg::{
     cdr, types, Header, Imu, JointState, Odometry, PoseStamped, PoseWithCovarianceStamped,
     Quaternion, Time,
 };
-use crate::ros::yaml::RAD_PER_REV;
 use serde::Serialize;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -377,79 +378,45 @@ pub fn write_simulated_bag(
     Ok(messages)
 }
 
-/// Writes a recorded OptiOdom set as a ROS 2 bag: its encoder counts as wheel joint angles, its
-/// motion-capture heading as the IMU, the controller's odometry integrated with its configured
-/// parameters, and `rest_s` of stillness around every run. `odocal bag` on the result
-/// calibrates as `odocal replay` does on the set.
-pub fn write_optiodom_bag(
+/// Writes a recording as a ROS 2 bag: its wheel travel as wheel joint angles (under the
+/// `configured` wheels, which the travel was counted with), its headings as the IMU (of
+/// `kind`), and the controller's odometry integrated with `configured`, all in the time order
+/// of the recording's samples (one clock: [`Recording::clocks`] must be shared). `odocal bag`
+/// on the result calibrates as the recording does. `side_m` is the square's side, when the
+/// recording is of squares. Returns the messages written.
+pub fn write_recording_bag(
     path: &Path,
-    set: &crate::offline::dataset::OptiOdomSet,
-    rest_s: f64,
+    recording: &Recording,
+    configured: &WheelParams,
+    (side_m, kind): (Option<f64>, HeadingKind),
     topics: &RosTopics,
 ) -> Result<u64, BagError> {
     let mut w = BagWriter::create(path, topics)?;
-    // Motion capture: the heading is the reference.
-    w.describe(set.side_m, crate::calibration::HeadingKind::Reference)?;
-    let p = set.configured;
-    let rad_per_count = RAD_PER_REV / p.counts_per_wheel_rev;
-    // In radians the configured geometry is the same wheels with 2π "counts" per revolution.
-    let configured = WheelParams {
-        counts_per_wheel_rev: RAD_PER_REV,
-        ..p
-    };
-    let dt = 0.05;
-    let (mut t, mut l, mut r) = (0.0, 0.0, 0.0);
+    w.describe(side_m, kind)?;
+    let (left_rad_per_m, right_rad_per_m) = (
+        2.0 / configured.left_wheel_diameter_m,
+        2.0 / configured.right_wheel_diameter_m,
+    );
+    let (mut l, mut r) = (0.0, 0.0);
     let mut odo = crate::kinematics::Pose::default();
     let mut messages = 0u64;
-    let mut heading_offset = 0.0;
-    let still = |w: &mut BagWriter,
-                 t: &mut f64,
-                 yaw: f64,
-                 l: f64,
-                 r: f64,
-                 odo: &crate::kinematics::Pose|
-     -> Result<u64, BagError> {
-        let n = (rest_s / dt).round() as u64;
-        for _ in 0..n {
-            *t += dt;
-            w.joints(*t, l, r)?;
-            w.imu(*t, yaw)?;
-            w.odom(*t, odo.x_m, odo.y_m, odo.heading_rad)?;
+    let mut headings = recording.headings.iter().peekable();
+    for t in &recording.travel {
+        // Headings up to this travel sample's time go first (the merged order).
+        while let Some(h) = headings.next_if(|h| h.time_s <= t.time_s) {
+            w.imu(h.time_s, wrap_angle(h.heading_rad))?;
+            messages += 1;
         }
-        Ok(3 * n)
-    };
-    for run in &set.runs {
-        // Each run's ground truth starts at its own origin: continue the heading from where the
-        // previous run ended so the IMU is one continuous sensor.
-        let first = run.samples.first().map_or(0.0, |s| s.truth.heading_rad);
-        messages += still(
-            &mut w,
-            &mut t,
-            wrap_angle(heading_offset + first),
-            l,
-            r,
-            &odo,
-        )?;
-        let mut yaw = heading_offset + first;
-        let mut prev = first;
-        for s in run.samples.iter().skip(1) {
-            let (dl, dr) = (
-                s.left_counts * rad_per_count,
-                s.right_counts * rad_per_count,
-            );
-            odo = configured.odometry_step(&odo, dl, dr);
-            l += dl;
-            r += dr;
-            yaw += wrap_angle(s.truth.heading_rad - prev);
-            prev = s.truth.heading_rad;
-            t += dt;
-            w.joints(t, l, r)?;
-            w.imu(t, wrap_angle(yaw))?;
-            w.odom(t, odo.x_m, odo.y_m, odo.heading_rad)?;
-            messages += 3;
-        }
-        heading_offset = yaw - first;
-        messages += still(&mut w, &mut t, wrap_angle(yaw), l, r, &odo)?;
+        l += t.left_m * left_rad_per_m;
+        r += t.right_m * right_rad_per_m;
+        odo = odo.advance(t.left_m, t.right_m, configured.wheelbase_m);
+        w.joints(t.time_s, l, r)?;
+        w.odom(t.time_s, odo.x_m, odo.y_m, odo.heading_rad)?;
+        messages += 2;
+    }
+    for h in headings {
+        w.imu(h.time_s, wrap_angle(h.heading_rad))?;
+        messages += 1;
     }
     w.finish()?;
     Ok(messages)
