@@ -249,6 +249,11 @@ fn backends_are_listed_in_the_registry_only() {
         ("contains(\"baud=\")", &[][..]),
         ("starts_with(\"rosbridge://\")", &["src/ros/live.rs"][..]),
         ("strip_prefix(\"profile:\")", &[][..]),
+        // One rule for a fresh reading of a streaming sensor (base/latest.rs).
+        (
+            "Option<(Instant, HeadingSample)>",
+            &["src/base/latest.rs"][..],
+        ),
     ] {
         only_in(&sources, needle, allowed, hint);
     }

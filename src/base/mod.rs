@@ -18,6 +18,7 @@ pub mod fanout;
 pub mod file_store;
 pub mod guard;
 pub mod heading_backend;
+pub mod latest;
 pub mod port_spec;
 pub mod restore;
 pub mod store_backend;

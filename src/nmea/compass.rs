@@ -7,6 +7,7 @@
 //! (never sooner than the configured minimum), so that a slow compass can be averaged.
 
 use super::sentence::{azimuth_to_heading, parse, Kind, NmeaError, MAX_SENTENCE};
+use crate::base::latest::{self, Fresh, Latest, Publisher};
 use crate::base::{
     BaseError, ComponentInfo, Fanout, HeadingKind, HeadingSample, HeadingSource, SampleStream,
     Validity,
@@ -17,7 +18,6 @@ use std::collections::VecDeque;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 use tokio::io::{AsyncRead, AsyncReadExt};
-use tokio::sync::watch;
 use tokio::time::Instant;
 
 /// Counters of what the compass sent.
@@ -36,7 +36,7 @@ pub struct NmeaStats {
 /// A compass on a serial line.
 pub struct NmeaCompass {
     label: String,
-    latest: watch::Receiver<Option<(Instant, HeadingSample)>>,
+    latest: Latest,
     stats: Arc<Mutex<(NmeaStats, Option<String>)>>,
     streams: Fanout<HeadingSample>,
     stale: Duration,
@@ -68,7 +68,7 @@ impl NmeaCompass {
     where
         S: AsyncRead + Unpin + Send + 'static,
     {
-        let (tx, latest) = watch::channel(None);
+        let (tx, latest) = latest::channel();
         let stats: Arc<Mutex<(NmeaStats, Option<String>)>> = Arc::default();
         let streams: Fanout<HeadingSample> = Fanout::default();
         let arrivals: Arc<Mutex<VecDeque<Instant>>> = Arc::default();
@@ -113,7 +113,7 @@ impl NmeaCompass {
 
 /// Where the reader puts what it reads.
 struct Outputs {
-    tx: watch::Sender<Option<(Instant, HeadingSample)>>,
+    tx: Publisher,
     stats: Arc<Mutex<(NmeaStats, Option<String>)>>,
     streams: Fanout<HeadingSample>,
     arrivals: Arc<Mutex<VecDeque<Instant>>>,
@@ -225,7 +225,7 @@ fn publish(out: &Outputs, headings: &[f64]) {
         }
         out.streams.send(&sample);
         if i == last {
-            let _ = out.tx.send(Some((at, sample)));
+            out.tx.publish(at, sample);
         }
     }
 }
@@ -258,24 +258,12 @@ impl HeadingSource for NmeaCompass {
             &self.arrivals.lock().unwrap_or_else(|p| p.into_inner()),
             self.stale,
         );
-        let mut rx = self.latest.clone();
-        let fresh = tokio::time::timeout(
-            wait,
-            // Strictly after: under a clock that does not move between two calls (a paused
-            // test clock, a coarse timer) one sentence must not be read twice.
-            rx.wait_for(|h| h.as_ref().is_some_and(|(at, _)| *at > asked)),
-        )
-        .await;
-        match fresh {
-            Ok(Ok(h)) => Ok(h.as_ref().map(|(_, s)| s.clone()).unwrap_or(HeadingSample {
-                time_s: 0.0,
-                heading_rad: 0.0,
-                validity: Validity::Invalid("no reading".into()),
-            })),
-            Ok(Err(_)) => Err(BaseError::HeadingInvalid {
+        match self.latest.read_after(asked, wait, |_| true).await {
+            Fresh::Got(sample) => Ok(sample),
+            Fresh::Closed => Err(BaseError::HeadingInvalid {
                 reason: format!("{} closed", self.label),
             }),
-            Err(_) => {
+            Fresh::Stale(_) => {
                 let (stats, last_error) =
                     self.stats.lock().unwrap_or_else(|p| p.into_inner()).clone();
                 Ok(HeadingSample {

@@ -18,6 +18,7 @@ use super::yaml::{DiffDriveConfig, YamlStore, MULTIPLIER_KEYS};
 use crate::base::drive_backend::{
     DriveBackend, DriveOpen, DriveTarget, HeadingPart, OpenDrive, StorePart,
 };
+use crate::base::latest::{self, Fresh, Latest, Publisher, Stamped};
 use crate::base::port_spec::PortSpec;
 use crate::base::{
     Achieved, Base, BaseError, ComponentInfo, Drive, Fanout, HeadingSample, HeadingSource,
@@ -247,7 +248,7 @@ pub struct RosDrive {
 pub struct RosHeading {
     url: String,
     topic: String,
-    latest: watch::Receiver<Option<(Instant, HeadingSample)>>,
+    latest: Latest,
     /// The drive's odometry: a reading must be no older than its newest wheel data.
     wheels: watch::Receiver<Odo>,
     streams: Fanout<HeadingSample>,
@@ -345,7 +346,7 @@ pub async fn connect(cfg: &RosBaseConfig) -> Result<Base, RosBaseError> {
     }
     // Heading.
     let imu_rx = client.subscribe(&cfg.topics.imu, types::IMU)?;
-    let (head_tx, head_rx) = watch::channel(None);
+    let (head_tx, head_rx) = latest::channel();
     let streams: Fanout<HeadingSample> = Fanout::default();
     tokio::spawn(follow_imu(
         imu_rx,
@@ -366,8 +367,8 @@ pub async fn connect(cfg: &RosBaseConfig) -> Result<Base, RosBaseError> {
     };
     let first = |topic: &str| (topic.to_string(), rejects.clone(), timeout);
     wait_first(&client, &odo_rx, |o| o.samples > 0, first(wheel_topic)).await?;
-    let imu_ok = |h: &Option<(Instant, HeadingSample)>| h.is_some();
-    wait_first(&client, &head_rx, imu_ok, first(&cfg.topics.imu)).await?;
+    let imu_ok = |h: &Stamped| h.is_some();
+    wait_first(&client, head_rx.receiver(), imu_ok, first(&cfg.topics.imu)).await?;
     // What the controller was started with: the file as it is now.
     let running = Arc::new(RwLock::new(yaml_cfg.effective()));
     let drive = RosDrive {
@@ -718,7 +719,7 @@ async fn integrate_odom(
 async fn follow_imu(
     mut rx: tokio::sync::broadcast::Receiver<Value>,
     (topic, rejects): (String, Rejects),
-    tx: watch::Sender<Option<(Instant, HeadingSample)>>,
+    tx: Publisher,
     streams: Fanout<HeadingSample>,
 ) {
     let mut forward = Forward::default();
@@ -761,7 +762,7 @@ async fn follow_imu(
             },
         };
         streams.send(&sample);
-        let _ = tx.send(Some((Instant::now(), sample)));
+        tx.publish(Instant::now(), sample);
     }
 }
 
@@ -1259,35 +1260,23 @@ impl HeadingSource for RosHeading {
         // one sample).
         let newest = self.wheels.borrow().stamp_s;
         let asked = Instant::now();
-        let mut rx = self.latest.clone();
-        let fresh = tokio::time::timeout(
-            self.stale,
-            rx.wait_for(|h| {
-                h.as_ref()
-                    .is_some_and(|(at, s)| *at > asked && s.time_s >= newest)
-            }),
-        )
-        .await;
-        match fresh {
-            Ok(Ok(h)) => Ok(h.as_ref().map(|(_, s)| s.clone()).unwrap_or(HeadingSample {
-                time_s: newest,
-                heading_rad: 0.0,
-                validity: Validity::Invalid("no reading".into()),
-            })),
-            Ok(Err(_)) => Err(BaseError::HeadingInvalid {
+        let fresh = self
+            .latest
+            .read_after(asked, self.stale, |s| s.time_s >= newest);
+        match fresh.await {
+            Fresh::Got(sample) => Ok(sample),
+            Fresh::Closed => Err(BaseError::HeadingInvalid {
                 reason: format!("{} ended", self.topic),
             }),
-            Err(_) => {
-                let last = self.latest.borrow().clone();
-                Ok(HeadingSample {
-                    time_s: last.as_ref().map_or(0.0, |(_, s)| s.time_s),
-                    heading_rad: last.as_ref().map_or(0.0, |(_, s)| s.heading_rad),
-                    validity: Validity::Invalid(format!(
-                        "stale: no new {} message as new as the wheel data ({newest:.3} s) within {}",
-                        self.topic, crate::io::seconds(&self.stale)
-                    )),
-                })
-            }
+            Fresh::Stale(last) => Ok(HeadingSample {
+                time_s: last.as_ref().map_or(0.0, |s| s.time_s),
+                heading_rad: last.as_ref().map_or(0.0, |s| s.heading_rad),
+                validity: Validity::Invalid(format!(
+                    "stale: no new {} message as new as the wheel data ({newest:.3} s) within {}",
+                    self.topic,
+                    crate::io::seconds(&self.stale)
+                )),
+            }),
         }
     }
 
