@@ -48,8 +48,9 @@ pub struct DriveTarget {
     /// The port or URL and the options its text gave.
     pub spec: PortSpec,
     /// The drive's settings (a routine file's `[robot.<settings>]` table, with flags laid
-    /// over it), for a drive that takes some ([`DriveBackend::settings`]).
-    pub settings: Option<serde_json::Value>,
+    /// over it), for a drive that takes some ([`DriveBackend::settings`]). As TOML: it keeps
+    /// every value a routine file can hold.
+    pub settings: Option<toml::Value>,
 }
 
 /// What a drive opens with.

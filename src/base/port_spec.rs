@@ -40,7 +40,7 @@ impl PortSpec {
             false => rest.split_once('?').unwrap_or((rest, "")),
         };
         if path.is_empty() {
-            return Err(format!("no port (expected {scheme}:PORT)"));
+            return Err(format!("nothing after {scheme}: (give the port or file)"));
         }
         let mut options = BTreeMap::new();
         for kv in query.split('&').filter(|s| !s.is_empty()) {

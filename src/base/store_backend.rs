@@ -20,6 +20,8 @@ pub type OpenStore = BoxFuture<'static, Result<Arc<dyn ParamStore>, BackendError
 pub struct StoreBackend {
     /// The store kind its backups record (`ComponentInfo::kind`).
     pub kind: &'static str,
+    /// What it is, for messages (`a robot profile`).
+    pub what: &'static str,
     /// The scheme of its text form (`profile` in `profile:robot.toml`).
     pub scheme: &'static str,
     /// Its text form with defaults, for help and errors.

@@ -272,6 +272,7 @@ pub const DRIVE_BACKEND: DriveBackend = DriveBackend {
 /// `odocal restore --to PORT` names it.
 pub const STORE_BACKEND: StoreBackend = StoreBackend {
     kind: KIND,
+    what: "an odocal-protocol controller",
     scheme: "odocal",
     form: "PORT or odocal:PORT[?baud=115200]",
     options: &["baud"],

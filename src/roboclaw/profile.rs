@@ -393,14 +393,16 @@ pub const KIND: &str = "robot-profile";
 /// A robot profile as a store on its own: `profile:PATH`.
 pub const STORE_BACKEND: StoreBackend = StoreBackend {
     kind: KIND,
+    what: "a robot profile",
     scheme: "profile",
     form: "profile:PATH",
     options: &[],
     bare_port: false,
     complete: |_| Ok(()),
     of_backup: |_, file| {
-        file.map(|f| PortSpec::bare(f.display().to_string()))
-            .ok_or("which file")
+        let file = file.ok_or("which file")?;
+        let name = file.to_str().ok_or("a file name that is UTF-8")?;
+        Ok(PortSpec::bare(name))
     },
     show: |spec| spec.text("profile"),
     open: |spec: PortSpec| -> OpenStore {

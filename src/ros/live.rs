@@ -131,7 +131,9 @@ pub const DRIVE_BACKEND: DriveBackend = DriveBackend {
 /// The settings of a ROS drive's target, its URL from the drive's text.
 pub fn config_of(target: &DriveTarget) -> Result<RosBaseConfig, String> {
     let settings = match &target.settings {
-        Some(v) => serde_json::from_value(v.clone())
+        Some(v) => v
+            .clone()
+            .try_into()
             .map_err(|e| format!("the ROS settings ([robot.ros]) cannot be read: {e}"))?,
         None => RosBaseConfig::default(),
     };

@@ -810,6 +810,7 @@ pub const DEFAULT_CONTROLLER: &str = "diff_drive_controller";
 /// writes them.
 pub const STORE_BACKEND: StoreBackend = StoreBackend {
     kind: KIND,
+    what: "a controller's ros2_control YAML",
     scheme: "ros-yaml",
     form: "ros-yaml:PATH[?controller=diff_drive_controller]",
     options: &["controller"],
@@ -819,7 +820,8 @@ pub const STORE_BACKEND: StoreBackend = StoreBackend {
         Ok(())
     },
     of_backup: |backup, file| {
-        let mut spec = PortSpec::bare(file.ok_or("which file")?.display().to_string());
+        let file = file.ok_or("which file")?;
+        let mut spec = PortSpec::bare(file.to_str().ok_or("a file name that is UTF-8")?);
         let controller = StoreBackend::detail(backup, "controller").ok_or("which controller")?;
         spec.or_option("controller", controller);
         Ok(spec)

@@ -52,10 +52,6 @@ pub use store::{StoreLocation, StoreSpec};
 
 /// Baud rate of odocal's protocol unless configured (SPEC.md §1).
 pub const ODOCAL_BAUD: u32 = crate::hal::DEFAULT_BAUD;
-/// Baud rate of a RoboClaw unless configured.
-pub const ROBOCLAW_BAUD: u32 = crate::roboclaw::DEFAULT_BAUD;
-/// Packet serial address of a RoboClaw unless configured.
-pub const ROBOCLAW_ADDRESS: u8 = crate::roboclaw::DEFAULT_ADDRESS;
 
 /// Why a spec cannot be parsed, combined or opened.
 #[derive(Debug, thiserror::Error)]
@@ -131,7 +127,7 @@ fn parse_err(text: &str, reason: impl Into<String>) -> SpecError {
 /// `backend` cannot honour `setting`: refused by name rather than ignored.
 fn refused(backend: &DriveBackend, setting: &str) -> SpecError {
     SpecError::Combination(format!(
-        "{} does not take {setting}: it would be ignored; remove it",
+        "{} does not take {setting}, which it would ignore: remove it",
         backend.what
     ))
 }
@@ -332,11 +328,12 @@ impl RobotSection {
     /// The robot these keys describe.
     pub fn spec(&self) -> Result<BaseSpec, SpecError> {
         let text = self.drive.as_deref().ok_or_else(|| {
-            SpecError::Combination(
-                "no robot given: a serial port (--port), rosbridge://HOST:PORT or \
-                 roboclaw:PORT (--base), or `drive` in the routine file's [robot] table"
-                    .into(),
-            )
+            let based = DRIVE_BACKENDS.iter().filter(|b| !b.bare_port);
+            SpecError::Combination(format!(
+                "no robot given: a serial port (--port), {} (--base), or `drive` in the routine \
+                 file's [robot] table",
+                forms(based.map(|b| b.form))
+            ))
         })?;
         let mut drive: DriveSpec = text.parse()?;
         let backend = drive.backend;
@@ -348,12 +345,18 @@ impl RobotSection {
             (backend.check)(&drive.target.spec).map_err(|reason| parse_err(text, reason))?;
         }
         drive.target.settings = match (backend.settings, &self.ros) {
+            // TOML keeps what the settings hold (an infinite timeout, say) as they were given.
             (Some("ros"), ros) => Some(
-                serde_json::to_value(ros.clone().unwrap_or_default())
-                    .map_err(|e| SpecError::Combination(format!("the ROS settings: {e}")))?,
+                toml::Value::try_from(ros.clone().unwrap_or_default()).map_err(|e| {
+                    SpecError::Combination(format!("the ROS settings cannot be kept: {e}"))
+                })?,
             ),
             (_, Some(_)) => {
-                return Err(refused(backend, "ROS settings ([robot.ros], --ros-*)"));
+                return Err(refused(
+                    backend,
+                    "ROS settings (a [robot.ros] or [ros] table, or the ROS flags: --ros-yaml, \
+                     --controller, --cmd-vel, the topics, …)",
+                ));
             }
             _ => None,
         };
@@ -368,26 +371,11 @@ impl RobotSection {
                 ))
             }
             (Some(s), None) => s.parse()?,
-            (None, Some(p)) => StoreSpec::profile(p.clone()),
+            (None, Some(p)) => StoreSpec::profile(p)?,
             (None, None) => StoreSpec::Drive,
         };
-        let mut spec = BaseSpec::new(drive, heading, store)?;
-        (spec.heading_kind, spec.deviation) = self.heading_flags()?;
-        if backend.heading == HeadingPart::OwnOnly {
-            if spec.heading_kind.is_some() {
-                return Err(refused(
-                    backend,
-                    "a heading kind (`heading_kind`, --heading-kind)",
-                ));
-            }
-            if !spec.deviation.is_zero() {
-                return Err(refused(
-                    backend,
-                    "a compass deviation (`compass_deviation_deg`, --compass-deviation-deg)",
-                ));
-            }
-        }
-        Ok(spec)
+        let (kind, deviation) = self.heading_flags()?;
+        BaseSpec::new(drive, heading, store)?.with_correction(kind, deviation)
     }
 
     /// The heading kind and deviation these keys give (none: `None`, no deviation).
@@ -499,6 +487,31 @@ impl BaseSpec {
             store,
             heading_kind: None,
             deviation: Deviation::default(),
+        })
+    }
+
+    /// This robot with what its heading sensor is and a deviation to remove from its readings
+    /// (a flag's, a routine file's), refused by a drive whose sensor takes neither
+    /// ([`HeadingPart::OwnOnly`]).
+    pub fn with_correction(
+        self,
+        heading_kind: Option<HeadingKind>,
+        deviation: Deviation,
+    ) -> Result<Self, SpecError> {
+        if self.drive.backend.heading == HeadingPart::OwnOnly {
+            if heading_kind.is_some() {
+                let what = "a heading kind (`heading_kind`, --heading-kind)";
+                return Err(refused(self.drive.backend, what));
+            }
+            if !deviation.is_zero() {
+                let what = "a compass deviation (`compass_deviation_deg`, --compass-deviation-deg)";
+                return Err(refused(self.drive.backend, what));
+            }
+        }
+        Ok(BaseSpec {
+            heading_kind,
+            deviation,
+            ..self
         })
     }
 
@@ -774,7 +787,7 @@ mod tests {
             ),
             (
                 RobotSection {
-                    store: Some("ros-yaml:c.yaml".into()),
+                    store: Some("profile:r.toml".into()),
                     ..RobotSection::default()
                 },
                 "keeps its own parameters",
@@ -829,6 +842,9 @@ mod tests {
             profile: drive.starts_with("roboclaw").then(|| "r.toml".into()),
             ros: ros.then(|| RosBaseConfig {
                 yaml: "c.yaml".into(),
+                // What a routine file may hold, kept as given (the connection clamps it).
+                first_message_timeout_s: f64::INFINITY,
+                left_joint: Some("wheel_l".into()),
                 ..RosBaseConfig::default()
             }),
             ..RobotSection::default()
@@ -854,5 +870,19 @@ mod tests {
             (cfg.url.as_str(), cfg.yaml.as_path()),
             ("rosbridge://h:1", Path::new("c.yaml"))
         );
+        assert_eq!(cfg.first_message_timeout_s, f64::INFINITY);
+        assert_eq!(
+            (cfg.left_joint.as_deref(), cfg.right_joint),
+            (Some("wheel_l"), None)
+        );
+        // A robot's store is its own or a profile: a bare file name is neither.
+        let e = RobotSection {
+            store: Some("robot.toml".into()),
+            profile: None,
+            ..section("roboclaw:/dev/x", None, false)
+        };
+        let e = e.spec().unwrap_err().to_string();
+        assert!(e.contains("not a parameter store: give drive"), "{e}");
+        assert!(e.contains("profile:PATH"), "{e}");
     }
 }

@@ -28,20 +28,43 @@ pub enum StoreSpec {
 impl FromStr for StoreSpec {
     type Err = SpecError;
 
+    /// `drive`, or a store some drive keeps its parameters in (a robot profile).
     fn from_str(text: &str) -> Result<Self, SpecError> {
-        match text.trim() {
-            "drive" => Ok(StoreSpec::Drive),
-            text => {
-                StoreLocation::read(text, None, "drive (the drive's own), ").map(StoreSpec::Located)
-            }
+        let text = text.trim();
+        if text == "drive" {
+            return Ok(StoreSpec::Drive);
+        }
+        match PortSpec::parse(text, PROFILE.scheme, PROFILE.options) {
+            Some(spec) => Ok(StoreSpec::Located(StoreLocation {
+                backend: PROFILE,
+                spec: spec.map_err(|reason| parse_err(text, reason))?,
+            })),
+            None => Err(parse_err(
+                text,
+                format!(
+                    "not a parameter store: give drive (the drive's own) or {} ({}, for {})",
+                    PROFILE.form,
+                    PROFILE.what,
+                    profile_drives()
+                ),
+            )),
         }
     }
 }
 
 impl StoreSpec {
-    /// A robot profile.
-    pub fn profile(path: impl Into<PathBuf>) -> Self {
-        StoreSpec::Located(StoreLocation::profile(path))
+    /// A robot profile; its path must be UTF-8 (it is written back in backups and messages).
+    pub fn profile(path: &Path) -> Result<Self, SpecError> {
+        let name = path.to_str().ok_or_else(|| {
+            SpecError::Flag(format!(
+                "the robot profile's path {} is not UTF-8: rename it",
+                path.display()
+            ))
+        })?;
+        Ok(StoreSpec::Located(StoreLocation {
+            backend: PROFILE,
+            spec: PortSpec::bare(name),
+        }))
     }
 
     /// The robot profile this store is, if it is one.
@@ -63,33 +86,16 @@ pub struct StoreLocation {
     pub spec: PortSpec,
 }
 
-impl FromStr for StoreLocation {
-    type Err = SpecError;
-
-    fn from_str(text: &str) -> Result<Self, SpecError> {
-        StoreLocation::read(text, None, "")
-    }
-}
-
 impl StoreLocation {
     /// Parses a store of any of the [`STORE_BACKENDS`]' forms (`profile:PATH`,
     /// `ros-yaml:PATH[?controller=NAME]`, an odocal-protocol controller's `PORT` or
     /// `odocal:PORT?baud=…`); a controller at `baud` unless the text gives one.
     pub fn parse(text: &str, baud: u32) -> Result<Self, SpecError> {
-        StoreLocation::read(text, Some(baud), "")
+        StoreLocation::read(text, Some(baud))
     }
 
-    /// A robot profile.
-    pub fn profile(path: impl Into<PathBuf>) -> Self {
-        StoreLocation {
-            backend: PROFILE,
-            spec: PortSpec::bare(path.into().display().to_string()),
-        }
-    }
-
-    /// `text` parsed, `baud` (when given) the default of a backend that takes one; `also`
-    /// names the other forms the caller takes, for the error.
-    fn read(text: &str, baud: Option<u32>, also: &str) -> Result<Self, SpecError> {
+    /// `text` parsed, `baud` (when given) the default of a backend that takes one.
+    fn read(text: &str, baud: Option<u32>) -> Result<Self, SpecError> {
         let text = text.trim();
         for &backend in STORE_BACKENDS {
             if let Some(parts) = PortSpec::parse(text, backend.scheme, backend.options) {
@@ -103,10 +109,7 @@ impl StoreLocation {
             }
             _ => Err(parse_err(
                 text,
-                format!(
-                    "not a parameter store: give {also}{}",
-                    forms(STORE_BACKENDS.iter().map(|b| b.form))
-                ),
+                format!("not a parameter store: give {}", store_forms()),
             )),
         }
     }
@@ -194,9 +197,9 @@ impl StoreLocation {
         let Some(&backend) = STORE_BACKENDS.iter().find(|b| b.kind == kind) else {
             return Err(SpecError::Combination(format!(
                 "odocal cannot open a store of kind `{kind}` (`{}`) by itself: give one with \
-                 --to ({})",
+                 --to: {}",
                 backup.store.id,
-                forms(STORE_BACKENDS.iter().map(|b| b.form))
+                store_forms()
             )));
         };
         let spec = (backend.of_backup)(backup, file).map_err(|what| {
@@ -233,6 +236,15 @@ impl std::fmt::Display for StoreLocation {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.write_str(&(self.backend.show)(&self.spec))
     }
+}
+
+/// Every store's form and what it is, for messages.
+fn store_forms() -> String {
+    let each: Vec<String> = STORE_BACKENDS
+        .iter()
+        .map(|b| format!("{} ({})", b.form, b.what))
+        .collect();
+    forms(each.iter().map(String::as_str))
 }
 
 /// The drives that keep their parameters in a robot profile, for messages.

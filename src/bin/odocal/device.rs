@@ -78,9 +78,9 @@ pub struct PortArgs {
     /// for `heading` of an NMEA compass.
     #[arg(long)]
     port: String,
-    /// Baud rate.
-    #[arg(long, default_value_t = 115_200)]
-    baud: u32,
+    /// Baud rate [default: 115200; a RoboClaw's: its spec's, else 38400].
+    #[arg(long)]
+    baud: Option<u32>,
     /// Print JSON instead of text.
     #[arg(long)]
     json: bool,
@@ -88,7 +88,8 @@ pub struct PortArgs {
 
 impl PortArgs {
     async fn connect(&self) -> Result<Client, Box<dyn std::error::Error>> {
-        Ok(open_port(&self.port, self.baud).await?.0)
+        let baud = self.baud.unwrap_or(odocal::hal::DEFAULT_BAUD);
+        Ok(open_port(&self.port, baud).await?.0)
     }
 }
 
@@ -248,18 +249,12 @@ async fn restore_from(
 
 /// Runs `odocal status`.
 pub async fn status(port: PortArgs) -> CliResult {
-    let drive = port.port.parse::<DriveSpec>()?;
+    let mut drive = port.port.parse::<DriveSpec>()?;
     if drive.is(&odocal::roboclaw::DRIVE_BACKEND) {
-        let cfg = odocal::roboclaw::config_of(&drive.target.spec)?;
-        let path = &drive.target.spec.port;
-        return crate::roboclaw::roboclaw_status(
-            &port.port,
-            path,
-            cfg.address,
-            cfg.baud,
-            port.json,
-        )
-        .await;
+        if let Some(baud) = port.baud {
+            drive.target.spec.or_option("baud", baud);
+        }
+        return crate::roboclaw::roboclaw_status(&port.port, &drive.target, port.json).await;
     }
     let report = port.connect().await?.device_status().await?;
     if port.json {

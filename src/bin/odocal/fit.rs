@@ -33,7 +33,7 @@ pub struct Args {
     #[arg(long, conflicts_with_all = ["wheel_diameter_m", "wheelbase_m"])]
     ros_yaml: Option<PathBuf>,
     /// The diff_drive_controller's name in --ros-yaml.
-    #[arg(long, default_value = "diff_drive_controller")]
+    #[arg(long, default_value = odocal::ros::yaml::DEFAULT_CONTROLLER)]
     controller: String,
     /// Nominal wheel diameter (m) the fit starts from (with --wheels).
     #[arg(long)]

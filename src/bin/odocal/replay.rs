@@ -3,7 +3,9 @@
 
 use crate::out::print_json;
 use odocal::calibration::convention::ConventionChoice;
+use odocal::calibration::HeadingKind;
 use odocal::offline::dataset::{replay, OptiOdomSet};
+use odocal::ros::bag::writer::write_recording_bag;
 use std::path::PathBuf;
 
 /// Arguments of `odocal replay`.
@@ -37,16 +39,12 @@ pub fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
             return Err("--write-bag converts one set; give one --dataset".into());
         }
         let topics = odocal::ros::bag::RosTopics::default();
-        let recording = calib.to_recording(2.0);
         // Motion capture: the heading is the reference.
-        let about = (calib.side_m, odocal::calibration::HeadingKind::Reference);
-        let n = odocal::ros::bag::writer::write_recording_bag(
-            path,
-            &recording,
-            &calib.configured,
-            about,
-            &topics,
-        )?;
+        let (rec, about) = (
+            calib.to_recording(2.0),
+            (calib.side_m, HeadingKind::Reference),
+        );
+        let n = write_recording_bag(path, (&rec, &calib.configured), about, &topics)?;
         println!(
             "wrote {} ({n} messages, {} runs)",
             path.display(),

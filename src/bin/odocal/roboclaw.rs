@@ -1,26 +1,16 @@
 //! RoboClaw controllers: `odocal status --port roboclaw:…` and `odocal mock-roboclaw`.
 
 use crate::out::print_json;
-use odocal::roboclaw::client::{RoboClaw, RoboClawConfig};
+use odocal::base::drive_backend::DriveTarget;
+use odocal::roboclaw::client::RoboClaw;
 use odocal::roboclaw::profile::Profile;
 use std::path::PathBuf;
 
 type CliResult = Result<(), Box<dyn std::error::Error>>;
 
 /// `odocal status --port roboclaw:…`.
-pub async fn roboclaw_status(
-    spec: &str,
-    port: &str,
-    address: u8,
-    baud: u32,
-    json_out: bool,
-) -> CliResult {
-    let config = RoboClawConfig {
-        address,
-        baud,
-        ..RoboClawConfig::default()
-    };
-    let claw = RoboClaw::open(port, config)?;
+pub async fn roboclaw_status(spec: &str, drive: &DriveTarget, json_out: bool) -> CliResult {
+    let claw = RoboClaw::open(&drive.spec.port, odocal::roboclaw::config_of(&drive.spec)?)?;
     let firmware = claw.version().await.map_err(|e| {
         format!("{spec}: no answer to the version request ({e}): not a RoboClaw, or the wrong baud or address")
     })?;

@@ -386,8 +386,7 @@ pub fn write_simulated_bag(
 /// recording is of squares. Returns the messages written.
 pub fn write_recording_bag(
     path: &Path,
-    recording: &Recording,
-    configured: &WheelParams,
+    (recording, configured): (&Recording, &WheelParams),
     (side_m, kind): (Option<f64>, HeadingKind),
     topics: &RosTopics,
 ) -> Result<u64, BagError> {
