@@ -56,6 +56,18 @@ pub struct HeadingSample {
 }
 
 impl HeadingSample {
+    /// A reading a device flags valid or not by one bit (its telemetry, as sent or logged).
+    pub fn flagged(time_s: f64, heading_rad: f64, valid: bool) -> Self {
+        HeadingSample {
+            time_s,
+            heading_rad,
+            validity: match valid {
+                true => Validity::Valid,
+                false => Validity::Invalid("telemetry marks the heading invalid".into()),
+            },
+        }
+    }
+
     /// The heading when the reading may be used and is a number.
     pub fn usable(&self) -> Option<f64> {
         (self.validity.is_valid() && self.heading_rad.is_finite()).then_some(self.heading_rad)
@@ -146,5 +158,18 @@ impl FromStr for HeadingKind {
         .into_iter()
         .find(|k| k.name() == s)
         .ok_or_else(|| format!("{s:?}: use magnetic, gyro, reference or unknown"))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_flagged_reading_is_usable_only_when_valid() {
+        assert_eq!(HeadingSample::flagged(1.0, 0.5, true).usable(), Some(0.5));
+        let invalid = HeadingSample::flagged(1.0, 0.5, false);
+        assert_eq!(invalid.usable(), None);
+        assert!(matches!(invalid.validity, Validity::Invalid(ref why) if why.contains("invalid")));
     }
 }

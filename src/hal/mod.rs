@@ -197,15 +197,8 @@ pub struct TelemetrySample {
 impl TelemetrySample {
     /// The heading of this sample as the seam has it, on the device's clock.
     pub fn heading_sample(&self) -> crate::samples::HeadingSample {
-        crate::samples::HeadingSample {
-            time_s: self.device_time_s,
-            heading_rad: self.heading_rad,
-            validity: if self.heading_valid {
-                crate::samples::Validity::Valid
-            } else {
-                crate::samples::Validity::Invalid("telemetry marks the heading invalid".into())
-            },
-        }
+        let (t, h, valid) = (self.device_time_s, self.heading_rad, self.heading_valid);
+        crate::samples::HeadingSample::flagged(t, h, valid)
     }
 }
 

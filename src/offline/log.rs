@@ -83,15 +83,7 @@ pub struct TelemetryLine {
 impl TelemetryLine {
     /// The heading of this sample, on the device's clock.
     pub fn heading_sample(&self) -> HeadingSample {
-        HeadingSample {
-            time_s: self.device_time_s,
-            heading_rad: self.heading_rad,
-            validity: if self.heading_valid {
-                crate::samples::Validity::Valid
-            } else {
-                crate::samples::Validity::Invalid("telemetry marks the heading invalid".into())
-            },
-        }
+        HeadingSample::flagged(self.device_time_s, self.heading_rad, self.heading_valid)
     }
 }
 

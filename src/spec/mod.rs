@@ -871,6 +871,14 @@ mod tests {
             ("rosbridge://h:1", Path::new("c.yaml"))
         );
         assert_eq!(cfg.first_message_timeout_s, f64::INFINITY);
+        // Settings of the wrong type are refused before anything connects, naming them.
+        let mut bad = ros.drive.target.clone();
+        bad.settings = Some(toml::toml! { first_message_timeout_s = "soon" }.into());
+        let e = (crate::ros::live::DRIVE_BACKEND.ready)(&bad).unwrap_err();
+        assert!(
+            e.contains("the ROS settings ([robot.ros]) cannot be read"),
+            "{e}"
+        );
         assert_eq!(
             (cfg.left_joint.as_deref(), cfg.right_joint),
             (Some("wheel_l"), None)
