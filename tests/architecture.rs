@@ -10,6 +10,15 @@ use std::path::{Path, PathBuf};
 /// Every `.rs` file under `src/` with its text, comments and `#[cfg(test)]` modules dropped
 /// (what a rule is about is the library's code, not prose about it nor its tests).
 fn sources() -> Vec<(PathBuf, String)> {
+    sources_under("src")
+        .into_iter()
+        .map(|(p, code, _)| (p, code))
+        .collect()
+}
+
+/// Every `.rs` file under `dir` (relative to the crate) with its code as [`sources`] keeps it
+/// and the number of its lines outside `#[cfg(test)]` modules (comments counted).
+fn sources_under(dir: &str) -> Vec<(PathBuf, String, usize)> {
     fn walk(dir: &Path, out: &mut Vec<PathBuf>) {
         for e in std::fs::read_dir(dir).unwrap() {
             let p = e.unwrap().path();
@@ -22,7 +31,7 @@ fn sources() -> Vec<(PathBuf, String)> {
     }
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let mut files = Vec::new();
-    walk(&root.join("src"), &mut files);
+    walk(&root.join(dir), &mut files);
     files.sort();
     files
         .into_iter()
@@ -30,6 +39,7 @@ fn sources() -> Vec<(PathBuf, String)> {
             let code: Vec<&str> = Vec::new();
             let text = std::fs::read_to_string(&p).unwrap();
             let mut kept = code;
+            let mut outside = 0;
             // Inside a `#[cfg(test)] mod … {` block: its brace depth. Test code may use what
             // the library itself must not (the simulator, a transaction to set a scene up).
             let mut in_test: Option<i64> = None;
@@ -37,6 +47,7 @@ fn sources() -> Vec<(PathBuf, String)> {
             let mut in_string = false;
             for line in text.lines() {
                 let trimmed = line.trim_start();
+                outside += usize::from(in_test.is_none());
                 // Dropped lines stay as empty ones: line numbers are the file's.
                 if trimmed.starts_with("//") {
                     kept.push("");
@@ -56,6 +67,8 @@ fn sources() -> Vec<(PathBuf, String)> {
                     && trimmed.ends_with('{')
                 {
                     in_test = Some(1);
+                    // The `#[cfg(test)]` line above belongs to the test module too.
+                    outside -= 2;
                     cfg_test = false;
                     kept.push("");
                     continue;
@@ -70,7 +83,7 @@ fn sources() -> Vec<(PathBuf, String)> {
                 p.display()
             );
             let rel = p.strip_prefix(root).unwrap().to_path_buf();
-            (rel, kept.join("\n"))
+            (rel, kept.join("\n"), outside)
         })
         .collect()
 }
@@ -575,4 +588,114 @@ fn the_command_line_is_thin() {
         "src/bin: {lines} lines (at most 2 500); functions over 60 lines:\n{}",
         long.join("\n")
     );
+}
+
+/// No file of the library or the protocol crate is over 800 lines outside its test module
+/// (the message table excepted: one row per message), and no function over 100 lines: a
+/// longer one holds more than one concept. An exception is named here with its reason, and an
+/// exception no longer needed fails the test too (the lists only shrink).
+#[test]
+fn files_and_functions_stay_small() {
+    const LONG_FILES: &[(&str, &str)] = &[
+        (
+            "protocol/src/message.rs",
+            "the message table: one row per message of the protocol",
+        ),
+        to_split_file("src/calibration/online.rs"),
+        to_split_file("src/hal/conformance.rs"),
+        to_split_file("src/mock/roboclaw.rs"),
+        to_split_file("src/offline/dataset.rs"),
+        to_split_file("src/report/plots.rs"),
+        to_split_file("src/ros/live.rs"),
+        to_split_file("src/ros/yaml.rs"),
+        to_split_file("src/routine/mod.rs"),
+        to_split_file("protocol/src/device/mod.rs"),
+    ];
+    // `file function`.
+    const LONG_FUNCTIONS: &[(&str, &str)] = &[
+        to_split_fn("src/calibration/online.rs update_pose"),
+        to_split_fn("src/calibration/pose_calibration.rs calibrate_from_poses"),
+        to_split_fn("src/calibration/pose_fit/mod.rs fit_poses"),
+        to_split_fn("src/calibration/pose_fit/problem.rs new"),
+        to_split_fn("src/calibration/pose_fit/stages.rs fit_kind"),
+        to_split_fn("src/calibration/swing.rs fit"),
+        to_split_fn("src/hal/conformance.rs run"),
+        to_split_fn("src/hal/link.rs run"),
+        to_split_fn("src/mock/rosbridge/mod.rs physics"),
+        to_split_fn("src/mock/rosbridge/services.rs parameters"),
+        to_split_fn("src/mock/serve.rs serve"),
+        to_split_fn("src/report/mod.rs markdown"),
+        to_split_fn("src/report/plots.rs estimates_plot"),
+        to_split_fn("src/report/plots.rs heading_plot"),
+        to_split_fn("src/report/text.rs replay"),
+        to_split_fn("src/roboclaw/drive.rs wheels_by"),
+        to_split_fn("src/ros/bag/reference.rs read_pose_container"),
+        to_split_fn("src/ros/bag/tf.rs read_tf_container"),
+        to_split_fn("src/ros/live.rs connect"),
+        to_split_fn("src/ros/live.rs motion_once"),
+        to_split_fn("src/ros/yaml.rs plan"),
+        to_split_fn("src/routine/config.rs validate"),
+        to_split_fn("src/routine/track.rs track_live"),
+        to_split_fn("src/sim/driving.rs simulate_drive"),
+        to_split_fn("protocol/src/device/mod.rs execute"),
+    ];
+    let mut files = Vec::new();
+    let mut functions = Vec::new();
+    for dir in ["src", "protocol/src"] {
+        let sources = sources_under(dir);
+        for (p, _, outside) in &sources {
+            if *outside > 800 {
+                files.push((p.display().to_string(), *outside));
+            }
+        }
+        let code: Vec<(PathBuf, String)> =
+            sources.into_iter().map(|(p, code, _)| (p, code)).collect();
+        functions.extend(long_functions(&code, dir, 100));
+    }
+    let new_files: Vec<String> = files
+        .iter()
+        .filter(|(f, _)| !LONG_FILES.iter().any(|(e, _)| e == f))
+        .map(|(f, n)| format!("{f} ({n} lines outside its tests)"))
+        .collect();
+    // `long_functions` says `file:line name (n lines)`.
+    let named = |f: &str, e: &str| {
+        let (file, name) = e.split_once(' ').unwrap_or((e, ""));
+        f.starts_with(&format!("{file}:")) && f.contains(&format!(" {name} ("))
+    };
+    let new_functions: Vec<&String> = functions
+        .iter()
+        .filter(|f| !LONG_FUNCTIONS.iter().any(|(e, _)| named(f, e)))
+        .collect();
+    let stale: Vec<&str> = LONG_FILES
+        .iter()
+        .filter(|(e, _)| !files.iter().any(|(f, _)| f == e))
+        .chain(
+            LONG_FUNCTIONS
+                .iter()
+                .filter(|(e, _)| !functions.iter().any(|f| named(f, e))),
+        )
+        .map(|(e, _)| *e)
+        .collect();
+    assert!(
+        new_files.is_empty() && new_functions.is_empty() && stale.is_empty(),
+        "files over 800 lines:\n{}\nfunctions over 100 lines:\n{}\nexceptions no longer \
+         needed (take them off the lists):\n{}",
+        new_files.join("\n"),
+        new_functions
+            .iter()
+            .map(|f| f.as_str())
+            .collect::<Vec<_>>()
+            .join("\n"),
+        stale.join("\n")
+    );
+}
+
+/// An exception while issue 31's file splits are under way (chunks 10–12 of
+/// docs/refactor_plan.md): each is to be split and taken off.
+const fn to_split_file(file: &'static str) -> (&'static str, &'static str) {
+    (file, "not yet split by concept (issue 31)")
+}
+
+const fn to_split_fn(function: &'static str) -> (&'static str, &'static str) {
+    (function, "not yet split into steps (issue 31)")
 }
