@@ -608,7 +608,6 @@ fn files_and_functions_stay_small() {
         to_split_file("src/report/plots.rs"),
         to_split_file("src/ros/live.rs"),
         to_split_file("src/ros/yaml.rs"),
-        to_split_file("src/routine/mod.rs"),
         to_split_file("protocol/src/device/mod.rs"),
     ];
     // `file function`.
