@@ -602,7 +602,6 @@ fn files_and_functions_stay_small() {
             "the message table: one row per message of the protocol",
         ),
         to_split_file("src/calibration/online.rs"),
-        to_split_file("src/mock/roboclaw.rs"),
         to_split_file("src/offline/dataset.rs"),
         to_split_file("src/report/plots.rs"),
         to_split_file("src/ros/live.rs"),
