@@ -225,7 +225,10 @@ fn clocks_are_aligned_and_squares_found_in_one_place_each() {
         ),
         (
             "predict_travel(",
-            &["src/calibration/online/mod.rs", "src/calibration/recording.rs"][..],
+            &[
+                "src/calibration/online/mod.rs",
+                "src/calibration/recording.rs",
+            ][..],
         ),
         ("tokio_serial::new(", &["src/io/serial.rs"][..]),
         ("open_native_async", &["src/io/serial.rs"][..]),
@@ -260,7 +263,10 @@ fn backends_are_listed_in_the_registry_only() {
         ),
         ("::STORE_BACKEND,", &["src/spec/registry.rs"][..]),
         ("contains(\"baud=\")", &[][..]),
-        ("starts_with(\"rosbridge://\")", &["src/ros/live.rs"][..]),
+        (
+            "starts_with(\"rosbridge://\")",
+            &["src/ros/live/mod.rs"][..],
+        ),
         ("strip_prefix(\"profile:\")", &[][..]),
         // One rule for a fresh reading of a streaming sensor (base/latest.rs).
         (
@@ -302,9 +308,9 @@ fn parameters_are_written_through_the_write_service_only() {
         // A store's own commit, inside its implementation of the seam.
         (
             ".commit()",
-            &["src/base/transaction.rs", "src/ros/live.rs"][..],
+            &["src/base/transaction.rs", "src/ros/live/store.rs"][..],
         ),
-        ("set_multipliers(", &["src/ros/live.rs"][..]),
+        ("set_multipliers(", &["src/ros/live/store.rs"][..]),
         // The controller's requests, inside its client and its adapter to the seam.
         (".set_params(", &["src/hal/base.rs"][..]),
         (".save_params(", &["src/hal/base.rs"][..]),
@@ -603,7 +609,6 @@ fn files_and_functions_stay_small() {
         ),
         to_split_file("src/offline/dataset.rs"),
         to_split_file("src/report/plots.rs"),
-        to_split_file("src/ros/live.rs"),
         to_split_file("src/ros/yaml.rs"),
     ];
     // `file function`.
@@ -626,8 +631,8 @@ fn files_and_functions_stay_small() {
         to_split_fn("src/roboclaw/drive.rs wheels_by"),
         to_split_fn("src/ros/bag/reference.rs read_pose_container"),
         to_split_fn("src/ros/bag/tf.rs read_tf_container"),
-        to_split_fn("src/ros/live.rs connect"),
-        to_split_fn("src/ros/live.rs motion_once"),
+        to_split_fn("src/ros/live/mod.rs connect"),
+        to_split_fn("src/ros/live/drive.rs motion_once"),
         to_split_fn("src/ros/yaml.rs plan"),
         to_split_fn("src/routine/config.rs validate"),
         to_split_fn("src/routine/track.rs track_live"),
