@@ -607,32 +607,7 @@ fn files_and_functions_stay_small() {
         "the message table: one row per message of the protocol",
     )];
     // `file function`.
-    const LONG_FUNCTIONS: &[(&str, &str)] = &[
-        to_split_fn("src/calibration/online/update.rs update_pose"),
-        to_split_fn("src/calibration/pose_calibration.rs calibrate_from_poses"),
-        to_split_fn("src/calibration/pose_fit/mod.rs fit_poses"),
-        to_split_fn("src/calibration/pose_fit/problem.rs new"),
-        to_split_fn("src/calibration/pose_fit/stages.rs fit_kind"),
-        to_split_fn("src/calibration/swing.rs fit"),
-        to_split_fn("src/hal/conformance/mod.rs run"),
-        to_split_fn("src/hal/link.rs run"),
-        to_split_fn("src/mock/rosbridge/mod.rs physics"),
-        to_split_fn("src/mock/rosbridge/services.rs parameters"),
-        to_split_fn("src/mock/serve.rs serve"),
-        to_split_fn("src/report/mod.rs markdown"),
-        to_split_fn("src/report/plots/estimates.rs estimates_plot"),
-        to_split_fn("src/report/plots/headings.rs heading_plot"),
-        to_split_fn("src/report/text.rs replay"),
-        to_split_fn("src/roboclaw/drive.rs wheels_by"),
-        to_split_fn("src/ros/bag/reference.rs read_pose_container"),
-        to_split_fn("src/ros/bag/tf.rs read_tf_container"),
-        to_split_fn("src/ros/live/mod.rs connect"),
-        to_split_fn("src/ros/live/drive.rs motion_once"),
-        to_split_fn("src/ros/yaml/merge.rs plan"),
-        to_split_fn("src/routine/config.rs validate"),
-        to_split_fn("src/routine/track.rs track_live"),
-        to_split_fn("src/sim/driving.rs simulate_drive"),
-    ];
+    const LONG_FUNCTIONS: &[(&str, &str)] = &[];
     let mut files = Vec::new();
     let mut functions = Vec::new();
     for dir in ["src", "protocol/src"] {
@@ -682,10 +657,4 @@ fn files_and_functions_stay_small() {
             .join("\n"),
         stale.join("\n")
     );
-}
-
-/// An exception while issue 31's function splits are under way (chunk 12 of
-/// docs/refactor_plan.md): each is to be split into steps and taken off.
-const fn to_split_fn(function: &'static str) -> (&'static str, &'static str) {
-    (function, "not yet split into steps (issue 31)")
 }

@@ -170,33 +170,7 @@ pub fn calibrate_from_poses(
     let mut results = Vec::new();
     let mut first_refusal: Option<CalibrationError> = None;
     for (name, rec) in recordings {
-        let drive = survey(rec, config.nominal);
-        // A reference in another convention is an error of the input, whatever the others do.
-        drive.diagnose().map_err(|e| prefix(name, e))?;
-        let mut result = RecordingResult {
-            name: name.clone(),
-            survey: drive.clone(),
-            fit: None,
-            observability: None,
-            baseline: None,
-            left_out: None,
-        };
-        if let Err(e) = drive.require() {
-            result.left_out = Some(e.to_string());
-            first_refusal.get_or_insert(e);
-            results.push(result);
-            continue;
-        }
-        let fit = fit_poses(rec, config).map_err(|e| prefix(name, e))?;
-        let obs = judge(&fit);
-        if let Err(e) = obs.require_geometry() {
-            result.left_out = Some(e.to_string());
-            first_refusal.get_or_insert(e);
-        }
-        result.baseline = fit_multipliers(rec, config.nominal).ok();
-        result.fit = Some(fit);
-        result.observability = Some(obs);
-        results.push(result);
+        results.push(fit_recording(name, rec, config, &mut first_refusal)?);
     }
     let in_pool: Vec<&PoseFit> = results
         .iter()
@@ -208,29 +182,8 @@ pub fn calibrate_from_poses(
             CalibrationError::PoseInput("no recording could be fitted".into())
         }));
     }
-    let mut pooled = Vec::new();
-    for p in Param::ALL {
-        let fitted: Vec<&&PoseFit> = in_pool.iter().filter(|f| f.free.contains(&p)).collect();
-        if fitted.is_empty() {
-            continue;
-        }
-        let y: Vec<f64> = fitted.iter().map(|f| f.value(p)).collect();
-        let se: Vec<Option<f64>> = fitted.iter().map(|f| f.std(p)).collect();
-        pooled.push(pool_one(p.name(), &y, &se));
-    }
-    let value = |p: Param| {
-        pooled
-            .iter()
-            .find(|q| q.parameter == p.name())
-            .map(|q| q.value)
-    };
-    let geometry = Geometry {
-        left_diameter_m: value(Param::LeftDiameter).unwrap_or(config.nominal.left_diameter_m),
-        right_diameter_m: value(Param::RightDiameter)
-            .or(value(Param::LeftDiameter))
-            .unwrap_or(config.nominal.right_diameter_m),
-        wheelbase_m: value(Param::Wheelbase).unwrap_or(config.nominal.wheelbase_m),
-    };
+    let pooled = pool_parameters(&in_pool);
+    let geometry = pooled_geometry(&pooled, config.nominal);
     let e_d = pool_one(
         "e_d",
         &in_pool.iter().map(|f| f.e_d()).collect::<Vec<_>>(),
@@ -247,12 +200,93 @@ pub fn calibrate_from_poses(
             .map(|f| Some(f.e_b_std()))
             .collect::<Vec<_>>(),
     );
+    let baseline_geometry = mean_baseline_geometry(&results);
+    Ok(PoseCalibration {
+        nominal: config.nominal,
+        recordings: results,
+        pooled,
+        geometry,
+        e_d,
+        e_b,
+        baseline_geometry,
+    })
+}
+
+/// Surveys, fits and judges one recording: a refusal leaves it out, an input error stops all.
+fn fit_recording(
+    name: &str,
+    rec: &PoseRecording,
+    config: &FitConfig,
+    first_refusal: &mut Option<CalibrationError>,
+) -> Result<RecordingResult, CalibrationError> {
+    let drive = survey(rec, config.nominal);
+    // A reference in another convention is an error of the input, whatever the others do.
+    drive.diagnose().map_err(|e| prefix(name, e))?;
+    let mut result = RecordingResult {
+        name: name.to_owned(),
+        survey: drive.clone(),
+        fit: None,
+        observability: None,
+        baseline: None,
+        left_out: None,
+    };
+    if let Err(e) = drive.require() {
+        result.left_out = Some(e.to_string());
+        first_refusal.get_or_insert(e);
+        return Ok(result);
+    }
+    let fit = fit_poses(rec, config).map_err(|e| prefix(name, e))?;
+    let obs = judge(&fit);
+    if let Err(e) = obs.require_geometry() {
+        result.left_out = Some(e.to_string());
+        first_refusal.get_or_insert(e);
+    }
+    result.baseline = fit_multipliers(rec, config.nominal).ok();
+    result.fit = Some(fit);
+    result.observability = Some(obs);
+    Ok(result)
+}
+
+/// Pools each parameter over the fits in the pool that left it free, in `Param::ALL` order.
+fn pool_parameters(in_pool: &[&PoseFit]) -> Vec<PooledParameter> {
+    let mut pooled = Vec::new();
+    for p in Param::ALL {
+        let fitted: Vec<&&PoseFit> = in_pool.iter().filter(|f| f.free.contains(&p)).collect();
+        if fitted.is_empty() {
+            continue;
+        }
+        let y: Vec<f64> = fitted.iter().map(|f| f.value(p)).collect();
+        let se: Vec<Option<f64>> = fitted.iter().map(|f| f.std(p)).collect();
+        pooled.push(pool_one(p.name(), &y, &se));
+    }
+    pooled
+}
+
+/// The geometry from the pooled parameters, falling back to the nominal where one was not fitted.
+fn pooled_geometry(pooled: &[PooledParameter], nominal: Geometry) -> Geometry {
+    let value = |p: Param| {
+        pooled
+            .iter()
+            .find(|q| q.parameter == p.name())
+            .map(|q| q.value)
+    };
+    Geometry {
+        left_diameter_m: value(Param::LeftDiameter).unwrap_or(nominal.left_diameter_m),
+        right_diameter_m: value(Param::RightDiameter)
+            .or(value(Param::LeftDiameter))
+            .unwrap_or(nominal.right_diameter_m),
+        wheelbase_m: value(Param::Wheelbase).unwrap_or(nominal.wheelbase_m),
+    }
+}
+
+/// The plain mean of the pooled recordings' multiplier baselines; `None` when there is none.
+fn mean_baseline_geometry(results: &[RecordingResult]) -> Option<Geometry> {
     let baselines: Vec<&MultiplierFit> = results
         .iter()
         .filter(|r| r.left_out.is_none())
         .filter_map(|r| r.baseline.as_ref())
         .collect();
-    let baseline_geometry = (!baselines.is_empty()).then(|| {
+    (!baselines.is_empty()).then(|| {
         let n = baselines.len() as f64;
         let d = baselines
             .iter()
@@ -268,15 +302,6 @@ pub fn calibrate_from_poses(
                 .sum::<f64>()
                 / n,
         }
-    });
-    Ok(PoseCalibration {
-        nominal: config.nominal,
-        recordings: results,
-        pooled,
-        geometry,
-        e_d,
-        e_b,
-        baseline_geometry,
     })
 }
 

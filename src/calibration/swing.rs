@@ -390,32 +390,7 @@ pub fn fit(turns: &[Vec<SwingPoint>], noise_std_rad: Option<f64>) -> Result<Swin
     let mut rows: Vec<(usize, f64, f64)> = Vec::new();
     let mut turned = Vec::with_capacity(turns.len());
     for (j, turn) in turns.iter().enumerate() {
-        let usable: Vec<&SwingPoint> = turn
-            .iter()
-            .filter(|p| p.odometry_turn_rad.is_finite() && p.heading_rad.is_finite())
-            .collect();
-        let (Some(first), Some(last)) = (usable.first(), usable.last()) else {
-            return Err(SwingError::NoReadings { turn: j + 1 });
-        };
-        let span = last.odometry_turn_rad - first.odometry_turn_rad;
-        if span.abs() < MIN_TURN_RAD {
-            return Err(SwingError::TurnTooShort {
-                turn: j + 1,
-                covered_deg: span.abs().to_degrees(),
-                needed_deg: MIN_TURN_RAD.to_degrees(),
-            });
-        }
-        let gap = usable
-            .windows(2)
-            .map(|w| (w[1].odometry_turn_rad - w[0].odometry_turn_rad).abs())
-            .fold(0.0, f64::max);
-        if gap > MAX_GAP_RAD {
-            return Err(SwingError::Gap {
-                turn: j + 1,
-                gap_deg: gap.to_degrees(),
-                max_deg: MAX_GAP_RAD.to_degrees(),
-            });
-        }
+        let (span, usable) = usable_readings(j, turn)?;
         turned.push(span);
         rows.extend(
             unwrap_along(&usable)
@@ -427,6 +402,73 @@ pub fn fit(turns: &[Vec<SwingPoint>], noise_std_rad: Option<f64>) -> Result<Swin
     if (0..turns.len()).all(ccw) || !(0..turns.len()).any(ccw) {
         return Err(SwingError::OneDirection(direction_name(ccw(0))));
     }
+    check_coverage(&rows, &turned)?;
+    let nt = turns.len();
+    let all = solve(&rows, nt)?;
+    // The turns each way alone: the same compass on the same robot gives the same curve.
+    let (left, right) = (
+        solve_one_direction(&rows, &turned, true)?,
+        solve_one_direction(&rows, &turned, false)?,
+    );
+    let difference = Deviation(std::array::from_fn(|k| {
+        left.deviation.0[k] - right.deviation.0[k]
+    }))
+    .amplitude();
+    let difference_std: f64 = (0..4)
+        .map(|k| left.std_err[k].powi(2) + right.std_err[k].powi(2))
+        .sum::<f64>()
+        .sqrt();
+    let amplitude = check_solution(&all, difference, difference_std, noise_std_rad)?;
+    let measured = measured(&rows, &all);
+    Ok(SwingFit {
+        deviation: all.deviation,
+        deviation_std_err_rad: all.std_err,
+        amplitude_rad: amplitude,
+        turn_scale: all.scale,
+        turn_scale_std_err: all.scale_std_err,
+        offsets_rad: all.offsets,
+        turned_rad: turned,
+        residual_rms_rad: all.residual_rms,
+        direction_difference_rad: difference,
+        points: rows.len(),
+        measured,
+    })
+}
+
+/// Turn `j`'s finite readings and its odometry turn, once it is long enough and has no gap.
+fn usable_readings(j: usize, turn: &[SwingPoint]) -> Result<(f64, Vec<&SwingPoint>), SwingError> {
+    let usable: Vec<&SwingPoint> = turn
+        .iter()
+        .filter(|p| p.odometry_turn_rad.is_finite() && p.heading_rad.is_finite())
+        .collect();
+    let (Some(first), Some(last)) = (usable.first(), usable.last()) else {
+        return Err(SwingError::NoReadings { turn: j + 1 });
+    };
+    let span = last.odometry_turn_rad - first.odometry_turn_rad;
+    if span.abs() < MIN_TURN_RAD {
+        return Err(SwingError::TurnTooShort {
+            turn: j + 1,
+            covered_deg: span.abs().to_degrees(),
+            needed_deg: MIN_TURN_RAD.to_degrees(),
+        });
+    }
+    let gap = usable
+        .windows(2)
+        .map(|w| (w[1].odometry_turn_rad - w[0].odometry_turn_rad).abs())
+        .fold(0.0, f64::max);
+    if gap > MAX_GAP_RAD {
+        return Err(SwingError::Gap {
+            turn: j + 1,
+            gap_deg: gap.to_degrees(),
+            max_deg: MAX_GAP_RAD.to_degrees(),
+        });
+    }
+    Ok((span, usable))
+}
+
+/// Checks every sector of the heading was read in each direction (`turned`: each turn's turn).
+fn check_coverage(rows: &[(usize, f64, f64)], turned: &[f64]) -> Result<(), SwingError> {
+    let ccw = |j: usize| turned[j] > 0.0;
     // Every sector of the heading read in each direction (the readings stand for ψ here: they
     // differ from it by the deviation, well inside a sector).
     for counter_clockwise in [true, false] {
@@ -446,33 +488,39 @@ pub fn fit(turns: &[Vec<SwingPoint>], noise_std_rad: Option<f64>) -> Result<Swin
             });
         }
     }
-    let nt = turns.len();
-    let all = solve(&rows, nt)?;
-    // The turns each way alone: the same compass on the same robot gives the same curve.
-    let alone = |counter_clockwise: bool| {
-        // Turn j of the swing is turn local[j] of its direction.
-        let mut local = vec![0; nt];
-        let mut count = 0;
-        for j in (0..nt).filter(|&j| ccw(j) == counter_clockwise) {
-            local[j] = count;
-            count += 1;
-        }
-        let rows: Vec<(usize, f64, f64)> = rows
-            .iter()
-            .filter(|r| ccw(r.0) == counter_clockwise)
-            .map(|&(j, phi, h)| (local[j], phi, h))
-            .collect();
-        solve(&rows, count)
-    };
-    let (left, right) = (alone(true)?, alone(false)?);
-    let difference = Deviation(std::array::from_fn(|k| {
-        left.deviation.0[k] - right.deviation.0[k]
-    }))
-    .amplitude();
-    let difference_std: f64 = (0..4)
-        .map(|k| left.std_err[k].powi(2) + right.std_err[k].powi(2))
-        .sum::<f64>()
-        .sqrt();
+    Ok(())
+}
+
+/// The fit of the turns in one direction alone, renumbered among themselves.
+fn solve_one_direction(
+    rows: &[(usize, f64, f64)],
+    turned: &[f64],
+    counter_clockwise: bool,
+) -> Result<Solution, SwingError> {
+    let ccw = |j: usize| turned[j] > 0.0;
+    let nt = turned.len();
+    // Turn j of the swing is turn local[j] of its direction.
+    let mut local = vec![0; nt];
+    let mut count = 0;
+    for j in (0..nt).filter(|&j| ccw(j) == counter_clockwise) {
+        local[j] = count;
+        count += 1;
+    }
+    let rows: Vec<(usize, f64, f64)> = rows
+        .iter()
+        .filter(|r| ccw(r.0) == counter_clockwise)
+        .map(|&(j, phi, h)| (local[j], phi, h))
+        .collect();
+    solve(&rows, count)
+}
+
+/// Checks the fit's residual, the directions' agreement and the sizes; returns the amplitude.
+fn check_solution(
+    all: &Solution,
+    difference: f64,
+    difference_std: f64,
+    noise_std_rad: Option<f64>,
+) -> Result<f64, SwingError> {
     let residual_limit = noise_std_rad
         .filter(|s| s.is_finite() && *s > 0.0)
         .map_or(RESIDUAL_UNKNOWN_NOISE_RAD, |s| {
@@ -504,20 +552,7 @@ pub fn fit(turns: &[Vec<SwingPoint>], noise_std_rad: Option<f64>) -> Result<Swin
             max_error: 100.0 * MAX_SCALE_ERROR,
         });
     }
-    let measured = measured(&rows, &all);
-    Ok(SwingFit {
-        deviation: all.deviation,
-        deviation_std_err_rad: all.std_err,
-        amplitude_rad: amplitude,
-        turn_scale: all.scale,
-        turn_scale_std_err: all.scale_std_err,
-        offsets_rad: all.offsets,
-        turned_rad: turned,
-        residual_rms_rad: all.residual_rms,
-        direction_difference_rad: difference,
-        points: rows.len(),
-        measured,
-    })
+    Ok(amplitude)
 }
 
 #[cfg(test)]

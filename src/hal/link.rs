@@ -148,6 +148,20 @@ struct Unwrap {
     time_us: u64,
 }
 
+/// What the link task keeps between turns of its loop.
+struct State {
+    /// The sequence number last used.
+    seq: u8,
+    /// Requests waiting their turn.
+    queue: VecDeque<Queued>,
+    /// The request in flight.
+    pending: Option<Pending>,
+    /// Why the link is gone, once it is.
+    closed: Option<LinkError>,
+    /// Whether this host sent a request that moves the base.
+    moved: bool,
+}
+
 pub(super) struct Link {
     pub(super) config: LinkConfig,
     pub(super) stats: Arc<LinkStats>,
@@ -164,130 +178,152 @@ impl Link {
         let mut codec = FrameCodec::new();
         let mut buf = BytesMut::new();
         let mut chunk = [0u8; 1024];
-        let mut seq: u8 = 0;
-        let mut queue: VecDeque<Queued> = VecDeque::new();
-        let mut pending: Option<Pending> = None;
+        let mut st = State {
+            seq: 0,
+            queue: VecDeque::new(),
+            pending: None,
+            closed: None,
+            moved: false,
+        };
         let mut unwrap = Unwrap::default();
-        let mut closed: Option<LinkError> = None;
-        let mut moved = false;
         loop {
-            if pending.is_none() && closed.is_none() {
-                if let Some((request, budget, reply)) = queue.pop_front() {
-                    moved |= request.moves_robot();
-                    seq = seq.wrapping_add(1);
-                    let busy_left = self.config.busy_retries;
-                    match self
-                        .start(&mut wr, request, seq, busy_left, Some(reply))
-                        .await
-                    {
-                        Ok(mut p) => {
-                            if let Some(b) = budget {
-                                p.budget = b;
-                                // A budget of its own (HELLO while a board boots): its answer
-                                // time is the board's, not the link's.
-                                p.measures_link = false;
-                            }
-                            pending = Some(p);
-                        }
-                        Err(e) => closed = Some(e),
-                    }
-                }
+            if st.pending.is_none() && st.closed.is_none() {
+                self.start_next(&mut wr, &mut st).await;
             }
-            if let Some(err) = &closed {
+            if let Some(err) = &st.closed {
                 // The link is gone: fail everything now and anything asked later.
-                if let Some(p) = pending.take() {
-                    fail(p.reply, err.clone());
+                if refuse_while_closed(err, &mut st.pending, &mut st.queue, &mut commands).await {
+                    continue;
                 }
-                for (_, _, reply) in queue.drain(..) {
-                    let _ = reply.send(Err(HalError::Link(err.clone())));
-                }
-                match commands.recv().await {
-                    Some(Command::Request { reply, .. }) => {
-                        let _ = reply.send(Err(HalError::Link(err.clone())));
-                        continue;
-                    }
-                    Some(Command::EmergencyStop) => continue,
-                    Some(Command::Close) | None => return,
-                }
+                return;
             }
-            let deadline = pending.as_ref().map(|p| p.deadline);
+            let deadline = st.pending.as_ref().map(|p| p.deadline);
             // In a fixed order (commands, then what arrived, then a deadline): the same bytes
             // give the same exchanges, so a simulated link's losses repeat run after run.
             tokio::select! {
                 biased;
-                cmd = commands.recv() => match cmd {
-                    Some(Command::Close) | None => {
-                        for (_, _, reply) in queue.drain(..) {
-                            let _ = reply.send(Err(HalError::Link(LinkError::Closed)));
-                        }
-                        if let Some(p) = pending.take() {
-                            fail(p.reply, LinkError::Closed);
-                        }
-                        // Every client handle is gone, or one asked to let go: if this host moved
-                        // the base, stop it before letting go (read-only sessions leave it alone).
-                        if moved {
-                            let _ = self.start(&mut wr, Request::Stop, seq.wrapping_add(1), 0, None).await;
-                        }
+                cmd = commands.recv() => {
+                    if !self.on_command(cmd, &mut wr, &mut st).await {
                         return;
                     }
-                    Some(Command::Request { request, budget, reply }) => {
-                        queue.push_back((request, budget, reply));
-                    }
-                    Some(Command::EmergencyStop) => {
-                        if let Some(p) = pending.take() {
-                            fail(p.reply, LinkError::Cancelled);
-                        }
-                        for (_, _, reply) in queue.drain(..) {
-                            let _ = reply.send(Err(HalError::Link(LinkError::Cancelled)));
-                        }
-                        seq = seq.wrapping_add(1);
-                        match self.start(&mut wr, Request::Stop, seq, 0, None).await {
-                            Ok(p) => pending = Some(p),
-                            Err(e) => closed = Some(e),
-                        }
-                    }
-                },
+                }
                 read = rd.read(&mut chunk) => match read {
-                    Ok(0) => closed = Some(LinkError::Closed),
-                    Err(e) => closed = Some(e.into()),
+                    Ok(0) => st.closed = Some(LinkError::Closed),
+                    Err(e) => st.closed = Some(e.into()),
                     Ok(n) => {
                         for frame in codec.feed(&mut buf, &chunk[..n]) {
                             self.stats.frames_received.fetch_add(1, Ordering::Relaxed);
-                            self.dispatch(&frame, &mut pending, &mut unwrap);
+                            self.dispatch(&frame, &mut st.pending, &mut unwrap);
                         }
                         self.stats.decoder_dropped_bytes.store(codec.stats().bytes_dropped, Ordering::Relaxed);
                     }
                 },
-                () = sleep_until_opt(deadline) => {
-                    if let Some(mut p) = pending.take() {
-                        if p.resend_new_seq {
-                            seq = seq.wrapping_add(1);
-                            let reply = p.reply.take();
-                            match self.start(&mut wr, p.request, seq, p.busy_left, reply).await {
-                                Ok(np) => pending = Some(np),
-                                Err(e) => closed = Some(e),
-                            }
-                        } else if p.attempts <= self.config.retries
-                            || p.first_sent.elapsed() < p.budget
-                        {
-                            self.stats.retries.fetch_add(1, Ordering::Relaxed);
-                            p.attempts += 1;
-                            p.deadline = Instant::now() + self.deadline(&p.request);
-                            if let Err(e) = write(&mut wr, &p.bytes).await {
-                                closed = Some(e);
-                            }
-                            pending = Some(p);
-                        } else {
-                            self.stats.timeouts.fetch_add(1, Ordering::Relaxed);
-                            let after = p.first_sent.elapsed();
-                            fail(p.reply, LinkError::Timeout {
-                                msg: p.request.msg(),
-                                attempts: p.attempts,
-                                after,
-                            });
-                        }
+                () = sleep_until_opt(deadline) => self.on_deadline(&mut wr, &mut st).await,
+            }
+        }
+    }
+
+    /// Sends the next queued request, if any, as the one in flight.
+    async fn start_next<W: AsyncWrite + Unpin>(&self, wr: &mut W, st: &mut State) {
+        if let Some((request, budget, reply)) = st.queue.pop_front() {
+            st.moved |= request.moves_robot();
+            st.seq = st.seq.wrapping_add(1);
+            let busy_left = self.config.busy_retries;
+            match self
+                .start(wr, request, st.seq, busy_left, Some(reply))
+                .await
+            {
+                Ok(mut p) => {
+                    if let Some(b) = budget {
+                        p.budget = b;
+                        // A budget of its own (HELLO while a board boots): its answer
+                        // time is the board's, not the link's.
+                        p.measures_link = false;
                     }
+                    st.pending = Some(p);
                 }
+                Err(e) => st.closed = Some(e),
+            }
+        }
+    }
+
+    /// Handles a client's command; false when the task is to end (Close, or no client left).
+    async fn on_command<W: AsyncWrite + Unpin>(
+        &self,
+        cmd: Option<Command>,
+        wr: &mut W,
+        st: &mut State,
+    ) -> bool {
+        match cmd {
+            Some(Command::Close) | None => {
+                for (_, _, reply) in st.queue.drain(..) {
+                    let _ = reply.send(Err(HalError::Link(LinkError::Closed)));
+                }
+                if let Some(p) = st.pending.take() {
+                    fail(p.reply, LinkError::Closed);
+                }
+                // Every client handle is gone, or one asked to let go: if this host moved
+                // the base, stop it before letting go (read-only sessions leave it alone).
+                if st.moved {
+                    let _ = self
+                        .start(wr, Request::Stop, st.seq.wrapping_add(1), 0, None)
+                        .await;
+                }
+                return false;
+            }
+            Some(Command::Request {
+                request,
+                budget,
+                reply,
+            }) => {
+                st.queue.push_back((request, budget, reply));
+            }
+            Some(Command::EmergencyStop) => {
+                if let Some(p) = st.pending.take() {
+                    fail(p.reply, LinkError::Cancelled);
+                }
+                for (_, _, reply) in st.queue.drain(..) {
+                    let _ = reply.send(Err(HalError::Link(LinkError::Cancelled)));
+                }
+                st.seq = st.seq.wrapping_add(1);
+                match self.start(wr, Request::Stop, st.seq, 0, None).await {
+                    Ok(p) => st.pending = Some(p),
+                    Err(e) => st.closed = Some(e),
+                }
+            }
+        }
+        true
+    }
+
+    /// At the deadline: resends after BUSY, retries within the budget, or fails as timed out.
+    async fn on_deadline<W: AsyncWrite + Unpin>(&self, wr: &mut W, st: &mut State) {
+        if let Some(mut p) = st.pending.take() {
+            if p.resend_new_seq {
+                st.seq = st.seq.wrapping_add(1);
+                let reply = p.reply.take();
+                match self.start(wr, p.request, st.seq, p.busy_left, reply).await {
+                    Ok(np) => st.pending = Some(np),
+                    Err(e) => st.closed = Some(e),
+                }
+            } else if p.attempts <= self.config.retries || p.first_sent.elapsed() < p.budget {
+                self.stats.retries.fetch_add(1, Ordering::Relaxed);
+                p.attempts += 1;
+                p.deadline = Instant::now() + self.deadline(&p.request);
+                if let Err(e) = write(wr, &p.bytes).await {
+                    st.closed = Some(e);
+                }
+                st.pending = Some(p);
+            } else {
+                self.stats.timeouts.fetch_add(1, Ordering::Relaxed);
+                let after = p.first_sent.elapsed();
+                fail(
+                    p.reply,
+                    LinkError::Timeout {
+                        msg: p.request.msg(),
+                        attempts: p.attempts,
+                        after,
+                    },
+                );
             }
         }
     }
@@ -462,6 +498,29 @@ impl Link {
             queue_depth: t.queue_depth,
             dropped_before: dropped,
         });
+    }
+}
+
+/// With the link gone: fails pending, queued and next requests; false when the task is to end.
+async fn refuse_while_closed(
+    err: &LinkError,
+    pending: &mut Option<Pending>,
+    queue: &mut VecDeque<Queued>,
+    commands: &mut mpsc::UnboundedReceiver<Command>,
+) -> bool {
+    if let Some(p) = pending.take() {
+        fail(p.reply, err.clone());
+    }
+    for (_, _, reply) in queue.drain(..) {
+        let _ = reply.send(Err(HalError::Link(err.clone())));
+    }
+    match commands.recv().await {
+        Some(Command::Request { reply, .. }) => {
+            let _ = reply.send(Err(HalError::Link(err.clone())));
+            true
+        }
+        Some(Command::EmergencyStop) => true,
+        Some(Command::Close) | None => false,
     }
 }
 

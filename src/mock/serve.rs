@@ -225,69 +225,92 @@ where
                 .disconnect_after_frames
                 .is_some_and(|n| faults.frames_in > n)
             {
-                // The link is gone but the firmware lives on: in real time it keeps executing
-                // (and its watchdog keeps watching) until the base is idle.
-                if let TimeMode::RealTime { scale } = time {
-                    while lock(&device).is_moving() {
-                        tokio::time::sleep(tick).await;
-                        let now = tokio::time::Instant::now();
-                        lock(&device).advance((now - last).as_secs_f64() * scale);
-                        last = now;
-                    }
-                }
+                run_on_until_idle(&device, time, tick, last).await;
                 return Ok(ServeEnd::Disconnected);
             }
             if faults.lose() {
                 continue;
             }
-            let mut out = Vec::new();
-            if frame.kind == FrameKind::Request {
-                faults.requests += 1;
-            }
-            let busy = frame.kind == FrameKind::Request
-                && faults
-                    .cfg
-                    .busy_every
-                    .is_some_and(|k| k > 0 && faults.requests.is_multiple_of(k));
-            if busy {
-                out.extend(MockDevice::busy(&frame));
-            } else if time == TimeMode::Virtual && is_open_ended_wheel_speed(&frame) {
-                // Virtual time cannot run "until the next command": refuse, naming the field.
-                out.push(
-                    crate::protocol::Packet::nack(
-                        frame.seq,
-                        frame.msg,
-                        crate::protocol::Nack {
-                            code: crate::protocol::NackCode::OutOfRange,
-                            detail: 2,
-                        },
-                    )
-                    .to_frame(),
-                );
-            } else {
-                let mut d = lock(&device);
-                if let TimeMode::RealTime { scale } = time {
-                    // Bring device time up to now before the request is executed.
-                    let now = tokio::time::Instant::now();
-                    out.extend(d.advance((now - last).as_secs_f64() * scale));
-                    last = now;
-                }
-                out.extend(d.handle(&frame));
-                if frame.kind == FrameKind::Request
-                    && faults.cfg.vanish_after_executing == Some(frame.msg)
-                {
-                    return Ok(ServeEnd::Disconnected);
-                }
-                if time == TimeMode::Virtual {
-                    out.extend(d.run_until_idle());
-                }
-            }
+            let Some(out) = answer(&device, &frame, time, &mut faults, &mut last) else {
+                return Ok(ServeEnd::Disconnected);
+            };
             if !faults.cfg.latency.is_zero() {
                 tokio::time::sleep(faults.cfg.latency).await;
             }
             send(&mut wr, out, &mut faults).await?;
         }
     }
+}
+
+/// After the link is gone the firmware lives on: in real time it keeps executing (and its
+/// watchdog keeps watching) until the base is idle; device time was last advanced at `last`.
+async fn run_on_until_idle(
+    device: &SharedDevice,
+    time: TimeMode,
+    tick: Duration,
+    mut last: tokio::time::Instant,
+) {
+    if let TimeMode::RealTime { scale } = time {
+        while lock(device).is_moving() {
+            tokio::time::sleep(tick).await;
+            let now = tokio::time::Instant::now();
+            lock(device).advance((now - last).as_secs_f64() * scale);
+            last = now;
+        }
+    }
+}
+
+/// The frames the device sends in answer to `frame` (a BUSY or a refusal injected, device time
+/// brought up to now from `last`), or `None` when it vanishes right after executing it.
+fn answer(
+    device: &SharedDevice,
+    frame: &Frame,
+    time: TimeMode,
+    faults: &mut Faults,
+    last: &mut tokio::time::Instant,
+) -> Option<Vec<Frame>> {
+    let mut out = Vec::new();
+    if frame.kind == FrameKind::Request {
+        faults.requests += 1;
+    }
+    let busy = frame.kind == FrameKind::Request
+        && faults
+            .cfg
+            .busy_every
+            .is_some_and(|k| k > 0 && faults.requests.is_multiple_of(k));
+    if busy {
+        out.extend(MockDevice::busy(frame));
+    } else if time == TimeMode::Virtual && is_open_ended_wheel_speed(frame) {
+        // Virtual time cannot run "until the next command": refuse, naming the field.
+        out.push(
+            crate::protocol::Packet::nack(
+                frame.seq,
+                frame.msg,
+                crate::protocol::Nack {
+                    code: crate::protocol::NackCode::OutOfRange,
+                    detail: 2,
+                },
+            )
+            .to_frame(),
+        );
+    } else {
+        let mut d = lock(device);
+        if let TimeMode::RealTime { scale } = time {
+            // Bring device time up to now before the request is executed.
+            let now = tokio::time::Instant::now();
+            out.extend(d.advance((now - *last).as_secs_f64() * scale));
+            *last = now;
+        }
+        out.extend(d.handle(frame));
+        if frame.kind == FrameKind::Request && faults.cfg.vanish_after_executing == Some(frame.msg)
+        {
+            return None;
+        }
+        if time == TimeMode::Virtual {
+            out.extend(d.run_until_idle());
+        }
+    }
+    Some(out)
 }
 
 fn is_open_ended_wheel_speed(frame: &Frame) -> bool {

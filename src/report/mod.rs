@@ -50,6 +50,19 @@ pub fn summary_table(report: &Report) -> String {
 /// The report as Markdown.
 pub fn markdown(report: &Report) -> String {
     let mut s = String::new();
+    markdown_intro(&mut s, report);
+    markdown_before_after(&mut s, report);
+    for r in &report.rounds {
+        markdown_round(&mut s, r, report.config.heading_samples);
+    }
+    markdown_verification(&mut s, report);
+    markdown_warnings(&mut s, report);
+    markdown_plots(&mut s, report);
+    s
+}
+
+/// Appends the title and the opening paragraphs: the robot, the routine, what was written.
+fn markdown_intro(s: &mut String, report: &Report) {
     let _ = writeln!(s, "# odocal recalibration report\n");
     let b = &report.base;
     let _ = writeln!(
@@ -80,58 +93,68 @@ pub fn markdown(report: &Report) -> String {
         report.heading_noise_rad.to_degrees(),
         report.converged,
     );
+}
+
+/// Appends the "Before and after" section: the summary table.
+fn markdown_before_after(s: &mut String, report: &Report) {
     let _ = writeln!(
         s,
         "## Before and after\n\n```text\n{}```\n",
         summary_table(report)
     );
-    for r in &report.rounds {
-        let _ = writeln!(s, "## Round {}\n", r.round);
+}
+
+/// Appends one round's section: its runs, its estimates and what became of them.
+fn markdown_round(s: &mut String, r: &RoundReport, heading_samples: usize) {
+    let _ = writeln!(s, "## Round {}\n", r.round);
+    let _ = writeln!(
+        s,
+        "| run | direction | heading error at rest (°) | along the legs (°) |\n|---|---|---|---|"
+    );
+    for (i, run) in r.runs.iter().enumerate() {
         let _ = writeln!(
             s,
-            "| run | direction | heading error at rest (°) | along the legs (°) |\n|---|---|---|---|"
-        );
-        for (i, run) in r.runs.iter().enumerate() {
-            let _ = writeln!(
-                s,
-                "| {} | {} | {:+.3} | {} |",
-                i + 1,
-                run.direction,
-                run.heading_error_deg,
-                run.leg_heading_error_rad
-                    .map_or("–".into(), |v| format!("{:+.3}", v.to_degrees()))
-            );
-        }
-        let _ = writeln!(s, "\n| method | E_b | ± | E_d | ± |\n|---|---|---|---|---|");
-        for e in &r.estimates {
-            let _ = writeln!(
-                s,
-                "| {}{} | {:.6} | {} | {:.6} | {} |",
-                e.method,
-                if e.method == r.chosen.method {
-                    " (chosen)"
-                } else {
-                    ""
-                },
-                e.e_b,
-                stated::pm_b(e),
-                e.e_d,
-                stated::pm_d(e)
-            );
-        }
-        let _ = writeln!(s, "\n{}", plus_minus(r, report.config.heading_samples));
-        let _ = writeln!(
-            s,
-            "\n{}\n",
-            if r.converged {
-                "Within tolerance: nothing to write.".to_string()
-            } else if r.written {
-                "Written and saved.".to_string()
-            } else {
-                "Not written.".to_string()
-            }
+            "| {} | {} | {:+.3} | {} |",
+            i + 1,
+            run.direction,
+            run.heading_error_deg,
+            run.leg_heading_error_rad
+                .map_or("–".into(), |v| format!("{:+.3}", v.to_degrees()))
         );
     }
+    let _ = writeln!(s, "\n| method | E_b | ± | E_d | ± |\n|---|---|---|---|---|");
+    for e in &r.estimates {
+        let _ = writeln!(
+            s,
+            "| {}{} | {:.6} | {} | {:.6} | {} |",
+            e.method,
+            if e.method == r.chosen.method {
+                " (chosen)"
+            } else {
+                ""
+            },
+            e.e_b,
+            stated::pm_b(e),
+            e.e_d,
+            stated::pm_d(e)
+        );
+    }
+    let _ = writeln!(s, "\n{}", plus_minus(r, heading_samples));
+    let _ = writeln!(
+        s,
+        "\n{}\n",
+        if r.converged {
+            "Within tolerance: nothing to write.".to_string()
+        } else if r.written {
+            "Written and saved.".to_string()
+        } else {
+            "Not written.".to_string()
+        }
+    );
+}
+
+/// Appends the "Verification" section, if the routine verified.
+fn markdown_verification(s: &mut String, report: &Report) {
     if !report.verification.is_empty() {
         let _ = writeln!(
             s,
@@ -148,6 +171,10 @@ pub fn markdown(report: &Report) -> String {
         }
         s.push('\n');
     }
+}
+
+/// Appends the "Warnings" section, if there are any.
+fn markdown_warnings(s: &mut String, report: &Report) {
     if !report.warnings.is_empty() {
         let _ = writeln!(s, "## Warnings\n");
         for w in &report.warnings {
@@ -155,11 +182,14 @@ pub fn markdown(report: &Report) -> String {
         }
         s.push('\n');
     }
+}
+
+/// Appends the "Plots" section: a link to each plot drawn.
+fn markdown_plots(s: &mut String, report: &Report) {
     let _ = writeln!(s, "## Plots\n");
     for (title, file) in plot_links(report) {
         let _ = writeln!(s, "![{title}]({file})\n");
     }
-    s
 }
 
 /// The plots the Markdown report links: those whose data the report holds (the plots module

@@ -262,6 +262,17 @@ pub fn replay(r: &Replay, sets: &[OptiOdomSet]) -> String {
         return out;
     };
     let runs: usize = sets.iter().map(|s| s.runs.len()).sum();
+    let pooled = r.datasets.len() > 1;
+    replay_intro(&mut out, r, calib, runs, pooled);
+    replay_estimates(&mut out, r, pooled);
+    replay_default_and_failures(&mut out, r, pooled);
+    replay_evaluations(&mut out, r);
+    out
+}
+
+/// Appends what the replay calibrated on (`calib` first, `runs` runs in all) and, when the sets
+/// are pooled, what its ± means.
+fn replay_intro(out: &mut String, r: &Replay, calib: &OptiOdomSet, runs: usize, pooled: bool) {
     let _ = writeln!(
         out,
         "calibrated on {} ({runs} runs, side {} m); estimates against {}'s configuration: \
@@ -273,7 +284,6 @@ pub fn replay(r: &Replay, sets: &[OptiOdomSet]) -> String {
         calib.configured.right_wheel_diameter_m,
         calib.configured.wheelbase_m
     );
-    let pooled = r.datasets.len() > 1;
     if pooled {
         let _ = writeln!(
             out,
@@ -283,6 +293,11 @@ pub fn replay(r: &Replay, sets: &[OptiOdomSet]) -> String {
              prediction_std)"
         );
     }
+}
+
+/// Appends the table of each method's estimate with its ± and spread, and (one session) the
+/// legend of its ±.
+fn replay_estimates(out: &mut String, r: &Replay, pooled: bool) {
     let _ = writeln!(
         out,
         "{:<13} {:>9} {:>10} {:>9} {:>10} {:>16}",
@@ -324,6 +339,10 @@ pub fn replay(r: &Replay, sets: &[OptiOdomSet]) -> String {
             let _ = writeln!(out, "{line}");
         }
     }
+}
+
+/// Appends the default method, any disagreement with it and the methods that failed.
+fn replay_default_and_failures(out: &mut String, r: &Replay, pooled: bool) {
     if let Some(m) = r.default_method {
         let _ = writeln!(out, "{}", default_line(m));
     }
@@ -342,6 +361,10 @@ pub fn replay(r: &Replay, sets: &[OptiOdomSet]) -> String {
     for (m, e) in &r.failures {
         let _ = writeln!(out, "{m}: not estimated: {e}");
     }
+}
+
+/// Appends the table of odometry errors on each set evaluated, by parameters.
+fn replay_evaluations(out: &mut String, r: &Replay) {
     let _ = writeln!(
         out,
         "\n{:<16} {:<13} {:>18} {:>16} {:>18} {:>16}",
@@ -364,7 +387,6 @@ pub fn replay(r: &Replay, sets: &[OptiOdomSet]) -> String {
             r.systematic_position_error_m
         );
     }
-    out
 }
 
 /// The paper's simulation study as run (`odocal simulate`): its settings, the trials, and each

@@ -112,62 +112,29 @@ impl RoboClawDrive {
     ) -> Result<Option<Achieved>, BaseError> {
         let p = self.profile();
         let g = p.params();
-        let invalid = |reason: String| BaseError::InvalidArgument {
-            component: "drive (RoboClaw)".into(),
-            reason,
-        };
-        if !(left_m.is_finite() && right_m.is_finite() && speed_m_s.is_finite() && speed_m_s > 0.0)
-        {
-            return Err(invalid(format!(
-                "wheels {left_m}, {right_m} m at {speed_m_s} m/s is not a motion"
-            )));
-        }
-        let speed = speed_m_s.min(p.limits.max_speed_m_s);
-        let longest = left_m.abs().max(right_m.abs()).max(1e-9);
-        let counts = |m: f64, per: f64| (m / per).round();
-        let (cl, cr) = (
-            counts(left_m, g.left_m_per_count()),
-            counts(right_m, g.right_m_per_count()),
-        );
-        if cl.abs() > f64::from(i32::MAX) || cr.abs() > f64::from(i32::MAX) {
-            return Err(invalid(
-                "the motion is longer than the encoders can count".into(),
-            ));
-        }
-        // Speeds proportional to each wheel's share so both finish together.
-        let ql = speed * left_m.abs() / longest / g.left_m_per_count();
-        let qr = speed * right_m.abs() / longest / g.right_m_per_count();
-        let accel =
-            (p.limits.max_accel_m_s2 / g.left_m_per_count().min(g.right_m_per_count())).round();
-        // Encoder counts per channel, signed as that encoder counts forward travel.
-        let (w1, w2) = match p.wiring.left_channel {
-            Channel::M1 => (
-                (cl, ql, p.wiring.left_encoder_sign),
-                (cr, qr, p.wiring.right_encoder_sign),
-            ),
-            Channel::M2 => (
-                (cr, qr, p.wiring.right_encoder_sign),
-                (cl, ql, p.wiring.left_encoder_sign),
-            ),
-        };
-        let speed_of =
-            |(c, q, s): (f64, f64, i8)| (q.round().max(1.0) * c.signum() * f64::from(s)) as i32;
-        let data = drive_distance_data(
-            accel.clamp(1.0, f64::from(u32::MAX)) as u32,
-            speed_of(w1),
-            w1.0.abs() as u32,
-            speed_of(w2),
-            w2.0.abs() as u32,
-        );
+        let (data, speed, longest) = motion_command(&p, left_m, right_m, speed_m_s)?;
         let before = self.claw.encoders().await.map_err(err("an encoder read"))?;
         // The stream is silent at rest: a zero sample marks where this motion's travel starts
         // (a sample covers the time since the one before it).
         self.forward(0.0, 0.0);
-        match self
-            .claw
-            .write(cmd::DRIVE_SPEED_ACCEL_DISTANCE, &data)
-            .await
-        {
+        self.send_motion(&data, before).await?;
+        // Trapezoid time plus slack: 3× + 2 s.
+        let expected = longest / speed + speed / p.limits.max_accel_m_s2;
+        let limit = Duration::from_secs_f64(3.0 * expected + 2.0);
+        let last = self.follow_until_idle(&p, before, limit).await?;
+        let after = self.claw.encoders().await.map_err(err("an encoder read"))?;
+        let (sl, sr) = self.travel_between(&p, before, after);
+        self.check_direction((sl, sr), (left_m, right_m)).await?;
+        let (tl, tr) = self.travel_between(&p, last, after);
+        if tl != 0.0 || tr != 0.0 {
+            self.forward(tl, tr);
+        }
+        Ok(Some(Achieved::of_wheels(sl, sr, g.wheelbase_m)))
+    }
+
+    /// Sends the motion command; resends it only if the ack is lost and it never arrived.
+    async fn send_motion(&self, data: &[u8], before: (u32, u32)) -> Result<(), BaseError> {
+        match self.claw.write(cmd::DRIVE_SPEED_ACCEL_DISTANCE, data).await {
             Ok(()) => {}
             Err(RoboClawError::Timeout { .. }) => {
                 // The acknowledgement is lost: did the command arrive? Moving encoders or a busy
@@ -178,22 +145,29 @@ impl RoboClawDrive {
                 let arrived = b1 != BUFFER_IDLE || b2 != BUFFER_IDLE || now != before;
                 if !arrived {
                     self.claw
-                        .write(cmd::DRIVE_SPEED_ACCEL_DISTANCE, &data)
+                        .write(cmd::DRIVE_SPEED_ACCEL_DISTANCE, data)
                         .await
                         .map_err(err("a motion"))?;
                 }
             }
             Err(e) => return Err(err("a motion")(e)),
         }
-        // Trapezoid time plus slack: 3× + 2 s.
-        let expected = longest / speed + speed / p.limits.max_accel_m_s2;
-        let limit = Duration::from_secs_f64(3.0 * expected + 2.0);
+        Ok(())
+    }
+
+    /// Forwards the motion's travel until both buffers are idle; returns the last encoders.
+    async fn follow_until_idle(
+        &self,
+        p: &Profile,
+        before: (u32, u32),
+        limit: Duration,
+    ) -> Result<(u32, u32), BaseError> {
         let started = Instant::now();
         let mut last = before;
         loop {
             tokio::time::sleep(POLL).await;
             let now = self.claw.encoders().await.map_err(err("an encoder read"))?;
-            let (sl, sr) = self.travel_between(&p, last, now);
+            let (sl, sr) = self.travel_between(p, last, now);
             if sl != 0.0 || sr != 0.0 {
                 self.forward(sl, sr);
             }
@@ -207,8 +181,15 @@ impl RoboClawDrive {
                 return Err(BaseError::MotionTimeout { after: limit });
             }
         }
-        let after = self.claw.encoders().await.map_err(err("an encoder read"))?;
-        let (sl, sr) = self.travel_between(&p, before, after);
+        Ok(last)
+    }
+
+    /// Stops the base and refuses the motion when a wheel went the other way than commanded.
+    async fn check_direction(
+        &self,
+        (sl, sr): (f64, f64),
+        (left_m, right_m): (f64, f64),
+    ) -> Result<(), BaseError> {
         // A wheel that went the other way than commanded means the profile's wiring is wrong
         // (channel swapped, or an encoder counting the other way): stop before it goes on.
         for (name, got, want) in [("left", sl, left_m), ("right", sr, right_m)] {
@@ -224,12 +205,64 @@ impl RoboClawDrive {
                 });
             }
         }
-        let (tl, tr) = self.travel_between(&p, last, after);
-        if tl != 0.0 || tr != 0.0 {
-            self.forward(tl, tr);
-        }
-        Ok(Some(Achieved::of_wheels(sl, sr, g.wheelbase_m)))
+        Ok(())
     }
+}
+
+/// The motion's command bytes, its capped speed and the longer wheel's travel (m).
+fn motion_command(
+    p: &Profile,
+    left_m: f64,
+    right_m: f64,
+    speed_m_s: f64,
+) -> Result<(Vec<u8>, f64, f64), BaseError> {
+    let g = p.params();
+    let invalid = |reason: String| BaseError::InvalidArgument {
+        component: "drive (RoboClaw)".into(),
+        reason,
+    };
+    if !(left_m.is_finite() && right_m.is_finite() && speed_m_s.is_finite() && speed_m_s > 0.0) {
+        return Err(invalid(format!(
+            "wheels {left_m}, {right_m} m at {speed_m_s} m/s is not a motion"
+        )));
+    }
+    let speed = speed_m_s.min(p.limits.max_speed_m_s);
+    let longest = left_m.abs().max(right_m.abs()).max(1e-9);
+    let counts = |m: f64, per: f64| (m / per).round();
+    let (cl, cr) = (
+        counts(left_m, g.left_m_per_count()),
+        counts(right_m, g.right_m_per_count()),
+    );
+    if cl.abs() > f64::from(i32::MAX) || cr.abs() > f64::from(i32::MAX) {
+        return Err(invalid(
+            "the motion is longer than the encoders can count".into(),
+        ));
+    }
+    // Speeds proportional to each wheel's share so both finish together.
+    let ql = speed * left_m.abs() / longest / g.left_m_per_count();
+    let qr = speed * right_m.abs() / longest / g.right_m_per_count();
+    let accel = (p.limits.max_accel_m_s2 / g.left_m_per_count().min(g.right_m_per_count())).round();
+    // Encoder counts per channel, signed as that encoder counts forward travel.
+    let (w1, w2) = match p.wiring.left_channel {
+        Channel::M1 => (
+            (cl, ql, p.wiring.left_encoder_sign),
+            (cr, qr, p.wiring.right_encoder_sign),
+        ),
+        Channel::M2 => (
+            (cr, qr, p.wiring.right_encoder_sign),
+            (cl, ql, p.wiring.left_encoder_sign),
+        ),
+    };
+    let speed_of =
+        |(c, q, s): (f64, f64, i8)| (q.round().max(1.0) * c.signum() * f64::from(s)) as i32;
+    let data = drive_distance_data(
+        accel.clamp(1.0, f64::from(u32::MAX)) as u32,
+        speed_of(w1),
+        w1.0.abs() as u32,
+        speed_of(w2),
+        w2.0.abs() as u32,
+    );
+    Ok((data, speed, longest))
 }
 
 #[async_trait]

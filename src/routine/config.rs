@@ -204,13 +204,17 @@ impl RoutineConfig {
 
     /// Checks every setting; the error's message starts with the key's name.
     pub fn validate(&self) -> Result<(), ConfigError> {
-        let bad = |key: &str, why: String| {
-            Err(ConfigError {
-                line: None,
-                message: format!("{key}: {why}"),
-            })
-        };
-        let positive = |v: f64| v.is_finite() && v > 0.0;
+        self.check_motion()?;
+        self.check_readings()?;
+        self.check_estimation()?;
+        self.check_rounds()?;
+        self.check_max_change()?;
+        self.check_device()?;
+        Ok(())
+    }
+
+    /// Checks the square and how fast it is driven (side, runs, speed and turn-rate limits).
+    fn check_motion(&self) -> Result<(), ConfigError> {
         // Lower bounds too: a 1e-308 m square or speed is no test (its time is infinite).
         if !(self.side_m.is_finite() && (0.05..=20.0).contains(&self.side_m)) {
             return bad(
@@ -246,6 +250,11 @@ impl RoutineConfig {
                 ),
             );
         }
+        Ok(())
+    }
+
+    /// Checks how heading readings are taken at rest: how many, after how long a settle.
+    fn check_readings(&self) -> Result<(), ConfigError> {
         if !(1..=100).contains(&self.heading_samples) {
             return bad(
                 "heading_samples",
@@ -258,6 +267,11 @@ impl RoutineConfig {
                 format!("must be in [0, 10] s, got {}", self.settle_s),
             );
         }
+        Ok(())
+    }
+
+    /// Checks what the estimation takes as given: split convention and gyro scale error.
+    fn check_estimation(&self) -> Result<(), ConfigError> {
         if let Err(e) = self.convention.validate() {
             return bad("convention", e.to_string());
         }
@@ -269,6 +283,11 @@ impl RoutineConfig {
                 );
             }
         }
+        Ok(())
+    }
+
+    /// Checks how many squares and rounds are driven, and the tolerance and targets that end them.
+    fn check_rounds(&self) -> Result<(), ConfigError> {
         if self.verification_runs > 50 {
             return bad(
                 "verification_runs",
@@ -302,6 +321,11 @@ impl RoutineConfig {
                 format!("must be 1..=10, got {}", self.max_rounds),
             );
         }
+        Ok(())
+    }
+
+    /// Checks the largest change a write may make (up to 1.0 only with `allow_large_change`).
+    fn check_max_change(&self) -> Result<(), ConfigError> {
         let limit = if self.allow_large_change { 1.0 } else { 0.25 };
         if !(positive(self.max_change) && self.max_change <= limit) {
             return bad(
@@ -318,6 +342,11 @@ impl RoutineConfig {
                 ),
             );
         }
+        Ok(())
+    }
+
+    /// Checks the device's settings: watchdog timeout and telemetry period.
+    fn check_device(&self) -> Result<(), ConfigError> {
         if !(50..=10_000).contains(&self.watchdog_ms) {
             return bad(
                 "watchdog_ms",
@@ -332,6 +361,19 @@ impl RoutineConfig {
         }
         Ok(())
     }
+}
+
+/// A setting that cannot be used, as `key: why` (no line: the caller looks the key up).
+fn bad(key: &str, why: String) -> Result<(), ConfigError> {
+    Err(ConfigError {
+        line: None,
+        message: format!("{key}: {why}"),
+    })
+}
+
+/// Whether `v` is a finite number above zero.
+fn positive(v: f64) -> bool {
+    v.is_finite() && v > 0.0
 }
 
 /// Parses TOML text into a table; a syntax error names its line.

@@ -13,7 +13,9 @@ use super::RoutineError;
 use crate::base::write::{
     write_once, Bounds, Commit, Question, WriteError, WritePolicy, WriteRequest, WriteUi,
 };
-use crate::base::{Base, MotionGuard, PoseSource};
+use crate::base::{
+    Base, Clocks, HeadingSample, MotionGuard, PoseSource, ReferencePose, SampleStream, TravelSample,
+};
 use crate::calibration::online::OnlineEstimate;
 use crate::calibration::recording::{Event, Recording};
 use crate::calibration::tracker::Tracker;
@@ -399,39 +401,9 @@ pub async fn track_live(
     on_checkpoint: &mut dyn FnMut(&OnlineEstimate),
     cancel: &CancellationToken,
 ) -> Result<TrackOutcome, RoutineError> {
-    if opts.path.is_some()
-        && !(opts.max_speed_m_s > 0.0
-            && opts.max_speed_m_s <= HARD_SPEED_LIMIT_M_S
-            && opts.max_rate_rad_s > 0.0
-            && opts.max_rate_rad_s <= HARD_RATE_LIMIT_RAD_S)
-    {
-        return Err(RoutineError::Config(super::config::ConfigError {
-            line: None,
-            message: format!(
-                "speed limits must be in (0, {HARD_SPEED_LIMIT_M_S}] m/s and (0, \
-                 {HARD_RATE_LIMIT_RAD_S}] rad/s"
-            ),
-        }));
-    }
-    let mut travel = base.drive.travel(opts.period).await?.ok_or_else(|| {
-        RoutineError::Preflight("the drive cannot stream its wheel travel".into())
-    })?;
-    // One reference stream: the pose source's when there is one, else the heading source's
-    // (a channel that never yields stands in for the one not read).
-    let (mut headings, mut pose_stream, clocks) = match poses {
-        Some(source) => (
-            tokio::sync::mpsc::channel(1).1,
-            source.stream().await?,
-            base.clocks_with(source),
-        ),
-        None => (
-            base.heading.stream(opts.period).await?.ok_or_else(|| {
-                RoutineError::Preflight("the heading source cannot stream its readings".into())
-            })?,
-            tokio::sync::mpsc::channel(1).1,
-            base.clocks(),
-        ),
-    };
+    check_path_limits(opts)?;
+    let (mut travel, mut headings, mut pose_stream, clocks) =
+        open_streams(base, poses, opts).await?;
     for e in tracker.start_stream(clocks) {
         on_checkpoint(&e);
     }
@@ -447,49 +419,13 @@ pub async fn track_live(
         .path
         .map(|p| steps(p, opts.motions, opts.seed))
         .unwrap_or_default();
-    let driving = async {
-        for step in &plan {
-            let guard = MotionGuard::new(&base.drive);
-            match *step {
-                Step::Straight(d) => base.drive.move_straight(d, opts.max_speed_m_s).await?,
-                Step::Turn(a) => base.drive.turn_in_place(a, opts.max_rate_rad_s).await?,
-            };
-            guard.disarm();
-        }
-        Ok::<usize, RoutineError>(plan.len())
-    };
+    let driving = drive_plan(base, &plan, opts);
     tokio::pin!(driving);
-    let deadline = async {
-        match opts.duration {
-            Some(d) => tokio::time::sleep(d).await,
-            // Until the path is driven, or cancelled.
-            None => std::future::pending::<()>().await,
-        }
-    };
+    let deadline = sleep_for(opts.duration);
     tokio::pin!(deadline);
     let passive = opts.path.is_none();
     let mut take = |e: Event, outcome: &mut TrackOutcome, tracker: &mut Tracker| {
-        sink(&e);
-        let passed = match &e {
-            Event::Travel(t) => {
-                bound(&mut outcome.recording.travel);
-                outcome.recording.travel.push(*t);
-                tracker.push_travel(*t)
-            }
-            Event::Heading(h) => {
-                bound(&mut outcome.recording.headings);
-                outcome.recording.headings.push(h.clone());
-                tracker.push_heading(h.clone())
-            }
-            Event::Pose(p) => {
-                bound(&mut outcome.recording.poses);
-                outcome.recording.poses.push(*p);
-                tracker.push_pose(*p)
-            }
-        };
-        for c in passed {
-            on_checkpoint(&c);
-        }
+        take_sample(e, outcome, tracker, sink, on_checkpoint);
     };
     let (mut travel_open, mut headings_open) = (true, poses.is_none());
     let mut poses_open = poses.is_some();
@@ -533,24 +469,147 @@ pub async fn track_live(
         let _ = tokio::time::timeout(Duration::from_secs(2), base.drive.stop()).await;
     }
     result?;
-    // Streams are forwarded by tasks of their own: what they hold still counts.
-    for _ in 0..8 {
-        tokio::task::yield_now().await;
-    }
-    while let Ok(t) = travel.try_recv() {
-        take(Event::Travel(t), &mut outcome, tracker);
-    }
-    while let Ok(h) = headings.try_recv() {
-        take(Event::Heading(h), &mut outcome, tracker);
-    }
-    while let Ok(p) = pose_stream.try_recv() {
-        take(Event::Pose(p), &mut outcome, tracker);
-    }
+    let rest = |e: Event| take(e, &mut outcome, tracker);
+    take_remaining(&mut travel, &mut headings, &mut pose_stream, rest).await;
     for e in tracker.finish_stream() {
         on_checkpoint(&e);
     }
     tracker.check_time_offset("live", &outcome.recording);
     Ok(outcome)
+}
+
+/// Refuses a path to drive whose speed or turn-rate limit is beyond the hard limits.
+fn check_path_limits(opts: &TrackOptions) -> Result<(), RoutineError> {
+    if opts.path.is_some()
+        && !(opts.max_speed_m_s > 0.0
+            && opts.max_speed_m_s <= HARD_SPEED_LIMIT_M_S
+            && opts.max_rate_rad_s > 0.0
+            && opts.max_rate_rad_s <= HARD_RATE_LIMIT_RAD_S)
+    {
+        return Err(RoutineError::Config(super::config::ConfigError {
+            line: None,
+            message: format!(
+                "speed limits must be in (0, {HARD_SPEED_LIMIT_M_S}] m/s and (0, \
+                 {HARD_RATE_LIMIT_RAD_S}] rad/s"
+            ),
+        }));
+    }
+    Ok(())
+}
+
+/// Opens the travel stream and the reference (headings or poses), with the session's clocks.
+async fn open_streams(
+    base: &Base,
+    poses: Option<&dyn PoseSource>,
+    opts: &TrackOptions,
+) -> Result<
+    (
+        SampleStream<TravelSample>,
+        SampleStream<HeadingSample>,
+        SampleStream<ReferencePose>,
+        Clocks,
+    ),
+    RoutineError,
+> {
+    let travel = base.drive.travel(opts.period).await?.ok_or_else(|| {
+        RoutineError::Preflight("the drive cannot stream its wheel travel".into())
+    })?;
+    // One reference stream: the pose source's when there is one, else the heading source's
+    // (a channel that never yields stands in for the one not read).
+    let (headings, pose_stream, clocks) = match poses {
+        Some(source) => (
+            tokio::sync::mpsc::channel(1).1,
+            source.stream().await?,
+            base.clocks_with(source),
+        ),
+        None => (
+            base.heading.stream(opts.period).await?.ok_or_else(|| {
+                RoutineError::Preflight("the heading source cannot stream its readings".into())
+            })?,
+            tokio::sync::mpsc::channel(1).1,
+            base.clocks(),
+        ),
+    };
+    Ok((travel, headings, pose_stream, clocks))
+}
+
+/// Drives the path's motions, one guarded motion at a time; returns how many were driven.
+async fn drive_plan(
+    base: &Base,
+    plan: &[Step],
+    opts: &TrackOptions,
+) -> Result<usize, RoutineError> {
+    for step in plan {
+        let guard = MotionGuard::new(&base.drive);
+        match *step {
+            Step::Straight(d) => base.drive.move_straight(d, opts.max_speed_m_s).await?,
+            Step::Turn(a) => base.drive.turn_in_place(a, opts.max_rate_rad_s).await?,
+        };
+        guard.disarm();
+    }
+    Ok(plan.len())
+}
+
+/// Waits out the session's duration; without one, never ends (until the path or a cancel).
+async fn sleep_for(duration: Option<Duration>) {
+    match duration {
+        Some(d) => tokio::time::sleep(d).await,
+        // Until the path is driven, or cancelled.
+        None => std::future::pending::<()>().await,
+    }
+}
+
+/// Hands a sample to the sink, keeps it in the (bounded) recording and feeds the tracker.
+fn take_sample(
+    e: Event,
+    outcome: &mut TrackOutcome,
+    tracker: &mut Tracker,
+    sink: &mut dyn FnMut(&Event),
+    on_checkpoint: &mut dyn FnMut(&OnlineEstimate),
+) {
+    sink(&e);
+    let passed = match &e {
+        Event::Travel(t) => {
+            bound(&mut outcome.recording.travel);
+            outcome.recording.travel.push(*t);
+            tracker.push_travel(*t)
+        }
+        Event::Heading(h) => {
+            bound(&mut outcome.recording.headings);
+            outcome.recording.headings.push(h.clone());
+            tracker.push_heading(h.clone())
+        }
+        Event::Pose(p) => {
+            bound(&mut outcome.recording.poses);
+            outcome.recording.poses.push(*p);
+            tracker.push_pose(*p)
+        }
+    };
+    for c in passed {
+        on_checkpoint(&c);
+    }
+}
+
+/// Takes what the streams still hold once the session ended, travel first.
+async fn take_remaining(
+    travel: &mut SampleStream<TravelSample>,
+    headings: &mut SampleStream<HeadingSample>,
+    pose_stream: &mut SampleStream<ReferencePose>,
+    mut take: impl FnMut(Event),
+) {
+    // Streams are forwarded by tasks of their own: what they hold still counts.
+    for _ in 0..8 {
+        tokio::task::yield_now().await;
+    }
+    while let Ok(t) = travel.try_recv() {
+        take(Event::Travel(t));
+    }
+    while let Ok(h) = headings.try_recv() {
+        take(Event::Heading(h));
+    }
+    while let Ok(p) = pose_stream.try_recv() {
+        take(Event::Pose(p));
+    }
 }
 
 /// What `track --write-back` did with the session's last estimate.

@@ -301,7 +301,6 @@ pub fn simulate_drive(config: &DrivingConfig) -> Result<SimulatedDrive, DrivingE
     config.validate()?;
     let mut rng = ChaCha8Rng::seed_from_u64(config.seed);
     let truth = config.truth;
-    let b = truth.wheelbase_m;
     let dt = 1.0 / config.wheel_rate_hz;
     // Whole wheel intervals that fit the duration (the float product can sit just under it).
     let intervals = (config.duration_s * config.wheel_rate_hz + 1e-9).floor() as usize;
@@ -315,7 +314,40 @@ pub fn simulate_drive(config: &DrivingConfig) -> Result<SimulatedDrive, DrivingE
     };
     let phase_s = uniform(&mut rng, 0.0, 1.0) / config.reference_rate_hz;
 
-    // Wheels and the true path.
+    let drive = drive_wheels(config, &mut rng, dt, intervals);
+    let sensor = sensor_poses(config, &drive, world, phase_s, dt, intervals);
+    let (poses, outliers) = report_poses(config, &mut rng, &sensor);
+
+    Ok(SimulatedDrive {
+        recording: PoseRecording {
+            wheels: drive.wheels,
+            poses,
+        },
+        truth,
+        true_path: drive.true_path,
+        outliers,
+    })
+}
+
+/// The wheels' record of a drive and the true motion behind it.
+struct WheelDrive {
+    /// The wheel angles at every wheel sample.
+    wheels: Vec<WheelAngles>,
+    /// The true pose of `base_link` at every wheel sample, at its time (s).
+    true_path: Vec<(f64, Pose2)>,
+    /// Ground travel (left, right) of each interval, for the reference's interpolation.
+    travels: Vec<(f64, f64)>,
+}
+
+/// Drives `intervals` wheel intervals of `dt` seconds: the wheel angles and the true path.
+fn drive_wheels(
+    config: &DrivingConfig,
+    rng: &mut ChaCha8Rng,
+    dt: f64,
+    intervals: usize,
+) -> WheelDrive {
+    let truth = config.truth;
+    let b = truth.wheelbase_m;
     let (hl, hr) = (0.5 * truth.left_diameter_m, 0.5 * truth.right_diameter_m);
     let mut driver = Driver::new(config);
     let mut pose = Pose2::default();
@@ -332,22 +364,38 @@ pub fn simulate_drive(config: &DrivingConfig) -> Result<SimulatedDrive, DrivingE
     wheels.push(record(0.0, 0.0, 0.0));
     true_path.push((0.0, pose));
     for k in 0..intervals {
-        let (v, w) = driver.step(&pose, dt, &mut rng);
+        let (v, w) = driver.step(&pose, dt, rng);
         let left = (v - 0.5 * w * b) * dt;
         let right = (v + 0.5 * w * b) * dt;
         left_rad += left / hl;
         right_rad += right / hr;
-        let ground_left = left * (1.0 + gaussian(&mut rng, config.wheel_slip_sigma));
-        let ground_right = right * (1.0 + gaussian(&mut rng, config.wheel_slip_sigma));
+        let ground_left = left * (1.0 + gaussian(rng, config.wheel_slip_sigma));
+        let ground_right = right * (1.0 + gaussian(rng, config.wheel_slip_sigma));
         pose = pose.arc(ground_left, ground_right, b);
         travels.push((ground_left, ground_right));
         let t = (k + 1) as f64 * dt;
         wheels.push(record(t, left_rad, right_rad));
         true_path.push((t, pose));
     }
-    let end_s = intervals as f64 * dt;
+    WheelDrive {
+        wheels,
+        true_path,
+        travels,
+    }
+}
 
-    // The reference frame's true poses in the world, at true times inside the wheel span.
+/// The reference frame's true poses in the world, at true times inside the wheel span.
+fn sensor_poses(
+    config: &DrivingConfig,
+    drive: &WheelDrive,
+    world: Pose2,
+    phase_s: f64,
+    dt: f64,
+    intervals: usize,
+) -> Vec<(f64, Pose2)> {
+    let b = config.truth.wheelbase_m;
+    let (true_path, travels) = (&drive.true_path, &drive.travels);
+    let end_s = intervals as f64 * dt;
     let mount = config.mounting();
     let mut sensor = Vec::new();
     for j in 0usize.. {
@@ -365,8 +413,15 @@ pub fn simulate_drive(config: &DrivingConfig) -> Result<SimulatedDrive, DrivingE
         };
         sensor.push((t, world.compose(&base).compose(&mount)));
     }
+    sensor
+}
 
-    // What the reference reports.
+/// What the reference reports of the `sensor` poses, with how many of them are outliers.
+fn report_poses(
+    config: &DrivingConfig,
+    rng: &mut ChaCha8Rng,
+    sensor: &[(f64, Pose2)],
+) -> (Vec<ReferencePose>, usize) {
     let mut outliers = 0;
     let mut poses = Vec::with_capacity(sensor.len());
     let mut chained = sensor.first().map(|s| s.1).unwrap_or_default();
@@ -374,25 +429,25 @@ pub fn simulate_drive(config: &DrivingConfig) -> Result<SimulatedDrive, DrivingE
         let reported = match config.kind {
             ReferenceKind::Absolute => {
                 let mut p = Pose2 {
-                    x: true_pose.x + gaussian(&mut rng, config.position_sigma_m),
-                    y: true_pose.y + gaussian(&mut rng, config.position_sigma_m),
-                    theta: true_pose.theta + gaussian(&mut rng, config.yaw_sigma_rad),
+                    x: true_pose.x + gaussian(rng, config.position_sigma_m),
+                    y: true_pose.y + gaussian(rng, config.position_sigma_m),
+                    theta: true_pose.theta + gaussian(rng, config.yaw_sigma_rad),
                 };
-                if chance(&mut rng, config.outlier_fraction) {
+                if chance(rng, config.outlier_fraction) {
                     outliers += 1;
-                    displace(&mut rng, &mut p, config.outlier_size_m, 0.3);
+                    displace(rng, &mut p, config.outlier_size_m, 0.3);
                 }
                 p
             }
             ReferenceKind::Relative => {
                 if j > 0 {
                     let mut step = sensor[j - 1].1.between(&true_pose);
-                    step.x += gaussian(&mut rng, config.position_sigma_m);
-                    step.y += gaussian(&mut rng, config.position_sigma_m);
-                    step.theta += gaussian(&mut rng, config.yaw_sigma_rad);
-                    if chance(&mut rng, config.outlier_fraction) {
+                    step.x += gaussian(rng, config.position_sigma_m);
+                    step.y += gaussian(rng, config.position_sigma_m);
+                    step.theta += gaussian(rng, config.yaw_sigma_rad);
+                    if chance(rng, config.outlier_fraction) {
                         outliers += 1;
-                        displace(&mut rng, &mut step, config.outlier_size_m, 0.1);
+                        displace(rng, &mut step, config.outlier_size_m, 0.1);
                     }
                     chained = chained.compose(&step);
                 }
@@ -407,13 +462,7 @@ pub fn simulate_drive(config: &DrivingConfig) -> Result<SimulatedDrive, DrivingE
             stated_std: None,
         });
     }
-
-    Ok(SimulatedDrive {
-        recording: PoseRecording { wheels, poses },
-        truth,
-        true_path,
-        outliers,
-    })
+    (poses, outliers)
 }
 
 /// The commanded motion: random segments, smoothed by acceleration limits, with a heading

@@ -98,30 +98,7 @@ impl OnlineEstimator {
         if !(x_m.is_finite() && y_m.is_finite() && yaw_rad.is_none_or(f64::is_finite)) {
             return None;
         }
-        // Stated deviations as the start's batch fit scaled them (a localization's covariance
-        // is a weight, seldom a calibrated variance); none stated: the fit's residual scatter,
-        // else the configured noise. Only the components used must be stated (a position-only
-        // reference states no yaw).
-        let usable = |v: f64| v.is_finite() && v > 0.0;
-        let stated =
-            sigma.filter(|s| usable(s[0]) && usable(s[1]) && (yaw_rad.is_none() || usable(s[2])));
-        let noise = self.fix_noise;
-        let [sx, sy, syaw] = match stated {
-            Some(s) => [
-                s[0] * noise.stated_scale[0],
-                s[1] * noise.stated_scale[0],
-                if usable(s[2]) {
-                    s[2] * noise.stated_scale[1]
-                } else {
-                    self.cfg.heading_sigma_rad
-                },
-            ],
-            None => noise.unstated.unwrap_or([
-                self.cfg.position_sigma_m,
-                self.cfg.position_sigma_m,
-                self.cfg.heading_sigma_rad,
-            ]),
-        };
+        let [sx, sy, syaw] = self.fix_sigmas(yaw_rad, sigma);
         if !self.anchored {
             let Some(yaw) = yaw_rad else {
                 // A position-only fix cannot tell which way the robot faces.
@@ -136,51 +113,79 @@ impl OnlineEstimator {
             sy * sy,
             if yaw_rad.is_some() { syaw * syaw } else { 1.0 },
         ));
-        // The measurement's Jacobian and innovation at state `x` (position only: the yaw row
-        // drops out — zero row, unit variance, zero innovation: it neither informs nor counts).
-        let linearise = |x: &Vector| {
-            let (s, c) = x[TH].sin_cos();
-            let (mx, my) = (x[MX], x[MY]);
-            let mut h = SMatrix::<f64, 3, N>::zeros();
-            h[(0, X)] = 1.0;
-            h[(0, TH)] = -s * mx - c * my;
-            h[(0, MX)] = c;
-            h[(0, MY)] = -s;
-            h[(1, Y)] = 1.0;
-            h[(1, TH)] = c * mx - s * my;
-            h[(1, MX)] = s;
-            h[(1, MY)] = c;
-            let mut nu = nalgebra::Vector3::new(
-                x_m - (x[X] + c * mx - s * my),
-                y_m - (x[Y] + s * mx + c * my),
-                0.0,
-            );
-            if let Some(yaw) = yaw_rad {
-                h[(2, TH)] = 1.0;
-                h[(2, MPSI)] = 1.0;
-                nu[2] = wrap_angle(yaw - (x[TH] + x[MPSI]));
-            }
-            (h, nu)
-        };
-        let (h0, nu0) = linearise(&self.x);
+        let fix = PoseFix { x_m, y_m, yaw_rad };
+        let (h0, nu0) = fix.linearise(&self.x);
         let s_inv = (h0 * self.p * h0.transpose() + r).try_inverse()?;
         let nis = (nu0.transpose() * s_inv * nu0)[(0, 0)];
         let gate = if dim == 3 { CHI2_3_999 } else { CHI2_2_999 };
         if nis.is_nan() || nis > gate {
-            self.gate.rejected += 1;
-            self.rejected_in_a_row += 1;
-            if self.rejected_in_a_row >= self.cfg.gate_recover_after.max(1) {
-                if let Some(yaw) = yaw_rad {
-                    // The reference moved its world (a relocalisation): start from it again.
-                    self.anchor(x_m, y_m, yaw, [sx * sx, sy * sy, syaw * syaw]);
-                    self.gate.resets += 1;
-                }
-                self.rejected_in_a_row = 0;
-            }
+            self.reject_pose_fix(&fix, [sx, sy, syaw]);
             return None;
         }
         self.rejected_in_a_row = 0;
         self.gate.accepted += 1;
+        let (x, h, kgain) = self.iterate_pose_fix(&fix, r, h0, nu0, s_inv);
+        self.x = x;
+        self.x[TH] = wrap_angle(self.x[TH]);
+        self.x[MPSI] = wrap_angle(self.x[MPSI]);
+        let ikh = Matrix::identity() - kgain * h;
+        self.p = ikh * self.p * ikh.transpose() + kgain * r * kgain.transpose();
+        self.nis_pose.0 += nis / dim as f64;
+        self.nis_pose.1 += 1;
+        Some(nis)
+    }
+
+    /// The standard deviations `(x, y, yaw)` to take for a pose fix stating `sigma`.
+    fn fix_sigmas(&self, yaw_rad: Option<f64>, sigma: Option<[f64; 3]>) -> [f64; 3] {
+        // Stated deviations as the start's batch fit scaled them (a localization's covariance
+        // is a weight, seldom a calibrated variance); none stated: the fit's residual scatter,
+        // else the configured noise. Only the components used must be stated (a position-only
+        // reference states no yaw).
+        let usable = |v: f64| v.is_finite() && v > 0.0;
+        let stated =
+            sigma.filter(|s| usable(s[0]) && usable(s[1]) && (yaw_rad.is_none() || usable(s[2])));
+        let noise = self.fix_noise;
+        match stated {
+            Some(s) => [
+                s[0] * noise.stated_scale[0],
+                s[1] * noise.stated_scale[0],
+                if usable(s[2]) {
+                    s[2] * noise.stated_scale[1]
+                } else {
+                    self.cfg.heading_sigma_rad
+                },
+            ],
+            None => noise.unstated.unwrap_or([
+                self.cfg.position_sigma_m,
+                self.cfg.position_sigma_m,
+                self.cfg.heading_sigma_rad,
+            ]),
+        }
+    }
+
+    /// Counts a pose fix the gate rejected, re-anchoring to it after enough in a row.
+    fn reject_pose_fix(&mut self, fix: &PoseFix, [sx, sy, syaw]: [f64; 3]) {
+        self.gate.rejected += 1;
+        self.rejected_in_a_row += 1;
+        if self.rejected_in_a_row >= self.cfg.gate_recover_after.max(1) {
+            if let Some(yaw) = fix.yaw_rad {
+                // The reference moved its world (a relocalisation): start from it again.
+                self.anchor(fix.x_m, fix.y_m, yaw, [sx * sx, sy * sy, syaw * syaw]);
+                self.gate.resets += 1;
+            }
+            self.rejected_in_a_row = 0;
+        }
+    }
+
+    /// The state after an accepted pose fix, with the last Jacobian and gain, by iterated update.
+    fn iterate_pose_fix(
+        &self,
+        fix: &PoseFix,
+        r: nalgebra::Matrix3<f64>,
+        h0: SMatrix<f64, 3, N>,
+        nu0: nalgebra::Vector3<f64>,
+        s_inv: nalgebra::Matrix3<f64>,
+    ) -> (Vector, SMatrix<f64, 3, N>, SMatrix<f64, N, 3>) {
         // Iterated update (Gauss–Newton on the posterior): the lever arm turns with the
         // heading, so a fix linearised where the mounting is still unknown (at first, zero:
         // no lever arm for the heading to turn) misplaces it; relinearising at the updated
@@ -189,7 +194,7 @@ impl OnlineEstimator {
         let (mut h, mut kgain) = (h0, self.p * h0.transpose() * s_inv);
         let mut x = prior + kgain * nu0;
         for _ in 0..4 {
-            let (hi, nui) = linearise(&x);
+            let (hi, nui) = fix.linearise(&x);
             let Some(si_inv) = (hi * self.p * hi.transpose() + r).try_inverse() else {
                 break;
             };
@@ -204,14 +209,7 @@ impl OnlineEstimator {
                 break;
             }
         }
-        self.x = x;
-        self.x[TH] = wrap_angle(self.x[TH]);
-        self.x[MPSI] = wrap_angle(self.x[MPSI]);
-        let ikh = Matrix::identity() - kgain * h;
-        self.p = ikh * self.p * ikh.transpose() + kgain * r * kgain.transpose();
-        self.nis_pose.0 += nis / dim as f64;
-        self.nis_pose.1 += 1;
-        Some(nis)
+        (x, h, kgain)
     }
 
     /// Starts the parameters and the pose reference's mounting from a batch fit of the drive so
@@ -344,4 +342,41 @@ pub(super) struct FixNoise {
     pub(super) stated_scale: [f64; 2],
     /// Standard deviations of fixes that state none (x, y in m; yaw in rad).
     pub(super) unstated: Option<[f64; 3]>,
+}
+
+/// One pose fix of the reference frame (m, m and rad; yaw `None` for a position-only one).
+struct PoseFix {
+    x_m: f64,
+    y_m: f64,
+    yaw_rad: Option<f64>,
+}
+
+impl PoseFix {
+    /// The fix's Jacobian and innovation at state `x` (position only: the yaw row drops out —
+    /// zero row, unit variance, zero innovation: it neither informs nor counts).
+    fn linearise(&self, x: &Vector) -> (SMatrix<f64, 3, N>, nalgebra::Vector3<f64>) {
+        let (x_m, y_m, yaw_rad) = (self.x_m, self.y_m, self.yaw_rad);
+        let (s, c) = x[TH].sin_cos();
+        let (mx, my) = (x[MX], x[MY]);
+        let mut h = SMatrix::<f64, 3, N>::zeros();
+        h[(0, X)] = 1.0;
+        h[(0, TH)] = -s * mx - c * my;
+        h[(0, MX)] = c;
+        h[(0, MY)] = -s;
+        h[(1, Y)] = 1.0;
+        h[(1, TH)] = c * mx - s * my;
+        h[(1, MX)] = s;
+        h[(1, MY)] = c;
+        let mut nu = nalgebra::Vector3::new(
+            x_m - (x[X] + c * mx - s * my),
+            y_m - (x[Y] + s * mx + c * my),
+            0.0,
+        );
+        if let Some(yaw) = yaw_rad {
+            h[(2, TH)] = 1.0;
+            h[(2, MPSI)] = 1.0;
+            nu[2] = wrap_angle(yaw - (x[TH] + x[MPSI]));
+        }
+        (h, nu)
+    }
 }

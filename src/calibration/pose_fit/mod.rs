@@ -318,86 +318,106 @@ pub fn fit_poses(
             };
             fit_kind(recording, config, kind, None, decision)
         }
-        None => {
-            // The kind is told by a relative fit; on a long drive, of its first part only (the
-            // fit for the kind decided then starts from it): the decision needs the motion
-            // residuals' spread, not the last digit of the geometry.
-            let undecided = || KindDecision {
-                kind: ReferenceKind::Relative,
-                decided_by: "data",
-                variance_ratio_10_to_1: None,
-                reason: String::new(),
-            };
-            // A head that cannot be fitted (the robot idle, poses before the wheels) leaves
-            // the decision to the whole recording.
-            let head_fit = recording.head(DECISION_POSES).and_then(|h| {
-                let fit = fit_kind(&h, config, ReferenceKind::Relative, None, undecided()).ok()?;
-                Some((h, fit))
-            });
-            let (head, relative) = match head_fit {
-                Some((h, fit)) => (Some(h), fit),
-                None => (
-                    None,
-                    fit_kind(
-                        recording,
-                        config,
-                        ReferenceKind::Relative,
-                        None,
-                        undecided(),
-                    )?,
-                ),
-            };
-            // The spread of the residuals on the samples that were fitted.
-            let ratio = span_variance_ratio(
-                head.as_ref().unwrap_or(recording),
+        None => fit_deciding_kind(recording, config),
+    }
+}
+
+/// Fits `recording` as the kind its relative fit's residuals tell, from that fit.
+fn fit_deciding_kind(
+    recording: &PoseRecording,
+    config: &FitConfig,
+) -> Result<PoseFit, CalibrationError> {
+    let (head, relative) = decision_fit(recording, config)?;
+    // The spread of the residuals on the samples that were fitted.
+    let ratio = span_variance_ratio(
+        head.as_ref().unwrap_or(recording),
+        config,
+        &relative.params,
+        10,
+    );
+    let decision = kind_from_ratio(ratio);
+    match (decision.kind, head) {
+        (ReferenceKind::Relative, None) => Ok(PoseFit {
+            kind: decision,
+            ..relative
+        }),
+        (kind, _) => fit_kind(recording, config, kind, Some(relative.params), decision),
+    }
+}
+
+/// The relative fit that tells the kind, with the head it was made on (`None`: the whole
+/// recording).
+fn decision_fit(
+    recording: &PoseRecording,
+    config: &FitConfig,
+) -> Result<(Option<PoseRecording>, PoseFit), CalibrationError> {
+    // The kind is told by a relative fit; on a long drive, of its first part only (the
+    // fit for the kind decided then starts from it): the decision needs the motion
+    // residuals' spread, not the last digit of the geometry.
+    let undecided = || KindDecision {
+        kind: ReferenceKind::Relative,
+        decided_by: "data",
+        variance_ratio_10_to_1: None,
+        reason: String::new(),
+    };
+    // A head that cannot be fitted (the robot idle, poses before the wheels) leaves
+    // the decision to the whole recording.
+    let head_fit = recording.head(DECISION_POSES).and_then(|h| {
+        let fit = fit_kind(&h, config, ReferenceKind::Relative, None, undecided()).ok()?;
+        Some((h, fit))
+    });
+    Ok(match head_fit {
+        Some((h, fit)) => (Some(h), fit),
+        None => (
+            None,
+            fit_kind(
+                recording,
                 config,
-                &relative.params,
-                10,
-            );
-            let threshold = 10f64.sqrt();
-            let (kind, why) = if !ratio.is_finite() {
-                (
-                    ReferenceKind::Absolute,
-                    "the motion residuals could not be compared (too few samples or none moving): \
-                     taken as absolute, the safer fit",
-                )
-            } else if ratio < threshold {
-                (
-                    ReferenceKind::Absolute,
-                    "its errors do not grow with the span: the reference does not accumulate error",
-                )
-            } else {
-                (
-                    ReferenceKind::Relative,
-                    "its errors grow with the span: the reference is chained from sample to sample",
-                )
-            };
-            // Near the threshold the odometry's own random walk (slip, a jittering encoder
-            // clock) may be what grows: say so, and how to settle it.
-            let doubt = if (0.5 * threshold..2.0 * threshold).contains(&ratio) {
-                "; close to the threshold, where the odometry's own drift can tip it: give \
-                 --reference-kind if you know the reference"
-            } else {
-                ""
-            };
-            let decision = KindDecision {
-                kind,
-                decided_by: "data",
-                variance_ratio_10_to_1: Some(ratio),
-                reason: format!(
-                    "the motion residual over ten samples has {ratio:.2}× the variance of one \
-                     (√10 = {threshold:.2} separates the kinds): {why}; fitted as {}{doubt}",
-                    kind.name()
-                ),
-            };
-            match (kind, head) {
-                (ReferenceKind::Relative, None) => Ok(PoseFit {
-                    kind: decision,
-                    ..relative
-                }),
-                _ => fit_kind(recording, config, kind, Some(relative.params), decision),
-            }
-        }
+                ReferenceKind::Relative,
+                None,
+                undecided(),
+            )?,
+        ),
+    })
+}
+
+/// The kind a variance ratio of the motion residuals over ten samples to one tells, and why.
+fn kind_from_ratio(ratio: f64) -> KindDecision {
+    let threshold = 10f64.sqrt();
+    let (kind, why) = if !ratio.is_finite() {
+        (
+            ReferenceKind::Absolute,
+            "the motion residuals could not be compared (too few samples or none moving): \
+             taken as absolute, the safer fit",
+        )
+    } else if ratio < threshold {
+        (
+            ReferenceKind::Absolute,
+            "its errors do not grow with the span: the reference does not accumulate error",
+        )
+    } else {
+        (
+            ReferenceKind::Relative,
+            "its errors grow with the span: the reference is chained from sample to sample",
+        )
+    };
+    // Near the threshold the odometry's own random walk (slip, a jittering encoder
+    // clock) may be what grows: say so, and how to settle it.
+    let doubt = if (0.5 * threshold..2.0 * threshold).contains(&ratio) {
+        "; close to the threshold, where the odometry's own drift can tip it: give \
+         --reference-kind if you know the reference"
+    } else {
+        ""
+    };
+    KindDecision {
+        kind,
+        decided_by: "data",
+        variance_ratio_10_to_1: Some(ratio),
+        reason: format!(
+            "the motion residual over ten samples has {ratio:.2}× the variance of one \
+             (√10 = {threshold:.2} separates the kinds): {why}; fitted as {}{doubt}",
+            kind.name()
+        ),
     }
 }
 

@@ -39,83 +39,12 @@ impl<'a> Problem<'a> {
         } else {
             0.0
         };
-        let (w0, w1) = (
-            recording.wheels[0].time_s,
-            recording.wheels[recording.wheels.len() - 1].time_s,
-        );
-        let selected: Vec<usize> = recording
-            .poses
-            .iter()
-            .enumerate()
-            .filter(|(_, p)| p.time_s - margin >= w0 && p.time_s + margin <= w1)
-            .map(|(i, _)| i)
-            .collect();
-        let blocks = match kind {
-            ReferenceKind::Absolute => selected.len(),
-            ReferenceKind::Relative => selected.len().saturating_sub(1),
-        };
-        if blocks < 10 {
-            return Err(CalibrationError::PoseInput(format!(
-                "only {} reference pose(s) fall inside the wheels' time span ({w0:.3}–{w1:.3} s, \
-                 less {margin:.2} s each side for the time offset; at least 10 are needed): \
-                 check that both streams are stamped on the same clock (seconds) and that the \
-                 reference covers the drive{}",
-                selected.len(),
-                if margin > 0.0 {
-                    ", or lower --max-time-offset-s"
-                } else {
-                    ""
-                },
-            )));
-        }
-        let mut free = vec![Param::LeftDiameter];
-        if !config.tie_diameters {
-            free.push(Param::RightDiameter);
-        }
-        free.push(Param::Wheelbase);
-        if config.fit_mounting {
-            free.push(Param::SensorX);
-            free.push(Param::SensorY);
-            if has_yaw {
-                free.push(Param::SensorYaw);
-            }
-        }
-        if fit_offset {
-            free.push(Param::TimeOffset);
-        }
+        let selected = select_poses(recording, kind, margin)?;
+        let free = free_params(config, has_yaw, fit_offset);
         let windows = match (kind, config.window_s) {
             (ReferenceKind::Relative, _) | (_, None) => vec![(0, selected.len())],
             (ReferenceKind::Absolute, Some(w)) => {
-                let mut out = Vec::new();
-                let mut start = 0;
-                for i in 1..=selected.len() {
-                    let done = i == selected.len()
-                        || recording.poses[selected[i]].time_s
-                            - recording.poses[selected[start]].time_s
-                            >= w;
-                    if done {
-                        out.push((start, i));
-                        start = i;
-                    }
-                }
-                // A window grows by the next until it holds ten samples, and a short last one
-                // joins the window before it: an alignment of a few samples would absorb
-                // everything they hold.
-                let mut merged: Vec<(usize, usize)> = Vec::new();
-                for w in out {
-                    match merged.last_mut() {
-                        Some(last) if last.1 - last.0 < 10 => last.1 = w.1,
-                        _ => merged.push(w),
-                    }
-                }
-                if merged.len() > 1 && merged[merged.len() - 1].1 - merged[merged.len() - 1].0 < 10
-                {
-                    let tail = merged.pop().map_or(0, |t| t.1);
-                    if let Some(last) = merged.last_mut() {
-                        last.1 = tail;
-                    }
-                }
-                merged
+                merge_short_windows(time_windows(recording, &selected, w))
             }
         };
         let g = config.nominal;
@@ -142,13 +71,7 @@ impl<'a> Problem<'a> {
             max_offset: margin,
             use_stated,
             reference_steps: match kind {
-                ReferenceKind::Relative => selected
-                    .windows(2)
-                    .map(|k| {
-                        let (r0, r1) = (&recording.poses[k[0]], &recording.poses[k[1]]);
-                        r0.pose2().between(&r1.pose2())
-                    })
-                    .collect(),
+                ReferenceKind::Relative => reference_steps(recording, &selected),
                 ReferenceKind::Absolute => Vec::new(),
             },
             selected,
@@ -620,6 +543,116 @@ impl<'a> Problem<'a> {
             && p[6].abs() <= self.max_offset
             && p.iter().all(|v| v.is_finite())
     }
+}
+
+/// The indices of the reference poses inside the wheels' time span, `margin` in from each end
+/// for the time offset; an error when fewer than ten blocks would be compared.
+fn select_poses(
+    recording: &PoseRecording,
+    kind: ReferenceKind,
+    margin: f64,
+) -> Result<Vec<usize>, CalibrationError> {
+    let (w0, w1) = (
+        recording.wheels[0].time_s,
+        recording.wheels[recording.wheels.len() - 1].time_s,
+    );
+    let selected: Vec<usize> = recording
+        .poses
+        .iter()
+        .enumerate()
+        .filter(|(_, p)| p.time_s - margin >= w0 && p.time_s + margin <= w1)
+        .map(|(i, _)| i)
+        .collect();
+    let blocks = match kind {
+        ReferenceKind::Absolute => selected.len(),
+        ReferenceKind::Relative => selected.len().saturating_sub(1),
+    };
+    if blocks < 10 {
+        return Err(CalibrationError::PoseInput(format!(
+            "only {} reference pose(s) fall inside the wheels' time span ({w0:.3}–{w1:.3} s, \
+             less {margin:.2} s each side for the time offset; at least 10 are needed): \
+             check that both streams are stamped on the same clock (seconds) and that the \
+             reference covers the drive{}",
+            selected.len(),
+            if margin > 0.0 {
+                ", or lower --max-time-offset-s"
+            } else {
+                ""
+            },
+        )));
+    }
+    Ok(selected)
+}
+
+/// The parameters to fit, in the parameter vector's order.
+fn free_params(config: &FitConfig, has_yaw: bool, fit_offset: bool) -> Vec<Param> {
+    let mut free = vec![Param::LeftDiameter];
+    if !config.tie_diameters {
+        free.push(Param::RightDiameter);
+    }
+    free.push(Param::Wheelbase);
+    if config.fit_mounting {
+        free.push(Param::SensorX);
+        free.push(Param::SensorY);
+        if has_yaw {
+            free.push(Param::SensorYaw);
+        }
+    }
+    if fit_offset {
+        free.push(Param::TimeOffset);
+    }
+    free
+}
+
+/// Windows `[start, end)` over `selected`, each closed once it spans `window_s` seconds of the
+/// reference's clock (the last at the end).
+fn time_windows(
+    recording: &PoseRecording,
+    selected: &[usize],
+    window_s: f64,
+) -> Vec<(usize, usize)> {
+    let mut out = Vec::new();
+    let mut start = 0;
+    for i in 1..=selected.len() {
+        let done = i == selected.len()
+            || recording.poses[selected[i]].time_s - recording.poses[selected[start]].time_s
+                >= window_s;
+        if done {
+            out.push((start, i));
+            start = i;
+        }
+    }
+    out
+}
+
+/// A window grows by the next until it holds ten samples, and a short last one joins the window
+/// before it: an alignment of a few samples would absorb everything they hold.
+fn merge_short_windows(out: Vec<(usize, usize)>) -> Vec<(usize, usize)> {
+    let mut merged: Vec<(usize, usize)> = Vec::new();
+    for w in out {
+        match merged.last_mut() {
+            Some(last) if last.1 - last.0 < 10 => last.1 = w.1,
+            _ => merged.push(w),
+        }
+    }
+    if merged.len() > 1 && merged[merged.len() - 1].1 - merged[merged.len() - 1].0 < 10 {
+        let tail = merged.pop().map_or(0, |t| t.1);
+        if let Some(last) = merged.last_mut() {
+            last.1 = tail;
+        }
+    }
+    merged
+}
+
+/// The reference's motion between consecutive selected samples (relative references).
+fn reference_steps(recording: &PoseRecording, selected: &[usize]) -> Vec<Pose2> {
+    selected
+        .windows(2)
+        .map(|k| {
+            let (r0, r1) = (&recording.poses[k[0]], &recording.poses[k[1]]);
+            r0.pose2().between(&r1.pose2())
+        })
+        .collect()
 }
 
 /// A difference of residual components; yaw components wrap.

@@ -22,144 +22,247 @@ pub(super) fn fit_kind(
     decision: KindDecision,
 ) -> Result<PoseFit, CalibrationError> {
     let problem = Problem::new(recording, config, kind)?;
-    let blocks = problem.blocks();
-    let dim = problem.dim;
-    let mut weights = vec![1.0; blocks];
+    let weights = vec![1.0; problem.blocks()];
+    let p0 = start_params(&problem, start);
+    let unit = Scales::white(1.0, 1.0);
+    let scales = match config.weighting {
+        Weighting::Unit => unit,
+        Weighting::Estimated => robust_scales(
+            &problem,
+            &residuals_at(&problem, &p0, &weights, unit),
+            &weights,
+        ),
+    };
+    let (p0, scales, iterations_before) =
+        if problem.free.contains(&Param::TimeOffset) && start.is_none() {
+            offset_basin(recording, config, &problem, p0, &weights, scales)?
+        } else {
+            (p0, scales, 0)
+        };
+    let x = problem.free_values(&p0);
+    let mut solved = reweighted_solve(&problem, config, x, weights, scales, iterations_before);
+    let p = problem.full(&solved.x);
+    // Final scales and covariance at the solution, inliers only.
+    let r = residuals_at(&problem, &p, &solved.weights, solved.scales);
+    solved.scales = final_scales(&problem, config, &r, &solved.weights, solved.scales);
+    let covariance = inflated_covariance(&problem, &solved);
+    Ok(report(&problem, config, decision, p, &solved, covariance))
+}
+
+/// Where the stages ended: the free values, the blocks' weights (0: an outlier), the scales
+/// and the Levenberg–Marquardt iterations used.
+struct Solved {
+    x: Vec<f64>,
+    weights: Vec<f64>,
+    scales: Scales,
+    iterations: usize,
+}
+
+/// The parameters' covariance, inflated for the residuals' lag-one correlation `rho`.
+struct Covariance {
+    matrix: [[f64; PARAMS]; PARAMS],
+    rho: f64,
+    inflation: f64,
+}
+
+/// The full parameter vector the fit starts from: the fixed values, the free ones from `start`.
+fn start_params(problem: &Problem<'_>, start: Option<[f64; PARAMS]>) -> [f64; PARAMS] {
     let mut p0 = problem.fixed;
     if let Some(s) = start {
         for q in &problem.free {
             p0[q.index()] = s[q.index()];
         }
     }
+    p0
+}
+
+/// Residuals at `p`: the wheels integrated for its geometry, compared with the reference.
+fn residuals_at(
+    problem: &Problem<'_>,
+    p: &[f64; PARAMS],
+    weights: &[f64],
+    scales: Scales,
+) -> Vec<f64> {
+    let odo = Odometry::integrate(&problem.recording.wheels, Problem::geometry(p));
+    problem.residuals(&odo, p, weights, scales)
+}
+
+/// The time offset's basin: a lever arm along the direction of travel looks like a delay while
+/// the robot drives straight, so the geometry and mounting are fitted first with the offset held
+/// at zero, then the offset is searched on a coarse grid from there. Returns the start, its
+/// scales and the iterations used.
+fn offset_basin(
+    recording: &PoseRecording,
+    config: &FitConfig,
+    problem: &Problem<'_>,
+    mut p0: [f64; PARAMS],
+    weights: &[f64],
+    mut scales: Scales,
+) -> Result<([f64; PARAMS], Scales, usize), CalibrationError> {
     let unit = Scales::white(1.0, 1.0);
-    let mut iterations_before = 0;
-    let residual_at = |p: &[f64; PARAMS], w: &[f64], s: Scales| {
-        let odo = Odometry::integrate(&recording.wheels, Problem::geometry(p));
-        problem.residuals(&odo, p, w, s)
-    };
-    let mut scales = match config.weighting {
-        Weighting::Unit => unit,
-        Weighting::Estimated => {
-            robust_scales(&problem, &residual_at(&p0, &weights, unit), &weights)
-        }
-    };
-    // The time offset's basin: a lever arm along the direction of travel looks like a delay
-    // while the robot drives straight, so the geometry and mounting are fitted first with the
-    // offset held at zero, then the offset is searched on a coarse grid from there.
-    if problem.free.contains(&Param::TimeOffset) && start.is_none() {
-        let mut held = Problem::new(recording, config, kind)?;
-        held.free.retain(|q| *q != Param::TimeOffset);
-        let (xa, it) =
-            levenberg_marquardt(&held, held.free_values(&p0), &weights, scales, 20, LOOSE);
-        iterations_before = it;
-        p0 = held.full(&xa);
-        if config.weighting == Weighting::Estimated {
-            scales = robust_scales(&problem, &residual_at(&p0, &weights, unit), &weights);
-        }
-        let odo = Odometry::integrate(&recording.wheels, Problem::geometry(&p0));
-        let steps = (problem.max_offset / 0.02).ceil() as i64;
-        let mut best = (f64::INFINITY, 0.0);
-        for k in -steps..=steps {
-            let mut p = p0;
-            p[6] = (k as f64 * 0.02).clamp(-problem.max_offset, problem.max_offset);
-            let r = problem.residuals(&odo, &p, &weights, scales);
-            let cost: f64 = block_chi2(&problem, &r, &weights, scales)
-                .iter()
-                .map(|d| d.min(25.0))
-                .sum();
-            if cost < best.0 {
-                best = (cost, p[6]);
-            }
-        }
-        p0[6] = best.1;
-        if config.weighting == Weighting::Estimated {
-            scales = robust_scales(&problem, &residual_at(&p0, &weights, unit), &weights);
+    let mut held = Problem::new(recording, config, problem.kind)?;
+    held.free.retain(|q| *q != Param::TimeOffset);
+    let (xa, it) = levenberg_marquardt(&held, held.free_values(&p0), weights, scales, 20, LOOSE);
+    p0 = held.full(&xa);
+    if config.weighting == Weighting::Estimated {
+        scales = robust_scales(problem, &residuals_at(problem, &p0, weights, unit), weights);
+    }
+    p0[6] = grid_offset(problem, &p0, weights, scales);
+    if config.weighting == Weighting::Estimated {
+        scales = robust_scales(problem, &residuals_at(problem, &p0, weights, unit), weights);
+    }
+    Ok((p0, scales, it))
+}
+
+/// The time offset on a 20 ms grid within its limit whose χ² (each block's capped at 25, so
+/// that outliers do not pick it) is least, the other parameters held at `p0`.
+fn grid_offset(problem: &Problem<'_>, p0: &[f64; PARAMS], weights: &[f64], scales: Scales) -> f64 {
+    let odo = Odometry::integrate(&problem.recording.wheels, Problem::geometry(p0));
+    let steps = (problem.max_offset / 0.02).ceil() as i64;
+    let mut best = (f64::INFINITY, 0.0);
+    for k in -steps..=steps {
+        let mut p = *p0;
+        p[6] = (k as f64 * 0.02).clamp(-problem.max_offset, problem.max_offset);
+        let r = problem.residuals(&odo, &p, weights, scales);
+        let cost: f64 = block_chi2(problem, &r, weights, scales)
+            .iter()
+            .map(|d| d.min(25.0))
+            .sum();
+        if cost < best.0 {
+            best = (cost, p[6]);
         }
     }
-    let mut x = problem.free_values(&p0);
+    best.1
+}
+
+/// Iteratively reweighted least squares from `x`: Huber stages to find the basin, then gated
+/// stages until the weights and scales settle, the last converged tightly (one tight solve
+/// when the fit is not robust).
+fn reweighted_solve(
+    problem: &Problem<'_>,
+    config: &FitConfig,
+    mut x: Vec<f64>,
+    mut weights: Vec<f64>,
+    mut scales: Scales,
+    iterations_before: usize,
+) -> Solved {
     let mut iterations = iterations_before;
     let stages = if config.robust { 12 } else { 1 };
     for stage in 0..stages {
         // The stages before the weights settle need not converge far: their weights and scales
         // change after them. The last is converged tightly, below.
         let tolerance = if config.robust { LOOSE } else { TIGHT };
-        let (xn, it) = levenberg_marquardt(&problem, x, &weights, scales, 50, tolerance);
+        let (xn, it) = levenberg_marquardt(problem, x, &weights, scales, 50, tolerance);
         x = xn;
         iterations += it;
         if !config.robust {
             break;
         }
         let p = problem.full(&x);
-        let r = residual_at(&p, &weights, scales);
+        let r = residuals_at(problem, &p, &weights, scales);
         let huber = stage < 2;
-        let k2 = gate(dim);
-        let ones = vec![1.0; blocks];
-        let new_scales = if huber {
-            robust_scales(&problem, &r, &ones)
-        } else if weights.iter().any(|w| *w > 0.0 && *w < 1.0) {
-            // The first gated stage follows Huber's, whose weights leave no block out: its
-            // scales come from the blocks that the robust scales' gate keeps, or the outliers
-            // would inflate them (by seven times on a localization's jumps) and the gate let
-            // them in for a stage.
-            let robust = robust_scales(&problem, &r, &ones);
-            let kept: Vec<f64> = block_chi2(&problem, &r, &ones, robust)
-                .iter()
-                .map(|d2| if *d2 <= k2 { 1.0 } else { 0.0 })
-                .collect();
-            settle_scales(&problem, &r, &kept, config)
-        } else {
-            settle_scales(&problem, &r, &weights, config)
-        };
-        let chi2 = block_chi2(&problem, &r, &weights, new_scales);
-        let new_weights: Vec<f64> = chi2
-            .iter()
-            .map(|d2| {
-                if huber {
-                    // Huber on the block's distance, k at the χ² 95 % quantile.
-                    let k = if dim == 3 {
-                        7.81f64.sqrt()
-                    } else {
-                        5.99f64.sqrt()
-                    };
-                    let d = d2.sqrt();
-                    if d <= k {
-                        1.0
-                    } else {
-                        k / d
-                    }
-                } else if *d2 <= k2 {
-                    1.0
-                } else {
-                    0.0
-                }
-            })
-            .collect();
-        let close = |a: f64, b: f64| (a - b).abs() <= 1e-3 * a.abs().max(b.abs()).max(1e-300);
-        let settled = !huber
-            && new_weights == weights
-            && close(new_scales.position, scales.position)
-            && close(new_scales.yaw, scales.yaw)
-            && close(new_scales.walk_position, scales.walk_position)
-            && close(new_scales.walk_yaw, scales.walk_yaw);
+        let new_scales = stage_scales(problem, config, &r, &weights, huber);
+        let chi2 = block_chi2(problem, &r, &weights, new_scales);
+        let new_weights = stage_weights(&chi2, huber, problem.dim);
+        let settled = !huber && new_weights == weights && scales_close(new_scales, scales);
         weights = new_weights;
         scales = new_scales;
         if settled || stage + 1 == stages {
             // Converged tightly under the settled (or the last) weights and scales.
-            let (xn, it) = levenberg_marquardt(&problem, x, &weights, scales, 50, TIGHT);
+            let (xn, it) = levenberg_marquardt(problem, x, &weights, scales, 50, TIGHT);
             x = xn;
             iterations += it;
             break;
         }
     }
-    let p = problem.full(&x);
-    // Final scales and covariance at the solution, inliers only.
-    let n_free = problem.free.len();
-    let outliers = weights.iter().filter(|w| **w == 0.0).count();
-    let r = residual_at(&p, &weights, scales);
+    Solved {
+        x,
+        weights,
+        scales,
+        iterations,
+    }
+}
+
+/// The scales for the next stage's weights from residuals `r` under the current `weights`:
+/// robust over every block in a Huber stage, settled over the gated inliers after.
+fn stage_scales(
+    problem: &Problem<'_>,
+    config: &FitConfig,
+    r: &[f64],
+    weights: &[f64],
+    huber: bool,
+) -> Scales {
+    let k2 = gate(problem.dim);
+    let ones = vec![1.0; problem.blocks()];
+    if huber {
+        robust_scales(problem, r, &ones)
+    } else if weights.iter().any(|w| *w > 0.0 && *w < 1.0) {
+        // The first gated stage follows Huber's, whose weights leave no block out: its
+        // scales come from the blocks that the robust scales' gate keeps, or the outliers
+        // would inflate them (by seven times on a localization's jumps) and the gate let
+        // them in for a stage.
+        let robust = robust_scales(problem, r, &ones);
+        let kept: Vec<f64> = block_chi2(problem, r, &ones, robust)
+            .iter()
+            .map(|d2| if *d2 <= k2 { 1.0 } else { 0.0 })
+            .collect();
+        settle_scales(problem, r, &kept, config)
+    } else {
+        settle_scales(problem, r, weights, config)
+    }
+}
+
+/// Each block's weight from its χ²: Huber's on its distance in a Huber stage, else 1 inside
+/// the gate and 0 outside.
+fn stage_weights(chi2: &[f64], huber: bool, dim: usize) -> Vec<f64> {
+    let k2 = gate(dim);
+    chi2.iter()
+        .map(|d2| {
+            if huber {
+                // Huber on the block's distance, k at the χ² 95 % quantile.
+                let k = if dim == 3 {
+                    7.81f64.sqrt()
+                } else {
+                    5.99f64.sqrt()
+                };
+                let d = d2.sqrt();
+                if d <= k {
+                    1.0
+                } else {
+                    k / d
+                }
+            } else if *d2 <= k2 {
+                1.0
+            } else {
+                0.0
+            }
+        })
+        .collect()
+}
+
+/// Whether every scale of `new` is within a part in a thousand of `old`'s.
+fn scales_close(new: Scales, old: Scales) -> bool {
+    let close = |a: f64, b: f64| (a - b).abs() <= 1e-3 * a.abs().max(b.abs()).max(1e-300);
+    close(new.position, old.position)
+        && close(new.yaw, old.yaw)
+        && close(new.walk_position, old.walk_position)
+        && close(new.walk_yaw, old.walk_yaw)
+}
+
+/// The scales at the solution from its residuals `r`: the inliers' (robust or estimated
+/// weighting), else one variance for every component.
+fn final_scales(
+    problem: &Problem<'_>,
+    config: &FitConfig,
+    r: &[f64],
+    weights: &[f64],
+    scales: Scales,
+) -> Scales {
     if config.robust || config.weighting == Weighting::Estimated {
-        scales = inlier_scales(&problem, &r, &weights, scales);
+        inlier_scales(problem, r, weights, scales)
     } else {
         // Unweighted least squares: one variance for every component.
+        let n_free = problem.free.len();
         let n = r
             .len()
             .saturating_sub(n_free + 3 * problem.windows.len())
@@ -167,17 +270,24 @@ pub(super) fn fit_kind(
         let s = (r.iter().map(|e| e * e).sum::<f64>() / n as f64)
             .sqrt()
             .max(1e-12);
-        scales = Scales::white(s, s);
+        Scales::white(s, s)
     }
-    let (z, jac) = problem.whitened_jacobian(&x, &weights, scales);
+}
+
+/// `(Jᵀ W J)⁻¹` over the inliers at the solution, inflated by `(1 + ρ)/(1 − ρ)` for the lag-one
+/// correlation of the whitened residuals; spread over the full parameter vector (zero where
+/// not fitted, the tied right diameter taking the left's).
+fn inflated_covariance(problem: &Problem<'_>, solved: &Solved) -> Covariance {
+    let n_free = problem.free.len();
+    let (z, jac) = problem.whitened_jacobian(&solved.x, &solved.weights, solved.scales);
     let h = jac.transpose() * &jac;
-    let rho = lag_one_correlation(&problem, &z, &weights);
+    let rho = lag_one_correlation(problem, &z, &solved.weights);
     let inflation = ((1.0 + rho) / (1.0 - rho)).clamp(1.0, 100.0);
     let cov_free = h
         .clone()
         .try_inverse()
         .unwrap_or_else(|| DMatrix::from_element(n_free, n_free, f64::INFINITY));
-    let mut covariance = [[0.0; PARAMS]; PARAMS];
+    let mut matrix = [[0.0; PARAMS]; PARAMS];
     let mut index: Vec<(usize, usize)> = problem
         .free
         .iter()
@@ -189,18 +299,37 @@ pub(super) fn fit_kind(
     }
     for &(a, ia) in &index {
         for &(b, ib) in &index {
-            covariance[ia][ib] = cov_free[(a, b)] * inflation;
+            matrix[ia][ib] = cov_free[(a, b)] * inflation;
         }
     }
+    Covariance {
+        matrix,
+        rho,
+        inflation,
+    }
+}
+
+/// The fit's result at parameters `p`, with its noise model, covariance and warnings.
+fn report(
+    problem: &Problem<'_>,
+    config: &FitConfig,
+    decision: KindDecision,
+    p: [f64; PARAMS],
+    solved: &Solved,
+    covariance: Covariance,
+) -> PoseFit {
+    let dim = problem.dim;
+    let scales = solved.scales;
+    let recording = problem.recording;
     let span_s = {
         let first = recording.poses[problem.selected[0]].time_s;
         let last = recording.poses[problem.selected[problem.selected.len() - 1]].time_s;
         last - first
     };
-    Ok(PoseFit {
+    PoseFit {
         geometry: Problem::geometry(&p),
         params: p,
-        covariance,
+        covariance: covariance.matrix,
         free: problem.free.clone(),
         kind: decision,
         residual_std_position_m: scales.position * problem.stated_rms(0),
@@ -209,28 +338,31 @@ pub(super) fn fit_kind(
         residual_std_yaw_rad: (dim == 3).then_some(scales.yaw * problem.stated_rms(2)),
         walk_position_m2_s: scales.walk_position,
         walk_yaw_rad2_s: (dim == 3).then_some(scales.walk_yaw),
-        compared: blocks,
-        outliers,
-        windows: match kind {
+        compared: problem.blocks(),
+        outliers: solved.weights.iter().filter(|w| **w == 0.0).count(),
+        windows: match problem.kind {
             ReferenceKind::Absolute => problem.windows.len(),
             ReferenceKind::Relative => 0,
         },
-        lag_one_correlation: rho,
-        variance_inflation: inflation,
-        iterations,
+        lag_one_correlation: covariance.rho,
+        variance_inflation: covariance.inflation,
+        iterations: solved.iterations,
         span_s,
         nominal_wheelbase_m: config.nominal.wheelbase_m,
-        warnings: if problem.free.contains(&Param::TimeOffset)
-            && p[6].abs() >= 0.95 * problem.max_offset
-        {
-            vec![format!(
-                "the time offset {:.3} s is at its limit (±{:.2} s): the streams may be further \
-                 apart, and the geometry then absorbs the rest; raise --max-time-offset-s and fit \
-                 again",
-                p[6], problem.max_offset
-            )]
-        } else {
-            Vec::new()
-        },
-    })
+        warnings: offset_warnings(problem, &p),
+    }
+}
+
+/// A warning when the fitted time offset sits at its limit: the streams may be further apart.
+fn offset_warnings(problem: &Problem<'_>, p: &[f64; PARAMS]) -> Vec<String> {
+    if problem.free.contains(&Param::TimeOffset) && p[6].abs() >= 0.95 * problem.max_offset {
+        vec![format!(
+            "the time offset {:.3} s is at its limit (±{:.2} s): the streams may be further \
+             apart, and the geometry then absorbs the rest; raise --max-time-offset-s and fit \
+             again",
+            p[6], problem.max_offset
+        )]
+    } else {
+        Vec::new()
+    }
 }

@@ -249,6 +249,52 @@ pub async fn run<S: AsyncRead + AsyncWrite + Unpin + Send>(
     options: &Options,
     mut progress: impl FnMut(&RuleResult),
 ) -> Result<Report, ConformanceError> {
+    check_limits(options)?;
+    let rules = device_rules()?;
+    let mut w = Wire {
+        stream,
+        codec: FrameCodec::new(),
+        buf: BytesMut::new(),
+        pending: VecDeque::new(),
+        seq: 0x80,
+    };
+    let (dev, stored_before) = prepare(&mut w, options).await?;
+    let info = dev.info;
+    let wanted = |section: &str| {
+        options.only.is_empty() || options.only.iter().any(|o| section.starts_with(o.as_str()))
+    };
+    let mut results = Vec::new();
+    let outcome = async {
+        let saved_copy = stored_before.is_ok();
+        run_vector_rules(
+            &mut w,
+            &dev,
+            &rules,
+            saved_copy,
+            &wanted,
+            &mut progress,
+            &mut results,
+        )
+        .await?;
+        run_extra_checks(&mut w, &dev, &wanted, &mut progress, &mut results).await
+    }
+    .await;
+    // Whatever happened: stopped, settings off, the parameters in use at the start back.
+    let restored = restore(&mut w, &dev).await;
+    outcome?;
+    restored?;
+    let stored_after = stored(&mut w).await?;
+    let r = stored_copy_result(&stored_before, &stored_after);
+    progress(&r);
+    results.push(r);
+    Ok(Report {
+        device: info,
+        rules: results,
+    })
+}
+
+/// Refuses a speed limit or time scale out of its range, before anything is sent.
+fn check_limits(options: &Options) -> Result<(), ConformanceError> {
     if !(options.max_speed_m_s.is_finite()
         && (MIN_SPEED_M_S..=1.0).contains(&options.max_speed_m_s))
     {
@@ -264,14 +310,14 @@ pub async fn run<S: AsyncRead + AsyncWrite + Unpin + Send>(
             )));
         }
     }
-    let rules = device_rules()?;
-    let mut w = Wire {
-        stream,
-        codec: FrameCodec::new(),
-        buf: BytesMut::new(),
-        pending: VecDeque::new(),
-        seq: 0x80,
-    };
+    Ok(())
+}
+
+/// Reads the device's info, parameters, stored copy and clock rate: how the rules may move it.
+async fn prepare<S: AsyncRead + AsyncWrite + Unpin + Send>(
+    w: &mut Wire<S>,
+    options: &Options,
+) -> Result<(Device, Result<Response, Nack>), ConformanceError> {
     let info = match w.ok("HELLO", hello()).await? {
         Response::Hello(info) => info,
         other => {
@@ -293,8 +339,8 @@ pub async fn run<S: AsyncRead + AsyncWrite + Unpin + Send>(
             })
         }
     };
-    let stored_before = stored(&mut w).await?;
-    let time_scale = time_scale(&mut w, options.time_scale).await?;
+    let stored_before = stored(w).await?;
+    let time_scale = time_scale(w, options.time_scale).await?;
     let speed_mm_s = ((options.max_speed_m_s * 1e3) as u16).min(info.max_speed_mm_s);
     // A turn at rate ω drives each wheel at ω·b/2: the wheel speed limit caps it.
     let wheelbase_mm = f64::from(params.wheelbase_nm) * 1e-6;
@@ -306,87 +352,121 @@ pub async fn run<S: AsyncRead + AsyncWrite + Unpin + Send>(
         rate_mrad_s: (rate as u16).min(info.max_rate_mrad_s).max(1),
         time_scale,
     };
-    let wanted = |section: &str| {
-        options.only.is_empty() || options.only.iter().any(|o| section.starts_with(o.as_str()))
-    };
-    let mut results = Vec::new();
-    let outcome = async {
-        for rule in &rules {
-            let section = rule["name"].as_str().unwrap_or("").split(' ').next();
-            if !section.is_some_and(wanted) {
-                continue;
-            }
-            let r = run_rule(&mut w, &dev, rule, stored_before.is_ok()).await?;
-            progress(&r);
-            results.push(r);
+    Ok((dev, stored_before))
+}
+
+/// Runs each vector rule `wanted` selects, in order, reporting each to `progress`.
+async fn run_vector_rules<S: AsyncRead + AsyncWrite + Unpin + Send>(
+    w: &mut Wire<S>,
+    dev: &Device,
+    rules: &[Value],
+    saved_copy: bool,
+    wanted: &impl Fn(&str) -> bool,
+    progress: &mut impl FnMut(&RuleResult),
+    results: &mut Vec<RuleResult>,
+) -> Result<(), ConformanceError> {
+    for rule in rules {
+        let section = rule["name"].as_str().unwrap_or("").split(' ').next();
+        if !section.is_some_and(wanted) {
+            continue;
         }
-        let extras: [(&str, &str, bool); 2] = [
-            (
-                "3",
-                "a retried MOVE_STRAIGHT is answered again and runs once",
-                true,
-            ),
-            (
-                "7.2",
-                "a retry answered from the cache feeds the watchdog",
-                dev.has(capability::WATCHDOG),
-            ),
-        ];
-        for (i, (section, rule, possible)) in extras.into_iter().enumerate() {
-            if !wanted(section) {
-                continue;
-            }
-            let check = if !possible {
-                Ok(Err("the device has no watchdog".to_string()))
-            } else if i == 0 {
-                retried_motion_runs_once(&mut w, &dev).await
+        let r = run_rule(w, dev, rule, saved_copy).await?;
+        progress(&r);
+        results.push(r);
+    }
+    Ok(())
+}
+
+/// Runs the selected checks no vector can express (retried motion, retry feeding the watchdog).
+async fn run_extra_checks<S: AsyncRead + AsyncWrite + Unpin + Send>(
+    w: &mut Wire<S>,
+    dev: &Device,
+    wanted: &impl Fn(&str) -> bool,
+    progress: &mut impl FnMut(&RuleResult),
+    results: &mut Vec<RuleResult>,
+) -> Result<(), ConformanceError> {
+    let extras: [(&str, &str, bool); 2] = [
+        (
+            "3",
+            "a retried MOVE_STRAIGHT is answered again and runs once",
+            true,
+        ),
+        (
+            "7.2",
+            "a retry answered from the cache feeds the watchdog",
+            dev.has(capability::WATCHDOG),
+        ),
+    ];
+    for (i, (section, rule, possible)) in extras.into_iter().enumerate() {
+        if !wanted(section) {
+            continue;
+        }
+        let check = if !possible {
+            Ok(Err("the device has no watchdog".to_string()))
+        } else if i == 0 {
+            retried_motion_runs_once(w, dev).await
+        } else {
+            retries_feed_the_watchdog(w, dev).await
+        };
+        let r = extra_result(section, rule, possible, check?);
+        progress(&r);
+        results.push(r);
+    }
+    Ok(())
+}
+
+/// An extra check's result: passed, or failed (skipped when it was not `possible`) and why.
+fn extra_result(
+    section: &str,
+    rule: &str,
+    possible: bool,
+    check: Result<(), String>,
+) -> RuleResult {
+    match check {
+        Ok(()) => RuleResult {
+            section: section.into(),
+            rule: rule.into(),
+            outcome: Outcome::Pass,
+            reason: None,
+        },
+        Err(why) => RuleResult {
+            section: section.into(),
+            rule: rule.into(),
+            outcome: if possible {
+                Outcome::Fail
             } else {
-                retries_feed_the_watchdog(&mut w, &dev).await
-            };
-            let r = match check? {
-                Ok(()) => RuleResult {
-                    section: section.into(),
-                    rule: rule.into(),
-                    outcome: Outcome::Pass,
-                    reason: None,
-                },
-                Err(why) => RuleResult {
-                    section: section.into(),
-                    rule: rule.into(),
-                    outcome: if possible {
-                        Outcome::Fail
-                    } else {
-                        Outcome::Skip
-                    },
-                    reason: Some(why),
-                },
-            };
-            progress(&r);
-            results.push(r);
-        }
-        Ok::<(), ConformanceError>(())
+                Outcome::Skip
+            },
+            reason: Some(why),
+        },
     }
-    .await;
-    // Whatever happened: stopped, settings off, the parameters in use at the start back.
-    let restored = async {
-        dev.fresh(&mut w).await?;
-        if dev.has(capability::WATCHDOG) {
-            let off = WatchdogTimeout { timeout_ms: 0 };
-            w.ok("CONFIGURE_WATCHDOG", Request::ConfigureWatchdog(off))
-                .await?;
-        }
-        Ok::<(), ConformanceError>(())
+}
+
+/// Stops the base and puts the rules' settings back (watchdog off, parameters as at the start).
+async fn restore<S: AsyncRead + AsyncWrite + Unpin + Send>(
+    w: &mut Wire<S>,
+    dev: &Device,
+) -> Result<(), ConformanceError> {
+    dev.fresh(w).await?;
+    if dev.has(capability::WATCHDOG) {
+        let off = WatchdogTimeout { timeout_ms: 0 };
+        w.ok("CONFIGURE_WATCHDOG", Request::ConfigureWatchdog(off))
+            .await?;
     }
-    .await;
-    outcome?;
-    restored?;
-    let stored_after = stored(&mut w).await?;
-    let unchanged = match (&stored_before, &stored_after) {
+    Ok(())
+}
+
+/// §5's result: whether the stored parameter copy is what it was before the rules ran.
+fn stored_copy_result(
+    stored_before: &Result<Response, Nack>,
+    stored_after: &Result<Response, Nack>,
+) -> RuleResult {
+    let unchanged = match (stored_before, stored_after) {
         (Ok(a), Ok(b)) => a == b,
         (Err(a), Err(b)) => a.code == b.code,
         _ => false,
     };
-    let r = RuleResult {
+    RuleResult {
         section: "5".into(),
         rule: "the stored parameter copy changes only by SAVE_PARAMS (none was accepted)".into(),
         outcome: if unchanged {
@@ -408,17 +488,11 @@ pub async fn run<S: AsyncRead + AsyncWrite + Unpin + Send>(
             };
             format!(
                 "GET_PARAMS stored was {}, is now {}",
-                text(&stored_before),
-                text(&stored_after)
+                text(stored_before),
+                text(stored_after)
             )
         }),
-    };
-    progress(&r);
-    results.push(r);
-    Ok(Report {
-        device: info,
-        rules: results,
-    })
+    }
 }
 
 /// Opens `path` at `baud` and runs [`run`] on it.

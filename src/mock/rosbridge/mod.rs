@@ -366,45 +366,7 @@ async fn physics(
             while s.time_s + dt <= target {
                 s.time_s += dt;
                 let t = s.time_s;
-                let g = s.controller.effective();
-                // The controller: commands time out; wheel speeds from the configured geometry,
-                // ramped at the acceleration limits.
-                let (v, w) = if t - s.last_cmd_s > timeout {
-                    (0.0, 0.0)
-                } else {
-                    s.cmd
-                };
-                let (sl, sr) = g.travel_m(s.wheel_speed.0, s.wheel_speed.1);
-                let now = Displacement::of_wheels(sl, sr, g.wheelbase_m);
-                // A ramp lands exactly on its target once the rest is within one step (plus
-                // rounding): counting down by `lim * dt` in floating point can otherwise leave a
-                // 1e-16 residue for one tick, a robot that is "still" but not at zero.
-                let step_to = |now: f64, want: f64, lim: f64| {
-                    let rest = want - now;
-                    let max = lim * dt;
-                    if rest.abs() <= max * (1.0 + 1e-9) {
-                        want
-                    } else {
-                        now + rest.clamp(-max, max)
-                    }
-                };
-                let (v1, w1) = (
-                    step_to(now.distance_m, v, cfg.accel_limit_m_s2),
-                    step_to(now.turn_rad, w, cfg.alpha_limit_rad_s2),
-                );
-                let (l1, r1) = Displacement {
-                    distance_m: v1,
-                    turn_rad: w1,
-                }
-                .wheels(g.wheelbase_m);
-                let (wl, wr) = (l1 / g.left_m_per_count(), r1 / g.right_m_per_count());
-                s.wheel_speed = (wl, wr);
-                let (dl, dr) = (wl * dt, wr * dt);
-                s.sim.step_counts(dl, dr);
-                s.angles.0 += dl;
-                s.angles.1 += dr;
-                s.odo = g.odometry_step(&s.odo, dl, dr);
-                s.sim.set_time(t);
+                let (twist, wheels) = drive_step(&mut s, &cfg, dt, timeout, t);
                 let stamp = s.stamp(t);
                 if let Some(loc) = localizer.as_mut() {
                     let truth = s.sim.pose();
@@ -413,78 +375,15 @@ async fn physics(
                     }
                 }
                 // A reading the sensor lost is a message not sent.
-                if let Some(yaw) = s.sim.heading_reading() {
-                    let unknown = if cfg.effort == EffortStyle::BareNan {
-                        [f64::NAN; 9]
-                    } else {
-                        [0.0; 9]
-                    };
-                    batch.push((
-                        "/imu".to_string(),
-                        serde_json::to_value(Imu {
-                            header: header(stamp, "imu_link"),
-                            orientation: Quaternion::from_yaw(yaw),
-                            angular_velocity_covariance: unknown,
-                            ..Imu::default()
-                        })
-                        .unwrap_or(Value::Null),
-                    ));
+                if let Some(imu) = imu_message(&mut s, &cfg, stamp) {
+                    batch.push(imu);
                 }
                 if step.is_multiple_of(every) {
-                    let names = (
-                        s.controller
-                            .left_wheel_names
-                            .first()
-                            .cloned()
-                            .unwrap_or("left_wheel_joint".into()),
-                        s.controller
-                            .right_wheel_names
-                            .first()
-                            .cloned()
-                            .unwrap_or("right_wheel_joint".into()),
-                    );
-                    if cfg.joint_states_stop_after_s.is_none_or(|stop| t < stop) {
-                        let n = step / every;
-                        let glitch = cfg.joint_glitch_every.filter(|&g| g > 0);
-                        let spike = glitch.is_some_and(|g| n % g == g - 1);
-                        let back = glitch.is_some_and(|g| n.is_multiple_of(g) && n > 0);
-                        let stamp = if back { s.stamp(t - 0.1) } else { stamp };
-                        let effort = match cfg.effort {
-                            EffortStyle::Empty => vec![],
-                            EffortStyle::Zero => vec![0.0, 0.0],
-                            EffortStyle::Null | EffortStyle::BareNan => vec![f64::NAN; 2],
-                        };
-                        batch.push((
-                            "/joint_states".to_string(),
-                            serde_json::to_value(JointState {
-                                header: header(stamp, ""),
-                                name: vec![names.0, names.1],
-                                position: if cfg.frozen_joint_states {
-                                    vec![0.0, 0.0]
-                                } else if spike {
-                                    vec![s.angles.0 + 3.0, s.angles.1]
-                                } else {
-                                    vec![s.angles.0, s.angles.1]
-                                },
-                                velocity: vec![wl, wr],
-                                effort,
-                            })
-                            .unwrap_or(Value::Null),
-                        ));
+                    let n = step / every;
+                    if let Some(joints) = joint_state_message(&s, &cfg, t, stamp, n, wheels) {
+                        batch.push(joints);
                     }
-                    let mut o = Odometry {
-                        header: header(stamp, "odom"),
-                        child_frame_id: "base_link".into(),
-                        ..Odometry::default()
-                    };
-                    o.pose.pose.position.x = s.odo.x_m;
-                    o.pose.pose.position.y = s.odo.y_m;
-                    o.pose.pose.orientation = Quaternion::from_yaw(s.odo.heading_rad);
-                    o.twist.twist = Twist::planar(v1, w1);
-                    batch.push((
-                        "/odom".to_string(),
-                        serde_json::to_value(o).unwrap_or(Value::Null),
-                    ));
+                    batch.push(odom_message(&s, stamp, twist));
                 }
                 step += 1;
             }
@@ -494,4 +393,148 @@ async fn physics(
             let _ = out.send((topic, msg, at));
         }
     }
+}
+
+/// Moves `now` toward `want` by at most `lim * dt`, landing exactly on `want` once within reach.
+fn ramp(now: f64, want: f64, lim: f64, dt: f64) -> f64 {
+    // A ramp lands exactly on its target once the rest is within one step (plus rounding):
+    // counting down by `lim * dt` in floating point can otherwise leave a 1e-16 residue for one
+    // tick, a robot that is "still" but not at zero.
+    let rest = want - now;
+    let max = lim * dt;
+    if rest.abs() <= max * (1.0 + 1e-9) {
+        want
+    } else {
+        now + rest.clamp(-max, max)
+    }
+}
+
+/// Runs the controller and the robot for one step at robot time `t`; returns the ramped twist
+/// (v, w) and the wheel speeds (rad/s).
+fn drive_step(
+    s: &mut MockRosState,
+    cfg: &MockRosConfig,
+    dt: f64,
+    timeout: f64,
+    t: f64,
+) -> ((f64, f64), (f64, f64)) {
+    let g = s.controller.effective();
+    // The controller: commands time out; wheel speeds from the configured geometry, ramped at
+    // the acceleration limits.
+    let (v, w) = if t - s.last_cmd_s > timeout {
+        (0.0, 0.0)
+    } else {
+        s.cmd
+    };
+    let (sl, sr) = g.travel_m(s.wheel_speed.0, s.wheel_speed.1);
+    let now = Displacement::of_wheels(sl, sr, g.wheelbase_m);
+    let (v1, w1) = (
+        ramp(now.distance_m, v, cfg.accel_limit_m_s2, dt),
+        ramp(now.turn_rad, w, cfg.alpha_limit_rad_s2, dt),
+    );
+    let (l1, r1) = Displacement {
+        distance_m: v1,
+        turn_rad: w1,
+    }
+    .wheels(g.wheelbase_m);
+    let (wl, wr) = (l1 / g.left_m_per_count(), r1 / g.right_m_per_count());
+    s.wheel_speed = (wl, wr);
+    let (dl, dr) = (wl * dt, wr * dt);
+    s.sim.step_counts(dl, dr);
+    s.angles.0 += dl;
+    s.angles.1 += dr;
+    s.odo = g.odometry_step(&s.odo, dl, dr);
+    s.sim.set_time(t);
+    ((v1, w1), (wl, wr))
+}
+
+/// The `/imu` message stamped `stamp`, or none when the sensor lost the reading.
+fn imu_message(s: &mut MockRosState, cfg: &MockRosConfig, stamp: f64) -> Option<(String, Value)> {
+    let yaw = s.sim.heading_reading()?;
+    let unknown = if cfg.effort == EffortStyle::BareNan {
+        [f64::NAN; 9]
+    } else {
+        [0.0; 9]
+    };
+    Some((
+        "/imu".to_string(),
+        serde_json::to_value(Imu {
+            header: header(stamp, "imu_link"),
+            orientation: Quaternion::from_yaw(yaw),
+            angular_velocity_covariance: unknown,
+            ..Imu::default()
+        })
+        .unwrap_or(Value::Null),
+    ))
+}
+
+/// The `n`th `/joint_states` message at robot time `t`, with the configured glitches and
+/// effort; none once the driver has stopped publishing.
+fn joint_state_message(
+    s: &MockRosState,
+    cfg: &MockRosConfig,
+    t: f64,
+    stamp: f64,
+    n: u64,
+    (wl, wr): (f64, f64),
+) -> Option<(String, Value)> {
+    let names = (
+        s.controller
+            .left_wheel_names
+            .first()
+            .cloned()
+            .unwrap_or("left_wheel_joint".into()),
+        s.controller
+            .right_wheel_names
+            .first()
+            .cloned()
+            .unwrap_or("right_wheel_joint".into()),
+    );
+    let publishing = cfg.joint_states_stop_after_s.is_none_or(|stop| t < stop);
+    if !publishing {
+        return None;
+    }
+    let glitch = cfg.joint_glitch_every.filter(|&g| g > 0);
+    let spike = glitch.is_some_and(|g| n % g == g - 1);
+    let back = glitch.is_some_and(|g| n.is_multiple_of(g) && n > 0);
+    let stamp = if back { s.stamp(t - 0.1) } else { stamp };
+    let effort = match cfg.effort {
+        EffortStyle::Empty => vec![],
+        EffortStyle::Zero => vec![0.0, 0.0],
+        EffortStyle::Null | EffortStyle::BareNan => vec![f64::NAN; 2],
+    };
+    Some((
+        "/joint_states".to_string(),
+        serde_json::to_value(JointState {
+            header: header(stamp, ""),
+            name: vec![names.0, names.1],
+            position: if cfg.frozen_joint_states {
+                vec![0.0, 0.0]
+            } else if spike {
+                vec![s.angles.0 + 3.0, s.angles.1]
+            } else {
+                vec![s.angles.0, s.angles.1]
+            },
+            velocity: vec![wl, wr],
+            effort,
+        })
+        .unwrap_or(Value::Null),
+    ))
+}
+
+/// The controller's `/odom` message stamped `stamp`, moving at the twist (v, w).
+fn odom_message(s: &MockRosState, stamp: f64, (v1, w1): (f64, f64)) -> (String, Value) {
+    let mut o = Odometry {
+        header: header(stamp, "odom"),
+        child_frame_id: "base_link".into(),
+        ..Odometry::default()
+    };
+    o.pose.pose.position.x = s.odo.x_m;
+    o.pose.pose.position.y = s.odo.y_m;
+    o.pose.pose.orientation = Quaternion::from_yaw(s.odo.heading_rad);
+    o.twist.twist = Twist::planar(v1, w1);
+    (
+        "/odom".to_string(),
+        serde_json::to_value(o).unwrap_or(Value::Null),
+    )
 }

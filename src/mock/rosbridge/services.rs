@@ -418,7 +418,6 @@ fn parameters(
     cfg: &MockRosConfig,
     state: &Mutex<MockRosState>,
 ) -> Option<Value> {
-    let read_only = |n: &str| cfg.read_only_parameters.iter().any(|r| r == n);
     let names = || -> Vec<String> {
         args.get("names")
             .and_then(|n| serde_json::from_value(n.clone()).ok())
@@ -441,111 +440,138 @@ fn parameters(
                 .collect();
             json!({"types": types.unwrap_or_default()})
         }
-        "describe_parameters" => {
-            let descriptors: Option<Vec<Value>> = names()
-                .iter()
-                .map(|n| {
-                    s.params.get(n).map(|v| {
-                        json!({"name": n, "type": v.type_id(), "description": "",
-                            "additional_constraints": "", "read_only": read_only(n),
-                            "dynamic_typing": false, "floating_point_range": [],
-                            "integer_range": []})
-                    })
-                })
-                .collect();
-            json!({"descriptors": descriptors.unwrap_or_default()})
-        }
-        "list_parameters" => {
-            let prefixes: Vec<String> = args
-                .get("prefixes")
-                .and_then(|p| serde_json::from_value(p.clone()).ok())
-                .unwrap_or_default();
-            let names: Vec<&String> = s
-                .params
-                .keys()
-                .filter(|n| {
-                    prefixes.is_empty()
-                        || prefixes
-                            .iter()
-                            .any(|p| n.starts_with(&format!("{p}.")) || *n == p)
-                })
-                .collect();
-            let mut groups: Vec<&str> = names
-                .iter()
-                .filter_map(|n| n.rsplit_once('.').map(|(g, _)| g))
-                .collect();
-            groups.dedup();
-            json!({"result": {"names": names, "prefixes": groups}})
-        }
-        "set_parameters" | "set_parameters_atomically" => {
-            let requests: Vec<Value> = args
-                .get("parameters")
-                .and_then(Value::as_array)
-                .cloned()
-                .unwrap_or_default();
-            let mut results = Vec::new();
-            let mut staged = s.params.clone();
-            for p in &requests {
-                let n = p.get("name").and_then(Value::as_str).unwrap_or("");
-                let outcome = match (staged.get(n), p.get("value").map(ParamValue::from_json)) {
-                    (None, _) => Err(format!(
-                        "parameter '{n}' cannot be set because it was not declared"
-                    )),
-                    (Some(_), _) if read_only(n) => Err(format!(
-                        "parameter '{n}' cannot be set because it is read-only"
-                    )),
-                    (Some(_), _) if cfg.refuse_parameter_sets.is_some() => {
-                        Err(cfg.refuse_parameter_sets.clone().unwrap_or_default())
-                    }
-                    (Some(have), Some(Ok(v))) if v.type_id() == have.type_id() => {
-                        staged.insert(n.to_string(), v);
-                        Ok(())
-                    }
-                    (Some(have), got) => {
-                        let t = match got {
-                            Some(Ok(v)) => u64::from(v.type_id()),
-                            Some(Err(t)) => t,
-                            None => 0,
-                        };
-                        Err(format!(
-                            "Wrong parameter type, parameter {{{n}}} is of type {{{}}}, setting \
-                             it to {{{}}} is not allowed.",
-                            ParamValue::type_name(u64::from(have.type_id())),
-                            ParamValue::type_name(t)
-                        ))
-                    }
-                };
-                results.push(match outcome {
-                    Ok(()) => json!({"successful": true, "reason": ""}),
-                    Err(reason) => json!({"successful": false, "reason": reason}),
-                });
-            }
-            let all_ok = results.iter().all(|r| r["successful"] == json!(true));
-            s.counters.parameter_sets += 1;
-            if name == "set_parameters_atomically" {
-                if all_ok {
-                    apply(&mut s, staged);
-                    json!({"result": {"successful": true, "reason": ""}})
-                } else {
-                    json!({"result": {"successful": false, "reason": "One or more parameters were not declared before setting"}})
-                }
-            } else {
-                // Each applied on its own: the successful ones stand.
-                let mut kept = s.params.clone();
-                for (p, r) in requests.iter().zip(&results) {
-                    if r["successful"] == json!(true) {
-                        let n = p.get("name").and_then(Value::as_str).unwrap_or("");
-                        if let Some(v) = staged.get(n) {
-                            kept.insert(n.to_string(), v.clone());
-                        }
-                    }
-                }
-                apply(&mut s, kept);
-                json!({"results": results})
-            }
-        }
+        "describe_parameters" => describe_parameters(&s.params, &names(), cfg),
+        "list_parameters" => list_parameters(&s.params, args),
+        "set_parameters" | "set_parameters_atomically" => set_parameters(name, args, cfg, &mut s),
         _ => return None,
     })
+}
+
+/// Whether the controller's parameter `n` is declared read-only.
+fn read_only(cfg: &MockRosConfig, n: &str) -> bool {
+    cfg.read_only_parameters.iter().any(|r| r == n)
+}
+
+/// `describe_parameters`: a descriptor per name, or none at all if one is undeclared.
+fn describe_parameters(
+    params: &BTreeMap<String, ParamValue>,
+    names: &[String],
+    cfg: &MockRosConfig,
+) -> Value {
+    let descriptors: Option<Vec<Value>> = names
+        .iter()
+        .map(|n| {
+            params.get(n).map(|v| {
+                json!({"name": n, "type": v.type_id(), "description": "",
+                    "additional_constraints": "", "read_only": read_only(cfg, n),
+                    "dynamic_typing": false, "floating_point_range": [],
+                    "integer_range": []})
+            })
+        })
+        .collect();
+    json!({"descriptors": descriptors.unwrap_or_default()})
+}
+
+/// `list_parameters`: the names under the requested prefixes (all without any) and their groups.
+fn list_parameters(params: &BTreeMap<String, ParamValue>, args: &Value) -> Value {
+    let prefixes: Vec<String> = args
+        .get("prefixes")
+        .and_then(|p| serde_json::from_value(p.clone()).ok())
+        .unwrap_or_default();
+    let names: Vec<&String> = params
+        .keys()
+        .filter(|n| {
+            prefixes.is_empty()
+                || prefixes
+                    .iter()
+                    .any(|p| n.starts_with(&format!("{p}.")) || *n == p)
+        })
+        .collect();
+    let mut groups: Vec<&str> = names
+        .iter()
+        .filter_map(|n| n.rsplit_once('.').map(|(g, _)| g))
+        .collect();
+    groups.dedup();
+    json!({"result": {"names": names, "prefixes": groups}})
+}
+
+/// `set_parameters` and `set_parameters_atomically` (`name`): checks each requested value as
+/// rclcpp would, applies what the service's semantics allow and answers with the results.
+fn set_parameters(name: &str, args: &Value, cfg: &MockRosConfig, s: &mut MockRosState) -> Value {
+    let requests: Vec<Value> = args
+        .get("parameters")
+        .and_then(Value::as_array)
+        .cloned()
+        .unwrap_or_default();
+    let mut results = Vec::new();
+    let mut staged = s.params.clone();
+    for p in &requests {
+        results.push(match stage_parameter(&mut staged, p, cfg) {
+            Ok(()) => json!({"successful": true, "reason": ""}),
+            Err(reason) => json!({"successful": false, "reason": reason}),
+        });
+    }
+    let all_ok = results.iter().all(|r| r["successful"] == json!(true));
+    s.counters.parameter_sets += 1;
+    if name == "set_parameters_atomically" {
+        if all_ok {
+            apply(s, staged);
+            json!({"result": {"successful": true, "reason": ""}})
+        } else {
+            json!({"result": {"successful": false, "reason": "One or more parameters were not declared before setting"}})
+        }
+    } else {
+        // Each applied on its own: the successful ones stand.
+        let mut kept = s.params.clone();
+        for (p, r) in requests.iter().zip(&results) {
+            if r["successful"] == json!(true) {
+                let n = p.get("name").and_then(Value::as_str).unwrap_or("");
+                if let Some(v) = staged.get(n) {
+                    kept.insert(n.to_string(), v.clone());
+                }
+            }
+        }
+        apply(s, kept);
+        json!({"results": results})
+    }
+}
+
+/// Checks one requested parameter `p` against the declared ones and stages its value in
+/// `staged`, or gives rclcpp's reason for refusing it.
+fn stage_parameter(
+    staged: &mut BTreeMap<String, ParamValue>,
+    p: &Value,
+    cfg: &MockRosConfig,
+) -> Result<(), String> {
+    let n = p.get("name").and_then(Value::as_str).unwrap_or("");
+    match (staged.get(n), p.get("value").map(ParamValue::from_json)) {
+        (None, _) => Err(format!(
+            "parameter '{n}' cannot be set because it was not declared"
+        )),
+        (Some(_), _) if read_only(cfg, n) => Err(format!(
+            "parameter '{n}' cannot be set because it is read-only"
+        )),
+        (Some(_), _) if cfg.refuse_parameter_sets.is_some() => {
+            Err(cfg.refuse_parameter_sets.clone().unwrap_or_default())
+        }
+        (Some(have), Some(Ok(v))) if v.type_id() == have.type_id() => {
+            staged.insert(n.to_string(), v);
+            Ok(())
+        }
+        (Some(have), got) => {
+            let t = match got {
+                Some(Ok(v)) => u64::from(v.type_id()),
+                Some(Err(t)) => t,
+                None => 0,
+            };
+            Err(format!(
+                "Wrong parameter type, parameter {{{n}}} is of type {{{}}}, setting \
+                 it to {{{}}} is not allowed.",
+                ParamValue::type_name(u64::from(have.type_id())),
+                ParamValue::type_name(t)
+            ))
+        }
+    }
 }
 
 /// New parameter values, and the geometry they give the running controller when it is a

@@ -3,6 +3,9 @@
 
 use super::*;
 
+/// Picks a quantity's value and its standard error, if any, from an estimate.
+type Pick = fn(&crate::calibration::Estimate) -> (f64, Option<f64>);
+
 /// Each round's estimate by the method it chose: `E_b` and `E_d` (ratios to that round's
 /// configured parameters, 1 = nothing to correct) with a bar of ± 1 standard error within the
 /// round, or a ring where the round had no ±.
@@ -21,7 +24,6 @@ pub(super) fn estimates_plot(report: &Report, file: &Path) -> PlotResult<bool> {
             String::new()
         }
     };
-    type Pick = fn(&crate::calibration::Estimate) -> (f64, Option<f64>);
     let quantities: [(&str, &str, Pick); 2] = [
         (
             "E_b = b_actual / b_configured",
@@ -35,56 +37,81 @@ pub(super) fn estimates_plot(report: &Report, file: &Path) -> PlotResult<bool> {
         ),
     ];
     let (mut bars, mut rings) = (false, false);
-    for (area, (title, y_desc, pick)) in plots.split_evenly((1, 2)).iter().zip(&quantities) {
-        let (area, _) = titled(area, title)?;
-        let values: Vec<(f64, f64, Option<f64>)> = report
-            .rounds
-            .iter()
-            .map(|r| {
-                let (v, se) = pick(&r.chosen);
-                (r.round as f64, v, se.filter(|s| s.is_finite()))
-            })
-            .collect();
-        let (mut lo, mut hi) = (1.0f64, 1.0f64);
-        for &(_, v, se) in &values {
-            let s = se.unwrap_or(0.0);
-            lo = lo.min(v - s);
-            hi = hi.max(v + s);
-        }
-        let pad = (0.12 * (hi - lo)).max(2e-4);
-        let x = 0.5..n + 0.5;
-        let mut chart = chart(
-            &area,
-            x.clone(),
-            lo - pad..hi + pad,
-            "round",
-            y_desc,
-            &x_ticks,
-        )?;
-        chart.draw_series(LineSeries::new(
-            [(x.start, 1.0), (x.end, 1.0)],
-            BLACK.mix(0.5),
-        ))?;
-        for &(round, v, se) in &values {
-            match se {
-                Some(s) => {
-                    bars = true;
-                    chart.draw_series([ErrorBar::new_vertical(
-                        round,
-                        v - s,
-                        v,
-                        v + s,
-                        BLACK.stroke_width(2),
-                        14,
-                    )])?;
-                }
-                None => {
-                    rings = true;
-                    chart.draw_series([Circle::new((round, v), 7, BLACK.stroke_width(2))])?;
-                }
+    for (area, quantity) in plots.split_evenly((1, 2)).iter().zip(&quantities) {
+        let (bar, ring) = estimate_panel(area, report, quantity, n, &x_ticks)?;
+        bars |= bar;
+        rings |= ring;
+    }
+    legend(&side, &estimates_legend(report, bars, rings))?;
+    root.present()?;
+    Ok(true)
+}
+
+/// Draws one quantity's panel (`title`, axis label, pick) for the `n` rounds: the line at 1 and
+/// each round's estimate; returns whether it drew a bar and whether it drew a ring.
+fn estimate_panel(
+    area: &Area<'_>,
+    report: &Report,
+    quantity: &(&str, &str, Pick),
+    n: f64,
+    x_ticks: &dyn Fn(&f64) -> String,
+) -> PlotResult<(bool, bool)> {
+    let (title, y_desc, pick) = *quantity;
+    let (mut bars, mut rings) = (false, false);
+    let (area, _) = titled(area, title)?;
+    let values: Vec<(f64, f64, Option<f64>)> = report
+        .rounds
+        .iter()
+        .map(|r| {
+            let (v, se) = pick(&r.chosen);
+            (r.round as f64, v, se.filter(|s| s.is_finite()))
+        })
+        .collect();
+    let (mut lo, mut hi) = (1.0f64, 1.0f64);
+    for &(_, v, se) in &values {
+        let s = se.unwrap_or(0.0);
+        lo = lo.min(v - s);
+        hi = hi.max(v + s);
+    }
+    let pad = (0.12 * (hi - lo)).max(2e-4);
+    let x = 0.5..n + 0.5;
+    let mut chart = chart(
+        &area,
+        x.clone(),
+        lo - pad..hi + pad,
+        "round",
+        y_desc,
+        x_ticks,
+    )?;
+    chart.draw_series(LineSeries::new(
+        [(x.start, 1.0), (x.end, 1.0)],
+        BLACK.mix(0.5),
+    ))?;
+    for &(round, v, se) in &values {
+        match se {
+            Some(s) => {
+                bars = true;
+                chart.draw_series([ErrorBar::new_vertical(
+                    round,
+                    v - s,
+                    v,
+                    v + s,
+                    BLACK.stroke_width(2),
+                    14,
+                )])?;
+            }
+            None => {
+                rings = true;
+                chart.draw_series([Circle::new((round, v), 7, BLACK.stroke_width(2))])?;
             }
         }
     }
+    Ok((bars, rings))
+}
+
+/// The estimates plot's legend: the line at 1, the marks drawn (`bars`, `rings`) and the
+/// methods the rounds chose.
+fn estimates_legend(report: &Report, bars: bool, rings: bool) -> Vec<(String, Mark)> {
     let mut entries = vec![(
         "1: nothing to correct".to_string(),
         Mark::Line(BLACK.mix(0.5).stroke_width(1)),
@@ -108,9 +135,7 @@ pub(super) fn estimates_plot(report: &Report, file: &Path) -> PlotResult<bool> {
     entries.push((format!("method: {}", methods.join(", ")), Mark::Note));
     entries.push(("each round to its own".into(), Mark::Note));
     entries.push(("configured parameters".into(), Mark::Note));
-    legend(&side, &entries)?;
-    root.present()?;
-    Ok(true)
+    entries
 }
 
 /// The compass swing's deviation curve: the fitted `d(ψ)` over a turn and, where the report

@@ -130,18 +130,7 @@ pub(super) fn mean_std(v: &[f64]) -> Option<(f64, Option<f64>)> {
 /// verification = after), each on its own scale: the runs as dots by direction, and each
 /// direction's mean with a bar of ± 2 standard deviations of its runs.
 pub(super) fn heading_plot(report: &Report, file: &Path) -> PlotResult<bool> {
-    let mut panels: Vec<(String, &[RunReport])> = Vec::new();
-    let rounds = report.rounds.len();
-    for r in &report.rounds {
-        let title = match r.round {
-            1 if rounds > 1 || !report.verification.is_empty() => "round 1 (before)".into(),
-            n => format!("round {n}"),
-        };
-        panels.push((title, &r.runs));
-    }
-    if !report.verification.is_empty() {
-        panels.push(("verification (after)".into(), &report.verification));
-    }
+    let panels = heading_panels(report);
     if panels.iter().all(|(_, runs)| runs.is_empty()) {
         return Ok(false);
     }
@@ -154,71 +143,122 @@ pub(super) fn heading_plot(report: &Report, file: &Path) -> PlotResult<bool> {
         _ => String::new(),
     };
     for (area, (title, runs)) in plots.split_evenly((1, panels.len())).iter().zip(&panels) {
-        let (area, _) = titled(area, title)?;
-        let per_direction: Vec<(Direction, Vec<f64>)> = directions
-            .iter()
-            .map(|&d| {
-                let v = runs
-                    .iter()
-                    .filter(|r| r.direction == d)
-                    .map(|r| r.heading_error_deg)
-                    .collect();
-                (d, v)
-            })
-            .collect();
-        // The scale: every run, every bar and zero.
-        let (mut lo, mut hi) = (0.0f64, 0.0f64);
-        for (_, v) in &per_direction {
-            for &e in v {
-                lo = lo.min(e);
-                hi = hi.max(e);
-            }
-            if let Some((m, Some(s))) = mean_std(v) {
-                lo = lo.min(m - 2.0 * s);
-                hi = hi.max(m + 2.0 * s);
-            }
+        heading_panel(area, title, runs, directions, &x_ticks)?;
+    }
+    legend(&side, &heading_legend(&panels, directions))?;
+    root.present()?;
+    Ok(true)
+}
+
+/// The heading-error plot's panels, titled: each round's runs, then the verification's.
+fn heading_panels(report: &Report) -> Vec<(String, &[RunReport])> {
+    let mut panels: Vec<(String, &[RunReport])> = Vec::new();
+    let rounds = report.rounds.len();
+    for r in &report.rounds {
+        let title = match r.round {
+            1 if rounds > 1 || !report.verification.is_empty() => "round 1 (before)".into(),
+            n => format!("round {n}"),
+        };
+        panels.push((title, &r.runs));
+    }
+    if !report.verification.is_empty() {
+        panels.push(("verification (after)".into(), &report.verification));
+    }
+    panels
+}
+
+/// Draws one phase's panel: its runs' final heading errors by direction, on a scale holding
+/// every run, every bar and zero.
+fn heading_panel(
+    area: &Area<'_>,
+    title: &str,
+    runs: &[RunReport],
+    directions: [Direction; 2],
+    x_ticks: &dyn Fn(&f64) -> String,
+) -> PlotResult<()> {
+    let (area, _) = titled(area, title)?;
+    let per_direction: Vec<(Direction, Vec<f64>)> = directions
+        .iter()
+        .map(|&d| {
+            let v = runs
+                .iter()
+                .filter(|r| r.direction == d)
+                .map(|r| r.heading_error_deg)
+                .collect();
+            (d, v)
+        })
+        .collect();
+    // The scale: every run, every bar and zero.
+    let (mut lo, mut hi) = (0.0f64, 0.0f64);
+    for (_, v) in &per_direction {
+        for &e in v {
+            lo = lo.min(e);
+            hi = hi.max(e);
         }
-        let pad = (0.12 * (hi - lo)).max(0.05);
-        let mut chart = chart(
-            &area,
-            -0.5..1.8,
-            lo - pad..hi + pad,
-            "",
-            "final heading error (°, CCW positive)",
-            &x_ticks,
-        )?;
-        chart.draw_series(LineSeries::new([(-0.5, 0.0), (1.8, 0.0)], BLACK.mix(0.5)))?;
-        for (k, (d, v)) in per_direction.iter().enumerate() {
-            let centre = k as f64;
-            let n = v.len() as f64;
-            let spread = (0.3 / n.max(1.0)).min(0.06);
-            let style = colour(*d).mix(0.85).filled();
-            chart.draw_series(v.iter().enumerate().map(|(i, &e)| {
-                let x = centre + (i as f64 - 0.5 * (n - 1.0)) * spread;
-                Circle::new((x, e), 4, style)
-            }))?;
-            let Some((mean, std)) = mean_std(v) else {
-                continue;
-            };
-            let at = centre + 0.3;
-            let two_sigma = 2.0 * std.unwrap_or(0.0);
-            chart.draw_series([ErrorBar::new_vertical(
-                at,
-                mean - two_sigma,
-                mean,
-                mean + two_sigma,
-                BLACK.stroke_width(2),
-                14,
-            )])?;
-            let label = match std {
-                Some(s) => format!("{mean:+.2}° ± {:.2}°", 2.0 * s),
-                None => format!("{mean:+.2}°"),
-            };
-            let font = TextStyle::from(("sans-serif", 12).into_font())
-                .pos(Pos::new(HPos::Left, VPos::Center));
-            chart.draw_series([Text::new(label, (at + 0.06, mean), font)])?;
+        if let Some((m, Some(s))) = mean_std(v) {
+            lo = lo.min(m - 2.0 * s);
+            hi = hi.max(m + 2.0 * s);
         }
     }
+    let pad = (0.12 * (hi - lo)).max(0.05);
+    let mut chart = chart(
+        &area,
+        -0.5..1.8,
+        lo - pad..hi + pad,
+        "",
+        "final heading error (°, CCW positive)",
+        x_ticks,
+    )?;
+    chart.draw_series(LineSeries::new([(-0.5, 0.0), (1.8, 0.0)], BLACK.mix(0.5)))?;
+    for (k, (d, v)) in per_direction.iter().enumerate() {
+        direction_errors(&mut chart, k as f64, *d, v)?;
+    }
+    Ok(())
+}
+
+/// Draws one direction's heading errors `v` about `centre`: its runs as dots, then its mean
+/// with a bar of ± 2 standard deviations and their values as a label.
+fn direction_errors(
+    chart: &mut Chart<'_, '_>,
+    centre: f64,
+    d: Direction,
+    v: &[f64],
+) -> PlotResult<()> {
+    let n = v.len() as f64;
+    let spread = (0.3 / n.max(1.0)).min(0.06);
+    let style = colour(d).mix(0.85).filled();
+    chart.draw_series(v.iter().enumerate().map(|(i, &e)| {
+        let x = centre + (i as f64 - 0.5 * (n - 1.0)) * spread;
+        Circle::new((x, e), 4, style)
+    }))?;
+    let Some((mean, std)) = mean_std(v) else {
+        return Ok(());
+    };
+    let at = centre + 0.3;
+    let two_sigma = 2.0 * std.unwrap_or(0.0);
+    chart.draw_series([ErrorBar::new_vertical(
+        at,
+        mean - two_sigma,
+        mean,
+        mean + two_sigma,
+        BLACK.stroke_width(2),
+        14,
+    )])?;
+    let label = match std {
+        Some(s) => format!("{mean:+.2}° ± {:.2}°", 2.0 * s),
+        None => format!("{mean:+.2}°"),
+    };
+    let font =
+        TextStyle::from(("sans-serif", 12).into_font()).pos(Pos::new(HPos::Left, VPos::Center));
+    chart.draw_series([Text::new(label, (at + 0.06, mean), font)])?;
+    Ok(())
+}
+
+/// The heading-error plot's legend entries for the runs in `panels`.
+fn heading_legend(
+    panels: &[(String, &[RunReport])],
+    directions: [Direction; 2],
+) -> Vec<(String, Mark)> {
     // Only the directions drawn: each has its dots and its bar.
     let mut entries = Vec::new();
     for d in directions {
@@ -229,7 +269,5 @@ pub(super) fn heading_plot(report: &Report, file: &Path) -> PlotResult<bool> {
     }
     entries.push(("mean ± 2σ of the runs".into(), Mark::Bar));
     entries.push(("each panel on its own scale".into(), Mark::Note));
-    legend(&side, &entries)?;
-    root.present()?;
-    Ok(true)
+    entries
 }

@@ -7,7 +7,7 @@
 
 use super::decode::{check_channel, decode, stamp_or, Unzstd};
 use super::validate::{self, Sample};
-use super::{open_container, BagError, BagOptions, Container};
+use super::{open_container, BagError, BagOptions, Channel, Container, RawMessage};
 use crate::calibration::pose_reference::{PoseRecording, ReferencePose, WheelAngles};
 use crate::ros::msg::{
     types, yaw_of, Covariance36, Header, JointState, Odometry, Pose, PoseStamped,
@@ -249,6 +249,59 @@ pub fn read_pose_container(
 ) -> Result<PoseDrive, BagError> {
     let mut notes = Vec::new();
     let listed = bag.channels().unwrap_or_default();
+    let joints_topic = joints_topic_of(&listed, opts, &mut notes);
+    // A reference topic the bag lists with another type is refused before reading.
+    if let Some(c) = listed.iter().find(|c| c.topic == reference) {
+        check_channel(c, &REFERENCE_TYPES, EXPECTED_REFERENCE)?;
+    }
+    let seen: BTreeMap<String, String> = listed
+        .iter()
+        .map(|c| (c.topic.clone(), c.type_name.clone()))
+        .collect();
+    let mut reader = PoseReader {
+        seen,
+        ..PoseReader::default()
+    };
+    bag.messages(&mut |m| {
+        crate::io::budget::charge_message(&|| format!("{} bag's messages", bag.format()))?;
+        reader.take(m, &joints_topic, reference, opts)
+    })?;
+    let PoseReader {
+        seen,
+        ref_msgs,
+        wheels,
+        poses,
+        stated,
+        ref_type,
+        ..
+    } = reader;
+    notes.extend(bag.notes());
+    let available: Vec<(String, String)> = seen.into_iter().collect();
+    let wheels = wheels.finish(&joints_topic, &available, &mut notes)?;
+    if ref_msgs == 0 {
+        return Err(BagError::MissingTopic {
+            what: "pose reference",
+            topic: reference.to_string(),
+            available,
+        });
+    }
+    let poses = validate::odometry(poses, reference, &mut notes)?;
+    let recording = pose_recording(wheels, poses, &stated, reference, &mut notes);
+    Ok(PoseDrive {
+        recording,
+        reference_type: ref_type,
+        joints_topic,
+        notes,
+    })
+}
+
+/// The types a pose reference may have, as an error names them.
+const EXPECTED_REFERENCE: &str =
+    "geometry_msgs/PoseStamped, geometry_msgs/PoseWithCovarianceStamped or nav_msgs/Odometry";
+
+/// The wheel joints' topic: `opts`' one, or the bag's one `JointState` topic when it does not
+/// list that (with a note saying so).
+fn joints_topic_of(listed: &[Channel], opts: &BagOptions, notes: &mut Vec<String>) -> String {
     let mut joints_topic = opts.topics.joint_states.clone();
     if !listed.iter().any(|c| c.topic == joints_topic) {
         let of_type: Vec<&str> = listed
@@ -263,85 +316,114 @@ pub fn read_pose_container(
             joints_topic = (*only).to_string();
         }
     }
-    const EXPECTED: &str =
-        "geometry_msgs/PoseStamped, geometry_msgs/PoseWithCovarianceStamped or nav_msgs/Odometry";
-    // A reference topic the bag lists with another type is refused before reading.
-    if let Some(c) = listed.iter().find(|c| c.topic == reference) {
-        check_channel(c, &REFERENCE_TYPES, EXPECTED)?;
-    }
-    let mut seen: BTreeMap<String, String> = listed
-        .iter()
-        .map(|c| (c.topic.clone(), c.type_name.clone()))
-        .collect();
-    let mut unzstd = Unzstd::default();
-    let mut ref_msgs = 0usize;
-    let mut wheels = WheelReader::default();
-    let mut poses: Vec<Sample<(f64, f64, f64)>> = Vec::new();
-    let mut stated: Vec<Option<[f64; 3]>> = Vec::new();
-    let mut ref_type = String::new();
-    bag.messages(&mut |m| {
-        crate::io::budget::charge_message(&|| format!("{} bag's messages", bag.format()))?;
-        seen.entry(m.channel.topic.clone())
+    joints_topic
+}
+
+/// What reading a bag's messages gathers: the topics seen, the wheels and the reference's
+/// poses.
+#[derive(Default)]
+struct PoseReader {
+    /// Topic → type of every topic listed or seen.
+    seen: BTreeMap<String, String>,
+    /// Undoes rosbag2's per-message compression.
+    unzstd: Unzstd,
+    /// Messages seen on the reference topic.
+    ref_msgs: usize,
+    /// The wheel joints.
+    wheels: WheelReader,
+    /// The reference's poses (x, y, yaw), each indexed into `stated`.
+    poses: Vec<Sample<(f64, f64, f64)>>,
+    /// The standard deviations each pose's covariance states, if any.
+    stated: Vec<Option<[f64; 3]>>,
+    /// The reference topic's type.
+    ref_type: String,
+}
+
+impl PoseReader {
+    /// Takes one message: joints and reference messages are read, every topic is noted as
+    /// seen.
+    fn take(
+        &mut self,
+        m: RawMessage<'_>,
+        joints_topic: &str,
+        reference: &str,
+        opts: &BagOptions,
+    ) -> Result<(), BagError> {
+        self.seen
+            .entry(m.channel.topic.clone())
             .or_insert_with(|| m.channel.type_name.clone());
         let is_joints = m.channel.topic == joints_topic;
         let is_ref = m.channel.topic == reference;
         if !is_joints && !is_ref {
             return Ok(());
         }
-        let index = if is_joints { wheels.messages } else { ref_msgs };
+        let index = if is_joints {
+            self.wheels.messages
+        } else {
+            self.ref_msgs
+        };
         if index == 0 {
             if is_joints {
                 check_channel(m.channel, &[types::JOINT_STATE], types::JOINT_STATE)?;
             } else {
-                check_channel(m.channel, &REFERENCE_TYPES, EXPECTED)?;
+                check_channel(m.channel, &REFERENCE_TYPES, EXPECTED_REFERENCE)?;
             }
         }
-        let data = unzstd.payload(&m, index)?;
-        let enc = m.channel.encoding.as_str();
-        let err = |source| BagError::Decode {
-            topic: m.channel.topic.clone(),
-            index,
-            source,
-        };
+        let data = self.unzstd.payload(&m, index)?;
         if is_joints {
-            return wheels.add(&m, data, index, opts);
+            return self.wheels.add(&m, data, index, opts);
         }
-        ref_msgs += 1;
-        ref_type.clone_from(&m.channel.type_name);
-        let (header, pose, cov): (Header, Pose, Option<Covariance36>) =
-            if types::is(&m.channel.type_name, types::POSE_STAMPED) {
-                let p: PoseStamped = decode(enc, data).map_err(err)?;
-                (p.header, p.pose, None)
-            } else if types::is(&m.channel.type_name, types::POSE_WITH_COVARIANCE_STAMPED) {
-                let p: PoseWithCovarianceStamped = decode(enc, data).map_err(err)?;
-                (p.header, p.pose.pose, Some(p.pose.covariance))
-            } else {
-                let o: Odometry = decode(enc, data).map_err(err)?;
-                (o.header, o.pose.pose, Some(o.pose.covariance))
-            };
+        self.ref_msgs += 1;
+        self.ref_type.clone_from(&m.channel.type_name);
+        let (header, pose, cov) = decode_reference(&m, data, index)?;
         // A quaternion that is not a rotation (all zero) is a message without a pose.
         let Ok(yaw) = yaw_of(&pose.orientation) else {
             return Ok(());
         };
-        poses.push(Sample {
-            index: stated.len(),
+        self.poses.push(Sample {
+            index: self.stated.len(),
             t: stamp_or(&header, m.log_time_ns),
             value: (pose.position.x, pose.position.y, yaw),
         });
-        stated.push(cov.as_ref().and_then(stated_std));
+        self.stated.push(cov.as_ref().and_then(stated_std));
         Ok(())
-    })?;
-    notes.extend(bag.notes());
-    let available: Vec<(String, String)> = seen.into_iter().collect();
-    let wheels = wheels.finish(&joints_topic, &available, &mut notes)?;
-    if ref_msgs == 0 {
-        return Err(BagError::MissingTopic {
-            what: "pose reference",
-            topic: reference.to_string(),
-            available,
-        });
     }
-    let poses = validate::odometry(poses, reference, &mut notes)?;
+}
+
+/// A reference message's header, pose and covariance (`None` for a `PoseStamped`), decoded by
+/// its type from `data`, the `index`-th message on its topic.
+fn decode_reference(
+    m: &RawMessage<'_>,
+    data: &[u8],
+    index: usize,
+) -> Result<(Header, Pose, Option<Covariance36>), BagError> {
+    let enc = m.channel.encoding.as_str();
+    let err = |source| BagError::Decode {
+        topic: m.channel.topic.clone(),
+        index,
+        source,
+    };
+    Ok(if types::is(&m.channel.type_name, types::POSE_STAMPED) {
+        let p: PoseStamped = decode(enc, data).map_err(err)?;
+        (p.header, p.pose, None)
+    } else if types::is(&m.channel.type_name, types::POSE_WITH_COVARIANCE_STAMPED) {
+        let p: PoseWithCovarianceStamped = decode(enc, data).map_err(err)?;
+        (p.header, p.pose.pose, Some(p.pose.covariance))
+    } else {
+        let o: Odometry = decode(enc, data).map_err(err)?;
+        (o.header, o.pose.pose, Some(o.pose.covariance))
+    })
+}
+
+/// The wheels and the checked poses on one clock, poses that do not follow the one before in
+/// time left out (with a note saying how many).
+fn pose_recording(
+    wheels: Vec<Sample<(f64, f64)>>,
+    poses: Vec<Sample<(f64, f64, f64)>>,
+    stated: &[Option<[f64; 3]>],
+    reference: &str,
+    notes: &mut Vec<String>,
+) -> PoseRecording {
     let (mut recording, t0) = on_one_clock(wheels, poses.first().map(|p| p.t));
     let mut repeated = 0;
     for p in poses {
@@ -362,10 +444,5 @@ pub fn read_pose_container(
             "{reference}: {repeated} pose(s) with the stamp of the one before left out"
         ));
     }
-    Ok(PoseDrive {
-        recording,
-        reference_type: ref_type,
-        joints_topic,
-        notes,
-    })
+    recording
 }

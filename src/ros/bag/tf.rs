@@ -12,7 +12,7 @@
 
 use super::decode::{check_channel, decode, stamp_or, Unzstd};
 use super::reference::{on_one_clock, WheelReader};
-use super::{open_container, BagError, BagOptions, Container};
+use super::{open_container, BagError, BagOptions, Container, RawMessage};
 use crate::calibration::pose_reference::{Pose2, PoseRecording, ReferencePose};
 use crate::kinematics::wrap_angle;
 use crate::ros::msg::{types, yaw_of, TfMessage};
@@ -55,16 +55,83 @@ pub fn read_tf_container(
 ) -> Result<TfDrive, BagError> {
     let mut notes = Vec::new();
     let joints_topic = opts.topics.joint_states.clone();
-    let mut seen: BTreeMap<String, String> = BTreeMap::new();
-    let mut unzstd = Unzstd::default();
-    let mut wheels = WheelReader::default();
-    // (parent, child) → samples; static links keep their last value.
-    let mut links: BTreeMap<(String, String), Link> = BTreeMap::new();
-    let mut statics: BTreeMap<(String, String), Pose2> = BTreeMap::new();
-    let mut tf_messages = 0usize;
+    let mut reader = TfReader::default();
     bag.messages(&mut |m| {
         crate::io::budget::charge_message(&|| format!("{} bag's messages", bag.format()))?;
-        seen.entry(m.channel.topic.clone())
+        reader.take(m, &joints_topic, opts)
+    })?;
+    let TfReader {
+        seen,
+        wheels,
+        links,
+        statics,
+        tf_messages,
+        ..
+    } = reader;
+    notes.extend(bag.notes());
+    let available: Vec<(String, String)> = seen.into_iter().collect();
+    let wheels = wheels.finish(&joints_topic, &available, &mut notes)?;
+    if tf_messages == 0 {
+        return Err(BagError::MissingTopic {
+            what: "TF",
+            topic: "/tf".into(),
+            available,
+        });
+    }
+    let (chain, edges) = find_chain(&links, &statics, fixed, base)?;
+    let moving = moving_links(&edges, &links);
+    let stamps = moved_stamps(&moving, &chain, &mut notes)?;
+    let poses = chain_poses(&stamps, &edges, &statics, &moving);
+    let (mut recording, t0) = on_one_clock(wheels, poses.first().map(|p| p.0));
+    for (t, p) in poses {
+        recording.poses.push(ReferencePose {
+            time_s: t - t0,
+            x_m: p.x,
+            y_m: p.y,
+            yaw_rad: Some(wrap_angle(p.theta)),
+            stated_std: None,
+        });
+    }
+    Ok(TfDrive {
+        recording,
+        chain,
+        notes,
+    })
+}
+
+/// A link's key: its parent frame and its child frame.
+type LinkKey = (String, String);
+
+/// A chain's links, fixed frame first, each with whether it is static.
+type Edges = Vec<(LinkKey, bool)>;
+
+/// What reading a bag's messages gathers: the topics seen, the wheels and the TF links.
+#[derive(Default)]
+struct TfReader {
+    /// Topic → type of every topic seen.
+    seen: BTreeMap<String, String>,
+    /// Undoes rosbag2's per-message compression.
+    unzstd: Unzstd,
+    /// The wheel joints.
+    wheels: WheelReader,
+    /// (parent, child) → samples of the moving links.
+    links: BTreeMap<LinkKey, Link>,
+    /// (parent, child) → pose of the static links; they keep their last value.
+    statics: BTreeMap<LinkKey, Pose2>,
+    /// Messages seen on the TF topics.
+    tf_messages: usize,
+}
+
+impl TfReader {
+    /// Takes one message: joints and TF messages are read, every topic is noted as seen.
+    fn take(
+        &mut self,
+        m: RawMessage<'_>,
+        joints_topic: &str,
+        opts: &BagOptions,
+    ) -> Result<(), BagError> {
+        self.seen
+            .entry(m.channel.topic.clone())
             .or_insert_with(|| m.channel.type_name.clone());
         let is_joints = m.channel.topic == joints_topic;
         let is_tf = TF_TOPICS.contains(&m.channel.topic.as_str());
@@ -72,9 +139,9 @@ pub fn read_tf_container(
             return Ok(());
         }
         let index = if is_joints {
-            wheels.messages
+            self.wheels.messages
         } else {
-            tf_messages
+            self.tf_messages
         };
         // Two TF topics share one count: every message's channel is checked (a comparison).
         let expected = if is_joints {
@@ -83,11 +150,11 @@ pub fn read_tf_container(
             types::TF_MESSAGE
         };
         check_channel(m.channel, &[expected], expected)?;
-        let data = unzstd.payload(&m, index)?;
+        let data = self.unzstd.payload(&m, index)?;
         if is_joints {
-            return wheels.add(&m, data, index, opts);
+            return self.wheels.add(&m, data, index, opts);
         }
-        tf_messages += 1;
+        self.tf_messages += 1;
         let tf: TfMessage =
             decode(&m.channel.encoding, data).map_err(|source| BagError::Decode {
                 topic: m.channel.topic.clone(),
@@ -95,6 +162,13 @@ pub fn read_tf_container(
                 source,
             })?;
         let is_static = m.channel.topic == "/tf_static";
+        self.add_transforms(tf, is_static, m.log_time_ns);
+        Ok(())
+    }
+
+    /// Files a TF message's planar transforms as static or moving links (transforms whose
+    /// rotation is not one are skipped).
+    fn add_transforms(&mut self, tf: TfMessage, is_static: bool, log_time_ns: u64) {
         for t in tf.transforms {
             let Ok(yaw) = yaw_of(&t.transform.rotation) else {
                 continue;
@@ -109,26 +183,25 @@ pub fn read_tf_container(
                 t.child_frame_id.trim_start_matches('/').to_string(),
             );
             if is_static {
-                statics.insert(key, pose);
+                self.statics.insert(key, pose);
             } else {
-                links
+                self.links
                     .entry(key)
                     .or_default()
-                    .push((stamp_or(&t.header, m.log_time_ns), pose));
+                    .push((stamp_or(&t.header, log_time_ns), pose));
             }
         }
-        Ok(())
-    })?;
-    notes.extend(bag.notes());
-    let available: Vec<(String, String)> = seen.into_iter().collect();
-    let wheels = wheels.finish(&joints_topic, &available, &mut notes)?;
-    if tf_messages == 0 {
-        return Err(BagError::MissingTopic {
-            what: "TF",
-            topic: "/tf".into(),
-            available,
-        });
     }
+}
+
+/// The chain from `fixed` to `base` (fixed frame first) and its links, found by walking from
+/// the base up its parents; an error when a frame has no parent or the tree has a loop.
+fn find_chain(
+    links: &BTreeMap<LinkKey, Link>,
+    statics: &BTreeMap<LinkKey, Pose2>,
+    fixed: &str,
+    base: &str,
+) -> Result<(Vec<String>, Edges), BagError> {
     // Walk from the base up its parents to the fixed frame.
     let parent_of = |child: &str| -> Option<(String, bool)> {
         links
@@ -144,7 +217,7 @@ pub fn read_tf_container(
     };
     let (fixed, base) = (fixed.trim_start_matches('/'), base.trim_start_matches('/'));
     let mut chain = vec![base.to_string()];
-    let mut edges: Vec<((String, String), bool)> = Vec::new();
+    let mut edges: Edges = Vec::new();
     while chain.last().map(String::as_str) != Some(fixed) {
         let child = chain.last().cloned().unwrap_or_default();
         let Some((parent, is_static)) = parent_of(&child) else {
@@ -170,9 +243,16 @@ pub fn read_tf_container(
     }
     chain.reverse();
     edges.reverse();
-    // Each moving link in time order; the slowest one's stamps are the samples.
-    let mut moving: Vec<(&(String, String), Link)> = Vec::new();
-    for (key, is_static) in &edges {
+    Ok((chain, edges))
+}
+
+/// Each moving link of the chain with its samples in time order, one per stamp.
+fn moving_links<'e>(
+    edges: &'e [(LinkKey, bool)],
+    links: &BTreeMap<LinkKey, Link>,
+) -> Vec<(&'e LinkKey, Link)> {
+    let mut moving: Vec<(&LinkKey, Link)> = Vec::new();
+    for (key, is_static) in edges {
         if !is_static {
             let mut s = links.get(key).cloned().unwrap_or_default();
             s.sort_by(|a, b| a.0.total_cmp(&b.0));
@@ -180,6 +260,17 @@ pub fn read_tf_container(
             moving.push((key, s));
         }
     }
+    moving
+}
+
+/// The stamps the chain is sampled at: those where its slowest moving link moved, with a note
+/// saying so; an error when no link moves.
+fn moved_stamps(
+    moving: &[(&LinkKey, Link)],
+    chain: &[String],
+    notes: &mut Vec<String>,
+) -> Result<Vec<f64>, BagError> {
+    // The slowest moving link's stamps are the samples.
     let Some(slowest) = moving.iter().min_by_key(|(_, s)| s.len()).map(|(k, _)| *k) else {
         return Err(BagError::Inference(format!(
             "the TF chain {} never moves (every link is static): it is no reference",
@@ -215,10 +306,21 @@ pub fn read_tf_container(
             String::new()
         }
     ));
+    Ok(stamps)
+}
+
+/// The chain's pose at each of `stamps`, its static links composed as they are and its moving
+/// ones interpolated; stamps outside a moving link's samples are left out.
+fn chain_poses(
+    stamps: &[f64],
+    edges: &[(LinkKey, bool)],
+    statics: &BTreeMap<LinkKey, Pose2>,
+    moving: &[(&LinkKey, Link)],
+) -> Vec<(f64, Pose2)> {
     let mut poses = Vec::with_capacity(stamps.len());
-    'stamp: for &t in &stamps {
+    'stamp: for &t in stamps {
         let mut pose = Pose2::default();
-        for (key, is_static) in &edges {
+        for (key, is_static) in edges {
             let link = if *is_static {
                 statics.get(key).copied().unwrap_or_default()
             } else {
@@ -234,21 +336,7 @@ pub fn read_tf_container(
         }
         poses.push((t, pose));
     }
-    let (mut recording, t0) = on_one_clock(wheels, poses.first().map(|p| p.0));
-    for (t, p) in poses {
-        recording.poses.push(ReferencePose {
-            time_s: t - t0,
-            x_m: p.x,
-            y_m: p.y,
-            yaw_rad: Some(wrap_angle(p.theta)),
-            stated_std: None,
-        });
-    }
-    Ok(TfDrive {
-        recording,
-        chain,
-        notes,
-    })
+    poses
 }
 
 /// A link's pose at `t`, between its samples; `None` outside them.

@@ -41,17 +41,8 @@ impl RosDrive {
         max: f64,
         diagnose: bool,
     ) -> Result<Achieved, BaseError> {
-        if !(target.is_finite() && max.is_finite() && max > 0.0) {
-            return Err(BaseError::InvalidArgument {
-                component: "drive (rosbridge)".into(),
-                reason: format!("motion {target} at up to {max} is not a motion"),
-            });
-        }
-        let accel = match kind {
-            Kind::Straight => self.cfg.max_accel_m_s2,
-            Kind::Turn => self.cfg.max_alpha_rad_s2,
-        }
-        .max(1e-3);
+        check_motion(target, max)?;
+        let accel = self.accel_of(kind);
         let mut odo = self.odo.clone();
         let mut closed = self.commander.client.closed_watch();
         let start = *odo.borrow();
@@ -67,7 +58,13 @@ impl RosDrive {
         };
         let expected = goal / max + max / accel;
         let deadline = Instant::now() + Duration::from_secs_f64(3.0 * expected + 5.0);
-        let mut last_cmd = 0.0f64;
+        let mut ramp = Ramp {
+            kind,
+            sign,
+            max,
+            accel,
+            last_cmd: 0.0,
+        };
         let mut last_t = Instant::now();
         let mut last_progress_t = Instant::now();
         let mut last_samples = start.samples;
@@ -88,22 +85,7 @@ impl RosDrive {
                 last_progress_t = Instant::now();
             }
             let now = Instant::now();
-            if now > deadline {
-                let _ = self.commander.send(0.0, 0.0);
-                return Err(BaseError::MotionTimeout {
-                    after: Duration::from_secs_f64(3.0 * expected + 5.0),
-                });
-            }
-            if now - last_progress_t > Duration::from_secs(1) {
-                let _ = self.commander.send(0.0, 0.0);
-                return Err(drive_err(RosbridgeError::Timeout(format!(
-                    "no wheel data for 1 s during a motion (topic {}): stopped",
-                    match self.cfg.wheel_source {
-                        WheelSource::JointStates => &self.cfg.topics.joint_states,
-                        WheelSource::Odom => &self.cfg.topics.odom,
-                    }
-                ))));
-            }
+            self.check_progress(now, deadline, expected, last_progress_t)?;
             // Wheel data arrives (the check above) and shows no motion: nothing obeys.
             if diagnose && !moved && first_command.elapsed() > STILL_LIMIT {
                 let _ = self.commander.send(0.0, 0.0);
@@ -111,46 +93,129 @@ impl RosDrive {
             }
             let dt = (now - last_t).as_secs_f64().clamp(0.0, 0.1);
             last_t = now;
-            // Ramp up at `accel`, brake so as to stop at the goal, never below a creep speed.
-            let cmd = max
-                .min((2.0 * accel * remaining).sqrt())
-                .min(last_cmd + accel * dt.max(0.02))
-                .max(0.05 * max);
-            last_cmd = cmd;
-            let (v, w) = match kind {
-                Kind::Straight => (sign * cmd, 0.0),
-                Kind::Turn => (0.0, sign * cmd),
-            };
+            let (v, w) = ramp.next(remaining, dt);
             self.commander.send(v, w).map_err(drive_err)?;
             tokio::select! {
                 _ = odo.changed() => {}
                 _ = tokio::time::sleep(Duration::from_millis(50)) => {}
                 _ = closed.changed() => {
-                    let reason = self.commander.client.closed().unwrap_or_default();
-                    return Err(drive_err(RosbridgeError::Closed(format!(
-                        "{reason} during a motion; the controller's cmd_vel_timeout ({} s) stops the wheels",
-                        self.cmd_vel_timeout_s
-                    ))));
+                    return Err(self.link_closed());
                 }
             }
         }
         self.commander.send(0.0, 0.0).map_err(drive_err)?;
-        // Wait until the wheels have been still for 0.2 s of robot time (at most 3 s).
-        let settled = tokio::time::timeout(
-            Duration::from_secs(3),
-            odo.wait_for(|o| o.still_since_s.is_some_and(|s| o.stamp_s - s >= 0.2)),
-        )
-        .await
-        .map(|r| r.map(|o| *o));
-        if let Ok(Err(_)) = settled {
-            return Err(drive_err(RosbridgeError::Closed("wheel data ended".into())));
-        }
+        settle(&mut odo).await?;
         let end = *self.odo.borrow();
         Ok(Achieved {
             distance_m: end.distance_m - start.distance_m,
             turn_rad: end.turn_rad - start.turn_rad,
         })
     }
+
+    /// The configured acceleration for a motion of `kind` (m/s² or rad/s²), at least 1e-3.
+    fn accel_of(&self, kind: Kind) -> f64 {
+        match kind {
+            Kind::Straight => self.cfg.max_accel_m_s2,
+            Kind::Turn => self.cfg.max_alpha_rad_s2,
+        }
+        .max(1e-3)
+    }
+
+    /// Stops the robot with an error when the motion has run past its `deadline` (3 × the
+    /// `expected` s + 5 s) or the wheel data has not advanced since `last_progress_t` for 1 s.
+    fn check_progress(
+        &self,
+        now: Instant,
+        deadline: Instant,
+        expected: f64,
+        last_progress_t: Instant,
+    ) -> Result<(), BaseError> {
+        if now > deadline {
+            let _ = self.commander.send(0.0, 0.0);
+            return Err(BaseError::MotionTimeout {
+                after: Duration::from_secs_f64(3.0 * expected + 5.0),
+            });
+        }
+        if now - last_progress_t > Duration::from_secs(1) {
+            let _ = self.commander.send(0.0, 0.0);
+            return Err(self.wheel_data_lost());
+        }
+        Ok(())
+    }
+
+    /// The error for a motion stopped because the wheel data stopped for 1 s, naming its topic.
+    fn wheel_data_lost(&self) -> BaseError {
+        drive_err(RosbridgeError::Timeout(format!(
+            "no wheel data for 1 s during a motion (topic {}): stopped",
+            match self.cfg.wheel_source {
+                WheelSource::JointStates => &self.cfg.topics.joint_states,
+                WheelSource::Odom => &self.cfg.topics.odom,
+            }
+        )))
+    }
+
+    /// The error for a motion ended by the rosbridge connection closing, with its reason.
+    fn link_closed(&self) -> BaseError {
+        let reason = self.commander.client.closed().unwrap_or_default();
+        drive_err(RosbridgeError::Closed(format!(
+            "{reason} during a motion; the controller's cmd_vel_timeout ({} s) stops the wheels",
+            self.cmd_vel_timeout_s
+        )))
+    }
+}
+
+/// Refuses a motion whose target or top speed is not finite, or whose top speed is not
+/// positive.
+fn check_motion(target: f64, max: f64) -> Result<(), BaseError> {
+    if !(target.is_finite() && max.is_finite() && max > 0.0) {
+        return Err(BaseError::InvalidArgument {
+            component: "drive (rosbridge)".into(),
+            reason: format!("motion {target} at up to {max} is not a motion"),
+        });
+    }
+    Ok(())
+}
+
+/// A motion's speed command from step to step: the kind, direction, top speed and
+/// acceleration, and the last speed commanded.
+struct Ramp {
+    kind: Kind,
+    sign: f64,
+    max: f64,
+    accel: f64,
+    last_cmd: f64,
+}
+
+impl Ramp {
+    /// The twist (v, w) to publish with `remaining` of the goal left, `dt` s after the last.
+    fn next(&mut self, remaining: f64, dt: f64) -> (f64, f64) {
+        // Ramp up at `accel`, brake so as to stop at the goal, never below a creep speed.
+        let cmd = self
+            .max
+            .min((2.0 * self.accel * remaining).sqrt())
+            .min(self.last_cmd + self.accel * dt.max(0.02))
+            .max(0.05 * self.max);
+        self.last_cmd = cmd;
+        match self.kind {
+            Kind::Straight => (self.sign * cmd, 0.0),
+            Kind::Turn => (0.0, self.sign * cmd),
+        }
+    }
+}
+
+/// Waits until the wheels have been still for 0.2 s of robot time (at most 3 s); an error
+/// when the wheel data ends meanwhile.
+async fn settle(odo: &mut watch::Receiver<Odo>) -> Result<(), BaseError> {
+    let settled = tokio::time::timeout(
+        Duration::from_secs(3),
+        odo.wait_for(|o| o.still_since_s.is_some_and(|s| o.stamp_s - s >= 0.2)),
+    )
+    .await
+    .map(|r| r.map(|o| *o));
+    if let Ok(Err(_)) = settled {
+        return Err(drive_err(RosbridgeError::Closed("wheel data ended".into())));
+    }
+    Ok(())
 }
 
 /// The velocity publisher, shared by motions, stops and guards.

@@ -220,53 +220,13 @@ pub async fn connect(cfg: &RosBaseConfig) -> Result<Base, RosBaseError> {
     let geometry = store.shared();
     let timeout = Duration::from_secs_f64(cfg.first_message_timeout_s.clamp(0.1, 60.0));
     let client = RosbridgeClient::connect(&cfg.url, timeout).await?;
-    let left = cfg
-        .left_joint
-        .clone()
-        .or_else(|| yaml_cfg.left_wheel_names.first().cloned());
-    let right = cfg
-        .right_joint
-        .clone()
-        .or_else(|| yaml_cfg.right_wheel_names.first().cloned());
+    let (left, right) = wheel_joints(cfg, &yaml_cfg);
     // Wheels: the source motions close on, and the other one for the still-robot diagnosis.
     let witness = Witness::follow(&client, cfg, (left.clone(), right.clone()))?;
     let rejects = Rejects::default();
-    let (odo_tx, odo_rx) = watch::channel(Odo::default());
-    let travel: Fanout<TravelSample> = Fanout::default();
-    match cfg.wheel_source {
-        WheelSource::JointStates => {
-            let rx = client.subscribe(&cfg.topics.joint_states, types::JOINT_STATE)?;
-            tokio::spawn(integrate_joints(
-                rx,
-                (cfg.topics.joint_states.clone(), rejects.clone()),
-                geometry.clone(),
-                left,
-                right,
-                odo_tx,
-                travel.clone(),
-            ));
-        }
-        WheelSource::Odom => {
-            let rx = client.subscribe(&cfg.topics.odom, types::ODOMETRY)?;
-            tokio::spawn(integrate_odom(
-                rx,
-                (cfg.topics.odom.clone(), rejects.clone()),
-                geometry.clone(),
-                odo_tx,
-                travel.clone(),
-            ));
-        }
-    }
+    let (odo_rx, travel) = spawn_odometry(&client, cfg, &rejects, &geometry, (left, right))?;
     // Heading.
-    let imu_rx = client.subscribe(&cfg.topics.imu, types::IMU)?;
-    let (head_tx, head_rx) = latest::channel();
-    let streams: Fanout<HeadingSample> = Fanout::default();
-    tokio::spawn(follow_imu(
-        imu_rx,
-        (cfg.topics.imu.clone(), rejects.clone()),
-        head_tx,
-        streams.clone(),
-    ));
+    let (head_rx, streams) = spawn_heading(&client, cfg, &rejects)?;
     let vel_type = if cfg.twist_stamped {
         types::TWIST_STAMPED
     } else {
@@ -319,6 +279,80 @@ pub async fn connect(cfg: &RosBaseConfig) -> Result<Base, RosBaseError> {
         Arc::new(heading),
         Arc::new(store),
     ))
+}
+
+/// The left and right wheel joints: the configured ones, else the YAML's first wheel names.
+fn wheel_joints(
+    cfg: &RosBaseConfig,
+    yaml_cfg: &DiffDriveConfig,
+) -> (Option<String>, Option<String>) {
+    let left = cfg
+        .left_joint
+        .clone()
+        .or_else(|| yaml_cfg.left_wheel_names.first().cloned());
+    let right = cfg
+        .right_joint
+        .clone()
+        .or_else(|| yaml_cfg.right_wheel_names.first().cloned());
+    (left, right)
+}
+
+/// Subscribes to the wheel source motions close on (joint states integrated here with the
+/// YAML's geometry, or the controller's odometry) and follows it in a spawned task; returns
+/// the odometry it publishes and its travel stream.
+fn spawn_odometry(
+    client: &RosbridgeClient,
+    cfg: &RosBaseConfig,
+    rejects: &Rejects,
+    geometry: &Geometry,
+    (left, right): (Option<String>, Option<String>),
+) -> Result<(watch::Receiver<Odo>, Fanout<TravelSample>), RosbridgeError> {
+    let (odo_tx, odo_rx) = watch::channel(Odo::default());
+    let travel: Fanout<TravelSample> = Fanout::default();
+    match cfg.wheel_source {
+        WheelSource::JointStates => {
+            let rx = client.subscribe(&cfg.topics.joint_states, types::JOINT_STATE)?;
+            tokio::spawn(integrate_joints(
+                rx,
+                (cfg.topics.joint_states.clone(), rejects.clone()),
+                geometry.clone(),
+                left,
+                right,
+                odo_tx,
+                travel.clone(),
+            ));
+        }
+        WheelSource::Odom => {
+            let rx = client.subscribe(&cfg.topics.odom, types::ODOMETRY)?;
+            tokio::spawn(integrate_odom(
+                rx,
+                (cfg.topics.odom.clone(), rejects.clone()),
+                geometry.clone(),
+                odo_tx,
+                travel.clone(),
+            ));
+        }
+    }
+    Ok((odo_rx, travel))
+}
+
+/// Subscribes to the IMU and follows it in a spawned task; returns its latest reading and its
+/// heading stream.
+fn spawn_heading(
+    client: &RosbridgeClient,
+    cfg: &RosBaseConfig,
+    rejects: &Rejects,
+) -> Result<(Latest, Fanout<HeadingSample>), RosbridgeError> {
+    let imu_rx = client.subscribe(&cfg.topics.imu, types::IMU)?;
+    let (head_tx, head_rx) = latest::channel();
+    let streams: Fanout<HeadingSample> = Fanout::default();
+    tokio::spawn(follow_imu(
+        imu_rx,
+        (cfg.topics.imu.clone(), rejects.clone()),
+        head_tx,
+        streams.clone(),
+    ));
+    Ok((head_rx, streams))
 }
 
 async fn wait_first<T>(

@@ -154,32 +154,10 @@ impl Located<'_> {
                 missing.push((key, value.clone()));
                 continue;
             };
-            let node = &tree.nodes[v];
             let line = tree.nodes[k].line;
-            if let Kind::Alias { end, .. } = node.kind {
-                let anchor_line = tree.anchor_line(tree.resolve(v));
-                let alias = src.get(node.start..end).unwrap_or("*").to_string();
-                return Err(self.unkeepable(key, line, Unkeepable::Alias { alias, anchor_line }));
-            }
-            if let Some(tag) = node.tag.as_ref().filter(|t| *t != FLOAT_TAG) {
-                let tag = tag.clone();
-                return Err(self.unkeepable(key, line, Unkeepable::Tag { tag }));
-            }
-            self.not_shared(key, line, v)?;
-            let end = node
-                .end()
-                .filter(|_| {
-                    matches!(
-                        node.kind,
-                        Kind::Scalar {
-                            style: TScalarStyle::Plain,
-                            ..
-                        }
-                    )
-                })
-                .ok_or_else(|| self.unkeepable(key, line, Unkeepable::NoSpan))?;
+            let end = self.replaceable_end(src, key, line, v)?;
             plan.edits.push(Edit {
-                at: node.start,
+                at: tree.nodes[v].start,
                 end,
                 text: value.clone(),
             });
@@ -189,6 +167,69 @@ impl Located<'_> {
             return Ok(plan);
         };
         let section_line = tree.nodes[self.section.key].line;
+        self.check_insertable(src, first_missing, section_line)?;
+        let Kind::Map { entries, close } = &tree.nodes[self.params].kind else {
+            return Err(self.no_place(first_missing, section_line));
+        };
+        let (edit, index) = match *close {
+            Some(close) => (
+                self.flow_insertion(entries, close, &missing)
+                    .ok_or_else(|| self.no_place(first_missing, section_line))?,
+                entries.len(),
+            ),
+            None => self
+                .block_insertion(src, entries, &missing)
+                .ok_or_else(|| self.no_place(first_missing, section_line))?,
+        };
+        plan.edits.push(edit);
+        plan.inserted = Some((index, missing));
+        Ok(plan)
+    }
+
+    /// The end of the text of `key`'s value `v` (its key at `line`), to be replaced by a
+    /// number; refused when the value is an alias, has another tag than `!!float`, is shared
+    /// by an alias, or is not a plain scalar whose end is known.
+    fn replaceable_end(
+        &self,
+        src: &str,
+        key: &'static str,
+        line: usize,
+        v: NodeId,
+    ) -> Result<usize, YamlError> {
+        let tree = self.tree;
+        let node = &tree.nodes[v];
+        if let Kind::Alias { end, .. } = node.kind {
+            let anchor_line = tree.anchor_line(tree.resolve(v));
+            let alias = src.get(node.start..end).unwrap_or("*").to_string();
+            return Err(self.unkeepable(key, line, Unkeepable::Alias { alias, anchor_line }));
+        }
+        if let Some(tag) = node.tag.as_ref().filter(|t| *t != FLOAT_TAG) {
+            let tag = tag.clone();
+            return Err(self.unkeepable(key, line, Unkeepable::Tag { tag }));
+        }
+        self.not_shared(key, line, v)?;
+        node.end()
+            .filter(|_| {
+                matches!(
+                    node.kind,
+                    Kind::Scalar {
+                        style: TScalarStyle::Plain,
+                        ..
+                    }
+                )
+            })
+            .ok_or_else(|| self.unkeepable(key, line, Unkeepable::NoSpan))
+    }
+
+    /// Refuses inserting `first_missing` (and the other missing keys) into the parameters'
+    /// mapping when the section's value is an alias or an alias repeats the mapping.
+    fn check_insertable(
+        &self,
+        src: &str,
+        first_missing: &'static str,
+        section_line: usize,
+    ) -> Result<(), YamlError> {
+        let tree = self.tree;
         if let Kind::Alias { end, .. } = tree.nodes[self.section.params].kind {
             let alias = src
                 .get(tree.nodes[self.section.params].start..end)
@@ -201,34 +242,56 @@ impl Located<'_> {
                 Unkeepable::Alias { alias, anchor_line },
             ));
         }
-        self.not_shared(first_missing, section_line, self.params)?;
-        let no_place = || {
-            self.unkeepable(
-                first_missing,
-                section_line,
-                Unkeepable::NoPlace { key: first_missing },
-            )
+        self.not_shared(first_missing, section_line, self.params)
+    }
+
+    /// The refusal of `first_missing` when the parameters' mapping has no place to insert it.
+    fn no_place(&self, first_missing: &'static str, section_line: usize) -> YamlError {
+        self.unkeepable(
+            first_missing,
+            section_line,
+            Unkeepable::NoPlace { key: first_missing },
+        )
+    }
+
+    /// The splice that inserts `missing` into a flow mapping whose `}` is at `close`; `None`
+    /// when the end of its last value is not known.
+    fn flow_insertion(
+        &self,
+        entries: &[(NodeId, NodeId)],
+        close: usize,
+        missing: &[(&'static str, String)],
+    ) -> Option<Edit> {
+        // Flow: after the last value (a trailing comma stays valid), or inside `{}`.
+        let (at, text) = match entries.last() {
+            None => (
+                close,
+                missing
+                    .iter()
+                    .map(entry_line)
+                    .collect::<Vec<_>>()
+                    .join(", "),
+            ),
+            Some(&(_, v)) => (
+                self.tree.nodes[v].end()?,
+                missing
+                    .iter()
+                    .map(|m| format!(", {}", entry_line(m)))
+                    .collect(),
+            ),
         };
-        let Kind::Map { entries, close } = &tree.nodes[self.params].kind else {
-            return Err(no_place());
-        };
-        let line = |(key, value): &(&str, String)| format!("{key}: {value}");
-        if let Some(close) = *close {
-            // Flow: after the last value (a trailing comma stays valid), or inside `{}`.
-            let (at, text) = match entries.last() {
-                None => (
-                    close,
-                    missing.iter().map(line).collect::<Vec<_>>().join(", "),
-                ),
-                Some(&(_, v)) => (
-                    tree.nodes[v].end().ok_or_else(no_place)?,
-                    missing.iter().map(|m| format!(", {}", line(m))).collect(),
-                ),
-            };
-            plan.edits.push(Edit { at, end: at, text });
-            plan.inserted = Some((entries.len(), missing));
-            return Ok(plan);
-        }
+        Some(Edit { at, end: at, text })
+    }
+
+    /// The splice that inserts `missing` into a block mapping, and the index the new entries
+    /// take among `entries`; `None` when no entry has a place after it.
+    fn block_insertion(
+        &self,
+        src: &str,
+        entries: &[(NodeId, NodeId)],
+        missing: &[(&'static str, String)],
+    ) -> Option<(Edit, usize)> {
+        let tree = self.tree;
         // Block: a new line after an entry whose value ends its line, at that entry's key's
         // column; the last multiplier there is, else the nominal values, else any entry.
         let by_position = |a: &&(NodeId, NodeId), b: &&(NodeId, NodeId)| {
@@ -258,18 +321,21 @@ impl Located<'_> {
             };
             let text = missing
                 .iter()
-                .map(|m| format!("{eol}{indent}{}", line(m)))
+                .map(|m| format!("{eol}{indent}{}", entry_line(m)))
                 .collect();
             let index = entries
                 .iter()
                 .position(|e| e.0 == k)
                 .map_or(entries.len(), |i| i + 1);
-            plan.edits.push(Edit { at, end: at, text });
-            plan.inserted = Some((index, missing));
-            return Ok(plan);
+            return Some((Edit { at, end: at, text }, index));
         }
-        Err(no_place())
+        None
     }
+}
+
+/// A mapping entry as a line of YAML: `key: value`.
+fn entry_line((key, value): &(&str, String)) -> String {
+    format!("{key}: {value}")
 }
 
 /// Sets the multipliers in `controller`'s parameters in `text`, keeping every other byte.
