@@ -262,7 +262,8 @@ fn pool_parameters(in_pool: &[&PoseFit]) -> Vec<PooledParameter> {
     pooled
 }
 
-/// The geometry from the pooled parameters, falling back to the nominal where one was not fitted.
+/// The geometry from the pooled parameters, falling back where one was not fitted: the right
+/// diameter to the pooled left one (diameters tied), else to the nominal.
 fn pooled_geometry(pooled: &[PooledParameter], nominal: Geometry) -> Geometry {
     let value = |p: Param| {
         pooled

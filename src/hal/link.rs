@@ -501,7 +501,8 @@ impl Link {
     }
 }
 
-/// With the link gone: fails pending, queued and next requests; false when the task is to end.
+/// With the link gone: fails the pending request, the queued ones and the next command (the
+/// loop calls it again for each); false when the task is to end.
 async fn refuse_while_closed(
     err: &LinkError,
     pending: &mut Option<Pending>,

@@ -156,6 +156,7 @@ impl RoboClawDrive {
     }
 
     /// Forwards the motion's travel until both buffers are idle; returns the last encoders.
+    /// Past the time limit it stops the controller and fails with a motion timeout.
     async fn follow_until_idle(
         &self,
         p: &Profile,

@@ -177,7 +177,8 @@ impl OnlineEstimator {
         }
     }
 
-    /// The state after an accepted pose fix, with the last Jacobian and gain, by iterated update.
+    /// The state after an accepted pose fix (angles not yet wrapped: the caller wraps them),
+    /// with the last Jacobian and gain, by iterated update.
     fn iterate_pose_fix(
         &self,
         fix: &PoseFix,

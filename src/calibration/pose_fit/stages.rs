@@ -274,7 +274,8 @@ fn final_scales(
     }
 }
 
-/// `(Jᵀ W J)⁻¹` over the inliers at the solution, inflated by `(1 + ρ)/(1 − ρ)` for the lag-one
+/// `(Jᵀ W J)⁻¹` over the inliers at the solution, inflated by `(1 + ρ)/(1 − ρ)` (held between
+/// 1 and 100) for the lag-one
 /// correlation of the whitened residuals; spread over the full parameter vector (zero where
 /// not fitted, the tied right diameter taking the left's).
 fn inflated_covariance(problem: &Problem<'_>, solved: &Solved) -> Covariance {

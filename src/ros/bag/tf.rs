@@ -264,7 +264,7 @@ fn moving_links<'e>(
 }
 
 /// The stamps the chain is sampled at: those where its slowest moving link moved, with a note
-/// saying so; an error when no link moves.
+/// saying so; an error when every link of the chain is static.
 fn moved_stamps(
     moving: &[(&LinkKey, Link)],
     chain: &[String],
