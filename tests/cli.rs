@@ -213,6 +213,12 @@ fn mock_device_serves_a_pty_that_params_get_can_open() {
     assert_eq!(v["source"], "active");
     let v = json(&["status", "--port", &path, "--json"]);
     assert_eq!(v["status"]["motion_state"], "idle");
+    // The same port as `--port` takes it elsewhere: `odocal:PORT?baud=N` opens PORT.
+    let spec = format!("odocal:{path}?baud=115200");
+    let v = json(&["status", "--port", &spec, "--json"]);
+    assert_eq!(v["status"]["motion_state"], "idle");
+    let v = json(&["params", "get", "--port", &spec, "--json"]);
+    assert_eq!(v["wheelbase_m"], 0.41);
     // Closing stdin stops the device.
     drop(mock.stdin.take());
     let status = mock.wait().unwrap();
@@ -781,6 +787,14 @@ fn numeric_flags_outside_their_physical_range_are_refused_before_anything_runs()
         (
             vec!["status", "--port", "/dev/null", "--baud", "0"],
             "baud rate 0 is outside",
+        ),
+        (
+            vec!["status", "--port", "roboclaw:/dev/null", "--baud", "0"],
+            "baud 0 is not a RoboClaw rate",
+        ),
+        (
+            vec!["params", "get", "--port", "mock"],
+            "this command talks to an odocal-protocol controller",
         ),
     ] {
         let started = std::time::Instant::now();

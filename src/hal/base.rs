@@ -302,7 +302,7 @@ pub const STORE_BACKEND: StoreBackend = StoreBackend {
 };
 
 /// The `baud` option (odocal's default unless given).
-fn baud_of(spec: &PortSpec) -> Result<u32, String> {
+pub fn baud_of(spec: &PortSpec) -> Result<u32, String> {
     spec.option("baud", super::DEFAULT_BAUD)
 }
 

@@ -97,6 +97,22 @@ pub struct RoboClawConfig {
 /// The retry budget of a repeatable read before the controller's serial timeout is set.
 pub const DEFAULT_BUDGET: Duration = Duration::from_secs(1);
 
+impl RoboClawConfig {
+    /// An address a RoboClaw answers (0x80–0x87) and a baud rate it runs at; why not.
+    pub fn check(&self) -> Result<(), String> {
+        if !ADDRESSES.contains(&self.address) {
+            return Err(format!(
+                "address 0x{:02X} is outside 0x80–0x87",
+                self.address
+            ));
+        }
+        if !(1200..=460_800).contains(&self.baud) {
+            return Err(format!("baud {} is not a RoboClaw rate", self.baud));
+        }
+        Ok(())
+    }
+}
+
 impl Default for RoboClawConfig {
     fn default() -> Self {
         RoboClawConfig {
@@ -145,18 +161,7 @@ impl RoboClaw {
     where
         S: AsyncRead + AsyncWrite + Unpin + Send + 'static,
     {
-        if !ADDRESSES.contains(&cfg.address) {
-            return Err(RoboClawError::InvalidArgument(format!(
-                "address 0x{:02X} is outside 0x80–0x87",
-                cfg.address
-            )));
-        }
-        if !(1200..=460_800).contains(&cfg.baud) {
-            return Err(RoboClawError::InvalidArgument(format!(
-                "baud {} is not a RoboClaw rate",
-                cfg.baud
-            )));
-        }
+        cfg.check().map_err(RoboClawError::InvalidArgument)?;
         let ms = |d: Duration| u64::try_from(d.as_millis()).unwrap_or(u64::MAX);
         let us = |d: Duration| u64::try_from(d.as_micros()).unwrap_or(u64::MAX);
         Ok(RoboClaw {

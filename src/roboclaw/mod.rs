@@ -43,12 +43,15 @@ pub const DRIVE_BACKEND: DriveBackend = DriveBackend {
 };
 
 /// The connection a RoboClaw spec's options give (address, baud; defaults unless given).
+/// Checked before any port is opened.
 pub fn config_of(spec: &PortSpec) -> Result<client::RoboClawConfig, String> {
-    Ok(client::RoboClawConfig {
+    let cfg = client::RoboClawConfig {
         address: spec.option("address", DEFAULT_ADDRESS)?,
         baud: spec.option("baud", DEFAULT_BAUD)?,
         ..client::RoboClawConfig::default()
-    })
+    };
+    cfg.check()?;
+    Ok(cfg)
 }
 
 /// A robot made of a RoboClaw drive, any heading source (an NMEA compass, an IMU) and its

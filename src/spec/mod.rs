@@ -201,6 +201,35 @@ impl DriveSpec {
     pub fn is(&self, backend: &DriveBackend) -> bool {
         self.backend == backend
     }
+
+    /// The port and baud rate of the odocal-protocol controller this names, for a command that
+    /// talks to one alone (`status`, `params`); refused for another robot.
+    pub fn controller_port(&self) -> Result<(String, u32), SpecError> {
+        let hal = registry::CONTROLLER;
+        if !self.is(hal) {
+            return Err(SpecError::Combination(format!(
+                "`{}` names {}; this command talks to an odocal-protocol controller: give its port \
+                 ({})",
+                self.target.spec.port,
+                self.backend.what,
+                hal.form
+            )));
+        }
+        let spec = &self.target.spec;
+        let baud =
+            crate::hal::base::baud_of(spec).map_err(|reason| parse_err(&spec.port, reason))?;
+        Ok((spec.port.clone(), baud))
+    }
+
+    /// `baud` (from `--baud` or a routine file) laid under the drive's own options (a `baud=`
+    /// in its `text` wins) and checked; refused for a drive that takes no baud rate.
+    pub fn with_baud(&mut self, baud: u32, text: &str) -> Result<(), SpecError> {
+        if !self.backend.takes_baud() {
+            return Err(refused(self.backend, "a baud rate (`baud`, --baud)"));
+        }
+        self.target.spec.or_option("baud", baud);
+        (self.backend.check)(&self.target.spec).map_err(|reason| parse_err(text, reason))
+    }
 }
 
 /// The sensor of the robot's heading.
@@ -338,11 +367,7 @@ impl RobotSection {
         let mut drive: DriveSpec = text.parse()?;
         let backend = drive.backend;
         if let Some(baud) = self.baud {
-            if !backend.takes_baud() {
-                return Err(refused(backend, "a baud rate (`baud`, --baud)"));
-            }
-            drive.target.spec.or_option("baud", baud);
-            (backend.check)(&drive.target.spec).map_err(|reason| parse_err(text, reason))?;
+            drive.with_baud(baud, text)?;
         }
         drive.target.settings = match (backend.settings, &self.ros) {
             // TOML keeps what the settings hold (an infinite timeout, say) as they were given.

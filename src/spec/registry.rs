@@ -56,7 +56,8 @@ pub const SIMULATED: DriveBackend = DriveBackend {
 };
 
 /// The drive whose heading sensor `odocal heading` reads alone, without the robot (a
-/// controller of odocal's protocol: its compass answers over the same link).
+/// controller of odocal's protocol: its compass answers over the same link), and the one
+/// `status` and `params` talk to.
 pub const CONTROLLER: &DriveBackend = &crate::hal::base::DRIVE_BACKEND;
 
 /// The store backend that keeps a drive's robot profile (`profile:PATH`).

@@ -7,7 +7,7 @@ use odocal::hal::params::{self, ParamsError, ParamsPatch};
 use odocal::hal::{open_port, Client};
 use odocal::mock::{lock, spawn_pty, MockDevice, TimeMode};
 use odocal::protocol::message::ParamSource;
-use odocal::spec::DriveSpec;
+use odocal::spec::{DriveSpec, SpecError};
 use serde_json::json;
 use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
@@ -87,9 +87,19 @@ pub struct PortArgs {
 }
 
 impl PortArgs {
+    /// The drive `--port` names, `--baud` laid under its own options.
+    fn drive(&self) -> Result<DriveSpec, SpecError> {
+        let mut drive: DriveSpec = self.port.parse()?;
+        if let Some(baud) = self.baud {
+            drive.with_baud(baud, &self.port)?;
+        }
+        Ok(drive)
+    }
+
+    /// The odocal-protocol controller `--port` names (`PORT` or `odocal:PORT?baud=N`).
     async fn connect(&self) -> Result<Client, Box<dyn std::error::Error>> {
-        let baud = self.baud.unwrap_or(odocal::hal::DEFAULT_BAUD);
-        Ok(open_port(&self.port, baud).await?.0)
+        let (port, baud) = self.drive()?.controller_port()?;
+        Ok(open_port(&port, baud).await?.0)
     }
 }
 
@@ -249,11 +259,8 @@ async fn restore_from(
 
 /// Runs `odocal status`.
 pub async fn status(port: PortArgs) -> CliResult {
-    let mut drive = port.port.parse::<DriveSpec>()?;
+    let drive = port.drive()?;
     if drive.is(&odocal::roboclaw::DRIVE_BACKEND) {
-        if let Some(baud) = port.baud {
-            drive.target.spec.or_option("baud", baud);
-        }
         return crate::roboclaw::roboclaw_status(&port.port, &drive.target, port.json).await;
     }
     let report = port.connect().await?.device_status().await?;
