@@ -401,45 +401,24 @@ async fn run_extra_checks<S: AsyncRead + AsyncWrite + Unpin + Send>(
         if !wanted(section) {
             continue;
         }
-        let check = if !possible {
-            Ok(Err("the device has no watchdog".to_string()))
-        } else if i == 0 {
-            retried_motion_runs_once(w, dev).await
-        } else {
-            retries_feed_the_watchdog(w, dev).await
+        let mut r = RuleResult {
+            section: section.into(),
+            rule: rule.into(),
+            outcome: Outcome::Skip,
+            reason: Some("the device has no watchdog".into()),
         };
-        let r = extra_result(section, rule, possible, check?);
+        if possible {
+            r.reason = None;
+            r.set(if i == 0 {
+                retried_motion_runs_once(w, dev).await?
+            } else {
+                retries_feed_the_watchdog(w, dev).await?
+            });
+        }
         progress(&r);
         results.push(r);
     }
     Ok(())
-}
-
-/// An extra check's result: passed, or failed (skipped when it was not `possible`) and why.
-fn extra_result(
-    section: &str,
-    rule: &str,
-    possible: bool,
-    check: Result<(), String>,
-) -> RuleResult {
-    match check {
-        Ok(()) => RuleResult {
-            section: section.into(),
-            rule: rule.into(),
-            outcome: Outcome::Pass,
-            reason: None,
-        },
-        Err(why) => RuleResult {
-            section: section.into(),
-            rule: rule.into(),
-            outcome: if possible {
-                Outcome::Fail
-            } else {
-                Outcome::Skip
-            },
-            reason: Some(why),
-        },
-    }
 }
 
 /// Stops the base and puts the rules' settings back (watchdog off, parameters as at the start).
