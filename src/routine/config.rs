@@ -365,10 +365,7 @@ impl RoutineConfig {
 
 /// A setting that cannot be used, as `key: why` (no line: the caller looks the key up).
 fn bad(key: &str, why: String) -> Result<(), ConfigError> {
-    Err(ConfigError {
-        line: None,
-        message: format!("{key}: {why}"),
-    })
+    Err(ConfigError::new(format!("{key}: {why}")))
 }
 
 /// Whether `v` is a finite number above zero.

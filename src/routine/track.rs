@@ -486,13 +486,12 @@ fn check_path_limits(opts: &TrackOptions) -> Result<(), RoutineError> {
             && opts.max_rate_rad_s > 0.0
             && opts.max_rate_rad_s <= HARD_RATE_LIMIT_RAD_S)
     {
-        return Err(RoutineError::Config(super::config::ConfigError {
-            line: None,
-            message: format!(
+        return Err(RoutineError::Config(super::config::ConfigError::new(
+            format!(
                 "speed limits must be in (0, {HARD_SPEED_LIMIT_M_S}] m/s and (0, \
-                 {HARD_RATE_LIMIT_RAD_S}] rad/s"
+             {HARD_RATE_LIMIT_RAD_S}] rad/s"
             ),
-        }));
+        )));
     }
     Ok(())
 }
