@@ -147,10 +147,7 @@ impl RosDrive {
     fn wheel_data_lost(&self) -> BaseError {
         drive_err(RosbridgeError::Timeout(format!(
             "no wheel data for 1 s during a motion (topic {}): stopped",
-            match self.cfg.wheel_source {
-                WheelSource::JointStates => &self.cfg.topics.joint_states,
-                WheelSource::Odom => &self.cfg.topics.odom,
-            }
+            self.cfg.wheel_topic()
         )))
     }
 

@@ -86,6 +86,16 @@ pub struct RosBaseConfig {
     pub first_message_timeout_s: f64,
 }
 
+impl RosBaseConfig {
+    /// The topic the drive follows the wheels on: the joint states or the odometry.
+    pub fn wheel_topic(&self) -> &str {
+        match self.wheel_source {
+            WheelSource::JointStates => &self.topics.joint_states,
+            WheelSource::Odom => &self.topics.odom,
+        }
+    }
+}
+
 impl Default for RosBaseConfig {
     fn default() -> Self {
         RosBaseConfig {
@@ -234,12 +244,14 @@ pub async fn connect(cfg: &RosBaseConfig) -> Result<Base, RosBaseError> {
     };
     client.advertise(&cfg.cmd_vel, vel_type)?;
     // The first messages, or a diagnosis.
-    let wheel_topic = match cfg.wheel_source {
-        WheelSource::JointStates => &cfg.topics.joint_states,
-        WheelSource::Odom => &cfg.topics.odom,
-    };
     let first = |topic: &str| (topic.to_string(), rejects.clone(), timeout);
-    wait_first(&client, &odo_rx, |o| o.samples > 0, first(wheel_topic)).await?;
+    wait_first(
+        &client,
+        &odo_rx,
+        |o| o.samples > 0,
+        first(cfg.wheel_topic()),
+    )
+    .await?;
     let imu_ok = |h: &Stamped| h.is_some();
     wait_first(&client, head_rx.receiver(), imu_ok, first(&cfg.topics.imu)).await?;
     // What the controller was started with: the file as it is now.

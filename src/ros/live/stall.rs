@@ -223,10 +223,7 @@ impl RosDrive {
                 velocity.join(", ")
             ));
         }
-        let odometry = match self.cfg.wheel_source {
-            WheelSource::JointStates => self.cfg.topics.joint_states.clone(),
-            WheelSource::Odom => self.cfg.topics.odom.clone(),
-        };
+        let odometry = self.cfg.wheel_topic().to_string();
         NotMoving {
             topic,
             kind: kind.into(),
