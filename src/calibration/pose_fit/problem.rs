@@ -507,10 +507,20 @@ impl<'a> Problem<'a> {
         (r0, jac)
     }
 
+    /// Residuals at `p`: the wheels integrated for its geometry, compared with the reference.
+    pub(super) fn residuals_at(
+        &self,
+        p: &[f64; PARAMS],
+        weights: &[f64],
+        scales: Scales,
+    ) -> Vec<f64> {
+        let odo = Odometry::integrate(&self.recording.wheels, Self::geometry(p));
+        self.residuals(&odo, p, weights, scales)
+    }
+
+    /// The whitened cost at `x`: the sum of the squared whitened residuals.
     pub(super) fn cost(&self, x: &[f64], weights: &[f64], scales: Scales) -> f64 {
-        let p = self.full(x);
-        let odo = Odometry::integrate(&self.recording.wheels, Self::geometry(&p));
-        let r = self.residuals(&odo, &p, weights, scales);
+        let r = self.residuals_at(&self.full(x), weights, scales);
         self.whiten(&r, weights, scales)
             .0
             .iter()

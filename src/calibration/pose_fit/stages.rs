@@ -29,13 +29,13 @@ pub(super) fn fit_kind(
         Weighting::Unit => unit,
         Weighting::Estimated => robust_scales(
             &problem,
-            &residuals_at(&problem, &p0, &weights, unit),
+            &problem.residuals_at(&p0, &weights, unit),
             &weights,
         ),
     };
     let (p0, scales, iterations_before) =
         if problem.free.contains(&Param::TimeOffset) && start.is_none() {
-            offset_basin(recording, config, &problem, p0, &weights, scales)?
+            offset_basin(config, &problem, p0, &weights, scales)?
         } else {
             (p0, scales, 0)
         };
@@ -43,7 +43,7 @@ pub(super) fn fit_kind(
     let mut solved = reweighted_solve(&problem, config, x, weights, scales, iterations_before);
     let p = problem.full(&solved.x);
     // Final scales and covariance at the solution, inliers only.
-    let r = residuals_at(&problem, &p, &solved.weights, solved.scales);
+    let r = problem.residuals_at(&p, &solved.weights, solved.scales);
     solved.scales = final_scales(&problem, config, &r, &solved.weights, solved.scales);
     let covariance = inflated_covariance(&problem, &solved);
     Ok(report(&problem, config, decision, p, &solved, covariance))
@@ -76,23 +76,11 @@ fn start_params(problem: &Problem<'_>, start: Option<[f64; PARAMS]>) -> [f64; PA
     p0
 }
 
-/// Residuals at `p`: the wheels integrated for its geometry, compared with the reference.
-fn residuals_at(
-    problem: &Problem<'_>,
-    p: &[f64; PARAMS],
-    weights: &[f64],
-    scales: Scales,
-) -> Vec<f64> {
-    let odo = Odometry::integrate(&problem.recording.wheels, Problem::geometry(p));
-    problem.residuals(&odo, p, weights, scales)
-}
-
 /// The time offset's basin: a lever arm along the direction of travel looks like a delay while
 /// the robot drives straight, so the geometry and mounting are fitted first with the offset held
 /// at zero, then the offset is searched on a coarse grid from there. Returns the start, its
 /// scales and the iterations used.
 fn offset_basin(
-    recording: &PoseRecording,
     config: &FitConfig,
     problem: &Problem<'_>,
     mut p0: [f64; PARAMS],
@@ -100,16 +88,16 @@ fn offset_basin(
     mut scales: Scales,
 ) -> Result<([f64; PARAMS], Scales, usize), CalibrationError> {
     let unit = Scales::white(1.0, 1.0);
-    let mut held = Problem::new(recording, config, problem.kind)?;
+    let mut held = Problem::new(problem.recording, config, problem.kind)?;
     held.free.retain(|q| *q != Param::TimeOffset);
     let (xa, it) = levenberg_marquardt(&held, held.free_values(&p0), weights, scales, 20, LOOSE);
     p0 = held.full(&xa);
     if config.weighting == Weighting::Estimated {
-        scales = robust_scales(problem, &residuals_at(problem, &p0, weights, unit), weights);
+        scales = robust_scales(problem, &problem.residuals_at(&p0, weights, unit), weights);
     }
     p0[6] = grid_offset(problem, &p0, weights, scales);
     if config.weighting == Weighting::Estimated {
-        scales = robust_scales(problem, &residuals_at(problem, &p0, weights, unit), weights);
+        scales = robust_scales(problem, &problem.residuals_at(&p0, weights, unit), weights);
     }
     Ok((p0, scales, it))
 }
@@ -159,7 +147,7 @@ fn reweighted_solve(
             break;
         }
         let p = problem.full(&x);
-        let r = residuals_at(problem, &p, &weights, scales);
+        let r = problem.residuals_at(&p, &weights, scales);
         let huber = stage < 2;
         let new_scales = stage_scales(problem, config, &r, &weights, huber);
         let chi2 = block_chi2(problem, &r, &weights, new_scales);
