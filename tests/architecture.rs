@@ -33,57 +33,87 @@ fn sources_under(dir: &str) -> Vec<(PathBuf, String, usize)> {
     let mut files = Vec::new();
     walk(&root.join(dir), &mut files);
     files.sort();
-    files
-        .into_iter()
-        .map(|p| {
-            let code: Vec<&str> = Vec::new();
-            let text = std::fs::read_to_string(&p).unwrap();
-            let mut kept = code;
-            let mut outside = 0;
-            // Inside a `#[cfg(test)] mod … {` block: its brace depth. Test code may use what
-            // the library itself must not (the simulator, a transaction to set a scene up).
-            let mut in_test: Option<i64> = None;
-            let mut cfg_test = false;
-            let mut in_string = false;
-            for line in text.lines() {
-                let trimmed = line.trim_start();
-                outside += usize::from(in_test.is_none());
-                // Dropped lines stay as empty ones: line numbers are the file's.
-                if trimmed.starts_with("//") {
-                    kept.push("");
-                    continue;
-                }
-                let code = line.split(" // ").next().unwrap_or(line);
-                if let Some(depth) = in_test.as_mut() {
-                    *depth += braces(code, &mut in_string);
-                    if *depth <= 0 {
-                        in_test = None;
-                    }
-                    kept.push("");
-                    continue;
-                }
-                if cfg_test
-                    && (trimmed.starts_with("mod ") || trimmed.starts_with("pub mod "))
-                    && trimmed.ends_with('{')
-                {
-                    in_test = Some(1);
-                    // The `#[cfg(test)]` line above belongs to the test module too.
-                    outside -= 2;
-                    cfg_test = false;
-                    kept.push("");
-                    continue;
-                }
-                cfg_test = trimmed == "#[cfg(test)]";
-                kept.push(code);
+    // Files a `#[cfg(test)] mod NAME;` declares: test code, like a test module's block.
+    let mut test_files: Vec<PathBuf> = Vec::new();
+    let mut out = Vec::new();
+    for p in files {
+        let text = std::fs::read_to_string(&p).unwrap();
+        let mut kept: Vec<&str> = Vec::new();
+        let mut outside = 0;
+        // Inside an item under `#[cfg(test)]` (a test module, a test-only function): its brace
+        // depth. Test code may use what the library itself must not (the simulator, a
+        // transaction to set a scene up).
+        let mut in_test: Option<i64> = None;
+        // Lines since a `#[cfg(test)]` (it and the attributes after it), while they run.
+        let mut cfg_test: Option<usize> = None;
+        let mut in_string = false;
+        for line in text.lines() {
+            let trimmed = line.trim_start();
+            outside += usize::from(in_test.is_none());
+            // Dropped lines stay as empty ones: line numbers are the file's.
+            if trimmed.starts_with("//") {
+                kept.push("");
+                continue;
             }
-            assert!(
-                in_test.is_none(),
-                "{}: a #[cfg(test)] module whose end the brace count missed (a brace in a raw \
-                 string or char literal?): the rules would skip the code after it",
-                p.display()
-            );
+            let code = line.split(" // ").next().unwrap_or(line);
+            if let Some(depth) = in_test.as_mut() {
+                *depth += braces(code, &mut in_string);
+                if *depth <= 0 {
+                    in_test = None;
+                }
+                kept.push("");
+                continue;
+            }
+            if let Some(attributes) = cfg_test {
+                let item = trimmed.trim_end();
+                if item.ends_with('{') || item.ends_with(';') {
+                    // The item and the attribute lines above it are test code.
+                    outside -= attributes + 1;
+                    cfg_test = None;
+                    kept.push("");
+                    if item.ends_with('{') {
+                        let depth = braces(code, &mut in_string);
+                        in_test = (depth > 0).then_some(depth);
+                    } else if let Some(name) = item
+                        .strip_prefix("pub mod ")
+                        .or_else(|| item.strip_prefix("mod "))
+                        .and_then(|m| m.strip_suffix(';'))
+                    {
+                        let parent = p.parent().unwrap_or(Path::new("."));
+                        let stem = p.file_stem().and_then(|s| s.to_str());
+                        let here = if matches!(stem, Some("mod" | "lib" | "main")) {
+                            parent.to_path_buf()
+                        } else {
+                            parent.join(stem.unwrap_or_default())
+                        };
+                        test_files.push(here.join(format!("{name}.rs")));
+                        test_files.push(here.join(name).join("mod.rs"));
+                    }
+                    continue;
+                }
+            }
+            cfg_test = if trimmed == "#[cfg(test)]" {
+                Some(1)
+            } else {
+                cfg_test
+                    .filter(|_| trimmed.starts_with("#["))
+                    .map(|n| n + 1)
+            };
+            kept.push(code);
+        }
+        assert!(
+            in_test.is_none(),
+            "{}: a #[cfg(test)] item whose end the brace count missed (a brace in a raw \
+             string or char literal?): the rules would skip the code after it",
+            p.display()
+        );
+        out.push((p, kept.join("\n"), outside));
+    }
+    out.into_iter()
+        .filter(|(p, _, _)| !test_files.contains(p))
+        .map(|(p, code, outside)| {
             let rel = p.strip_prefix(root).unwrap().to_path_buf();
-            (rel, kept.join("\n"), outside)
+            (rel, code, outside)
         })
         .collect()
 }
