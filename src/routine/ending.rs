@@ -118,21 +118,6 @@ pub(super) fn write_partial(
     crate::io::create_stamped(dir, prefix, ".json", text.as_bytes())
 }
 
-/// Proves that a new file could be created in `dir`, creating nothing that stays: it is a
-/// directory that takes one, or does not exist yet and would be created where one can be
-/// ([`crate::io::probe_dir_to_be`]).
-pub fn check_output_dir(dir: &std::path::Path) -> Result<(), RoutineError> {
-    let fail = |reason: String| RoutineError::Output {
-        path: dir.to_path_buf(),
-        reason,
-    };
-    if dir.exists() && !dir.is_dir() {
-        return Err(fail("it exists and is not a directory".into()));
-    }
-    crate::io::probe_dir_to_be(dir)
-        .map_err(|e| fail(format!("a new file cannot be created there ({e})")))
-}
-
 /// What the host knows of the robot's parameters after a failed run: the statement a partial
 /// report makes, read from the error [`run`] returned after its rollback.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]

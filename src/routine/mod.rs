@@ -518,3 +518,18 @@ impl WriteUi for AskRoutineUi<'_> {
         self.0.confirm(question)
     }
 }
+
+/// Proves that a new file could be created in `dir`, creating nothing that stays: it is a
+/// directory that takes one, or does not exist yet and would be created where one can be
+/// ([`crate::io::probe_dir_to_be`]).
+pub fn check_output_dir(dir: &std::path::Path) -> Result<(), RoutineError> {
+    let fail = |reason: String| RoutineError::Output {
+        path: dir.to_path_buf(),
+        reason,
+    };
+    if dir.exists() && !dir.is_dir() {
+        return Err(fail("it exists and is not a directory".into()));
+    }
+    crate::io::probe_dir_to_be(dir)
+        .map_err(|e| fail(format!("a new file cannot be created there ({e})")))
+}

@@ -54,7 +54,7 @@ use problem::*;
 mod solver;
 use solver::*;
 mod scales;
-pub(crate) use scales::*;
+use scales::*;
 mod stages;
 use stages::*;
 
@@ -503,6 +503,39 @@ fn check_input(recording: &PoseRecording, config: &FitConfig) -> Result<(), Cali
     }
     Ok(())
 }
+
+/// The robust variance of the motion residual over `k` reference samples over that over one,
+/// at parameters `p` (position components).
+fn span_variance_ratio(
+    recording: &PoseRecording,
+    config: &FitConfig,
+    p: &[f64; PARAMS],
+    k: usize,
+) -> f64 {
+    let Ok(problem) = Problem::new(recording, config, ReferenceKind::Relative) else {
+        return f64::NAN;
+    };
+    let odo = Odometry::integrate(&recording.wheels, Problem::geometry(p));
+    let (pred, turns) = problem.predicted(&odo, p);
+    let poses = &recording.poses;
+    let ref_pose = |i: usize| poses[problem.selected[i]].pose2();
+    let spread = |lag: usize| {
+        mad_std((lag..problem.selected.len()).flat_map(|j| {
+            let rd = ref_pose(j - lag).between(&ref_pose(j));
+            let pd = pred[j - lag].between_turned(turns[j - lag], &pred[j]);
+            [rd.x - pd.x, rd.y - pd.y]
+        }))
+    };
+    let (one, many) = (spread(1), spread(k));
+    if one > 0.0 {
+        (many / one).powi(2)
+    } else {
+        f64::NAN
+    }
+}
+
+/// Reference samples the kind decision's relative fit uses at most (ten minutes at 10 Hz).
+const DECISION_POSES: usize = 6000;
 
 #[cfg(test)]
 mod tests {

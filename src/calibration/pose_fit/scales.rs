@@ -283,33 +283,3 @@ pub(super) fn lag_one_correlation(problem: &Problem<'_>, z: &[f64], weights: &[f
         0.0
     }
 }
-
-/// The robust variance of the motion residual over `k` reference samples over that over one,
-/// at parameters `p` (position components).
-pub(crate) fn span_variance_ratio(
-    recording: &PoseRecording,
-    config: &FitConfig,
-    p: &[f64; PARAMS],
-    k: usize,
-) -> f64 {
-    let Ok(problem) = Problem::new(recording, config, ReferenceKind::Relative) else {
-        return f64::NAN;
-    };
-    let odo = Odometry::integrate(&recording.wheels, Problem::geometry(p));
-    let (pred, turns) = problem.predicted(&odo, p);
-    let poses = &recording.poses;
-    let ref_pose = |i: usize| poses[problem.selected[i]].pose2();
-    let spread = |lag: usize| {
-        mad_std((lag..problem.selected.len()).flat_map(|j| {
-            let rd = ref_pose(j - lag).between(&ref_pose(j));
-            let pd = pred[j - lag].between_turned(turns[j - lag], &pred[j]);
-            [rd.x - pd.x, rd.y - pd.y]
-        }))
-    };
-    let (one, many) = (spread(1), spread(k));
-    if one > 0.0 {
-        (many / one).powi(2)
-    } else {
-        f64::NAN
-    }
-}

@@ -3,9 +3,6 @@
 
 use super::*;
 
-/// Reference samples the kind decision's relative fit uses at most (ten minutes at 10 Hz).
-pub(super) const DECISION_POSES: usize = 6000;
-
 /// Convergence of the final stage: an iteration gaining less than a part in 10⁹ of the cost
 /// (for 10⁵ residuals, 10⁻⁴ in χ²: a hundredth of a standard deviation in the parameters), far
 /// below what the noise lets them tell apart.

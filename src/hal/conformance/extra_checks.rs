@@ -50,8 +50,8 @@ pub(super) async fn retries_feed_the_watchdog<S: AsyncRead + AsyncWrite + Unpin 
     w: &mut Wire<S>,
     dev: &Device,
 ) -> Result<Result<(), String>, ConformanceError> {
-    pub(super) const TIMEOUT_MS: u16 = 500;
-    pub(super) const RETRYING: Duration = Duration::from_millis(1500);
+    const TIMEOUT_MS: u16 = 500;
+    const RETRYING: Duration = Duration::from_millis(1500);
     dev.fresh(w).await?;
     let timeout = WatchdogTimeout {
         timeout_ms: TIMEOUT_MS,

@@ -410,3 +410,13 @@ pub(super) fn parse(buf: &[u8], ours: impl Fn(u8) -> bool) -> Parsed {
         ours: ours(address),
     }
 }
+
+/// An acceleration that reaches any speed within one physics step: the manual's "accelerate as
+/// fast as possible" of the speed commands without an acceleration.
+const INSTANT_ACCEL: f64 = 1e9;
+
+/// Motor current at full duty (A), for the current read (49).
+const FULL_DUTY_CURRENT_A: f64 = 2.0;
+
+/// Board temperature (°C), for the temperature reads (82, 83).
+const BOARD_TEMPERATURE_C: f64 = 25.0;

@@ -44,9 +44,6 @@ pub const BUFFER_DEPTH: usize = 64;
 /// timeout).
 pub const PACKET_TIMEOUT: Duration = Duration::from_millis(10);
 
-/// Board temperature (°C), for the temperature reads (82, 83).
-const BOARD_TEMPERATURE_C: f64 = 25.0;
-
 /// How the simulated robot is built and wired.
 #[derive(Debug, Clone)]
 pub struct MockRoboClawConfig {
@@ -395,6 +392,27 @@ pub fn spawn_ptys(cfg: MockRoboClawConfig) -> std::io::Result<MockRoboClawPtys> 
         robot: robot_state,
         _servers: (claw, compass),
     })
+}
+
+/// One motor's velocity PID as the controller stores it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct VelocityPid {
+    p: u32,
+    i: u32,
+    d: u32,
+    qpps: u32,
+}
+
+impl Default for VelocityPid {
+    /// The manual's defaults.
+    fn default() -> Self {
+        VelocityPid {
+            p: 0x0001_0000,
+            i: 0x0000_8000,
+            d: 0x0000_4000,
+            qpps: 44_000,
+        }
+    }
 }
 
 #[cfg(test)]

@@ -1,15 +1,8 @@
 //! One motor channel of the mock controller: its running command (a speed, a duty, a leg of a
-//! buffered distance command), the queue of legs behind it, and the velocity PID and current model
-//! that turn the command into wheel speed.
+//! buffered distance command), the queue of legs behind it, and each physics step's wheel speed
+//! and duty under that command.
 
 use super::*;
-
-/// An acceleration that reaches any speed within one physics step: the manual's "accelerate as
-/// fast as possible" of the speed commands without an acceleration.
-pub(super) const INSTANT_ACCEL: f64 = 1e9;
-
-/// Motor current at full duty (A), for the current read (49).
-pub(super) const FULL_DUTY_CURRENT_A: f64 = 2.0;
 
 /// One buffered distance command of one motor.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -196,26 +189,5 @@ impl Motor {
             std::cmp::Ordering::Equal => {}
         }
         self.counter - before
-    }
-}
-
-/// One motor's velocity PID as the controller stores it.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub(super) struct VelocityPid {
-    pub(super) p: u32,
-    pub(super) i: u32,
-    pub(super) d: u32,
-    pub(super) qpps: u32,
-}
-
-impl Default for VelocityPid {
-    /// The manual's defaults.
-    fn default() -> Self {
-        VelocityPid {
-            p: 0x0001_0000,
-            i: 0x0000_8000,
-            d: 0x0000_4000,
-            qpps: 44_000,
-        }
     }
 }

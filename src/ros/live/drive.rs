@@ -5,8 +5,6 @@
 use super::*;
 
 impl RosDrive {
-    /// Drives until the odometry's `kind` quantity has changed by `target`, ramping at the
-    /// configured acceleration and limited to `max` (m/s or rad/s).
     /// One motion closed on the odometry; a turn that ends more than [`TURN_TRIM_RAD`] off its
     /// target is trimmed by up to two slow turns in place (a tenth of the rate): the braking
     /// runs on messages that arrive late by the link's latency, and a square whose corners
@@ -34,7 +32,10 @@ impl RosDrive {
         Ok(Some(done))
     }
 
-    pub(super) async fn motion_once(
+    /// Drives until the odometry's `kind` quantity has changed by `target`, ramping at the
+    /// configured acceleration and limited to `max` (m/s or rad/s); with `diagnose`, a robot
+    /// that stays still is stopped and the error says why ([`NotMoving`]).
+    async fn motion_once(
         &self,
         kind: Kind,
         target: f64,
@@ -279,32 +280,6 @@ impl Commander {
     }
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn twists_are_translated_into_the_running_geometry() {
-        let running = WheelParams::nominal(0.15, 0.39, std::f64::consts::TAU);
-        let mut configured = running;
-        configured.right_wheel_diameter_m *= 0.99;
-        configured.wheelbase_m *= 0.97;
-        // Same geometry: unchanged.
-        let (v, w) = translate(0.3, 0.2, &running, &running);
-        assert!((v - 0.3).abs() < 1e-12 && (w - 0.2).abs() < 1e-12);
-        // Straight in the configured geometry: the right wheel turns faster by 1/0.99, which the
-        // running controller sees as a slight left turn.
-        let (v, w) = translate(0.3, 0.0, &configured, &running);
-        let wl = (v - 0.5 * w * running.wheelbase_m) / running.left_m_per_count();
-        let wr = (v + 0.5 * w * running.wheelbase_m) / running.right_m_per_count();
-        assert!(
-            (wr * configured.right_m_per_count() - wl * configured.left_m_per_count()).abs()
-                < 1e-12
-        );
-        assert!(w > 0.0);
-    }
-}
-
 /// Which odometry quantity a motion watches.
 #[derive(Clone, Copy, PartialEq, Eq)]
 pub(super) enum Kind {
@@ -396,5 +371,31 @@ impl Drop for RosDrive {
     fn drop(&mut self) {
         // Leaving: whatever happened, the last word on the velocity topic is zero.
         let _ = self.commander.send(0.0, 0.0);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn twists_are_translated_into_the_running_geometry() {
+        let running = WheelParams::nominal(0.15, 0.39, std::f64::consts::TAU);
+        let mut configured = running;
+        configured.right_wheel_diameter_m *= 0.99;
+        configured.wheelbase_m *= 0.97;
+        // Same geometry: unchanged.
+        let (v, w) = translate(0.3, 0.2, &running, &running);
+        assert!((v - 0.3).abs() < 1e-12 && (w - 0.2).abs() < 1e-12);
+        // Straight in the configured geometry: the right wheel turns faster by 1/0.99, which the
+        // running controller sees as a slight left turn.
+        let (v, w) = translate(0.3, 0.0, &configured, &running);
+        let wl = (v - 0.5 * w * running.wheelbase_m) / running.left_m_per_count();
+        let wr = (v + 0.5 * w * running.wheelbase_m) / running.right_m_per_count();
+        assert!(
+            (wr * configured.right_m_per_count() - wl * configured.left_m_per_count()).abs()
+                < 1e-12
+        );
+        assert!(w > 0.0);
     }
 }

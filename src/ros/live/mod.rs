@@ -446,5 +446,3 @@ pub(super) async fn next_message(
         }
     }
 }
-
-impl RosDrive {}

@@ -43,14 +43,6 @@ pub enum Unkeepable {
     },
 }
 
-pub(super) fn join_lines(lines: &[usize]) -> String {
-    lines
-        .iter()
-        .map(usize::to_string)
-        .collect::<Vec<_>>()
-        .join(", ")
-}
-
 /// Formats a multiplier, always with a decimal point (ROS 2 parameters are typed: `1` would be
 /// an integer, which a double parameter refuses): ten decimals, which keeps effective lengths
 /// to well under a nanometre, or a mantissa with a point and an exponent far from 1.
@@ -425,3 +417,6 @@ pub fn merge_multipliers(
     }
     Ok(format!("{bom}{out}"))
 }
+
+/// The core schema's float tag (`!!float`), the one tag a written decimal keeps true.
+const FLOAT_TAG: &str = "tag:yaml.org,2002:float";

@@ -58,9 +58,6 @@ const READ_KEYS: [&str; 5] = [
     MULTIPLIER_KEYS[2],
 ];
 
-/// The core schema's float tag (`!!float`), the one tag a written decimal keeps true.
-const FLOAT_TAG: &str = "tag:yaml.org,2002:float";
-
 /// A YAML file that cannot be used.
 #[derive(Debug, thiserror::Error)]
 pub enum YamlError {
@@ -570,6 +567,15 @@ impl FileStore<ControllerYaml> {
             path,
         )
     }
+}
+
+/// Line numbers as a list for a message ("3, 7, 12").
+fn join_lines(lines: &[usize]) -> String {
+    lines
+        .iter()
+        .map(usize::to_string)
+        .collect::<Vec<_>>()
+        .join(", ")
 }
 
 #[cfg(test)]
