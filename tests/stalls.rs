@@ -108,37 +108,46 @@ const SHORT: [&str; 20] = [
 #[test]
 fn our_protocol_survives_host_and_device_stalls_and_late_answers() {
     let _shared = MACHINE.read().unwrap_or_else(|e| e.into_inner());
-    for (faults, stalls, stop_device) in
-        [("", 5, false), ("", 5, true), ("latency-ms=40", 0, false)]
-    {
-        let mut mock_args = vec![
-            "--real-time",
-            "1",
-            "--seed",
-            "5",
-            "--compass-sigma-deg",
-            "0.1",
-        ];
-        if !faults.is_empty() {
-            mock_args.extend(["--faults", faults]);
+    // The three cases wait on the robot's real time, not on the CPU: run side by side.
+    std::thread::scope(|s| {
+        for (faults, stalls, stop_device) in
+            [("", 5, false), ("", 5, true), ("latency-ms=40", 0, false)]
+        {
+            s.spawn(move || our_protocol_case(faults, stalls, stop_device));
         }
-        let (mut mock, port) = common::spawn_mock(&mock_args);
-        let dir = common::scratch(&format!("stall-odocal-{stalls}-{stop_device}"));
-        let report = dir.join("report");
-        let mut args = vec!["calibrate", "--port", &port, "--report-dir"];
-        args.push(report.to_str().unwrap());
-        args.extend(SHORT);
-        let device = stop_device.then(|| mock.id());
-        let (v, landed) = stalled(&args, device, stalls, Duration::from_millis(300), 7);
-        drop(mock.stdin.take());
-        let _ = mock.wait();
-        assert_eq!(landed, stalls, "every stall landed while it ran");
-        let whose = if stop_device { "device" } else { "host" };
-        assert_right(
-            &v,
-            &format!("our protocol, faults {faults:?}, {stalls} {whose} stalls"),
-        );
+    });
+}
+
+/// One case of the test above: `faults` on the mock device, `stalls` stops of the host (or of
+/// the device when `stop_device`).
+fn our_protocol_case(faults: &str, stalls: usize, stop_device: bool) {
+    let mut mock_args = vec![
+        "--real-time",
+        "1",
+        "--seed",
+        "5",
+        "--compass-sigma-deg",
+        "0.1",
+    ];
+    if !faults.is_empty() {
+        mock_args.extend(["--faults", faults]);
     }
+    let (mut mock, port) = common::spawn_mock(&mock_args);
+    let dir = common::scratch(&format!("stall-odocal-{stalls}-{stop_device}"));
+    let report = dir.join("report");
+    let mut args = vec!["calibrate", "--port", &port, "--report-dir"];
+    args.push(report.to_str().unwrap());
+    args.extend(SHORT);
+    let device = stop_device.then(|| mock.id());
+    let (v, landed) = stalled(&args, device, stalls, Duration::from_millis(300), 7);
+    drop(mock.stdin.take());
+    let _ = mock.wait();
+    assert_eq!(landed, stalls, "every stall landed while it ran");
+    let whose = if stop_device { "device" } else { "host" };
+    assert_right(
+        &v,
+        &format!("our protocol, faults {faults:?}, {stalls} {whose} stalls"),
+    );
 }
 
 /// Starts `mock-roboclaw` for `profile` (a 20 Hz compass of σ 0.1°, plus `extra`); the
@@ -178,27 +187,36 @@ fn roboclaw(
 #[test]
 fn a_roboclaw_survives_host_and_device_stalls_and_late_answers() {
     let _shared = MACHINE.read().unwrap_or_else(|e| e.into_inner());
-    for (stop_device, delay_ms) in [(false, "0"), (true, "0"), (false, "40")] {
-        let (dir, profile) = common::scratch_with(
-            &format!("stall-roboclaw-{stop_device}"),
-            "robot.toml",
-            common::ROBOCLAW_PROFILE,
-        );
-        let (mut mock, args) = roboclaw(&dir, &profile, &["--answer-delay-ms", delay_ms]);
-        let mut args: Vec<&str> = args.iter().map(String::as_str).collect();
-        args.extend(SHORT);
-        let device = stop_device.then(|| mock.id());
-        let stalls = if delay_ms == "0" { 5 } else { 0 };
-        let (v, landed) = stalled(&args, device, stalls, Duration::from_millis(300), 11);
-        drop(mock.stdin.take());
-        let _ = mock.kill();
-        assert_eq!(landed, stalls, "every stall landed while it ran");
-        let whose = if stop_device { "device" } else { "host" };
-        assert_right(
-            &v,
-            &format!("RoboClaw, {stalls} {whose} stalls, answers {delay_ms} ms late"),
-        );
-    }
+    // As above: three real-time cases side by side.
+    std::thread::scope(|s| {
+        for (stop_device, delay_ms) in [(false, "0"), (true, "0"), (false, "40")] {
+            s.spawn(move || roboclaw_case(stop_device, delay_ms));
+        }
+    });
+}
+
+/// One case of the test above: the host (or the device when `stop_device`) stopped five times
+/// when answers are prompt, none when they come `delay_ms` late.
+fn roboclaw_case(stop_device: bool, delay_ms: &str) {
+    let (dir, profile) = common::scratch_with(
+        &format!("stall-roboclaw-{stop_device}-{delay_ms}"),
+        "robot.toml",
+        common::ROBOCLAW_PROFILE,
+    );
+    let (mut mock, args) = roboclaw(&dir, &profile, &["--answer-delay-ms", delay_ms]);
+    let mut args: Vec<&str> = args.iter().map(String::as_str).collect();
+    args.extend(SHORT);
+    let device = stop_device.then(|| mock.id());
+    let stalls = if delay_ms == "0" { 5 } else { 0 };
+    let (v, landed) = stalled(&args, device, stalls, Duration::from_millis(300), 11);
+    drop(mock.stdin.take());
+    let _ = mock.kill();
+    assert_eq!(landed, stalls, "every stall landed while it ran");
+    let whose = if stop_device { "device" } else { "host" };
+    assert_right(
+        &v,
+        &format!("RoboClaw, {stalls} {whose} stalls, answers {delay_ms} ms late"),
+    );
 }
 
 /// Both cores busy (two spinning processes beside the calibration and the mock): the default
