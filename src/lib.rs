@@ -23,6 +23,13 @@
 //! - [`report`]: Markdown, plots, report files and the ROS 2 export.
 //! - [`demo`]: the mock device, the HAL and the routine wired together.
 //!
+//! Each backend is a Cargo feature, all on by default: `odocal-protocol` ([`hal`],
+//! [`protocol`]), `ros` (with `bag-sqlite` and `bag-compression` for those bags), `roboclaw`,
+//! `nmea`, `mock` and `conformance`; `cli` is the command line. With `default-features =
+//! false` the library is the core: kinematics, simulation, calibration, the seam, the routine,
+//! recordings, reports and the spec parser, which names the feature a backend it was given
+//! needs ([`features::NotBuilt`]).
+//!
 //! ```
 //! use odocal::calibration::{estimate, Method, RunMeasurement, SquareTest};
 //! use odocal::kinematics::SplitConvention;
@@ -42,17 +49,25 @@
 
 pub mod base;
 pub mod calibration;
+#[cfg(all(feature = "mock", feature = "odocal-protocol"))]
 pub mod demo;
+pub mod features;
+#[cfg(feature = "odocal-protocol")]
 pub mod hal;
 pub mod io;
 pub mod kinematics;
+#[cfg(feature = "mock")]
 pub mod mock;
+#[cfg(any(feature = "nmea", feature = "mock"))]
 pub mod nmea;
 pub mod offline;
+#[cfg(feature = "odocal-protocol")]
 pub mod protocol;
 pub mod ranges;
 pub mod report;
+#[cfg(feature = "roboclaw")]
 pub mod roboclaw;
+#[cfg(feature = "ros")]
 pub mod ros;
 pub mod routine;
 pub mod samples;

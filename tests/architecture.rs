@@ -92,7 +92,8 @@ fn sources_under(dir: &str) -> Vec<(PathBuf, String, usize)> {
                     continue;
                 }
             }
-            cfg_test = if trimmed == "#[cfg(test)]" {
+            // (`#[cfg(all(test, feature = "x"))]`: test code of a build with feature x.)
+            cfg_test = if trimmed == "#[cfg(test)]" || trimmed.starts_with("#[cfg(all(test, ") {
                 Some(1)
             } else {
                 cfg_test

@@ -11,6 +11,7 @@
 //! [`conformance`] checks a device against SPEC.md §7 over a raw link, in real time.
 
 pub mod base;
+#[cfg(feature = "conformance")]
 pub mod conformance;
 pub mod error;
 pub mod link;

@@ -2,6 +2,7 @@
 //! RoboClaw, an NMEA compass) and every mock's pseudo-terminal peer goes through [`open`]; and
 //! what a byte costs on such a line ([`transmission`]).
 
+#[cfg(feature = "serial")]
 /// Opens the serial port `path` at `baud` (8N1, no flow control), exclusively where the
 /// platform allows it. A path that is not a serial port (missing, a plain file, a device that
 /// takes no serial settings such as `/dev/null`) is an error that says so and points to
@@ -23,6 +24,7 @@ pub fn open(path: &str, baud: u32) -> Result<tokio_serial::SerialStream, tokio_s
         })
 }
 
+#[cfg(feature = "serial")]
 /// One serial port of this machine, with its USB ids where known (`odocal ports`): what tells
 /// the motor controller's adapter from the compass's.
 #[derive(Debug, Clone, PartialEq)]
@@ -43,6 +45,7 @@ pub struct PortInfo {
     pub serial_number: Option<String>,
 }
 
+#[cfg(feature = "serial")]
 /// The serial ports of this machine.
 pub fn list_ports() -> Result<Vec<PortInfo>, tokio_serial::Error> {
     use serialport::SerialPortType as T;
@@ -75,6 +78,7 @@ pub fn list_ports() -> Result<Vec<PortInfo>, tokio_serial::Error> {
         .collect())
 }
 
+#[cfg(feature = "serial")]
 impl PortInfo {
     /// The port as JSON: `port` and `type`, and for USB the ids, maker, product and serial
     /// number (null when it does not say).
@@ -91,6 +95,7 @@ impl PortInfo {
     }
 }
 
+#[cfg(feature = "serial")]
 /// A port in a line: its path, and for USB the ids, maker, product and serial number.
 impl std::fmt::Display for PortInfo {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -111,9 +116,11 @@ impl std::fmt::Display for PortInfo {
     }
 }
 
+#[cfg(feature = "serial")]
 /// What `odocal ports` is for, said where a port is wrong.
 const SEE_PORTS: &str = "`odocal ports` lists the serial ports of this machine";
 
+#[cfg(feature = "serial")]
 fn not_a_port(path: &str, what: &str) -> tokio_serial::Error {
     tokio_serial::Error::new(
         tokio_serial::ErrorKind::NoDevice,
@@ -121,6 +128,7 @@ fn not_a_port(path: &str, what: &str) -> tokio_serial::Error {
     )
 }
 
+#[cfg(feature = "serial")]
 /// Why `path` cannot be a serial port, from what it is on disk (nothing is opened: opening a
 /// port can reset the board behind it): missing, or not a character device. Where devices
 /// are not files (Windows' `COM3`), only a missing path under `/dev` is refused.
@@ -148,6 +156,7 @@ pub fn transmission(bytes: usize, baud: u32) -> std::time::Duration {
     std::time::Duration::from_secs_f64(10.0 * bytes as f64 / f64::from(baud.max(1)))
 }
 
+#[cfg(feature = "serial")]
 #[cfg(test)]
 mod port_tests {
     use super::*;

@@ -12,6 +12,7 @@ pub enum MockError {
     /// The factory parameters cannot travel on the wire (SPEC.md §4.1).
     #[error("factory parameters ({0}) are outside the protocol's ranges (SPEC.md §4.1)")]
     FactoryOutOfRange(WheelParams),
+    #[cfg(feature = "odocal-protocol")]
     /// The device kit refused the configuration.
     #[error("device: {0}")]
     Device(#[from] crate::protocol::device::ConfigError),

@@ -7,23 +7,29 @@
 //! the same simulator as a [`crate::base`] backend in process, with no protocol at all;
 //! [`rosbridge`] is a ROS 2 robot behind a mock rosbridge server on a loopback socket.
 
+#[cfg(feature = "odocal-protocol")]
 pub mod device;
 pub mod error;
+#[cfg(feature = "odocal-protocol")]
 pub mod kit;
 pub mod nmea;
 pub mod options;
 pub mod pty;
+#[cfg(feature = "roboclaw")]
 pub mod roboclaw;
+#[cfg(feature = "ros")]
 pub mod rosbridge;
+#[cfg(feature = "odocal-protocol")]
 pub mod serve;
 pub mod sim_base;
 
 pub use pty::PtyServer;
 pub use sim_base::{SimBase, SimCounters, SimFaults};
 
-pub use device::{
-    CompassConvention, DeviceCounters, MockConfig, MockDevice, MockError, MAX_EVENTS_PER_STEP,
-};
+#[cfg(feature = "odocal-protocol")]
+pub use device::{CompassConvention, DeviceCounters, MockConfig, MockDevice, MAX_EVENTS_PER_STEP};
+pub use error::MockError;
+#[cfg(feature = "odocal-protocol")]
 pub use serve::{
     lock, separate_compass, serve, spawn_duplex, spawn_pty, FaultConfig, ServeEnd, SharedDevice,
     TimeMode,

@@ -4,18 +4,26 @@
 //! are the command line's flags (their doc comments are its help); without it a program fills
 //! them in itself. Every range a mock cannot simulate is refused here, by the flag's name.
 
+#[cfg(feature = "odocal-protocol")]
 use super::device::{CompassConvention, MockConfig};
 use super::nmea::{LineEnd, MockCompassConfig};
+#[cfg(feature = "roboclaw")]
 use super::roboclaw::MockRoboClawConfig;
+#[cfg(feature = "ros")]
 use super::rosbridge::{EffortStyle, MockLocalization, MockRosConfig};
+#[cfg(feature = "odocal-protocol")]
 use super::serve::{FaultConfig, TimeMode};
 use super::MockError;
+#[cfg(feature = "ros")]
 use crate::calibration::pose_reference::Pose2;
 use crate::kinematics::{Deviation, SplitConvention, WheelParams};
 use crate::ranges::{check_range, check_ranges};
+#[cfg(feature = "roboclaw")]
 use crate::roboclaw::profile::{Channel, Profile};
+#[cfg(feature = "ros")]
 use crate::ros::yaml::DiffDriveConfig;
 use crate::sim::sensor::{HeadingModel, SensorKind};
+#[cfg(feature = "odocal-protocol")]
 use std::path::PathBuf;
 
 pub use crate::sim::sensor::SIM_HEADING_SIGMA_DEG;
@@ -198,6 +206,7 @@ impl ExtraCompass {
     }
 }
 
+#[cfg(feature = "odocal-protocol")]
 /// `mock-device`: a controller of our protocol on the simulated robot.
 #[derive(Debug, Clone)]
 #[cfg_attr(feature = "cli", derive(clap::Args))]
@@ -245,6 +254,7 @@ pub struct DeviceOptions {
     pub sensor: SensorErrors,
 }
 
+#[cfg(feature = "odocal-protocol")]
 impl DeviceOptions {
     /// The device's configuration and how its clock runs.
     pub fn config(&self) -> Result<(MockConfig, TimeMode), MockError> {
@@ -269,6 +279,7 @@ impl DeviceOptions {
     }
 }
 
+#[cfg(feature = "ros")]
 /// `mock-rosbridge`: a ROS 2 robot with diff_drive_controller behind a rosbridge server.
 #[derive(Debug, Clone)]
 #[cfg_attr(feature = "cli", derive(clap::Args))]
@@ -313,6 +324,7 @@ pub struct RosOptions {
     pub sensor: SensorErrors,
 }
 
+#[cfg(feature = "ros")]
 impl RosOptions {
     /// Every setting in its range (before the controller's file is read).
     pub fn check(&self) -> Result<(), MockError> {
@@ -348,6 +360,7 @@ impl RosOptions {
     }
 }
 
+#[cfg(feature = "ros")]
 /// `--localization-mount X_M,Y_M,YAW_DEG`, checked.
 fn mount(text: &str) -> Result<Pose2, MockError> {
     let bad = || {
@@ -376,6 +389,7 @@ fn mount(text: &str) -> Result<Pose2, MockError> {
     })
 }
 
+#[cfg(feature = "roboclaw")]
 /// `mock-roboclaw`: a RoboClaw and an NMEA compass of one simulated robot.
 #[derive(Debug, Clone)]
 #[cfg_attr(feature = "cli", derive(clap::Args))]
@@ -413,6 +427,7 @@ pub struct RoboClawOptions {
     pub sensor: SensorErrors,
 }
 
+#[cfg(feature = "roboclaw")]
 impl RoboClawOptions {
     /// Every setting in its range (before the profile is read).
     pub fn check(&self) -> Result<(), MockError> {
@@ -463,6 +478,7 @@ impl RoboClawOptions {
 mod tests {
     use super::*;
 
+    #[cfg(feature = "odocal-protocol")]
     fn device() -> DeviceOptions {
         DeviceOptions {
             truth: TrueRobot::default(),
@@ -487,6 +503,7 @@ mod tests {
         }
     }
 
+    #[cfg(feature = "odocal-protocol")]
     #[test]
     fn a_device_takes_its_settings_and_refuses_what_it_cannot_simulate() {
         let mut o = device();
@@ -533,6 +550,7 @@ mod tests {
         assert!(refusal(c.config(1.0).unwrap_err()).contains("--nmea-hz"));
     }
 
+    #[cfg(feature = "roboclaw")]
     #[test]
     fn a_roboclaw_mock_refuses_a_talker_or_rate_it_cannot_simulate() {
         let o = RoboClawOptions {
@@ -565,6 +583,7 @@ mod tests {
         assert!(refusal(address.check().unwrap_err()).contains("--address"));
     }
 
+    #[cfg(feature = "ros")]
     #[test]
     fn a_localization_mount_is_three_numbers_in_range() {
         let p = mount("0.1, -0.05, 90").unwrap();

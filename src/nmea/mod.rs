@@ -9,17 +9,23 @@
 //!
 //! [`mod@sentence`] parses and writes the sentences; [`compass`] reads them from a serial line.
 
+#[cfg(feature = "nmea")]
 pub mod compass;
 pub mod sentence;
 
+#[cfg(feature = "nmea")]
 pub use compass::{NmeaCompass, NmeaStats};
 
+#[cfg(feature = "nmea")]
 use crate::base::heading_backend::{HeadingBackend, PortSpec};
+#[cfg(feature = "nmea")]
 use std::sync::Arc;
 
+#[cfg(feature = "nmea")]
 /// Baud rate of an NMEA 0183 compass unless configured (NMEA 0183's own).
 pub const NMEA_BAUD: u32 = 4800;
 
+#[cfg(feature = "nmea")]
 /// An NMEA compass as a heading source of its own: `nmea:PORT[?baud=4800]`.
 pub const HEADING_BACKEND: HeadingBackend = HeadingBackend {
     scheme: "nmea",

@@ -4,6 +4,7 @@
 
 use super::{BaseSpec, RobotSection, SpecError};
 use crate::base::{Base, HeadingSource};
+#[cfg(feature = "ros")]
 use crate::ros::live::{RosBaseConfig, WheelSource};
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -48,6 +49,9 @@ pub struct RobotFlags {
 impl RobotFlags {
     /// The rosbridge URL of a ROS robot (`--base rosbridge://…`), if that is the base.
     pub fn rosbridge_url(&self) -> Option<&str> {
+        #[cfg(not(feature = "ros"))]
+        return None;
+        #[cfg(feature = "ros")]
         self.base
             .as_deref()
             .filter(|b| (crate::ros::live::DRIVE_BACKEND.recognise)(b).is_some())
@@ -105,6 +109,7 @@ impl RosFlags {
     }
 
     /// `c` with the flags given laid over it.
+    #[cfg(feature = "ros")]
     fn apply(&self, mut c: RosBaseConfig) -> Result<RosBaseConfig, SpecError> {
         if let Some(y) = &self.ros_yaml {
             c.yaml = y.clone();
@@ -146,7 +151,7 @@ impl RobotFlags {
     /// `--port` (a heading spec, or an odocal-protocol controller) when there is no `--base`;
     /// with its baud rate.
     pub fn heading_alone(&self) -> Option<(String, u32)> {
-        let baud = self.baud.unwrap_or(crate::hal::DEFAULT_BAUD);
+        let baud = self.baud.unwrap_or(super::ODOCAL_BAUD);
         match (&self.heading, &self.port, &self.base) {
             (Some(h), _, _) => Some((h.clone(), baud)),
             (None, Some(p), None) => Some((p.clone(), baud)),
@@ -182,10 +187,18 @@ impl RobotFlags {
 
     /// The robot: a routine file's section (if any) with these flags laid over it.
     pub fn spec(&self, file: RobotSection) -> Result<BaseSpec, SpecError> {
+        #[cfg(feature = "ros")]
         let ros = match (file.ros.clone(), self.ros.any()) {
             (Some(c), _) => Some(self.ros.apply(c)?),
             (None, true) => Some(self.ros.apply(RosBaseConfig::default())?),
             (None, false) => None,
+        };
+        #[cfg(not(feature = "ros"))]
+        let ros = if self.ros.any() {
+            let what = "the ROS flags (--ros-yaml, --controller, --cmd-vel, the topics, …)";
+            return Err(crate::features::NotBuilt::new(what, &["ros"]).into());
+        } else {
+            file.ros.clone()
         };
         let flags = RobotSection {
             ros,
@@ -195,7 +208,7 @@ impl RobotFlags {
     }
 }
 
-#[cfg(test)]
+#[cfg(all(test, feature = "odocal-protocol", feature = "ros"))]
 mod tests {
     use super::*;
 

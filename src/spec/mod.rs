@@ -26,6 +26,9 @@ pub mod restore_target;
 pub mod routine_file;
 pub mod store;
 
+#[cfg(test)]
+mod core_tests;
+
 use crate::base::adjusted::Adjusted;
 use crate::base::drive_backend::{
     BackendError, DriveBackend, DriveOpen, DriveTarget, HeadingPart, StorePart,
@@ -34,10 +37,11 @@ use crate::base::heading_backend::HeadingBackend;
 use crate::base::port_spec::PortSpec;
 use crate::base::transaction::BackupError;
 use crate::base::{Base, BaseError, HeadingKind, HeadingSource};
+#[cfg(feature = "odocal-protocol")]
 use crate::hal::HalError;
 use crate::kinematics::Deviation;
+#[cfg(feature = "roboclaw")]
 use crate::roboclaw::profile::ProfileError;
-use crate::ros::live::RosBaseConfig;
 use crate::routine::config::ConfigError;
 use registry::{forms, DRIVE_BACKENDS, STORE_BACKENDS};
 use serde::{Deserialize, Serialize};
@@ -45,13 +49,22 @@ use std::path::{Path, PathBuf};
 use std::str::FromStr;
 use std::sync::Arc;
 
+#[cfg(feature = "ros")]
 pub use crate::ros::yaml::DEFAULT_CONTROLLER;
 pub use registry::HEADING_BACKENDS;
 pub use routine_file::RoutineFile;
 pub use store::{StoreLocation, StoreSpec};
 
 /// Baud rate of odocal's protocol unless configured (SPEC.md §1).
-pub const ODOCAL_BAUD: u32 = crate::hal::DEFAULT_BAUD;
+pub const ODOCAL_BAUD: u32 = 115_200;
+
+/// Settings of a ROS robot ([`crate::ros::live::RosBaseConfig`]).
+#[cfg(feature = "ros")]
+pub type RosSettings = crate::ros::live::RosBaseConfig;
+/// Settings of a ROS robot, in a build without the `ros` feature: kept as the table they are
+/// given as, and refused by name.
+#[cfg(not(feature = "ros"))]
+pub type RosSettings = toml::Table;
 
 /// Why a spec cannot be parsed, combined or opened.
 #[derive(Debug, thiserror::Error)]
@@ -71,8 +84,12 @@ pub enum SpecError {
     #[error("{0}")]
     Combination(String),
     /// A controller of our protocol could not be opened.
+    #[cfg(feature = "odocal-protocol")]
     #[error(transparent)]
     Odocal(#[from] HalError),
+    /// A backend, or a setting of one, that this build of odocal leaves out.
+    #[error(transparent)]
+    NotBuilt(#[from] crate::features::NotBuilt),
     /// A drive could not be opened (its backend's error).
     #[error(transparent)]
     Drive(BackendError),
@@ -80,6 +97,7 @@ pub enum SpecError {
     #[error(transparent)]
     Store(BackendError),
     /// A robot profile could not be read.
+    #[cfg(feature = "roboclaw")]
     #[error(transparent)]
     Profile(#[from] ProfileError),
     /// A heading source could not be opened.
@@ -124,6 +142,20 @@ fn parse_err(text: &str, reason: impl Into<String>) -> SpecError {
     }
 }
 
+/// The refusal of `text` when it names a backend this build leaves out (by its scheme or
+/// whole, or, when `bare` and no built backend takes one, as a bare port).
+fn not_built(text: &str, bare: bool) -> Result<(), SpecError> {
+    let table = registry::OPTIONAL;
+    let bare = || {
+        bare.then(|| registry::bare_port_not_built(table, text))
+            .flatten()
+    };
+    match registry::not_built(table, text).or_else(bare) {
+        Some(e) => Err(e.into()),
+        None => Ok(()),
+    }
+}
+
 /// `backend` cannot honour `setting`: refused by name rather than ignored.
 fn refused(backend: &DriveBackend, setting: &str) -> SpecError {
     SpecError::Combination(format!(
@@ -132,12 +164,13 @@ fn refused(backend: &DriveBackend, setting: &str) -> SpecError {
     ))
 }
 
-/// `text` has the form of some backend other than a bare port (a scheme a list knows, a URL),
-/// or is empty: not a bare port.
+/// `text` has the form of some backend other than a bare port (a scheme a list knows, or of a
+/// backend this build leaves out, a URL), or is empty: not a bare port.
 fn other_form(text: &str) -> bool {
     let scheme = |s: &str| text.starts_with(&format!("{s}:"));
     text.is_empty()
         || text.contains("://")
+        || registry::not_built(registry::OPTIONAL, text).is_some()
         || DRIVE_BACKENDS.iter().any(|b| (b.recognise)(text).is_some())
         || HEADING_BACKENDS.iter().any(|b| scheme(b.scheme))
         || STORE_BACKENDS.iter().any(|b| scheme(b.scheme))
@@ -164,7 +197,8 @@ impl FromStr for DriveSpec {
             Some(found) => found,
             None => match DRIVE_BACKENDS.iter().find(|b| b.bare_port) {
                 Some(&b) if !other_form(text) => (b, Ok(PortSpec::bare(text))),
-                _ => {
+                found => {
+                    not_built(text, found.is_none() && !other_form(text))?;
                     let each = DRIVE_BACKENDS
                         .iter()
                         .map(|b| format!("{} ({})", b.form, b.what));
@@ -204,6 +238,7 @@ impl DriveSpec {
 
     /// The port and baud rate of the odocal-protocol controller this names, for a command that
     /// talks to one alone (`status`, `params`); refused for another robot.
+    #[cfg(feature = "odocal-protocol")]
     pub fn controller_port(&self) -> Result<(String, u32), SpecError> {
         let hal = registry::CONTROLLER;
         if !self.is(hal) {
@@ -262,6 +297,7 @@ impl FromStr for HeadingSpec {
                 return Ok(HeadingSpec::Port { backend, spec });
             }
         }
+        not_built(text, false)?;
         let forms: Vec<&str> = HEADING_BACKENDS.iter().map(|b| b.form).collect();
         Err(parse_err(
             text,
@@ -319,9 +355,9 @@ pub struct RobotSection {
     /// A robot profile: the same as `store = "profile:PATH"`.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub profile: Option<PathBuf>,
-    /// Settings of a ROS robot ([`RosBaseConfig`]; its `url` comes from `drive`).
+    /// Settings of a ROS robot ([`RosSettings`]; its `url` comes from `drive`).
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub ros: Option<RosBaseConfig>,
+    pub ros: Option<RosSettings>,
     /// What the heading sensor is ([`HeadingKind`]'s name: `magnetic`, `gyro`, `reference`,
     /// `unknown`), when the backend cannot tell.
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -365,6 +401,11 @@ impl RobotSection {
             ))
         })?;
         let mut drive: DriveSpec = text.parse()?;
+        #[cfg(not(feature = "ros"))]
+        if self.ros.is_some() {
+            let what = "ROS settings (a [robot.ros] or [ros] table, or the ROS flags)";
+            return Err(crate::features::NotBuilt::new(what, &["ros"]).into());
+        }
         let backend = drive.backend;
         if let Some(baud) = self.baud {
             drive.with_baud(baud, text)?;
@@ -447,13 +488,22 @@ fn with_profile(
     let Some(path) = profile else {
         return Ok((kind, deviation));
     };
-    let section = crate::roboclaw::profile::Profile::load(path)?.heading;
-    let deviation = if deviation.is_zero() {
-        section.deviation()
-    } else {
-        deviation
-    };
-    Ok((kind.or(section.kind), deviation))
+    #[cfg(not(feature = "roboclaw"))]
+    return Err(crate::features::NotBuilt::new(
+        format!("the robot profile {}", path.display()),
+        &["roboclaw"],
+    )
+    .into());
+    #[cfg(feature = "roboclaw")]
+    {
+        let section = crate::roboclaw::profile::Profile::load(path)?.heading;
+        let deviation = if deviation.is_zero() {
+            section.deviation()
+        } else {
+            deviation
+        };
+        Ok((kind.or(section.kind), deviation))
+    }
 }
 
 impl BaseSpec {
@@ -586,11 +636,20 @@ pub async fn open_heading(text: &str, baud: u32) -> Result<Arc<dyn HeadingSource
         "give {} or the port of an odocal-protocol controller",
         forms.join(" or ")
     );
-    Ok(Arc::new(open_controller(text, baud, &hint).await?))
+    #[cfg(feature = "odocal-protocol")]
+    return Ok(Arc::new(open_controller(text, baud, &hint).await?));
+    #[cfg(not(feature = "odocal-protocol"))]
+    {
+        // The drive spec's own refusal names the feature a controller's port needs.
+        let _ = baud;
+        text.parse::<DriveSpec>()?;
+        Err(parse_err(text, hint))
+    }
 }
 
 /// An odocal-protocol controller named by a drive spec (its `baud=` over `baud`), or an error
 /// with `hint` for any other drive.
+#[cfg(feature = "odocal-protocol")]
 async fn open_controller(
     text: &str,
     baud: u32,
@@ -612,8 +671,11 @@ async fn open_controller(
 }
 
 #[cfg(test)]
+#[cfg(all(feature = "odocal-protocol", feature = "ros", feature = "roboclaw"))]
+#[cfg(all(feature = "nmea", feature = "mock"))]
 mod tests {
     use super::*;
+    use crate::ros::live::RosBaseConfig;
 
     /// A drive of `backend` at `port` with `options`, as parsed (no settings).
     fn drive(backend: &'static DriveBackend, port: &str, options: &[(&str, &str)]) -> DriveSpec {

@@ -7,23 +7,34 @@ use crate::base::drive_backend::{DriveBackend, DriveOpen, HeadingPart, OpenDrive
 use crate::base::heading_backend::HeadingBackend;
 use crate::base::port_spec::PortSpec;
 use crate::base::store_backend::StoreBackend;
+use crate::features::NotBuilt;
 
 /// The drives, tried in this order; the one that takes a bare port (odocal's protocol) is
 /// also what a text of no other form is.
 pub const DRIVE_BACKENDS: &[&DriveBackend] = &[
+    #[cfg(feature = "odocal-protocol")]
     &crate::hal::base::DRIVE_BACKEND,
+    #[cfg(feature = "ros")]
     &crate::ros::live::DRIVE_BACKEND,
+    #[cfg(feature = "roboclaw")]
     &crate::roboclaw::DRIVE_BACKEND,
+    #[cfg(all(feature = "mock", feature = "odocal-protocol"))]
     &SIMULATED,
 ];
 
 /// The heading sources on ports of their own.
-pub const HEADING_BACKENDS: &[&HeadingBackend] = &[&crate::nmea::HEADING_BACKEND];
+pub const HEADING_BACKENDS: &[&HeadingBackend] = &[
+    #[cfg(feature = "nmea")]
+    &crate::nmea::HEADING_BACKEND,
+];
 
 /// The parameter stores that open on their own (`odocal restore --to`, a backup's store).
 pub const STORE_BACKENDS: &[&StoreBackend] = &[
+    #[cfg(feature = "odocal-protocol")]
     &crate::hal::base::STORE_BACKEND,
+    #[cfg(feature = "roboclaw")]
     &crate::roboclaw::profile::STORE_BACKEND,
+    #[cfg(feature = "ros")]
     &crate::ros::yaml::STORE_BACKEND,
 ];
 
@@ -58,10 +69,132 @@ pub const SIMULATED: DriveBackend = DriveBackend {
 /// The drive whose heading sensor `odocal heading` reads alone, without the robot (a
 /// controller of odocal's protocol: its compass answers over the same link), and the one
 /// `status` and `params` talk to.
+#[cfg(feature = "odocal-protocol")]
 pub const CONTROLLER: &DriveBackend = &crate::hal::base::DRIVE_BACKEND;
 
-/// The store backend that keeps a drive's robot profile (`profile:PATH`).
-pub const PROFILE: &StoreBackend = &crate::roboclaw::profile::STORE_BACKEND;
+/// The store backend that keeps a drive's robot profile (`profile:PATH`), when built.
+#[cfg(feature = "roboclaw")]
+pub const PROFILE: Option<&StoreBackend> = Some(&crate::roboclaw::profile::STORE_BACKEND);
+/// The store backend that keeps a drive's robot profile: not built.
+#[cfg(not(feature = "roboclaw"))]
+pub const PROFILE: Option<&StoreBackend> = None;
+
+/// A backend as the texts that name it, whether this build has it or not: what a text naming
+/// one it left out is refused with ([`not_built`]), instead of being read as something else
+/// (a `roboclaw:` drive as a serial port, say).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Optional {
+    /// What it is, for messages.
+    pub what: &'static str,
+    /// The features it needs.
+    pub features: &'static [&'static str],
+    /// The schemes of its texts (`rosbridge` of `rosbridge://…`, `profile` of `profile:PATH`).
+    pub schemes: &'static [&'static str],
+    /// A whole text that names it (`mock`).
+    pub exact: Option<&'static str>,
+    /// A bare port names it (a text of no other form).
+    pub bare_port: bool,
+    /// The kind of store its backups record.
+    pub store_kind: Option<&'static str>,
+    /// This build has it.
+    pub built: bool,
+}
+
+/// Every backend a feature leaves out (the store kinds are the backends' `KIND`s, written
+/// here because a backend that is not built cannot be named).
+pub const OPTIONAL: &[Optional] = &[
+    Optional {
+        what: "a controller of odocal's protocol",
+        features: &["odocal-protocol"],
+        schemes: &["odocal"],
+        exact: None,
+        bare_port: true,
+        store_kind: Some("odocal-protocol"),
+        built: cfg!(feature = "odocal-protocol"),
+    },
+    Optional {
+        what: "a ROS robot (rosbridge) or its controller's YAML",
+        features: &["ros"],
+        schemes: &["rosbridge", "ws", "ros-yaml"],
+        exact: None,
+        bare_port: false,
+        store_kind: Some("ros2-control-yaml"),
+        built: cfg!(feature = "ros"),
+    },
+    Optional {
+        what: "a RoboClaw or a robot profile",
+        features: &["roboclaw"],
+        schemes: &["roboclaw", "profile"],
+        exact: None,
+        bare_port: false,
+        store_kind: Some("robot-profile"),
+        built: cfg!(feature = "roboclaw"),
+    },
+    Optional {
+        what: "an NMEA 0183 compass",
+        features: &["nmea"],
+        schemes: &["nmea"],
+        exact: None,
+        bare_port: false,
+        store_kind: None,
+        built: cfg!(feature = "nmea"),
+    },
+    Optional {
+        what: "the built-in simulated robot",
+        features: &["mock", "odocal-protocol"],
+        schemes: &[],
+        exact: Some("mock"),
+        bare_port: false,
+        store_kind: None,
+        built: cfg!(all(feature = "mock", feature = "odocal-protocol")),
+    },
+];
+
+impl Optional {
+    /// `text` names this backend by its scheme or whole (not by being a bare port).
+    pub fn names(&self, text: &str) -> bool {
+        let scheme = text.split_once(':').map(|(s, _)| s);
+        self.exact == Some(text) || self.schemes.iter().any(|s| scheme == Some(*s))
+    }
+
+    /// The error for `text`, which names this backend.
+    fn refusal(&self, text: &str) -> NotBuilt {
+        NotBuilt::new(format!("`{text}` ({})", self.what), self.features)
+    }
+}
+
+/// Why `text` cannot be read in this build, when it names (by scheme or whole) a backend of
+/// `table` that is not built.
+pub fn not_built(table: &[Optional], text: &str) -> Option<NotBuilt> {
+    let text = text.trim();
+    table
+        .iter()
+        .find(|b| !b.built && b.names(text))
+        .map(|b| b.refusal(text))
+}
+
+/// Why the bare port `text` cannot be read in this build: the backend of bare ports in
+/// `table` is not built.
+pub fn bare_port_not_built(table: &[Optional], text: &str) -> Option<NotBuilt> {
+    let text = text.trim();
+    table
+        .iter()
+        .find(|b| !b.built && b.bare_port)
+        .map(|b| b.refusal(text))
+}
+
+/// Why a backup of store kind `kind` cannot be opened in this build.
+pub fn store_kind_not_built(table: &[Optional], kind: &str) -> Option<NotBuilt> {
+    table
+        .iter()
+        .find(|b| !b.built && b.store_kind == Some(kind))
+        .map(|b| {
+            NotBuilt::new(
+                format!("a backup of a {kind} store ({})", b.what),
+                b.features,
+            )
+        })
+}
 
 /// The forms of a list, joined for a message (`a, b or c`).
 pub fn forms<'a>(forms: impl IntoIterator<Item = &'a str>) -> String {
@@ -70,5 +203,70 @@ pub fn forms<'a>(forms: impl IntoIterator<Item = &'a str>) -> String {
         Some((last, rest)) if !rest.is_empty() => format!("{} or {last}", rest.join(", ")),
         Some((last, _)) => (*last).to_string(),
         None => String::new(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Texts of each optional backend, and the feature each needs.
+    const TEXTS: [(&str, &[&str]); 8] = [
+        ("rosbridge://h:1", &["ros"]),
+        ("ws://h:1", &["ros"]),
+        ("ros-yaml:c.yaml", &["ros"]),
+        ("roboclaw:/dev/x", &["roboclaw"]),
+        ("profile:r.toml", &["roboclaw"]),
+        ("nmea:/dev/y", &["nmea"]),
+        ("odocal:/dev/z", &["odocal-protocol"]),
+        ("mock", &["mock", "odocal-protocol"]),
+    ];
+
+    /// Each text of [`TEXTS`] names a backend the lists hold in this build, by the same
+    /// scheme or text the table gives: the table cannot drift from the backends.
+    #[cfg(all(feature = "cli", feature = "bag-sqlite", feature = "bag-compression"))]
+    #[test]
+    fn the_table_names_what_the_built_backends_read() {
+        for (text, _) in TEXTS {
+            let entry = OPTIONAL.iter().find(|b| b.names(text)).unwrap();
+            assert!(entry.built, "{text}");
+            let drive = DRIVE_BACKENDS.iter().any(|b| (b.recognise)(text).is_some());
+            let scheme = text.split_once(':').map(|(s, _)| s);
+            let heading = HEADING_BACKENDS.iter().any(|b| scheme == Some(b.scheme));
+            let store = STORE_BACKENDS.iter().any(|b| scheme == Some(b.scheme));
+            assert!(drive || heading || store, "{text} is no built backend's");
+        }
+        for entry in OPTIONAL {
+            if let Some(kind) = entry.store_kind {
+                assert!(STORE_BACKENDS.iter().any(|b| b.kind == kind), "{kind}");
+            }
+            if entry.bare_port {
+                assert!(DRIVE_BACKENDS.iter().any(|b| b.bare_port), "{}", entry.what);
+            }
+        }
+        assert!(not_built(OPTIONAL, "rosbridge://h:1").is_none());
+        assert!(bare_port_not_built(OPTIONAL, "/dev/ttyUSB0").is_none());
+    }
+
+    /// With every backend left out, each text is refused with the feature it needs, and a
+    /// text of no backend's form is left to the parser's own message.
+    #[test]
+    fn a_text_of_a_backend_left_out_names_its_feature() {
+        let none: Vec<Optional> = OPTIONAL
+            .iter()
+            .map(|b| Optional { built: false, ..*b })
+            .collect();
+        for (text, features) in TEXTS {
+            let e = not_built(&none, text).unwrap();
+            assert_eq!(e.features, features, "{text}");
+            assert!(e.to_string().starts_with(&format!("`{text}` (")), "{e}");
+        }
+        let bare = bare_port_not_built(&none, "/dev/ttyUSB0").unwrap();
+        assert_eq!(bare.features, ["odocal-protocol"]);
+        assert!(not_built(&none, "/dev/ttyUSB0").is_none());
+        assert!(not_built(&none, "serial:/dev/x").is_none());
+        let kind = store_kind_not_built(&none, "robot-profile").unwrap();
+        assert_eq!(kind.features, ["roboclaw"]);
+        assert!(store_kind_not_built(&none, "simulated").is_none());
     }
 }

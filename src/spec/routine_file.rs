@@ -77,7 +77,7 @@ impl RoutineFile {
     }
 }
 
-#[cfg(test)]
+#[cfg(all(test, feature = "roboclaw", feature = "ros"))]
 mod tests {
     use super::*;
 

@@ -7,9 +7,7 @@ use super::{other_form, parse_err, SpecError};
 use crate::base::port_spec::PortSpec;
 use crate::base::store_backend::StoreBackend;
 use crate::base::transaction::{BackupError, BackupFile};
-use crate::base::{ParamFile, ParamStore};
-use crate::roboclaw::profile::ProfileFile;
-use crate::ros::yaml::DEFAULT_CONTROLLER;
+use crate::base::ParamStore;
 use std::path::{Path, PathBuf};
 use std::str::FromStr;
 use std::sync::Arc;
@@ -34,20 +32,26 @@ impl FromStr for StoreSpec {
         if text == "drive" {
             return Ok(StoreSpec::Drive);
         }
-        match PortSpec::parse(text, PROFILE.scheme, PROFILE.options) {
-            Some(spec) => Ok(StoreSpec::Located(StoreLocation {
-                backend: PROFILE,
+        let profile = PROFILE.and_then(|p| Some((p, PortSpec::parse(text, p.scheme, p.options)?)));
+        match profile {
+            Some((backend, spec)) => Ok(StoreSpec::Located(StoreLocation {
+                backend,
                 spec: spec.map_err(|reason| parse_err(text, reason))?,
             })),
-            None => Err(parse_err(
-                text,
-                format!(
-                    "not a parameter store: give drive (the drive's own) or {} ({}, for {})",
-                    PROFILE.form,
-                    PROFILE.what,
-                    profile_drives()
-                ),
-            )),
+            None => {
+                if let Some(e) = super::registry::not_built(super::registry::OPTIONAL, text) {
+                    return Err(e.into());
+                }
+                let profile = PROFILE
+                    .map(|p| format!(" or {} ({}, for {})", p.form, p.what, profile_drives()));
+                Err(parse_err(
+                    text,
+                    format!(
+                        "not a parameter store: give drive (the drive's own){}",
+                        profile.unwrap_or_default()
+                    ),
+                ))
+            }
         }
     }
 }
@@ -61,8 +65,12 @@ impl StoreSpec {
                 path.display()
             ))
         })?;
+        let Some(backend) = PROFILE else {
+            let what = format!("the robot profile {name}");
+            return Err(crate::features::NotBuilt::new(what, &["roboclaw"]).into());
+        };
         Ok(StoreSpec::Located(StoreLocation {
-            backend: PROFILE,
+            backend,
             spec: PortSpec::bare(name),
         }))
     }
@@ -70,7 +78,7 @@ impl StoreSpec {
     /// The robot profile this store is, if it is one.
     pub fn profile_path(&self) -> Option<&Path> {
         match self {
-            StoreSpec::Located(l) if l.backend == PROFILE => Some(Path::new(&l.spec.port)),
+            StoreSpec::Located(l) if PROFILE == Some(l.backend) => Some(Path::new(&l.spec.port)),
             _ => None,
         }
     }
@@ -107,10 +115,19 @@ impl StoreLocation {
             Some(backend) if !other_form(text) => {
                 StoreLocation::completed(text, backend, PortSpec::bare(text), baud)
             }
-            _ => Err(parse_err(
-                text,
-                format!("not a parameter store: give {}", store_forms()),
-            )),
+            found => {
+                let table = super::registry::OPTIONAL;
+                let bare = || super::registry::bare_port_not_built(table, text);
+                let not_built = super::registry::not_built(table, text)
+                    .or_else(|| found.is_none().then(bare).flatten());
+                if let Some(e) = not_built.filter(|_| !text.is_empty()) {
+                    return Err(e.into());
+                }
+                Err(parse_err(
+                    text,
+                    format!("not a parameter store: give {}", store_forms()),
+                ))
+            }
         }
     }
 
@@ -151,26 +168,7 @@ impl StoreLocation {
             }
         })?;
         let file = std::path::absolute(&file).unwrap_or(file);
-        let (store, active) = match ProfileFile.parse(&text, path) {
-            Ok(profile) => (ProfileFile.info(&file), ProfileFile::params(&profile)),
-            Err(profile_error) => {
-                let format = crate::ros::yaml::ControllerYaml {
-                    controller: controller.unwrap_or(DEFAULT_CONTROLLER).into(),
-                };
-                let config = format.parse(&text, path).map_err(|yaml_error| {
-                    SpecError::Combination(format!(
-                        "{} is named like a copy odocal made of {}, but reads neither as a robot \
-                         profile ({profile_error}) nor as a controller's YAML ({yaml_error})",
-                        path.display(),
-                        file.display()
-                    ))
-                })?;
-                (
-                    format.info(&file),
-                    crate::ros::yaml::ControllerYaml::params(&config),
-                )
-            }
-        };
+        let (store, active) = read_copy(&text, path, &file, controller)?;
         let backup = BackupFile {
             odocal_version: "before 0.2 (a copy of the file)".into(),
             store,
@@ -195,6 +193,10 @@ impl StoreLocation {
             .or_else(|| StoreBackend::detail(backup, "file").map(PathBuf::from));
         let kind = backup.store.kind.as_str();
         let Some(&backend) = STORE_BACKENDS.iter().find(|b| b.kind == kind) else {
+            let table = super::registry::OPTIONAL;
+            if let Some(e) = super::registry::store_kind_not_built(table, kind) {
+                return Err(e.into());
+            }
             return Err(SpecError::Combination(format!(
                 "odocal cannot open a store of kind `{kind}` (`{}`) by itself: give one with \
                  --to: {}",
@@ -217,6 +219,51 @@ impl StoreLocation {
             .await
             .map_err(SpecError::Store)
     }
+}
+
+/// What a copy odocal before 0.2 made of `file` (at `path`, holding `text`) was taken from and
+/// holds: a robot profile, else `controller`'s section of a controller's YAML.
+#[cfg(all(feature = "roboclaw", feature = "ros"))]
+fn read_copy(
+    text: &str,
+    path: &Path,
+    file: &Path,
+    controller: Option<&str>,
+) -> Result<(crate::base::ComponentInfo, crate::kinematics::WheelParams), SpecError> {
+    use crate::base::ParamFile;
+    use crate::roboclaw::profile::ProfileFile;
+    use crate::ros::yaml::{ControllerYaml, DEFAULT_CONTROLLER};
+    let profile_error = match ProfileFile.parse(text, path) {
+        Ok(profile) => return Ok((ProfileFile.info(file), ProfileFile::params(&profile))),
+        Err(e) => e,
+    };
+    let format = ControllerYaml {
+        controller: controller.unwrap_or(DEFAULT_CONTROLLER).into(),
+    };
+    let config = format.parse(text, path).map_err(|yaml_error| {
+        SpecError::Combination(format!(
+            "{} is named like a copy odocal made of {}, but reads neither as a robot \
+             profile ({profile_error}) nor as a controller's YAML ({yaml_error})",
+            path.display(),
+            file.display()
+        ))
+    })?;
+    Ok((format.info(file), ControllerYaml::params(&config)))
+}
+
+/// A copy odocal before 0.2 made, in a build that cannot read what it copied.
+#[cfg(not(all(feature = "roboclaw", feature = "ros")))]
+fn read_copy(
+    _text: &str,
+    path: &Path,
+    _file: &Path,
+    _controller: Option<&str>,
+) -> Result<(crate::base::ComponentInfo, crate::kinematics::WheelParams), SpecError> {
+    let what = format!(
+        "{}, a copy odocal before 0.2 made of a robot profile or a controller's YAML,",
+        path.display()
+    );
+    Err(crate::features::NotBuilt::new(what, &["roboclaw", "ros"]).into())
 }
 
 /// The file `path` is a copy of, when it is named like one (`<file>.odocal-backup-<UTC time>`
@@ -258,8 +305,10 @@ pub(super) fn profile_drives() -> String {
 }
 
 #[cfg(test)]
+#[cfg(all(feature = "odocal-protocol", feature = "roboclaw", feature = "ros"))]
 mod tests {
     use super::*;
+    use crate::ros::yaml::DEFAULT_CONTROLLER;
 
     /// A store of `backend` at `port` with `options`.
     fn at(backend: &'static StoreBackend, port: &str, options: &[(&str, &str)]) -> StoreLocation {
@@ -288,7 +337,7 @@ mod tests {
             ),
             (
                 "profile:/r/robot.toml",
-                at(PROFILE, "/r/robot.toml", &[]),
+                at(PROFILE.unwrap(), "/r/robot.toml", &[]),
                 "profile:/r/robot.toml",
             ),
             (
@@ -367,7 +416,7 @@ mod tests {
                 default_baud
             )
             .unwrap(),
-            at(PROFILE, "/r/robot.toml", &[])
+            at(PROFILE.unwrap(), "/r/robot.toml", &[])
         );
         assert_eq!(
             StoreLocation::of_backup(

@@ -8,9 +8,12 @@
 //! chunk compression is [`super::mcap`]'s; ROS 1 chunks are [`super::ros1`]'s.)
 
 use super::BagError;
+#[cfg(feature = "bag-compression")]
 use crate::io::budget;
 use std::io::Read;
-use std::path::{Path, PathBuf};
+use std::path::Path;
+#[cfg(feature = "bag-compression")]
+use std::path::PathBuf;
 
 /// The first bytes of every zstd frame.
 pub const ZSTD_MAGIC: &[u8] = &[0x28, 0xB5, 0x2F, 0xFD];
@@ -54,6 +57,7 @@ impl Whole {
     }
 }
 
+#[cfg(feature = "bag-compression")]
 /// A reader that fails once more than [`budget::BAG_FILE`] bytes came through it, and counts
 /// what does against the run's budget.
 struct Bounded<R> {
@@ -62,6 +66,7 @@ struct Bounded<R> {
     path: PathBuf,
 }
 
+#[cfg(feature = "bag-compression")]
 impl<R: Read> Read for Bounded<R> {
     fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
         let n = self.inner.read(buf)?;
@@ -75,12 +80,14 @@ impl<R: Read> Read for Bounded<R> {
     }
 }
 
+#[cfg(feature = "bag-compression")]
 /// LZ4 frames back to back, as one stream: each frame read to its end (a frame cut short is
 /// an error, not a shorter bag), then the next if bytes follow.
 struct Lz4Frames<R: Read> {
     decoder: Option<lz4::Decoder<R>>,
 }
 
+#[cfg(feature = "bag-compression")]
 impl<R: std::io::BufRead> Read for Lz4Frames<R> {
     fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
         loop {
@@ -108,6 +115,7 @@ impl<R: std::io::BufRead> Read for Lz4Frames<R> {
     }
 }
 
+#[cfg(feature = "bag-compression")]
 /// The file at `path`, compressed whole, as a stream of what it decompresses to (failing past
 /// [`budget::BAG_FILE`]): for a container read as a stream, in memory near its largest record
 /// whatever the file's size.
@@ -135,6 +143,17 @@ pub fn stream(path: &Path, whole: Whole) -> Result<Box<dyn Read>, BagError> {
     }))
 }
 
+/// Without the `bag-compression` feature, a file compressed whole is refused by name.
+#[cfg(not(feature = "bag-compression"))]
+pub fn stream(path: &Path, whole: Whole) -> Result<Box<dyn Read>, BagError> {
+    let how = match whole {
+        Whole::Zstd => "zstd",
+        Whole::Lz4 => "lz4",
+    };
+    let what = format!("{}, compressed whole with {how},", path.display());
+    Err(crate::features::NotBuilt::new(what, &["bag-compression"]).into())
+}
+
 /// The first `n` bytes the file at `path` decompresses to (what format it holds).
 pub fn head(path: &Path, whole: Whole, n: u64) -> Result<Vec<u8>, BagError> {
     let mut head = Vec::new();
@@ -145,6 +164,7 @@ pub fn head(path: &Path, whole: Whole, n: u64) -> Result<Vec<u8>, BagError> {
     Ok(head)
 }
 
+#[cfg(feature = "bag-compression")]
 /// Decompresses one message's frame into `out` (cleared first), reusing `ctx` between
 /// messages: a frame that records its size (rosbag2 compresses each message in one call, which
 /// records it) is decompressed in one step into exactly that much room. Neither may pass
@@ -184,6 +204,7 @@ pub fn zstd_message(
     Ok(())
 }
 
+#[cfg(feature = "bag-compression")]
 #[cfg(test)]
 mod tests {
     use super::*;

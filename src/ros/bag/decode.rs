@@ -5,7 +5,9 @@
 //! on its header stamp (the log time where a header has none), and all of it in time order
 //! from the bag's first message.
 
-use super::compression::{zstd_message, ZSTD_MAGIC};
+#[cfg(feature = "bag-compression")]
+use super::compression::zstd_message;
+use super::compression::ZSTD_MAGIC;
 use super::validate::{self, Pose, Sample};
 use super::{
     container_of, open_container, BagData, BagError, BagOptions, Channel, Container, JointSample,
@@ -163,7 +165,9 @@ struct Reading {
 /// rosbag2's per-message compression undone: one zstd context and buffer for every message.
 #[derive(Default)]
 pub(super) struct Unzstd {
+    #[cfg(feature = "bag-compression")]
     ctx: Option<zstd::bulk::Decompressor<'static>>,
+    #[cfg(feature = "bag-compression")]
     buf: Vec<u8>,
 }
 
@@ -179,17 +183,29 @@ impl Unzstd {
         if m.channel.encoding != "cdr" || !m.data.starts_with(ZSTD_MAGIC) {
             return Ok(m.data);
         }
+        let what = format!("topic `{}` message {index}", m.channel.topic);
+        #[cfg(not(feature = "bag-compression"))]
+        return Err(crate::features::NotBuilt::new(
+            format!("{what}, compressed on its own with zstd,"),
+            &["bag-compression"],
+        )
+        .into());
+        #[cfg(feature = "bag-compression")]
         let err = |source| BagError::Zstd {
-            what: format!("topic `{}` message {index}", m.channel.topic),
+            what: what.clone(),
             source,
         };
+        #[cfg(feature = "bag-compression")]
         let ctx = match self.ctx.take() {
             Some(ctx) => ctx,
             None => zstd::bulk::Decompressor::new().map_err(err)?,
         };
-        let ctx = self.ctx.insert(ctx);
-        zstd_message(m.data, ctx, &mut self.buf).map_err(err)?;
-        Ok(&self.buf)
+        #[cfg(feature = "bag-compression")]
+        {
+            let ctx = self.ctx.insert(ctx);
+            zstd_message(m.data, ctx, &mut self.buf).map_err(err)?;
+            Ok(&self.buf)
+        }
     }
 }
 

@@ -219,6 +219,7 @@ fn channel(c: &::mcap::Channel<'_>) -> Channel {
 struct Pass {
     schemas: HashMap<u16, String>,
     channels: HashMap<u16, Channel>,
+    #[cfg(feature = "bag-compression")]
     zstd: Option<zstd::bulk::Decompressor<'static>>,
     chunk: Vec<u8>,
     metadata: Vec<records::Metadata>,
@@ -306,7 +307,6 @@ impl Pass {
                     ),
                 )
             })?;
-        let n = usize::try_from(declared).unwrap_or(usize::MAX);
         let mut buf = std::mem::take(&mut self.chunk);
         buf.clear();
         let kind = match header.compression.as_str() {
@@ -316,29 +316,9 @@ impl Pass {
         let bad = |what: String| malformed(path, format!("a {kind} chunk: {what}"));
         let records: &[u8] = match header.compression.as_str() {
             "" => data,
-            "zstd" => {
-                buf.reserve(n);
-                let ctx = match self.zstd.take() {
-                    Some(c) => c,
-                    None => zstd::bulk::Decompressor::new().map_err(|e| bad(e.to_string()))?,
-                };
-                let ctx = self.zstd.insert(ctx);
-                // Into at most the declared room: more is an error, not an allocation.
-                ctx.decompress_to_buffer(data, &mut buf)
-                    .map_err(|e| bad(format!("{e} (it declares {declared} bytes)")))?;
+            c => {
+                self.inflate(c, data, declared, &mut buf, path, &bad)?;
                 &buf
-            }
-            "lz4" => {
-                lz4::Decoder::new(data)
-                    .and_then(|d| d.take(declared + 1).read_to_end(&mut buf))
-                    .map_err(|e| bad(e.to_string()))?;
-                &buf
-            }
-            other => {
-                return Err(malformed(
-                    path,
-                    format!("a chunk compressed with `{other}`: odocal reads zstd and lz4 chunks"),
-                ))
             }
         };
         if records.len() as u64 != declared {
@@ -384,6 +364,53 @@ impl Pass {
         }
         self.chunk = buf;
         result
+    }
+
+    /// A chunk's `data`, compressed with `compression`, decompressed into `buf` (within its
+    /// `declared` size: more is an error, not an allocation); `bad` words what went wrong.
+    fn inflate(
+        &mut self,
+        compression: &str,
+        data: &[u8],
+        declared: u64,
+        buf: &mut Vec<u8>,
+        path: &Path,
+        bad: &dyn Fn(String) -> BagError,
+    ) -> Result<(), BagError> {
+        // (Without bag-compression every compressed chunk is refused before it is read.)
+        #[cfg(not(feature = "bag-compression"))]
+        let _ = (data, declared, buf, bad);
+        match compression {
+            #[cfg(not(feature = "bag-compression"))]
+            c @ ("zstd" | "lz4") => {
+                let what = format!("{}, an MCAP with {c} chunks,", path.display());
+                Err(crate::features::NotBuilt::new(what, &["bag-compression"]).into())
+            }
+            #[cfg(feature = "bag-compression")]
+            "zstd" => {
+                buf.reserve(usize::try_from(declared).unwrap_or(usize::MAX));
+                let ctx = match self.zstd.take() {
+                    Some(c) => c,
+                    None => zstd::bulk::Decompressor::new().map_err(|e| bad(e.to_string()))?,
+                };
+                let ctx = self.zstd.insert(ctx);
+                // Into at most the declared room: more is an error, not an allocation.
+                ctx.decompress_to_buffer(data, buf)
+                    .map_err(|e| bad(format!("{e} (it declares {declared} bytes)")))?;
+                Ok(())
+            }
+            #[cfg(feature = "bag-compression")]
+            "lz4" => {
+                lz4::Decoder::new(data)
+                    .and_then(|d| d.take(declared + 1).read_to_end(buf))
+                    .map_err(|e| bad(e.to_string()))?;
+                Ok(())
+            }
+            other => Err(malformed(
+                path,
+                format!("a chunk compressed with `{other}`: odocal reads zstd and lz4 chunks"),
+            )),
+        }
     }
 }
 

@@ -30,6 +30,7 @@ pub mod reference;
 pub mod ros1;
 pub mod rosbag2;
 pub mod session;
+#[cfg(feature = "bag-sqlite")]
 pub mod sqlite3;
 pub mod tf;
 pub mod validate;
@@ -84,6 +85,10 @@ pub enum BagError {
         #[source]
         source: ::mcap::McapError,
     },
+    /// A bag of a format or compression this build of odocal leaves out.
+    #[error(transparent)]
+    NotBuilt(#[from] crate::features::NotBuilt),
+    #[cfg(feature = "bag-sqlite")]
     /// A sqlite3 file SQLite refuses, or one without rosbag2's tables.
     #[error("{}: not a readable sqlite3 bag: {source}", path.display())]
     Sqlite {
@@ -461,6 +466,7 @@ pub const FILE_FORMATS: &[FileFormat] = &[
         open_in_place: mcap::open_in_place,
         open_whole: mcap::open_whole,
     },
+    #[cfg(feature = "bag-sqlite")]
     FileFormat {
         name: "sqlite3",
         magic: sqlite3::MAGIC,
@@ -477,6 +483,17 @@ pub const FILE_FORMATS: &[FileFormat] = &[
         open_in_place: ros1::open_in_place,
         open_whole: ros1::open_whole,
     },
+];
+
+/// The file formats this build leaves out, told by their first bytes: what each is and the
+/// features it needs.
+const NOT_BUILT: &[(&[u8], &str, &[&str])] = &[
+    #[cfg(not(feature = "bag-sqlite"))]
+    (
+        b"SQLite format 3\0",
+        "a sqlite3 bag (.db3)",
+        &["bag-sqlite"],
+    ),
 ];
 
 /// The bag at `path`: a rosbag2 directory, or a single file of any format odocal reads (told
@@ -533,6 +550,10 @@ pub fn container_of(bytes: Vec<u8>, path: &Path) -> Result<Box<dyn Container>, B
 /// The error for a file whose (decompressed) content starts with `bytes` and is no bag odocal
 /// reads: what it looks like, and what its name promised.
 fn unknown(bytes: &[u8], path: &Path) -> BagError {
+    if let Some((_, what, features)) = NOT_BUILT.iter().find(|(m, ..)| bytes.starts_with(m)) {
+        let what = format!("{}, {what},", path.display());
+        return crate::features::NotBuilt::new(what, features).into();
+    }
     let starts: String = bytes
         .iter()
         .take(16)

@@ -454,14 +454,9 @@ impl Ros1Bag {
                      smaller --chunk-threshold)"
                 ))
             })?;
-        let inflate = |reader: &mut dyn Read, out: &mut Vec<u8>| {
-            out.clear();
-            reader.take(u64::from(size) + 1).read_to_end(out)
-        };
         let result = match compression {
             b"none" => return Ok(r.data),
-            b"bz2" => inflate(&mut bzip2::read::BzDecoder::new(r.data), out),
-            b"lz4" => lz4::Decoder::new(r.data).and_then(|mut d| inflate(&mut d, out)),
+            c @ (b"bz2" | b"lz4") => inflate(c, r.data, size, out, &self.path)?,
             other => {
                 return Err(self.malformed(format!(
                     "chunk at byte {at} compressed with `{}` (ROS 1 has none, bz2 and lz4)",
@@ -549,7 +544,45 @@ impl Container for Ros1Bag {
     }
 }
 
-#[cfg(test)]
+/// A `bz2` or `lz4` chunk's `data` decompressed into `out` (cleared first; at most one byte past
+/// its `size`): how that went.
+#[cfg(feature = "bag-compression")]
+fn inflate(
+    compression: &[u8],
+    data: &[u8],
+    size: u32,
+    out: &mut Vec<u8>,
+    _path: &Path,
+) -> Result<std::io::Result<usize>, BagError> {
+    let take = |reader: &mut dyn Read, out: &mut Vec<u8>| {
+        out.clear();
+        reader.take(u64::from(size) + 1).read_to_end(out)
+    };
+    Ok(if compression == b"bz2" {
+        take(&mut bzip2::read::BzDecoder::new(data), out)
+    } else {
+        lz4::Decoder::new(data).and_then(|mut d| take(&mut d, out))
+    })
+}
+
+/// A compressed chunk, in a build without `bag-compression`: refused by name.
+#[cfg(not(feature = "bag-compression"))]
+fn inflate(
+    compression: &[u8],
+    _data: &[u8],
+    _size: u32,
+    _out: &mut Vec<u8>,
+    path: &Path,
+) -> Result<std::io::Result<usize>, BagError> {
+    let what = format!(
+        "{}, a ROS 1 bag with {} chunks,",
+        path.display(),
+        String::from_utf8_lossy(compression)
+    );
+    Err(crate::features::NotBuilt::new(what, &["bag-compression"]).into())
+}
+
+#[cfg(all(test, feature = "bag-compression"))]
 mod tests {
     use super::*;
 

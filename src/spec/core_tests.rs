@@ -1,0 +1,74 @@
+//! The spec parser of a build without a backend (`--no-default-features`, which CI tests):
+//! every text, flag and setting that names a backend is refused with the feature it needs,
+//! never read as something else.
+#![cfg(not(any(
+    feature = "odocal-protocol",
+    feature = "ros",
+    feature = "roboclaw",
+    feature = "nmea"
+)))]
+
+use super::flags::{RobotFlags, RosFlags};
+use super::*;
+
+/// `result`'s error names `features` (and says how to rebuild).
+fn names<T: std::fmt::Debug>(result: Result<T, SpecError>, features: &[&str]) {
+    match result {
+        Err(SpecError::NotBuilt(e)) => {
+            assert_eq!(e.features, features, "{e}");
+            let flag = format!("`--features {}`", features.join(","));
+            assert!(e.to_string().contains(&flag), "{e}");
+        }
+        other => panic!("expected a refusal naming {features:?}, got {other:?}"),
+    }
+}
+
+#[test]
+fn a_drive_of_a_backend_left_out_names_its_feature() {
+    for (text, features) in [
+        ("/dev/ttyUSB0", &["odocal-protocol"][..]),
+        ("odocal:/dev/ttyUSB0?baud=9600", &["odocal-protocol"]),
+        ("rosbridge://localhost:9090", &["ros"]),
+        ("ws://localhost:9090", &["ros"]),
+        ("roboclaw:/dev/ttyACM0?address=128", &["roboclaw"]),
+        ("mock", &["mock", "odocal-protocol"]),
+    ] {
+        names(text.parse::<DriveSpec>(), features);
+    }
+    // A text of no backend's form is the parser's own error, not a feature's.
+    let e = "".parse::<DriveSpec>().unwrap_err();
+    assert!(matches!(e, SpecError::Parse { .. }), "{e}");
+}
+
+#[test]
+fn heading_sources_and_stores_of_backends_left_out_name_their_features() {
+    names("nmea:/dev/ttyUSB1".parse::<HeadingSpec>(), &["nmea"]);
+    assert_eq!("drive".parse::<HeadingSpec>().unwrap(), HeadingSpec::Drive);
+    names("profile:robot.toml".parse::<StoreSpec>(), &["roboclaw"]);
+    names(StoreSpec::profile(Path::new("robot.toml")), &["roboclaw"]);
+    assert_eq!("drive".parse::<StoreSpec>().unwrap(), StoreSpec::Drive);
+    names(StoreLocation::parse("ros-yaml:c.yaml", 115_200), &["ros"]);
+    names(
+        StoreLocation::parse("/dev/ttyUSB0", 115_200),
+        &["odocal-protocol"],
+    );
+}
+
+#[test]
+fn settings_and_flags_of_backends_left_out_name_their_features() {
+    let file = RoutineFile::from_toml(
+        "[robot]\ndrive = \"rosbridge://h:1\"\n[robot.ros]\nyaml = \"c.yaml\"\n",
+    )
+    .unwrap();
+    names(file.robot.spec(), &["ros"]);
+    let flags = RobotFlags {
+        base: Some("rosbridge://h:1".into()),
+        ros: RosFlags {
+            ros_yaml: Some("c.yaml".into()),
+            ..Default::default()
+        },
+        ..Default::default()
+    };
+    names(flags.spec(RobotSection::default()), &["ros"]);
+    assert_eq!(flags.rosbridge_url(), None);
+}
