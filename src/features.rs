@@ -86,8 +86,17 @@ mod tests {
             .contains("`--features mock,odocal-protocol`"));
     }
 
-    // (`cli` turns on every backend but the bag storages.)
-    #[cfg(all(feature = "cli", feature = "bag-sqlite", feature = "bag-compression"))]
+    #[cfg(all(
+        feature = "cli",
+        feature = "odocal-protocol",
+        feature = "ros",
+        feature = "bag-sqlite",
+        feature = "bag-compression",
+        feature = "roboclaw",
+        feature = "nmea",
+        feature = "mock",
+        feature = "conformance"
+    ))]
     #[test]
     fn the_default_build_has_every_feature() {
         for (name, on) in FEATURES {

@@ -152,6 +152,21 @@ fn line_matches(shown: &str, printed: &str, varying: bool) -> bool {
         })
 }
 
+/// A warning that two methods disagree by fewer than 4 combined standard errors (the threshold
+/// is 3): whether a run says it depends on figures that vary from run to run.
+fn borderline(line: &str) -> bool {
+    let Some(rest) = line.strip_prefix("warning: ") else {
+        return false;
+    };
+    let Some((before, _)) = rest.split_once(" combined standard errors, more than 3)") else {
+        return false;
+    };
+    let ratio = before.rsplit_once('(').map(|(_, r)| r.trim());
+    ratio
+        .and_then(|r| r.parse::<f64>().ok())
+        .is_some_and(|r| r < 4.0)
+}
+
 /// The issue that asked for this found the demo sample stale (it named a method the demo no
 /// longer chose, and every figure differed) and the plan sample out of date. Every sample in
 /// the README and in docs/ is run and compared with what it shows; a sample ending in `…`
@@ -189,6 +204,7 @@ fn every_sample_in_the_readme_and_docs_is_what_its_command_prints() {
                 sample.args,
                 String::from_utf8_lossy(&out.stderr)
             );
+            let varying = VARYING.contains(&sample.args[0].as_str());
             let printed = String::from_utf8_lossy(&out.stdout);
             let printed: Vec<&str> = printed.lines().collect();
             let shown: Vec<&str> = doc[sample.text.clone()]
@@ -197,7 +213,16 @@ fn every_sample_in_the_readme_and_docs_is_what_its_command_prints() {
                 .collect();
             let truncated = shown.last() == Some(&"…");
             let compare = &shown[..shown.len() - usize::from(truncated)];
-            let varying = VARYING.contains(&sample.args[0].as_str());
+            // In a run whose figures vary, a disagreement near the threshold is said in one
+            // run and not in the next: compared without those lines.
+            let steady = |lines: &[&str]| -> Vec<String> {
+                let kept = lines.iter().filter(|l| !(varying && borderline(l)));
+                kept.map(|l| l.to_string()).collect()
+            };
+            let (compare, printed_all) = (steady(compare), printed.clone());
+            let printed = steady(&printed);
+            let compare: Vec<&str> = compare.iter().map(String::as_str).collect();
+            let printed: Vec<&str> = printed.iter().map(String::as_str).collect();
             let matches = if truncated {
                 compare.len() <= printed.len()
             } else {
@@ -211,11 +236,11 @@ fn every_sample_in_the_readme_and_docs_is_what_its_command_prints() {
             }
             if bless {
                 let keep = if truncated {
-                    compare.len().min(printed.len())
+                    compare.len().min(printed_all.len())
                 } else {
-                    printed.len()
+                    printed_all.len()
                 };
-                let mut block: String = printed[..keep]
+                let mut block: String = printed_all[..keep]
                     .iter()
                     .map(|l| format!("{}{}\n", sample.indent, l.trim_end()))
                     .collect();
@@ -228,7 +253,7 @@ fn every_sample_in_the_readme_and_docs_is_what_its_command_prints() {
                     "{}: `odocal {}` prints\n{}",
                     file.display(),
                     sample.args.join(" "),
-                    printed.join("\n")
+                    printed_all.join("\n")
                 ));
             }
         }
@@ -372,4 +397,19 @@ fn the_sample_profile_and_controller_yaml_read_as_the_same_robot() {
             "the README uses {file}"
         );
     }
+}
+
+/// Only a disagreement near the threshold is left out of a varying sample's comparison.
+#[test]
+fn only_a_disagreement_near_the_threshold_is_borderline() {
+    let said = |r: &str| {
+        format!(
+            "warning: legs and matched-legs differ in E_b by -0.00011 ({r} combined standard \
+             errors, more than 3): more than both state"
+        )
+    };
+    assert!(borderline(&said("3.0")));
+    assert!(borderline(&said("3.9")));
+    assert!(!borderline(&said("7.1")));
+    assert!(!borderline("chosen: matched-legs, the default"));
 }

@@ -20,6 +20,18 @@ pub type BackendError = Box<dyn std::error::Error + Send + Sync>;
 /// The future a [`DriveBackend::open`] returns.
 pub type OpenDrive = BoxFuture<'static, Result<Base, BackendError>>;
 
+/// What a drive's controller says of itself (`odocal status`): as text and as JSON.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DriveStatus {
+    /// The report, one line per item.
+    pub text: String,
+    /// The same, as JSON.
+    pub json: serde_json::Value,
+}
+
+/// The future a [`DriveBackend::status`] returns.
+pub type StatusFuture = BoxFuture<'static, Result<DriveStatus, BackendError>>;
+
 /// The heading sensor a drive brings.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum HeadingPart {
@@ -92,6 +104,9 @@ pub struct DriveBackend {
     pub place: fn(&PortSpec) -> String,
     /// **Connects to the robot** (it does not move).
     pub open: fn(DriveOpen) -> OpenDrive,
+    /// Connects to the drive's controller alone and reads its status (firmware, state,
+    /// faults), for a drive that has a controller to ask; it does not move.
+    pub status: Option<fn(DriveTarget) -> StatusFuture>,
 }
 
 impl DriveBackend {

@@ -2,7 +2,9 @@
 //! and a parameter store at once (`Base::single(client)`).
 
 use super::{Client, HalError, TelemetrySample};
-use crate::base::drive_backend::{DriveBackend, DriveOpen, HeadingPart, OpenDrive, StorePart};
+use crate::base::drive_backend::{
+    DriveBackend, DriveOpen, DriveStatus, HeadingPart, OpenDrive, StorePart,
+};
 use crate::base::port_spec::PortSpec;
 use crate::base::store_backend::{OpenStore, StoreBackend};
 use crate::base::{
@@ -266,6 +268,17 @@ pub const DRIVE_BACKEND: DriveBackend = DriveBackend {
             Ok(crate::base::Base::single(client).with_reconnect(reconnect))
         })
     },
+    status: Some(|target| {
+        Box::pin(async move {
+            let baud = baud_of(&target.spec)?;
+            let (client, _) = super::open_port(&target.spec.port, baud).await?;
+            let report = client.device_status().await?;
+            Ok(DriveStatus {
+                text: report.to_string(),
+                json: report.json(),
+            })
+        })
+    }),
 };
 
 /// A controller of odocal's protocol as a store on its own (its memory and storage), as

@@ -6,7 +6,9 @@ pub mod drive;
 pub mod packet;
 pub mod profile;
 
-use crate::base::drive_backend::{DriveBackend, DriveOpen, HeadingPart, OpenDrive, StorePart};
+use crate::base::drive_backend::{
+    DriveBackend, DriveOpen, DriveStatus, HeadingPart, OpenDrive, StorePart,
+};
 use crate::base::port_spec::PortSpec;
 use crate::base::{Base, HeadingSource};
 use profile::ProfileStore;
@@ -40,6 +42,24 @@ pub const DRIVE_BACKEND: DriveBackend = DriveBackend {
             Ok(base(claw, heading, ProfileStore::open(&profile)?).await?)
         })
     },
+    status: Some(|target| {
+        Box::pin(async move {
+            let spec = &target.spec;
+            let claw = client::RoboClaw::open(&spec.port, config_of(spec)?)?;
+            let firmware = claw.version().await.map_err(|e| {
+                format!(
+                    "{}: no answer to the version request ({e}): not a RoboClaw, or the wrong \
+                     baud or address",
+                    spec.text("roboclaw")
+                )
+            })?;
+            let report = claw.status_report(firmware).await?;
+            Ok(DriveStatus {
+                text: report.to_string(),
+                json: report.json(),
+            })
+        })
+    }),
 };
 
 /// The connection a RoboClaw spec's options give (address, baud; defaults unless given).

@@ -259,6 +259,28 @@ impl ExportSettings {
         })?;
         Ok(cal)
     }
+
+    /// What an export of `cal` into [`Self::ros2`] did, in a line: the file written, or the
+    /// multipliers merged (through a symbolic link: which file was written) and how to undo it.
+    pub fn said(&self, cal: &Calibration, exported: &Exported) -> String {
+        let to = self.ros2.display();
+        match exported {
+            Exported::Created => format!("wrote {to} ({} calibration)", cal.method),
+            Exported::Merged { backup } => {
+                let target = crate::io::write_target(&self.ros2);
+                let link = match target == self.ros2 {
+                    true => String::new(),
+                    false => format!(" (a link: written to {}, which it names)", target.display()),
+                };
+                format!(
+                    "merged the {} calibration's multipliers into {to}{link} (undo: odocal \
+                     restore {})",
+                    cal.method,
+                    backup.display()
+                )
+            }
+        }
+    }
 }
 
 /// What [`export`] did.

@@ -9,6 +9,7 @@
 //! (deviation, a gyro's scale, latency, loss…) is [`sensor`]'s.
 
 pub mod driving;
+pub mod options;
 pub mod sensor;
 
 pub use crate::kinematics::Direction;
@@ -42,6 +43,9 @@ pub enum SimError {
     /// A motion or square command that cannot be executed (non-finite or non-positive size).
     #[error("invalid motion: {0}")]
     Motion(String),
+    /// A setting the simulator cannot simulate (the message names the flag and its range).
+    #[error("{0}")]
+    Setting(String),
 }
 
 /// Optional, seeded imperfections. All are off by default.

@@ -12,14 +12,15 @@ use super::flags::{RobotFlags, RosFlags};
 use super::*;
 
 /// `result`'s error names `features` (and says how to rebuild).
-fn names<T: std::fmt::Debug>(result: Result<T, SpecError>, features: &[&str]) {
+fn names<T>(result: Result<T, SpecError>, features: &[&str]) {
     match result {
         Err(SpecError::NotBuilt(e)) => {
             assert_eq!(e.features, features, "{e}");
             let flag = format!("`--features {}`", features.join(","));
             assert!(e.to_string().contains(&flag), "{e}");
         }
-        other => panic!("expected a refusal naming {features:?}, got {other:?}"),
+        Err(other) => panic!("expected a refusal naming {features:?}, got: {other}"),
+        Ok(_) => panic!("expected a refusal naming {features:?}, got a value"),
     }
 }
 
@@ -55,7 +56,7 @@ fn heading_sources_and_stores_of_backends_left_out_name_their_features() {
 }
 
 #[test]
-fn settings_and_flags_of_backends_left_out_name_their_features() {
+fn a_ros_robot_given_with_its_settings_or_flags_names_its_feature() {
     let file = RoutineFile::from_toml(
         "[robot]\ndrive = \"rosbridge://h:1\"\n[robot.ros]\nyaml = \"c.yaml\"\n",
     )
@@ -71,4 +72,13 @@ fn settings_and_flags_of_backends_left_out_name_their_features() {
     };
     names(flags.spec(RobotSection::default()), &["ros"]);
     assert_eq!(flags.rosbridge_url(), None);
+}
+
+#[tokio::test]
+async fn a_heading_sensor_read_alone_names_its_feature() {
+    names(open_heading("nmea:/dev/ttyUSB1", 4800).await, &["nmea"]);
+    names(
+        open_heading("/dev/ttyUSB1", 115_200).await,
+        &["odocal-protocol"],
+    );
 }

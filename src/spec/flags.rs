@@ -3,7 +3,7 @@
 //! the help): they become a [`RobotSection`] laid over a routine file's, and that the spec.
 
 use super::{BaseSpec, RobotSection, SpecError};
-use crate::base::{Base, HeadingSource};
+use crate::base::{Base, HeadingSource, PoseSource};
 #[cfg(feature = "ros")]
 use crate::ros::live::{RosBaseConfig, WheelSource};
 use std::path::PathBuf;
@@ -55,6 +55,33 @@ impl RobotFlags {
         self.base
             .as_deref()
             .filter(|b| (crate::ros::live::DRIVE_BACKEND.recognise)(b).is_some())
+    }
+}
+
+impl RobotFlags {
+    /// **Connects to** the pose topic `topic` of the ROS robot these flags name (`track
+    /// --reference`), waiting up to 5 s for the topic; refused for another robot, and named
+    /// with its feature in a build without `ros`.
+    pub async fn pose_source(&self, topic: &str) -> Result<Box<dyn PoseSource>, SpecError> {
+        #[cfg(not(feature = "ros"))]
+        return Err(
+            crate::features::NotBuilt::new(format!("--reference {topic}"), &["ros"]).into(),
+        );
+        #[cfg(feature = "ros")]
+        {
+            let url = self.rosbridge_url().ok_or_else(|| {
+                SpecError::Combination(
+                    "--reference reads a ROS topic: give --base rosbridge://HOST:PORT (for a \
+                     recording, use odocal fit, or track --poses with --wheels)"
+                        .into(),
+                )
+            })?;
+            let timeout = std::time::Duration::from_secs(5);
+            let source = crate::ros::pose_source::RosPoseSource::connect(url, topic, timeout)
+                .await
+                .map_err(|e| SpecError::Drive(Box::new(e)))?;
+            Ok(Box::new(source))
+        }
     }
 }
 
@@ -193,12 +220,11 @@ impl RobotFlags {
             (None, true) => Some(self.ros.apply(RosBaseConfig::default())?),
             (None, false) => None,
         };
+        // Without `ros` no drive takes them: given, they are refused by the drive's name.
         #[cfg(not(feature = "ros"))]
-        let ros = if self.ros.any() {
-            let what = "the ROS flags (--ros-yaml, --controller, --cmd-vel, the topics, …)";
-            return Err(crate::features::NotBuilt::new(what, &["ros"]).into());
-        } else {
-            file.ros.clone()
+        let ros = match self.ros.any() {
+            true => Some(super::RosSettings::default()),
+            false => file.ros.clone(),
         };
         let flags = RobotSection {
             ros,

@@ -31,7 +31,7 @@ mod core_tests;
 
 use crate::base::adjusted::Adjusted;
 use crate::base::drive_backend::{
-    BackendError, DriveBackend, DriveOpen, DriveTarget, HeadingPart, StorePart,
+    BackendError, DriveBackend, DriveOpen, DriveStatus, DriveTarget, HeadingPart, StorePart,
 };
 use crate::base::heading_backend::HeadingBackend;
 use crate::base::port_spec::PortSpec;
@@ -43,7 +43,7 @@ use crate::kinematics::Deviation;
 #[cfg(feature = "roboclaw")]
 use crate::roboclaw::profile::ProfileError;
 use crate::routine::config::ConfigError;
-use registry::{forms, DRIVE_BACKENDS, STORE_BACKENDS};
+use registry::{forms, Role, DRIVE_BACKENDS, STORE_BACKENDS};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 use std::str::FromStr;
@@ -142,15 +142,15 @@ fn parse_err(text: &str, reason: impl Into<String>) -> SpecError {
     }
 }
 
-/// The refusal of `text` when it names a backend this build leaves out (by its scheme or
-/// whole, or, when `bare` and no built backend takes one, as a bare port).
-fn not_built(text: &str, bare: bool) -> Result<(), SpecError> {
+/// The refusal of `text`, given as a `role`, when it names a backend this build leaves out
+/// (by its scheme or whole, or, when `bare` and no built backend takes one, as a bare port).
+fn not_built(text: &str, role: Role, bare: bool) -> Result<(), SpecError> {
     let table = registry::OPTIONAL;
     let bare = || {
         bare.then(|| registry::bare_port_not_built(table, text))
             .flatten()
     };
-    match registry::not_built(table, text).or_else(bare) {
+    match registry::not_built(table, role, text).or_else(bare) {
         Some(e) => Err(e.into()),
         None => Ok(()),
     }
@@ -170,7 +170,7 @@ fn other_form(text: &str) -> bool {
     let scheme = |s: &str| text.starts_with(&format!("{s}:"));
     text.is_empty()
         || text.contains("://")
-        || registry::not_built(registry::OPTIONAL, text).is_some()
+        || registry::names_one_left_out(registry::OPTIONAL, text)
         || DRIVE_BACKENDS.iter().any(|b| (b.recognise)(text).is_some())
         || HEADING_BACKENDS.iter().any(|b| scheme(b.scheme))
         || STORE_BACKENDS.iter().any(|b| scheme(b.scheme))
@@ -198,7 +198,7 @@ impl FromStr for DriveSpec {
             None => match DRIVE_BACKENDS.iter().find(|b| b.bare_port) {
                 Some(&b) if !other_form(text) => (b, Ok(PortSpec::bare(text))),
                 found => {
-                    not_built(text, found.is_none() && !other_form(text))?;
+                    not_built(text, Role::Drive, found.is_none() && !other_form(text))?;
                     let each = DRIVE_BACKENDS
                         .iter()
                         .map(|b| format!("{} ({})", b.form, b.what));
@@ -256,6 +256,21 @@ impl DriveSpec {
         Ok((spec.port.clone(), baud))
     }
 
+    /// **Connects to the drive's controller** alone and reads its status (`odocal status`; it
+    /// does not move); refused for a drive without a controller to ask.
+    pub async fn status(&self) -> Result<DriveStatus, SpecError> {
+        let Some(status) = self.backend.status else {
+            let each = DRIVE_BACKENDS.iter().filter(|b| b.status.is_some());
+            return Err(SpecError::Combination(format!(
+                "`{}` names {}; `odocal status` talks to a motor controller: give its port ({})",
+                self.target.spec.port,
+                self.backend.what,
+                forms(each.map(|b| b.form))
+            )));
+        };
+        status(self.target.clone()).await.map_err(SpecError::Drive)
+    }
+
     /// `baud` (from `--baud` or a routine file) laid under the drive's own options (a `baud=`
     /// in its `text` wins) and checked; refused for a drive that takes no baud rate.
     pub fn with_baud(&mut self, baud: u32, text: &str) -> Result<(), SpecError> {
@@ -297,7 +312,7 @@ impl FromStr for HeadingSpec {
                 return Ok(HeadingSpec::Port { backend, spec });
             }
         }
-        not_built(text, false)?;
+        not_built(text, Role::Heading, false)?;
         let forms: Vec<&str> = HEADING_BACKENDS.iter().map(|b| b.form).collect();
         Err(parse_err(
             text,
@@ -401,11 +416,6 @@ impl RobotSection {
             ))
         })?;
         let mut drive: DriveSpec = text.parse()?;
-        #[cfg(not(feature = "ros"))]
-        if self.ros.is_some() {
-            let what = "ROS settings (a [robot.ros] or [ros] table, or the ROS flags)";
-            return Err(crate::features::NotBuilt::new(what, &["ros"]).into());
-        }
         let backend = drive.backend;
         if let Some(baud) = self.baud {
             drive.with_baud(baud, text)?;
@@ -538,6 +548,12 @@ impl BaseSpec {
         }
         match (backend.heading, &heading) {
             (HeadingPart::Needed, HeadingSpec::Drive) => {
+                let needed = format!("a heading source for {what}");
+                if let Some(e) =
+                    registry::role_not_built(registry::OPTIONAL, Role::Heading, &needed)
+                {
+                    return Err(e.into());
+                }
                 let each = forms(HEADING_BACKENDS.iter().map(|b| b.form));
                 return Err(SpecError::Combination(format!(
                     "{what} has no heading sensor: give one (--heading {each})"
@@ -626,10 +642,14 @@ impl BaseSpec {
 /// Opens a heading source alone, from a heading spec (`nmea:PORT…`) or a drive spec whose
 /// drive has a heading sensor (an odocal-protocol port): for `odocal heading`.
 pub async fn open_heading(text: &str, baud: u32) -> Result<Arc<dyn HeadingSource>, SpecError> {
-    if let Ok(h) = text.parse::<HeadingSpec>() {
-        if let Some(source) = h.open().await? {
-            return Ok(source);
+    match text.parse::<HeadingSpec>() {
+        Ok(h) => {
+            if let Some(source) = h.open().await? {
+                return Ok(source);
+            }
         }
+        Err(e @ SpecError::NotBuilt(_)) => return Err(e),
+        Err(_) => {}
     }
     let forms: Vec<&str> = HEADING_BACKENDS.iter().map(|b| b.form).collect();
     let hint = format!(
@@ -690,6 +710,12 @@ mod tests {
                 settings: None,
             },
         }
+    }
+
+    #[test]
+    fn the_default_baud_is_the_controllers() {
+        // Written as a number so the core has it without the protocol crate.
+        assert_eq!(ODOCAL_BAUD, crate::hal::DEFAULT_BAUD);
     }
 
     #[test]

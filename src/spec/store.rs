@@ -2,7 +2,7 @@
 //! on its own) and a store on its own ([`StoreLocation`]: what `odocal restore --to` names and
 //! a backup records), in one grammar read from [`STORE_BACKENDS`].
 
-use super::registry::{forms, DRIVE_BACKENDS, PROFILE, STORE_BACKENDS};
+use super::registry::{forms, Role, DRIVE_BACKENDS, PROFILE, STORE_BACKENDS};
 use super::{other_form, parse_err, SpecError};
 use crate::base::port_spec::PortSpec;
 use crate::base::store_backend::StoreBackend;
@@ -39,7 +39,8 @@ impl FromStr for StoreSpec {
                 spec: spec.map_err(|reason| parse_err(text, reason))?,
             })),
             None => {
-                if let Some(e) = super::registry::not_built(super::registry::OPTIONAL, text) {
+                let table = super::registry::OPTIONAL;
+                if let Some(e) = super::registry::not_built(table, Role::Store, text) {
                     return Err(e.into());
                 }
                 let profile = PROFILE
@@ -118,7 +119,7 @@ impl StoreLocation {
             found => {
                 let table = super::registry::OPTIONAL;
                 let bare = || super::registry::bare_port_not_built(table, text);
-                let not_built = super::registry::not_built(table, text)
+                let not_built = super::registry::not_built(table, Role::Store, text)
                     .or_else(|| found.is_none().then(bare).flatten());
                 if let Some(e) = not_built.filter(|_| !text.is_empty()) {
                     return Err(e.into());
@@ -222,48 +223,58 @@ impl StoreLocation {
 }
 
 /// What a copy odocal before 0.2 made of `file` (at `path`, holding `text`) was taken from and
-/// holds: a robot profile, else `controller`'s section of a controller's YAML.
-#[cfg(all(feature = "roboclaw", feature = "ros"))]
+/// holds: a robot profile, else `controller`'s section of a controller's YAML (each format as
+/// this build reads it).
 fn read_copy(
     text: &str,
     path: &Path,
     file: &Path,
     controller: Option<&str>,
 ) -> Result<(crate::base::ComponentInfo, crate::kinematics::WheelParams), SpecError> {
-    use crate::base::ParamFile;
-    use crate::roboclaw::profile::ProfileFile;
-    use crate::ros::yaml::{ControllerYaml, DEFAULT_CONTROLLER};
-    let profile_error = match ProfileFile.parse(text, path) {
-        Ok(profile) => return Ok((ProfileFile.info(file), ProfileFile::params(&profile))),
-        Err(e) => e,
+    #[cfg(feature = "roboclaw")]
+    let profile = {
+        use crate::base::ParamFile;
+        use crate::roboclaw::profile::ProfileFile;
+        match ProfileFile.parse(text, path) {
+            Ok(profile) => return Ok((ProfileFile.info(file), ProfileFile::params(&profile))),
+            Err(e) => Some(format!("as a robot profile ({e})")),
+        }
     };
-    let format = ControllerYaml {
-        controller: controller.unwrap_or(DEFAULT_CONTROLLER).into(),
+    #[cfg(not(feature = "roboclaw"))]
+    let profile = None;
+    #[cfg(feature = "ros")]
+    let yaml = {
+        use crate::base::ParamFile;
+        use crate::ros::yaml::{ControllerYaml, DEFAULT_CONTROLLER};
+        let format = ControllerYaml {
+            controller: controller.unwrap_or(DEFAULT_CONTROLLER).into(),
+        };
+        match format.parse(text, path) {
+            Ok(config) => return Ok((format.info(file), ControllerYaml::params(&config))),
+            Err(e) => Some(format!("as a controller's YAML ({e})")),
+        }
     };
-    let config = format.parse(text, path).map_err(|yaml_error| {
-        SpecError::Combination(format!(
-            "{} is named like a copy odocal made of {}, but reads neither as a robot \
-             profile ({profile_error}) nor as a controller's YAML ({yaml_error})",
-            path.display(),
-            file.display()
-        ))
-    })?;
-    Ok((format.info(file), ControllerYaml::params(&config)))
-}
-
-/// A copy odocal before 0.2 made, in a build that cannot read what it copied.
-#[cfg(not(all(feature = "roboclaw", feature = "ros")))]
-fn read_copy(
-    _text: &str,
-    path: &Path,
-    _file: &Path,
-    _controller: Option<&str>,
-) -> Result<(crate::base::ComponentInfo, crate::kinematics::WheelParams), SpecError> {
-    let what = format!(
-        "{}, a copy odocal before 0.2 made of a robot profile or a controller's YAML,",
-        path.display()
-    );
-    Err(crate::features::NotBuilt::new(what, &["roboclaw", "ros"]).into())
+    #[cfg(not(feature = "ros"))]
+    let yaml = None;
+    let _ = (text, controller);
+    let tried: Vec<String> = [profile, yaml].into_iter().flatten().collect();
+    if tried.is_empty() {
+        let what = format!(
+            "{}, a copy odocal before 0.2 made of a robot profile or a controller's YAML,",
+            path.display()
+        );
+        return Err(crate::features::NotBuilt::new(what, &["roboclaw", "ros"]).into());
+    }
+    let reads = match tried.len() {
+        1 => "does not read",
+        _ => "reads neither",
+    };
+    Err(SpecError::Combination(format!(
+        "{} is named like a copy odocal made of {}, but {reads} {}",
+        path.display(),
+        file.display(),
+        tried.join(" nor ")
+    )))
 }
 
 /// The file `path` is a copy of, when it is named like one (`<file>.odocal-backup-<UTC time>`

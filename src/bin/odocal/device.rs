@@ -1,16 +1,17 @@
-//! `odocal mock-device`, `params`, `status` and `heading`: the device-facing commands.
+//! `odocal mock-device` and `params`: the commands only a controller of odocal's protocol takes.
 
-use crate::out::{print_json, print_params};
+use crate::out::print_params;
+use crate::sensor::PortArgs;
 use clap::Subcommand;
 use odocal::base::write::{WriteError, Written};
 use odocal::hal::params::{self, ParamsError, ParamsPatch};
 use odocal::hal::{open_port, Client};
 use odocal::mock::{lock, spawn_pty, MockDevice, TimeMode};
 use odocal::protocol::message::ParamSource;
-use odocal::spec::{DriveSpec, SpecError};
 use serde_json::json;
 use std::path::PathBuf;
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
+use std::sync::Mutex;
 
 type CliResult = Result<(), Box<dyn std::error::Error>>;
 
@@ -70,37 +71,10 @@ pub async fn mock_device(args: MockArgs) -> CliResult {
     Ok(())
 }
 
-/// Port flags shared by the device commands.
-#[derive(Debug, Clone, clap::Args)]
-pub struct PortArgs {
-    /// Serial port path (e.g. /dev/ttyUSB0, or the path `odocal mock-device` printed);
-    /// `roboclaw:PORT?address=128&baud=38400` for `status` of a RoboClaw, `nmea:PORT?baud=4800`
-    /// for `heading` of an NMEA compass.
-    #[arg(long)]
-    port: String,
-    /// Baud rate [default: 115200; a RoboClaw's: its spec's, else 38400].
-    #[arg(long)]
-    baud: Option<u32>,
-    /// Print JSON instead of text.
-    #[arg(long)]
-    json: bool,
-}
-
-impl PortArgs {
-    /// The drive `--port` names, `--baud` laid under its own options.
-    fn drive(&self) -> Result<DriveSpec, SpecError> {
-        let mut drive: DriveSpec = self.port.parse()?;
-        if let Some(baud) = self.baud {
-            drive.with_baud(baud, &self.port)?;
-        }
-        Ok(drive)
-    }
-
-    /// The odocal-protocol controller `--port` names (`PORT` or `odocal:PORT?baud=N`).
-    async fn connect(&self) -> Result<Client, Box<dyn std::error::Error>> {
-        let (port, baud) = self.drive()?.controller_port()?;
-        Ok(open_port(&port, baud).await?.0)
-    }
+/// The odocal-protocol controller `--port` names (`PORT` or `odocal:PORT?baud=N`).
+async fn connect(port: &PortArgs) -> Result<Client, Box<dyn std::error::Error>> {
+    let (path, baud) = port.drive()?.controller_port()?;
+    Ok(open_port(&path, baud).await?.0)
 }
 
 /// `odocal params` subcommands.
@@ -161,7 +135,7 @@ pub enum ParamsCommand {
 pub async fn params(cmd: ParamsCommand) -> CliResult {
     match cmd {
         ParamsCommand::Get { port, source } => {
-            let client = port.connect().await?;
+            let client = connect(&port).await?;
             let source = match source.as_str() {
                 "stored" => ParamSource::Stored,
                 "factory" => ParamSource::Factory,
@@ -175,13 +149,13 @@ pub async fn params(cmd: ParamsCommand) -> CliResult {
             patch,
             backup_dir,
         } => {
-            let client = Arc::new(port.connect().await?);
+            let client = Arc::new(connect(&port).await?);
             let done = written(params::set(&client, &patch, &backup_dir, &mut ui()).await)?;
             eprintln!("written to RAM; run `odocal params save` to keep them across power cycles");
             print_params(&done.applied, port.json, json!({ "backup": done.backup }))
         }
         ParamsCommand::Save { port, backup_dir } => {
-            let client = Arc::new(port.connect().await?);
+            let client = Arc::new(connect(&port).await?);
             let done = written(params::save(&client, &backup_dir, &mut ui()).await)?;
             if !port.json {
                 println!("saved: the stored copy holds the parameters in use");
@@ -203,7 +177,7 @@ pub async fn params(cmd: ParamsCommand) -> CliResult {
             yes,
             ..
         } => {
-            let client = Arc::new(port.connect().await?);
+            let client = Arc::new(connect(&port).await?);
             let how = (stored, yes);
             let done = params::restore_factory(&client, how, &backup_dir, &mut ui()).await;
             let done = written(done)?;
@@ -238,7 +212,7 @@ async fn restore_from(
     backup_dir: &std::path::Path,
 ) -> CliResult {
     let backup = odocal::spec::StoreLocation::read_backup(file, None)?;
-    let client = port.connect().await?;
+    let client = connect(port).await?;
     let how = crate::restore::Restore {
         from: file,
         options: odocal::base::restore::RestoreOptions {
@@ -255,46 +229,4 @@ async fn restore_from(
         json: port.json,
     };
     crate::restore::restore_onto(Arc::new(client), &backup, &how).await
-}
-
-/// Runs `odocal status`.
-pub async fn status(port: PortArgs) -> CliResult {
-    let drive = port.drive()?;
-    if drive.is(&odocal::roboclaw::DRIVE_BACKEND) {
-        return crate::roboclaw::roboclaw_status(&port.port, &drive.target, port.json).await;
-    }
-    let report = port.connect().await?.device_status().await?;
-    if port.json {
-        return print_json(&report.json());
-    }
-    print!("{report}");
-    Ok(())
-}
-
-/// Arguments of `odocal heading`: a heading sensor alone (`--port nmea:PORT`, `--heading
-/// nmea:PORT`, or an odocal-protocol controller's `--port`), or any robot's own (`--base
-/// rosbridge://HOST:PORT --ros-yaml …` reads its IMU).
-#[derive(Debug, clap::Args)]
-pub struct HeadingArgs {
-    #[command(flatten)]
-    robot: odocal::spec::flags::RobotFlags,
-    /// Readings to average (circular mean); with two or more, their σ is printed too (the
-    /// noise per reading `odocal plan` needs: hold the robot still).
-    #[arg(long = "heading-samples", alias = "samples", default_value_t = 1)]
-    samples: usize,
-    /// Print JSON instead of text.
-    #[arg(long)]
-    json: bool,
-}
-
-/// Runs `odocal heading`.
-pub async fn heading(args: HeadingArgs) -> CliResult {
-    use odocal::routine::heading::HeadingReading;
-    let (source, _robot) = args.robot.open_heading().await?;
-    let reading = HeadingReading::read(source.as_ref(), args.samples).await?;
-    if args.json {
-        return print_json(&reading.json());
-    }
-    println!("{reading}");
-    Ok(())
 }

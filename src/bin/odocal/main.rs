@@ -56,7 +56,7 @@ enum Command {
     /// Run a routine file (TOML); `port = "mock"` runs it on the simulated robot.
     Run(routine::RunArgs),
     /// Export a calibration report for other software (ros2_control).
-    Export(routine::ExportArgs),
+    Export(odocal::ros::export::ExportSettings),
     /// Online estimator: calibrate continuously from live telemetry, a log or a recorded set.
     Track(track::TrackArgs),
     /// Record telemetry (encoders, heading) to a JSON-lines log for `track --log`.
@@ -88,9 +88,9 @@ enum Command {
     /// controller's YAML) or another (--to): shows old → new, asks, backs up what is there first.
     Restore(restore::RestoreArgs),
     /// Show the device's status.
-    Status(device::PortArgs),
+    Status(sensor::PortArgs),
     /// Read the heading (counter-clockwise positive).
-    Heading(device::HeadingArgs),
+    Heading(sensor::HeadingArgs),
     /// Compass swing (moves the robot: full turns in place each way): fits the compass's
     /// deviation curve and prints it as --compass-deviation-deg.
     Swing(sensor::SwingArgs),
@@ -199,7 +199,7 @@ fn dispatch(chosen: Command) -> Result<(), Box<dyn std::error::Error>> {
         Command::Calibrate(args) => block_on(routine::calibrate(args)),
         Command::Plan(args) => plan::run(args),
         Command::Run(args) => block_on(routine::run_file(args)),
-        Command::Export(args) => block_on(guarded(routine::export(args))),
+        Command::Export(args) => block_on(guarded(ros::export(args))),
         Command::Track(args) => block_on(track::track(args)),
         Command::Record(args) => block_on(track::record(args)),
         Command::Estimate(args) => estimate::run(args),
@@ -211,8 +211,8 @@ fn dispatch(chosen: Command) -> Result<(), Box<dyn std::error::Error>> {
         Command::KitDevice(args) => block_on(conformance::kit_device(args)),
         Command::Params { command } => block_on(guarded(device::params(command))),
         Command::Restore(args) => block_on(guarded(restore::run(args))),
-        Command::Status(port) => block_on(device::status(port)),
-        Command::Heading(args) => block_on(device::heading(args)),
+        Command::Status(port) => block_on(sensor::status(port)),
+        Command::Heading(args) => block_on(sensor::heading(args)),
         Command::Swing(args) => block_on(sensor::swing(args)),
         Command::Spin(args) => block_on(sensor::spin(args)),
         Command::Ports(args) => ports::run(args),

@@ -1,26 +1,9 @@
-//! RoboClaw controllers: `odocal status --port roboclaw:…` and `odocal mock-roboclaw`.
+//! `odocal mock-roboclaw`: a mock RoboClaw and its compass on two pseudo-terminals.
 
-use crate::out::print_json;
-use odocal::base::drive_backend::DriveTarget;
-use odocal::roboclaw::client::RoboClaw;
 use odocal::roboclaw::profile::Profile;
 use std::path::PathBuf;
 
 type CliResult = Result<(), Box<dyn std::error::Error>>;
-
-/// `odocal status --port roboclaw:…`.
-pub async fn roboclaw_status(spec: &str, drive: &DriveTarget, json_out: bool) -> CliResult {
-    let claw = RoboClaw::open(&drive.spec.port, odocal::roboclaw::config_of(&drive.spec)?)?;
-    let firmware = claw.version().await.map_err(|e| {
-        format!("{spec}: no answer to the version request ({e}): not a RoboClaw, or the wrong baud or address")
-    })?;
-    let report = claw.status_report(firmware).await?;
-    if json_out {
-        return print_json(&report.json());
-    }
-    print!("{report}");
-    Ok(())
-}
 
 /// Arguments of `odocal mock-roboclaw`.
 #[derive(Debug, clap::Args)]

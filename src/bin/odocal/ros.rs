@@ -1,10 +1,12 @@
-//! `odocal bag` and `odocal mock-rosbridge`: calibrate from a ROS bag; serve a simulated ROS
-//! robot.
+//! `odocal bag`, `export` and `mock-rosbridge`: calibrate from a ROS bag; write a calibration
+//! into a controller's YAML; serve a simulated ROS robot.
 
 use crate::out::print_json;
 use odocal::ros::bag::session::BagSettings;
 use odocal::ros::yaml::DiffDriveConfig;
 use std::path::PathBuf;
+
+type CliResult = Result<(), Box<dyn std::error::Error>>;
 
 /// Arguments of `odocal bag`.
 #[derive(Debug, clap::Args)]
@@ -85,5 +87,16 @@ pub async fn mock(args: MockArgs) -> Result<(), Box<dyn std::error::Error>> {
         crate::args::or_stdin(args.ignore_stdin)
     );
     crate::args::serve_until_stopped(args.ignore_stdin).await;
+    Ok(())
+}
+
+/// Runs `odocal export`.
+pub async fn export(how: odocal::ros::export::ExportSettings) -> CliResult {
+    let cal = how.calibration()?;
+    let mut ui = crate::prompt::TerminalWriteUi;
+    let exported =
+        odocal::ros::export::export((&how.ros2, how.force), &how.controller, &cal, &mut ui);
+    let exported = crate::prompt::writing(exported).await?;
+    println!("{}", how.said(&cal, &exported));
     Ok(())
 }

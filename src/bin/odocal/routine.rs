@@ -1,4 +1,4 @@
-//! `odocal demo`, `calibrate`, `run` and `export`: the recalibration routine's commands.
+//! `odocal demo`, `calibrate` and `run`: the recalibration routine's commands.
 
 use crate::out::print_json;
 use indicatif::{ProgressBar, ProgressStyle};
@@ -313,41 +313,4 @@ pub async fn run_file(args: RunArgs) -> CliResult {
         .spec()
         .map_err(|e| format!("{}: {e}", args.routine.display()))?;
     run_spec(cfg, spec, &args.flags).await
-}
-
-/// Arguments of `odocal export`.
-#[derive(Debug, clap::Args)]
-pub struct ExportArgs {
-    #[command(flatten)]
-    export: odocal::ros::export::ExportSettings,
-}
-
-/// ", a link to <target>: that file was written" when `path` is a symbolic link.
-fn through_link(path: &std::path::Path) -> String {
-    let target = odocal::io::write_target(path);
-    if target == path {
-        String::new()
-    } else {
-        format!(" (a link: written to {}, which it names)", target.display())
-    }
-}
-
-/// Runs `odocal export`.
-pub async fn export(args: ExportArgs) -> CliResult {
-    use odocal::ros::export::{export, Exported};
-    let how = &args.export;
-    let cal = how.calibration()?;
-    let mut ui = crate::prompt::TerminalWriteUi;
-    let exported = export((&how.ros2, how.force), &how.controller, &cal, &mut ui);
-    match crate::prompt::writing(exported).await? {
-        Exported::Created => println!("wrote {} ({} calibration)", how.ros2.display(), cal.method),
-        Exported::Merged { backup } => println!(
-            "merged the {} calibration's multipliers into {}{} (undo: odocal restore {})",
-            cal.method,
-            how.ros2.display(),
-            through_link(&how.ros2),
-            backup.display()
-        ),
-    }
-    Ok(())
 }

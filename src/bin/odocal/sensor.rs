@@ -1,6 +1,7 @@
 //! `odocal swing` and `odocal spin`: the heading sensor's own tests, each a few turns in place.
 //! The swing fits a compass's deviation curve; the spin measures a gyro's scale error against
-//! a mark on the floor. Both print the flag that gives the result to `calibrate`.
+//! a mark on the floor. Both print the flag that gives the result to `calibrate`. And
+//! `odocal heading` and `status`, which read a robot's sensor or controller without moving it.
 
 use odocal::kinematics::wrap_angle;
 use odocal::roboclaw::profile::{save_heading, HeadingSection};
@@ -8,7 +9,7 @@ use odocal::routine::heading::mean_heading;
 use odocal::routine::spin::{run_spin, SpinOutcome, SpinSettings};
 use odocal::routine::swing::{run_swing, SwingOutcome, SwingSettings};
 use odocal::spec::flags::RobotFlags;
-use odocal::spec::{HeadingSpec, RobotSection};
+use odocal::spec::{DriveSpec, HeadingSpec, RobotSection, SpecError};
 
 type CliResult = Result<(), Box<dyn std::error::Error>>;
 
@@ -193,5 +194,70 @@ pub async fn spin(args: SpinArgs) -> CliResult {
     } else {
         print!("{outcome}");
     }
+    Ok(())
+}
+
+/// Port flags shared by `status` and the `params` commands.
+#[derive(Debug, Clone, clap::Args)]
+pub struct PortArgs {
+    /// Serial port path (e.g. /dev/ttyUSB0, or the path `odocal mock-device` printed);
+    /// `roboclaw:PORT?address=128&baud=38400` for `status` of a RoboClaw, `nmea:PORT?baud=4800`
+    /// for `heading` of an NMEA compass.
+    #[arg(long)]
+    pub port: String,
+    /// Baud rate [default: 115200; a RoboClaw's: its spec's, else 38400].
+    #[arg(long)]
+    pub baud: Option<u32>,
+    /// Print JSON instead of text.
+    #[arg(long)]
+    pub json: bool,
+}
+
+impl PortArgs {
+    /// The drive `--port` names, `--baud` laid under its own options.
+    pub fn drive(&self) -> Result<DriveSpec, SpecError> {
+        let mut drive: DriveSpec = self.port.parse()?;
+        if let Some(baud) = self.baud {
+            drive.with_baud(baud, &self.port)?;
+        }
+        Ok(drive)
+    }
+}
+
+/// Runs `odocal status`.
+pub async fn status(port: PortArgs) -> CliResult {
+    let status = port.drive()?.status().await?;
+    if port.json {
+        return crate::out::print_json(&status.json);
+    }
+    print!("{}", status.text);
+    Ok(())
+}
+
+/// Arguments of `odocal heading`: a heading sensor alone (`--port nmea:PORT`, `--heading
+/// nmea:PORT`, or an odocal-protocol controller's `--port`), or any robot's own (`--base
+/// rosbridge://HOST:PORT --ros-yaml …` reads its IMU).
+#[derive(Debug, clap::Args)]
+pub struct HeadingArgs {
+    #[command(flatten)]
+    robot: odocal::spec::flags::RobotFlags,
+    /// Readings to average (circular mean); with two or more, their σ is printed too (the
+    /// noise per reading `odocal plan` needs: hold the robot still).
+    #[arg(long = "heading-samples", alias = "samples", default_value_t = 1)]
+    samples: usize,
+    /// Print JSON instead of text.
+    #[arg(long)]
+    json: bool,
+}
+
+/// Runs `odocal heading`.
+pub async fn heading(args: HeadingArgs) -> CliResult {
+    use odocal::routine::heading::HeadingReading;
+    let (source, _robot) = args.robot.open_heading().await?;
+    let reading = HeadingReading::read(source.as_ref(), args.samples).await?;
+    if args.json {
+        return crate::out::print_json(&reading.json());
+    }
+    println!("{reading}");
     Ok(())
 }

@@ -11,7 +11,6 @@ use odocal::kinematics::WheelParams;
 use odocal::offline::log::LogWriter;
 use odocal::offline::track_replay::{replay_dataset, replay_files, replay_log};
 use odocal::report::track::{pose_session, TrackSummary};
-use odocal::ros::pose_source::RosPoseSource;
 use odocal::routine::config::WritePolicy;
 use odocal::routine::track::{
     log_header, track_logged, write_back, PathOptions, TrackOptions, TrackOutcome, TrackSettings,
@@ -20,7 +19,6 @@ use odocal::routine::track::{
 use odocal::spec::flags::RobotFlags;
 use odocal::spec::RobotSection;
 use std::path::PathBuf;
-use std::time::Duration;
 
 type CliResult = Result<(), Box<dyn std::error::Error>>;
 
@@ -196,13 +194,7 @@ async fn live_session(
     scale: ScaleSource,
 ) -> Result<Session, Box<dyn std::error::Error>> {
     let poses = match &args.session.reference {
-        Some(topic) => {
-            let url = args.robot.rosbridge_url().ok_or(
-                "--reference reads a ROS topic: give --base rosbridge://HOST:PORT (for a \
-                 recording, use odocal fit, or track --poses with --wheels)",
-            )?;
-            Some(RosPoseSource::connect(url, topic, Duration::from_secs(5)).await?)
-        }
+        Some(topic) => Some(args.robot.pose_source(topic).await?),
         None => None,
     };
     let (b, configured) = open(&args.robot).await?;
@@ -215,7 +207,7 @@ async fn live_session(
         None => None,
     };
     let outcome = live(
-        (&b, poses.as_ref().map(|p| p as &dyn PoseSource)),
+        (&b, poses.as_deref()),
         &mut t,
         (args.session.period_ms, args.session.duration_s),
         &args.drive,

@@ -183,16 +183,16 @@ impl Unzstd {
         if m.channel.encoding != "cdr" || !m.data.starts_with(ZSTD_MAGIC) {
             return Ok(m.data);
         }
-        let what = format!("topic `{}` message {index}", m.channel.topic);
+        let what = || format!("topic `{}` message {index}", m.channel.topic);
         #[cfg(not(feature = "bag-compression"))]
         return Err(crate::features::NotBuilt::new(
-            format!("{what}, compressed on its own with zstd,"),
+            format!("{}, compressed on its own with zstd,", what()),
             &["bag-compression"],
         )
         .into());
         #[cfg(feature = "bag-compression")]
         let err = |source| BagError::Zstd {
-            what: what.clone(),
+            what: what(),
             source,
         };
         #[cfg(feature = "bag-compression")]

@@ -147,6 +147,8 @@ pub const DRIVE_BACKEND: DriveBackend = DriveBackend {
     open: |how: DriveOpen| -> OpenDrive {
         Box::pin(async move { Ok(connect(&config_of(&how.target)?).await?) })
     },
+    // A ROS robot's state is ROS's to show (`ros2 control list_controllers`).
+    status: None,
 };
 
 /// The settings of a ROS drive's target, its URL from the drive's text.
