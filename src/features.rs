@@ -1,32 +1,7 @@
-//! The Cargo features this build of odocal has, and the error that names a missing one. Each
+//! The error that names a Cargo feature this build left out. Each
 //! backend is a feature (all on by default); a text that names a backend this build left out —
 //! a drive, a heading source, a store, a bag's storage or compression — is refused with
 //! [`NotBuilt`], which says which feature to turn on, rather than read as something else.
-
-/// Each feature a user can turn on or off, and whether this build has it (`serial` is the
-/// internal one the serial backends and the mocks turn on).
-pub const FEATURES: [(&str, bool); 11] = [
-    ("cli", cfg!(feature = "cli")),
-    ("plots", cfg!(feature = "plots")),
-    ("odocal-protocol", cfg!(feature = "odocal-protocol")),
-    ("ros", cfg!(feature = "ros")),
-    ("bag-sqlite", cfg!(feature = "bag-sqlite")),
-    ("bag-compression", cfg!(feature = "bag-compression")),
-    ("roboclaw", cfg!(feature = "roboclaw")),
-    ("nmea", cfg!(feature = "nmea")),
-    ("mock", cfg!(feature = "mock")),
-    ("conformance", cfg!(feature = "conformance")),
-    ("serial", cfg!(feature = "serial")),
-];
-
-/// The features this build has, in [`FEATURES`] order (for `--version` and reports).
-pub fn built() -> Vec<&'static str> {
-    FEATURES
-        .iter()
-        .filter(|(_, on)| *on)
-        .map(|(name, _)| *name)
-        .collect()
-}
 
 /// Something this build of odocal cannot do because it was built without `features`.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -84,24 +59,5 @@ mod tests {
         assert!(two
             .to_string()
             .contains("`--features mock,odocal-protocol`"));
-    }
-
-    #[cfg(all(
-        feature = "cli",
-        feature = "odocal-protocol",
-        feature = "ros",
-        feature = "bag-sqlite",
-        feature = "bag-compression",
-        feature = "roboclaw",
-        feature = "nmea",
-        feature = "mock",
-        feature = "conformance"
-    ))]
-    #[test]
-    fn the_default_build_has_every_feature() {
-        for (name, on) in FEATURES {
-            assert!(on, "{name} is off in the default build");
-        }
-        assert_eq!(built().len(), FEATURES.len());
     }
 }

@@ -53,6 +53,9 @@ fn heading_sources_and_stores_of_backends_left_out_name_their_features() {
         StoreLocation::parse("/dev/ttyUSB0", 115_200),
         &["odocal-protocol"],
     );
+    // A drive's text is no store in any build: the parser's own error, not a feature's.
+    let e = StoreLocation::parse("rosbridge://h:1", 115_200).unwrap_err();
+    assert!(matches!(e, SpecError::Parse { .. }), "{e}");
 }
 
 #[test]

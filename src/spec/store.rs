@@ -39,10 +39,7 @@ impl FromStr for StoreSpec {
                 spec: spec.map_err(|reason| parse_err(text, reason))?,
             })),
             None => {
-                let table = super::registry::OPTIONAL;
-                if let Some(e) = super::registry::not_built(table, Role::Store, text) {
-                    return Err(e.into());
-                }
+                super::not_built(text, Role::Store, false)?;
                 let profile = PROFILE
                     .map(|p| format!(" or {} ({}, for {})", p.form, p.what, profile_drives()));
                 Err(parse_err(
@@ -117,13 +114,7 @@ impl StoreLocation {
                 StoreLocation::completed(text, backend, PortSpec::bare(text), baud)
             }
             found => {
-                let table = super::registry::OPTIONAL;
-                let bare = || super::registry::bare_port_not_built(table, text);
-                let not_built = super::registry::not_built(table, Role::Store, text)
-                    .or_else(|| found.is_none().then(bare).flatten());
-                if let Some(e) = not_built.filter(|_| !text.is_empty()) {
-                    return Err(e.into());
-                }
+                super::not_built(text, Role::Store, found.is_none() && !other_form(text))?;
                 Err(parse_err(
                     text,
                     format!("not a parameter store: give {}", store_forms()),
