@@ -8,14 +8,18 @@ mod common;
 
 use serde_json::Value;
 use std::path::Path;
-use std::sync::Mutex;
 
-/// The sessions here drive simulated robots at many times real speed: one at a time, or on a
-/// 2-core machine they starve each other's control loops.
-static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
-
-fn one_at_a_time() -> std::sync::MutexGuard<'static, ()> {
-    ONE_AT_A_TIME.lock().unwrap_or_else(|p| p.into_inner())
+/// `a` and `b` side by side (each session waits on its robot's clock, not the CPU: a session
+/// here keeps a core under a tenth busy), with what each returned.
+fn side_by_side<A: Send, B: Send>(
+    a: impl FnOnce() -> A + Send,
+    b: impl FnOnce() -> B + Send,
+) -> (A, B) {
+    std::thread::scope(|s| {
+        let a = s.spawn(a);
+        let b = b();
+        (a.join().unwrap(), b)
+    })
 }
 
 /// The last estimate of `track --json` output: (E_b, σ, E_d, σ).
@@ -101,17 +105,14 @@ fn run(args: &[String]) -> Value {
     common::odocal_json(&args)
 }
 
-#[test]
-fn track_on_the_roboclaw_and_compass_agrees_with_its_squares_and_replays() {
-    let _one = one_at_a_time();
-    let (dir, profile) =
-        common::scratch_with("any-roboclaw", "robot.toml", common::ROBOCLAW_PROFILE);
-    let profile_s = profile.to_str().unwrap().to_string();
-    let (mut mock, lines) = common::spawn_server_lines(
+/// A mock RoboClaw and compass of the robot in `profile` (every mock of it is the same robot):
+/// the process and the flags that name it.
+fn roboclaw_robot(profile: &str) -> (std::process::Child, Vec<String>) {
+    let (mock, lines) = common::spawn_server_lines(
         "mock-roboclaw",
         &[
             "--profile",
-            &profile_s,
+            profile,
             // Slow enough that the host's stamps (a millisecond of jitter) stay within a real
             // compass's noise: the heading turns at up to 6 rad/s of wall-clock time.
             "--time-scale",
@@ -124,47 +125,75 @@ fn track_on_the_roboclaw_and_compass_agrees_with_its_squares_and_replays() {
         2,
     );
     let heading = format!("{}?baud=115200", lines[1]);
-    let robot: Vec<String> = [
+    let robot = [
         "--base",
         &lines[0],
         "--heading",
         &heading,
         "--profile",
-        &profile_s,
-    ]
-    .map(String::from)
-    .to_vec();
+        profile,
+    ];
+    (mock, robot.map(String::from).to_vec())
+}
+
+#[test]
+fn track_on_the_roboclaw_and_compass_agrees_with_its_squares_and_replays() {
+    let (dir, profile) =
+        common::scratch_with("any-roboclaw", "robot.toml", common::ROBOCLAW_PROFILE);
+    let profile_s = profile.to_str().unwrap().to_string();
     let log = dir.join("track.jsonl");
-    let mut args: Vec<String> = vec!["track".into()];
-    args.extend(robot.clone());
     let filter = ["--heading-sigma-deg", "0.5"];
-    args.extend(wander(&log));
-    args.extend(filter.map(String::from));
-    let track = run(&args);
-    let mut args: Vec<String> = vec!["calibrate".into()];
-    args.extend(robot);
-    args.extend(common::QUICK_FLAGS.map(String::from));
-    args.extend(
-        [
-            "--dry-run",
-            "--report-dir",
-            dir.join("report").to_str().unwrap(),
-            "--json",
-        ]
-        .map(String::from),
+    // The online session and the square test on two mocks of the one robot, side by side.
+    let (track, square) = side_by_side(
+        || {
+            let (mut mock, robot) = roboclaw_robot(&profile_s);
+            let mut args: Vec<String> = vec!["track".into()];
+            args.extend(robot);
+            args.extend(wander(&log));
+            args.extend(filter.map(String::from));
+            let track = run(&args);
+            let _ = mock.kill();
+            track
+        },
+        || {
+            let (mut mock, robot) = roboclaw_robot(&profile_s);
+            let mut args: Vec<String> = vec!["calibrate".into()];
+            args.extend(robot);
+            args.extend(common::QUICK_FLAGS.map(String::from));
+            let report = dir.join("report");
+            args.extend(
+                [
+                    "--dry-run",
+                    "--report-dir",
+                    report.to_str().unwrap(),
+                    "--json",
+                ]
+                .map(String::from),
+            );
+            let square = run(&args);
+            let _ = mock.kill();
+            square
+        },
     );
-    let square = run(&args);
-    let _ = mock.kill();
     assert_agree(&track, &square);
     assert_replays(&track, &log, &filter);
 }
 
-#[test]
-fn on_a_ros_robot_track_agrees_with_its_squares_and_a_compass_can_replace_its_imu() {
-    let _one = one_at_a_time();
-    let (dir, yaml) = common::scratch_with("any-ros", "diff_drive.yaml", common::DIFF_DRIVE_YAML);
+/// A mock ROS robot with an NMEA compass, configured by a copy of the controller's YAML in a
+/// scratch directory of its own (`name`): the process, the directory, the YAML, its URL and
+/// the compass's heading spec. Every one is the same robot.
+fn ros_robot(
+    name: &str,
+) -> (
+    std::process::Child,
+    std::path::PathBuf,
+    String,
+    String,
+    String,
+) {
+    let (dir, yaml) = common::scratch_with(name, "diff_drive.yaml", common::DIFF_DRIVE_YAML);
     let yaml_s = yaml.to_str().unwrap().to_string();
-    let (mut server, lines) = common::spawn_server_lines(
+    let (server, lines) = common::spawn_server_lines(
         "mock-rosbridge",
         &[
             "--ros-yaml",
@@ -181,46 +210,68 @@ fn on_a_ros_robot_track_agrees_with_its_squares_and_a_compass_can_replace_its_im
         ],
         2,
     );
-    let (url, compass) = (lines[0].clone(), format!("{}?baud=115200", lines[1]));
-    let log = dir.join("track.jsonl");
-    let mut args: Vec<String> = ["track", "--base", &url, "--ros-yaml", &yaml_s]
-        .map(String::from)
-        .to_vec();
+    let compass = format!("{}?baud=115200", lines[1]);
+    (server, dir, yaml_s, lines[0].clone(), compass)
+}
+
+/// `calibrate --base URL --ros-yaml YAML` with the quick flags and `more`.
+fn calibrate_ros(url: &str, yaml: &str, more: &[&str]) -> Value {
+    let mut args = vec!["calibrate", "--base", url, "--ros-yaml", yaml];
+    args.extend(common::QUICK_FLAGS);
+    args.extend(more);
+    common::odocal_json(&args)
+}
+
+#[test]
+fn on_a_ros_robot_track_agrees_with_its_squares_and_replays() {
     let filter = ["--heading-sigma-deg", "0.05"];
-    args.extend(wander(&log));
-    args.extend(filter.map(String::from));
-    let track = run(&args);
-    // The square test of the same robot with its IMU (a dry run: nothing changes).
-    let mut args: Vec<String> = ["calibrate", "--base", &url, "--ros-yaml", &yaml_s]
-        .map(String::from)
-        .to_vec();
-    args.extend(common::QUICK_FLAGS.map(String::from));
-    args.extend(
-        [
-            "--dry-run",
-            "--json",
-            "--report-dir",
-            dir.join("dry").to_str().unwrap(),
-        ]
-        .map(String::from),
+    // The online session and the square test with the robot's IMU (a dry run: nothing
+    // changes) on two mocks of the one robot, side by side; then the same robot calibrated end
+    // to end with the NMEA compass in place of its IMU, on a third.
+    let ((track, log), squares) = side_by_side(
+        || {
+            let (mut server, dir, yaml, url, _) = ros_robot("any-ros-track");
+            let log = dir.join("track.jsonl");
+            let mut args: Vec<String> = ["track", "--base", &url, "--ros-yaml", &yaml]
+                .map(String::from)
+                .to_vec();
+            args.extend(wander(&log));
+            args.extend(filter.map(String::from));
+            let track = run(&args);
+            let _ = server.kill();
+            (track, log)
+        },
+        || {
+            let (mut server, dir, yaml, url, _) = ros_robot("any-ros-squares");
+            let report = dir.join("dry");
+            let more = [
+                "--dry-run",
+                "--json",
+                "--report-dir",
+                report.to_str().unwrap(),
+            ];
+            let squares = calibrate_ros(&url, &yaml, &more);
+            let _ = server.kill();
+            squares
+        },
     );
-    let squares = run(&args);
-    // The same robot calibrated end to end with the NMEA compass in place of its IMU.
+    assert_agree(&track, &squares);
+    assert_replays(&track, &log, &filter);
+}
+
+#[test]
+fn on_a_ros_robot_a_compass_can_replace_its_imu() {
+    let (mut server, dir, yaml_s, url, compass) = ros_robot("any-ros-compass");
+    let yaml = std::path::PathBuf::from(&yaml_s);
     let report_dir = dir.join("report");
-    let mut args: Vec<String> = [
-        "calibrate",
-        "--base",
-        &url,
-        "--ros-yaml",
-        &yaml_s,
+    let more = [
         "--heading",
         &compass,
-    ]
-    .map(String::from)
-    .to_vec();
-    args.extend(common::QUICK_FLAGS.map(String::from));
-    args.extend(["--report-dir", report_dir.to_str().unwrap(), "--json"].map(String::from));
-    let calibrated = run(&args);
+        "--report-dir",
+        report_dir.to_str().unwrap(),
+        "--json",
+    ];
+    let calibrated = calibrate_ros(&url, &yaml_s, &more);
     let _ = server.kill();
     // The run's backup, in its report directory, puts the YAML back as it was.
     let backup = calibrated["backup_path"].as_str().unwrap().to_string();
@@ -236,8 +287,6 @@ fn on_a_ros_robot_track_agrees_with_its_squares_and_a_compass_can_replace_its_im
         common::DIFF_DRIVE_YAML
     );
     std::fs::write(&yaml, written_text).unwrap();
-    assert_agree(&track, &squares);
-    assert_replays(&track, &log, &filter);
     assert_eq!(calibrated["base"]["drive"]["kind"], "rosbridge");
     assert_eq!(calibrated["base"]["heading"]["kind"], "nmea0183");
     assert_eq!(calibrated["base"]["store"]["kind"], "ros2-control-yaml");
@@ -262,7 +311,6 @@ fn on_a_ros_robot_track_agrees_with_its_squares_and_a_compass_can_replace_its_im
 
 #[test]
 fn our_controller_with_a_separate_nmea_compass_calibrates_end_to_end() {
-    let _one = one_at_a_time();
     let (mut mock, lines) = common::spawn_server_lines(
         "mock-device",
         &[

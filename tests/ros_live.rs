@@ -16,10 +16,6 @@ use tokio_util::sync::CancellationToken;
 
 const YAML: &str = common::DIFF_DRIVE_YAML;
 
-/// The two end-to-end calibrations run one at a time: each drives a robot at many times real
-/// speed, and two at once on a 2-core machine starve each other's control loops.
-static END_TO_END: tokio::sync::Mutex<()> = tokio::sync::Mutex::const_new(());
-
 fn yaml_file(name: &str) -> (PathBuf, PathBuf) {
     let dir = common::scratch(name);
     std::fs::create_dir_all(&dir).unwrap();
@@ -86,7 +82,6 @@ async fn stopped_within_two_seconds(base: &Base, distance_m: f64) -> String {
 /// command-line test below drives `null` through the whole routine).
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn calibrating_through_rosbridge_writes_multipliers_that_fix_the_robot() {
-    let _one_at_a_time = END_TO_END.lock().await;
     for (effort, short) in [(EffortStyle::BareNan, false), (EffortStyle::Empty, true)] {
         let (dir, yaml) = yaml_file(&format!("ros-live-{effort:?}"));
         let server = mock(&yaml, |c| c.effort = effort).await;
@@ -159,7 +154,6 @@ async fn calibrating_through_rosbridge_writes_multipliers_that_fix_the_robot() {
 /// it stamped 0.1 s back): every glitch is dropped and counted, none moves the result.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn glitches_in_live_joint_states_are_dropped_counted_and_do_not_move_the_result() {
-    let _one_at_a_time = END_TO_END.lock().await;
     let (dir, yaml) = yaml_file("ros-live-glitches");
     let server = mock(&yaml, |c| c.joint_glitch_every = Some(25)).await;
     let base = connect(&ros_config(server.url(), &yaml)).await.unwrap();
@@ -437,7 +431,6 @@ async fn a_server_that_is_not_rosbridge_is_diagnosed() {
 
 #[test]
 fn calibrate_base_rosbridge_end_to_end_from_the_command_line() {
-    let _one_at_a_time = END_TO_END.blocking_lock();
     let (dir, yaml) = yaml_file("ros-cli");
     let yaml_s = yaml.to_str().unwrap();
     let (mut server, url) = common::spawn_ros_mock(
@@ -823,7 +816,6 @@ async fn unused_fields_never_cost_a_message_and_a_silent_rosapi_costs_no_time() 
 /// user).
 #[test]
 fn odocal_heading_reads_a_ros_robots_imu_and_its_noise() {
-    let _one_at_a_time = END_TO_END.blocking_lock();
     let (_dir, yaml) = yaml_file("ros-heading");
     let yaml_s = yaml.to_str().unwrap();
     let (mut server, url) = common::spawn_ros_mock(yaml_s, &["--compass-sigma-deg", "0.3"]);
@@ -857,7 +849,6 @@ async fn tracking_against_a_localization_topic_agrees_with_the_fit_of_the_same_d
     use odocal::mock::rosbridge::MockLocalization;
     use odocal::ros::pose_source::RosPoseSource;
     use odocal::routine::track::{track_live, DrivePath, TrackOptions};
-    let _one_at_a_time = END_TO_END.lock().await;
     let (_dir, yaml) = yaml_file("ros-live-pose");
     let server = mock(&yaml, |c| {
         c.localization = Some(MockLocalization {
