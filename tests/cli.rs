@@ -1299,3 +1299,25 @@ fn record_stopped_before_any_telemetry_says_what_to_do() {
     // The log keeps its header: what was recorded is not lost.
     assert!(std::fs::read_to_string(&log).unwrap().lines().count() >= 1);
 }
+
+/// Every command and flag the features table says a build may leave out is one of the full
+/// build (a renamed one cannot leave the table naming what no longer exists): each command
+/// answers `--help`, each flag is in the help of a command that has it.
+#[test]
+fn the_words_a_feature_leaves_out_are_commands_and_flags_of_the_full_build() {
+    let helps: Vec<String> = ["fit", "simulate", "replay"]
+        .iter()
+        .map(|c| common::odocal(&[c, "--help"]).1)
+        .collect();
+    for (word, features) in odocal::features::COMMAND_LINE {
+        assert!(!features.is_empty(), "{word}");
+        if word.starts_with("--") {
+            let flag = format!("{word} ");
+            assert!(helps.iter().any(|h| h.contains(&flag)), "{word}");
+        } else {
+            let (ok, help, err) = common::odocal(&[word, "--help"]);
+            assert!(ok && help.contains("Usage: odocal"), "{word}: {err}");
+        }
+        assert!(odocal::features::left_out(word).is_none(), "{word}");
+    }
+}

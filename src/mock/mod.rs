@@ -5,7 +5,8 @@
 //! in-memory duplex or a real pseudo-terminal, in virtual or scaled real time. [`kit`] is the
 //! protocol crate's device kit as it comes (an ideal board) on a pseudo-terminal. [`sim_base`] is
 //! the same simulator as a [`crate::base`] backend in process, with no protocol at all;
-//! [`rosbridge`] is a ROS 2 robot behind a mock rosbridge server on a loopback socket.
+//! [`rosbridge`] is a ROS 2 robot behind a mock rosbridge server on a loopback socket; [`stop`]
+//! is how a mock server started from a shell or a test is stopped.
 
 #[cfg(feature = "odocal-protocol")]
 pub mod device;
@@ -22,6 +23,7 @@ pub mod rosbridge;
 #[cfg(feature = "odocal-protocol")]
 pub mod serve;
 pub mod sim_base;
+pub mod stop;
 
 pub use pty::PtyServer;
 pub use sim_base::{SimBase, SimCounters, SimFaults};

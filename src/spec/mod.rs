@@ -529,6 +529,31 @@ impl BaseSpec {
         })
     }
 
+    /// **Rewrites the robot profile** ([`Self::profile_for_curve`]) with the curve a swing
+    /// keeps (what was already removed and what it found; the kind of a magnetic `heading`),
+    /// through the write service (backed up beside it first): the outcome, saying where.
+    pub async fn save_curve(
+        &self,
+        heading: HeadingKind,
+        mut outcome: crate::routine::swing::SwingOutcome,
+    ) -> Result<crate::routine::swing::SwingOutcome, SpecError> {
+        let path = self.profile_for_curve()?;
+        #[cfg(feature = "roboclaw")]
+        {
+            use crate::roboclaw::profile::{save_heading, HeadingSection};
+            let section = HeadingSection::of_swing(heading, outcome.total_deg());
+            let backup = save_heading(path, &section).await?;
+            outcome.saved = Some((path.to_path_buf(), backup));
+            Ok(outcome)
+        }
+        #[cfg(not(feature = "roboclaw"))]
+        {
+            let _ = (heading, &mut outcome);
+            let what = format!("--save {}", path.display());
+            Err(crate::features::NotBuilt::new(what, &["roboclaw"]).into())
+        }
+    }
+
     /// A robot of these parts, checked to make one by what the drive brings
     /// ([`DriveBackend::heading`], [`DriveBackend::store`]): a drive without a heading sensor
     /// needs one, a drive that keeps no parameters needs its profile, a drive that keeps its

@@ -3,7 +3,6 @@
 
 type CliResult = Result<(), Box<dyn std::error::Error>>;
 use odocal::hal::conformance::{self, Options};
-use std::path::PathBuf;
 
 /// Arguments of `odocal conformance`.
 #[derive(Debug, clap::Args)]
@@ -79,40 +78,4 @@ fn summarise(report: &conformance::Report, args: &Args) -> CliResult {
         Some(failed) => Err(failed.into()),
         None => Ok(()),
     }
-}
-
-/// Arguments of the hidden `odocal kit-device`.
-#[derive(Debug, clap::Args)]
-pub struct KitArgs {
-    /// Run the device's clock this many times faster than the wall clock.
-    #[arg(long = "time-scale", alias = "real-time", default_value_t = 1.0)]
-    real_time: f64,
-    /// Also write the terminal's path to this file.
-    #[arg(long)]
-    link: Option<PathBuf>,
-    /// Serve until Ctrl-C only (by default closing stdin also stops the device).
-    #[arg(long)]
-    ignore_stdin: bool,
-}
-
-/// Runs `odocal kit-device`: the protocol crate's device kit over its ideal board (a robot
-/// with 0.15 m wheels, a 0.39 m wheelbase and 4096 counts per revolution) on a new
-/// pseudo-terminal, whose path it prints first.
-pub async fn kit_device(args: KitArgs) -> CliResult {
-    odocal::ranges::check_range("--time-scale", args.real_time, 0.01, 1000.0)?;
-    let device = odocal::mock::kit::kit_device(odocal::mock::kit::IDEAL_ROBOT, args.real_time)?;
-    let server = odocal::mock::kit::spawn_kit_pty(device, args.real_time)?;
-    println!("{}", server.path);
-    if let Some(link) = &args.link {
-        std::fs::write(link, format!("{}\n", server.path))?;
-    }
-    eprintln!(
-        "kit device on {} (real time ×{}); Ctrl-C to stop",
-        server.path, args.real_time
-    );
-    crate::args::serve_until_stopped(args.ignore_stdin).await;
-    if let Some(link) = &args.link {
-        let _ = std::fs::remove_file(link);
-    }
-    Ok(())
 }

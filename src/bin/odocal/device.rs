@@ -1,4 +1,4 @@
-//! `odocal mock-device` and `params`: the commands only a controller of odocal's protocol takes.
+//! `odocal params`: the command only a controller of odocal's protocol takes.
 
 use crate::out::print_params;
 use crate::sensor::PortArgs;
@@ -6,70 +6,12 @@ use clap::Subcommand;
 use odocal::base::write::{WriteError, Written};
 use odocal::hal::params::{self, ParamsError, ParamsPatch};
 use odocal::hal::{open_port, Client};
-use odocal::mock::{lock, spawn_pty, MockDevice, TimeMode};
 use odocal::protocol::message::ParamSource;
 use serde_json::json;
 use std::path::PathBuf;
 use std::sync::Arc;
-use std::sync::Mutex;
 
 type CliResult = Result<(), Box<dyn std::error::Error>>;
-
-/// Arguments of `odocal mock-device`.
-#[derive(Debug, clap::Args)]
-pub struct MockArgs {
-    #[command(flatten)]
-    device: odocal::mock::options::DeviceOptions,
-    /// Also write the terminal's path to this file.
-    #[arg(long)]
-    link: Option<PathBuf>,
-    /// Serve until Ctrl-C only (by default closing stdin also stops the device).
-    #[arg(long)]
-    ignore_stdin: bool,
-    #[command(flatten)]
-    compass: crate::args::MockCompassArgs,
-}
-
-/// Runs `odocal mock-device`.
-pub async fn mock_device(args: MockArgs) -> CliResult {
-    let (cfg, time) = args.device.config()?;
-    let device = MockDevice::new(cfg)?;
-    if let Some(why) = device.storage_discarded() {
-        eprintln!(
-            "warning: the stored parameter copy was discarded and the device starts from its \
-             factory defaults: {why}"
-        );
-    }
-    let device = Arc::new(Mutex::new(device));
-    let faults = args.device.faults.unwrap_or_default();
-    let server = spawn_pty(device.clone(), time, faults)?;
-    println!("{}", server.path);
-    let scale = match time {
-        TimeMode::RealTime { scale } => scale,
-        TimeMode::Virtual => 1.0,
-    };
-    let _compass = args
-        .compass
-        .spawn(odocal::mock::separate_compass(&device), scale)?;
-    if let Some(link) = &args.link {
-        std::fs::write(link, format!("{}\n", server.path))?;
-    }
-    eprintln!(
-        "mock device on {} ({}); Ctrl-C{} to stop",
-        server.path,
-        match time {
-            TimeMode::Virtual => "virtual time".to_string(),
-            TimeMode::RealTime { scale } => format!("real time ×{scale}"),
-        },
-        crate::args::or_stdin(args.ignore_stdin)
-    );
-    crate::args::serve_until_stopped(args.ignore_stdin).await;
-    eprintln!("mock device stopped: {}", lock(&device).counters());
-    if let Some(link) = &args.link {
-        let _ = std::fs::remove_file(link);
-    }
-    Ok(())
-}
 
 /// The odocal-protocol controller `--port` names (`PORT` or `odocal:PORT?baud=N`).
 async fn connect(port: &PortArgs) -> Result<Client, Box<dyn std::error::Error>> {

@@ -7,6 +7,7 @@ use odocal::calibration::pose_calibration::{calibrate_from_poses, dead_reckon, e
 use odocal::calibration::pose_reference::{Geometry, PoseRecording};
 use odocal::offline::dataset::{pool_pose_recordings, OptiOdomSet};
 use odocal::offline::pose_csv::{read_poses, read_wheels};
+#[cfg(feature = "ros")]
 use odocal::ros::bag::reference::BagDriveSettings;
 use std::path::PathBuf;
 
@@ -25,14 +26,20 @@ pub struct Args {
     /// recording; the nominal geometry comes from the set's metadata.
     #[arg(long, conflicts_with = "bag")]
     dataset: Vec<PathBuf>,
+    #[cfg(feature = "ros")]
     #[command(flatten)]
     bag: BagDriveSettings,
+    /// (A bag, in a build without `ros`: kept to say so.)
+    #[cfg(not(feature = "ros"))]
+    #[arg(long, hide = true)]
+    bag: Option<PathBuf>,
     /// The controller's ros2_control YAML: the nominal geometry (instead of
     /// --wheel-diameter-m and --wheelbase-m; both wheels and the wheelbase as the controller
     /// uses them, multipliers included).
     #[arg(long, conflicts_with_all = ["wheel_diameter_m", "wheelbase_m"])]
     ros_yaml: Option<PathBuf>,
     /// The diff_drive_controller's name in --ros-yaml.
+    #[cfg(feature = "ros")]
     #[arg(long, default_value = odocal::ros::yaml::DEFAULT_CONTROLLER)]
     controller: String,
     /// Nominal wheel diameter (m) the fit starts from (with --wheels).
@@ -96,6 +103,8 @@ type Inputs = (Vec<(String, PoseRecording)>, Geometry);
 
 /// The nominal geometry from the flags or the controller's YAML.
 fn nominal(args: &Args, needed_by: &str) -> Result<Geometry, Box<dyn std::error::Error>> {
+    odocal::features::refuse_if_left_out("--ros-yaml", args.ros_yaml.is_some())?;
+    #[cfg(feature = "ros")]
     if let Some(yaml) = &args.ros_yaml {
         let p = odocal::ros::yaml::DiffDriveConfig::load(yaml, &args.controller)?.effective();
         return Ok(Geometry::from(&p));
@@ -125,6 +134,9 @@ fn inputs(args: &Args) -> Result<Inputs, Box<dyn std::error::Error>> {
         };
         return Ok((vec![(p.display().to_string(), rec)], nominal));
     }
+    #[cfg(not(feature = "ros"))]
+    odocal::features::refuse_if_left_out("--bag", args.bag.is_some())?;
+    #[cfg(feature = "ros")]
     if args.bag.bag.is_some() {
         let nominal = nominal(args, "--bag")?;
         if let Some((name, recording, notes)) = args.bag.read()? {

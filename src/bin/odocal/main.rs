@@ -1,17 +1,25 @@
 //! The `odocal` command line: parses arguments, calls the library, prints tables or JSON.
 
+#[cfg(all(feature = "mock", any(feature = "odocal-protocol", feature = "ros")))]
 mod args;
+#[cfg(feature = "conformance")]
 mod conformance;
+#[cfg(feature = "odocal-protocol")]
 mod device;
 mod estimate;
 mod fit;
+#[cfg(all(feature = "mock", feature = "odocal-protocol"))]
+mod mock_device;
 mod out;
 mod plan;
+#[cfg(feature = "serial")]
 mod ports;
 mod prompt;
 mod replay;
 mod restore;
+#[cfg(all(feature = "mock", feature = "roboclaw"))]
 mod roboclaw;
+#[cfg(feature = "ros")]
 mod ros;
 mod routine;
 mod sensor;
@@ -45,6 +53,7 @@ fn budget(setting: &str) -> Result<String, String> {
 #[allow(clippy::large_enum_variant)]
 #[derive(Debug, Subcommand)]
 enum Command {
+    #[cfg(all(feature = "mock", feature = "odocal-protocol"))]
     /// Full recalibration of the built-in simulated robot: calibrate, write back, verify, report.
     Demo(routine::DemoArgs),
     /// Recalibrate a real robot: --port (odocal protocol) or --base rosbridge://… (moves it;
@@ -55,6 +64,7 @@ enum Command {
     Plan(plan::Args),
     /// Run a routine file (TOML); `port = "mock"` runs it on the simulated robot.
     Run(routine::RunArgs),
+    #[cfg(feature = "ros")]
     /// Export a calibration report for other software (ros2_control).
     Export(odocal::ros::export::ExportSettings),
     /// Online estimator: calibrate continuously from live telemetry, a log or a recorded set.
@@ -71,14 +81,18 @@ enum Command {
     Simulate(simulate::Args),
     /// Calibrate from a recorded OptiOdom square set and evaluate on recorded runs.
     Replay(replay::Args),
+    #[cfg(all(feature = "mock", feature = "odocal-protocol"))]
     /// Serve a simulated robot base on a new pseudo-terminal (prints its path first).
-    MockDevice(device::MockArgs),
+    MockDevice(mock_device::MockArgs),
+    #[cfg(feature = "conformance")]
     /// Check a device against the protocol's rules (SPEC.md §7) in real time: moves the robot
     /// (short motions at low speed; asks first unless --yes).
     Conformance(conformance::Args),
+    #[cfg(all(feature = "mock", feature = "odocal-protocol"))]
     /// Serve the protocol crate's device kit (an ideal robot) on a new pseudo-terminal.
     #[command(hide = true)]
-    KitDevice(conformance::KitArgs),
+    KitDevice(mock_device::KitArgs),
+    #[cfg(feature = "odocal-protocol")]
     /// Read, write, save or restore the controller's kinematic parameters.
     Params {
         #[command(subcommand)]
@@ -97,13 +111,17 @@ enum Command {
     /// Gyro spin test (moves the robot: full turns in place): with where it stopped against a
     /// floor mark, the gyro's scale error, printed as --gyro-scale-error.
     Spin(sensor::SpinArgs),
+    #[cfg(feature = "serial")]
     /// List this machine's serial ports with their USB ids.
     Ports(ports::Args),
+    #[cfg(feature = "ros")]
     /// Calibrate offline from a ROS bag (rosbag2 directory, MCAP, sqlite3 .db3, ROS 1 .bag;
     /// zstd-compressed too): finds the square runs, every method.
     Bag(ros::BagArgs),
+    #[cfg(all(feature = "mock", feature = "ros"))]
     /// Serve a simulated ROS 2 robot behind a mock rosbridge server on loopback.
     MockRosbridge(ros::MockArgs),
+    #[cfg(all(feature = "mock", feature = "roboclaw"))]
     /// Serve a mock RoboClaw and a mock NMEA compass of one simulated robot on two PTYs.
     MockRoboclaw(roboclaw::MockArgs),
     /// Print a completion script for a shell (bash, zsh, fish, powershell, elvish), e.g.
@@ -168,10 +186,10 @@ fn main() -> ExitCode {
     unsafe {
         libc::signal(libc::SIGPIPE, libc::SIG_DFL);
     }
-    let cli = match Cli::from_arg_matches(&command().get_matches()) {
-        Ok(cli) => cli,
-        Err(e) => e.exit(),
-    };
+    let parsed = command()
+        .try_get_matches()
+        .and_then(|m| Cli::from_arg_matches(&m));
+    let cli = parsed.unwrap_or_else(|e| parse_error(e));
     let code = match dispatch(cli.command) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
@@ -192,13 +210,25 @@ fn main() -> ExitCode {
     code
 }
 
+/// Leaves with the parser's error, or for a command or flag this build left out, the feature
+/// it needs ([`odocal::features::left_out`]).
+fn parse_error(e: clap::Error) -> ! {
+    if let Some(not_built) = odocal::features::left_out_in(&e) {
+        eprintln!("error: {not_built}");
+        std::process::exit(2);
+    }
+    e.exit()
+}
+
 /// Runs the command.
 fn dispatch(chosen: Command) -> Result<(), Box<dyn std::error::Error>> {
     match chosen {
+        #[cfg(all(feature = "mock", feature = "odocal-protocol"))]
         Command::Demo(args) => block_on(routine::demo(args)),
         Command::Calibrate(args) => block_on(routine::calibrate(args)),
         Command::Plan(args) => plan::run(args),
         Command::Run(args) => block_on(routine::run_file(args)),
+        #[cfg(feature = "ros")]
         Command::Export(args) => block_on(guarded(ros::export(args))),
         Command::Track(args) => block_on(track::track(args)),
         Command::Record(args) => block_on(track::record(args)),
@@ -206,18 +236,26 @@ fn dispatch(chosen: Command) -> Result<(), Box<dyn std::error::Error>> {
         Command::Fit(args) => fit::run(args),
         Command::Simulate(args) => simulate::run(args),
         Command::Replay(args) => replay::run(args),
-        Command::MockDevice(args) => block_on(device::mock_device(args)),
+        #[cfg(all(feature = "mock", feature = "odocal-protocol"))]
+        Command::MockDevice(args) => block_on(mock_device::mock_device(args)),
+        #[cfg(feature = "conformance")]
         Command::Conformance(args) => block_on(conformance::run(args)),
-        Command::KitDevice(args) => block_on(conformance::kit_device(args)),
+        #[cfg(all(feature = "mock", feature = "odocal-protocol"))]
+        Command::KitDevice(args) => block_on(mock_device::kit_device(args)),
+        #[cfg(feature = "odocal-protocol")]
         Command::Params { command } => block_on(guarded(device::params(command))),
         Command::Restore(args) => block_on(guarded(restore::run(args))),
         Command::Status(port) => block_on(sensor::status(port)),
         Command::Heading(args) => block_on(sensor::heading(args)),
         Command::Swing(args) => block_on(sensor::swing(args)),
         Command::Spin(args) => block_on(sensor::spin(args)),
+        #[cfg(feature = "serial")]
         Command::Ports(args) => ports::run(args),
+        #[cfg(feature = "ros")]
         Command::Bag(args) => ros::run(args),
+        #[cfg(all(feature = "mock", feature = "ros"))]
         Command::MockRosbridge(args) => block_on(ros::mock(args)),
+        #[cfg(all(feature = "mock", feature = "roboclaw"))]
         Command::MockRoboclaw(args) => block_on(roboclaw::mock(args)),
         Command::Completions { shell } => {
             clap_complete::generate(shell, &mut command(), "odocal", &mut std::io::stdout());

@@ -130,6 +130,7 @@ pub fn guard_writes() {
 }
 
 /// Runs `write` (a store's whole transaction) with signals held until it ends ([`guard_writes`]).
+#[cfg(feature = "ros")]
 pub async fn writing<T>(write: impl std::future::Future<Output = T>) -> T {
     WRITING.store(true, std::sync::atomic::Ordering::SeqCst);
     let out = write.await;

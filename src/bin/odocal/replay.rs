@@ -3,10 +3,8 @@
 
 use crate::out::print_json;
 use odocal::calibration::convention::ConventionChoice;
-use odocal::calibration::HeadingKind;
 use odocal::offline::dataset::{replay, OptiOdomSet};
-use odocal::ros::bag::writer::write_recording_bag;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 /// Arguments of `odocal replay`.
 #[derive(Debug, clap::Args)]
@@ -38,13 +36,7 @@ pub fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
         if sets.len() > 1 {
             return Err("--write-bag converts one set; give one --dataset".into());
         }
-        let topics = odocal::ros::bag::RosTopics::default();
-        // Motion capture: the heading is the reference.
-        let (rec, about) = (
-            calib.to_recording(2.0),
-            (calib.side_m, HeadingKind::Reference),
-        );
-        let n = write_recording_bag(path, (&rec, &calib.configured), about, &topics)?;
+        let n = write_bag(calib, path)?;
         println!(
             "wrote {} ({n} messages, {} runs)",
             path.display(),
@@ -62,4 +54,27 @@ pub fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
     }
     print!("{}", odocal::report::text::replay(&report, &sets));
     Ok(())
+}
+
+/// The set `calib` as a ROS 2 bag at `path` (motion capture: its heading is the reference);
+/// how many messages it holds.
+#[cfg(feature = "ros")]
+fn write_bag(calib: &OptiOdomSet, path: &Path) -> Result<u64, Box<dyn std::error::Error>> {
+    use odocal::ros::bag::writer::write_recording_bag;
+    let topics = odocal::ros::bag::RosTopics::default();
+    let kind = odocal::calibration::HeadingKind::Reference;
+    let (rec, about) = (calib.to_recording(2.0), (calib.side_m, kind));
+    Ok(write_recording_bag(
+        path,
+        (&rec, &calib.configured),
+        about,
+        &topics,
+    )?)
+}
+
+/// (A bag, in a build without `ros`: refused by name.)
+#[cfg(not(feature = "ros"))]
+fn write_bag(_: &OptiOdomSet, _: &Path) -> Result<u64, Box<dyn std::error::Error>> {
+    odocal::features::refuse_if_left_out("--write-bag", true)?;
+    Ok(0)
 }

@@ -38,9 +38,9 @@ pub async fn mock(args: MockArgs) -> CliResult {
         o.compass_hz,
         o.truth.true_eb,
         o.truth.true_ed,
-        crate::args::or_stdin(args.ignore_stdin)
+        odocal::mock::stop::or_closing_stdin(args.ignore_stdin)
     );
-    crate::args::serve_until_stopped(args.ignore_stdin).await;
+    odocal::mock::stop::until_stopped(args.ignore_stdin).await;
     drop(ptys);
     Ok(())
 }

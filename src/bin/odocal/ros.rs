@@ -3,6 +3,7 @@
 
 use crate::out::print_json;
 use odocal::ros::bag::session::BagSettings;
+#[cfg(feature = "mock")]
 use odocal::ros::yaml::DiffDriveConfig;
 use std::path::PathBuf;
 
@@ -35,6 +36,7 @@ pub fn run(args: BagArgs) -> Result<(), Box<dyn std::error::Error>> {
 }
 
 /// Arguments of `odocal mock-rosbridge`.
+#[cfg(feature = "mock")]
 #[derive(Debug, clap::Args)]
 pub struct MockArgs {
     /// The controller's YAML: the robot's configured geometry (the mock never writes it).
@@ -56,6 +58,7 @@ pub struct MockArgs {
 }
 
 /// Runs `odocal mock-rosbridge`.
+#[cfg(feature = "mock")]
 pub async fn mock(args: MockArgs) -> Result<(), Box<dyn std::error::Error>> {
     use odocal::mock::rosbridge::MockRosbridge;
     let o = &args.robot;
@@ -84,9 +87,9 @@ pub async fn mock(args: MockArgs) -> Result<(), Box<dyn std::error::Error>> {
         } else {
             "Twist"
         },
-        crate::args::or_stdin(args.ignore_stdin)
+        odocal::mock::stop::or_closing_stdin(args.ignore_stdin)
     );
-    crate::args::serve_until_stopped(args.ignore_stdin).await;
+    odocal::mock::stop::until_stopped(args.ignore_stdin).await;
     Ok(())
 }
 

@@ -2,6 +2,7 @@
 
 use crate::out::print_json;
 use indicatif::{ProgressBar, ProgressStyle};
+#[cfg(all(feature = "mock", feature = "odocal-protocol"))]
 use odocal::demo::{run_demo, DemoOptions};
 use odocal::routine::config::RoutineConfig;
 use odocal::routine::overrides::Overrides;
@@ -151,6 +152,7 @@ fn finish(report: &Report, report_dir: Option<&PathBuf>, json_out: bool) -> CliR
 }
 
 /// Arguments of `odocal demo`.
+#[cfg(all(feature = "mock", feature = "odocal-protocol"))]
 #[derive(Debug, clap::Args)]
 pub struct DemoArgs {
     #[command(flatten)]
@@ -161,6 +163,7 @@ pub struct DemoArgs {
 }
 
 /// Runs `odocal demo`.
+#[cfg(all(feature = "mock", feature = "odocal-protocol"))]
 pub async fn demo(args: DemoArgs) -> CliResult {
     let opts = args.demo.options()?;
     if !args.json {
@@ -258,6 +261,7 @@ async fn run_on(mut cfg: RoutineConfig, spec: BaseSpec, flags: &RoutineFlags) ->
 
 /// The built-in simulated robot with these settings (it moves nobody's hardware: no need to
 /// ask before it drives).
+#[cfg(all(feature = "mock", feature = "odocal-protocol"))]
 async fn run_simulated(mut cfg: RoutineConfig, flags: &RoutineFlags) -> CliResult {
     cfg.confirm_motion = false;
     let opts = DemoOptions {
@@ -274,6 +278,7 @@ async fn run_simulated(mut cfg: RoutineConfig, flags: &RoutineFlags) -> CliResul
 
 /// The routine on whatever the spec names.
 async fn run_spec(cfg: RoutineConfig, spec: BaseSpec, flags: &RoutineFlags) -> CliResult {
+    #[cfg(all(feature = "mock", feature = "odocal-protocol"))]
     if spec.drive.is(&odocal::spec::registry::SIMULATED) {
         return run_simulated(cfg, flags).await;
     }

@@ -4,7 +4,6 @@
 //! `odocal heading` and `status`, which read a robot's sensor or controller without moving it.
 
 use odocal::kinematics::wrap_angle;
-use odocal::roboclaw::profile::{save_heading, HeadingSection};
 use odocal::routine::heading::mean_heading;
 use odocal::routine::spin::{run_spin, SpinOutcome, SpinSettings};
 use odocal::routine::swing::{run_swing, SwingOutcome, SwingSettings};
@@ -80,25 +79,13 @@ async fn or_stopped<T>(
     }
 }
 
-/// Keeps the curve (what was already removed and what the swing found) in the profile at
-/// `path`, through the write service (backed up first); returns the outcome with where.
-async fn save_curve(
-    base: &odocal::base::Base,
-    path: &std::path::Path,
-    mut outcome: SwingOutcome,
-) -> Result<SwingOutcome, Box<dyn std::error::Error>> {
-    let section = HeadingSection::of_swing(base.heading.kind(), outcome.total_deg());
-    let backup = save_heading(path, &section).await?;
-    outcome.saved = Some((path.to_path_buf(), backup));
-    Ok(outcome)
-}
-
 /// Runs `odocal swing`: **moves the robot** (turns in place).
 pub async fn swing(args: SwingArgs) -> CliResult {
     args.swing.check()?;
     let spec = args.robot.spec(RobotSection::default())?;
-    let save_to = args.save.then(|| spec.profile_for_curve()).transpose()?;
-    let save_to = save_to.map(std::path::Path::to_path_buf);
+    if args.save {
+        spec.profile_for_curve()?;
+    }
     // What is already removed from the readings (a flag, or the profile's saved curve): the
     // swing measures what is left, and the curve to keep is both.
     let (_, applied) = spec.heading_correction()?;
@@ -118,8 +105,8 @@ pub async fn swing(args: SwingArgs) -> CliResult {
         applied,
         saved: None,
     };
-    if let Some(path) = &save_to {
-        outcome = save_curve(&base, path, outcome).await?;
+    if args.save {
+        outcome = spec.save_curve(base.heading.kind(), outcome).await?;
     }
     if args.json {
         println!("{}", serde_json::to_string_pretty(&outcome.json())?);

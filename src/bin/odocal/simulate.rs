@@ -3,8 +3,6 @@
 use crate::out::print_json;
 use odocal::offline::study::{run_trials, StudySettings};
 use odocal::report::text::Study;
-use odocal::sim::NoiseModel;
-use serde_json::json;
 
 /// Arguments of `odocal simulate`.
 #[derive(Debug, clap::Args)]
@@ -22,16 +20,19 @@ pub struct Args {
     bag: Option<std::path::PathBuf>,
     /// How the --write-bag's IMU errs (a deviation, a gyro's scale, a late or lossy stream).
     #[command(flatten)]
-    sensor: odocal::mock::options::SensorErrors,
+    sensor: odocal::sim::options::SensorErrors,
     /// `--drive`: normal driving under a pose reference instead of squares.
     #[command(flatten)]
     pub drive: odocal::offline::drive_study::DriveSettings,
 }
 
 /// Writes the simulated square test as a ROS 2 bag.
+#[cfg(feature = "ros")]
 fn write_bag(args: &Args, path: &std::path::Path) -> Result<(), Box<dyn std::error::Error>> {
     use odocal::ros::bag::writer::{write_simulated_bag, SimulatedBag};
     use odocal::ros::bag::RosTopics;
+    use odocal::sim::NoiseModel;
+    use serde_json::json;
     let st = &args.study;
     let (configured, truth) = st.robot(odocal::ros::yaml::RAD_PER_REV)?;
     let noise = NoiseModel {
@@ -70,6 +71,7 @@ fn write_bag(args: &Args, path: &std::path::Path) -> Result<(), Box<dyn std::err
 /// Runs `odocal simulate`.
 pub fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
     args.study.check()?;
+    odocal::features::refuse_if_left_out("--write-bag", args.bag.is_some())?;
     // Checked even when unused: a value the command would ignore is still a mistake to name.
     let model = args.sensor.model()?;
     if args.bag.is_none() && model != odocal::sim::sensor::HeadingModel::default() {
@@ -86,6 +88,7 @@ pub fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
         let (seed, bag) = (args.study.seed, args.bag.as_deref());
         return crate::simulate_drive::run(&args.drive, &nominal, &truth, seed, args.json, bag);
     }
+    #[cfg(feature = "ros")]
     if let Some(path) = &args.bag {
         return write_bag(&args, path);
     }

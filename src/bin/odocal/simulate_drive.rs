@@ -22,6 +22,7 @@ pub fn run(
     if let Some(dir) = &args.write_csv {
         write_new_dir(dir, &drive.recording)?;
     }
+    #[cfg(feature = "ros")]
     if let Some(path) = bag {
         // A ROS clock does not start at zero: the bag's stamps from the session's start.
         odocal::ros::bag::writer::write_localization_bag(
