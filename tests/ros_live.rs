@@ -964,3 +964,39 @@ async fn a_missing_or_mistyped_pose_topic_is_refused_by_name() {
         "{err}"
     );
 }
+
+/// The rosbridge client against the mock over an in-memory duplex (no socket, no
+/// pseudo-terminal): the WebSocket handshake, the first messages of every stream, a straight
+/// motion measured by the wheels, a reading of the IMU and the controller's parameters from
+/// the store, all as over TCP; the server counts the one connection it served.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_rosbridge_client_runs_against_an_in_memory_peer() {
+    use odocal::ros::rosbridge::RosbridgeClient;
+    let (_dir, yaml) = yaml_file("ros-in-memory");
+    // Real time: at forty times the robot overshoots what the test wants to see.
+    let server = mock(&yaml, |c| c.time_scale = 1.0).await;
+    // Not a URL: only the stream can carry the connection.
+    let cfg = ros_config("in-memory".into(), &yaml);
+    let stream = server.connect_in_memory();
+    let open = RosbridgeClient::connect_stream(stream, "in-memory", Duration::from_secs(5));
+    let base = odocal::ros::live::connect_over(&cfg, open).await.unwrap();
+    assert_eq!(server.state().counters.connections, 1);
+    let done = base.drive.move_straight(0.2, 0.3).await.unwrap().unwrap();
+    assert!((done.distance_m - 0.2).abs() < 0.02, "{done:?}");
+    assert!(
+        server.state().counters.commands > 0,
+        "the robot was commanded"
+    );
+    let heading = base.heading.read().await.unwrap();
+    assert!(heading.heading_rad.is_finite(), "{heading:?}");
+    let configured = base.store.read().await.unwrap();
+    let file = DiffDriveConfig::load(&yaml, "diff_drive_controller").unwrap();
+    assert_eq!(configured, file.effective());
+    // A peer that never answers the handshake is told within the timeout.
+    let (silent, _peer) = tokio::io::duplex(1024);
+    let e = RosbridgeClient::connect_stream(silent, "silent", Duration::from_millis(200))
+        .await
+        .err()
+        .unwrap();
+    assert!(e.to_string().contains("no answer within"), "{e}");
+}

@@ -96,7 +96,7 @@ pub enum HalError {
         path: String,
         /// Why.
         #[source]
-        source: Arc<tokio_serial::Error>,
+        source: Arc<std::io::Error>,
     },
     /// A motion did not finish in the time it should take.
     #[error("motion {motion_id} did not finish within {}", crate::io::seconds(.after))]

@@ -1,13 +1,14 @@
 //! The one place odocal opens a serial port: every backend on a serial line (our protocol, a
 //! RoboClaw, an NMEA compass) and every mock's pseudo-terminal peer goes through [`open`]; and
-//! what a byte costs on such a line ([`transmission`]).
+//! what a byte costs on such a line ([`transmission`]). Its errors are `std::io::Error`s in
+//! odocal's words: the serial crate's error type stops here, so no backend's error names it.
 
 #[cfg(feature = "serial")]
 /// Opens the serial port `path` at `baud` (8N1, no flow control), exclusively where the
 /// platform allows it. A path that is not a serial port (missing, a plain file, a device that
 /// takes no serial settings such as `/dev/null`) is an error that says so and points to
 /// `odocal ports`, instead of the system's words ("Not a typewriter").
-pub fn open(path: &str, baud: u32) -> Result<tokio_serial::SerialStream, tokio_serial::Error> {
+pub fn open(path: &str, baud: u32) -> std::io::Result<tokio_serial::SerialStream> {
     use tokio_serial::SerialPortBuilderExt;
     check_path(path)?;
     tokio_serial::new(path, baud)
@@ -19,9 +20,16 @@ pub fn open(path: &str, baud: u32) -> Result<tokio_serial::SerialStream, tokio_s
             if e.description.contains("typewriter") || e.description.contains("ioctl") {
                 not_a_port(path, "a device that takes no serial settings")
             } else {
-                e
+                std::io::Error::from(e)
             }
         })
+}
+
+#[cfg(feature = "serial")]
+/// Drops what `port` received and nobody read yet (a compass's sentences from before the
+/// call, which would be taken for readings after it).
+pub fn clear_input(port: &tokio_serial::SerialStream) -> std::io::Result<()> {
+    tokio_serial::SerialPort::clear(port, tokio_serial::ClearBuffer::Input).map_err(Into::into)
 }
 
 #[cfg(feature = "serial")]
@@ -47,9 +55,10 @@ pub struct PortInfo {
 
 #[cfg(feature = "serial")]
 /// The serial ports of this machine.
-pub fn list_ports() -> Result<Vec<PortInfo>, tokio_serial::Error> {
+pub fn list_ports() -> std::io::Result<Vec<PortInfo>> {
     use serialport::SerialPortType as T;
-    Ok(serialport::available_ports()?
+    Ok(serialport::available_ports()
+        .map_err(std::io::Error::from)?
         .into_iter()
         .map(|p| {
             let mut info = PortInfo {
@@ -121,9 +130,9 @@ impl std::fmt::Display for PortInfo {
 const SEE_PORTS: &str = "`odocal ports` lists the serial ports of this machine";
 
 #[cfg(feature = "serial")]
-fn not_a_port(path: &str, what: &str) -> tokio_serial::Error {
-    tokio_serial::Error::new(
-        tokio_serial::ErrorKind::NoDevice,
+fn not_a_port(path: &str, what: &str) -> std::io::Error {
+    std::io::Error::new(
+        std::io::ErrorKind::InvalidInput,
         format!("{path} is {what}, not a serial port: {SEE_PORTS}"),
     )
 }
@@ -132,13 +141,13 @@ fn not_a_port(path: &str, what: &str) -> tokio_serial::Error {
 /// Why `path` cannot be a serial port, from what it is on disk (nothing is opened: opening a
 /// port can reset the board behind it): missing, or not a character device. Where devices
 /// are not files (Windows' `COM3`), only a missing path under `/dev` is refused.
-pub fn check_path(path: &str) -> Result<(), tokio_serial::Error> {
+pub fn check_path(path: &str) -> std::io::Result<()> {
     let p = std::path::Path::new(path);
     match std::fs::metadata(p) {
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
             if cfg!(unix) || path.starts_with("/dev/") {
-                return Err(tokio_serial::Error::new(
-                    tokio_serial::ErrorKind::NoDevice,
+                return Err(std::io::Error::new(
+                    std::io::ErrorKind::NotFound,
                     format!("{path} does not exist (is the adapter plugged in?): {SEE_PORTS}"),
                 ));
             }

@@ -100,7 +100,7 @@ impl NmeaCompass {
         let port = crate::io::serial::open(path, baud)
             .map_err(|e| BaseError::backend(format!("heading (NMEA {path})"), e))?;
         // Sentences the compass sent before now would be taken for readings after the call.
-        tokio_serial::SerialPort::clear(&port, tokio_serial::ClearBuffer::Input)
+        crate::io::serial::clear_input(&port)
             .map_err(|e| BaseError::backend(format!("heading (NMEA {path})"), e))?;
         Ok(Self::new(port, path, stale))
     }

@@ -30,7 +30,7 @@ pub enum RoboClawError {
         path: String,
         /// Why.
         #[source]
-        source: Arc<tokio_serial::Error>,
+        source: Arc<std::io::Error>,
     },
     /// No (complete) answer in time.
     #[error("no answer to command {command} within {} after {attempts} attempt(s)", crate::io::seconds(.after))]

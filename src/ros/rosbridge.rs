@@ -91,6 +91,37 @@ pub fn websocket_url(url: &str) -> Result<String, RosbridgeError> {
     Ok(format!("ws://{rest}"))
 }
 
+/// Nothing answered `url` within `timeout`.
+fn no_answer(url: &str, timeout: Duration) -> RosbridgeError {
+    RosbridgeError::Connect {
+        url: url.into(),
+        reason: format!("no answer within {}", crate::io::seconds(&timeout)),
+    }
+}
+
+/// Why the WebSocket to `url` did not open, in words that tell "not reached" from "not a
+/// rosbridge server".
+fn not_connected(url: &str, e: tokio_tungstenite::tungstenite::Error) -> RosbridgeError {
+    use tokio_tungstenite::tungstenite::Error;
+    let reason = match e {
+        // Nothing listening, or the network: the server was not reached.
+        Error::Io(io) => io.to_string(),
+        Error::Http(r) => format!(
+            "the server answered HTTP {} instead of upgrading to a WebSocket: not a rosbridge \
+             server",
+            r.status()
+        ),
+        // Reached, but the handshake failed (an old HTTP, not HTTP at all, …).
+        other => {
+            format!("the server did not accept a WebSocket ({other}): not a rosbridge server")
+        }
+    };
+    RosbridgeError::Connect {
+        url: url.into(),
+        reason,
+    }
+}
+
 fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
     m.lock().unwrap_or_else(|p| p.into_inner())
 }
@@ -102,26 +133,34 @@ impl RosbridgeClient {
         let connect = tokio_tungstenite::connect_async(ws_url.as_str());
         let (stream, _) = tokio::time::timeout(timeout, connect)
             .await
-            .map_err(|_| RosbridgeError::Connect {
-                url: url.into(),
-                reason: format!("no answer within {}", crate::io::seconds(&timeout)),
-            })?
-            .map_err(|e| RosbridgeError::Connect {
-                url: url.into(),
-                reason: match e {
-                    // Nothing listening, or the network: the server was not reached.
-                    tokio_tungstenite::tungstenite::Error::Io(io) => io.to_string(),
-                    tokio_tungstenite::tungstenite::Error::Http(r) => format!(
-                        "the server answered HTTP {} instead of upgrading to a WebSocket: not a \
-                         rosbridge server",
-                        r.status()
-                    ),
-                    // Reached, but the handshake failed (an old HTTP, not HTTP at all, …).
-                    other => format!(
-                        "the server did not accept a WebSocket ({other}): not a rosbridge server"
-                    ),
-                },
-            })?;
+            .map_err(|_| no_answer(url, timeout))?
+            .map_err(|e| not_connected(url, e))?;
+        Ok(Self::start(stream, url))
+    }
+
+    /// The same over any byte stream (an in-memory peer, a tunnel): the WebSocket handshake
+    /// within `timeout`, then the connection's tasks; `label` names it where a URL would.
+    pub async fn connect_stream<S>(
+        stream: S,
+        label: &str,
+        timeout: Duration,
+    ) -> Result<Self, RosbridgeError>
+    where
+        S: tokio::io::AsyncRead + tokio::io::AsyncWrite + Unpin + Send + 'static,
+    {
+        let handshake = tokio_tungstenite::client_async("ws://localhost/", stream);
+        let (stream, _) = tokio::time::timeout(timeout, handshake)
+            .await
+            .map_err(|_| no_answer(label, timeout))?
+            .map_err(|e| not_connected(label, e))?;
+        Ok(Self::start(stream, label))
+    }
+
+    /// Starts the connection's tasks on an open WebSocket: one writes, one reads and fans out.
+    fn start<S>(stream: tokio_tungstenite::WebSocketStream<S>, url: &str) -> Self
+    where
+        S: tokio::io::AsyncRead + tokio::io::AsyncWrite + Unpin + Send + 'static,
+    {
         let (mut sink, mut source) = stream.split();
         let (out, mut out_rx) = mpsc::unbounded_channel::<Message>();
         let (closed_tx, closed) = watch::channel(None);
@@ -166,7 +205,7 @@ impl RosbridgeClient {
             }
             let _ = closed_tx.send(Some(reason));
         });
-        Ok(RosbridgeClient {
+        RosbridgeClient {
             url: url.into(),
             out,
             topics,
@@ -174,7 +213,7 @@ impl RosbridgeClient {
             closed,
             next_id: Arc::new(AtomicU64::new(1)),
             foreign,
-        })
+        }
     }
 
     /// The URL it was opened with.

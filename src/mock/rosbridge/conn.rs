@@ -21,13 +21,17 @@ use serde_json::{json, Value};
 use std::collections::{BTreeMap, VecDeque};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
-use tokio::net::TcpStream;
 use tokio::sync::broadcast;
 use tokio::time::Instant;
 use tokio_tungstenite::tungstenite::Message;
 use tokio_tungstenite::WebSocketStream;
 
-type Sink = SplitSink<WebSocketStream<TcpStream>, Message>;
+/// The bytes a client is served over: a TCP socket, or one end of an in-memory duplex
+/// ([`super::MockRosbridge::connect_in_memory`]).
+pub(super) trait Wire: tokio::io::AsyncRead + tokio::io::AsyncWrite + Unpin + Send {}
+impl<T: tokio::io::AsyncRead + tokio::io::AsyncWrite + Unpin + Send> Wire for T {}
+
+type Sink = SplitSink<WebSocketStream<Box<dyn Wire>>, Message>;
 
 /// Status levels, most severe first: a client hears those at or above its level.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
@@ -142,12 +146,12 @@ pub(super) fn canonical_type(t: &str) -> String {
 
 /// Serves one client until it closes or the server vanishes.
 pub(super) async fn serve(
-    tcp: TcpStream,
+    wire: Box<dyn Wire>,
     cfg: MockRosConfig,
     state: Arc<Mutex<MockRosState>>,
     mut topics: broadcast::Receiver<Outgoing>,
 ) {
-    let Ok(ws) = tokio_tungstenite::accept_async(tcp).await else {
+    let Ok(ws) = tokio_tungstenite::accept_async(wire).await else {
         return;
     };
     lock(&state).counters.connections += 1;

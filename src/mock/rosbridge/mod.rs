@@ -228,6 +228,8 @@ impl MockRosState {
 /// A running mock server.
 pub struct MockRosbridge {
     addr: SocketAddr,
+    cfg: MockRosConfig,
+    out: broadcast::Sender<Outgoing>,
     state: Arc<Mutex<MockRosState>>,
     listener: JoinHandle<()>,
     physics: JoinHandle<()>,
@@ -276,20 +278,37 @@ impl MockRosbridge {
         let addr = listener.local_addr()?;
         let physics = tokio::spawn(physics(cfg.clone(), state.clone(), out.clone()));
         let connections: Arc<Mutex<Vec<JoinHandle<()>>>> = Arc::default();
-        let (st, conns) = (state.clone(), connections.clone());
+        let (st, conns, topics, c) = (state.clone(), connections.clone(), out.clone(), cfg.clone());
         let listener = tokio::spawn(async move {
             while let Ok((tcp, _)) = listener.accept().await {
-                let h = tokio::spawn(conn::serve(tcp, cfg.clone(), st.clone(), out.subscribe()));
-                conns.lock().unwrap_or_else(|p| p.into_inner()).push(h);
+                let serve = conn::serve(Box::new(tcp), c.clone(), st.clone(), topics.subscribe());
+                conns
+                    .lock()
+                    .unwrap_or_else(|p| p.into_inner())
+                    .push(tokio::spawn(serve));
             }
         });
         Ok(MockRosbridge {
             addr,
+            cfg,
+            out,
             state,
             listener,
             physics,
             connections,
         })
+    }
+
+    /// A client's connection without a socket: the client's end of an in-memory duplex, served
+    /// as a TCP client is, WebSocket handshake and all
+    /// ([`crate::ros::rosbridge::RosbridgeClient::connect_stream`] takes it).
+    pub fn connect_in_memory(&self) -> tokio::io::DuplexStream {
+        let (client, server) = tokio::io::duplex(1 << 16);
+        let (cfg, state) = (self.cfg.clone(), self.state.clone());
+        let serve = conn::serve(Box::new(server), cfg, state, self.out.subscribe());
+        let mut connections = self.connections.lock().unwrap_or_else(|p| p.into_inner());
+        connections.push(tokio::spawn(serve));
+        client
     }
 
     /// `rosbridge://127.0.0.1:PORT`.

@@ -227,11 +227,27 @@ fn drive_err(e: impl std::error::Error + Send + Sync + 'static) -> BaseError {
 /// Connects to the robot and composes its base: drive and heading over rosbridge, the YAML as
 /// the store. Fails with a clear message if the server is not rosbridge or a topic is silent.
 pub async fn connect(cfg: &RosBaseConfig) -> Result<Base, RosBaseError> {
+    let open = RosbridgeClient::connect(&cfg.url, first_message_timeout(cfg));
+    connect_over(cfg, open).await
+}
+
+/// How long the connection and each stream's first message may take.
+fn first_message_timeout(cfg: &RosBaseConfig) -> Duration {
+    Duration::from_secs_f64(cfg.first_message_timeout_s.clamp(0.1, 60.0))
+}
+
+/// [`connect`] over the connection `open` makes (a stream of the caller's, such as an
+/// in-memory peer: [`RosbridgeClient::connect_stream`]); the controller's YAML is read first,
+/// so a file that cannot be used is told before anything is opened.
+pub async fn connect_over(
+    cfg: &RosBaseConfig,
+    open: impl std::future::Future<Output = Result<RosbridgeClient, RosbridgeError>>,
+) -> Result<Base, RosBaseError> {
     let yaml_cfg = DiffDriveConfig::load(&cfg.yaml, &cfg.controller)?;
     let store = YamlStore::open(&cfg.yaml, &cfg.controller)?;
     let geometry = store.shared();
-    let timeout = Duration::from_secs_f64(cfg.first_message_timeout_s.clamp(0.1, 60.0));
-    let client = RosbridgeClient::connect(&cfg.url, timeout).await?;
+    let timeout = first_message_timeout(cfg);
+    let client = open.await?;
     let (left, right) = wheel_joints(cfg, &yaml_cfg);
     // Wheels: the source motions close on, and the other one for the still-robot diagnosis.
     let witness = Witness::follow(&client, cfg, (left.clone(), right.clone()))?;
