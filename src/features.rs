@@ -18,8 +18,14 @@ pub const COMMAND_LINE: &[(&str, &[&str])] = &[
     ("mock-rosbridge", &["mock", "ros"]),
     ("mock-roboclaw", &["mock", "roboclaw"]),
     ("ports", &["serial"]),
-    // `fit`'s bag and controller YAML; `simulate` and `replay` write bags.
+    // `fit`'s bag (and how it reads one) and controller YAML; `simulate` and `replay` write
+    // bags.
     ("--bag", &["ros"]),
+    ("--reference", &["ros"]),
+    ("--base-frame", &["ros"]),
+    ("--joint-states-topic", &["ros"]),
+    ("--left-joint", &["ros"]),
+    ("--right-joint", &["ros"]),
     ("--ros-yaml", &["ros"]),
     ("--controller", &["ros"]),
     ("--write-bag", &["ros"]),
@@ -74,16 +80,18 @@ pub fn left_out_in(e: &clap::Error) -> Option<NotBuilt> {
     left_out(typed(e)?)
 }
 
-/// The unknown command or flag the parser's error `e` names, as typed.
+/// The unknown command or flag the parser's error `e` names, as typed (a flag without its
+/// value).
 #[cfg(feature = "cli")]
 fn typed(e: &clap::Error) -> Option<&str> {
     use clap::error::{ContextKind, ContextValue};
-    [ContextKind::InvalidSubcommand, ContextKind::InvalidArg]
-        .into_iter()
-        .find_map(|kind| match e.get(kind) {
-            Some(ContextValue::String(word)) => Some(word.as_str()),
-            _ => None,
-        })
+    let word = |kind| match e.get(kind) {
+        Some(ContextValue::String(word)) => Some(word.as_str()),
+        _ => None,
+    };
+    // A stray word where no command is taken is not a command left out: only flags there.
+    (word(ContextKind::InvalidSubcommand))
+        .or_else(|| word(ContextKind::InvalidArg).filter(|w| w.starts_with("--")))
 }
 
 /// Something this build of odocal cannot do because it was built without `features`.
@@ -168,15 +176,12 @@ mod tests {
             .unwrap_err();
         // (The flag without its value.)
         assert_eq!(typed(&e), Some("--write-bag"), "{e}");
+        // A stray word, even one that names a command left out, is the parser's own error.
         let e = cli()
-            .try_get_matches_from(["odocal", "fit", "extra"])
+            .try_get_matches_from(["odocal", "fit", "bag"])
             .unwrap_err();
-        assert_eq!(typed(&e), Some("extra"), "{e}");
-        assert_eq!(
-            left_out_in(&e),
-            None,
-            "a word of no backend: the parser's own error"
-        );
+        assert_eq!(typed(&e), None, "{e}");
+        assert_eq!(left_out_in(&e), None);
     }
 
     #[cfg(not(feature = "ros"))]

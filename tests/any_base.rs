@@ -226,8 +226,8 @@ fn calibrate_ros(url: &str, yaml: &str, more: &[&str]) -> Value {
 fn on_a_ros_robot_track_agrees_with_its_squares_and_replays() {
     let filter = ["--heading-sigma-deg", "0.05"];
     // The online session and the square test with the robot's IMU (a dry run: nothing
-    // changes) on two mocks of the one robot, side by side; then the same robot calibrated end
-    // to end with the NMEA compass in place of its IMU, on a third.
+    // changes) on two mocks of the one robot, side by side (the same robot with an NMEA
+    // compass in place of its IMU is the next test's).
     let ((track, log), squares) = side_by_side(
         || {
             let (mut server, dir, yaml, url, _) = ros_robot("any-ros-track");

@@ -546,6 +546,8 @@ impl BaseSpec {
             outcome.saved = Some((path.to_path_buf(), backup));
             Ok(outcome)
         }
+        // (Without `roboclaw` there is no profile store, so `profile_for_curve` refused
+        // above; this says the same should one come another way.)
         #[cfg(not(feature = "roboclaw"))]
         {
             let _ = (heading, &mut outcome);

@@ -1,5 +1,5 @@
-//! `odocal conformance` (**moves the robot**) and the hidden `odocal kit-device`: a device
-//! checked against SPEC.md §7 in real time, and the protocol crate's device kit served as one.
+//! `odocal conformance` (**moves the robot**): a device checked against SPEC.md §7 in real
+//! time.
 
 type CliResult = Result<(), Box<dyn std::error::Error>>;
 use odocal::hal::conformance::{self, Options};

@@ -30,6 +30,7 @@ pub struct Args {
 
 /// Runs `odocal replay`.
 pub fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
+    odocal::features::refuse_if_left_out("--write-bag", args.write_bag.is_some())?;
     let sets = OptiOdomSet::load_all(&args.dataset)?;
     let calib = &sets[0];
     if let Some(path) = &args.write_bag {
@@ -72,9 +73,8 @@ fn write_bag(calib: &OptiOdomSet, path: &Path) -> Result<u64, Box<dyn std::error
     )?)
 }
 
-/// (A bag, in a build without `ros`: refused by name.)
+/// (A bag, in a build without `ros`: refused by name before anything is read.)
 #[cfg(not(feature = "ros"))]
 fn write_bag(_: &OptiOdomSet, _: &Path) -> Result<u64, Box<dyn std::error::Error>> {
-    odocal::features::refuse_if_left_out("--write-bag", true)?;
-    Ok(0)
+    Ok(odocal::features::refuse_if_left_out("--write-bag", true).map(|()| 0)?)
 }
