@@ -276,6 +276,25 @@ fn clocks_are_aligned_and_squares_found_in_one_place_each() {
     }
 }
 
+/// Protocol clients read and write their byte stream through `io::transport`'s helpers, each
+/// with a deadline (a read that is late, a stream that ended and an error told apart): no
+/// client wraps a read in a timeout of its own. The mocks (the far end of a link) are exempt.
+#[test]
+fn protocol_clients_use_the_transport_and_its_deadlines() {
+    let sources = sources();
+    for needle in ["AsyncReadExt", "AsyncWriteExt", "AsyncBufReadExt"] {
+        let outside: Vec<String> = files_with(&sources, needle)
+            .into_iter()
+            .filter(|f| f != "src/io/transport.rs" && !f.starts_with("src/mock/"))
+            .collect();
+        assert!(
+            outside.is_empty(),
+            "`{needle}` belongs in src/io/transport.rs (and the mocks), found in {outside:?}: \
+             read and write through io::transport's read_some_by, read_exact_by, write_all_by"
+        );
+    }
+}
+
 /// A drive, a heading source and a store are each one module plus one line in
 /// `src/spec/registry.rs`: only the registry lists the backends, an option that was given is a
 /// key (never a substring of the text), and no code outside a backend recognises its text form.

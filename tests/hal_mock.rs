@@ -732,3 +732,24 @@ async fn a_slow_adapter_is_measured_and_costs_no_retries() {
         config.retry_budget
     );
 }
+
+/// A port that takes no bytes (a USB adapter whose device has gone, flow control held) fails
+/// the link by the write's deadline, with an error that says so, instead of hanging the link
+/// task on a write that never ends.
+#[tokio::test(start_paused = true)]
+async fn a_port_that_takes_no_bytes_fails_the_link_by_the_writes_deadline() {
+    // Room for four bytes, and a peer that never reads: HELLO's frame never fits.
+    let (host, _deaf) = odocal::io::transport::pair(4);
+    let connect = Client::connect(host, LinkConfig::default());
+    let result = tokio::time::timeout(Duration::from_secs(30), connect)
+        .await
+        .expect("the link hung on a write");
+    match result {
+        Err(HalError::Link(LinkError::Io(e))) => {
+            assert_eq!(e.kind(), std::io::ErrorKind::TimedOut, "{e}");
+            assert!(e.to_string().contains("did not take"), "{e}");
+        }
+        Err(other) => panic!("another error: {other}"),
+        Ok(_) => panic!("connected to a port that takes nothing"),
+    }
+}

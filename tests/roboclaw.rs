@@ -501,3 +501,56 @@ async fn an_encoder_counting_down_through_zero_is_no_preflight_warning() {
         "the preflight read cleared it"
     );
 }
+
+/// The port belongs to the client's task, not to its callers: a caller that gives up while a
+/// write waits for its acknowledgement (a timeout around it, Ctrl-C) leaves the task to read
+/// it, so the next read starts on a clean line and is sent once. (Were the port shared under
+/// a lock, the late 0xFF would have been read as the start of the battery's answer, failed its
+/// CRC and had the request sent again.)
+#[tokio::test(start_paused = true)]
+async fn a_caller_that_gives_up_never_cuts_a_transaction_in_half() {
+    use odocal::io::transport::{self, Deadline, Read};
+    use odocal::roboclaw::packet::{cmd, ACK, CRC16};
+    let (host, mut dev) = transport::pair(256);
+    let claw = RoboClaw::new(host, RoboClawConfig::default(), "pair").unwrap();
+    let peer = tokio::spawn(async move {
+        let mut seen = Vec::new();
+        // The write: address, command, 8 data bytes, CRC; acknowledged 25 ms later.
+        let mut write = [0u8; 12];
+        let got = transport::read_exact_by(&mut dev, &mut write, Deadline::never()).await;
+        assert_eq!(got.unwrap(), Read::Got(12));
+        seen.push(write[1]);
+        tokio::time::sleep(Duration::from_millis(25)).await;
+        transport::write_all_by(&mut dev, &[ACK], Deadline::never())
+            .await
+            .unwrap();
+        // Read requests (address, command), each answered at once with 12.3 V.
+        let mut request = [0u8; 2];
+        let quiet = || Deadline::after(Duration::from_millis(300));
+        while let Ok(Read::Got(_)) = transport::read_exact_by(&mut dev, &mut request, quiet()).await
+        {
+            seen.push(request[1]);
+            let data = 123u16.to_be_bytes();
+            let mut crc = CRC16.digest();
+            crc.update(&request);
+            crc.update(&data);
+            let mut answer = data.to_vec();
+            answer.extend_from_slice(&crc.finalize().to_be_bytes());
+            transport::write_all_by(&mut dev, &answer, Deadline::never())
+                .await
+                .unwrap();
+        }
+        seen
+    });
+    let speeds = claw.write(cmd::DRIVE_SPEEDS, &[0; 8]);
+    let gave_up = tokio::time::timeout(Duration::from_millis(5), speeds).await;
+    assert!(
+        gave_up.is_err(),
+        "the acknowledgement came before the caller gave up"
+    );
+    let volts = claw.battery_v().await.unwrap();
+    assert!((volts - 12.3).abs() < 1e-9, "{volts} V");
+    drop(claw);
+    let seen = peer.await.unwrap();
+    assert_eq!(seen, vec![cmd::DRIVE_SPEEDS, cmd::READ_MAIN_BATTERY]);
+}

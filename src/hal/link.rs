@@ -12,6 +12,7 @@
 //! repeated motion from its cache and never runs it twice.
 
 use super::{HalError, LinkError, LinkStats, TelemetrySample};
+use crate::io::transport::{self, Deadline, Read};
 use crate::kinematics::wrap_angle;
 use crate::protocol::message::{id, payload_len, Event, MotionDone, NackCode};
 use crate::protocol::units;
@@ -21,7 +22,7 @@ use std::collections::VecDeque;
 use std::sync::atomic::Ordering;
 use std::sync::Arc;
 use std::time::Duration;
-use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
+use tokio::io::{AsyncRead, AsyncWrite};
 use tokio::sync::{broadcast, mpsc, oneshot};
 use tokio::time::Instant;
 
@@ -197,9 +198,10 @@ impl Link {
                 }
                 return;
             }
-            let deadline = st.pending.as_ref().map(|p| p.deadline);
-            // In a fixed order (commands, then what arrived, then a deadline): the same bytes
-            // give the same exchanges, so a simulated link's losses repeat run after run.
+            let deadline = Deadline::at_or_never(st.pending.as_ref().map(|p| p.deadline));
+            // In a fixed order (commands, then what arrived, then a deadline: a read by its
+            // deadline takes bytes that are there before it says late): the same bytes give
+            // the same exchanges, so a simulated link's losses repeat run after run.
             tokio::select! {
                 biased;
                 cmd = commands.recv() => {
@@ -207,18 +209,18 @@ impl Link {
                         return;
                     }
                 }
-                read = rd.read(&mut chunk) => match read {
-                    Ok(0) => st.closed = Some(LinkError::Closed),
+                read = transport::read_some_by(&mut rd, &mut chunk, deadline) => match read {
+                    Ok(Read::Closed) => st.closed = Some(LinkError::Closed),
                     Err(e) => st.closed = Some(e.into()),
-                    Ok(n) => {
+                    Ok(Read::Got(n)) => {
                         for frame in codec.feed(&mut buf, &chunk[..n]) {
                             self.stats.frames_received.fetch_add(1, Ordering::Relaxed);
                             self.dispatch(&frame, &mut st.pending, &mut unwrap);
                         }
                         self.stats.decoder_dropped_bytes.store(codec.stats().bytes_dropped, Ordering::Relaxed);
                     }
+                    Ok(Read::Late) => self.on_deadline(&mut wr, &mut st).await,
                 },
-                () = sleep_until_opt(deadline) => self.on_deadline(&mut wr, &mut st).await,
             }
         }
     }
@@ -309,7 +311,7 @@ impl Link {
                 self.stats.retries.fetch_add(1, Ordering::Relaxed);
                 p.attempts += 1;
                 p.deadline = Instant::now() + self.deadline(&p.request);
-                if let Err(e) = write(wr, &p.bytes).await {
+                if let Err(e) = write(wr, &p.bytes, self.config.baud).await {
                     st.closed = Some(e);
                 }
                 st.pending = Some(p);
@@ -337,7 +339,11 @@ impl Link {
         reply: Option<oneshot::Sender<Result<Response, HalError>>>,
     ) -> Result<Pending, LinkError> {
         let bytes = Packet::request(seq, request).to_frame().to_bytes();
-        write(wr, &bytes).await?;
+        if let Err(e) = write(wr, &bytes, self.config.baud).await {
+            // The caller hears why (not just that the link closed after it).
+            fail(reply, e.clone());
+            return Err(e);
+        }
         self.stats.requests.fetch_add(1, Ordering::Relaxed);
         let now = Instant::now();
         Ok(Pending {
@@ -531,14 +537,24 @@ fn fail(reply: Option<oneshot::Sender<Result<Response, HalError>>>, err: LinkErr
     }
 }
 
-async fn write<W: AsyncWrite + Unpin>(wr: &mut W, bytes: &[u8]) -> Result<(), LinkError> {
-    wr.write_all(bytes).await?;
-    Ok(wr.flush().await?)
+/// Sends `bytes` by the time their transmission takes at `baud` and the slack of a write
+/// ([`transport::write_deadline`]): a port that takes nothing for that long has gone.
+async fn write<W: AsyncWrite + Unpin>(
+    wr: &mut W,
+    bytes: &[u8],
+    baud: u32,
+) -> Result<(), LinkError> {
+    let by = transport::write_deadline(bytes.len(), baud);
+    match transport::write_all_by(wr, bytes, by).await {
+        Ok(()) => Ok(()),
+        // The far end has gone, as a read that ends says: the link closed.
+        Err(e) if gone(&e) => Err(LinkError::Closed),
+        Err(e) => Err(e.into()),
+    }
 }
 
-async fn sleep_until_opt(deadline: Option<Instant>) {
-    match deadline {
-        Some(d) => tokio::time::sleep_until(d).await,
-        None => std::future::pending().await,
-    }
+/// Whether a write failed because the other end has gone (unplugged, closed).
+fn gone(e: &std::io::Error) -> bool {
+    use std::io::ErrorKind::{BrokenPipe, ConnectionAborted, ConnectionReset};
+    matches!(e.kind(), BrokenPipe | ConnectionReset | ConnectionAborted)
 }

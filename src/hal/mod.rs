@@ -1,7 +1,7 @@
 //! The hardware-abstraction layer: an async client for `protocol/SPEC.md` over any byte stream.
 //!
-//! [`Client::connect`] takes any `AsyncRead + AsyncWrite` (a serial port from [`open_port`], a
-//! pseudo-terminal, an in-memory duplex), spawns the task that owns the link ([`link`]) and
+//! [`Client::connect`] takes any [`Transport`] (a serial port from [`open_port`], a
+//! pseudo-terminal, an in-memory [`crate::io::transport::pair`]), spawns the task that owns the link ([`link`]) and
 //! performs the HELLO handshake. Calls are typed, carry deadlines computed from frame sizes and
 //! the baud rate, and are retried with the same sequence number so the device never executes
 //! one twice. Errors come in two layers: [`LinkError`] (the link or the protocol failed) and
@@ -29,6 +29,7 @@ pub async fn stop_over_new_link(port: &str, baud: u32) -> Result<(), HalError> {
     stopped
 }
 
+use crate::io::transport::Transport;
 use crate::kinematics::{wrap_angle, WheelParams};
 use crate::protocol::frame::{MAJOR, VERSION};
 use crate::protocol::message::{
@@ -44,7 +45,6 @@ use serde::Serialize;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
-use tokio::io::{AsyncRead, AsyncWrite};
 use tokio::sync::{broadcast, mpsc, oneshot, watch};
 
 /// The link's baud rate unless configured (SPEC.md §1).
@@ -275,10 +275,10 @@ macro_rules! expect {
 
 impl Client {
     /// Starts the link task on `stream` and performs the HELLO handshake.
-    pub async fn connect<S>(stream: S, config: LinkConfig) -> Result<(Client, DeviceInfo), HalError>
-    where
-        S: AsyncRead + AsyncWrite + Unpin + Send + 'static,
-    {
+    pub async fn connect<S: Transport>(
+        stream: S,
+        config: LinkConfig,
+    ) -> Result<(Client, DeviceInfo), HalError> {
         let (tx, rx) = mpsc::unbounded_channel();
         let (events, _) = broadcast::channel(1 << 16);
         let (motion_done, _) = broadcast::channel(64);

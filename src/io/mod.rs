@@ -1,11 +1,13 @@
 //! Input and output every layer above shares: bounded reads, atomic writes, files created new,
 //! backups ([`files`]), the size bounds of every kind of file odocal reads ([`SIZE_BOUNDS`]),
-//! opening serial ports ([`serial`]) and the signals that end a session ([`signals`]).
+//! opening serial ports ([`serial`]), the byte stream under every protocol client and its
+//! deadlines ([`transport`]) and the signals that end a session ([`signals`]).
 
 pub mod budget;
 pub mod files;
 pub mod serial;
 pub mod signals;
+pub mod transport;
 
 pub use files::*;
 

@@ -12,12 +12,12 @@ use crate::base::{
     BaseError, ComponentInfo, Fanout, HeadingKind, HeadingSample, HeadingSource, SampleStream,
     Validity,
 };
+use crate::io::transport::{self, Deadline, Read};
 use async_trait::async_trait;
-use futures_util::FutureExt;
 use std::collections::VecDeque;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
-use tokio::io::{AsyncRead, AsyncReadExt};
+use tokio::io::AsyncRead;
 use tokio::time::Instant;
 
 /// Counters of what the compass sent.
@@ -125,22 +125,23 @@ async fn read_sentences<S: AsyncRead + Unpin>(mut stream: S, out: Outputs) {
     let mut chosen: Option<Kind> = None;
     let mut too_long = false;
     loop {
-        let n = match stream.read(&mut chunk).await {
-            Ok(0) | Err(_) => return,
-            Ok(n) => n,
+        // A compass talks on its own: no deadline, the readers' waits are on `Latest`.
+        let n = match transport::read_some_by(&mut stream, &mut chunk, Deadline::never()).await {
+            Ok(Read::Got(n)) => n,
+            Ok(Read::Closed | Read::Late) | Err(_) => return,
         };
         // What is already waiting is read with it, so a backlog longer than one read is one
         // burst (and is stamped as one).
         let mut bytes = chunk[..n].to_vec();
         let mut ended = false;
         while bytes.len() < MAX_BURST {
-            match stream.read(&mut chunk).now_or_never() {
-                Some(Ok(0) | Err(_)) => {
+            match transport::read_waiting(&mut stream, &mut chunk) {
+                Ok(Read::Closed) | Err(_) => {
                     ended = true;
                     break;
                 }
-                Some(Ok(m)) => bytes.extend_from_slice(&chunk[..m]),
-                None => break,
+                Ok(Read::Got(m)) => bytes.extend_from_slice(&chunk[..m]),
+                Ok(Read::Late) => break,
             }
         }
         let mut burst: Vec<f64> = Vec::new();

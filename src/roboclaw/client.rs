@@ -10,12 +10,13 @@
 //! [`DEFAULT_BUDGET`] before. A host stalled for less than that costs nothing; only a link
 //! silent past it aborts, and then the controller has stopped by itself.
 
-use super::packet::{self, cmd, ACK, ADDRESSES};
+use super::packet::{self, cmd, ADDRESSES};
+use super::wire::{Job, Timing, Wire, DEVICE_TIME};
+use crate::io::transport::Transport;
 use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
-use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
-use tokio::sync::Mutex;
+use tokio::sync::{mpsc, oneshot};
 
 /// Errors talking to a RoboClaw.
 #[derive(Debug, Clone, thiserror::Error)]
@@ -125,54 +126,48 @@ impl Default for RoboClawConfig {
     }
 }
 
-/// Slack on every answer's wait for a host that is late by a scheduling slice.
-const HOST_SLACK: Duration = Duration::from_millis(20);
-/// Answers failing their CRC this many times end a read: a wrong baud rate or a noisy line.
-const CRC_ATTEMPTS: u32 = 3;
-/// The controller's own answer time (≥ 1 ms at 38400 baud and below, manual).
-const DEVICE_TIME: Duration = Duration::from_millis(2);
-/// The longest a port is drained before a transaction.
-const DRAIN_AT_MOST: Duration = Duration::from_millis(500);
-
-/// What the link has learnt about itself: the adapter's latency and the budget.
-#[derive(Debug)]
-struct Timing {
-    latency_us: AtomicU64,
-    budget_ms: AtomicU64,
-    /// Requests whose answers were not read (they may still arrive).
-    owed: AtomicU32,
-}
-
-trait Port: AsyncRead + AsyncWrite + Unpin + Send {}
-impl<T: AsyncRead + AsyncWrite + Unpin + Send> Port for T {}
-
 /// A connection to one controller; cheap to clone, all clones share the port.
+///
+/// The port belongs to one task that runs one transaction at a time ([`crate::io::transport`]'s
+/// concurrency model): a caller that gives up on its answer (a timeout around it, Ctrl-C) never
+/// cuts a transaction in half, and a transaction whose caller has gone before it starts is
+/// skipped.
 #[derive(Clone)]
 pub struct RoboClaw {
-    port: Arc<Mutex<Box<dyn Port>>>,
+    jobs: mpsc::UnboundedSender<Job>,
     cfg: RoboClawConfig,
     label: Arc<str>,
     timing: Arc<Timing>,
 }
 
 impl RoboClaw {
-    /// Takes a byte stream (serial port, PTY, in-memory duplex); `label` names it in errors.
-    pub fn new<S>(stream: S, cfg: RoboClawConfig, label: &str) -> Result<Self, RoboClawError>
-    where
-        S: AsyncRead + AsyncWrite + Unpin + Send + 'static,
-    {
+    /// Takes a byte stream (serial port, PTY, in-memory [`crate::io::transport::pair`]) and
+    /// spawns the task that owns it (so it needs a Tokio runtime); `label` names it in errors.
+    pub fn new<S: Transport>(
+        stream: S,
+        cfg: RoboClawConfig,
+        label: &str,
+    ) -> Result<Self, RoboClawError> {
         cfg.check().map_err(RoboClawError::InvalidArgument)?;
         let ms = |d: Duration| u64::try_from(d.as_millis()).unwrap_or(u64::MAX);
         let us = |d: Duration| u64::try_from(d.as_micros()).unwrap_or(u64::MAX);
+        let timing = Arc::new(Timing {
+            latency_us: AtomicU64::new(us(cfg.latency)),
+            budget_ms: AtomicU64::new(ms(cfg.budget)),
+            owed: AtomicU32::new(0),
+        });
+        let (jobs, queue) = mpsc::unbounded_channel();
+        let wire = Wire {
+            port: Box::new(stream),
+            cfg,
+            timing: timing.clone(),
+        };
+        tokio::spawn(wire.serve(queue));
         Ok(RoboClaw {
-            port: Arc::new(Mutex::new(Box::new(stream))),
+            jobs,
             cfg,
             label: Arc::from(label),
-            timing: Arc::new(Timing {
-                latency_us: AtomicU64::new(us(cfg.latency)),
-                budget_ms: AtomicU64::new(ms(cfg.budget)),
-                owed: AtomicU32::new(0),
-            }),
+            timing,
         })
     }
 
@@ -197,22 +192,33 @@ impl RoboClaw {
 
     /// The adapter's latency in use (measured, or the configured guess).
     pub fn latency(&self) -> Duration {
-        Duration::from_micros(self.timing.latency_us.load(Ordering::Relaxed))
+        self.timing.latency()
     }
 
     /// How long a repeatable read keeps retrying.
     pub fn budget(&self) -> Duration {
-        Duration::from_millis(self.timing.budget_ms.load(Ordering::Relaxed))
+        self.timing.budget()
     }
 
-    /// How long one attempt waits for an answer of `bytes` bytes in all (request and answer):
-    /// their transmission, the controller's answer time, twice the adapter's latency (there
-    /// and back) and a host's scheduling slice.
-    fn deadline(&self, bytes: usize) -> Duration {
-        crate::io::serial::transmission(bytes, self.cfg.baud)
-            + DEVICE_TIME
-            + 2 * self.latency()
-            + HOST_SLACK
+    /// Hands a transaction to the port's task and awaits its answer.
+    async fn ask<T>(
+        &self,
+        job: impl FnOnce(oneshot::Sender<Result<T, RoboClawError>>) -> Job,
+    ) -> Result<T, RoboClawError> {
+        let (reply, answer) = oneshot::channel();
+        self.jobs.send(job(reply)).map_err(|_| self.gone())?;
+        answer.await.map_err(|_| self.gone())?
+    }
+
+    /// The port's task has ended: its runtime shut down.
+    fn gone(&self) -> RoboClawError {
+        RoboClawError::Io(Arc::new(std::io::Error::new(
+            std::io::ErrorKind::BrokenPipe,
+            format!(
+                "the task that owns {} has ended (its runtime shut down)",
+                self.label
+            ),
+        )))
     }
 
     /// Measures the adapter's latency: the slowest of a few short reads' round trips beyond
@@ -233,136 +239,29 @@ impl RoboClaw {
         Ok(latency)
     }
 
-    /// Discards bytes that arrive within `quiet` of each other — whatever a late answer left
-    /// in the port, or the rest of a broken one — for at most [`DRAIN_AT_MOST`] (a port that
-    /// streams without pause is not waited out).
-    async fn drain(port: &mut Box<dyn Port>, quiet: Duration) {
-        let mut junk = [0u8; 64];
-        let until = tokio::time::Instant::now() + DRAIN_AT_MOST;
-        while let Ok(Ok(n)) = tokio::time::timeout(quiet, port.read(&mut junk)).await {
-            if n == 0 || tokio::time::Instant::now() >= until {
-                break;
-            }
-        }
-    }
-
-    /// Before a transaction: the port cleared of answers still owed to earlier requests (they
-    /// may arrive late: waited for as long as an answer may take), else of stray bytes.
-    async fn settle(&self, port: &mut Box<dyn Port>) {
-        let owed = self.timing.owed.swap(0, Ordering::Relaxed);
-        let quiet = if owed > 0 {
-            self.deadline(8)
-        } else {
-            Duration::from_millis(1)
-        };
-        Self::drain(port, quiet).await;
-    }
-
     /// A read of `len` data bytes (plus CRC), until the budget is spent. A request that gets
     /// no answer in time is sent again, and whichever answer then arrives first is taken: an
     /// answer to a repeatable read is as good late as on time, so a slow controller or a host
     /// that stalls costs a repeat, never the read. Answers are read exactly to their length,
     /// so one never eats into the next.
     pub async fn read(&self, command: u8, len: usize) -> Result<Vec<u8>, RoboClawError> {
-        let after = self.deadline(len + 4);
-        let budget = self.budget();
-        let started = tokio::time::Instant::now();
-        let want = len + 2;
-        let mut port = self.port.lock().await;
-        self.settle(&mut port).await;
-        let (mut sent, mut crc_failures) = (0u32, 0u32);
-        let mut buf: Vec<u8> = Vec::with_capacity(want);
-        let mut resend = true;
-        let mut chunk = [0u8; 64];
-        loop {
-            if resend {
-                port.write_all(&packet::read_frame(self.cfg.address, command))
-                    .await?;
-                port.flush().await?;
-                sent += 1;
-            }
-            let room = (want - buf.len()).min(chunk.len());
-            match tokio::time::timeout(after, port.read(&mut chunk[..room])).await {
-                Ok(Ok(0)) => {
-                    return Err(std::io::Error::from(std::io::ErrorKind::UnexpectedEof).into())
-                }
-                Ok(Ok(n)) => {
-                    buf.extend_from_slice(&chunk[..n]);
-                    resend = false;
-                    if buf.len() < want {
-                        continue;
-                    }
-                    if let Some(data) = packet::check_answer(self.cfg.address, command, &buf) {
-                        let data = data.to_vec();
-                        self.timing.owed.store(sent - 1, Ordering::Relaxed);
-                        return Ok(data);
-                    }
-                    // A broken answer (noise, or the tail of another): start clean.
-                    crc_failures += 1;
-                    if crc_failures >= CRC_ATTEMPTS {
-                        break;
-                    }
-                    Self::drain(&mut port, after).await;
-                    buf.clear();
-                    resend = true;
-                    sent = 0;
-                }
-                Ok(Err(e)) => return Err(e.into()),
-                Err(_) => {
-                    if started.elapsed() + after > budget {
-                        break;
-                    }
-                    // Silence: ask again. A half answer that went silent is broken.
-                    if !buf.is_empty() {
-                        Self::drain(&mut port, after).await;
-                        buf.clear();
-                        sent = 0;
-                    }
-                    resend = true;
-                }
-            }
-        }
-        self.timing.owed.store(sent, Ordering::Relaxed);
-        if crc_failures >= CRC_ATTEMPTS {
-            Err(RoboClawError::Crc {
-                command,
-                attempts: crc_failures,
-            })
-        } else {
-            Err(RoboClawError::Timeout {
-                command,
-                after: started.elapsed(),
-                attempts: sent.max(1),
-            })
-        }
+        self.ask(|reply| Job::Read {
+            command,
+            len,
+            reply,
+        })
+        .await
     }
 
     /// A write, acknowledged once; the caller decides whether repeating it is safe.
     pub async fn write(&self, command: u8, data: &[u8]) -> Result<(), RoboClawError> {
-        let frame = packet::write_frame(self.cfg.address, command, data);
-        let after = self.deadline(frame.len() + 1);
-        let mut port = self.port.lock().await;
-        self.settle(&mut port).await;
-        port.write_all(&frame).await?;
-        port.flush().await?;
-        let mut ack = [0u8; 1];
-        match tokio::time::timeout(after, port.read_exact(&mut ack)).await {
-            Err(_) => {
-                // The acknowledgement may still come: the next transaction waits for it.
-                self.timing.owed.fetch_add(1, Ordering::Relaxed);
-                Err(RoboClawError::Timeout {
-                    command,
-                    after,
-                    attempts: 1,
-                })
-            }
-            Ok(Err(e)) => Err(e.into()),
-            Ok(Ok(_)) if ack[0] == ACK => Ok(()),
-            Ok(Ok(_)) => Err(RoboClawError::Nak {
-                command,
-                got: ack[0],
-            }),
-        }
+        let data = data.to_vec();
+        self.ask(|reply| Job::Write {
+            command,
+            data,
+            reply,
+        })
+        .await
     }
 
     /// A write that is safe to repeat (stop, settings), retried within the budget.
@@ -383,53 +282,7 @@ impl RoboClaw {
     /// Asked at least three times and for the link's budget, so that a host stalled while it
     /// connects does not take a RoboClaw for another device.
     pub async fn version(&self) -> Result<String, RoboClawError> {
-        let after = self.deadline(52);
-        let started = tokio::time::Instant::now();
-        let budget = self.budget();
-        let mut attempts = 0;
-        while attempts < 3 || started.elapsed() < budget {
-            attempts += 1;
-            let mut port = self.port.lock().await;
-            let quiet = if attempts == 1 {
-                Duration::from_millis(1)
-            } else {
-                after
-            };
-            Self::drain(&mut port, quiet).await;
-            port.write_all(&packet::read_frame(self.cfg.address, cmd::READ_VERSION))
-                .await?;
-            port.flush().await?;
-            // Up to 48 characters ending "\n\0", then the CRC.
-            let mut got = Vec::new();
-            let read = tokio::time::timeout(after, async {
-                let mut b = [0u8; 1];
-                loop {
-                    port.read_exact(&mut b).await?;
-                    got.push(b[0]);
-                    if got.ends_with(b"\n\0") || got.len() >= 48 {
-                        break;
-                    }
-                }
-                let mut crc = [0u8; 2];
-                port.read_exact(&mut crc).await?;
-                got.extend_from_slice(&crc);
-                Ok::<_, std::io::Error>(())
-            })
-            .await;
-            if let Ok(Ok(())) = read {
-                if let Some(text) = packet::check_answer(self.cfg.address, cmd::READ_VERSION, &got)
-                {
-                    return Ok(String::from_utf8_lossy(text)
-                        .trim_end_matches(['\0', '\n'])
-                        .to_string());
-                }
-            }
-        }
-        Err(RoboClawError::Timeout {
-            command: cmd::READ_VERSION,
-            after,
-            attempts,
-        })
+        self.ask(|reply| Job::Version { reply }).await
     }
 
     /// Both encoder counters (M1, M2), wrapping 32-bit.

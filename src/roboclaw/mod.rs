@@ -1,10 +1,12 @@
 //! RoboClaw (Basicmicro) motor controllers over packet serial, as a [`crate::base::Drive`].
-//! [`packet`] has the bytes; [`client`] the transactions; [`drive`] the open-loop motions.
+//! [`packet`] has the bytes; [`client`] the transactions (run by the task in `wire.rs` that owns
+//! the port); [`drive`] the open-loop motions.
 
 pub mod client;
 pub mod drive;
 pub mod packet;
 pub mod profile;
+mod wire;
 
 use crate::base::drive_backend::{
     DriveBackend, DriveOpen, DriveStatus, HeadingPart, OpenDrive, StorePart,

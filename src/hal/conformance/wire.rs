@@ -3,6 +3,7 @@
 //! ([`Device::adapt`]: speeds capped, long motions shortened).
 
 use super::*;
+use crate::io::transport::{self, Deadline, Read};
 
 /// The port's frames, one request at a time.
 pub(super) struct Wire<S> {
@@ -27,14 +28,14 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Wire<S> {
                 return Ok(Some(f));
             }
             let mut chunk = [0u8; 512];
-            match tokio::time::timeout_at(until, self.stream.read(&mut chunk)).await {
-                Err(_) => return Ok(None),
-                Ok(Ok(0)) => return Err(std::io::ErrorKind::UnexpectedEof.into()),
-                Ok(Ok(n)) => {
+            match transport::read_some_by(&mut self.stream, &mut chunk, Deadline::at(until)).await?
+            {
+                Read::Late => return Ok(None),
+                Read::Closed => return Err(std::io::ErrorKind::UnexpectedEof.into()),
+                Read::Got(n) => {
                     let frames = self.codec.feed(&mut self.buf, &chunk[..n]);
                     self.pending.extend(frames);
                 }
-                Ok(Err(e)) => return Err(e),
             }
         }
     }
@@ -59,8 +60,9 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Wire<S> {
         };
         let mut events = Vec::new();
         for _ in 0..2 {
-            self.stream.write_all(bytes).await?;
-            self.stream.flush().await?;
+            // Whatever the baud, a frame is sent well within the wait for its answer.
+            let by = Deadline::after(transport::WRITE_SLACK + ANSWER_TIMEOUT);
+            transport::write_all_by(&mut self.stream, bytes, by).await?;
             let until = Instant::now() + ANSWER_TIMEOUT;
             while let Some(f) = self.next(until).await? {
                 match f.kind {
