@@ -277,12 +277,19 @@ fn clocks_are_aligned_and_squares_found_in_one_place_each() {
 }
 
 /// Protocol clients read and write their byte stream through `io::transport`'s helpers, each
-/// with a deadline (a read that is late, a stream that ended and an error told apart): no
-/// client wraps a read in a timeout of its own. The mocks (the far end of a link) are exempt.
+/// with a deadline (a read that is late, a stream that ended and an error told apart): outside
+/// `io/transport.rs` no code imports the extension traits that read or write a stream (named,
+/// or through a glob of `tokio::io`). The mocks (the far end of a link) are exempt.
 #[test]
 fn protocol_clients_use_the_transport_and_its_deadlines() {
     let sources = sources();
-    for needle in ["AsyncReadExt", "AsyncWriteExt", "AsyncBufReadExt"] {
+    for needle in [
+        "AsyncReadExt",
+        "AsyncWriteExt",
+        "AsyncBufReadExt",
+        "tokio::io::*",
+        "tokio::io::{*",
+    ] {
         let outside: Vec<String> = files_with(&sources, needle)
             .into_iter()
             .filter(|f| f != "src/io/transport.rs" && !f.starts_with("src/mock/"))

@@ -554,3 +554,85 @@ async fn a_caller_that_gives_up_never_cuts_a_transaction_in_half() {
     let seen = peer.await.unwrap();
     assert_eq!(seen, vec![cmd::DRIVE_SPEEDS, cmd::READ_MAIN_BATTERY]);
 }
+
+/// `odocal status` on a port where another device talks (an NMEA compass: the wrong device on
+/// the port) says that no RoboClaw answered the version request and what may be wrong, instead
+/// of a bare timeout or a misread answer.
+#[tokio::test]
+async fn status_on_a_port_where_another_device_talks_says_it_is_not_a_roboclaw() {
+    use odocal::spec::DriveSpec;
+    let compass = odocal::mock::pty::spawn_on_pty::<()>(Box::new(|master| {
+        Box::pin(async move {
+            use tokio::io::AsyncWriteExt;
+            loop {
+                master.write_all(b"$HEHDT,123.4,T*2D\r\n").await?;
+                tokio::time::sleep(Duration::from_millis(20)).await;
+            }
+        })
+    }))
+    .unwrap();
+    let drive: DriveSpec = format!("roboclaw:{}", compass.path).parse().unwrap();
+    let err = drive
+        .status()
+        .await
+        .expect_err("a compass taken for a RoboClaw");
+    let text = err.to_string();
+    assert!(text.contains("no answer to the version request"), "{text}");
+    assert!(
+        text.contains("not a RoboClaw, or the wrong baud or address"),
+        "{text}"
+    );
+    assert!(text.contains(&compass.path), "{text}");
+}
+
+/// A caller that gives up on a read the controller never answers (its transmit line broken,
+/// say) does not hold the port for the read's whole budget: the read ends after the attempt
+/// under way, and the stop that follows goes out at once.
+#[tokio::test(start_paused = true)]
+async fn a_stop_after_an_abandoned_read_does_not_wait_out_the_read() {
+    use odocal::io::transport::{self, Deadline, Read};
+    use odocal::roboclaw::packet::{cmd, ACK};
+    let (host, mut dev) = transport::pair(256);
+    let claw = RoboClaw::new(host, RoboClawConfig::default(), "pair").unwrap();
+    let peer = tokio::spawn(async move {
+        let mut seen = Vec::new();
+        let mut head = [0u8; 2];
+        let quiet = || Deadline::after(Duration::from_secs(2));
+        while let Ok(Read::Got(_)) = transport::read_exact_by(&mut dev, &mut head, quiet()).await {
+            seen.push(head[1]);
+            // Reads go unanswered; the stop (8 data bytes and the CRC) is acknowledged.
+            if head[1] == cmd::DRIVE_SPEEDS {
+                let mut rest = [0u8; 10];
+                let got = transport::read_exact_by(&mut dev, &mut rest, quiet()).await;
+                assert_eq!(got.unwrap(), Read::Got(10));
+                transport::write_all_by(&mut dev, &[ACK], Deadline::never())
+                    .await
+                    .unwrap();
+            }
+        }
+        seen
+    });
+    let started = tokio::time::Instant::now();
+    let read = tokio::time::timeout(Duration::from_millis(100), claw.battery_v()).await;
+    assert!(read.is_err(), "a read nobody answers came back");
+    assert!(
+        claw.budget() >= Duration::from_secs(1),
+        "{:?}",
+        claw.budget()
+    );
+    let stopped = tokio::time::timeout(Duration::from_millis(300), claw.stop()).await;
+    assert!(
+        matches!(stopped, Ok(Ok(()))),
+        "the stop waited behind the read"
+    );
+    let took = started.elapsed();
+    assert!(took < Duration::from_millis(400), "{took:?}");
+    drop(claw);
+    let seen = peer.await.unwrap();
+    let (stop, reads) = seen.split_last().unwrap();
+    assert_eq!(*stop, cmd::DRIVE_SPEEDS, "{seen:?}");
+    assert!(
+        (2..=3).contains(&reads.len()) && reads.iter().all(|c| *c == cmd::READ_MAIN_BATTERY),
+        "the read is asked again until its caller goes, then no more: {seen:?}"
+    );
+}

@@ -211,6 +211,7 @@ impl Link {
                 }
                 read = transport::read_some_by(&mut rd, &mut chunk, deadline) => match read {
                     Ok(Read::Closed) => st.closed = Some(LinkError::Closed),
+                    Err(e) if gone(&e) => st.closed = Some(LinkError::Closed),
                     Err(e) => st.closed = Some(e.into()),
                     Ok(Read::Got(n)) => {
                         for frame in codec.feed(&mut buf, &chunk[..n]) {
@@ -553,7 +554,7 @@ async fn write<W: AsyncWrite + Unpin>(
     }
 }
 
-/// Whether a write failed because the other end has gone (unplugged, closed).
+/// Whether a read or write failed because the other end has gone (unplugged, closed).
 fn gone(e: &std::io::Error) -> bool {
     use std::io::ErrorKind::{BrokenPipe, ConnectionAborted, ConnectionReset};
     matches!(e.kind(), BrokenPipe | ConnectionReset | ConnectionAborted)

@@ -235,7 +235,7 @@ pub struct Client {
     released: watch::Receiver<bool>,
 }
 
-/// Opens a serial port by path (the only place that names `tokio_serial`) and connects.
+/// Opens a serial port by path (through [`crate::io::serial::open`]) and connects.
 pub async fn open_port(path: &str, baud: u32) -> Result<(Client, DeviceInfo), HalError> {
     // Deadlines are computed from the baud rate: 0 (or a typo) would make them hours long.
     if !BAUD_RANGE.contains(&baud) {

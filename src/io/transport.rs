@@ -6,12 +6,15 @@
 //! one end of the in-memory [`pair`] its tests use. Rosbridge's WebSocket runs over one as
 //! well (`RosbridgeClient::connect_stream`).
 //!
-//! **Deadlines.** No client reads or writes without a [`Deadline`]: [`read_some_by`],
+//! **Deadlines.** No serial client (the HAL, the RoboClaw, the NMEA compass, conformance)
+//! reads or writes but through these helpers, each by a [`Deadline`]: [`read_some_by`],
 //! [`read_exact_by`] and [`write_all_by`] tell a deadline that passed ([`Read::Late`], or an
 //! error of kind `TimedOut` for a write) from a stream that ended ([`Read::Closed`]) and from
 //! an I/O error, so a client decides what each means for its protocol (ask again, give up,
 //! report the device gone) instead of each wrapping its own `tokio::time::timeout`. A write
 //! has a deadline too: a USB adapter whose device vanished can block a write for good.
+//! (Rosbridge's bytes are the WebSocket library's: its client waits on messages, and its
+//! handshake has one timeout, in `ros::rosbridge`.)
 //!
 //! **One concurrency model.** A link's transport belongs to the task(s) its client spawns,
 //! never to a lock its callers share: the HAL's link task and the RoboClaw's transaction task
@@ -19,7 +22,8 @@
 //! the NMEA compass's reader task and rosbridge's reader and writer tasks (what arrives unasked
 //! is published through `watch`/`broadcast` channels, [`crate::base::latest`]). So a caller
 //! whose future is dropped mid-request (a timeout around `stop()`, Ctrl-C) never cuts an
-//! exchange in half: the task finishes it and the answer is dropped. The channels are
+//! exchange in half: the task finishes the exchange under way and drops the answer. The
+//! channels are
 //! unbounded because each caller awaits its own answer (the queue holds at most one request
 //! per caller) and because a stop sent from `Drop`, which cannot wait, must never be refused
 //! for a full queue.
@@ -311,7 +315,7 @@ mod tests {
     }
 
     #[test]
-    fn deadlines_order_and_never_waits_for_nothing() {
+    fn deadlines_order_and_tell_when_they_have_passed() {
         let soon = Deadline::at(Instant::now() + Duration::from_secs(1));
         let later = Deadline::at(Instant::now() + Duration::from_secs(5));
         assert_eq!(soon.min(later), soon);

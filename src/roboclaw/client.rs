@@ -130,8 +130,8 @@ impl Default for RoboClawConfig {
 ///
 /// The port belongs to one task that runs one transaction at a time ([`crate::io::transport`]'s
 /// concurrency model): a caller that gives up on its answer (a timeout around it, Ctrl-C) never
-/// cuts a transaction in half, and a transaction whose caller has gone before it starts is
-/// skipped.
+/// cuts a transaction in half; a transaction whose caller has gone before it starts is
+/// skipped, and one under way ends after its current attempt.
 #[derive(Clone)]
 pub struct RoboClaw {
     jobs: mpsc::UnboundedSender<Job>,
@@ -162,7 +162,12 @@ impl RoboClaw {
             cfg,
             timing: timing.clone(),
         };
-        tokio::spawn(wire.serve(queue));
+        let runtime = tokio::runtime::Handle::try_current().map_err(|_| {
+            RoboClawError::Io(Arc::new(std::io::Error::other(
+                "a RoboClaw client needs a Tokio runtime to run its port's task in",
+            )))
+        })?;
+        runtime.spawn(wire.serve(queue));
         Ok(RoboClaw {
             jobs,
             cfg,

@@ -67,7 +67,10 @@ pub(super) struct Wire {
 
 impl Wire {
     /// Runs the transactions asked for, in order, until every handle is dropped. One whose
-    /// caller has already gone is skipped; one started is finished, its answer dropped.
+    /// caller has already gone is skipped; one whose caller goes while it runs ends after the
+    /// attempt under way (never in the middle of one), so that what the caller does next — a
+    /// stop, above all — does not wait out a read's whole budget on a controller that has
+    /// stopped answering.
     pub(super) async fn serve(mut self, mut jobs: mpsc::UnboundedReceiver<Job>) {
         while let Some(job) = jobs.recv().await {
             match job {
@@ -77,7 +80,8 @@ impl Wire {
                     reply,
                 } => {
                     if !reply.is_closed() {
-                        let _ = reply.send(self.read(command, len).await);
+                        let answer = self.read(command, len, &|| reply.is_closed()).await;
+                        let _ = reply.send(answer);
                     }
                 }
                 Job::Write {
@@ -91,7 +95,8 @@ impl Wire {
                 }
                 Job::Version { reply } => {
                     if !reply.is_closed() {
-                        let _ = reply.send(self.version().await);
+                        let answer = self.version(&|| reply.is_closed()).await;
+                        let _ = reply.send(answer);
                     }
                 }
             }
@@ -133,8 +138,13 @@ impl Wire {
         self.drain(quiet).await;
     }
 
-    /// [`super::client::RoboClaw::read`]'s transaction.
-    async fn read(&mut self, command: u8, len: usize) -> Result<Vec<u8>, RoboClawError> {
+    /// [`super::client::RoboClaw::read`]'s transaction; it asks no more once `gone()`.
+    async fn read(
+        &mut self,
+        command: u8,
+        len: usize,
+        gone: &(dyn Fn() -> bool + Sync),
+    ) -> Result<Vec<u8>, RoboClawError> {
         let after = self.deadline(len + 4);
         let budget = self.timing.budget();
         let started = tokio::time::Instant::now();
@@ -178,7 +188,7 @@ impl Wire {
                     sent = 0;
                 }
                 Read::Late => {
-                    if started.elapsed() + after > budget {
+                    if started.elapsed() + after > budget || gone() {
                         break;
                     }
                     // Silence: ask again. A half answer that went silent is broken.
@@ -232,13 +242,13 @@ impl Wire {
         }
     }
 
-    /// [`super::client::RoboClaw::version`]'s transaction.
-    async fn version(&mut self) -> Result<String, RoboClawError> {
+    /// [`super::client::RoboClaw::version`]'s transaction; it asks no more once `gone()`.
+    async fn version(&mut self, gone: &(dyn Fn() -> bool + Sync)) -> Result<String, RoboClawError> {
         let after = self.deadline(52);
         let started = tokio::time::Instant::now();
         let budget = self.timing.budget();
         let mut attempts = 0;
-        while attempts < 3 || started.elapsed() < budget {
+        while (attempts < 3 || started.elapsed() < budget) && !(attempts > 0 && gone()) {
             attempts += 1;
             let quiet = if attempts == 1 {
                 Duration::from_millis(1)

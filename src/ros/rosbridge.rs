@@ -146,7 +146,7 @@ impl RosbridgeClient {
         timeout: Duration,
     ) -> Result<Self, RosbridgeError>
     where
-        S: tokio::io::AsyncRead + tokio::io::AsyncWrite + Unpin + Send + 'static,
+        S: crate::io::transport::Transport,
     {
         let handshake = tokio_tungstenite::client_async("ws://localhost/", stream);
         let (stream, _) = tokio::time::timeout(timeout, handshake)
@@ -433,5 +433,51 @@ mod tests {
             Some(&mut d),
         );
         assert_eq!(lock(&foreign).0, 1);
+    }
+
+    /// What answers a byte stream instead of a WebSocket server is named: a web server
+    /// (HTTP 200, no upgrade), a device that talks something else (an NMEA compass on the
+    /// port), and a peer that says nothing (within the timeout).
+    #[tokio::test]
+    async fn a_stream_that_is_not_a_websocket_is_refused_by_name() {
+        use crate::io::transport::{self, Deadline};
+        async fn answered(with: &'static [u8]) -> RosbridgeError {
+            let (client, mut server) = transport::pair(4096);
+            let peer = tokio::spawn(async move {
+                // Waits for the request to end, then answers and hangs up.
+                let mut request = Vec::new();
+                let mut chunk = [0u8; 512];
+                while !request.ends_with(b"\r\n\r\n") {
+                    let by = Deadline::after(Duration::from_secs(5));
+                    match transport::read_some_by(&mut server, &mut chunk, by).await {
+                        Ok(transport::Read::Got(n)) => request.extend_from_slice(&chunk[..n]),
+                        _ => break,
+                    }
+                }
+                let _ = transport::write_all_by(&mut server, with, Deadline::never()).await;
+                request
+            });
+            let err = RosbridgeClient::connect_stream(client, "test", Duration::from_secs(5))
+                .await
+                .err()
+                .expect("connected to a peer that is not a WebSocket server");
+            let request = peer.await.unwrap();
+            assert!(request.starts_with(b"GET / HTTP/1.1\r\n"), "{request:?}");
+            err
+        }
+        let web = answered(b"HTTP/1.1 200 OK\r\nContent-Length: 0\r\n\r\n").await;
+        let text = web.to_string();
+        assert!(matches!(web, RosbridgeError::Connect { .. }), "{text}");
+        assert!(text.contains("HTTP 200 OK instead of upgrading"), "{text}");
+        assert!(text.contains("not a rosbridge server"), "{text}");
+        let compass = answered(b"$HEHDT,123.4,T*2D\r\n$HEHDT,123.5,T*2C\r\n").await;
+        let text = compass.to_string();
+        assert!(text.contains("did not accept a WebSocket"), "{text}");
+        assert!(text.contains("not a rosbridge server"), "{text}");
+        let (client, _silent) = transport::pair(4096);
+        let timeout = Duration::from_millis(200);
+        let silent = RosbridgeClient::connect_stream(client, "test", timeout).await;
+        let text = silent.err().expect("a silent peer").to_string();
+        assert!(text.contains("no answer within"), "{text}");
     }
 }

@@ -1033,4 +1033,24 @@ mod tests {
         assert!(e.contains("not a parameter store: give drive"), "{e}");
         assert!(e.contains("profile:PATH"), "{e}");
     }
+
+    /// `odocal status` of a drive without a controller to ask (the simulator, a ROS robot) is
+    /// refused before anything connects, naming the drives that have one.
+    #[tokio::test]
+    async fn status_of_a_drive_without_a_controller_is_refused_by_name() {
+        for text in ["mock", "rosbridge://127.0.0.1:9"] {
+            let drive: DriveSpec = text.parse().unwrap();
+            match drive.status().await {
+                Err(SpecError::Combination(e)) => {
+                    assert!(
+                        e.contains("`odocal status` talks to a motor controller"),
+                        "{e}"
+                    );
+                    assert!(e.contains("roboclaw:PORT"), "{e}");
+                }
+                Err(other) => panic!("{text}: another error: {other}"),
+                Ok(_) => panic!("{text}: a status without a controller"),
+            }
+        }
+    }
 }

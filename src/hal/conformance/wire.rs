@@ -60,8 +60,9 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Wire<S> {
         };
         let mut events = Vec::new();
         for _ in 0..2 {
-            // Whatever the baud, a frame is sent well within the wait for its answer.
-            let by = Deadline::after(transport::WRITE_SLACK + ANSWER_TIMEOUT);
+            // The wire does not know the baud: the deadline is the frame's at the slowest a
+            // port may run (crate::hal::BAUD_RANGE), for a port that takes nothing is gone.
+            let by = transport::write_deadline(bytes.len(), *crate::hal::BAUD_RANGE.start());
             transport::write_all_by(&mut self.stream, bytes, by).await?;
             let until = Instant::now() + ANSWER_TIMEOUT;
             while let Some(f) = self.next(until).await? {

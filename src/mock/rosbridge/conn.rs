@@ -13,6 +13,7 @@
 
 use super::services::{call_service, topic_types};
 use super::{lock, MockRosConfig, MockRosState, Outgoing};
+use crate::io::transport::BoxTransport;
 use crate::ros::fragment::{self, Defragmenter};
 use crate::ros::msg::{types, Twist, TwistStamped};
 use futures_util::stream::SplitSink;
@@ -26,12 +27,9 @@ use tokio::time::Instant;
 use tokio_tungstenite::tungstenite::Message;
 use tokio_tungstenite::WebSocketStream;
 
-/// The bytes a client is served over: a TCP socket, or one end of an in-memory duplex
-/// ([`super::MockRosbridge::connect_in_memory`]).
-pub(super) trait Wire: tokio::io::AsyncRead + tokio::io::AsyncWrite + Unpin + Send {}
-impl<T: tokio::io::AsyncRead + tokio::io::AsyncWrite + Unpin + Send> Wire for T {}
-
-type Sink = SplitSink<WebSocketStream<Box<dyn Wire>>, Message>;
+/// A client's WebSocket, over the bytes it is served on: a TCP socket, or one end of an
+/// in-memory [`crate::io::transport::pair`] ([`super::MockRosbridge::connect_in_memory`]).
+type Sink = SplitSink<WebSocketStream<BoxTransport>, Message>;
 
 /// Status levels, most severe first: a client hears those at or above its level.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
@@ -146,7 +144,7 @@ pub(super) fn canonical_type(t: &str) -> String {
 
 /// Serves one client until it closes or the server vanishes.
 pub(super) async fn serve(
-    wire: Box<dyn Wire>,
+    wire: BoxTransport,
     cfg: MockRosConfig,
     state: Arc<Mutex<MockRosState>>,
     mut topics: broadcast::Receiver<Outgoing>,

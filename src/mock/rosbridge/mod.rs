@@ -243,6 +243,23 @@ fn lock(s: &Mutex<MockRosState>) -> MutexGuard<'_, MockRosState> {
     s.lock().unwrap_or_else(|p| p.into_inner())
 }
 
+/// Serves one client's connection (a TCP stream or an in-memory one) in a task of its own,
+/// kept with the others so that the mock ends them all when it ends.
+fn serve_connection(
+    wire: crate::io::transport::BoxTransport,
+    cfg: &MockRosConfig,
+    state: &Arc<Mutex<MockRosState>>,
+    out: &broadcast::Sender<Outgoing>,
+    connections: &Mutex<Vec<JoinHandle<()>>>,
+) {
+    let serve = conn::serve(wire, cfg.clone(), state.clone(), out.subscribe());
+    let task = tokio::spawn(serve);
+    connections
+        .lock()
+        .unwrap_or_else(|p| p.into_inner())
+        .push(task);
+}
+
 impl MockRosbridge {
     /// Serves on `addr` (use port 0 for any free loopback port).
     pub async fn spawn(cfg: MockRosConfig, addr: SocketAddr) -> std::io::Result<Self> {
@@ -281,11 +298,7 @@ impl MockRosbridge {
         let (st, conns, topics, c) = (state.clone(), connections.clone(), out.clone(), cfg.clone());
         let listener = tokio::spawn(async move {
             while let Ok((tcp, _)) = listener.accept().await {
-                let serve = conn::serve(Box::new(tcp), c.clone(), st.clone(), topics.subscribe());
-                conns
-                    .lock()
-                    .unwrap_or_else(|p| p.into_inner())
-                    .push(tokio::spawn(serve));
+                serve_connection(Box::new(tcp), &c, &st, &topics, &conns);
             }
         });
         Ok(MockRosbridge {
@@ -303,11 +316,9 @@ impl MockRosbridge {
     /// as a TCP client is, WebSocket handshake and all
     /// ([`crate::ros::rosbridge::RosbridgeClient::connect_stream`] takes it).
     pub fn connect_in_memory(&self) -> tokio::io::DuplexStream {
-        let (client, server) = tokio::io::duplex(1 << 16);
-        let (cfg, state) = (self.cfg.clone(), self.state.clone());
-        let serve = conn::serve(Box::new(server), cfg, state, self.out.subscribe());
-        let mut connections = self.connections.lock().unwrap_or_else(|p| p.into_inner());
-        connections.push(tokio::spawn(serve));
+        let (client, server) = crate::io::transport::pair(1 << 16);
+        let (cfg, state, out) = (&self.cfg, &self.state, &self.out);
+        serve_connection(Box::new(server), cfg, state, out, &self.connections);
         client
     }
 
