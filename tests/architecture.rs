@@ -278,8 +278,8 @@ fn clocks_are_aligned_and_squares_found_in_one_place_each() {
 
 /// Protocol clients read and write their byte stream through `io::transport`'s helpers, each
 /// with a deadline (a read that is late, a stream that ended and an error told apart): outside
-/// `io/transport.rs` no code imports the extension traits that read or write a stream (named,
-/// or through a glob of `tokio::io`). The mocks (the far end of a link) are exempt.
+/// `io/transport.rs` no code imports the extension traits that read or write a stream (by
+/// name, or through `tokio::io::*` or a `tokio::io::{…, *}` group). The mocks (the far end of a link) are exempt.
 #[test]
 fn protocol_clients_use_the_transport_and_its_deadlines() {
     let sources = sources();
@@ -288,7 +288,6 @@ fn protocol_clients_use_the_transport_and_its_deadlines() {
         "AsyncWriteExt",
         "AsyncBufReadExt",
         "tokio::io::*",
-        "tokio::io::{*",
     ] {
         let outside: Vec<String> = files_with(&sources, needle)
             .into_iter()
@@ -300,6 +299,23 @@ fn protocol_clients_use_the_transport_and_its_deadlines() {
              read and write through io::transport's read_some_by, read_exact_by, write_all_by"
         );
     }
+    // A group with a glob (`use tokio::io::{self, *};`) brings them in unnamed too.
+    let globbed: Vec<String> = sources
+        .iter()
+        .filter(|(p, _)| {
+            let f = p.display().to_string();
+            f != "src/io/transport.rs" && !f.starts_with("src/mock/")
+        })
+        .flat_map(|(p, code)| {
+            code.lines()
+                .filter(|l| l.contains("tokio::io::{") && l.contains('*'))
+                .map(move |l| format!("{}: {}", p.display(), l.trim()))
+        })
+        .collect();
+    assert!(
+        globbed.is_empty(),
+        "a glob of tokio::io outside src/io/transport.rs: {globbed:?}"
+    );
 }
 
 /// A drive, a heading source and a store are each one module plus one line in

@@ -7,7 +7,9 @@
 //! well (`RosbridgeClient::connect_stream`).
 //!
 //! **Deadlines.** No serial client (the HAL, the RoboClaw, the NMEA compass, conformance)
-//! reads or writes but through these helpers, each by a [`Deadline`]: [`read_some_by`],
+//! reads or writes but through these helpers, and none waits without a [`Deadline`] except
+//! the compass's reader, which waits on nothing else (a compass talks when it will):
+//! [`read_some_by`],
 //! [`read_exact_by`] and [`write_all_by`] tell a deadline that passed ([`Read::Late`], or an
 //! error of kind `TimedOut` for a write) from a stream that ended ([`Read::Closed`]) and from
 //! an I/O error, so a client decides what each means for its protocol (ask again, give up,

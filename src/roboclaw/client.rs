@@ -126,6 +126,15 @@ impl Default for RoboClawConfig {
     }
 }
 
+/// The Tokio runtime a client's port task runs in; an error outside one.
+fn runtime() -> Result<tokio::runtime::Handle, RoboClawError> {
+    tokio::runtime::Handle::try_current().map_err(|_| {
+        RoboClawError::Io(Arc::new(std::io::Error::other(
+            "a RoboClaw client needs a Tokio runtime to run its port's task in",
+        )))
+    })
+}
+
 /// A connection to one controller; cheap to clone, all clones share the port.
 ///
 /// The port belongs to one task that runs one transaction at a time ([`crate::io::transport`]'s
@@ -162,12 +171,7 @@ impl RoboClaw {
             cfg,
             timing: timing.clone(),
         };
-        let runtime = tokio::runtime::Handle::try_current().map_err(|_| {
-            RoboClawError::Io(Arc::new(std::io::Error::other(
-                "a RoboClaw client needs a Tokio runtime to run its port's task in",
-            )))
-        })?;
-        runtime.spawn(wire.serve(queue));
+        runtime()?.spawn(wire.serve(queue));
         Ok(RoboClaw {
             jobs,
             cfg,
@@ -178,6 +182,8 @@ impl RoboClaw {
 
     /// Opens a serial port by path.
     pub fn open(path: &str, cfg: RoboClawConfig) -> Result<Self, RoboClawError> {
+        // Registering the port needs the runtime too: refuse before opening it.
+        runtime()?;
         let port = crate::io::serial::open(path, cfg.baud).map_err(|e| RoboClawError::Open {
             path: path.into(),
             source: Arc::new(e),
@@ -284,8 +290,8 @@ impl RoboClaw {
     }
 
     /// The firmware version string (the handshake: a RoboClaw answers it, others do not).
-    /// Asked at least three times and for the link's budget, so that a host stalled while it
-    /// connects does not take a RoboClaw for another device.
+    /// Asked at least three times and for the link's budget (unless the caller gives up), so
+    /// that a host stalled while it connects does not take a RoboClaw for another device.
     pub async fn version(&self) -> Result<String, RoboClawError> {
         self.ask(|reply| Job::Version { reply }).await
     }

@@ -267,6 +267,8 @@ impl Wire {
                 }
             }
         }
+        // The last request's answer may still come: the next transaction waits for it.
+        self.timing.owed.store(1, Ordering::Relaxed);
         Err(RoboClawError::Timeout {
             command: cmd::READ_VERSION,
             after,
