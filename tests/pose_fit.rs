@@ -749,3 +749,432 @@ fn the_online_filter_refuses_a_chained_or_position_only_reference_by_name() {
         assert!(tracker.started_from.is_none());
     }
 }
+
+/// The default drive with the truth 3 % off the nominal, and what the simulator knows of it.
+fn three_percent_off() -> odocal::sim::driving::SimulatedDrive {
+    simulate_drive(&DrivingConfig {
+        truth: Geometry {
+            left_diameter_m: 0.103,
+            right_diameter_m: 0.1025,
+            wheelbase_m: 0.309,
+        },
+        seed: 11,
+        ..DrivingConfig::default()
+    })
+    .expect("simulates")
+}
+
+/// A reference built from the drive's wheels as robots build them: every fifth wheel sample,
+/// stamped `late_s` after it, seen through a fixed frame (`map → odom` standing still), its
+/// positions from the wheels at the nominal geometry and its heading from `heading` (the
+/// wheels' own, or a gyro's: the true heading).
+fn wheel_made(
+    sim: &odocal::sim::driving::SimulatedDrive,
+    late_s: f64,
+    gyro: bool,
+) -> PoseRecording {
+    use odocal::calibration::pose_reference::{Odometry, ReferencePose};
+    let rec = &sim.recording;
+    let odo = Odometry::integrate(&rec.wheels, NOMINAL);
+    let poses = odo.poses();
+    let (mut x, mut y) = (0.0f64, 0.0f64);
+    let mut out = rec.clone();
+    out.poses.clear();
+    let (ox, oy, oyaw) = (3.0, -2.0, 0.7f64);
+    for i in 0..rec.wheels.len() {
+        let heading = |k: usize| {
+            if gyro {
+                sim.true_path[k].1.theta
+            } else {
+                poses[k].theta
+            }
+        };
+        if i > 0 {
+            // The wheels' distance along the heading, as a filter integrates it.
+            let (dx, dy) = (poses[i].x - poses[i - 1].x, poses[i].y - poses[i - 1].y);
+            let forward = dx * poses[i - 1].theta.cos() + dy * poses[i - 1].theta.sin();
+            let ds = dx.hypot(dy).copysign(forward);
+            let mid = 0.5 * (heading(i) + heading(i - 1));
+            x += ds * mid.cos();
+            y += ds * mid.sin();
+        }
+        if i % 5 == 0 {
+            let (c, s) = (oyaw.cos(), oyaw.sin());
+            out.poses.push(ReferencePose {
+                time_s: rec.wheels[i].time_s + late_s,
+                x_m: ox + c * x - s * y,
+                y_m: oy + s * x + c * y,
+                yaw_rad: Some(odocal::kinematics::wrap_angle(heading(i) + oyaw)),
+                stated_std: None,
+            });
+        }
+    }
+    out
+}
+
+fn calibrate_one(rec: PoseRecording) -> Result<PoseCalibration, CalibrationError> {
+    calibrate_from_poses(&[("drive".into(), rec)], &FitConfig::full(NOMINAL))
+}
+
+/// Issue 46: the controller's own odometry (on time, 40 ms late, without its heading) and a
+/// filter that fuses the wheels with a gyro are named for what they are, never fitted; the
+/// same drive against an independent reference is fitted.
+#[test]
+fn a_reference_made_from_the_wheels_is_named_never_fitted() {
+    let sim = three_percent_off();
+    for late_s in [0.0, 0.04] {
+        let err = calibrate_one(wheel_made(&sim, late_s, false)).expect_err("refused");
+        let text = err.to_string();
+        assert!(
+            matches!(err, CalibrationError::ReferenceFromWheels(_)),
+            "{late_s} s late: {text}"
+        );
+        assert!(text.contains("wheels' own odometry"), "{text}");
+        assert!(text.contains("/amcl_pose"), "{text}");
+    }
+    let mut no_heading = wheel_made(&sim, 0.0, false);
+    for p in &mut no_heading.poses {
+        p.yaw_rad = None;
+    }
+    let err = calibrate_one(no_heading).expect_err("refused");
+    assert!(
+        matches!(err, CalibrationError::ReferenceFromWheels(_)),
+        "{err}"
+    );
+    let fused = calibrate_one(wheel_made(&sim, 0.0, true)).expect_err("refused");
+    let text = fused.to_string();
+    assert!(
+        matches!(fused, CalibrationError::ReferenceFromWheels(_)),
+        "{text}"
+    );
+    assert!(
+        text.contains("gyro") && text.contains("E_d and E_b"),
+        "{text}"
+    );
+    // Live: the online filter's start refuses the controller's odometry by the same test.
+    {
+        use odocal::calibration::online::{OnlineConfig, ScaleSource};
+        use odocal::calibration::recording::Recording;
+        use odocal::calibration::tracker::Tracker;
+        use odocal::kinematics::WheelParams;
+        let configured = WheelParams::nominal(NOMINAL.left_diameter_m, NOMINAL.wheelbase_m, 4096.0);
+        let mut tracker =
+            Tracker::new(OnlineConfig::new(configured), ScaleSource::Filter, 1.0).expect("filter");
+        let own = wheel_made(&sim, 0.06, false);
+        tracker.feed_recording("odom", &Recording::of_pose_recording(&own, NOMINAL));
+        let err = tracker.estimate().expect_err("refused").to_string();
+        assert!(err.contains("wheels' own odometry"), "{err}");
+        assert!(tracker.started_from.is_none());
+    }
+    let fit = calibrate_one(sim.recording.clone()).expect("an independent reference fits");
+    assert_eq!(
+        fit.recordings[0].independence.source,
+        odocal::calibration::independence::ReferenceSource::Independent
+    );
+}
+
+/// A heading made from the wheels beside independent positions (wheels fused with GNSS): the
+/// yaw is left out, the positions alone fitted, and the truth is within the stated errors.
+#[test]
+fn a_heading_from_the_wheels_is_left_out_and_the_positions_fitted() {
+    let sim = three_percent_off();
+    let own = wheel_made(&sim, 0.06, false);
+    let mut rec = sim.recording.clone();
+    for (p, o) in rec.poses.iter_mut().zip(&own.poses) {
+        p.yaw_rad = o.yaw_rad;
+    }
+    let calibration = calibrate_one(rec).expect("fits the positions");
+    let fit = calibration.recordings[0].fit.as_ref().expect("fitted");
+    assert!(
+        fit.warnings.iter().any(|w| w.contains("yaw is left out")),
+        "{:?}",
+        fit.warnings
+    );
+    assert!(fit.residual_std_yaw_rad.is_none(), "fitted without yaw");
+    for (p, truth) in [
+        (Param::LeftDiameter, sim.truth.left_diameter_m),
+        (Param::RightDiameter, sim.truth.right_diameter_m),
+        (Param::Wheelbase, sim.truth.wheelbase_m),
+    ] {
+        let (v, s) = (fit.value(p), fit.std(p).expect("fitted"));
+        assert!(
+            (v - truth).abs() < 4.0 * s,
+            "{}: {v} vs {truth} ± {s}",
+            p.name()
+        );
+    }
+}
+
+/// Issue 46: a unit or a sign the model does not take is refused by name, with what to do.
+#[test]
+fn units_and_signs_are_named() {
+    let sim = three_percent_off();
+    let refused = |edit: &dyn Fn(&mut PoseRecording), nominal: Geometry| {
+        let mut rec = sim.recording.clone();
+        edit(&mut rec);
+        calibrate_from_poses(&[("drive".into(), rec)], &FitConfig::full(nominal))
+            .expect_err("refused")
+            .to_string()
+    };
+    let positions = |k: f64| {
+        move |r: &mut PoseRecording| {
+            for p in &mut r.poses {
+                p.x_m *= k;
+                p.y_m *= k;
+            }
+        }
+    };
+    let wheels = |k: f64| {
+        move |r: &mut PoseRecording| {
+            for w in &mut r.wheels {
+                w.left_rad *= k;
+                w.right_rad *= k;
+            }
+        }
+    };
+    for (edit, nominal, expect) in [
+        (
+            Box::new(positions(1000.0)) as Box<dyn Fn(&mut PoseRecording)>,
+            NOMINAL,
+            "millimetres",
+        ),
+        (Box::new(positions(1.0 / 0.3048)), NOMINAL, "feet"),
+        (
+            Box::new(wheels(1.0 / std::f64::consts::TAU)),
+            NOMINAL,
+            "revolutions",
+        ),
+        (
+            Box::new(wheels(180.0 / std::f64::consts::PI)),
+            NOMINAL,
+            "degrees",
+        ),
+        (
+            Box::new(wheels(4096.0 / std::f64::consts::TAU)),
+            NOMINAL,
+            "encoder counts, about",
+        ),
+        (
+            Box::new(|_: &mut PoseRecording| {}),
+            Geometry {
+                left_diameter_m: 100.0,
+                right_diameter_m: 100.0,
+                wheelbase_m: 300.0,
+            },
+            "nominal geometry is in millimetres",
+        ),
+        (Box::new(wheels(-1.0)), NOMINAL, "negate both wheel angles"),
+    ] {
+        let text = refused(&*edit, nominal);
+        assert!(text.contains(expect), "{expect}: {text}");
+    }
+    // A 16-bit counter of 4096 counts per turn wraps every 16 turns: a jump of 100.5 rad.
+    let wrapped = refused(
+        &|r: &mut PoseRecording| {
+            for w in r.wheels.iter_mut().skip(4000) {
+                w.left_rad -= 65536.0 * std::f64::consts::TAU / 4096.0;
+            }
+        },
+        NOMINAL,
+    );
+    assert!(
+        wrapped.contains("counter that wraps") && wrapped.contains("jumps by -100."),
+        "{wrapped}"
+    );
+    let counts = refused(&wheels(4096.0 / std::f64::consts::TAU), NOMINAL);
+    // 4096 counts, seen through the truth's 0.2 % of turn scale against the nominal.
+    let per_rev: f64 = counts
+        .split("about ")
+        .nth(1)
+        .and_then(|t| t.split(' ').next())
+        .and_then(|n| n.parse().ok())
+        .expect("a count per revolution");
+    assert!((4000.0..4200.0).contains(&per_rev), "{counts}");
+    // Both negated and then swapped, as the old advice had it: the fit turns the reference
+    // frame round, and the warning says what happened.
+    let mut rec = sim.recording.clone();
+    for w in &mut rec.wheels {
+        (w.left_rad, w.right_rad) = (-w.right_rad, -w.left_rad);
+    }
+    let calibration = calibrate_one(rec).expect("fits");
+    let fit = calibration.recordings[0].fit.as_ref().expect("fitted");
+    assert!(
+        fit.warnings.iter().any(|w| w.contains("swap them back")),
+        "{:?}",
+        fit.warnings
+    );
+    let yaw = fit.value(Param::SensorYaw);
+    assert!(
+        yaw > -std::f64::consts::PI && yaw <= std::f64::consts::PI,
+        "{yaw}"
+    );
+}
+
+/// Issue 46: one recording given twice is one piece of evidence; a kind forced against the
+/// data's own test is warned of with its figure; a fit without noise states its ± as what
+/// they are, with no floor under them.
+#[test]
+fn pooling_counts_a_recording_once_and_a_forced_kind_is_checked() {
+    let sim = three_percent_off();
+    let once = calibrate_one(sim.recording.clone()).expect("fits");
+    let twice = calibrate_from_poses(
+        &[
+            ("a.csv".into(), sim.recording.clone()),
+            ("link-to-a.csv".into(), sim.recording.clone()),
+        ],
+        &FitConfig::full(NOMINAL),
+    )
+    .expect("fits");
+    assert_eq!(twice.summary().recordings_pooled, 1);
+    assert_eq!(twice.pooled, once.pooled);
+    assert!(twice.recordings[1]
+        .left_out
+        .as_deref()
+        .is_some_and(|w| w.contains("same data as a.csv")));
+
+    let chained = drive(DrivingConfig {
+        seed: 4,
+        ..DrivingConfig::with_reference(ReferenceKind::Relative)
+    });
+    let forced = FitConfig {
+        kind: Some(ReferenceKind::Absolute),
+        ..FitConfig::full(NOMINAL)
+    };
+    let fit = fit_poses(&chained, &forced).expect("fits");
+    assert!(
+        fit.warnings
+            .iter()
+            .any(|w| w.contains("the data say relative")),
+        "{:?}",
+        fit.warnings
+    );
+    let honest = fit_poses(&drive(DrivingConfig::default()), &forced).expect("fits");
+    assert!(
+        !honest.warnings.iter().any(|w| w.contains("the data say")),
+        "{:?}",
+        honest.warnings
+    );
+
+    let exact = calibrate_one(drive(DrivingConfig {
+        position_sigma_m: 0.0,
+        yaw_sigma_rad: 0.0,
+        outlier_fraction: 0.0,
+        ..DrivingConfig::default()
+    }))
+    .expect("fits");
+    let fit = exact.recordings[0].fit.as_ref().expect("fitted");
+    let pooled = exact.get(Param::Wheelbase).expect("pooled").std;
+    assert_eq!(pooled, fit.std(Param::Wheelbase).expect("fitted"));
+    assert!(pooled < 1e-9, "{pooled}");
+    assert!(
+        fit.warnings
+            .iter()
+            .any(|w| w.contains("reproduces the reference exactly")),
+        "{:?}",
+        fit.warnings
+    );
+}
+
+/// Issue 46: a reference seconds late is named with its delay and the flag that widens the
+/// search (and fitted right with it); the online filter measures a localization's 60 ms itself
+/// rather than taking it as on time; a clock that drifts is named with its rate; a hole in a
+/// stream is named with its length and position.
+#[test]
+fn a_late_or_drifting_reference_clock_is_fitted_or_named() {
+    use odocal::calibration::online::{OnlineConfig, ScaleSource};
+    use odocal::calibration::recording::Recording;
+    use odocal::calibration::tracker::Tracker;
+    use odocal::kinematics::WheelParams;
+    let late = |delay_s: f64| {
+        drive(DrivingConfig {
+            delay_s,
+            seed: 6,
+            ..DrivingConfig::default()
+        })
+    };
+    let two_s = late(2.0);
+    let err = fit_poses(&two_s, &FitConfig::full(NOMINAL)).expect_err("named");
+    assert!(
+        matches!(err, CalibrationError::DelayBeyondSearch { .. }),
+        "{err}"
+    );
+    assert!(err.to_string().contains("--max-time-offset-s 3.0"), "{err}");
+    let widened = FitConfig {
+        max_time_offset_s: 3.0,
+        ..FitConfig::full(NOMINAL)
+    };
+    let fit = fit_poses(&two_s, &widened).expect("fits with the search widened");
+    let (v, s) = (
+        fit.value(Param::TimeOffset),
+        fit.std(Param::TimeOffset).expect("fitted"),
+    );
+    assert!((v - 2.0).abs() < 4.0 * s, "{v} ± {s}");
+
+    // Live: nothing given, the start fit measures the delay and takes it off every fix.
+    let config = DrivingConfig {
+        seed: 6,
+        ..DrivingConfig::default()
+    };
+    let simulated = simulate_drive(&config).expect("simulates");
+    let configured = WheelParams::nominal(NOMINAL.left_diameter_m, NOMINAL.wheelbase_m, 4096.0);
+    let mut cfg = OnlineConfig::new(configured);
+    cfg.position_sigma_m = config.position_sigma_m;
+    cfg.heading_sigma_rad = config.yaw_sigma_rad;
+    cfg.slip_fraction = 0.002;
+    let mut tracker = Tracker::new(cfg, ScaleSource::Filter, 1.0).expect("filter");
+    tracker.feed_recording(
+        "sim",
+        &Recording::of_pose_recording(&simulated.recording, NOMINAL),
+    );
+    assert!(
+        (tracker.pose_delay_s() - config.delay_s).abs() < 0.005,
+        "measured {} s, truth {} s",
+        tracker.pose_delay_s(),
+        config.delay_s
+    );
+    let online = tracker.estimate().expect("estimates");
+    let std = online.correction_std.expect("observed");
+    let wheelbase = NOMINAL.wheelbase_m * online.correction.wheelbase_scale;
+    assert!(
+        (wheelbase - config.truth.wheelbase_m).abs() < 3.0 * NOMINAL.wheelbase_m * std[2],
+        "{wheelbase} ± {} vs {}",
+        NOMINAL.wheelbase_m * std[2],
+        config.truth.wheelbase_m
+    );
+
+    // 300 ppm: the reference's stamps fall 90 ms further behind over the five minutes.
+    let rate_of = |warnings: &[String]| {
+        warnings.iter().find_map(|w| {
+            let ppm = w.split(" ppm").next()?.rsplit(' ').next()?;
+            ppm.parse::<f64>().ok()
+        })
+    };
+    let mut drifting = late(0.06);
+    for p in &mut drifting.poses {
+        p.time_s += 3e-4 * p.time_s;
+    }
+    let fit = fit_poses(&drifting, &FitConfig::full(NOMINAL)).expect("fits");
+    let ppm = rate_of(&fit.warnings).unwrap_or_else(|| panic!("{:?}", fit.warnings));
+    assert!(
+        (200.0..400.0).contains(&ppm),
+        "{ppm} ppm: {:?}",
+        fit.warnings
+    );
+    let steady = fit_poses(&late(0.06), &FitConfig::full(NOMINAL)).expect("fits");
+    assert_eq!(rate_of(&steady.warnings), None, "{:?}", steady.warnings);
+
+    let mut holed = late(0.06);
+    holed.wheels.retain(|w| !(100.0..103.0).contains(&w.time_s));
+    let calibration = calibrate_one(holed).expect("fits");
+    let warnings = &calibration.recordings[0]
+        .fit
+        .as_ref()
+        .expect("fitted")
+        .warnings;
+    assert!(
+        warnings
+            .iter()
+            .any(|w| w.contains("wheel stream has 1 hole(s)") && w.contains("3.02 s at 100.0 s")),
+        "{warnings:?}"
+    );
+}

@@ -97,6 +97,31 @@ pub enum CalibrationError {
         /// What to drive so that they are observed.
         advice: String,
     },
+    /// A pose reference made from the wheels it is to calibrate (the controller's odometry, a
+    /// filter fusing the wheels): it can give back only what the wheels were integrated with.
+    /// The text names what it is, the figures that say so, and what to give instead.
+    #[error("{0}")]
+    ReferenceFromWheels(String),
+    /// The reference's turns follow the wheels' by more than the time offset the fit searches.
+    #[error(
+        "the reference's turns follow the wheels' {:.2} s {} (turn-rate correlation \
+         {correlation:.2} there, {correlation_at_zero:.2} at none), beyond the ±{searched_s:.2} s \
+         the fit searches: give --max-time-offset-s {:.1} (or stamp both streams with one \
+         clock) and fit again",
+        delay_s.abs(),
+        if *delay_s > 0.0 { "later" } else { "earlier" },
+        (delay_s.abs() + 0.5).ceil()
+    )]
+    DelayBeyondSearch {
+        /// The delay the turn rates show (s, positive: the reference is late).
+        delay_s: f64,
+        /// The turn rates' correlation at that delay.
+        correlation: f64,
+        /// Their correlation at no delay.
+        correlation_at_zero: f64,
+        /// The largest offset the fit searches (s).
+        searched_s: f64,
+    },
     /// A number given is outside what the computation can take (the flag or field is named).
     #[error("{0}")]
     OutOfRange(String),

@@ -121,8 +121,19 @@ pub(crate) fn pool_log(y: &[f64], se: &[Option<f64>], runs: &[usize]) -> PooledL
             .filter(|v| v.is_finite() && *v > 0.0)
             .collect(),
     );
-    // A recording with no scatter at all (exactly repeated runs) must not take every weight.
-    let floor = 1e-12;
+    // A recording with no scatter at all (exactly repeated runs) must not take every weight:
+    // its variance is held at a millionth of the smallest one stated, relative, so that no
+    // absolute floor stands in for what the data say (a variance of zero stays zero when every
+    // recording has it, and is reported as such).
+    let least = se
+        .iter()
+        .filter_map(|s| s.map(|s| s * s))
+        .filter(|v| v.is_finite() && *v > 0.0)
+        .fold(f64::INFINITY, f64::min);
+    let floor = if least.is_finite() { 1e-6 * least } else { 0.0 };
+    if floor == 0.0 && se.iter().all(|s| s.is_some_and(|s| s == 0.0)) {
+        return exact(y);
+    }
     let v: Vec<f64> = se
         .iter()
         .zip(runs)
@@ -170,6 +181,28 @@ pub(crate) fn pool_log(y: &[f64], se: &[Option<f64>], runs: &[usize]) -> PooledL
         },
         per_recording: y.to_vec(),
         per_recording_std_err: v.iter().map(|v| v.sqrt()).collect(),
+    }
+}
+
+/// Pooling of values that each state no uncertainty at all (every standard error exactly 0):
+/// their plain mean, with the spread between them as the only uncertainty (0 for one value, or
+/// for values that agree exactly).
+fn exact(y: &[f64]) -> PooledLog {
+    let k = y.len().max(1) as f64;
+    let mean = y.iter().sum::<f64>() / k;
+    let spread = if y.len() > 1 {
+        (y.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (k - 1.0)).sqrt()
+    } else {
+        0.0
+    };
+    PooledLog {
+        mean,
+        run_to_run_std_err: 0.0,
+        recording_spread: spread,
+        std_err: spread / k.sqrt(),
+        prediction_std: spread,
+        per_recording: y.to_vec(),
+        per_recording_std_err: vec![0.0; y.len()],
     }
 }
 

@@ -10,8 +10,13 @@
 //! widened by it, and the report says so. A recording whose own fit did not observe the
 //! geometry is left out of the pool, with its reason.
 
+use super::holes::hole_warnings;
+use super::independence::{compare, more_wheel_like, Independence, ReferenceSource};
 use super::multiplier_fit::{fit_multipliers, MultiplierFit};
 use super::observability::{judge, survey, DriveSurvey, Observability};
+use super::plausibility::{
+    check_fit, check_units_and_signs, check_wheel_jumps, direction_warning, survey_scale,
+};
 use super::pool::pool_log;
 use super::pose_fit::{fit_poses, FitConfig, Param, PoseFit};
 use super::pose_reference::{final_position_error_m, Geometry, Pose2, PoseRecording};
@@ -25,6 +30,8 @@ pub struct RecordingResult {
     pub name: String,
     /// What the drive did.
     pub survey: DriveSurvey,
+    /// Whether the reference measures the robot by itself or follows its wheels.
+    pub independence: Independence,
     /// The fit, when the drive allowed one.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub fit: Option<PoseFit>,
@@ -167,9 +174,31 @@ pub fn calibrate_from_poses(
             "no recording to fit: give wheels and poses, a bag or a data set".into(),
         ));
     }
-    let mut results = Vec::new();
+    let mut results: Vec<RecordingResult> = Vec::new();
     let mut first_refusal: Option<CalibrationError> = None;
+    let mut seen: Vec<(u64, usize)> = Vec::new();
     for (name, rec) in recordings {
+        // One recording is one piece of evidence however often it is given (twice, or through
+        // a link under another name): counted again it would shrink every ± by √2.
+        let print = fingerprint(rec);
+        if let Some(&(_, i)) = seen
+            .iter()
+            .find(|(f, i)| *f == print && recordings[*i].1 == *rec)
+        {
+            results.push(RecordingResult {
+                name: name.clone(),
+                left_out: Some(format!(
+                    "the same data as {}: counted once",
+                    recordings[i].0
+                )),
+                fit: None,
+                observability: None,
+                baseline: None,
+                ..results[i].clone()
+            });
+            continue;
+        }
+        seen.push((print, results.len()));
         results.push(fit_recording(name, rec, config, &mut first_refusal)?);
     }
     let in_pool: Vec<&PoseFit> = results
@@ -219,12 +248,20 @@ fn fit_recording(
     config: &FitConfig,
     first_refusal: &mut Option<CalibrationError>,
 ) -> Result<RecordingResult, CalibrationError> {
+    check_wheel_jumps(rec).map_err(|e| prefix(name, e))?;
     let drive = survey(rec, config.nominal);
+    // Units and signs first: wheels in revolutions or poses in millimetres also break the
+    // conventions' slopes, whose messages would then mislead.
+    let scale = survey_scale(rec, config.nominal);
+    check_units_and_signs(&scale, &drive).map_err(|e| prefix(name, e))?;
     // A reference in another convention is an error of the input, whatever the others do.
     drive.diagnose().map_err(|e| prefix(name, e))?;
+    let independence = compare(rec, config.nominal, Pose2::default(), 0.0);
+    refuse_wheel_made(&independence).map_err(|e| prefix(name, e))?;
     let mut result = RecordingResult {
         name: name.to_owned(),
         survey: drive.clone(),
+        independence,
         fit: None,
         observability: None,
         baseline: None,
@@ -235,16 +272,95 @@ fn fit_recording(
         first_refusal.get_or_insert(e);
         return Ok(result);
     }
-    let fit = fit_poses(rec, config).map_err(|e| prefix(name, e))?;
+    // A heading made from the wheels says nothing of them: the positions alone are fitted.
+    let own_heading = result.independence.source == ReferenceSource::WheelHeadingOwnPositions;
+    let positions_only;
+    let (fitted, fit_config) = if own_heading {
+        positions_only = without_yaw(rec);
+        (&positions_only, positions_only_config(config))
+    } else {
+        (rec, config.clone())
+    };
+    let mut fit = fit_poses(fitted, &fit_config).map_err(|e| prefix(name, e))?;
+    // The same test with the fitted mounting and time offset: a wheel-made reference stamped
+    // late, or reported in a frame of its own, follows the wheels there.
+    let at_fit = compare(
+        rec,
+        config.nominal,
+        fit_mount(&fit),
+        fit.value(Param::TimeOffset),
+    );
+    result.independence = more_wheel_like(result.independence, at_fit);
+    refuse_wheel_made(&result.independence).map_err(|e| prefix(name, e))?;
+    check_fit(&fit, config.nominal).map_err(|e| prefix(name, e))?;
+    if own_heading {
+        fit.warnings.push(result.independence.explanation());
+    }
+    fit.warnings.extend(direction_warning(&scale));
+    fit.warnings.extend(hole_warnings(rec));
     let obs = judge(&fit);
     if let Err(e) = obs.require_geometry() {
         result.left_out = Some(e.to_string());
         first_refusal.get_or_insert(e);
     }
-    result.baseline = fit_multipliers(rec, config.nominal).ok();
+    result.baseline = fit_multipliers(fitted, config.nominal).ok();
     result.fit = Some(fit);
     result.observability = Some(obs);
     Ok(result)
+}
+
+/// A hash of a recording's numbers (their bits), to find the same data given twice.
+fn fingerprint(rec: &PoseRecording) -> u64 {
+    use std::hash::{Hash, Hasher};
+    let mut h = std::collections::hash_map::DefaultHasher::new();
+    for w in &rec.wheels {
+        [w.time_s, w.left_rad, w.right_rad]
+            .map(f64::to_bits)
+            .hash(&mut h);
+    }
+    for p in &rec.poses {
+        [p.time_s, p.x_m, p.y_m, p.yaw_rad.unwrap_or(f64::NAN)]
+            .map(f64::to_bits)
+            .hash(&mut h);
+    }
+    h.finish()
+}
+
+/// Refuses a reference whose positions follow the wheels (its heading may be its own).
+fn refuse_wheel_made(independence: &Independence) -> Result<(), CalibrationError> {
+    match independence.source {
+        ReferenceSource::WheelOdometry | ReferenceSource::WheelPositionsOwnHeading => Err(
+            CalibrationError::ReferenceFromWheels(independence.explanation()),
+        ),
+        ReferenceSource::Independent | ReferenceSource::WheelHeadingOwnPositions => Ok(()),
+    }
+}
+
+/// `rec` without the reference's yaw.
+fn without_yaw(rec: &PoseRecording) -> PoseRecording {
+    let mut out = rec.clone();
+    for p in &mut out.poses {
+        p.yaw_rad = None;
+    }
+    out
+}
+
+/// `config` for a position-only reference: absolute, whatever was given (a reference without
+/// yaw cannot be chained).
+fn positions_only_config(config: &FitConfig) -> FitConfig {
+    FitConfig {
+        kind: Some(super::pose_reference::ReferenceKind::Absolute),
+        ..config.clone()
+    }
+}
+
+/// The fitted mounting (zeros where not fitted).
+fn fit_mount(fit: &PoseFit) -> Pose2 {
+    Pose2 {
+        x: fit.value(Param::SensorX),
+        y: fit.value(Param::SensorY),
+        theta: fit.value(Param::SensorYaw),
+    }
 }
 
 /// Pools each parameter over the fits in the pool that left it free, in `Param::ALL` order.

@@ -18,6 +18,7 @@
 //! [`shift_heading`] corrects it by reading the heading stream at `t + offset_s` for the
 //! encoder sample stamped `t`.
 
+use super::pose_reference::{Geometry, Odometry, PoseRecording};
 use crate::kinematics::wrap_angle;
 use serde::Serialize;
 
@@ -152,6 +153,33 @@ pub fn estimate_time_offset(
         correlation_at_zero: c[max_lag as usize].unwrap_or(f64::NAN),
         period_s,
     })
+}
+
+/// The delay of a pose reference's stamps against the wheels' (positive: late), from its yaw's
+/// turn rate against the odometry's of the `nominal` geometry at the reference's stamps,
+/// searched within ±`max_offset_s`; `None` without a yaw or when the data cannot tell.
+pub fn reference_delay(
+    recording: &PoseRecording,
+    nominal: Geometry,
+    max_offset_s: f64,
+) -> Option<TimeOffset> {
+    if !recording.has_yaw() {
+        return None;
+    }
+    let odo = Odometry::integrate(&recording.wheels, nominal);
+    let mut hint = 0;
+    let (mut times, mut turns, mut yaws) = (Vec::new(), Vec::new(), Vec::new());
+    let mut last: Option<f64> = None;
+    for p in &recording.poses {
+        let Some(o) = odo.at(p.time_s, &mut hint) else {
+            continue;
+        };
+        times.push(p.time_s);
+        turns.push(last.map_or(0.0, |l| o.theta - l));
+        last = Some(o.theta);
+        yaws.push(p.yaw_rad);
+    }
+    estimate_time_offset(&times, &turns, &yaws, max_offset_s)
 }
 
 /// The heading at each of the times `at`, read from readings `heading` taken at `times`

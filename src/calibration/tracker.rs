@@ -10,10 +10,12 @@
 //! replay of a live session's samples gives the same numbers as the session did (unless the
 //! replay removes an offset the live session could only report).
 
-use super::observability::{judge, survey};
+use super::independence::{compare, Independence, ReferenceSource};
+use super::observability::{judge, survey, DriveSurvey};
 use super::online::{OnlineConfig, OnlineEstimate, OnlineEstimator, ScaleSource};
-use super::pose_fit::{fit_poses, FitConfig, PoseFit};
-use super::pose_reference::{Geometry, PoseRecording, ReferenceKind, ReferencePose};
+use super::plausibility::{check_units_and_signs, check_wheel_jumps, survey_scale};
+use super::pose_fit::{fit_poses, FitConfig, Param, PoseFit};
+use super::pose_reference::{Geometry, Pose2, PoseRecording, ReferenceKind, ReferencePose};
 use super::recording::{
     wheel_angles, Clocks, Event, Feeder, HeadingSample, Merger, Recording, TravelSample,
 };
@@ -45,6 +47,32 @@ const START_SAMPLES_KEPT: usize = 180_000;
 /// batch fits, which run on the live loop, cost a bounded multiple of the last.
 const START_MIN_POSES: usize = 100;
 const START_EVERY_POSES: usize = 50;
+
+/// What `odocal fit` refuses by name before its fit, the filter must not take either: units and
+/// signs, conventions, a reference made from the wheels.
+fn start_refusal(
+    drive: &PoseRecording,
+    nominal: Geometry,
+    drive_survey: &DriveSurvey,
+) -> Option<CalibrationError> {
+    check_wheel_jumps(drive)
+        .and_then(|()| check_units_and_signs(&survey_scale(drive, nominal), drive_survey))
+        .and_then(|()| drive_survey.diagnose())
+        .err()
+        .or_else(|| wheel_made(compare(drive, nominal, Pose2::default(), 0.0)))
+}
+
+/// Why a reference made from the wheels cannot start the filter, or `None` when it measures
+/// the robot by itself (a heading of its own beside the wheels' positions included: the filter
+/// would take its positions).
+fn wheel_made(independence: Independence) -> Option<CalibrationError> {
+    (independence.source != ReferenceSource::Independent).then(|| {
+        CalibrationError::ReferenceFromWheels(format!(
+            "{}; the online filter takes only a reference independent of the wheels",
+            independence.explanation()
+        ))
+    })
+}
 
 /// A time offset found in one run of input.
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -273,17 +301,29 @@ impl Tracker {
                     return true;
                 }
                 let nominal = Geometry::from(&self.filter.config().configured);
-                if survey(drive, nominal).require().is_err() {
+                let drive_survey = survey(drive, nominal);
+                if drive_survey.require().is_err() {
                     *next_try = n + START_EVERY_POSES;
                     return true;
                 }
-                // The kind from the data: a chained reference is not for this filter.
-                let config = FitConfig {
-                    fit_time_offset: false,
-                    ..FitConfig::full(nominal)
-                };
-                let fit = match fit_poses(drive, &config) {
+                if let Some(why) = start_refusal(drive, nominal, &drive_survey) {
+                    self.pose_start = PoseStart::Refused(why.to_string());
+                    return true;
+                }
+                // The kind from the data (a chained reference is not for this filter) and the
+                // delay as `odocal fit` measures it: a localization is 50–100 ms late, and a
+                // filter that took it as on time would reject good fixes and bias the wheelbase.
+                let fit = match fit_poses(drive, &FitConfig::full(nominal)) {
                     Ok(fit) if judge(&fit).require_geometry().is_ok() => fit,
+                    Err(CalibrationError::DelayBeyondSearch { delay_s, .. }) => {
+                        self.pose_start = PoseStart::Refused(format!(
+                            "the reference's turns follow the wheels' {delay_s:.2} s late, more \
+                             than the start fit searches: give --reference-delay-s {:.2} (what \
+                             is given is taken off before the fit) and track again",
+                            self.pose_delay_s + delay_s
+                        ));
+                        return true;
+                    }
                     _ => {
                         *next_try = n + (n / 2).max(START_EVERY_POSES);
                         return true;
@@ -298,6 +338,18 @@ impl Tracker {
                     ));
                     return true;
                 }
+                let mount = Pose2 {
+                    x: fit.value(Param::SensorX),
+                    y: fit.value(Param::SensorY),
+                    theta: fit.value(Param::SensorYaw),
+                };
+                let late = fit.value(Param::TimeOffset);
+                if let Some(why) = wheel_made(compare(drive, nominal, mount, late)) {
+                    self.pose_start = PoseStart::Refused(why.to_string());
+                    return true;
+                }
+                // The poses held had the given delay taken off; the fit measured what is left.
+                self.pose_delay_s += late;
                 self.filter.start_from_fit(&fit);
                 self.started_from = Some(fit);
                 self.pose_start = PoseStart::Started;
@@ -329,6 +381,11 @@ impl Tracker {
     /// not estimate it: the batch fit does ([`super::pose_fit`]).
     pub fn set_pose_delay(&mut self, delay_s: f64) {
         self.pose_delay_s = if delay_s.is_finite() { delay_s } else { 0.0 };
+    }
+
+    /// The delay taken off every pose (s): the one given, plus what the start fit measured.
+    pub fn pose_delay_s(&self) -> f64 {
+        self.pose_delay_s
     }
 
     /// Takes a live reference pose (in place of heading samples: one reference stream per

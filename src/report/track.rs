@@ -4,6 +4,7 @@
 //! drift of the parameters in use; as text and as stdout's JSON.
 
 use crate::calibration::online::{Excitation, OnlineEstimate};
+use crate::calibration::pose_fit::Param;
 use crate::calibration::tracker::Tracker;
 use crate::kinematics::WheelParams;
 use serde_json::json;
@@ -50,6 +51,8 @@ impl TrackSummary<'_> {
                 "sensor_y_m": mount[1], "sensor_y_m_std": mount_std[1],
                 "sensor_yaw_rad": mount[2], "sensor_yaw_rad_std": mount_std[2],
                 "started_after_s": t.started_from.as_ref().map(|f| f.span_s),
+                "reference_delay_s": t.started_from.as_ref().map(|_| t.pose_delay_s()),
+                "reference_delay_s_std": t.started_from.as_ref().and_then(|f| f.std(Param::TimeOffset)),
                 "drift": self.last.drift(self.configured, DRIFT_SIGMAS),
             })),
             "heading_updates": updates,
@@ -132,6 +135,19 @@ pub fn pose_session(t: &Tracker, last: &OnlineEstimate, configured: &WheelParams
              turned both ways and driven straight), then took every pose fix",
             fit.span_s
         );
+        if let Some(std) = fit.std(Param::TimeOffset) {
+            let _ = writeln!(
+                out,
+                "the reference's stamps are {:.3} s late (± {std:.3} s, 1σ, measured by the \
+                 start fit{}), taken off every fix",
+                t.pose_delay_s(),
+                if (t.pose_delay_s() - fit.value(Param::TimeOffset)).abs() > 1e-9 {
+                    " on top of --reference-delay-s"
+                } else {
+                    ""
+                }
+            );
+        }
     }
     if last.correction_std.is_some() {
         for p in last.against(configured) {

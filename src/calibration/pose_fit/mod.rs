@@ -49,6 +49,7 @@ use crate::kinematics::wrap_angle;
 use nalgebra::{DMatrix, DVector};
 use serde::Serialize;
 
+mod clock_rate;
 mod problem;
 use problem::*;
 mod solver;
@@ -297,6 +298,9 @@ pub fn fit_poses(
     config: &FitConfig,
 ) -> Result<PoseFit, CalibrationError> {
     check_input(recording, config)?;
+    if config.fit_time_offset {
+        clock_rate::delay_beyond_search(recording, config.nominal, config.max_time_offset_s)?;
+    }
     if config.kind.is_none() && !recording.has_yaw() {
         let decision = KindDecision {
             kind: ReferenceKind::Absolute,
@@ -316,7 +320,10 @@ pub fn fit_poses(
                 variance_ratio_10_to_1: None,
                 reason: format!("given as {}", kind.name()),
             };
-            fit_kind(recording, config, kind, None, decision)
+            let mut fit = fit_kind(recording, config, kind, None, decision)?;
+            fit.warnings
+                .extend(contradicted_kind(recording, config, &fit));
+            Ok(fit)
         }
         None => fit_deciding_kind(recording, config),
     }
@@ -378,6 +385,43 @@ fn decision_fit(
                 undecided(),
             )?,
         ),
+    })
+}
+
+/// A warning when the data's own test contradicts the kind the user gave, clearly (outside the
+/// band where the odometry's drift can tip it): a chained reference fitted as absolute biases
+/// the diameters and the mounting, an absolute one fitted as relative shrinks the scale.
+fn contradicted_kind(
+    recording: &PoseRecording,
+    config: &FitConfig,
+    fit: &PoseFit,
+) -> Option<String> {
+    if !recording.has_yaw() {
+        return None;
+    }
+    let head = recording.head(DECISION_POSES);
+    let ratio = span_variance_ratio(head.as_ref().unwrap_or(recording), config, &fit.params, 10);
+    let threshold = 10f64.sqrt();
+    let data = if ratio >= 2.0 * threshold {
+        ReferenceKind::Relative
+    } else if ratio < 0.5 * threshold {
+        ReferenceKind::Absolute
+    } else {
+        return None;
+    };
+    (data != fit.kind.kind).then(|| {
+        format!(
+            "the reference was given as {}, but its motion residual over ten samples has \
+             {ratio:.2}× the variance of one (√10 = {threshold:.2} separates the kinds): the \
+             data say {} ({}); the diameters and the mounting are biased when the kind is \
+             wrong: fit again without --reference-kind to let the data decide",
+            fit.kind.kind.name(),
+            data.name(),
+            match data {
+                ReferenceKind::Relative => "chained from sample to sample",
+                ReferenceKind::Absolute => "errors that do not grow with the span",
+            }
+        )
     })
 }
 

@@ -43,7 +43,17 @@ pub(super) fn fit_kind(
     let r = problem.residuals_at(&p, &solved.weights, solved.scales);
     solved.scales = final_scales(&problem, config, &r, &solved.weights, solved.scales);
     let covariance = inflated_covariance(&problem, &solved);
-    Ok(report(&problem, config, decision, p, &solved, covariance))
+    let drift = super::clock_rate::clock_drift(
+        &problem,
+        &p,
+        &solved.weights,
+        solved.scales,
+        covariance.inflation,
+    );
+    let mut fit = report(&problem, config, decision, p, &solved, covariance);
+    fit.warnings
+        .extend(drift.filter(|d| d.significant()).map(|d| d.warning()));
+    Ok(fit)
 }
 
 /// Where the stages ended: the free values, the blocks' weights (0: an outlier), the scales
@@ -307,6 +317,9 @@ fn report(
     let dim = problem.dim;
     let scales = solved.scales;
     let recording = problem.recording;
+    // The mounting's yaw as every angle odocal prints: wrapped to (−π, π].
+    let mut p = p;
+    p[Param::SensorYaw.index()] = wrap_angle(p[Param::SensorYaw.index()]);
     let span_s = {
         let first = recording.poses[problem.selected[0]].time_s;
         let last = recording.poses[problem.selected[problem.selected.len() - 1]].time_s;
@@ -335,8 +348,26 @@ fn report(
         iterations: solved.iterations,
         span_s,
         nominal_wheelbase_m: config.nominal.wheelbase_m,
-        warnings: offset_warnings(problem, &p),
+        warnings: offset_warnings(problem, &p)
+            .into_iter()
+            .chain(exact_warning(scales.position * problem.stated_rms(0)))
+            .collect(),
     }
+}
+
+/// Position residuals below this (m) are no sensor's: a tenth of a micrometre.
+const EXACT_RESIDUAL_M: f64 = 1e-7;
+
+/// A finding when the odometry reproduces the reference exactly: its ± then measure the
+/// arithmetic's rounding, not the robot.
+fn exact_warning(residual_m: f64) -> Option<String> {
+    (residual_m < EXACT_RESIDUAL_M).then(|| {
+        format!(
+            "the odometry reproduces the reference exactly (residual σ {residual_m:.1e} m, \
+             below any sensor's noise): a reference without noise is a simulation or made from \
+             the wheels themselves, and the ± say only how exactly"
+        )
+    })
 }
 
 /// A warning when the fitted time offset sits at its limit: the streams may be further apart.
