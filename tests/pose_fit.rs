@@ -525,6 +525,23 @@ fn a_drive_from_a_bag_with_tf_fits_as_from_csv() {
     // A fixed frame the tree does not reach is named with the links it has.
     let err = read_tf_drive(&path, &BagOptions::default(), "world", "base_link").unwrap_err();
     assert!(err.to_string().contains("map → odom"), "{err}");
+    // The controller's own chain is no reference (issue 46): refused by name, nothing fitted.
+    let (ok, out, err) = common::odocal(&[
+        "fit",
+        "--bag",
+        path.to_str().unwrap(),
+        "--reference",
+        "tf:odom",
+        "--wheel-diameter-m",
+        "0.1",
+        "--wheelbase-m",
+        "0.3",
+    ]);
+    assert!(!ok, "{out}");
+    assert!(
+        err.contains("wheels' own odometry") && !out.contains("wheelbase_m"),
+        "{out}{err}"
+    );
 }
 
 /// A bag in memory: channels and their messages as raw bytes, for the readers' error paths.
