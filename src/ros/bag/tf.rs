@@ -221,16 +221,11 @@ fn find_chain(
     while chain.last().map(String::as_str) != Some(fixed) {
         let child = chain.last().cloned().unwrap_or_default();
         let Some((parent, is_static)) = parent_of(&child) else {
-            let frames: Vec<String> = links
-                .keys()
-                .chain(statics.keys())
-                .map(|(p, c)| format!("{p} → {c}"))
-                .collect();
             return Err(BagError::Inference(format!(
                 "no TF chain from {fixed} to {base}: {child} has no parent in /tf or /tf_static \
                  (the bag's links: {}); give the fixed frame with --reference tf:FRAME, and \
                  record /tf_static with transient-local durability so that its links are kept",
-                frames.join(", ")
+                listed_links(links.keys().chain(statics.keys()))
             )));
         };
         if chain.contains(&parent) || chain.len() > 64 {
@@ -244,6 +239,27 @@ fn find_chain(
     chain.reverse();
     edges.reverse();
     Ok((chain, edges))
+}
+
+/// Links named in an error at most: a tree of thousands of frames must not make a message of
+/// thousands of lines.
+const LINKS_LISTED: usize = 12;
+
+/// The first [`LINKS_LISTED`] links as `parent → child`, and how many more there are.
+fn listed_links<'k>(keys: impl Iterator<Item = &'k LinkKey>) -> String {
+    let mut listed = Vec::new();
+    let mut more = 0usize;
+    for (p, c) in keys {
+        if listed.len() < LINKS_LISTED {
+            listed.push(format!("{p} → {c}"));
+        } else {
+            more += 1;
+        }
+    }
+    if more > 0 {
+        listed.push(format!("and {more} more"));
+    }
+    listed.join(", ")
 }
 
 /// Each moving link of the chain with its samples in time order, one per stamp.
@@ -356,4 +372,21 @@ fn interpolate(s: &Link, t: f64) -> Option<Pose2> {
         y: a.y + f * (b.y - a.y),
         theta: a.theta + f * wrap_angle(b.theta - a.theta),
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn an_error_lists_a_dozen_links_of_a_large_tree_and_counts_the_rest() {
+        let keys: Vec<LinkKey> = (0..10_000)
+            .map(|i| ("world".to_string(), format!("frame_{i}")))
+            .collect();
+        let text = listed_links(keys.iter());
+        assert!(text.ends_with(", and 9988 more"), "{text}");
+        assert_eq!(text.matches(" → ").count(), LINKS_LISTED);
+        let two = listed_links(keys[..2].iter());
+        assert_eq!(two, "world → frame_0, world → frame_1");
+    }
 }
