@@ -801,7 +801,8 @@ fn wheel_made(
     for i in 0..rec.wheels.len() {
         let heading = |k: usize| {
             if gyro {
-                sim.true_path[k].1.theta
+                // A gyro's heading: the true one with a wobble of a milliradian.
+                sim.true_path[k].1.theta + 1e-3 * (k as f64 * 1.7).sin()
             } else {
                 poses[k].theta
             }
@@ -868,6 +869,30 @@ fn a_reference_made_from_the_wheels_is_named_never_fitted() {
         text.contains("gyro") && text.contains("E_d and E_b"),
         "{text}"
     );
+    // What the fused heading alone measures: the truth's E_d and E_b (its diameters' mean is
+    // 2.75 % over the nominal, held there, so E_b is the truth's wheelbase over that mean's).
+    let figure = |name: &str| -> (f64, f64) {
+        let rest = text.split(&format!("{name} = ")).nth(1).expect("a figure");
+        let mut words = rest.split(' ');
+        let v = words.next().and_then(|w| w.parse().ok()).expect("value");
+        let s = words
+            .nth(1)
+            .and_then(|w| w.trim_end_matches(',').parse().ok())
+            .expect("σ");
+        (v, s)
+    };
+    let t = sim.truth;
+    let mean = 0.5 * (t.left_diameter_m + t.right_diameter_m) / NOMINAL.left_diameter_m;
+    for (name, truth) in [
+        ("E_d", t.right_diameter_m / t.left_diameter_m),
+        ("E_b", t.wheelbase_m / NOMINAL.wheelbase_m / mean),
+    ] {
+        let (v, s) = figure(name);
+        assert!(
+            (v - truth).abs() < 4.0 * s && s > 0.0,
+            "{name} {v} ± {s} vs {truth}"
+        );
+    }
     // Live: the online filter's start refuses the controller's odometry by the same test.
     {
         use odocal::calibration::online::{OnlineConfig, ScaleSource};

@@ -28,6 +28,7 @@ pub mod error;
 pub mod exact;
 pub mod gyro;
 pub mod heading_only;
+pub mod heading_reference;
 pub mod holes;
 pub mod independence;
 pub mod jung_chung;

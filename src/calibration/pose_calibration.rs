@@ -10,6 +10,7 @@
 //! widened by it, and the report says so. A recording whose own fit did not observe the
 //! geometry is left out of the pool, with its reason.
 
+use super::heading_reference::heading_scales;
 use super::holes::hole_warnings;
 use super::independence::{compare, more_wheel_like, Independence, ReferenceSource};
 use super::multiplier_fit::{fit_multipliers, MultiplierFit};
@@ -257,7 +258,7 @@ fn fit_recording(
     // A reference in another convention is an error of the input, whatever the others do.
     drive.diagnose().map_err(|e| prefix(name, e))?;
     let independence = compare(rec, config.nominal, Pose2::default(), 0.0);
-    refuse_wheel_made(&independence).map_err(|e| prefix(name, e))?;
+    refuse_wheel_made(&independence, rec, config.nominal).map_err(|e| prefix(name, e))?;
     let mut result = RecordingResult {
         name: name.to_owned(),
         survey: drive.clone(),
@@ -291,7 +292,7 @@ fn fit_recording(
         fit.value(Param::TimeOffset),
     );
     result.independence = more_wheel_like(result.independence, at_fit);
-    refuse_wheel_made(&result.independence).map_err(|e| prefix(name, e))?;
+    refuse_wheel_made(&result.independence, rec, config.nominal).map_err(|e| prefix(name, e))?;
     check_fit(&fit, config.nominal).map_err(|e| prefix(name, e))?;
     if own_heading {
         fit.warnings.push(result.independence.explanation());
@@ -326,12 +327,31 @@ fn fingerprint(rec: &PoseRecording) -> u64 {
     h.finish()
 }
 
-/// Refuses a reference whose positions follow the wheels (its heading may be its own).
-fn refuse_wheel_made(independence: &Independence) -> Result<(), CalibrationError> {
+/// Refuses a reference whose positions follow the wheels; one whose heading is its own is
+/// refused with what that heading alone measures.
+fn refuse_wheel_made(
+    independence: &Independence,
+    rec: &PoseRecording,
+    nominal: Geometry,
+) -> Result<(), CalibrationError> {
     match independence.source {
-        ReferenceSource::WheelOdometry | ReferenceSource::WheelPositionsOwnHeading => Err(
-            CalibrationError::ReferenceFromWheels(independence.explanation()),
-        ),
+        ReferenceSource::WheelOdometry => Err(CalibrationError::ReferenceFromWheels(
+            independence.explanation(),
+        )),
+        ReferenceSource::WheelPositionsOwnHeading => {
+            let heading = heading_scales(rec, nominal).map_or(String::new(), |h| {
+                format!(
+                    ". Its heading alone gives E_d = {:.5} ± {:.1e} and E_b = {:.5} ± {:.1e} (1σ \
+                     over {} increments; the diameters' mean held at the nominal, the gyro's \
+                     scale error in E_b)",
+                    h.e_d, h.e_d_std, h.e_b, h.e_b_std, h.increments
+                )
+            });
+            Err(CalibrationError::ReferenceFromWheels(format!(
+                "{}{heading}",
+                independence.explanation()
+            )))
+        }
         ReferenceSource::Independent | ReferenceSource::WheelHeadingOwnPositions => Ok(()),
     }
 }
