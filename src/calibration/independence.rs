@@ -8,15 +8,18 @@
 //! with a residual of nothing and a standard deviation of nothing: a confident wrong answer.
 //!
 //! The test rests on the data, not on names. Over consecutive reference samples, the
-//! reference's motion is compared with the odometry's over the same interval (at a geometry,
-//! mounting and time offset: the nominal ones before the fit, the fitted ones after it):
+//! reference's motion is compared with the odometry's over the same interval, at the nominal
+//! geometry (the reference frame at `base_link` and on time before the fit, with the fitted
+//! mounting and time offset after it):
 //! - the *length* of each position increment against the odometry's, as a ratio: a reference
-//!   made from the wheels moves the odometry's distance times one constant (its own configured
-//!   scale), to a part in 10⁴ or better; any real sensor's noise scatters the ratio by a part in
-//!   a hundred or more (3 mm of noise on a 3 cm increment is 14 %; motion capture's 0.1 mm on
-//!   its 3 mm steps, 5 %) — [`FOLLOWS_WHEELS_LENGTH`] sits far from both;
-//! - the *turn* of each increment against the odometry's: a heading made from the wheels turns
-//!   with them to [`FOLLOWS_WHEELS_TURN_RAD`] per sample; a gyro's or a scan matcher's does not.
+//!   made from the wheels moves the odometry's distance, to a part in 10⁵ or better; any real
+//!   sensor's noise scatters the ratio by a part in a hundred or more (3 mm of noise on a 3 cm
+//!   increment is 14 %; motion capture's 0.1 mm on its 3 mm steps, 5 %);
+//! - the *turn* of each increment against the odometry's, the same way: a heading made from the
+//!   wheels turns with them; a gyro's or a scan matcher's does not.
+//!
+//! Either follows the wheels when its ratios' robust relative scatter is under
+//! [`FOLLOWS_WHEELS_SCATTER`] and their median within [`FOLLOWS_WHEELS_RATIO`] of one.
 //!
 //! Lengths are compared rather than positions because a fused reference puts the wheels'
 //! distances along another heading: its positions depart from the odometry's while its
